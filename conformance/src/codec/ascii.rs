@@ -1,0 +1,342 @@
+//! ASCII framing: ':' then address, function, data and LRC as hex pairs, then CR LF.
+//!
+//! Emitting writes upper-case hex, as Modbus over Serial Line (2.5.2.1) requires. Parsing
+//! **accepts lower-case hex too**: a master or slave that sends it is still understood,
+//! and [`AsciiFrame::is_upper_case`] lets a conformance check report it as a deviation
+//! rather than as an unreadable frame.
+
+use super::error::FrameError;
+use super::hex::{decode_nibble, encode_byte};
+use super::lrc::lrc;
+use super::pdu::{Direction, Message};
+use super::{Checksum, Unchecked, MAX_ASCII_FRAME, MAX_RTU_FRAME};
+
+/// Smallest ASCII frame: ':' + 2 address + 2 function + 2 LRC characters + CR LF.
+pub const MIN_ASCII_FRAME: usize = 9;
+
+/// Start character.
+pub const START: u8 = b':';
+/// End characters.
+pub const END: [u8; 2] = [b'\r', b'\n'];
+
+/// Room for the binary content (address through LRC) of the longest ASCII frame.
+pub type Scratch = [u8; MAX_RTU_FRAME];
+
+/// A view over the characters of one ASCII frame. Construction checks the delimiters,
+/// the length and that every character between them is a hex digit; the LRC is checked
+/// by [`verify_lrc`](Self::verify_lrc).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct AsciiFrame<T: AsRef<[u8]>> {
+    buffer: T,
+}
+
+impl<T: AsRef<[u8]>> AsciiFrame<T> {
+    /// Wraps `buffer` after checking ':', CR LF, the length (9..=513) and the hex digits.
+    pub fn new_checked(buffer: T) -> Result<Self, FrameError> {
+        let b = buffer.as_ref();
+        let len = b.len();
+        if let Some(&first) = b.first() {
+            if first != START {
+                return Err(FrameError::AsciiNoStart { found: first });
+            }
+        }
+        if len < MIN_ASCII_FRAME {
+            return Err(FrameError::AsciiTooShort { len });
+        }
+        if len > MAX_ASCII_FRAME {
+            return Err(FrameError::AsciiTooLong { len });
+        }
+        let tail = [b[len - 2], b[len - 1]];
+        if tail != END {
+            return Err(FrameError::AsciiNoEnd { found: tail });
+        }
+        let hex = &b[1..len - 2];
+        if let Some(i) = hex.iter().position(|&c| decode_nibble(c).is_none()) {
+            return Err(FrameError::AsciiBadChar {
+                found: hex[i],
+                offset: i + 1,
+            });
+        }
+        if hex.len() % 2 != 0 {
+            return Err(FrameError::AsciiOddLength { count: hex.len() });
+        }
+        Ok(AsciiFrame { buffer })
+    }
+
+    /// All characters of the frame.
+    pub fn as_bytes(&self) -> &[u8] {
+        self.buffer.as_ref()
+    }
+
+    /// The hex characters between ':' and CR LF.
+    fn hex(&self) -> &[u8] {
+        let b = self.as_bytes();
+        &b[1..b.len() - 2]
+    }
+
+    fn byte_at(&self, i: usize) -> u8 {
+        let h = self.hex();
+        // new_checked guarantees hex digits and an even count.
+        decode_nibble(h[2 * i]).unwrap_or(0) << 4 | decode_nibble(h[2 * i + 1]).unwrap_or(0)
+    }
+
+    /// Number of binary bytes carried, LRC included.
+    pub fn binary_len(&self) -> usize {
+        self.hex().len() / 2
+    }
+
+    /// Node address.
+    pub fn address(&self) -> u8 {
+        self.byte_at(0)
+    }
+
+    /// Function byte.
+    pub fn function(&self) -> u8 {
+        self.byte_at(1)
+    }
+
+    /// The LRC the frame carries.
+    pub fn carried_lrc(&self) -> u8 {
+        self.byte_at(self.binary_len() - 1)
+    }
+
+    /// Whether every hex digit is upper case, as the serial-line specification requires.
+    pub fn is_upper_case(&self) -> bool {
+        !self.hex().iter().any(u8::is_ascii_lowercase)
+    }
+
+    /// Decodes the hex into `out` and returns the body (address, function, data), without
+    /// the LRC.
+    pub fn body_into<'b>(&self, out: &'b mut Scratch) -> &'b [u8] {
+        let n = self.binary_len();
+        for (i, slot) in out.iter_mut().enumerate().take(n) {
+            *slot = self.byte_at(i);
+        }
+        &out[..n - 1]
+    }
+
+    /// The carried and computed LRC.
+    pub fn checksum(&self) -> Checksum {
+        let mut scratch = [0u8; MAX_RTU_FRAME];
+        let body = self.body_into(&mut scratch);
+        Checksum::Lrc {
+            carried: self.carried_lrc(),
+            computed: lrc(body),
+        }
+    }
+
+    /// `Ok` when the carried LRC is right.
+    pub fn verify_lrc(&self) -> Result<(), FrameError> {
+        self.checksum().verify()
+    }
+}
+
+/// Decodes an ASCII frame, checking delimiters, hex, LRC and every count field. The binary
+/// bytes are written into `scratch`, which the returned message borrows.
+pub fn decode_ascii<'b>(
+    frame: &[u8],
+    direction: Direction,
+    scratch: &'b mut Scratch,
+) -> Result<Message<'b>, FrameError> {
+    let u = decode_ascii_unchecked(frame, direction, scratch)?;
+    u.checksum.verify()?;
+    Ok(u.message)
+}
+
+/// Decodes an ASCII frame without rejecting a wrong LRC (see
+/// [`decode_rtu_unchecked`](super::decode_rtu_unchecked)).
+pub fn decode_ascii_unchecked<'b>(
+    frame: &[u8],
+    direction: Direction,
+    scratch: &'b mut Scratch,
+) -> Result<Unchecked<'b>, FrameError> {
+    let view = AsciiFrame::new_checked(frame)?;
+    let carried = view.carried_lrc();
+    let body = view.body_into(scratch);
+    let checksum = Checksum::Lrc {
+        carried,
+        computed: lrc(body),
+    };
+    let message = Message::parse_body(body, direction)?;
+    Ok(Unchecked { message, checksum })
+}
+
+/// Writes ':' + hex of `body` + LRC + CR LF into `out`; returns the length.
+fn emit_ascii_body(body: &[u8], out: &mut [u8]) -> Result<usize, FrameError> {
+    let n = ascii_len_of_body(body.len());
+    if out.len() < n {
+        return Err(FrameError::BufferTooSmall {
+            needed: n,
+            available: out.len(),
+        });
+    }
+    out[0] = START;
+    let mut at = 1;
+    for &b in body.iter().chain(std::iter::once(&lrc(body))) {
+        out[at..at + 2].copy_from_slice(&encode_byte(b));
+        at += 2;
+    }
+    out[at..at + 2].copy_from_slice(&END);
+    Ok(n)
+}
+
+fn ascii_len_of_body(body_len: usize) -> usize {
+    1 + 2 * (body_len + 1) + 2
+}
+
+impl Message<'_> {
+    /// Length of the ASCII frame of this message.
+    pub fn ascii_len(&self) -> usize {
+        ascii_len_of_body(self.body_len())
+    }
+
+    /// Writes the ASCII frame (upper-case hex, LRC computed) into `out`; returns its length.
+    pub fn emit_ascii(&self, out: &mut [u8]) -> Result<usize, FrameError> {
+        let mut body = [0u8; MAX_RTU_FRAME];
+        let n = self.emit_body(&mut body)?;
+        emit_ascii_body(&body[..n], out)
+    }
+
+    /// The ASCII frame as a new vector (a convenience for tests and the command line).
+    pub fn to_ascii_vec(&self) -> Result<Vec<u8>, FrameError> {
+        let mut buf = [0u8; MAX_ASCII_FRAME];
+        let n = self.emit_ascii(&mut buf)?;
+        Ok(buf[..n].to_vec())
+    }
+}
+
+/// Converts a valid RTU frame to the ASCII frame of the same message (LRC computed).
+/// The CRC is checked first: a corrupt frame is not converted.
+pub fn rtu_to_ascii(rtu: &[u8], out: &mut [u8]) -> Result<usize, FrameError> {
+    let view = super::rtu::RtuFrame::new_checked(rtu)?;
+    view.verify_crc()?;
+    emit_ascii_body(view.body(), out)
+}
+
+/// Converts a valid ASCII frame to the RTU frame of the same message (CRC computed).
+/// The LRC is checked first: a corrupt frame is not converted.
+pub fn ascii_to_rtu(ascii: &[u8], out: &mut [u8]) -> Result<usize, FrameError> {
+    let view = AsciiFrame::new_checked(ascii)?;
+    view.verify_lrc()?;
+    let mut scratch = [0u8; MAX_RTU_FRAME];
+    let body = view.body_into(&mut scratch);
+    let n = body.len() + 2;
+    if out.len() < n {
+        return Err(FrameError::BufferTooSmall {
+            needed: n,
+            available: out.len(),
+        });
+    }
+    out[..body.len()].copy_from_slice(body);
+    out[body.len()..n].copy_from_slice(&super::crc::CrcBytes::of(body).wire());
+    Ok(n)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::codec::pdu::Pdu;
+
+    /// F510 manual 1.0.3, 03H, ASCII command message: ':' 01 03 0123 0001 LRC CR LF.
+    const F510_READ_ASCII: &[u8] = b":010301230001D7\r\n";
+
+    #[test]
+    fn deconstruct() {
+        let f = AsciiFrame::new_checked(F510_READ_ASCII).unwrap();
+        assert_eq!(f.address(), 1);
+        assert_eq!(f.function(), 3);
+        assert_eq!(f.binary_len(), 7);
+        assert_eq!(f.carried_lrc(), 0xD7);
+        assert!(f.verify_lrc().is_ok());
+        assert!(f.is_upper_case());
+    }
+
+    #[test]
+    fn parse_and_emit() {
+        let mut s = [0u8; MAX_RTU_FRAME];
+        let m = decode_ascii(F510_READ_ASCII, Direction::Request, &mut s).unwrap();
+        assert_eq!(
+            m.pdu,
+            Pdu::ReadRequest {
+                start: 0x0123,
+                count: 1
+            }
+        );
+        assert_eq!(m.to_ascii_vec().unwrap(), F510_READ_ASCII);
+    }
+
+    #[test]
+    fn lower_case_is_accepted_but_visible() {
+        let f = b":0106250217704b\r\n".to_vec();
+        let view = AsciiFrame::new_checked(&f[..]).unwrap();
+        assert!(!view.is_upper_case());
+        let mut s = [0u8; MAX_RTU_FRAME];
+        let m = decode_ascii(&f, Direction::Request, &mut s).unwrap();
+        assert_eq!(m.to_ascii_vec().unwrap(), b":0106250217704B\r\n");
+    }
+
+    #[test]
+    fn wrong_lrc_is_rejected_and_explained() {
+        let f = b":010301230001D8\r\n";
+        let mut s = [0u8; MAX_RTU_FRAME];
+        assert_eq!(
+            decode_ascii(f, Direction::Request, &mut s).unwrap_err(),
+            FrameError::LrcMismatch {
+                carried: 0xD8,
+                computed: 0xD7
+            }
+        );
+        let mut s = [0u8; MAX_RTU_FRAME];
+        let u = decode_ascii_unchecked(f, Direction::Request, &mut s).unwrap();
+        assert!(!u.checksum.is_valid());
+    }
+
+    #[test]
+    fn malformed_frames_say_what_is_wrong() {
+        let mut s = [0u8; MAX_RTU_FRAME];
+        let mut d = |f: &[u8]| decode_ascii(f, Direction::Request, &mut s).unwrap_err();
+        assert_eq!(
+            d(b"010301230001D8\r\n"),
+            FrameError::AsciiNoStart { found: b'0' }
+        );
+        assert_eq!(d(b":0103\r\n"), FrameError::AsciiTooShort { len: 7 });
+        assert_eq!(
+            d(b":010301230001D7\n\r"),
+            FrameError::AsciiNoEnd {
+                found: [b'\n', b'\r']
+            }
+        );
+        assert_eq!(
+            d(b":0103012300G1D8\r\n"),
+            FrameError::AsciiBadChar {
+                found: b'G',
+                offset: 11
+            }
+        );
+        assert_eq!(
+            d(b":010301230001D\r\n"),
+            FrameError::AsciiOddLength { count: 13 }
+        );
+        assert_eq!(d(&[b':'; 600]), FrameError::AsciiTooLong { len: 600 });
+        assert_eq!(d(b":"), FrameError::AsciiTooShort { len: 1 });
+        assert_eq!(d(b""), FrameError::AsciiTooShort { len: 0 });
+    }
+
+    #[test]
+    fn conversions_both_ways() {
+        let rtu = [0x01, 0x03, 0x01, 0x23, 0x00, 0x01, 0x74, 0x3C];
+        let mut a = [0u8; MAX_ASCII_FRAME];
+        let n = rtu_to_ascii(&rtu, &mut a).unwrap();
+        assert_eq!(&a[..n], F510_READ_ASCII);
+        let mut r = [0u8; MAX_RTU_FRAME];
+        let n = ascii_to_rtu(F510_READ_ASCII, &mut r).unwrap();
+        assert_eq!(&r[..n], rtu);
+        // A corrupt frame is not converted.
+        let mut bad = rtu;
+        bad[7] ^= 1;
+        assert!(matches!(
+            rtu_to_ascii(&bad, &mut a),
+            Err(FrameError::CrcMismatch { .. })
+        ));
+    }
+}

@@ -1,0 +1,606 @@
+//! Streaming deframers: bytes as they arrive from a line in, frames and garbage out.
+//!
+//! Both deframers are bounded (an RTU frame is at most 256 bytes, an ASCII frame at most
+//! 513 characters; garbage is reported in pieces of at most 256 bytes), never allocate,
+//! and report through a callback so that events can borrow their internal buffers.
+//!
+//! Every [`Event::Frame`] has a valid checksum; everything else the line carried comes
+//! out as [`Event::Corrupt`], [`Event::Incomplete`] or [`Event::Garbage`], with its bytes.
+
+use super::crc::crc16;
+use super::pdu::{function, Direction};
+use super::timing::LineSettings;
+use super::{ascii, MAX_ASCII_FRAME, MAX_RTU_FRAME};
+
+/// What a deframer found in the stream.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Event<'a> {
+    /// A complete frame whose checksum is valid.
+    Frame(&'a [u8]),
+    /// A delimited frame (by silence in RTU, by ':' .. CR LF in ASCII) that is not valid:
+    /// wrong checksum, bad hex, too short or too long.
+    Corrupt(&'a [u8]),
+    /// A frame that was started and abandoned: a silence over t1.5 inside an RTU frame, a
+    /// ':' restarting an ASCII frame, the inter-character timeout, or an overlong frame.
+    Incomplete(&'a [u8]),
+    /// Bytes that belong to no frame.
+    Garbage(&'a [u8]),
+}
+
+impl Event<'_> {
+    /// The bytes of the event.
+    pub fn bytes(&self) -> &[u8] {
+        match self {
+            Event::Frame(b) | Event::Corrupt(b) | Event::Incomplete(b) | Event::Garbage(b) => b,
+        }
+    }
+}
+
+/// Garbage waiting to be reported, in pieces of at most 256 bytes.
+struct GarbageBuf {
+    buf: [u8; 256],
+    len: usize,
+}
+
+impl GarbageBuf {
+    const fn new() -> Self {
+        GarbageBuf {
+            buf: [0; 256],
+            len: 0,
+        }
+    }
+
+    fn push(&mut self, b: u8, emit: &mut impl FnMut(Event<'_>)) {
+        if self.len == self.buf.len() {
+            self.flush(emit);
+        }
+        self.buf[self.len] = b;
+        self.len += 1;
+    }
+
+    fn flush(&mut self, emit: &mut impl FnMut(Event<'_>)) {
+        if self.len > 0 {
+            emit(Event::Garbage(&self.buf[..self.len]));
+            self.len = 0;
+        }
+    }
+}
+
+/// How an RTU deframer finds the end of a frame.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum RtuFraming {
+    /// By the length that the function code implies for the direction; on a CRC failure
+    /// slide one byte and try again. For links without timing (pseudo-terminals, TCP).
+    /// Frames of functions whose length cannot be known (anything but 03H, 06H, 08H with
+    /// four data bytes, 10H and exceptions) cannot be found this way and come out as garbage.
+    ByLength,
+    /// By silence: t3.5 ends a frame, more than t1.5 inside a frame makes it incomplete.
+    /// Needs arrival times ([`RtuDeframer::push_at`]).
+    BySilence(LineSettings),
+}
+
+const RTU_BUF: usize = 1024;
+
+/// The length of the RTU frame starting at `head`, as its function code implies.
+enum Implied {
+    NeedMore,
+    Unknown,
+    Len(usize),
+}
+
+fn implied_len(direction: Direction, head: &[u8]) -> Implied {
+    let Some(&fc) = head.get(1) else {
+        return Implied::NeedMore;
+    };
+    use function::*;
+    match (direction, fc) {
+        (Direction::Response, f) if f & EXCEPTION_BIT != 0 => Implied::Len(5),
+        (Direction::Request, READ_HOLDING_REGISTERS | WRITE_SINGLE_REGISTER | LOOP_BACK)
+        | (Direction::Response, WRITE_SINGLE_REGISTER | LOOP_BACK | WRITE_MULTIPLE_REGISTERS) => {
+            Implied::Len(8)
+        }
+        (Direction::Request, WRITE_MULTIPLE_REGISTERS) => match head.get(6) {
+            Some(&n) => Implied::Len(9 + usize::from(n)),
+            None => Implied::NeedMore,
+        },
+        (Direction::Response, READ_HOLDING_REGISTERS) => match head.get(2) {
+            Some(&n) => Implied::Len(5 + usize::from(n)),
+            None => Implied::NeedMore,
+        },
+        _ => Implied::Unknown,
+    }
+}
+
+/// Streaming RTU deframer.
+pub struct RtuDeframer {
+    direction: Direction,
+    framing: RtuFraming,
+    buf: [u8; RTU_BUF],
+    start: usize,
+    end: usize,
+    garbage: GarbageBuf,
+    last_rx_us: Option<u64>,
+    broken: bool,
+    overflow: bool,
+}
+
+impl RtuDeframer {
+    /// A deframer for frames travelling in `direction`.
+    pub fn new(direction: Direction, framing: RtuFraming) -> Self {
+        RtuDeframer {
+            direction,
+            framing,
+            buf: [0; RTU_BUF],
+            start: 0,
+            end: 0,
+            garbage: GarbageBuf::new(),
+            last_rx_us: None,
+            broken: false,
+            overflow: false,
+        }
+    }
+
+    /// Bytes received but not yet reported.
+    pub fn pending(&self) -> usize {
+        self.end - self.start + self.garbage.len
+    }
+
+    /// Feeds bytes that follow the previous ones without a silence.
+    pub fn push(&mut self, input: &[u8], mut emit: impl FnMut(Event<'_>)) {
+        match self.framing {
+            RtuFraming::ByLength => self.push_by_length(input, &mut emit),
+            RtuFraming::BySilence(_) => {
+                let now = self.last_rx_us.unwrap_or(0);
+                self.push_at(now, input, emit)
+            }
+        }
+    }
+
+    /// Feeds bytes that arrived at `now_us` (a monotonic clock in microseconds). With
+    /// [`RtuFraming::BySilence`] the gap since the previous bytes decides whether they
+    /// continue a frame; with [`RtuFraming::ByLength`] the time is ignored.
+    pub fn push_at(&mut self, now_us: u64, input: &[u8], mut emit: impl FnMut(Event<'_>)) {
+        let RtuFraming::BySilence(line) = self.framing else {
+            return self.push_by_length(input, &mut emit);
+        };
+        if input.is_empty() {
+            return;
+        }
+        if self.end > 0 {
+            let gap = now_us.saturating_sub(self.last_rx_us.unwrap_or(now_us));
+            if gap >= line.t3_5_us() {
+                self.close_silent_frame(&mut emit);
+            } else if gap > line.t1_5_us() {
+                self.broken = true;
+            }
+        }
+        let room = MAX_RTU_FRAME - self.end;
+        let take = room.min(input.len());
+        self.buf[self.end..self.end + take].copy_from_slice(&input[..take]);
+        self.end += take;
+        if take < input.len() {
+            self.overflow = true;
+        }
+        self.last_rx_us = Some(now_us);
+    }
+
+    /// Tells the deframer that the line has been quiet up to `now_us`: with
+    /// [`RtuFraming::BySilence`] a frame followed by t3.5 of silence is reported.
+    pub fn idle(&mut self, now_us: u64, mut emit: impl FnMut(Event<'_>)) {
+        if let RtuFraming::BySilence(line) = self.framing {
+            if self.end > 0 {
+                let gap = now_us.saturating_sub(self.last_rx_us.unwrap_or(now_us));
+                if gap >= line.t3_5_us() {
+                    self.close_silent_frame(&mut emit);
+                }
+            }
+        }
+    }
+
+    /// Reports everything buffered, as at the end of the stream or after a long silence.
+    /// By length: complete frames still found in the buffer come out, the rest is garbage.
+    pub fn flush(&mut self, mut emit: impl FnMut(Event<'_>)) {
+        match self.framing {
+            RtuFraming::BySilence(_) => self.close_silent_frame(&mut emit),
+            RtuFraming::ByLength => {
+                self.scan(&mut emit, true);
+                self.garbage.flush(&mut emit);
+            }
+        }
+    }
+
+    fn close_silent_frame(&mut self, emit: &mut impl FnMut(Event<'_>)) {
+        if self.end == 0 {
+            return;
+        }
+        let frame = &self.buf[..self.end];
+        let event = if self.broken {
+            Event::Incomplete(frame)
+        } else if !self.overflow && frame.len() >= 4 && crc16(frame) == 0 {
+            Event::Frame(frame)
+        } else {
+            Event::Corrupt(frame)
+        };
+        emit(event);
+        self.end = 0;
+        self.broken = false;
+        self.overflow = false;
+    }
+
+    fn push_by_length(&mut self, mut input: &[u8], emit: &mut impl FnMut(Event<'_>)) {
+        while !input.is_empty() {
+            if self.start > 0 {
+                self.buf.copy_within(self.start..self.end, 0);
+                self.end -= self.start;
+                self.start = 0;
+            }
+            let take = (RTU_BUF - self.end).min(input.len());
+            self.buf[self.end..self.end + take].copy_from_slice(&input[..take]);
+            self.end += take;
+            input = &input[take..];
+            self.scan(emit, false);
+        }
+    }
+
+    /// Takes every decision the buffered bytes allow. With `at_end`, bytes that cannot
+    /// complete a frame are garbage instead of a reason to wait.
+    fn scan(&mut self, emit: &mut impl FnMut(Event<'_>), at_end: bool) {
+        while self.start < self.end {
+            let avail = &self.buf[self.start..self.end];
+            let len = match implied_len(self.direction, avail) {
+                Implied::Len(n) if n <= MAX_RTU_FRAME && n <= avail.len() => Some(n),
+                Implied::Len(n) if n <= MAX_RTU_FRAME && !at_end => return,
+                Implied::NeedMore if !at_end => return,
+                _ => None,
+            };
+            match len {
+                Some(n) if crc16(&avail[..n]) == 0 => {
+                    self.garbage.flush(emit);
+                    emit(Event::Frame(&avail[..n]));
+                    self.start += n;
+                }
+                _ => {
+                    self.garbage.push(avail[0], emit);
+                    self.start += 1;
+                }
+            }
+        }
+        self.start = 0;
+        self.end = 0;
+    }
+}
+
+/// Default ASCII inter-character timeout: 1 s (Modbus over Serial Line, 2.5.2.1).
+pub const ASCII_DEFAULT_TIMEOUT_US: u64 = 1_000_000;
+
+/// Streaming ASCII deframer: ':' starts a frame, CR LF ends it, a ':' inside a frame
+/// restarts it, an inter-character timeout abandons it.
+pub struct AsciiDeframer {
+    buf: [u8; MAX_ASCII_FRAME],
+    len: usize,
+    in_frame: bool,
+    garbage: GarbageBuf,
+    timeout_us: u64,
+    last_rx_us: Option<u64>,
+}
+
+impl Default for AsciiDeframer {
+    fn default() -> Self {
+        Self::new(ASCII_DEFAULT_TIMEOUT_US)
+    }
+}
+
+impl AsciiDeframer {
+    /// A deframer that abandons a frame after `timeout_us` without a character.
+    pub fn new(timeout_us: u64) -> Self {
+        AsciiDeframer {
+            buf: [0; MAX_ASCII_FRAME],
+            len: 0,
+            in_frame: false,
+            garbage: GarbageBuf::new(),
+            timeout_us,
+            last_rx_us: None,
+        }
+    }
+
+    /// Characters received but not yet reported.
+    pub fn pending(&self) -> usize {
+        self.len + self.garbage.len
+    }
+
+    /// Feeds characters without timing information.
+    pub fn push(&mut self, input: &[u8], mut emit: impl FnMut(Event<'_>)) {
+        for &c in input {
+            self.push_char(c, &mut emit);
+        }
+    }
+
+    /// Feeds characters that arrived at `now_us`; a frame left open longer than the
+    /// timeout is reported as incomplete first.
+    pub fn push_at(&mut self, now_us: u64, input: &[u8], mut emit: impl FnMut(Event<'_>)) {
+        self.idle(now_us, &mut emit);
+        if !input.is_empty() {
+            self.last_rx_us = Some(now_us);
+        }
+        self.push(input, emit);
+    }
+
+    /// Tells the deframer that nothing arrived up to `now_us`.
+    pub fn idle(&mut self, now_us: u64, mut emit: impl FnMut(Event<'_>)) {
+        if self.in_frame {
+            if let Some(last) = self.last_rx_us {
+                if now_us.saturating_sub(last) > self.timeout_us {
+                    emit(Event::Incomplete(&self.buf[..self.len]));
+                    self.in_frame = false;
+                    self.len = 0;
+                }
+            }
+        }
+    }
+
+    /// Reports everything buffered, as at the end of the stream.
+    pub fn flush(&mut self, mut emit: impl FnMut(Event<'_>)) {
+        if self.in_frame {
+            emit(Event::Incomplete(&self.buf[..self.len]));
+            self.in_frame = false;
+            self.len = 0;
+        }
+        self.garbage.flush(&mut emit);
+    }
+
+    fn push_char(&mut self, c: u8, emit: &mut impl FnMut(Event<'_>)) {
+        if c == ascii::START {
+            if self.in_frame {
+                emit(Event::Incomplete(&self.buf[..self.len]));
+            } else {
+                self.garbage.flush(emit);
+            }
+            self.buf[0] = c;
+            self.len = 1;
+            self.in_frame = true;
+            return;
+        }
+        if !self.in_frame {
+            self.garbage.push(c, emit);
+            return;
+        }
+        if self.len == MAX_ASCII_FRAME {
+            emit(Event::Incomplete(&self.buf[..self.len]));
+            self.in_frame = false;
+            self.len = 0;
+            self.garbage.push(c, emit);
+            return;
+        }
+        self.buf[self.len] = c;
+        self.len += 1;
+        if self.len >= 2 && self.buf[self.len - 2..self.len] == ascii::END {
+            let frame = &self.buf[..self.len];
+            let valid = ascii::AsciiFrame::new_checked(frame)
+                .and_then(|f| f.verify_lrc())
+                .is_ok();
+            emit(if valid {
+                Event::Frame(frame)
+            } else {
+                Event::Corrupt(frame)
+            });
+            self.in_frame = false;
+            self.len = 0;
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::codec::pdu::{Message, Pdu, Registers};
+    use crate::codec::timing::Parity;
+
+    #[derive(Debug, Clone, PartialEq, Eq)]
+    enum Owned {
+        Frame(Vec<u8>),
+        Corrupt(Vec<u8>),
+        Incomplete(Vec<u8>),
+        Garbage(Vec<u8>),
+    }
+
+    fn own(e: Event<'_>) -> Owned {
+        match e {
+            Event::Frame(b) => Owned::Frame(b.to_vec()),
+            Event::Corrupt(b) => Owned::Corrupt(b.to_vec()),
+            Event::Incomplete(b) => Owned::Incomplete(b.to_vec()),
+            Event::Garbage(b) => Owned::Garbage(b.to_vec()),
+        }
+    }
+
+    /// Merges adjacent garbage events: how garbage is split into events is not a promise.
+    fn normalise(events: Vec<Owned>) -> Vec<Owned> {
+        let mut out: Vec<Owned> = Vec::new();
+        for e in events {
+            if let (Some(Owned::Garbage(prev)), Owned::Garbage(g)) = (out.last_mut(), &e) {
+                prev.extend_from_slice(g);
+                continue;
+            }
+            out.push(e);
+        }
+        out
+    }
+
+    fn rtu(m: Message<'_>) -> Vec<u8> {
+        m.to_rtu_vec().unwrap()
+    }
+
+    fn responses() -> Vec<Vec<u8>> {
+        vec![
+            rtu(Message {
+                address: 1,
+                pdu: Pdu::ReadResponse {
+                    values: Registers::new(&[0x17, 0x70]).unwrap(),
+                },
+            }),
+            rtu(Message {
+                address: 1,
+                pdu: Pdu::WriteSingle {
+                    register: 0x2502,
+                    value: 0x1770,
+                },
+            }),
+            rtu(Message {
+                address: 2,
+                pdu: Pdu::Exception {
+                    function: 3,
+                    code: 2,
+                },
+            }),
+            rtu(Message {
+                address: 1,
+                pdu: Pdu::WriteMultipleResponse {
+                    start: 0x2502,
+                    count: 2,
+                },
+            }),
+            rtu(Message {
+                address: 1,
+                pdu: Pdu::LoopBack {
+                    test_code: 0,
+                    data: &[0xA5, 0x37],
+                },
+            }),
+        ]
+    }
+
+    #[test]
+    fn rtu_by_length_same_events_for_every_chunk_size() {
+        let frames = responses();
+        let mut stream = Vec::new();
+        stream.extend_from_slice(&frames[0]);
+        stream.extend_from_slice(&frames[1]);
+        stream.extend_from_slice(&[0xFF, 0x00, 0x42]); // garbage
+        stream.extend_from_slice(&frames[2]);
+        stream.extend_from_slice(&frames[3][..5]); // truncated frame
+        stream.extend_from_slice(&frames[4]);
+        stream.extend_from_slice(&frames[0]);
+
+        let run = |chunk: usize| {
+            let mut d = RtuDeframer::new(Direction::Response, RtuFraming::ByLength);
+            let mut ev = Vec::new();
+            for c in stream.chunks(chunk) {
+                d.push(c, |e| ev.push(own(e)));
+            }
+            d.flush(|e| ev.push(own(e)));
+            normalise(ev)
+        };
+        let want = vec![
+            Owned::Frame(frames[0].clone()),
+            Owned::Frame(frames[1].clone()),
+            Owned::Garbage(vec![0xFF, 0x00, 0x42]),
+            Owned::Frame(frames[2].clone()),
+            Owned::Garbage(frames[3][..5].to_vec()),
+            Owned::Frame(frames[4].clone()),
+            Owned::Frame(frames[0].clone()),
+        ];
+        for chunk in 1..=stream.len() {
+            assert_eq!(run(chunk), want, "chunk size {chunk}");
+        }
+    }
+
+    #[test]
+    fn rtu_by_length_garbage_is_bounded() {
+        let mut d = RtuDeframer::new(Direction::Request, RtuFraming::ByLength);
+        let mut max = 0;
+        d.push(&[0x55; 5000], |e| max = max.max(e.bytes().len()));
+        assert!(max <= 256);
+        assert!(d.pending() <= RTU_BUF + 256);
+    }
+
+    #[test]
+    fn rtu_by_silence() {
+        let line = LineSettings::new(9600, 8, Parity::Even, 1); // t1.5 1719 us, t3.5 4011 us
+        let frames = responses();
+        let mut d = RtuDeframer::new(Direction::Response, RtuFraming::BySilence(line));
+        let mut ev = Vec::new();
+        // A frame in two pieces 1 ms apart (under t1.5), then silence.
+        d.push_at(0, &frames[0][..3], |e| ev.push(own(e)));
+        d.push_at(1_000, &frames[0][3..], |e| ev.push(own(e)));
+        d.idle(3_000, |e| ev.push(own(e)));
+        assert!(ev.is_empty(), "t3.5 has not elapsed yet");
+        d.idle(6_000, |e| ev.push(own(e)));
+        // A frame with a 2 ms gap inside (over t1.5): incomplete.
+        d.push_at(20_000, &frames[1][..4], |e| ev.push(own(e)));
+        d.push_at(22_000, &frames[1][4..], |e| ev.push(own(e)));
+        // Next burst after 10 ms closes it; this one has a bad CRC.
+        let mut bad = frames[2].clone();
+        bad[4] ^= 0xFF;
+        d.push_at(32_000, &bad, |e| ev.push(own(e)));
+        d.flush(|e| ev.push(own(e)));
+        assert_eq!(
+            ev,
+            vec![
+                Owned::Frame(frames[0].clone()),
+                Owned::Incomplete(frames[1].clone()),
+                Owned::Corrupt(bad),
+            ]
+        );
+    }
+
+    #[test]
+    fn rtu_by_silence_overlong_is_corrupt_and_bounded() {
+        let line = LineSettings::new(9600, 8, Parity::None, 1);
+        let mut d = RtuDeframer::new(Direction::Request, RtuFraming::BySilence(line));
+        let mut ev = Vec::new();
+        d.push_at(0, &[0x01; 300], |e| ev.push(own(e)));
+        d.flush(|e| ev.push(own(e)));
+        assert_eq!(ev, vec![Owned::Corrupt(vec![0x01; 256])]);
+    }
+
+    #[test]
+    fn ascii_same_events_for_every_chunk_size() {
+        let a = b":010301230001D7\r\n".to_vec();
+        let b = b":0106250217704B\r\n".to_vec();
+        let mut bad = a.clone();
+        bad[14] = b'9';
+        let mut stream = Vec::new();
+        stream.extend_from_slice(&a);
+        stream.extend_from_slice(b"xy\r\n");
+        stream.extend_from_slice(b":01030123"); // restarted by the next ':'
+        stream.extend_from_slice(&b);
+        stream.extend_from_slice(&bad);
+        stream.extend_from_slice(b":0106"); // truncated at the end
+
+        let want = vec![
+            Owned::Frame(a.clone()),
+            Owned::Garbage(b"xy\r\n".to_vec()),
+            Owned::Incomplete(b":01030123".to_vec()),
+            Owned::Frame(b.clone()),
+            Owned::Corrupt(bad.clone()),
+            Owned::Incomplete(b":0106".to_vec()),
+        ];
+        for chunk in 1..=stream.len() {
+            let mut d = AsciiDeframer::default();
+            let mut ev = Vec::new();
+            for c in stream.chunks(chunk) {
+                d.push(c, |e| ev.push(own(e)));
+            }
+            d.flush(|e| ev.push(own(e)));
+            assert_eq!(normalise(ev), want, "chunk size {chunk}");
+        }
+    }
+
+    #[test]
+    fn ascii_timeout_and_overflow() {
+        let mut d = AsciiDeframer::new(1_000_000);
+        let mut ev = Vec::new();
+        d.push_at(0, b":0103", |e| ev.push(own(e)));
+        d.push_at(2_000_000, b"0123", |e| ev.push(own(e)));
+        assert_eq!(ev, vec![Owned::Incomplete(b":0103".to_vec())]);
+
+        let mut d = AsciiDeframer::default();
+        let mut ev = Vec::new();
+        let mut long = vec![b':'];
+        long.extend(std::iter::repeat_n(b'0', 600));
+        d.push(&long, |e| ev.push(own(e)));
+        d.flush(|e| ev.push(own(e)));
+        assert_eq!(ev.len(), 2);
+        assert!(matches!(&ev[0], Owned::Incomplete(b) if b.len() == MAX_ASCII_FRAME));
+        assert!(matches!(&ev[1], Owned::Garbage(b) if b.len() == 601 - MAX_ASCII_FRAME));
+    }
+}
