@@ -1,18 +1,58 @@
-//! CRC-16/MODBUS: the manuals' bitwise reference against the codec's table-driven CRC.
+//! CRC-16/MODBUS and LRC: the manuals' bitwise reference, our implementations, and the
+//! peer crates `crc` (Table<1>, Table<16>) and `crc16`, in the same run.
 
-use conformance::codec::crc::{crc16, crc16_reference};
+use conformance::codec::crc::{crc16, crc16_reference, crc16_update_table};
+use conformance::codec::lrc::lrc;
 use criterion::{black_box, criterion_group, criterion_main, BenchmarkId, Criterion, Throughput};
 
+const SIZES: [usize; 4] = [8, 80, 256, 64 * 1024];
+
+fn data(size: usize) -> Vec<u8> {
+    (0..size).map(|i| (i.wrapping_mul(31) + 7) as u8).collect()
+}
+
 fn crc(c: &mut Criterion) {
+    let table1 = crc::Crc::<u16, crc::Table<1>>::new(&crc::CRC_16_MODBUS);
+    let table16 = crc::Crc::<u16, crc::Table<16>>::new(&crc::CRC_16_MODBUS);
     let mut group = c.benchmark_group("crc16");
-    for size in [8usize, 80, 256, 64 * 1024] {
-        let data: Vec<u8> = (0..size).map(|i| (i * 31 + 7) as u8).collect();
+    for size in SIZES {
+        let d = data(size);
+        // Every implementation must agree before it is timed.
+        let want = crc16_reference(&d);
+        assert_eq!(crc16(&d), want);
+        assert_eq!(crc16_update_table(0xFFFF, &d), want);
+        assert_eq!(table1.checksum(&d), want);
+        assert_eq!(table16.checksum(&d), want);
+        assert_eq!(crc16::State::<crc16::MODBUS>::calculate(&d), want);
+
         group.throughput(Throughput::Bytes(size as u64));
-        group.bench_with_input(BenchmarkId::new("reference", size), &data, |b, d| {
+        group.bench_with_input(BenchmarkId::new("manual-bitwise", size), &d, |b, d| {
             b.iter(|| crc16_reference(black_box(d)))
         });
-        group.bench_with_input(BenchmarkId::new("table8", size), &data, |b, d| {
+        group.bench_with_input(BenchmarkId::new("ours", size), &d, |b, d| {
             b.iter(|| crc16(black_box(d)))
+        });
+        group.bench_with_input(BenchmarkId::new("ours-table", size), &d, |b, d| {
+            b.iter(|| crc16_update_table(0xFFFF, black_box(d)))
+        });
+        group.bench_with_input(BenchmarkId::new("crc-table1", size), &d, |b, d| {
+            b.iter(|| table1.checksum(black_box(d)))
+        });
+        group.bench_with_input(BenchmarkId::new("crc-table16", size), &d, |b, d| {
+            b.iter(|| table16.checksum(black_box(d)))
+        });
+        group.bench_with_input(BenchmarkId::new("crc16-crate", size), &d, |b, d| {
+            b.iter(|| crc16::State::<crc16::MODBUS>::calculate(black_box(d)))
+        });
+    }
+    group.finish();
+
+    let mut group = c.benchmark_group("lrc");
+    for size in SIZES {
+        let d = data(size);
+        group.throughput(Throughput::Bytes(size as u64));
+        group.bench_with_input(BenchmarkId::new("ours", size), &d, |b, d| {
+            b.iter(|| lrc(black_box(d)))
         });
     }
     group.finish();

@@ -166,7 +166,7 @@ impl RtuDeframer {
         if input.is_empty() {
             return;
         }
-        if self.end > 0 {
+        if self.end > 0 || self.overflow {
             let gap = now_us.saturating_sub(self.last_rx_us.unwrap_or(now_us));
             if gap >= line.t3_5_us() {
                 self.close_silent_frame(&mut emit);
@@ -174,12 +174,22 @@ impl RtuDeframer {
                 self.broken = true;
             }
         }
-        let room = MAX_RTU_FRAME - self.end;
-        let take = room.min(input.len());
-        self.buf[self.end..self.end + take].copy_from_slice(&input[..take]);
-        self.end += take;
-        if take < input.len() {
-            self.overflow = true;
+        let mut rest = input;
+        if !self.overflow {
+            let take = (MAX_RTU_FRAME - self.end).min(rest.len());
+            self.buf[self.end..self.end + take].copy_from_slice(&rest[..take]);
+            self.end += take;
+            rest = &rest[take..];
+            if !rest.is_empty() {
+                // Longer than any frame: report what was buffered now, and the rest of
+                // the burst, up to the next silence, as garbage.
+                emit(Event::Corrupt(&self.buf[..self.end]));
+                self.end = 0;
+                self.overflow = true;
+            }
+        }
+        for &b in rest {
+            self.garbage.push(b, &mut emit);
         }
         self.last_rx_us = Some(now_us);
     }
@@ -188,7 +198,7 @@ impl RtuDeframer {
     /// [`RtuFraming::BySilence`] a frame followed by t3.5 of silence is reported.
     pub fn idle(&mut self, now_us: u64, mut emit: impl FnMut(Event<'_>)) {
         if let RtuFraming::BySilence(line) = self.framing {
-            if self.end > 0 {
+            if self.end > 0 || self.overflow {
                 let gap = now_us.saturating_sub(self.last_rx_us.unwrap_or(now_us));
                 if gap >= line.t3_5_us() {
                     self.close_silent_frame(&mut emit);
@@ -210,13 +220,19 @@ impl RtuDeframer {
     }
 
     fn close_silent_frame(&mut self, emit: &mut impl FnMut(Event<'_>)) {
+        if self.overflow {
+            self.garbage.flush(emit);
+            self.overflow = false;
+            self.broken = false;
+            return;
+        }
         if self.end == 0 {
             return;
         }
         let frame = &self.buf[..self.end];
         let event = if self.broken {
             Event::Incomplete(frame)
-        } else if !self.overflow && frame.len() >= 4 && crc16(frame) == 0 {
+        } else if frame.len() >= 4 && crc16(frame) == 0 {
             Event::Frame(frame)
         } else {
             Event::Corrupt(frame)
@@ -224,7 +240,6 @@ impl RtuDeframer {
         emit(event);
         self.end = 0;
         self.broken = false;
-        self.overflow = false;
     }
 
     fn push_by_length(&mut self, mut input: &[u8], emit: &mut impl FnMut(Event<'_>)) {
@@ -549,7 +564,13 @@ mod tests {
         let mut ev = Vec::new();
         d.push_at(0, &[0x01; 300], |e| ev.push(own(e)));
         d.flush(|e| ev.push(own(e)));
-        assert_eq!(ev, vec![Owned::Corrupt(vec![0x01; 256])]);
+        assert_eq!(
+            ev,
+            vec![
+                Owned::Corrupt(vec![0x01; 256]),
+                Owned::Garbage(vec![0x01; 44])
+            ]
+        );
     }
 
     #[test]

@@ -9,6 +9,7 @@
 
 pub mod ascii;
 pub mod crc;
+pub mod crc_clmul;
 pub mod deframe;
 pub mod error;
 pub mod hex;
@@ -151,6 +152,14 @@ pub fn decode_unchecked<'a>(
 }
 
 impl Message<'_> {
+    /// Length of the frame of this message in `mode` (bytes in RTU, characters in ASCII).
+    pub fn frame_len(&self, mode: Mode) -> usize {
+        match mode {
+            Mode::Rtu => self.rtu_len(),
+            Mode::Ascii => self.ascii_len(),
+        }
+    }
+
     /// The frame of this message in `mode`, as a new vector.
     pub fn to_frame_vec(&self, mode: Mode) -> Result<Vec<u8>, FrameError> {
         match mode {

@@ -488,3 +488,51 @@ impl fmt::Display for Message<'_> {
         write!(f, "node {:02X} {}", self.address, self.pdu)
     }
 }
+
+impl Message<'_> {
+    /// The message as labelled fields, for reports and the command line
+    /// (`[("address", "01"), ("function", "03 read holding registers request"), ...]`).
+    pub fn fields(&self) -> Vec<(&'static str, String)> {
+        let mut out = vec![
+            ("address", format!("{:02X}", self.address)),
+            (
+                "function",
+                format!("{:02X} {}", self.pdu.function_code(), self.pdu.name()),
+            ),
+        ];
+        match self.pdu {
+            Pdu::ReadRequest { start, count } => {
+                out.push(("start", format!("{start:04X}")));
+                out.push(("count", format!("{count}")));
+            }
+            Pdu::ReadResponse { values } => {
+                out.push(("byte count", format!("{}", values.as_bytes().len())));
+                out.push(("values", values.to_string()));
+            }
+            Pdu::WriteSingle { register, value } => {
+                out.push(("register", format!("{register:04X}")));
+                out.push(("value", format!("{value:04X} ({value})")));
+            }
+            Pdu::LoopBack { test_code, data } => {
+                out.push(("test code", format!("{test_code:04X}")));
+                out.push(("data", Hex(data).to_string()));
+            }
+            Pdu::WriteMultipleRequest { start, values } => {
+                out.push(("start", format!("{start:04X}")));
+                out.push(("count", format!("{}", values.len())));
+                out.push(("byte count", format!("{}", values.as_bytes().len())));
+                out.push(("values", values.to_string()));
+            }
+            Pdu::WriteMultipleResponse { start, count } => {
+                out.push(("start", format!("{start:04X}")));
+                out.push(("count", format!("{count}")));
+            }
+            Pdu::Exception { function, code } => {
+                out.push(("failed function", format!("{function:02X}")));
+                out.push(("exception code", format!("{code:02X}")));
+            }
+            Pdu::Other { data, .. } => out.push(("data", Hex(data).to_string())),
+        }
+        out
+    }
+}

@@ -1,0 +1,95 @@
+//! Seed inputs for the fuzz targets, made from the golden vectors.
+
+use super::model::{parse_known, Body, FileMode};
+use super::set::VectorSet;
+
+/// One seed: the fuzz target it is for, a file name, and the bytes.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Seed {
+    /// Target name (as in `fuzz/Cargo.toml` and [`crate::oracle::TARGETS`]).
+    pub target: &'static str,
+    /// File name: the vector id and which bytes (`printed` or `corrected`).
+    pub name: String,
+    /// The input.
+    pub bytes: Vec<u8>,
+}
+
+/// Control byte the deframer targets read first (chunk size 8).
+const CHUNK_CONTROL: u8 = 7;
+
+/// Seeds for every target from every vector: frames as printed and as corrected; the
+/// deframers get each document's frames back to back; the loader gets the vector files.
+pub fn seeds(set: &VectorSet, files: &[(String, String)]) -> Vec<Seed> {
+    let mut out = Vec::new();
+    for file in &set.files {
+        let mut rtu_stream = vec![CHUNK_CONTROL];
+        let mut ascii_stream = vec![CHUNK_CONTROL];
+        for v in &file.vectors {
+            let Body::Frame(fv) = &v.body else { continue };
+            let versions = [
+                ("printed", Some(&fv.printed)),
+                ("corrected", fv.corrected.as_ref()),
+            ];
+            for (which, hex) in versions {
+                let Some(bytes) = hex.and_then(|h| parse_known(h).ok()) else {
+                    continue;
+                };
+                let name = format!("{}.{which}", v.id);
+                let mut stream = vec![CHUNK_CONTROL];
+                stream.extend_from_slice(&bytes);
+                match fv.mode {
+                    FileMode::Rtu => {
+                        rtu_stream.extend_from_slice(&bytes);
+                        out.push(Seed {
+                            target: "rtu_frame",
+                            name: name.clone(),
+                            bytes: bytes.clone(),
+                        });
+                        out.push(Seed {
+                            target: "rtu_deframer",
+                            name: name.clone(),
+                            bytes: stream,
+                        });
+                        let body = bytes[..bytes.len().saturating_sub(2)].to_vec();
+                        out.push(Seed {
+                            target: "crc_differential",
+                            name,
+                            bytes: body,
+                        });
+                    }
+                    FileMode::Ascii => {
+                        ascii_stream.extend_from_slice(&bytes);
+                        out.push(Seed {
+                            target: "ascii_frame",
+                            name: name.clone(),
+                            bytes: bytes.clone(),
+                        });
+                        out.push(Seed {
+                            target: "ascii_deframer",
+                            name,
+                            bytes: stream,
+                        });
+                    }
+                }
+            }
+        }
+        out.push(Seed {
+            target: "rtu_deframer",
+            name: format!("{}.all-rtu", file.document),
+            bytes: rtu_stream,
+        });
+        out.push(Seed {
+            target: "ascii_deframer",
+            name: format!("{}.all-ascii", file.document),
+            bytes: ascii_stream,
+        });
+    }
+    for (name, text) in files {
+        out.push(Seed {
+            target: "vector_loader",
+            name: name.clone(),
+            bytes: text.as_bytes().to_vec(),
+        });
+    }
+    out
+}
