@@ -67,6 +67,12 @@ pub fn ascii_frame(data: &[u8]) {
             assert_eq!(checked.is_ok(), u.checksum.is_valid());
         }
     }
+    let slow = crate::codec::AsciiFrame::new_checked(data).and_then(|f| f.verify_lrc());
+    assert_eq!(
+        crate::codec::ascii::is_valid_frame(data),
+        slow.is_ok(),
+        "the deframer's fast check disagrees with the parser"
+    );
 }
 
 /// Splits fuzz input into a control byte and the stream; the control byte chooses the

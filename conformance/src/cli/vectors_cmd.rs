@@ -77,7 +77,8 @@ enum VectorsCommand {
     /// DIR/<target>/ (e.g. fuzz/corpus).
     SeedCorpus {
         /// Directory to write into (created if missing).
-        dir: PathBuf,
+        #[arg(value_name = "OUT_DIR")]
+        out: PathBuf,
     },
 }
 
@@ -175,7 +176,7 @@ pub fn run(args: VectorsArgs) -> anyhow::Result<ExitCode> {
                 ExitCode::from(1)
             })
         }
-        VectorsCommand::SeedCorpus { dir } => {
+        VectorsCommand::SeedCorpus { out } => {
             let texts = match &args.dir {
                 Some(d) => vectors::DOCUMENTS
                     .iter()
@@ -191,14 +192,14 @@ pub fn run(args: VectorsArgs) -> anyhow::Result<ExitCode> {
             };
             let seeds = vectors::corpus::seeds(&set, &texts);
             for s in &seeds {
-                let target_dir = dir.join(s.target);
+                let target_dir = out.join(s.target);
                 std::fs::create_dir_all(&target_dir)
                     .with_context(|| format!("creating {}", target_dir.display()))?;
                 let path = target_dir.join(&s.name);
                 std::fs::write(&path, &s.bytes)
                     .with_context(|| format!("writing {}", path.display()))?;
             }
-            println!("{} seeds written under {}", seeds.len(), dir.display());
+            println!("{} seeds written under {}", seeds.len(), out.display());
             Ok(ExitCode::SUCCESS)
         }
         VectorsCommand::Export { format, output } => {

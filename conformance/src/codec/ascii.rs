@@ -131,6 +131,29 @@ impl<T: AsRef<[u8]>> AsciiFrame<T> {
     }
 }
 
+/// Whether `frame` is a complete ASCII frame with a valid LRC: the same verdict as
+/// `AsciiFrame::new_checked(frame).and_then(|f| f.verify_lrc()).is_ok()`, in one pass and
+/// without a scratch buffer (the deframer's hot path).
+pub fn is_valid_frame(frame: &[u8]) -> bool {
+    let len = frame.len();
+    if !(MIN_ASCII_FRAME..=MAX_ASCII_FRAME).contains(&len)
+        || frame[0] != START
+        || frame[len - 2..] != END
+        || (len - 3) % 2 != 0
+    {
+        return false;
+    }
+    let mut sum = 0u8;
+    for pair in frame[1..len - 2].chunks_exact(2) {
+        match (decode_nibble(pair[0]), decode_nibble(pair[1])) {
+            (Some(h), Some(l)) => sum = sum.wrapping_add(h << 4 | l),
+            _ => return false,
+        }
+    }
+    // The LRC makes the sum of all bytes, itself included, zero.
+    sum == 0
+}
+
 /// Decodes an ASCII frame, checking delimiters, hex, LRC and every count field. The binary
 /// bytes are written into `scratch`, which the returned message borrows.
 pub fn decode_ascii<'b>(

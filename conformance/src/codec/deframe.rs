@@ -58,6 +58,18 @@ impl GarbageBuf {
         self.len += 1;
     }
 
+    fn push_slice(&mut self, mut bytes: &[u8], emit: &mut impl FnMut(Event<'_>)) {
+        while !bytes.is_empty() {
+            if self.len == self.buf.len() {
+                self.flush(emit);
+            }
+            let take = (self.buf.len() - self.len).min(bytes.len());
+            self.buf[self.len..self.len + take].copy_from_slice(&bytes[..take]);
+            self.len += take;
+            bytes = &bytes[take..];
+        }
+    }
+
     fn flush(&mut self, emit: &mut impl FnMut(Event<'_>)) {
         if self.len > 0 {
             emit(Event::Garbage(&self.buf[..self.len]));
@@ -116,7 +128,6 @@ pub struct RtuDeframer {
     direction: Direction,
     framing: RtuFraming,
     buf: [u8; RTU_BUF],
-    start: usize,
     end: usize,
     garbage: GarbageBuf,
     last_rx_us: Option<u64>,
@@ -131,7 +142,6 @@ impl RtuDeframer {
             direction,
             framing,
             buf: [0; RTU_BUF],
-            start: 0,
             end: 0,
             garbage: GarbageBuf::new(),
             last_rx_us: None,
@@ -142,7 +152,7 @@ impl RtuDeframer {
 
     /// Bytes received but not yet reported.
     pub fn pending(&self) -> usize {
-        self.end - self.start + self.garbage.len
+        self.end + self.garbage.len
     }
 
     /// Feeds bytes that follow the previous ones without a silence.
@@ -213,7 +223,14 @@ impl RtuDeframer {
         match self.framing {
             RtuFraming::BySilence(_) => self.close_silent_frame(&mut emit),
             RtuFraming::ByLength => {
-                self.scan(&mut emit, true);
+                scan(
+                    self.direction,
+                    &mut self.garbage,
+                    &self.buf[..self.end],
+                    &mut emit,
+                    true,
+                );
+                self.end = 0;
                 self.garbage.flush(&mut emit);
             }
         }
@@ -244,44 +261,86 @@ impl RtuDeframer {
 
     fn push_by_length(&mut self, mut input: &[u8], emit: &mut impl FnMut(Event<'_>)) {
         while !input.is_empty() {
-            if self.start > 0 {
-                self.buf.copy_within(self.start..self.end, 0);
-                self.end -= self.start;
-                self.start = 0;
+            if self.end == 0 {
+                // Nothing buffered: decide straight from the input and keep only the
+                // undecided tail, which is shorter than the frame it may start (<= 256).
+                let used = scan(self.direction, &mut self.garbage, input, emit, false);
+                let rest = &input[used..];
+                debug_assert!(rest.len() < MAX_RTU_FRAME);
+                let keep = rest.len().min(RTU_BUF);
+                self.buf[..keep].copy_from_slice(&rest[..keep]);
+                self.end = keep;
+                return;
             }
+            // Top up the buffered partial frame; once it is decided, the loop goes back to
+            // the direct path.
             let take = (RTU_BUF - self.end).min(input.len());
             self.buf[self.end..self.end + take].copy_from_slice(&input[..take]);
             self.end += take;
             input = &input[take..];
-            self.scan(emit, false);
+            let used = scan(
+                self.direction,
+                &mut self.garbage,
+                &self.buf[..self.end],
+                emit,
+                false,
+            );
+            self.buf.copy_within(used..self.end, 0);
+            self.end -= used;
         }
     }
+}
 
-    /// Takes every decision the buffered bytes allow. With `at_end`, bytes that cannot
-    /// complete a frame are garbage instead of a reason to wait.
-    fn scan(&mut self, emit: &mut impl FnMut(Event<'_>), at_end: bool) {
-        while self.start < self.end {
-            let avail = &self.buf[self.start..self.end];
-            let len = match implied_len(self.direction, avail) {
-                Implied::Len(n) if n <= MAX_RTU_FRAME && n <= avail.len() => Some(n),
-                Implied::Len(n) if n <= MAX_RTU_FRAME && !at_end => return,
-                Implied::NeedMore if !at_end => return,
-                _ => None,
-            };
-            match len {
-                Some(n) if crc16(&avail[..n]) == 0 => {
-                    self.garbage.flush(emit);
-                    emit(Event::Frame(&avail[..n]));
-                    self.start += n;
-                }
-                _ => {
-                    self.garbage.push(avail[0], emit);
-                    self.start += 1;
-                }
+/// Takes every decision the bytes allow and returns how many bytes were decided (reported
+/// as a frame or as garbage). With `at_end`, bytes that cannot complete a frame are garbage
+/// instead of a reason to wait.
+fn scan(
+    direction: Direction,
+    garbage: &mut GarbageBuf,
+    data: &[u8],
+    emit: &mut impl FnMut(Event<'_>),
+    at_end: bool,
+) -> usize {
+    let mut pos = 0;
+    while pos < data.len() {
+        let avail = &data[pos..];
+        let len = match implied_len(direction, avail) {
+            Implied::Len(n) if n <= MAX_RTU_FRAME && n <= avail.len() => Some(n),
+            Implied::Len(n) if n <= MAX_RTU_FRAME && !at_end => return pos,
+            Implied::NeedMore if !at_end => return pos,
+            _ => None,
+        };
+        match len {
+            Some(n) if crc16(&avail[..n]) == 0 => {
+                garbage.flush(emit);
+                emit(Event::Frame(&avail[..n]));
+                pos += n;
+            }
+            _ => {
+                garbage.push(avail[0], emit);
+                pos += 1;
             }
         }
-        self.start = 0;
-        self.end = 0;
+    }
+    pos
+}
+
+/// memchr pays off on long inputs; a serial line often delivers a byte at a time.
+#[inline]
+fn find1(a: u8, hay: &[u8]) -> Option<usize> {
+    if hay.len() < 16 {
+        hay.iter().position(|&c| c == a)
+    } else {
+        memchr::memchr(a, hay)
+    }
+}
+
+#[inline]
+fn find2(a: u8, b: u8, hay: &[u8]) -> Option<usize> {
+    if hay.len() < 16 {
+        hay.iter().position(|&c| c == a || c == b)
+    } else {
+        memchr::memchr2(a, b, hay)
     }
 }
 
@@ -324,10 +383,88 @@ impl AsciiDeframer {
     }
 
     /// Feeds characters without timing information.
-    pub fn push(&mut self, input: &[u8], mut emit: impl FnMut(Event<'_>)) {
-        for &c in input {
-            self.push_char(c, &mut emit);
+    pub fn push(&mut self, mut input: &[u8], mut emit: impl FnMut(Event<'_>)) {
+        let emit = &mut emit;
+        while let Some(&first) = input.first() {
+            if !self.in_frame {
+                // Outside a frame everything up to the next ':' is garbage.
+                match find1(ascii::START, input) {
+                    None => {
+                        self.garbage.push_slice(input, emit);
+                        return;
+                    }
+                    Some(i) => {
+                        self.garbage.push_slice(&input[..i], emit);
+                        self.garbage.flush(emit);
+                        input = &input[i..];
+                        // Fast path: the whole frame is in the input; judge it in place.
+                        if let Some(j) = find2(ascii::START, b'\n', &input[1..]) {
+                            let end = j + 2;
+                            if input[end - 1] == b'\n'
+                                && input[end - 2] == b'\r'
+                                && end <= MAX_ASCII_FRAME
+                            {
+                                let frame = &input[..end];
+                                emit(if ascii::is_valid_frame(frame) {
+                                    Event::Frame(frame)
+                                } else {
+                                    Event::Corrupt(frame)
+                                });
+                                input = &input[end..];
+                                continue;
+                            }
+                        }
+                        self.start_frame();
+                        input = &input[1..];
+                    }
+                }
+                continue;
+            }
+            if first == ascii::START {
+                emit(Event::Incomplete(&self.buf[..self.len]));
+                self.start_frame();
+                input = &input[1..];
+                continue;
+            }
+            // Copy the run up to the next ':' (excluded) or LF (included) in one go.
+            let stop = find2(ascii::START, b'\n', input);
+            let run = match stop {
+                Some(i) if input[i] == b'\n' => i + 1,
+                Some(i) => i,
+                None => input.len(),
+            };
+            let room = MAX_ASCII_FRAME - self.len;
+            if run > room {
+                // The frame outgrows 513 characters: report it; what follows is garbage
+                // up to the next ':'.
+                self.buf[self.len..].copy_from_slice(&input[..room]);
+                self.len = MAX_ASCII_FRAME;
+                emit(Event::Incomplete(&self.buf[..self.len]));
+                self.in_frame = false;
+                self.len = 0;
+                input = &input[room..];
+                continue;
+            }
+            self.buf[self.len..self.len + run].copy_from_slice(&input[..run]);
+            self.len += run;
+            input = &input[run..];
+            if self.len >= 2 && self.buf[self.len - 2..self.len] == ascii::END {
+                let frame = &self.buf[..self.len];
+                emit(if ascii::is_valid_frame(frame) {
+                    Event::Frame(frame)
+                } else {
+                    Event::Corrupt(frame)
+                });
+                self.in_frame = false;
+                self.len = 0;
+            }
         }
+    }
+
+    fn start_frame(&mut self) {
+        self.buf[0] = ascii::START;
+        self.len = 1;
+        self.in_frame = true;
     }
 
     /// Feeds characters that arrived at `now_us`; a frame left open longer than the
@@ -361,46 +498,6 @@ impl AsciiDeframer {
             self.len = 0;
         }
         self.garbage.flush(&mut emit);
-    }
-
-    fn push_char(&mut self, c: u8, emit: &mut impl FnMut(Event<'_>)) {
-        if c == ascii::START {
-            if self.in_frame {
-                emit(Event::Incomplete(&self.buf[..self.len]));
-            } else {
-                self.garbage.flush(emit);
-            }
-            self.buf[0] = c;
-            self.len = 1;
-            self.in_frame = true;
-            return;
-        }
-        if !self.in_frame {
-            self.garbage.push(c, emit);
-            return;
-        }
-        if self.len == MAX_ASCII_FRAME {
-            emit(Event::Incomplete(&self.buf[..self.len]));
-            self.in_frame = false;
-            self.len = 0;
-            self.garbage.push(c, emit);
-            return;
-        }
-        self.buf[self.len] = c;
-        self.len += 1;
-        if self.len >= 2 && self.buf[self.len - 2..self.len] == ascii::END {
-            let frame = &self.buf[..self.len];
-            let valid = ascii::AsciiFrame::new_checked(frame)
-                .and_then(|f| f.verify_lrc())
-                .is_ok();
-            emit(if valid {
-                Event::Frame(frame)
-            } else {
-                Event::Corrupt(frame)
-            });
-            self.in_frame = false;
-            self.len = 0;
-        }
     }
 }
 

@@ -16,14 +16,28 @@ pub fn encode_byte(byte: u8) -> [u8; 2] {
     ]
 }
 
+/// Value of every byte as a hex digit, upper or lower case; 0xFF for anything else.
+static NIBBLE: [u8; 256] = {
+    let mut t = [0xFFu8; 256];
+    let mut c = 0;
+    while c < 256 {
+        t[c] = match c as u8 {
+            b'0'..=b'9' => c as u8 - b'0',
+            b'A'..=b'F' => c as u8 - b'A' + 10,
+            b'a'..=b'f' => c as u8 - b'a' + 10,
+            _ => 0xFF,
+        };
+        c += 1;
+    }
+    t
+};
+
 /// The value of one hex character, upper or lower case; `None` for anything else.
 #[inline]
 pub fn decode_nibble(c: u8) -> Option<u8> {
-    match c {
-        b'0'..=b'9' => Some(c - b'0'),
-        b'A'..=b'F' => Some(c - b'A' + 10),
-        b'a'..=b'f' => Some(c - b'a' + 10),
-        _ => None,
+    match NIBBLE[usize::from(c)] {
+        0xFF => None,
+        v => Some(v),
     }
 }
 

@@ -15,7 +15,7 @@ pub const DOCUMENTS: [&str; 5] = ["f510", "a510", "l510", "e510", "l510-legacy"]
 #[derive(Debug, thiserror::Error)]
 pub enum LoadError {
     /// Not JSON, or not of the file format.
-    #[error("{file}: {source}")]
+    #[error("{file}: not a valid vector file")]
     Json {
         /// The file (or document name).
         file: String,
@@ -46,7 +46,7 @@ pub enum LoadError {
         problem: String,
     },
     /// A file could not be read.
-    #[error("{file}: {source}")]
+    #[error("cannot read {file}")]
     Io {
         /// The file.
         file: String,

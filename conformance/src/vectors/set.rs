@@ -11,7 +11,10 @@ const BUILTIN: [(&str, &str); 5] = [
     ("a510.json", include_str!("../../../vectors/a510.json")),
     ("l510.json", include_str!("../../../vectors/l510.json")),
     ("e510.json", include_str!("../../../vectors/e510.json")),
-    ("l510-legacy.json", include_str!("../../../vectors/l510-legacy.json")),
+    (
+        "l510-legacy.json",
+        include_str!("../../../vectors/l510-legacy.json"),
+    ),
 ];
 const BUILTIN_FLAGS: &str = include_str!("../../../vectors/flags.json");
 

@@ -17,7 +17,8 @@ use crate::codec::{
 
 /// Flags the checks can observe in a frame. Other flags (`ocr-repair`,
 /// `checksum-placeholder`) describe the transcription and are checked separately.
-const OBSERVABLE: [&str; 8] = [
+const OBSERVABLE: [&str; 9] = [
+    "framing-error",
     "crc-mismatch",
     "lrc-mismatch",
     "wrong-node-address",
@@ -119,6 +120,18 @@ fn effective_body(fv: &FrameVector) -> Option<Vec<u8>> {
     frame_parts(mode, &corrected).ok().map(|p| p.body)
 }
 
+/// The body of the frame an example means: its `corrected` frame when the manual got it
+/// wrong, else what was printed. A response is judged against the request it answers as
+/// intended, so one misprinted request does not make its correct response look wrong.
+fn intended_body(fv: &FrameVector) -> Option<Vec<u8>> {
+    if let Some(c) = fv.corrected.as_deref().and_then(|c| parse_known(c).ok()) {
+        if let Ok(p) = frame_parts(fv.mode.into(), &c) {
+            return Some(p.body);
+        }
+    }
+    effective_body(fv)
+}
+
 fn frame_of<'a>(set: &'a VectorSet, key: &FrameKey) -> Option<&'a FrameVector> {
     match &set.get(&key.id())?.body {
         Body::Frame(f) => Some(f),
@@ -176,7 +189,7 @@ fn observe_body(
     let request_body = key
         .request()
         .and_then(|k| frame_of(set, &k))
-        .and_then(effective_body);
+        .and_then(intended_body);
     let want_address = expect_num(&fv.expect, |e| &e.address).or_else(|| {
         request_body
             .as_ref()
@@ -316,6 +329,22 @@ fn check_frame(set: &VectorSet, v: &Vector, fv: &FrameVector, rep: &mut VectorRe
                 }
                 observe_body(set, &key, fv, &parts.body, &mut observed, &mut rep.problems);
             }
+            Err(
+                e @ (FrameError::AsciiNoStart { .. }
+                | FrameError::AsciiNoEnd { .. }
+                | FrameError::AsciiBadChar { .. }
+                | FrameError::AsciiOddLength { .. }),
+            ) => {
+                observed.insert("framing-error");
+                match effective_body(fv) {
+                    Some(body) => {
+                        observe_body(set, &key, fv, &body, &mut observed, &mut rep.problems)
+                    }
+                    None => rep.problems.push(format!(
+                        "printed is not a frame ({e}) and has no readable body"
+                    )),
+                }
+            }
             Err(e) => rep.problems.push(format!("printed is not a frame: {e}")),
         },
         None => {
@@ -335,14 +364,21 @@ fn check_frame(set: &VectorSet, v: &Vector, fv: &FrameVector, rep: &mut VectorRe
             }
         }
     }
+    // A blank checksum is either printed as '?' or made illegible by the OCR.
+    let blank_declared =
+        declared.contains("checksum-placeholder") || declared.contains("ocr-illegible");
     if declared.contains("checksum-placeholder") && !observed.contains("checksum-placeholder") {
         rep.problems
             .push("flag checksum-placeholder, but the checksum bytes are all printed".into());
-    } else if observed.contains("checksum-placeholder")
-        && !declared.contains("checksum-placeholder")
-    {
+    } else if observed.contains("checksum-placeholder") && !blank_declared {
+        rep.problems.push(
+            "the checksum is blank but neither checksum-placeholder nor ocr-illegible is declared"
+                .into(),
+        );
+    }
+    if declared.contains("ocr-illegible") && known.is_some() {
         rep.problems
-            .push("the checksum is blank but the flag checksum-placeholder is missing".into());
+            .push("flag ocr-illegible, but no byte is blank".into());
     }
 
     // Compare observed with declared. A twin disagreement is one fact about two vectors:
@@ -648,7 +684,11 @@ fn check_other(v: &Vector, rep: &mut VectorReport) {
                 .push(format!("the codec observes {flag}, but it is not declared"));
         }
     }
-    if v.verdict == Verdict::Consistent && !declared.is_empty() {
+    if declared.contains("ocr-repair") != v.notes.contains("OCR") {
+        rep.problems
+            .push("flag ocr-repair and an \"OCR: ...\" note go together".into());
+    }
+    if v.verdict == Verdict::Consistent && declared.iter().any(|f| *f != "ocr-repair") {
         rep.problems
             .push("verdict consistent, but flags are declared".into());
     }
