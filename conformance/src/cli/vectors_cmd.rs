@@ -60,9 +60,9 @@ enum VectorsCommand {
     /// Check every vector with the codec; exit 0 only when each behaves as its verdict says
     /// and no document lacks an item.
     Verify {
-        /// Print passing vectors too, not only the summary and failures.
+        /// Print only the vectors that fail, and the summary.
         #[arg(short, long)]
-        verbose: bool,
+        quiet: bool,
     },
     /// Write every vector and the flags table as one JSON document.
     Export {
@@ -137,13 +137,13 @@ pub fn run(args: VectorsArgs) -> anyhow::Result<ExitCode> {
             println!("{n} vectors");
             Ok(ExitCode::SUCCESS)
         }
-        VectorsCommand::Verify { verbose } => {
+        VectorsCommand::Verify { quiet } => {
             let reports = vectors::verify_all(&set);
             let missing = vectors::missing(&set);
             let failed: Vec<_> = reports.iter().filter(|r| !r.passed()).collect();
             println!("{:<34} {:<11} {:<40} result", "id", "verdict", "flags");
             for r in &reports {
-                if verbose || !r.passed() {
+                if !quiet || !r.passed() {
                     println!(
                         "{:<34} {:<11} {:<40} {}",
                         r.id,
