@@ -646,26 +646,20 @@ fn check_other(v: &Vector, rep: &mut VectorReport) {
         Body::Limits(l) => {
             if let Some(max) = l.max_frame_bytes {
                 let (read, write) = derived_register_limits(max);
-                if let Some(r) = l.max_read_registers {
-                    if r != read {
-                        observed.insert("limit-not-derived");
-                        if !declared.contains("limit-not-derived") {
-                            rep.problems.push(format!(
-                                "stated read limit ascii {} / rtu {} differs from what a {max}-byte frame allows (ascii {} / rtu {})",
-                                r.ascii, r.rtu, read.ascii, read.rtu
-                            ));
-                        }
-                    }
-                }
-                if let Some(w) = l.max_write_registers {
-                    if w != write {
-                        observed.insert("limit-not-derived");
-                        if !declared.contains("limit-not-derived") {
-                            rep.problems.push(format!(
-                                "stated write limit ascii {} / rtu {} differs from what a {max}-byte frame allows (ascii {} / rtu {})",
-                                w.ascii, w.rtu, write.ascii, write.rtu
-                            ));
-                        }
+                let stated = [
+                    ("read", l.max_read_registers, read),
+                    ("write", l.max_write_registers, write),
+                ];
+                for (what, stated, derived) in stated {
+                    let Some(s) = stated.filter(|s| *s != derived) else {
+                        continue;
+                    };
+                    observed.insert("limit-not-derived");
+                    if !declared.contains("limit-not-derived") {
+                        rep.problems.push(format!(
+                            "stated {what} limit ascii {} / rtu {} differs from what a {max}-byte frame allows (ascii {} / rtu {})",
+                            s.ascii, s.rtu, derived.ascii, derived.rtu
+                        ));
                     }
                 }
             }
