@@ -5,10 +5,25 @@
 //! - [`codec`]: CRC, LRC, frames, messages, streaming deframers. Pure, no I/O.
 //! - [`vectors`]: the manuals' example frames as golden vectors (data under `vectors/`),
 //!   checked by the codec.
+//! - [`model`]: the drive models (data under `vectors/models/`) and their rules.
+//! - [`transport`]: serial port, pseudo-terminal, TCP, in-memory links behind one trait.
+//! - [`sim`]: the simulated drive, with fault injection.
+//! - [`runner`]: the conformance checks, run as a Modbus master against a device.
+//! - [`gate`]: checks another Modbus codec through an adapter process.
+//! - [`report`]: text, JSON and JUnit XML reports of a run.
+//! - [`session`]: a whole run against a serial port, a TCP gateway or the in-process simulator.
 // `unsafe` is allowed in one module only: codec::crc_clmul (SIMD intrinsics).
 #![deny(unsafe_code)]
 #![warn(missing_docs)]
 
 pub mod codec;
+pub mod gate;
+pub mod model;
 pub mod oracle;
+pub mod report;
+pub mod rng;
+pub mod runner;
+pub mod session;
+pub mod sim;
+pub mod transport;
 pub mod vectors;

@@ -4,6 +4,8 @@ use std::process::ExitCode;
 
 use anyhow::{bail, Context};
 use clap::{Args, Subcommand};
+
+use super::common::{parse_u16, parse_u8};
 use conformance::codec::{
     self, ascii::Scratch, hex::parse_hex, hex::Hex, Direction, Message, Mode, Pdu, Registers,
     MAX_RTU_FRAME,
@@ -105,23 +107,6 @@ pub fn decode(args: DecodeArgs) -> anyhow::Result<ExitCode> {
 }
 
 /// A number as people write them: `0x2520`, `2520H`, or decimal `9504`.
-fn parse_u16(s: &str) -> Result<u16, String> {
-    let t = s.trim();
-    let parsed = if let Some(h) = t.strip_prefix("0x").or_else(|| t.strip_prefix("0X")) {
-        u16::from_str_radix(h, 16)
-    } else if let Some(h) = t.strip_suffix('H').or_else(|| t.strip_suffix('h')) {
-        u16::from_str_radix(h, 16)
-    } else {
-        t.parse::<u16>()
-    };
-    parsed.map_err(|e| format!("{s:?} is not a 16-bit number (0x2520, 2520H or 9504): {e}"))
-}
-
-fn parse_u8(s: &str) -> Result<u8, String> {
-    let v = parse_u16(s)?;
-    u8::try_from(v).map_err(|_| format!("{s:?} does not fit in one byte (00..FF)"))
-}
-
 #[derive(Debug, Args)]
 pub struct EncodeArgs {
     /// Node address (0 is broadcast).

@@ -1,6 +1,10 @@
 //! Argument parsing and dispatch. Each subcommand lives in its own module.
 
+mod check_cmd;
 mod codec_cmd;
+mod common;
+mod gate_cmd;
+mod simulate_cmd;
 mod vectors_cmd;
 
 use std::process::ExitCode;
@@ -27,6 +31,15 @@ enum Command {
     Encode(codec_cmd::EncodeArgs),
     /// The golden vectors transcribed from the manuals: list, verify, export.
     Vectors(vectors_cmd::VectorsArgs),
+    /// Run a simulated drive on a serial port, a pseudo-terminal or TCP.
+    Simulate(simulate_cmd::SimulateArgs),
+    /// Probe a real or simulated drive and report every deviation from its manual.
+    Check(check_cmd::CheckArgs),
+    /// Check another Modbus codec through an adapter (adapters/PROTOCOL.md).
+    Gate(gate_cmd::GateArgs),
+    /// This suite's codec behind the adapter protocol, on stdin/stdout (the reference
+    /// adapter: `conformance gate --codec "conformance adapter"`).
+    Adapter(gate_cmd::AdapterArgs),
 }
 
 /// Runs the parsed command.
@@ -35,5 +48,9 @@ pub fn run(cli: Cli) -> anyhow::Result<ExitCode> {
         Command::Decode(a) => codec_cmd::decode(a),
         Command::Encode(a) => codec_cmd::encode(a),
         Command::Vectors(a) => vectors_cmd::run(a),
+        Command::Simulate(a) => simulate_cmd::run(a),
+        Command::Check(a) => check_cmd::run(a),
+        Command::Gate(a) => gate_cmd::run(a),
+        Command::Adapter(a) => gate_cmd::adapter(a),
     }
 }

@@ -155,6 +155,21 @@ impl RtuDeframer {
         self.end + self.garbage.len
     }
 
+    /// With [`RtuFraming::ByLength`]: whether the buffered bytes begin a frame whose length
+    /// the function code gives (or will give) and whose rest has not arrived yet, so that
+    /// the deframer is waiting for bytes rather than for a silence.
+    pub fn awaiting_rest(&self) -> bool {
+        if self.framing != RtuFraming::ByLength || self.end == 0 {
+            return false;
+        }
+        match implied_len(self.direction, &self.buf[..self.end]) {
+            // One byte has no function code yet: nothing says a frame is under way.
+            Implied::NeedMore => self.end >= 2,
+            Implied::Len(n) => n > self.end && n <= MAX_RTU_FRAME,
+            Implied::Unknown => false,
+        }
+    }
+
     /// Feeds bytes that follow the previous ones without a silence.
     pub fn push(&mut self, input: &[u8], mut emit: impl FnMut(Event<'_>)) {
         match self.framing {

@@ -142,6 +142,15 @@ impl Body {
     }
 }
 
+impl FrameVector {
+    /// The bytes of a correct frame for this example: the `corrected` frame where the
+    /// manual's is wrong or incomplete, else the printed one; `None` if neither is usable.
+    pub fn correct_bytes(&self) -> Option<Vec<u8>> {
+        let text = self.corrected.as_deref().unwrap_or(&self.printed);
+        crate::codec::hex::parse_hex(text).ok()
+    }
+}
+
 /// Mode as spelled in the files.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]

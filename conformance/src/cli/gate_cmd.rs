@@ -1,0 +1,235 @@
+//! `conformance gate`: check another Modbus codec through an adapter.
+
+use std::io::{IsTerminal, Write};
+use std::path::PathBuf;
+use std::process::ExitCode;
+use std::time::{Duration, SystemTime};
+
+use anyhow::Context;
+use clap::Args;
+use conformance::gate::{self, Adapter, Case, GateOptions, GateProgress};
+use conformance::report::{Codec, Report, ReportKind, RunOptions};
+use conformance::runner::CheckResult;
+use conformance::vectors::VectorSet;
+
+use super::check_cmd::{render, write_atomic, Format};
+
+const AFTER_HELP: &str = "\
+The adapter protocol (line-delimited JSON on the adapter's stdin/stdout) is documented in
+adapters/PROTOCOL.md; adapters/pymodbus and adapters/rmodbus are examples.
+
+Examples:
+  conformance gate --codec \"python3 adapters/pymodbus/adapter.py\"
+  conformance gate --codec target/release/rmodbus-adapter --format junit -o gate.xml
+  conformance gate --codec \"./my-adapter\" --seed 7 --count 5000 --no-vectors
+
+Exit codes: 0 no deviations; 1 deviations found; 2 the gate could not complete (the
+adapter could not start, exited twice, or a case could not be decided).";
+
+#[derive(Debug, Args)]
+#[command(after_help = AFTER_HELP)]
+pub struct GateArgs {
+    /// The adapter command, run through `sh -c`.
+    #[arg(long, value_name = "CMD")]
+    codec: String,
+    /// Seed of the differential cases.
+    #[arg(long, value_parser = parse_seed, default_value = "0x7ECC0")]
+    seed: u64,
+    /// Number of differential cases.
+    #[arg(long, default_value_t = 1000)]
+    count: usize,
+    /// Leave out the golden-vector cases.
+    #[arg(long)]
+    no_vectors: bool,
+    /// Run only the cases whose id contains PATTERN ('*' matches anything). Repeatable.
+    #[arg(long, value_name = "PATTERN")]
+    only: Vec<String>,
+    /// List the cases without starting the adapter.
+    #[arg(long)]
+    list: bool,
+    /// Milliseconds to wait for each answer.
+    #[arg(long, value_name = "MS", default_value_t = 2000)]
+    timeout: u64,
+    /// Report format.
+    #[arg(long, value_enum, default_value = "text")]
+    format: Format,
+    /// Write the report here (kept valid after every case) instead of stdout.
+    #[arg(short, long, value_name = "FILE")]
+    output: Option<PathBuf>,
+    /// List every passing case in the text report.
+    #[arg(short, long)]
+    verbose: bool,
+    /// No progress bar.
+    #[arg(short, long)]
+    quiet: bool,
+}
+
+fn parse_seed(s: &str) -> Result<u64, String> {
+    let t = s.trim();
+    match t.strip_prefix("0x").or_else(|| t.strip_prefix("0X")) {
+        Some(h) => u64::from_str_radix(h, 16),
+        None => t.parse(),
+    }
+    .map_err(|e| format!("{s:?} is not a seed (decimal or 0x hex): {e}"))
+}
+
+struct Progress<'a> {
+    report: Report,
+    bar: Option<indicatif::ProgressBar>,
+    output: Option<&'a PathBuf>,
+    format: Format,
+    verbose: bool,
+    error: Option<anyhow::Error>,
+}
+
+impl GateProgress for Progress<'_> {
+    fn started(&mut self, case: &Case) {
+        if let Some(b) = &self.bar {
+            b.set_message(case.id.clone());
+        }
+    }
+
+    fn finished(&mut self, result: &CheckResult) {
+        self.report.results.push(result.clone());
+        if let Some(b) = &self.bar {
+            b.inc(1);
+        }
+        if let (Some(path), None) = (self.output, &self.error) {
+            let res = render(&self.report, self.format, self.verbose).and_then(|s| {
+                write_atomic(path, &s).with_context(|| format!("cannot write {}", path.display()))
+            });
+            if let Err(e) = res {
+                self.error = Some(e);
+            }
+        }
+    }
+}
+
+pub fn run(args: GateArgs) -> anyhow::Result<ExitCode> {
+    let set = VectorSet::builtin()?;
+    let opts = GateOptions {
+        seed: args.seed,
+        count: args.count,
+        vectors: !args.no_vectors,
+        only: args.only.clone(),
+        timeout: Duration::from_millis(args.timeout),
+    };
+    let cases = gate::cases(&set, &opts, &args.codec);
+    if args.list {
+        let mut out = std::io::stdout().lock();
+        for c in &cases {
+            writeln!(out, "{:<52} {}", c.id, c.title)?;
+        }
+        writeln!(out, "{} cases", cases.len())?;
+        return Ok(ExitCode::SUCCESS);
+    }
+    let mut adapter = Adapter::start(&args.codec, opts.timeout)?;
+    let hello = adapter.hello.clone();
+    let started = humantime::format_rfc3339_seconds(SystemTime::now()).to_string();
+    let report = Report {
+        kind: ReportKind::Gate,
+        codec: Some(Codec {
+            adapter: hello.adapter.clone(),
+            implementation: hello.implementation.clone(),
+            version: hello.version.clone(),
+            command: args.codec.clone(),
+            supports: hello.supports.clone(),
+            incidents: vec![],
+            seed: args.seed,
+            count: args.count,
+        }),
+        started,
+        options: RunOptions {
+            timeout_ms: args.timeout,
+            only: args.only.clone(),
+            ..RunOptions::default()
+        },
+        ..Report::default()
+    };
+    let bar = (!args.quiet && std::io::stderr().is_terminal()).then(|| {
+        let b = indicatif::ProgressBar::new(cases.len() as u64);
+        b.set_style(
+            indicatif::ProgressStyle::with_template("{bar:30} {pos}/{len} eta {eta} {wide_msg}")
+                .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+        );
+        b
+    });
+    let mut progress = Progress {
+        report,
+        bar,
+        output: args.output.as_ref(),
+        format: args.format,
+        verbose: args.verbose,
+        error: None,
+    };
+    gate::run(&mut adapter, &cases, &mut progress);
+    if let Some(b) = &progress.bar {
+        b.finish_and_clear();
+    }
+    let mut report = progress.report;
+    if let Some(c) = report.codec.as_mut() {
+        c.incidents = adapter.incidents.clone();
+    }
+    // An adapter that exited twice leaves the rest of the run undecided.
+    let gone = report
+        .results
+        .iter()
+        .filter(|r| r.summary.contains("the adapter is gone"))
+        .count();
+    report.complete = gone == 0;
+    if gone > 0 {
+        report.stopped = Some(format!(
+            "the adapter exited twice; {gone} cases could not run"
+        ));
+    }
+    report.finished = Some(humantime::format_rfc3339_seconds(SystemTime::now()).to_string());
+    if let Some(e) = progress.error {
+        return Err(e);
+    }
+    let rendered = render(&report, args.format, args.verbose)?;
+    match &args.output {
+        Some(path) => {
+            write_atomic(path, &rendered)
+                .with_context(|| format!("cannot write {}", path.display()))?;
+            let s = report.summary();
+            eprintln!(
+                "{} cases: {} pass, {} deviations, {} skipped, {} errors{}; report in {}",
+                s.total,
+                s.pass,
+                s.deviation,
+                s.skip,
+                s.error,
+                if report.complete { "" } else { " [INCOMPLETE]" },
+                path.display()
+            );
+        }
+        None => {
+            let mut out = std::io::stdout().lock();
+            out.write_all(rendered.as_bytes())?;
+            out.flush()?;
+        }
+    }
+    Ok(ExitCode::from(report.exit_code()))
+}
+
+#[derive(Debug, Args)]
+pub struct AdapterArgs {
+    /// Break the adapter on purpose, to see the gate catch it: accept-bad-checksum decodes
+    /// frames whatever their CRC or LRC.
+    #[arg(long, value_name = "FAULT", hide = true)]
+    r#break: Option<String>,
+}
+
+pub fn adapter(args: AdapterArgs) -> anyhow::Result<ExitCode> {
+    let fault = match args.r#break.as_deref() {
+        None => None,
+        Some("accept-bad-checksum") => Some(gate::reference::Fault::AcceptBadChecksum),
+        Some(other) => {
+            anyhow::bail!("unknown fault {other:?}; the one fault is accept-bad-checksum")
+        }
+    };
+    let stdin = std::io::stdin().lock();
+    let stdout = std::io::stdout().lock();
+    gate::reference::serve(stdin, stdout, fault)?;
+    Ok(ExitCode::SUCCESS)
+}

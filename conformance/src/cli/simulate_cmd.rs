@@ -1,0 +1,234 @@
+//! `conformance simulate`: a simulated drive on a serial port, a pseudo-terminal or TCP.
+
+use std::fs::File;
+use std::io::Write;
+use std::path::PathBuf;
+use std::process::ExitCode;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
+use std::time::Duration;
+
+use anyhow::{bail, Context};
+use clap::{Args, ValueEnum};
+use conformance::codec::Mode;
+use conformance::sim::{serve, Drive, LogFormat, Quirk, SimError, TrafficLog, QUIRK_HELP};
+use conformance::transport::serial::SerialTransport;
+use conformance::transport::tcp::TcpTransport;
+use conformance::transport::{LinkKind, Transport, TransportError};
+
+use super::common::{load_model, parse_u8, LineArgs, ModeArg};
+
+fn quirk_help() -> String {
+    let mut s = String::from("Fault injection (--quirk, repeatable):\n");
+    for (q, what) in QUIRK_HELP {
+        s.push_str(&format!("  {q:<22} {what}\n"));
+    }
+    s.push_str("\nExamples:\n  conformance simulate --model f510 --pty\n  conformance simulate --model l510 --mode ascii --tcp 127.0.0.1:5020 --quirk late-reply=200\n  conformance simulate --model a510 --port /dev/ttyUSB0 -b 19200 -P none\n\nExit codes: 0 stopped by Ctrl-C; 2 the link or the log failed.");
+    s
+}
+
+/// Log format on stderr.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum LogFormatArg {
+    /// One human line per frame.
+    Text,
+    /// JSON lines.
+    Json,
+}
+
+#[derive(Debug, Args)]
+#[command(after_help = quirk_help())]
+pub struct SimulateArgs {
+    /// Drive model: f510, a510, l510, e510, l510-legacy.
+    #[arg(long, default_value = "f510")]
+    model: String,
+    /// Read the model from this file instead of the built-in one.
+    #[arg(long, value_name = "FILE")]
+    model_file: Option<PathBuf>,
+    /// Node address of the drive.
+    #[arg(short = 'a', long, value_parser = parse_u8, default_value = "1")]
+    address: u8,
+    /// Transmission mode.
+    #[arg(short = 'm', long, value_enum, default_value = "rtu")]
+    mode: ModeArg,
+    /// Serve on a serial port (a real RS-485 adapter).
+    #[arg(long, value_name = "PATH", group = "where")]
+    port: Option<String>,
+    /// Serve on a new pseudo-terminal pair; its path is printed on stdout.
+    #[arg(long, group = "where")]
+    pty: bool,
+    /// With --pty: also make a symbolic link to the slave at this path.
+    #[arg(long, value_name = "PATH", requires = "pty")]
+    link: Option<PathBuf>,
+    /// With --pty: send at the line's character time (-b -P -d -s), so that timing is real.
+    #[arg(long, requires = "pty")]
+    pace: bool,
+    /// Serve RTU or ASCII frames over TCP (as a serial gateway) at HOST:PORT.
+    #[arg(long, value_name = "HOST:PORT", group = "where")]
+    tcp: Option<String>,
+    #[command(flatten)]
+    line: LineArgs,
+    /// Response delay in milliseconds (default: the model's response time, 10 ms).
+    #[arg(long, value_name = "MS")]
+    delay: Option<u64>,
+    /// Inject a fault; see the list below. Repeatable.
+    #[arg(long = "quirk", value_name = "QUIRK")]
+    quirks: Vec<Quirk>,
+    /// Also write the traffic log as JSON lines to this file.
+    #[arg(long, value_name = "FILE")]
+    log: Option<PathBuf>,
+    /// Format of the traffic log on stderr.
+    #[arg(long, value_enum, default_value = "text")]
+    log_format: LogFormatArg,
+    /// No traffic log on stderr.
+    #[arg(short, long)]
+    quiet: bool,
+}
+
+pub fn run(args: SimulateArgs) -> anyhow::Result<ExitCode> {
+    let model = Arc::new(load_model(&args.model, args.model_file.as_deref())?);
+    if !model.addresses.contains(&args.address) {
+        bail!(
+            "address {:02X} is outside the {} model's node addresses {:02X}..{:02X}",
+            args.address,
+            model.id,
+            model.addresses.start(),
+            model.addresses.end()
+        );
+    }
+    let mode: Mode = args.mode.into();
+    let line = args.line.settings();
+    if mode == Mode::Rtu && line.data_bits != 8 {
+        bail!("RTU needs 8 data bits (-d 8)");
+    }
+    let delay = Duration::from_millis(args.delay.unwrap_or(model.limits.response_time_ms));
+    let mut drive = Drive::new(model.clone(), args.address, delay).with_quirks(&args.quirks);
+
+    let mut log = TrafficLog::new();
+    if !args.quiet {
+        let f = match args.log_format {
+            LogFormatArg::Text => LogFormat::Text,
+            LogFormatArg::Json => LogFormat::Json,
+        };
+        log = log.with_sink(f, Box::new(std::io::stderr()));
+    }
+    if let Some(path) = &args.log {
+        let file = File::create(path)
+            .with_context(|| format!("cannot create the log file {}", path.display()))?;
+        log = log.with_sink(LogFormat::Json, Box::new(std::io::BufWriter::new(file)));
+    }
+
+    let stop = Arc::new(AtomicBool::new(false));
+    {
+        let stop = stop.clone();
+        ctrlc::set_handler(move || stop.store(true, Ordering::Relaxed))
+            .context("cannot install the Ctrl-C handler")?;
+    }
+    let quirks: Vec<String> = args.quirks.iter().map(|q| q.to_string()).collect();
+    let banner = format!(
+        "simulated {} ({}) at node {:02X}, {mode}, response delay {} ms{}",
+        model.id,
+        model.manual,
+        args.address,
+        delay.as_millis(),
+        if quirks.is_empty() {
+            String::new()
+        } else {
+            format!(", quirks: {}", quirks.join(" "))
+        }
+    );
+
+    let result = if let Some(path) = &args.port {
+        let mut t = SerialTransport::open(path, line, LinkKind::Serial)?;
+        log.message(&format!("{banner} on {}", t.describe()))?;
+        run_once(&mut t, &mut drive, mode, &mut log, &stop)
+    } else if args.pty {
+        #[cfg(unix)]
+        {
+            let mut t = conformance::transport::pty::PtyMaster::open(args.pace.then_some(line))?;
+            let path = t.slave_path().to_path_buf();
+            if let Some(link) = &args.link {
+                let _ = std::fs::remove_file(link);
+                std::os::unix::fs::symlink(&path, link).with_context(|| {
+                    format!("cannot link {} to {}", link.display(), path.display())
+                })?;
+            }
+            let mut out = std::io::stdout();
+            writeln!(out, "{}", path.display())?;
+            out.flush()?;
+            log.message(&format!("{banner} on {}", t.describe()))?;
+            let r = run_once(&mut t, &mut drive, mode, &mut log, &stop);
+            if let Some(link) = &args.link {
+                let _ = std::fs::remove_file(link);
+            }
+            r
+        }
+        #[cfg(not(unix))]
+        bail!("pseudo-terminals need a Unix system")
+    } else if let Some(addr) = &args.tcp {
+        let listener = std::net::TcpListener::bind(addr)
+            .with_context(|| format!("cannot listen on {addr}"))?;
+        listener.set_nonblocking(true)?;
+        log.message(&format!(
+            "{banner} on tcp {}",
+            listener
+                .local_addr()
+                .map(|a| a.to_string())
+                .unwrap_or_default()
+        ))?;
+        serve_tcp(&listener, &mut drive, mode, &mut log, &stop)
+    } else {
+        bail!("say where to serve: --port PATH, --pty or --tcp HOST:PORT");
+    };
+    match result {
+        Ok(()) => Ok(ExitCode::SUCCESS),
+        Err(e) => Err(e.into()),
+    }
+}
+
+fn run_once(
+    t: &mut dyn Transport,
+    drive: &mut Drive,
+    mode: Mode,
+    log: &mut TrafficLog,
+    stop: &AtomicBool,
+) -> Result<(), SimError> {
+    let stats = serve(t, drive, mode, log, stop)?;
+    log.message(&format!(
+        "stopped: {} frames received, {} replies sent, {} bytes dropped",
+        stats.frames, stats.replies, stats.dropped_bytes
+    ))?;
+    Ok(())
+}
+
+/// Serves one TCP client at a time, as a serial gateway does; a client that goes away is
+/// logged and the next one is accepted.
+fn serve_tcp(
+    listener: &std::net::TcpListener,
+    drive: &mut Drive,
+    mode: Mode,
+    log: &mut TrafficLog,
+    stop: &AtomicBool,
+) -> Result<(), SimError> {
+    while !stop.load(Ordering::Relaxed) {
+        let stream = match listener.accept() {
+            Ok((s, _)) => s,
+            Err(e) if e.kind() == std::io::ErrorKind::WouldBlock => {
+                std::thread::sleep(Duration::from_millis(20));
+                continue;
+            }
+            Err(e) => return Err(SimError::Log(e)),
+        };
+        stream.set_nonblocking(false)?;
+        let mut t = TcpTransport::from_stream(stream)?;
+        log.message(&format!("client connected: {}", t.describe()))?;
+        match serve(&mut t, drive, mode, log, stop) {
+            Ok(_) => {}
+            Err(SimError::Transport(TransportError::Closed { link })) => {
+                log.message(&format!("client went away: {link}"))?;
+            }
+            Err(e) => return Err(e),
+        }
+    }
+    Ok(())
+}

@@ -1,0 +1,397 @@
+//! Talking to an adapter: a child process that speaks the line-delimited JSON protocol of
+//! `adapters/PROTOCOL.md` on its standard input and output.
+//!
+//! Each call sends one request line and waits for the answer with the same id. A late
+//! answer to an earlier request is discarded; a timeout or a malformed answer fails that
+//! call only; an adapter that exits is restarted once, and after a second exit every
+//! further call fails.
+
+use std::io::{BufRead, BufReader, Read, Write};
+use std::process::{Child, ChildStdin, Command, Stdio};
+use std::sync::mpsc::{channel, Receiver, RecvTimeoutError};
+use std::thread;
+use std::time::{Duration, Instant};
+
+use serde_json::{json, Value};
+
+/// Protocol version the gate speaks.
+pub const PROTOCOL: u64 = 1;
+
+/// Longest answer line the gate reads; a longer one is malformed.
+const MAX_LINE: usize = 1 << 20;
+
+/// Consecutive timeouts after which a hung adapter is restarted.
+const HUNG_AFTER: u32 = 3;
+
+/// Why an adapter could not be started or used at all.
+#[derive(Debug, thiserror::Error)]
+pub enum AdapterError {
+    /// The command could not be started.
+    #[error("cannot start the adapter {command:?}: {source}")]
+    Spawn {
+        /// The command.
+        command: String,
+        /// The cause.
+        source: std::io::Error,
+    },
+    /// The handshake failed.
+    #[error("adapter {command:?}: handshake failed: {problem}")]
+    Handshake {
+        /// The command.
+        command: String,
+        /// What went wrong.
+        problem: String,
+    },
+}
+
+/// Why one call failed.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum CallError {
+    /// No answer within the timeout.
+    #[error("no answer within {0} ms")]
+    Timeout(u128),
+    /// An answer that is not a protocol answer.
+    #[error("malformed answer: {0}")]
+    Malformed(String),
+    /// The adapter exited; it was restarted (or could not be).
+    #[error("the adapter exited ({0})")]
+    Crashed(String),
+    /// The adapter had exited twice: no more calls.
+    #[error("the adapter is gone (it exited twice)")]
+    Gone,
+    /// The adapter does not support the operation.
+    #[error("unsupported by the adapter")]
+    Unsupported,
+    /// The adapter answered with an error.
+    #[error("the adapter failed: {0}")]
+    Failed(String),
+}
+
+/// What the adapter said in its handshake.
+#[derive(Debug, Clone, PartialEq, Eq, Default)]
+pub struct Hello {
+    /// The adapter's name.
+    pub adapter: String,
+    /// The implementation it wraps.
+    pub implementation: String,
+    /// Its version.
+    pub version: String,
+    /// Operations supported ("decode", "encode:rtu", ...).
+    pub supports: Vec<String>,
+}
+
+impl Hello {
+    /// Whether `op` is supported in `mode` ("decode" and "rtu": "decode" or "decode:rtu").
+    pub fn supports(&self, op: &str, mode: Option<&str>) -> bool {
+        self.supports
+            .iter()
+            .any(|s| s == op || mode.is_some_and(|m| *s == format!("{op}:{m}")))
+    }
+}
+
+enum Line {
+    Text(String),
+    TooLong,
+}
+
+struct Process {
+    child: Child,
+    stdin: ChildStdin,
+    lines: Receiver<Line>,
+}
+
+/// Kills the adapter and everything in its process group, and reaps it.
+fn kill(child: &mut Child) {
+    #[cfg(unix)]
+    if let Ok(pid) = i32::try_from(child.id()) {
+        let _ = nix::sys::signal::killpg(
+            nix::unistd::Pid::from_raw(pid),
+            nix::sys::signal::Signal::SIGKILL,
+        );
+    }
+    let _ = child.kill();
+    let _ = child.wait();
+}
+
+/// A running adapter.
+pub struct Adapter {
+    command: String,
+    timeout: Duration,
+    process: Option<Process>,
+    next_id: u64,
+    exits: u32,
+    timeouts: u32,
+    /// The handshake.
+    pub hello: Hello,
+    /// Crashes and restarts, for the report.
+    pub incidents: Vec<String>,
+}
+
+fn spawn(command: &str) -> Result<Process, std::io::Error> {
+    let mut cmd = Command::new("sh");
+    cmd.arg("-c")
+        .arg(command)
+        .stdin(Stdio::piped())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::inherit());
+    // Its own process group, so that killing it also kills what the shell started.
+    #[cfg(unix)]
+    std::os::unix::process::CommandExt::process_group(&mut cmd, 0);
+    let mut child = cmd.spawn()?;
+    let stdin = child
+        .stdin
+        .take()
+        .ok_or_else(|| std::io::Error::other("no stdin"))?;
+    let stdout = child
+        .stdout
+        .take()
+        .ok_or_else(|| std::io::Error::other("no stdout"))?;
+    let (tx, rx) = channel();
+    thread::spawn(move || {
+        let mut reader = BufReader::new(stdout);
+        loop {
+            let mut buf = Vec::new();
+            // Read at most MAX_LINE + 1 bytes of one line.
+            let n = match (&mut reader)
+                .take(MAX_LINE as u64 + 1)
+                .read_until(b'\n', &mut buf)
+            {
+                Ok(n) => n,
+                Err(_) => return,
+            };
+            if n == 0 {
+                return;
+            }
+            let line = if buf.len() > MAX_LINE {
+                // Skip the rest of the overlong line.
+                let mut sink = Vec::new();
+                let _ = reader.read_until(b'\n', &mut sink);
+                Line::TooLong
+            } else {
+                Line::Text(String::from_utf8_lossy(&buf).trim_end().to_string())
+            };
+            if tx.send(line).is_err() {
+                return;
+            }
+        }
+    });
+    Ok(Process {
+        child,
+        stdin,
+        lines: rx,
+    })
+}
+
+impl Adapter {
+    /// Starts `command` (through `sh -c`) and shakes hands.
+    pub fn start(command: &str, timeout: Duration) -> Result<Self, AdapterError> {
+        let process = spawn(command).map_err(|source| AdapterError::Spawn {
+            command: command.to_string(),
+            source,
+        })?;
+        let mut a = Adapter {
+            command: command.to_string(),
+            timeout,
+            process: Some(process),
+            next_id: 1,
+            exits: 0,
+            timeouts: 0,
+            hello: Hello::default(),
+            incidents: Vec::new(),
+        };
+        a.hello = a.handshake().map_err(|problem| AdapterError::Handshake {
+            command: command.to_string(),
+            problem,
+        })?;
+        Ok(a)
+    }
+
+    fn handshake(&mut self) -> Result<Hello, String> {
+        let v = self
+            .raw_call_with_id(0, json!({"op": "hello", "protocol": PROTOCOL}))
+            .map_err(|e| e.to_string())?;
+        if v.get("ok") != Some(&Value::Bool(true)) {
+            return Err(format!("the adapter refused protocol {PROTOCOL}: {v}"));
+        }
+        if v.get("protocol").and_then(Value::as_u64) != Some(PROTOCOL) {
+            return Err(format!(
+                "the adapter speaks protocol {:?}, the gate {PROTOCOL}",
+                v.get("protocol")
+            ));
+        }
+        let s = |k: &str| v.get(k).and_then(Value::as_str).unwrap_or("").to_string();
+        Ok(Hello {
+            adapter: s("adapter"),
+            implementation: s("implementation"),
+            version: s("version"),
+            supports: v
+                .get("supports")
+                .and_then(Value::as_array)
+                .map(|a| {
+                    a.iter()
+                        .filter_map(|x| x.as_str().map(String::from))
+                        .collect()
+                })
+                .unwrap_or_default(),
+        })
+    }
+
+    /// The command.
+    pub fn command(&self) -> &str {
+        &self.command
+    }
+
+    fn restart(&mut self, why: String) -> CallError {
+        if let Some(mut p) = self.process.take() {
+            kill(&mut p.child);
+        }
+        self.exits += 1;
+        if self.exits > 1 {
+            self.incidents
+                .push(format!("{why}; exited a second time, not restarted"));
+            return CallError::Crashed(why);
+        }
+        match spawn(&self.command) {
+            Ok(p) => {
+                self.process = Some(p);
+                match self.handshake() {
+                    Ok(_) => self.incidents.push(format!("{why}; restarted")),
+                    Err(e) => {
+                        self.incidents
+                            .push(format!("{why}; restarted, but the handshake failed: {e}"));
+                        self.process = None;
+                        self.exits = 2;
+                    }
+                }
+            }
+            Err(e) => {
+                self.incidents
+                    .push(format!("{why}; could not restart: {e}"));
+                self.exits = 2;
+            }
+        }
+        CallError::Crashed(why)
+    }
+
+    fn raw_call(&mut self, request: Value) -> Result<Value, CallError> {
+        let id = self.next_id;
+        self.next_id += 1;
+        self.raw_call_with_id(id, request)
+    }
+
+    /// The handshake always has id 0 (also after a restart); requests count from 1.
+    fn raw_call_with_id(&mut self, id: u64, mut request: Value) -> Result<Value, CallError> {
+        request["id"] = json!(id);
+        let Some(p) = self.process.as_mut() else {
+            return Err(CallError::Gone);
+        };
+        let mut line = request.to_string();
+        line.push('\n');
+        if let Err(e) = p
+            .stdin
+            .write_all(line.as_bytes())
+            .and_then(|_| p.stdin.flush())
+        {
+            let status = p.child.try_wait().ok().flatten();
+            return Err(self.restart(format!(
+                "writing to it failed ({e}){}",
+                status.map(|s| format!(", {s}")).unwrap_or_default()
+            )));
+        }
+        let deadline = Instant::now() + self.timeout;
+        loop {
+            let left = deadline.saturating_duration_since(Instant::now());
+            let p = self.process.as_mut().ok_or(CallError::Gone)?;
+            match p.lines.recv_timeout(left) {
+                Ok(Line::TooLong) => {
+                    return Err(CallError::Malformed(format!(
+                        "an answer line over {MAX_LINE} bytes"
+                    )))
+                }
+                Ok(Line::Text(text)) => {
+                    let v: Value = match serde_json::from_str(&text) {
+                        Ok(v) => v,
+                        Err(e) => {
+                            let shown: String = text.chars().take(200).collect();
+                            return Err(CallError::Malformed(format!("not JSON ({e}): {shown:?}")));
+                        }
+                    };
+                    match v.get("id").and_then(Value::as_u64) {
+                        Some(got) if got == id => {
+                            self.timeouts = 0;
+                            return Ok(v);
+                        }
+                        // A late answer to an earlier request: drop it.
+                        Some(got) if got < id || (id == 0 && got > 0) => continue,
+                        other => {
+                            return Err(CallError::Malformed(format!(
+                                "answer id {other:?}, expected {id}: {}",
+                                text.chars().take(200).collect::<String>()
+                            )))
+                        }
+                    }
+                }
+                Err(RecvTimeoutError::Timeout) => {
+                    self.timeouts += 1;
+                    if self.timeouts >= HUNG_AFTER {
+                        self.timeouts = 0;
+                        let _ =
+                            self.restart(format!("{HUNG_AFTER} requests in a row got no answer"));
+                    }
+                    return Err(CallError::Timeout(self.timeout.as_millis()));
+                }
+                Err(RecvTimeoutError::Disconnected) => {
+                    let status = p
+                        .child
+                        .wait()
+                        .map(|s| s.to_string())
+                        .unwrap_or_else(|e| e.to_string());
+                    return Err(self.restart(format!("its output closed: {status}")));
+                }
+            }
+        }
+    }
+
+    /// Sends one request (without id) and returns the answer of an `ok` call.
+    pub fn call(&mut self, request: Value) -> Result<Value, CallError> {
+        let v = self.raw_call(request)?;
+        match v.get("ok") {
+            Some(Value::Bool(true)) => Ok(v),
+            Some(Value::Bool(false)) => {
+                let e = v
+                    .get("error")
+                    .and_then(Value::as_str)
+                    .unwrap_or("")
+                    .to_string();
+                if e == "unsupported" {
+                    Err(CallError::Unsupported)
+                } else {
+                    Err(CallError::Failed(e))
+                }
+            }
+            _ => Err(CallError::Malformed(format!("no \"ok\" field: {v}"))),
+        }
+    }
+}
+
+impl Drop for Adapter {
+    fn drop(&mut self) {
+        if let Some(mut p) = self.process.take() {
+            drop(p.stdin);
+            // Give it a moment to exit on end of input, then make sure.
+            let deadline = Instant::now() + Duration::from_millis(500);
+            loop {
+                match p.child.try_wait() {
+                    Ok(Some(_)) => break,
+                    Ok(None) if Instant::now() < deadline => {
+                        thread::sleep(Duration::from_millis(10))
+                    }
+                    _ => {
+                        kill(&mut p.child);
+                        break;
+                    }
+                }
+            }
+        }
+    }
+}

@@ -1,0 +1,320 @@
+//! The drive-model files (`vectors/models/<model>.json`) as serde types.
+//!
+//! These mirror the JSON one to one; [`super::DriveModel::from_file`] checks them and builds
+//! the indexed model that the simulator and the runner use.
+
+use std::collections::BTreeMap;
+
+use serde::{Deserialize, Serialize};
+
+use super::Basis;
+
+/// How a fact is known, with its citation.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub struct FactFile {
+    /// Documented, derived or decision.
+    pub basis: Basis,
+    /// Manual section, with a quote where it helps.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub source: Option<String>,
+    /// For derived facts: the rule that derives them.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub rule: Option<String>,
+    /// For decisions: what the model does and why.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub why: Option<String>,
+}
+
+/// One model file.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ModelFile {
+    /// Format version (1).
+    pub schema_version: u32,
+    /// Model id: f510, a510, l510, e510, l510-legacy.
+    pub model: String,
+    /// The document the model is read from.
+    pub title: String,
+    /// Short name of the document, for citations ("F510 manual").
+    pub manual: String,
+    /// How to read the file.
+    pub notes: String,
+    /// Transmission modes ("rtu", "ascii").
+    pub modes: Vec<String>,
+    /// Node addresses.
+    pub addresses: AddressesFile,
+    /// Function codes served.
+    pub functions: FunctionsFile,
+    /// The loop-back function.
+    pub loop_back: LoopBackFile,
+    /// The exception-code table, as printed.
+    pub exception_codes: Vec<ExceptionCodeFile>,
+    /// Where the table is.
+    pub exception_codes_source: String,
+    /// Which exception each kind of bad request gets (key: fault kind).
+    pub exceptions: BTreeMap<String, ExceptionRuleFile>,
+    /// Requests that get no reply (key: reason).
+    pub silence: BTreeMap<String, FactFile>,
+    /// Frame, count and timing limits.
+    pub limits: LimitsFile,
+    /// Register groups outside the parameter table (command, monitor).
+    pub groups: Vec<GroupFile>,
+    /// Command and monitor registers, one entry each.
+    pub registers: Vec<RegisterFile>,
+    /// The identification register.
+    pub identification: IdentificationFile,
+    /// Parameter groups from the "Parameter Data" tables.
+    pub parameter_groups: Vec<ParameterGroupFile>,
+    /// What the model assumes about parameter access and values.
+    pub parameter_access: FactFile,
+    /// Registers used by the manual's examples outside its tables.
+    pub example_registers: Vec<ExampleRegisterFile>,
+    /// Values the simulator starts with, other than 0000H.
+    pub initial_values: Vec<InitialValueFile>,
+    /// Other spellings of register blocks (the legacy note's A0xxH).
+    pub aliases: Vec<AliasFile>,
+}
+
+/// Node addresses.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct AddressesFile {
+    /// Broadcast address (hex).
+    pub broadcast: String,
+    /// Lowest node address (hex).
+    pub first: String,
+    /// Highest node address (hex).
+    pub last: String,
+    /// Basis and citation.
+    #[serde(flatten)]
+    pub fact: FactFile,
+}
+
+/// Function codes served.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct FunctionsFile {
+    /// Codes in hex.
+    pub codes: Vec<String>,
+    /// Basis and citation.
+    #[serde(flatten)]
+    pub fact: FactFile,
+}
+
+/// The loop-back function.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct LoopBackFile {
+    /// Data bytes after the test code in the manual's frames.
+    pub data_bytes: usize,
+    /// Basis and citation.
+    #[serde(flatten)]
+    pub fact: FactFile,
+}
+
+/// One row of the exception-code table.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ExceptionCodeFile {
+    /// Code in hex.
+    pub code: String,
+    /// Meaning as printed.
+    pub meaning: String,
+}
+
+/// The exception a kind of bad request gets.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct ExceptionRuleFile {
+    /// Code in hex.
+    pub code: String,
+    /// Basis and citation.
+    #[serde(flatten)]
+    pub fact: FactFile,
+}
+
+/// Limits.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct LimitsFile {
+    /// Longest frame, bytes (RTU) or characters (ASCII).
+    pub max_frame_bytes: ValueFile<usize>,
+    /// Registers per 03H request.
+    pub read_registers: PerModeFile,
+    /// Registers per 10H request.
+    pub write_registers: PerModeFile,
+    /// Whether one request must stay within one register group.
+    pub same_group: ValueFile<bool>,
+    /// Response time.
+    pub response_time_ms: ValueFile<u64>,
+}
+
+/// A value with its basis.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct ValueFile<T> {
+    /// The value.
+    pub value: T,
+    /// Basis and citation.
+    #[serde(flatten)]
+    pub fact: FactFile,
+}
+
+/// A limit per transmission mode.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct PerModeFile {
+    /// RTU.
+    pub rtu: u16,
+    /// ASCII.
+    pub ascii: u16,
+    /// Basis and citation.
+    #[serde(flatten)]
+    pub fact: FactFile,
+}
+
+/// A named block of registers.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct GroupFile {
+    /// Name (command, monitor).
+    pub name: String,
+    /// First register (hex).
+    pub first: String,
+    /// Last register (hex).
+    pub last: String,
+}
+
+/// One bit of a bit-field register.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct BitFile {
+    /// Bit number, 0 = least significant.
+    pub bit: u8,
+    /// Meaning as printed.
+    pub name: String,
+    /// What the simulator does with it (run, reverse, external-fault, fault-reset,
+    /// running, ready, fault).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub role: Option<String>,
+}
+
+/// A value bound with its basis.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct BoundFile {
+    /// The bound (hex).
+    pub value: String,
+    /// Basis and citation.
+    #[serde(flatten)]
+    pub fact: FactFile,
+}
+
+/// A fault code with its basis.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct CodeFile {
+    /// The code (decimal, as the manuals number their fault lists).
+    pub value: u16,
+    /// Basis and citation.
+    #[serde(flatten)]
+    pub fact: FactFile,
+}
+
+/// A command or monitor register.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RegisterFile {
+    /// Register (hex).
+    pub register: String,
+    /// Meaning as printed.
+    pub name: String,
+    /// read-write, read-only or reserved.
+    pub access: String,
+    /// What the simulator does with it.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub role: Option<String>,
+    /// Bits of a bit-field register.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub bits: Vec<BitFile>,
+    /// Largest value accepted.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub max: Option<BoundFile>,
+    /// For the fault-code register: the code the external-fault bit raises.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub external_fault_code: Option<CodeFile>,
+    /// Where the register is documented (absent for decisions).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub source: Option<String>,
+    /// For registers the model adds: basis.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub basis: Option<Basis>,
+    /// For registers the model adds: why.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub why: Option<String>,
+}
+
+/// The identification register.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct IdentificationFile {
+    /// Register (hex), if the document has one.
+    pub register: Option<String>,
+    /// Documented value (hex), if any.
+    pub value: Option<String>,
+    /// Value the simulator answers where none is documented (hex).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub simulated: Option<String>,
+    /// Basis and citation.
+    #[serde(flatten)]
+    pub fact: FactFile,
+}
+
+/// One parameter group of the "Parameter Data" table.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ParameterGroupFile {
+    /// Group number.
+    pub group: u8,
+    /// Registers, as "XXXX" or "XXXX-YYYY" ranges.
+    pub registers: Vec<String>,
+    /// Registers the table marks "-" (no Modbus access).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub no_access: Vec<String>,
+    /// Table and group.
+    pub source: String,
+    /// Misprints, repeats and other remarks.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub notes: Vec<String>,
+}
+
+/// A register used by an example outside the tables.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct ExampleRegisterFile {
+    /// Register (hex).
+    pub register: String,
+    /// Value the simulator starts with (hex).
+    pub initial: String,
+    /// read-write or read-only.
+    pub access: String,
+    /// Basis and citation.
+    #[serde(flatten)]
+    pub fact: FactFile,
+}
+
+/// A starting value of the simulator.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct InitialValueFile {
+    /// Register (hex).
+    pub register: String,
+    /// Value (hex).
+    pub value: String,
+    /// Basis and citation.
+    #[serde(flatten)]
+    pub fact: FactFile,
+}
+
+/// Another spelling of a block of registers.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct AliasFile {
+    /// First alias register (hex).
+    pub first: String,
+    /// Last alias register (hex).
+    pub last: String,
+    /// The register `first` stands for (hex).
+    pub target: String,
+    /// Basis and citation.
+    #[serde(flatten)]
+    pub fact: FactFile,
+}

@@ -1,0 +1,165 @@
+//! JUnit XML: one test suite per mode, one test case per check; deviations are failures,
+//! errors are errors, skips are skipped, observations pass with their text in
+//! `system-out`.
+
+use std::fmt::Write as _;
+
+use super::Report;
+use crate::runner::{CheckResult, Status};
+
+fn esc(s: &str) -> String {
+    let mut o = String::with_capacity(s.len());
+    for c in s.chars() {
+        match c {
+            '&' => o.push_str("&amp;"),
+            '<' => o.push_str("&lt;"),
+            '>' => o.push_str("&gt;"),
+            '"' => o.push_str("&quot;"),
+            '\'' => o.push_str("&apos;"),
+            // XML 1.0 cannot carry most control characters; show them escaped.
+            c if (c as u32) < 0x20 && !matches!(c, '\n' | '\t') => {
+                let _ = write!(o, "\\x{:02X}", c as u32);
+            }
+            c => o.push(c),
+        }
+    }
+    o
+}
+
+fn body(c: &CheckResult) -> String {
+    let mut s = format!("source: {}\n", c.source);
+    for f in &c.findings {
+        let _ = writeln!(s, "{:?}: {}", f.severity, f.text);
+    }
+    for e in &c.exchanges {
+        let _ = writeln!(s, "request:  {}", crate::codec::hex::Hex(&e.request));
+        if let Some(x) = &e.expected {
+            let _ = writeln!(s, "expected: {}", crate::codec::hex::Hex(x));
+        }
+        let _ = writeln!(s, "received: {}", crate::codec::hex::Hex(&e.received));
+    }
+    s
+}
+
+/// The report as JUnit XML.
+pub fn junit(r: &Report) -> String {
+    let s = r.summary();
+    let total_time: f64 = r.results.iter().map(|c| c.duration.as_secs_f64()).sum();
+    let mut o = String::from("<?xml version=\"1.0\" encoding=\"UTF-8\"?>\n");
+    let _ = writeln!(
+        o,
+        "<testsuites name=\"{}\" tests=\"{}\" failures=\"{}\" errors=\"{}\" skipped=\"{}\" time=\"{:.3}\">",
+        esc(&format!(
+            "teco-modbus-conformance {}",
+            match &r.codec {
+                Some(c) => format!("gate {} {}", c.implementation, c.version),
+                None => r.device.model.clone(),
+            }
+        )),
+        s.total,
+        s.deviation,
+        s.error + usize::from(!r.complete),
+        s.skip,
+        total_time
+    );
+    // One suite per id prefix: "rtu", "ascii" for a drive; "vector", "diff" for a gate.
+    let prefix = |c: &CheckResult| c.id.split('.').next().unwrap_or("run").to_string();
+    let mut modes: Vec<String> = r.results.iter().map(prefix).collect();
+    modes.dedup();
+    let subject = match &r.codec {
+        Some(c) => c.implementation.clone(),
+        None => r.device.model.clone(),
+    };
+    for mode in modes {
+        let cases: Vec<&CheckResult> = r.results.iter().filter(|c| prefix(c) == mode).collect();
+        let count = |st: Status| cases.iter().filter(|c| c.status == st).count();
+        let name = format!("{subject}.{mode}");
+        let _ = writeln!(
+            o,
+            "  <testsuite name=\"{}\" tests=\"{}\" failures=\"{}\" errors=\"{}\" skipped=\"{}\" time=\"{:.3}\" timestamp=\"{}\">",
+            esc(&name),
+            cases.len(),
+            count(Status::Deviation),
+            count(Status::Error),
+            count(Status::Skip),
+            cases.iter().map(|c| c.duration.as_secs_f64()).sum::<f64>(),
+            esc(&r.started)
+        );
+        let _ = writeln!(o, "    <properties>");
+        for (k, v) in [
+            ("model", r.device.model.clone()),
+            ("manual", r.device.manual.clone()),
+            ("address", format!("{:02X}", r.device.address)),
+            (
+                "link",
+                r.device.links.get(&mode).cloned().unwrap_or_default(),
+            ),
+            ("line", r.device.line.clone()),
+            (
+                "identification",
+                r.device
+                    .identification
+                    .map(|v| format!("{v:04X}"))
+                    .unwrap_or_default(),
+            ),
+            ("complete", r.complete.to_string()),
+        ] {
+            let _ = writeln!(o, "      <property name=\"{k}\" value=\"{}\"/>", esc(&v));
+        }
+        let _ = writeln!(o, "    </properties>");
+        for c in cases {
+            let _ = write!(
+                o,
+                "    <testcase classname=\"{}\" name=\"{}\" time=\"{:.3}\"",
+                esc(&name),
+                esc(&c.id),
+                c.duration.as_secs_f64()
+            );
+            match c.status {
+                Status::Pass => {
+                    let _ = writeln!(o, "/>");
+                }
+                Status::Deviation => {
+                    let _ = writeln!(
+                        o,
+                        ">\n      <failure type=\"deviation\" message=\"{}\">{}</failure>\n    </testcase>",
+                        esc(&c.summary),
+                        esc(&body(c))
+                    );
+                }
+                Status::Error => {
+                    let _ = writeln!(
+                        o,
+                        ">\n      <error type=\"error\" message=\"{}\">{}</error>\n    </testcase>",
+                        esc(&c.summary),
+                        esc(&body(c))
+                    );
+                }
+                Status::Skip => {
+                    let _ = writeln!(
+                        o,
+                        ">\n      <skipped message=\"{}\"/>\n    </testcase>",
+                        esc(&c.summary)
+                    );
+                }
+                Status::Observation => {
+                    let _ = writeln!(
+                        o,
+                        ">\n      <system-out>OBSERVATION: {}</system-out>\n    </testcase>",
+                        esc(&body(c))
+                    );
+                }
+            }
+        }
+        let _ = writeln!(o, "  </testsuite>");
+    }
+    if !r.complete {
+        let _ = writeln!(
+            o,
+            "  <testsuite name=\"run\" tests=\"1\" failures=\"0\" errors=\"1\" skipped=\"0\">\n    <testcase classname=\"run\" name=\"complete\">\n      <error type=\"incomplete\" message=\"{}\"/>\n    </testcase>\n  </testsuite>",
+            esc(r.stopped.as_deref().unwrap_or("the run did not finish"))
+        );
+    }
+    o.push_str("</testsuites>\n");
+    o
+}

@@ -1,0 +1,308 @@
+//! Reports of a conformance run: human text (summary first, deviations first), JSON (a
+//! stable, documented schema: `vectors/schema/report.schema.json`) and JUnit XML (one test
+//! case per check, deviations as failures).
+//!
+//! A report is valid at every moment of a run: [`Report::complete`] is false until the
+//! run ends, so a run cut short by a disconnect or an interruption still leaves a whole
+//! report of what ran, marked incomplete.
+
+mod junit;
+mod text;
+
+use std::collections::BTreeMap;
+
+use serde_json::{json, Value};
+
+pub use junit::junit;
+pub use text::text;
+
+use crate::codec::hex::Hex;
+use crate::codec::Mode;
+use crate::runner::{CheckResult, RestoreRecord, Status};
+
+/// Schema version of the JSON report.
+pub const SCHEMA_VERSION: u32 = 1;
+
+/// The device a report is about.
+#[derive(Debug, Clone, Default)]
+pub struct Device {
+    /// Model id.
+    pub model: String,
+    /// The manual.
+    pub manual: String,
+    /// Node address.
+    pub address: u8,
+    /// Link per mode ("rtu" -> "pty /dev/pts/3 ...").
+    pub links: BTreeMap<String, String>,
+    /// Line settings ("9600 8E1").
+    pub line: String,
+    /// The identification register's value, if read.
+    pub identification: Option<u16>,
+    /// Whether the device is this suite's simulator, and its quirks.
+    pub simulated: Option<Vec<String>>,
+}
+
+/// Options a report records.
+#[derive(Debug, Clone, Default)]
+pub struct RunOptions {
+    /// Modes run.
+    pub modes: Vec<Mode>,
+    /// No writes.
+    pub read_only: bool,
+    /// Motion checks enabled.
+    pub allow_motion: bool,
+    /// Reply timeout.
+    pub timeout_ms: u64,
+    /// Resends.
+    pub retries: u32,
+    /// --only patterns.
+    pub only: Vec<String>,
+}
+
+/// What a report is about.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub enum ReportKind {
+    /// A drive (real or simulated), checked by `conformance check`.
+    #[default]
+    Drive,
+    /// A codec, checked by `conformance gate` through an adapter.
+    Gate,
+}
+
+/// The codec a gate report is about.
+#[derive(Debug, Clone, Default)]
+pub struct Codec {
+    /// The adapter's name.
+    pub adapter: String,
+    /// The implementation it wraps.
+    pub implementation: String,
+    /// Its version.
+    pub version: String,
+    /// The command that runs the adapter.
+    pub command: String,
+    /// Operations it supports.
+    pub supports: Vec<String>,
+    /// Crashes, restarts and hangs of the adapter.
+    pub incidents: Vec<String>,
+    /// Seed and count of the differential cases.
+    pub seed: u64,
+    /// Number of differential cases.
+    pub count: usize,
+}
+
+/// A whole report.
+#[derive(Debug, Clone, Default)]
+pub struct Report {
+    /// Drive or gate.
+    pub kind: ReportKind,
+    /// For a gate report: the codec.
+    pub codec: Option<Codec>,
+    /// When the run started (RFC 3339).
+    pub started: String,
+    /// When it ended, if it has.
+    pub finished: Option<String>,
+    /// Whether every selected check ran.
+    pub complete: bool,
+    /// Why the run stopped early.
+    pub stopped: Option<String>,
+    /// The device.
+    pub device: Device,
+    /// The options.
+    pub options: RunOptions,
+    /// Results in the order they ran.
+    pub results: Vec<CheckResult>,
+    /// Registers restored at the end.
+    pub restore: Vec<RestoreRecord>,
+}
+
+/// Counts per status.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct Summary {
+    /// All checks.
+    pub total: usize,
+    /// PASS.
+    pub pass: usize,
+    /// DEVIATION.
+    pub deviation: usize,
+    /// OBSERVATION.
+    pub observation: usize,
+    /// SKIP.
+    pub skip: usize,
+    /// ERROR.
+    pub error: usize,
+}
+
+impl Report {
+    /// Counts per status.
+    pub fn summary(&self) -> Summary {
+        let mut s = Summary {
+            total: self.results.len(),
+            ..Summary::default()
+        };
+        for r in &self.results {
+            match r.status {
+                Status::Pass => s.pass += 1,
+                Status::Deviation => s.deviation += 1,
+                Status::Observation => s.observation += 1,
+                Status::Skip => s.skip += 1,
+                Status::Error => s.error += 1,
+            }
+        }
+        s
+    }
+
+    /// Registers that could not be restored.
+    pub fn unrestored(&self) -> Vec<&RestoreRecord> {
+        self.restore.iter().filter(|r| !r.restored).collect()
+    }
+
+    /// The exit code: 0 no deviations, 1 deviations found, 2 the run could not complete
+    /// (cut short, a check that could not tell, or a register left unrestored).
+    pub fn exit_code(&self) -> u8 {
+        let s = self.summary();
+        if !self.complete || s.error > 0 || !self.unrestored().is_empty() {
+            2
+        } else if s.deviation > 0 {
+            1
+        } else {
+            0
+        }
+    }
+
+    /// The report as JSON.
+    pub fn to_json(&self) -> Value {
+        let s = self.summary();
+        let checks: Vec<Value> = self.results.iter().map(check_json).collect();
+        let restore: Vec<Value> = self
+            .restore
+            .iter()
+            .map(|r| {
+                json!({
+                    "register": format!("{:04X}", r.register),
+                    "original": format!("{:04X}", r.original),
+                    "restored": r.restored,
+                    "detail": r.detail,
+                })
+            })
+            .collect();
+        let device = match self.kind {
+            ReportKind::Gate => Value::Null,
+            ReportKind::Drive => json!({
+                "model": self.device.model,
+                "manual": self.device.manual,
+                "address": format!("{:02X}", self.device.address),
+                "links": self.device.links,
+                "line": self.device.line,
+                "identification": self.device.identification.map(|v| format!("{v:04X}")),
+                "simulated": self.device.simulated.is_some(),
+                "quirks": self.device.simulated.clone().unwrap_or_default(),
+            }),
+        };
+        let codec = match &self.codec {
+            None => Value::Null,
+            Some(c) => json!({
+                "adapter": c.adapter,
+                "implementation": c.implementation,
+                "version": c.version,
+                "command": c.command,
+                "supports": c.supports,
+                "incidents": c.incidents,
+                "seed": format!("{:#x}", c.seed),
+                "count": c.count,
+            }),
+        };
+        json!({
+            "schema": "teco-modbus-conformance/report",
+            "schema_version": SCHEMA_VERSION,
+            "kind": match self.kind { ReportKind::Drive => "drive", ReportKind::Gate => "gate" },
+            "suite": { "name": env!("CARGO_PKG_NAME"), "version": env!("CARGO_PKG_VERSION") },
+            "started": self.started,
+            "finished": self.finished,
+            "complete": self.complete,
+            "stopped": self.stopped,
+            "exit_code": self.exit_code(),
+            "device": device,
+            "codec": codec,
+            "options": {
+                "modes": self.options.modes.iter().map(|m| m.to_string()).collect::<Vec<_>>(),
+                "read_only": self.options.read_only,
+                "allow_motion": self.options.allow_motion,
+                "timeout_ms": self.options.timeout_ms,
+                "retries": self.options.retries,
+                "only": self.options.only,
+            },
+            "summary": {
+                "total": s.total, "pass": s.pass, "deviation": s.deviation,
+                "observation": s.observation, "skip": s.skip, "error": s.error,
+            },
+            "checks": checks,
+            "restore": restore,
+        })
+    }
+}
+
+fn check_json(r: &CheckResult) -> Value {
+    let exchanges: Vec<Value> = r
+        .exchanges
+        .iter()
+        .map(|e| {
+            json!({
+                "request": Hex(&e.request).to_string(),
+                "expected": e.expected.as_ref().map(|b| Hex(b).to_string()),
+                "received": Hex(&e.received).to_string(),
+                "reply": e.reply.as_ref().map(|b| Hex(b).to_string()),
+                "differs_at": e.expected.as_ref().zip(e.reply.as_ref()).map(|(x, y)| diff_positions(x, y)).unwrap_or_default(),
+                "predicted": e.predicted,
+                "actual": e.actual,
+                "latency_ms": e.latency.map(|d| (d.as_secs_f64() * 1e6).round() / 1e3),
+            })
+        })
+        .collect();
+    let findings: Vec<Value> = r
+        .findings
+        .iter()
+        .map(|f| {
+            json!({
+                "severity": match f.severity {
+                    crate::runner::Severity::Deviation => "deviation",
+                    crate::runner::Severity::Observation => "observation",
+                },
+                "text": f.text,
+            })
+        })
+        .collect();
+    json!({
+        "id": r.id,
+        "title": r.title,
+        "mode": r.mode.map(|m| m.to_string()),
+        "source": r.source,
+        "status": format!("{:?}", r.status).to_lowercase(),
+        "summary": r.summary,
+        "findings": findings,
+        "exchanges": exchanges,
+        "duration_ms": (r.duration.as_secs_f64() * 1e6).round() / 1e3,
+    })
+}
+
+/// Positions where two frames differ, including the bytes one has beyond the other.
+pub fn diff_positions(expected: &[u8], actual: &[u8]) -> Vec<usize> {
+    let n = expected.len().max(actual.len());
+    (0..n)
+        .filter(|&i| expected.get(i) != actual.get(i))
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn differing_bytes_are_found() {
+        assert_eq!(
+            diff_positions(&[1, 0x83, 2, 0xC0, 0xF1], &[1, 0x83, 3, 0x01, 0x31]),
+            [2, 3, 4]
+        );
+        assert_eq!(diff_positions(&[1, 2, 3], &[1, 2]), [2]);
+        assert!(diff_positions(&[1, 2], &[1, 2]).is_empty());
+    }
+}

@@ -1,0 +1,249 @@
+//! The human report: a summary line, then deviations (with both frames and the differing
+//! bytes marked), observations, errors, skips, and the restore.
+
+use std::fmt::Write as _;
+
+use super::{diff_positions, Report};
+use crate::codec::hex::Hex;
+use crate::codec::Mode;
+use crate::runner::{CheckResult, ExchangeRecord, Status};
+
+/// The report as text; `verbose` also lists every passing check and every exchange.
+pub fn text(r: &Report, verbose: bool) -> String {
+    let mut o = String::new();
+    let s = r.summary();
+    let d = &r.device;
+    let gate = r.kind == super::ReportKind::Gate;
+    let _ = writeln!(
+        o,
+        "TECO Modbus {} ({} {})",
+        if gate {
+            "codec gate report"
+        } else {
+            "conformance report"
+        },
+        env!("CARGO_PKG_NAME"),
+        env!("CARGO_PKG_VERSION")
+    );
+    let _ = writeln!(
+        o,
+        "RESULT: {} {}: {} pass, {} deviation{}, {} observation{}, {} skipped, {} error{}{}",
+        s.total,
+        if gate { "cases" } else { "checks" },
+        s.pass,
+        s.deviation,
+        plural(s.deviation),
+        s.observation,
+        plural(s.observation),
+        s.skip,
+        s.error,
+        plural(s.error),
+        if r.complete { "" } else { "  [INCOMPLETE]" }
+    );
+    if let Some(c) = &r.codec {
+        let _ = writeln!(
+            o,
+            "codec:   {} {} (adapter {}; supports {})",
+            c.implementation,
+            c.version,
+            c.adapter,
+            c.supports.join(" ")
+        );
+        let _ = writeln!(o, "command: {}", c.command);
+        let _ = writeln!(
+            o,
+            "cases:   golden vectors, and {} differential cases from seed {:#x}",
+            c.count, c.seed
+        );
+        for i in &c.incidents {
+            let _ = writeln!(o, "adapter: {i}");
+        }
+    }
+    if !gate {
+        let _ = writeln!(
+            o,
+            "device:  {} ({}), node {:02X}{}{}",
+            d.model,
+            d.manual,
+            d.address,
+            match d.identification {
+                Some(v) => format!(", identification {v:04X}H"),
+                None => String::new(),
+            },
+            match &d.simulated {
+                Some(q) if q.is_empty() => ", simulated by this suite".to_string(),
+                Some(q) => format!(", simulated by this suite with quirks: {}", q.join(" ")),
+                None => String::new(),
+            }
+        );
+        for (mode, link) in &d.links {
+            let _ = writeln!(o, "link:    {mode}: {link}");
+        }
+        let _ = writeln!(o, "line:    {}", d.line);
+    }
+    let _ = writeln!(
+        o,
+        "run:     {} .. {}; {}{}{}; timeout {} ms, {} retries{}",
+        r.started,
+        r.finished.as_deref().unwrap_or("(running)"),
+        if r.complete { "complete" } else { "INCOMPLETE" },
+        match &r.stopped {
+            Some(why) => format!(" (stopped: {why})"),
+            None => String::new(),
+        },
+        if r.options.read_only {
+            ", read-only"
+        } else if r.options.allow_motion {
+            ", motion allowed"
+        } else {
+            ""
+        },
+        r.options.timeout_ms,
+        r.options.retries,
+        if r.options.only.is_empty() {
+            String::new()
+        } else {
+            format!(", only {}", r.options.only.join(" "))
+        }
+    );
+    let section = |o: &mut String, status: Status, heading: &str, exchanges: bool| {
+        let items: Vec<&CheckResult> = r.results.iter().filter(|c| c.status == status).collect();
+        if items.is_empty() {
+            return;
+        }
+        let _ = writeln!(o, "\n{heading} ({})", items.len());
+        for c in items {
+            let _ = writeln!(o, "  [{}] {}", c.id, c.title);
+            let _ = writeln!(o, "      source   {}", c.source);
+            if c.findings.is_empty() {
+                let _ = writeln!(o, "      {:<8} {}", "result", c.summary);
+            }
+            for f in &c.findings {
+                let label = match f.severity {
+                    crate::runner::Severity::Deviation => "deviates",
+                    crate::runner::Severity::Observation => "observed",
+                };
+                let _ = writeln!(o, "      {label:<8} {}", f.text);
+            }
+            if exchanges || verbose {
+                for e in &c.exchanges {
+                    exchange(o, c.mode, e);
+                }
+            }
+        }
+    };
+    section(&mut o, Status::Deviation, "DEVIATIONS", true);
+    section(&mut o, Status::Error, "ERRORS", true);
+    section(&mut o, Status::Observation, "OBSERVATIONS", false);
+    let skipped: Vec<&CheckResult> = r
+        .results
+        .iter()
+        .filter(|c| c.status == Status::Skip)
+        .collect();
+    if !skipped.is_empty() {
+        let _ = writeln!(o, "\nSKIPPED ({})", skipped.len());
+        for c in skipped {
+            let _ = writeln!(o, "  [{}] {}", c.id, c.summary);
+        }
+    }
+    if verbose {
+        section(&mut o, Status::Pass, "PASSED", false);
+    } else if s.pass > 0 {
+        let _ = writeln!(o, "\nPASSED ({}): --verbose lists them", s.pass);
+    }
+    if !r.restore.is_empty() {
+        let bad = r.unrestored().len();
+        let _ = writeln!(
+            o,
+            "\nRESTORE ({} register{} changed by the run, {} restored and verified{}){}",
+            r.restore.len(),
+            plural(r.restore.len()),
+            r.restore.len() - bad,
+            if bad > 0 {
+                format!(", {bad} NOT RESTORED")
+            } else {
+                String::new()
+            },
+            if verbose || bad > 0 {
+                ""
+            } else {
+                ": --verbose lists them"
+            }
+        );
+        for x in r.restore.iter().filter(|x| verbose || !x.restored) {
+            let _ = writeln!(
+                o,
+                "  {:04X}H {} {}",
+                x.register,
+                if x.restored { "ok " } else { "NOT" },
+                x.detail
+            );
+        }
+    }
+    o
+}
+
+fn plural(n: usize) -> &'static str {
+    if n == 1 {
+        ""
+    } else {
+        "s"
+    }
+}
+
+fn exchange(o: &mut String, mode: Option<Mode>, e: &ExchangeRecord) {
+    let ascii = mode == Some(Mode::Ascii);
+    let show = |b: &[u8]| {
+        if ascii {
+            format!("{:?}", String::from_utf8_lossy(b))
+        } else {
+            Hex(b).to_string()
+        }
+    };
+    let _ = writeln!(o, "      request  {}", show(&e.request));
+    let _ = writeln!(o, "      model    {}", e.predicted);
+    if let Some(x) = &e.expected {
+        let _ = writeln!(o, "      expected {}", show(x));
+    }
+    if e.received.is_empty() && e.reply.is_none() && !e.actual.is_empty() {
+        // A gate case: the adapter's answer.
+        let _ = writeln!(o, "      answer   {}", e.actual);
+    } else {
+        let received = if e.received.is_empty() {
+            "(nothing)".to_string()
+        } else {
+            show(&e.received)
+        };
+        let _ = writeln!(o, "      received {received}");
+    }
+    if let (Some(x), Some(reply)) = (&e.expected, &e.reply) {
+        let diffs = diff_positions(x, reply);
+        if !diffs.is_empty() {
+            if reply != &e.received {
+                let _ = writeln!(o, "      reply    {}", show(reply));
+            }
+            // Mark the differing bytes under the reply (hex: 3 columns a byte; ASCII: one
+            // column a character after the opening quote).
+            let width = if ascii { 1 } else { 3 };
+            let offset = if ascii { 1 } else { 0 };
+            let len = reply.len().max(x.len());
+            let mut marks = vec![b' '; offset + len * width];
+            for i in diffs {
+                let at = offset + i * width;
+                for k in 0..width.min(2) {
+                    if let Some(m) = marks.get_mut(at + k) {
+                        *m = b'^';
+                    }
+                }
+            }
+            let _ = writeln!(
+                o,
+                "               {}",
+                String::from_utf8_lossy(&marks).trim_end()
+            );
+        }
+    }
+    if let Some(l) = e.latency {
+        let _ = writeln!(o, "      latency  {:.1} ms", l.as_secs_f64() * 1000.0);
+    }
+}

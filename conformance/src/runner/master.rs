@@ -1,0 +1,364 @@
+//! The runner's Modbus master: sends one request, collects everything the line carries
+//! back with arrival times, and finds the reply in it.
+//!
+//! The master keeps the raw bytes: an echo of the request, garbage before the reply, a
+//! truncated or corrupt reply and trailing bytes are all evidence a check reports on, so
+//! nothing is thrown away. Collection ends when the line has been quiet for the quiet
+//! window after some bytes arrived (a reply comes in one burst), or at the timeout.
+
+use std::time::{Duration, Instant};
+
+use crate::codec::crc::crc16;
+use crate::codec::pdu::function;
+use crate::codec::{ascii, Mode, MAX_ASCII_FRAME};
+use crate::transport::{sleep_until, Transport, TransportError};
+
+/// Bytes that arrived together, with their arrival time after the end of the request.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Chunk {
+    /// Arrival time, after the request was sent.
+    pub at: Duration,
+    /// The bytes.
+    pub bytes: Vec<u8>,
+}
+
+/// One request and everything that came back.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Exchange {
+    /// The request as sent.
+    pub request: Vec<u8>,
+    /// Everything received, in order.
+    pub raw: Vec<u8>,
+    /// The same bytes with their arrival times.
+    pub chunks: Vec<Chunk>,
+    /// Whether the received bytes start with an exact copy of the request.
+    pub echo: bool,
+    /// Bytes between the echo (if any) and the reply frame.
+    pub leading: Vec<u8>,
+    /// The reply frame (valid checksum), if one was found.
+    pub reply: Option<Vec<u8>>,
+    /// Bytes after the reply frame.
+    pub trailing: Vec<u8>,
+    /// Time from the end of the request to the first byte after the echo.
+    pub first_byte: Option<Duration>,
+    /// How long the master listened.
+    pub listened: Duration,
+    /// Resends after a timeout without any byte.
+    pub retries: u32,
+}
+
+impl Exchange {
+    /// Received bytes other than an exact echo of the request.
+    pub fn after_echo(&self) -> &[u8] {
+        if self.echo {
+            &self.raw[self.request.len()..]
+        } else {
+            &self.raw
+        }
+    }
+}
+
+/// Timing of the master.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct MasterTiming {
+    /// How long to wait for the first byte of a reply.
+    pub timeout: Duration,
+    /// How long to listen when no reply is expected.
+    pub silence: Duration,
+    /// Quiet time that ends a reply.
+    pub quiet: Duration,
+    /// Least time between the end of one exchange and the next request.
+    pub gap: Duration,
+    /// Resends after a timeout without any byte, when a reply is expected.
+    pub retries: u32,
+}
+
+/// A Modbus master over a transport.
+pub struct Master<T: Transport + ?Sized> {
+    mode: Mode,
+    timing: MasterTiming,
+    last_end: Option<Instant>,
+    transport: Box<T>,
+}
+
+impl<T: Transport + ?Sized> Master<T> {
+    /// A master speaking `mode` over `transport`.
+    pub fn new(transport: Box<T>, mode: Mode, timing: MasterTiming) -> Self {
+        Master {
+            mode,
+            timing,
+            last_end: None,
+            transport,
+        }
+    }
+
+    /// The transport.
+    pub fn transport(&self) -> &T {
+        &self.transport
+    }
+
+    /// The mode.
+    pub fn mode(&self) -> Mode {
+        self.mode
+    }
+
+    /// The timing.
+    pub fn timing(&self) -> MasterTiming {
+        self.timing
+    }
+
+    /// Sends raw bytes that are not a request (garbage, a partial frame) and waits the gap.
+    pub fn send_raw(&mut self, bytes: &[u8], pause: Duration) -> Result<(), TransportError> {
+        self.wait_gap();
+        self.transport.send(bytes)?;
+        std::thread::sleep(pause);
+        self.last_end = Some(Instant::now());
+        Ok(())
+    }
+
+    fn wait_gap(&self) {
+        if let Some(t) = self.last_end {
+            sleep_until(t + self.timing.gap);
+        }
+    }
+
+    /// Sends `request` and collects the answer. With `expect_reply`, waits up to the
+    /// timeout for a first byte (resending up to `retries` times if none comes); without,
+    /// listens for the silence window.
+    pub fn exchange(
+        &mut self,
+        request: &[u8],
+        expect_reply: bool,
+    ) -> Result<Exchange, TransportError> {
+        let mut retries = 0;
+        loop {
+            let ex = self.exchange_once(request, expect_reply, retries)?;
+            if expect_reply && ex.raw.is_empty() && retries < self.timing.retries {
+                retries += 1;
+                continue;
+            }
+            return Ok(ex);
+        }
+    }
+
+    fn exchange_once(
+        &mut self,
+        request: &[u8],
+        expect_reply: bool,
+        retries: u32,
+    ) -> Result<Exchange, TransportError> {
+        self.wait_gap();
+        self.transport.discard_input()?;
+        self.transport.send(request)?;
+        let sent = Instant::now();
+        let wait = if expect_reply {
+            self.timing.timeout
+        } else {
+            self.timing.silence
+        };
+        let deadline = sent + wait;
+        let mut raw = Vec::new();
+        let mut chunks = Vec::new();
+        let mut last_rx: Option<Instant> = None;
+        let mut complete = false;
+        let settle = match self.transport.line_timing() {
+            Some(l) => Duration::from_micros(2 * l.t3_5_us()).max(Duration::from_millis(5)),
+            None => Duration::from_millis(5),
+        };
+        let mut buf = [0u8; 512];
+        // 06H and 08H replies are copies of the request: one copy is the reply, and only
+        // a second copy makes the first an echo.
+        let echo_type = matches!(
+            match self.mode {
+                Mode::Rtu => request.get(1).copied(),
+                Mode::Ascii => ascii_function(request),
+            },
+            Some(function::WRITE_SINGLE_REGISTER | function::LOOP_BACK)
+        );
+        loop {
+            let now = Instant::now();
+            let only_echo = raw.is_empty() || (raw == request && !echo_type);
+            let limit = if only_echo {
+                deadline.saturating_duration_since(now)
+            } else {
+                // Once a whole reply is in, a short settle catches trailing bytes; before
+                // that, the quiet window waits for the rest of a reply in pieces.
+                let quiet = if complete { settle } else { self.timing.quiet };
+                let quiet_end = last_rx.unwrap_or(now) + quiet;
+                quiet_end.saturating_duration_since(now)
+            };
+            if limit.is_zero() {
+                break;
+            }
+            let n = self
+                .transport
+                .recv(&mut buf, limit.min(Duration::from_millis(50)))?;
+            if n > 0 {
+                let t = Instant::now();
+                chunks.push(Chunk {
+                    at: t.duration_since(sent),
+                    bytes: buf[..n].to_vec(),
+                });
+                raw.extend_from_slice(&buf[..n]);
+                last_rx = Some(t);
+                if expect_reply {
+                    let skip = if raw.len() > request.len() && raw.starts_with(request) {
+                        request.len()
+                    } else {
+                        0
+                    };
+                    complete = find_reply(self.mode, request, &raw[skip..]).1.is_some();
+                }
+                // A reply longer than any frame is not a reply: stop collecting.
+                if raw.len() > 4 * MAX_ASCII_FRAME {
+                    break;
+                }
+            } else if Instant::now() >= deadline && only_echo {
+                break;
+            }
+        }
+        let end = Instant::now();
+        self.last_end = Some(end);
+        let echo = raw.len() >= request.len()
+            && raw[..request.len()] == *request
+            && (raw.len() > request.len() || !echo_type);
+        let skip = if echo { request.len() } else { 0 };
+        let first_byte = first_arrival_after(&chunks, skip);
+        let (leading, reply, trailing) = find_reply(self.mode, request, &raw[skip..]);
+        Ok(Exchange {
+            request: request.to_vec(),
+            raw,
+            chunks,
+            echo,
+            leading,
+            reply,
+            trailing,
+            first_byte,
+            listened: end.duration_since(sent),
+            retries,
+        })
+    }
+}
+
+/// The function code of an ASCII request (its 4th and 5th characters).
+fn ascii_function(request: &[u8]) -> Option<u8> {
+    if request.first() != Some(&ascii::START) {
+        return None;
+    }
+    let hi = crate::codec::hex::decode_nibble(*request.get(3)?)?;
+    let lo = crate::codec::hex::decode_nibble(*request.get(4)?)?;
+    Some(hi << 4 | lo)
+}
+
+/// Arrival time of byte number `skip` of the received stream.
+fn first_arrival_after(chunks: &[Chunk], skip: usize) -> Option<Duration> {
+    let mut seen = 0;
+    for c in chunks {
+        if seen + c.bytes.len() > skip {
+            return Some(c.at);
+        }
+        seen += c.bytes.len();
+    }
+    None
+}
+
+/// Splits received bytes into (leading, reply, trailing): the reply is the first frame
+/// with a valid checksum that answers `request` (same function, or the exception of it).
+pub fn find_reply(mode: Mode, request: &[u8], rx: &[u8]) -> (Vec<u8>, Option<Vec<u8>>, Vec<u8>) {
+    match mode {
+        Mode::Rtu => {
+            let fc = request.get(1).copied().unwrap_or(0);
+            for i in 0..rx.len() {
+                let rest = &rx[i..];
+                let Some(&f) = rest.get(1) else { break };
+                if f != fc && f != fc | function::EXCEPTION_BIT {
+                    continue;
+                }
+                let len = match f {
+                    f if f & function::EXCEPTION_BIT != 0 => Some(5),
+                    function::READ_HOLDING_REGISTERS => rest.get(2).map(|&n| 5 + usize::from(n)),
+                    function::WRITE_SINGLE_REGISTER | function::WRITE_MULTIPLE_REGISTERS => Some(8),
+                    // A loop-back reply is as long as its request.
+                    function::LOOP_BACK => Some(request.len()),
+                    _ => None,
+                };
+                let candidates: Vec<usize> = match len {
+                    Some(n) => vec![n],
+                    // Unmodelled function: any length ending in a valid CRC.
+                    None => (4..=rest.len()).collect(),
+                };
+                for n in candidates {
+                    if n >= 4 && n <= rest.len() && crc16(&rest[..n]) == 0 {
+                        return (
+                            rx[..i].to_vec(),
+                            Some(rest[..n].to_vec()),
+                            rest[n..].to_vec(),
+                        );
+                    }
+                }
+            }
+            (rx.to_vec(), None, Vec::new())
+        }
+        Mode::Ascii => {
+            let mut from = 0;
+            while let Some(s) = rx[from..].iter().position(|&c| c == ascii::START) {
+                let s = from + s;
+                let Some(e) = rx[s..].windows(2).position(|w| w == ascii::END) else {
+                    break;
+                };
+                let frame = &rx[s..s + e + 2];
+                if ascii::is_valid_frame(frame) {
+                    return (
+                        rx[..s].to_vec(),
+                        Some(frame.to_vec()),
+                        rx[s + e + 2..].to_vec(),
+                    );
+                }
+                from = s + 1;
+            }
+            (rx.to_vec(), None, Vec::new())
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_reply_is_found_after_echo_and_garbage() {
+        use crate::codec::pdu::{Message, Pdu, Registers};
+        let req = Message {
+            address: 1,
+            pdu: Pdu::ReadRequest {
+                start: 0x2520,
+                count: 1,
+            },
+        }
+        .to_rtu_vec()
+        .unwrap();
+        let reply = Message {
+            address: 1,
+            pdu: Pdu::ReadResponse {
+                values: Registers::new(&[0x00, 0x04]).unwrap(),
+            },
+        }
+        .to_rtu_vec()
+        .unwrap();
+        let mut rx = vec![0xFF, 0x00, 0xA5];
+        rx.extend_from_slice(&reply);
+        let (lead, r, trail) = find_reply(Mode::Rtu, &req, &rx);
+        assert_eq!(lead, [0xFF, 0x00, 0xA5]);
+        assert_eq!(r.unwrap(), reply);
+        assert!(trail.is_empty());
+        // A truncated reply is no reply; its bytes are kept.
+        let (lead, r, _) = find_reply(Mode::Rtu, &req, &reply[..5]);
+        assert!(r.is_none());
+        assert_eq!(lead, reply[..5]);
+        // ASCII: the first valid frame.
+        let rx = b"#@!:010302000AF0\r\n";
+        let (lead, r, _) = find_reply(Mode::Ascii, b":010325200001B6\r\n", rx);
+        assert_eq!(lead, b"#@!");
+        assert_eq!(r.unwrap(), b":010302000AF0\r\n");
+    }
+}

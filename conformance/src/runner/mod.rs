@@ -1,0 +1,620 @@
+//! The conformance runner: probes a device as a Modbus master and compares every answer
+//! with its model.
+//!
+//! - [`master`]: sends requests, collects the raw answer, finds the reply.
+//! - [`compare`]: what the device did against what the model predicts.
+//! - [`checks`]: the checks, derived from the model, each citing its manual section.
+//!
+//! Safety on a real drive: the run bit and the external-fault bit are only set by checks
+//! marked `motion`, which run with [`Options::allow_motion`] only; every register a check
+//! writes is read first, journalled, and written back at the end (also after an
+//! interruption), and the restore is verified by reading back.
+
+pub mod checks;
+pub mod compare;
+pub mod master;
+
+use std::collections::BTreeSet;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::{Duration, Instant};
+
+use serde::Serialize;
+
+pub use checks::{plan, Check};
+pub use compare::{Finding, Severity};
+pub use master::{Exchange, Master, MasterTiming};
+
+use crate::codec::pdu::{Direction, Message, Pdu};
+use crate::codec::Mode;
+use crate::model::{DriveModel, Fact, Judgement};
+use crate::transport::{Transport, TransportError};
+use crate::vectors::VectorFile;
+
+/// How a check ended.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Status {
+    /// The device did what the manual says.
+    Pass,
+    /// The manual says X, the device did Y.
+    Deviation,
+    /// The manual is silent or contradicts itself; this is what the device did.
+    Observation,
+    /// Not run, with the reason.
+    Skip,
+    /// The run could not tell.
+    Error,
+}
+
+impl std::fmt::Display for Status {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            Status::Pass => "PASS",
+            Status::Deviation => "DEVIATION",
+            Status::Observation => "OBSERVATION",
+            Status::Skip => "SKIP",
+            Status::Error => "ERROR",
+        })
+    }
+}
+
+/// One request and its answer, as a report shows it.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct ExchangeRecord {
+    /// The request as sent.
+    pub request: Vec<u8>,
+    /// The reply the model predicts, where it is known to the byte.
+    pub expected: Option<Vec<u8>>,
+    /// Everything received.
+    pub received: Vec<u8>,
+    /// The reply frame found in it.
+    pub reply: Option<Vec<u8>>,
+    /// The model's prediction, in words.
+    pub predicted: String,
+    /// The reply, decoded.
+    pub actual: String,
+    /// Time to the first byte of the reply.
+    pub latency: Option<Duration>,
+}
+
+/// The result of one check.
+#[derive(Debug, Clone)]
+pub struct CheckResult {
+    /// Stable id, e.g. "rtu.map.group-0.past-end".
+    pub id: String,
+    /// What the check does.
+    pub title: String,
+    /// The transmission mode it ran in (None for checks of the whole run).
+    pub mode: Option<Mode>,
+    /// The manual section it tests.
+    pub source: String,
+    /// How it ended.
+    pub status: Status,
+    /// One line: the manual says X, the device did Y.
+    pub summary: String,
+    /// Every finding, worst first.
+    pub findings: Vec<Finding>,
+    /// The exchanges.
+    pub exchanges: Vec<ExchangeRecord>,
+    /// How long it took.
+    pub duration: Duration,
+}
+
+/// What a check returns.
+#[derive(Debug, Default)]
+pub struct Verdict {
+    /// Findings; none means PASS.
+    pub findings: Vec<Finding>,
+    /// Exchanges made.
+    pub exchanges: Vec<ExchangeRecord>,
+    /// Summary when it passes.
+    pub pass_summary: String,
+    /// Set when the check did not run.
+    pub skip: Option<String>,
+    /// Set when the run could not tell.
+    pub error: Option<String>,
+}
+
+impl Verdict {
+    /// A skipped check.
+    pub fn skip(reason: impl Into<String>) -> Self {
+        Verdict {
+            skip: Some(reason.into()),
+            ..Verdict::default()
+        }
+    }
+
+    /// A check the run could not decide.
+    pub fn error(reason: impl Into<String>) -> Self {
+        Verdict {
+            error: Some(reason.into()),
+            ..Verdict::default()
+        }
+    }
+}
+
+/// Options of a run.
+#[derive(Debug, Clone)]
+pub struct Options {
+    /// The device's node address.
+    pub address: u8,
+    /// An address no device on the line has, for the other-node check.
+    pub other_address: u8,
+    /// Skip every write.
+    pub read_only: bool,
+    /// Run the checks that set the run or external-fault bit.
+    pub allow_motion: bool,
+    /// Run only checks whose id matches one of these (substring, or glob with '*').
+    pub only: Vec<String>,
+    /// Master timing.
+    pub timing: MasterTiming,
+    /// Allowance over the manual's response time before a reply counts as late.
+    pub response_allowance: Duration,
+    /// Allowance over t1.5 for gaps inside a reply (host and adapter buffering).
+    pub gap_allowance: Duration,
+    /// Seed of the arbitrary data the checks send.
+    pub seed: u64,
+}
+
+/// A register the run changed and restored.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize)]
+pub struct RestoreRecord {
+    /// Register.
+    pub register: u16,
+    /// Value before the run changed it.
+    pub original: u16,
+    /// Whether the read-back after restoring showed the original value.
+    pub restored: bool,
+    /// What happened.
+    pub detail: String,
+}
+
+/// Everything a run of one mode produced.
+#[derive(Debug, Clone, Default)]
+pub struct ModeRun {
+    /// Check results, in order.
+    pub results: Vec<CheckResult>,
+    /// Registers restored.
+    pub restore: Vec<RestoreRecord>,
+    /// The identification register's value, if read.
+    pub identification: Option<u16>,
+    /// Why the run stopped early, if it did.
+    pub stopped: Option<String>,
+}
+
+/// State shared by the checks of one mode.
+pub struct Ctx<'a> {
+    /// The model.
+    pub model: &'a DriveModel,
+    /// The model's golden vectors (for the example checks).
+    pub vectors: Option<&'a VectorFile>,
+    /// The mode.
+    pub mode: Mode,
+    /// Options.
+    pub opts: &'a Options,
+    master: Master<dyn Transport>,
+    journal: Vec<(u16, u16)>,
+    /// Latencies of replies, for the response-time check.
+    pub latencies: Vec<Duration>,
+    /// Gaps inside replies over t1.5 (line timing only): (request hex, gap).
+    pub gaps: Vec<(String, Duration)>,
+    /// Largest gap seen inside a reply.
+    pub max_gap: Duration,
+    /// Replies measured for gaps.
+    pub gap_replies: usize,
+    /// Exception codes the device sent, with the fault the model predicted.
+    pub codes_seen: BTreeSet<u8>,
+    /// The identification register's value.
+    pub identification: Option<u16>,
+}
+
+/// A probe: one exchange judged by the model.
+pub struct Probed {
+    /// The model's judgement.
+    pub judgement: Judgement,
+    /// What happened on the line.
+    pub exchange: Exchange,
+    /// The comparison.
+    pub comparison: compare::Comparison,
+}
+
+impl Probed {
+    /// The exchange as a report shows it.
+    pub fn record(&self) -> ExchangeRecord {
+        ExchangeRecord {
+            request: self.exchange.request.clone(),
+            expected: self.comparison.expected.clone(),
+            received: self.exchange.raw.clone(),
+            reply: self.exchange.reply.clone(),
+            predicted: format!(
+                "{} ({}; {})",
+                self.judgement.expect.describe(),
+                self.judgement.detail,
+                self.judgement.basis()
+            ),
+            actual: self.comparison.actual.clone(),
+            latency: self.exchange.first_byte,
+        }
+    }
+
+    /// Values of a normal 03H reply, if that is what came.
+    pub fn read_values(&self) -> Option<Vec<u16>> {
+        let reply = self.exchange.reply.as_ref()?;
+        let body = compare::body_of(self.exchange_mode(), reply)?;
+        match Message::parse_body(&body, Direction::Response).ok()?.pdu {
+            Pdu::ReadResponse { values } => Some(values.iter().collect()),
+            _ => None,
+        }
+    }
+
+    fn exchange_mode(&self) -> Mode {
+        if self.exchange.request.first() == Some(&b':') {
+            Mode::Ascii
+        } else {
+            Mode::Rtu
+        }
+    }
+}
+
+impl<'a> Ctx<'a> {
+    /// A context for `mode` over `transport`.
+    pub fn new(
+        model: &'a DriveModel,
+        vectors: Option<&'a VectorFile>,
+        mode: Mode,
+        opts: &'a Options,
+        transport: Box<dyn Transport>,
+    ) -> Self {
+        Ctx {
+            model,
+            vectors,
+            mode,
+            opts,
+            master: Master::new(transport, mode, opts.timing),
+            journal: Vec::new(),
+            latencies: Vec::new(),
+            gaps: Vec::new(),
+            max_gap: Duration::ZERO,
+            gap_replies: 0,
+            codes_seen: BTreeSet::new(),
+            identification: None,
+        }
+    }
+
+    /// The transport's description.
+    pub fn link(&self) -> String {
+        self.master.transport().describe()
+    }
+
+    /// The line settings whose timing the link has.
+    pub fn line_timing(&self) -> Option<crate::codec::timing::LineSettings> {
+        self.master.transport().line_timing()
+    }
+
+    /// The frame of `pdu` addressed to `address`, in this mode.
+    pub fn frame_to(&self, address: u8, pdu: Pdu<'_>) -> Vec<u8> {
+        Message { address, pdu }
+            .to_frame_vec(self.mode)
+            .unwrap_or_default()
+    }
+
+    /// The frame of `pdu` addressed to the device.
+    pub fn frame(&self, pdu: Pdu<'_>) -> Vec<u8> {
+        self.frame_to(self.opts.address, pdu)
+    }
+
+    /// Sends `frame`, judges it by the model and compares. `known` gives values a read
+    /// must return, with the basis of that knowledge.
+    pub fn probe(
+        &mut self,
+        frame: Vec<u8>,
+        known: Option<(Vec<Option<u16>>, Fact)>,
+    ) -> Result<Probed, TransportError> {
+        let judgement = self.model.judge(self.opts.address, self.mode, &frame);
+        let exchange = self.master.exchange(&frame, judgement.expect.replies())?;
+        let comparison = compare::compare(
+            self.model,
+            self.mode,
+            &judgement,
+            &exchange,
+            known.as_ref().map(|(v, f)| (v.as_slice(), f)),
+        );
+        if let Some(reply) = &exchange.reply {
+            if let Some(t) = exchange.first_byte {
+                self.latencies.push(t);
+            }
+            if let Some(body) = compare::body_of(self.mode, reply) {
+                if body.len() == 3 && body[1] & 0x80 != 0 {
+                    self.codes_seen.insert(body[2]);
+                }
+            }
+            self.measure_gaps(&exchange);
+        }
+        Ok(Probed {
+            judgement,
+            exchange,
+            comparison,
+        })
+    }
+
+    fn measure_gaps(&mut self, ex: &Exchange) {
+        let Some(line) = self.line_timing() else {
+            return;
+        };
+        self.gap_replies += 1;
+        let limit = Duration::from_micros(line.t1_5_us()) + self.opts.gap_allowance;
+        let skip = if ex.echo { ex.request.len() } else { 0 };
+        let mut seen = 0;
+        let mut prev: Option<Duration> = None;
+        for c in &ex.chunks {
+            for _ in &c.bytes {
+                if seen >= skip {
+                    if let Some(p) = prev {
+                        let gap = c.at.saturating_sub(p);
+                        // A chunk's bytes arrived together; the gap is between chunks,
+                        // less the time of the character itself.
+                        let gap = gap.saturating_sub(Duration::from_micros(line.char_time_us()));
+                        self.max_gap = self.max_gap.max(gap);
+                        if gap > limit {
+                            self.gaps
+                                .push((crate::codec::hex::Hex(&ex.request).to_string(), gap));
+                        }
+                    }
+                    prev = Some(c.at);
+                }
+                seen += 1;
+            }
+        }
+    }
+
+    /// Sends bytes that are not a request and waits `pause`.
+    pub fn send_raw(&mut self, bytes: &[u8], pause: Duration) -> Result<(), TransportError> {
+        self.master.send_raw(bytes, pause)
+    }
+
+    /// Reads `count` registers from `start`; the values, or why not.
+    pub fn read(
+        &mut self,
+        start: u16,
+        count: u16,
+    ) -> Result<Result<Vec<u16>, String>, TransportError> {
+        let frame = self.frame(Pdu::ReadRequest { start, count });
+        let p = self.probe(frame, None)?;
+        Ok(match p.read_values() {
+            Some(v) if v.len() == usize::from(count) => Ok(v),
+            _ => Err(format!(
+                "reading {count} from {start:04X}H: {}",
+                p.comparison.actual
+            )),
+        })
+    }
+
+    /// Reads `register`'s value before a check changes it, once per run, so that the
+    /// restore can put it back.
+    pub fn remember(&mut self, register: u16) -> Result<Result<u16, String>, TransportError> {
+        if let Some((_, v)) = self.journal.iter().find(|(r, _)| *r == register) {
+            return Ok(Ok(*v));
+        }
+        Ok(match self.read(register, 1)? {
+            Ok(v) => {
+                self.journal.push((register, v[0]));
+                Ok(v[0])
+            }
+            Err(e) => Err(e),
+        })
+    }
+
+    /// Writes one register and reports whether the device confirmed it (plain, for
+    /// set-up and restore).
+    pub fn write(
+        &mut self,
+        register: u16,
+        value: u16,
+    ) -> Result<Result<(), String>, TransportError> {
+        let frame = self.frame(Pdu::WriteSingle { register, value });
+        let ex = self.master.exchange(&frame, true)?;
+        Ok(match &ex.reply {
+            Some(r) if *r == frame => Ok(()),
+            Some(r) => Err(format!(
+                "writing {value:04X} to {register:04X}H: {}",
+                compare::describe_reply(self.mode, r)
+            )),
+            None => Err(format!(
+                "writing {value:04X} to {register:04X}H: {}",
+                if ex.raw.is_empty() {
+                    "no reply".to_string()
+                } else {
+                    compare::explain_invalid(self.mode, ex.after_echo())
+                }
+            )),
+        })
+    }
+
+    /// Writes back every journalled register, newest first, and verifies by reading.
+    pub fn restore(&mut self) -> Vec<RestoreRecord> {
+        let journal: Vec<(u16, u16)> = self.journal.drain(..).rev().collect();
+        let mut out = Vec::new();
+        for (register, original) in journal {
+            let rec = |restored, detail: String| RestoreRecord {
+                register,
+                original,
+                restored,
+                detail,
+            };
+            // A register that holds its original value needs no write (a rejected
+            // write, a value-preserving write): say so, and do not write.
+            match self.read(register, 1) {
+                Ok(Ok(v)) if v[0] == original => {
+                    out.push(rec(
+                        true,
+                        format!("holds its original value {original:04X}H; nothing to write"),
+                    ));
+                    continue;
+                }
+                Err(e) => {
+                    out.push(rec(false, format!("could not read it to restore it: {e}")));
+                    continue;
+                }
+                _ => {}
+            }
+            let written = self.write(register, original);
+            let record = match written {
+                Err(e) => rec(false, format!("could not write it back: {e}")),
+                Ok(Err(e)) => rec(false, format!("could not write it back: {e}")),
+                Ok(Ok(())) => match self.read(register, 1) {
+                    Err(e) => rec(
+                        false,
+                        format!("written back, but the read-back failed: {e}"),
+                    ),
+                    Ok(Err(e)) => rec(
+                        false,
+                        format!("written back, but the read-back failed: {e}"),
+                    ),
+                    Ok(Ok(v)) if v[0] == original => {
+                        rec(true, format!("restored to {original:04X}H and read back"))
+                    }
+                    Ok(Ok(v)) => rec(
+                        false,
+                        format!(
+                            "written back, but it reads {:04X}H, not {original:04X}H",
+                            v[0]
+                        ),
+                    ),
+                },
+            };
+            out.push(record);
+        }
+        out
+    }
+}
+
+/// Told about each check as it starts and ends (progress bars, incremental reports).
+pub trait Progress {
+    /// A check starts.
+    fn started(&mut self, check: &Check);
+    /// A check ended.
+    fn finished(&mut self, result: &CheckResult);
+}
+
+/// Runs the checks of `mode` that `opts.only` selects, telling `progress` about each
+/// (for incremental reports and progress bars). Stops early when `stop` is set or the link
+/// fails; registers the run changed are restored either way.
+pub fn run_mode(
+    model: &DriveModel,
+    vectors: Option<&VectorFile>,
+    mode: Mode,
+    transport: Box<dyn Transport>,
+    opts: &Options,
+    stop: &AtomicBool,
+    progress: &mut dyn Progress,
+) -> ModeRun {
+    let checks = plan(model, vectors, mode, opts);
+    let mut ctx = Ctx::new(model, vectors, mode, opts, transport);
+    let mut run = ModeRun::default();
+    for check in checks.iter().filter(|c| selected(&c.id, &opts.only)) {
+        if stop.load(Ordering::Relaxed) {
+            run.stopped = Some("interrupted".to_string());
+            break;
+        }
+        progress.started(check);
+        let started = Instant::now();
+        let verdict = if check.motion && !opts.allow_motion {
+            Ok(Verdict::skip(
+                "sets the run or external-fault bit; needs --allow-motion",
+            ))
+        } else if check.writes && opts.read_only {
+            Ok(Verdict::skip("writes registers; --read-only"))
+        } else {
+            (check.run)(&mut ctx)
+        };
+        let (verdict, fatal) = match verdict {
+            Ok(v) => (v, None),
+            Err(e) => {
+                let msg = e.to_string();
+                (Verdict::error(msg.clone()), Some(msg))
+            }
+        };
+        let result = result_of(check, mode, verdict, started.elapsed());
+        progress.finished(&result);
+        run.results.push(result);
+        if let Some(msg) = fatal {
+            run.stopped = Some(msg);
+            break;
+        }
+    }
+    run.identification = ctx.identification;
+    run.restore = ctx.restore();
+    run
+}
+
+fn result_of(check: &Check, mode: Mode, mut v: Verdict, duration: Duration) -> CheckResult {
+    v.findings.sort_by_key(|f| std::cmp::Reverse(f.severity));
+    let (status, summary) = if let Some(e) = &v.error {
+        (Status::Error, e.clone())
+    } else if let Some(s) = &v.skip {
+        (Status::Skip, s.clone())
+    } else if let Some(f) = v.findings.first() {
+        let status = match f.severity {
+            Severity::Deviation => Status::Deviation,
+            Severity::Observation => Status::Observation,
+        };
+        (status, f.text.clone())
+    } else {
+        (Status::Pass, v.pass_summary.clone())
+    };
+    CheckResult {
+        id: check.id.clone(),
+        title: check.title.clone(),
+        mode: Some(mode),
+        source: check.source.clone(),
+        status,
+        summary,
+        findings: v.findings,
+        exchanges: v.exchanges,
+        duration,
+    }
+}
+
+/// Whether check `id` is selected by `only` (every check when empty).
+pub fn selected(id: &str, only: &[String]) -> bool {
+    only.is_empty() || only.iter().any(|p| glob(p, id))
+}
+
+fn glob(pattern: &str, text: &str) -> bool {
+    if !pattern.contains('*') {
+        return text.contains(pattern);
+    }
+    let parts: Vec<&str> = pattern.split('*').collect();
+    let mut rest = text;
+    for (i, part) in parts.iter().enumerate() {
+        if i == 0 {
+            match rest.strip_prefix(part) {
+                Some(r) => rest = r,
+                None => return false,
+            }
+        } else if i == parts.len() - 1 {
+            return rest.ends_with(part);
+        } else {
+            match rest.find(part) {
+                Some(at) => rest = &rest[at + part.len()..],
+                None => return false,
+            }
+        }
+    }
+    true
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn only_patterns() {
+        assert!(selected("rtu.map.group-0.first", &[]));
+        assert!(selected("rtu.map.group-0.first", &["group-0".into()]));
+        assert!(selected("rtu.map.group-0.first", &["rtu.*.first".into()]));
+        assert!(!selected("ascii.map.group-0.first", &["rtu.*".into()]));
+        assert!(selected("ascii.map.group-0.first", &["*first".into()]));
+        assert!(!selected("ascii.map.group-0.last", &["*first".into()]));
+    }
+}

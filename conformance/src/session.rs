@@ -1,0 +1,290 @@
+//! A whole conformance run: opens the target (a serial port, a TCP gateway, or the
+//! simulator started in-process on a pseudo-terminal pair), runs the checks of each mode,
+//! and builds the report. The command line and the tests both run sessions through here.
+
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
+use std::thread;
+use std::time::{Duration, SystemTime};
+
+use crate::codec::timing::LineSettings;
+use crate::codec::Mode;
+use crate::model::DriveModel;
+use crate::report::{Device, Report, RunOptions};
+use crate::runner::{run_mode, Check, CheckResult, Options, Progress};
+use crate::sim::{serve, Drive, LogFormat, Quirk, TrafficLog};
+use crate::transport::serial::SerialTransport;
+use crate::transport::tcp::TcpTransport;
+use crate::transport::{LinkKind, Transport, TransportError};
+use crate::vectors::VectorSet;
+
+/// What the run talks to.
+#[derive(Debug, Clone)]
+pub enum Target {
+    /// A serial port.
+    Serial {
+        /// Device path.
+        path: String,
+    },
+    /// A serial gateway at HOST:PORT.
+    Tcp {
+        /// HOST:PORT.
+        addr: String,
+    },
+    /// This suite's simulator, started in-process on a pseudo-terminal pair.
+    Sim {
+        /// Fault injection.
+        quirks: Vec<Quirk>,
+        /// Send at the line's character time, so that timing checks measure something.
+        pace: bool,
+        /// Response delay (default: the model's response time).
+        delay: Option<Duration>,
+        /// Where to write the simulator's traffic log (JSON lines), if anywhere.
+        log: Option<std::path::PathBuf>,
+    },
+}
+
+/// Everything a session needs.
+pub struct SessionConfig {
+    /// The model.
+    pub model: Arc<DriveModel>,
+    /// The target.
+    pub target: Target,
+    /// Modes to run, in order.
+    pub modes: Vec<Mode>,
+    /// The serial line (also the simulator's pacing).
+    pub line: LineSettings,
+    /// Runner options.
+    pub options: Options,
+}
+
+/// Why a session could not start.
+#[derive(Debug, thiserror::Error)]
+pub enum SessionError {
+    /// The target could not be opened.
+    #[error(transparent)]
+    Transport(#[from] TransportError),
+    /// The simulator's log could not be created.
+    #[error("cannot create the simulator log {path}: {source}")]
+    Log {
+        /// The file.
+        path: String,
+        /// The cause.
+        source: std::io::Error,
+    },
+    /// Pseudo-terminals are not available.
+    #[error("the simulator needs pseudo-terminals (a Unix system)")]
+    NoPty,
+}
+
+fn now_rfc3339() -> String {
+    humantime::format_rfc3339_seconds(SystemTime::now()).to_string()
+}
+
+/// The checks a session would run, per mode, without opening anything.
+pub fn list(config: &SessionConfig) -> Vec<(Mode, Check)> {
+    let vectors = VectorSet::builtin().ok();
+    let file = vectors.as_ref().and_then(|v| v.file(&config.model.id));
+    let mut out = Vec::new();
+    for &mode in &config.modes {
+        for c in crate::runner::plan(&config.model, file, mode, &config.options) {
+            if crate::runner::selected(&c.id, &config.options.only) {
+                out.push((mode, c));
+            }
+        }
+    }
+    out
+}
+
+/// A simulator running in a thread on the master side of a pseudo-terminal pair.
+struct SimThread {
+    stop: Arc<AtomicBool>,
+    handle: Option<thread::JoinHandle<Result<(), String>>>,
+}
+
+impl Drop for SimThread {
+    fn drop(&mut self) {
+        self.stop.store(true, Ordering::Relaxed);
+        if let Some(h) = self.handle.take() {
+            let _ = h.join();
+        }
+    }
+}
+
+#[cfg(unix)]
+fn start_sim(
+    config: &SessionConfig,
+    mode: Mode,
+    quirks: &[Quirk],
+    pace: bool,
+    delay: Option<Duration>,
+    log: Option<&std::path::Path>,
+) -> Result<(SimThread, Box<dyn Transport>), SessionError> {
+    use crate::transport::pty::PtyMaster;
+    let mut master = PtyMaster::open(pace.then_some(config.line))?;
+    let path = master.slave_path().to_string_lossy().into_owned();
+    let delay = delay.unwrap_or(Duration::from_millis(config.model.limits.response_time_ms));
+    let mut drive =
+        Drive::new(config.model.clone(), config.options.address, delay).with_quirks(quirks);
+    let mut traffic = TrafficLog::new();
+    if let Some(p) = log {
+        let file = std::fs::OpenOptions::new()
+            .create(true)
+            .append(true)
+            .open(p)
+            .map_err(|source| SessionError::Log {
+                path: p.display().to_string(),
+                source,
+            })?;
+        traffic = traffic.with_sink(LogFormat::Json, Box::new(std::io::BufWriter::new(file)));
+    }
+    let stop = Arc::new(AtomicBool::new(false));
+    let s = stop.clone();
+    let handle = thread::spawn(move || {
+        serve(&mut master, &mut drive, mode, &mut traffic, &s)
+            .map(|_| ())
+            .map_err(|e| e.to_string())
+    });
+    let mut client = SerialTransport::open(&path, config.line, LinkKind::Pty)?;
+    if pace {
+        client = client.paced_peer();
+    }
+    Ok((
+        SimThread {
+            stop,
+            handle: Some(handle),
+        },
+        Box::new(client),
+    ))
+}
+
+struct Hooks<'a, 'b> {
+    mode: Mode,
+    report: &'a mut Report,
+    on_start: &'a mut (dyn FnMut(Mode, &Check) + 'b),
+    on_result: &'a mut (dyn FnMut(&Report) + 'b),
+}
+
+impl Progress for Hooks<'_, '_> {
+    fn started(&mut self, check: &Check) {
+        (self.on_start)(self.mode, check);
+    }
+
+    fn finished(&mut self, result: &CheckResult) {
+        self.report.results.push(result.clone());
+        (self.on_result)(self.report);
+    }
+}
+
+/// A "serial port" that is really a pseudo-terminal (socat's pty pairs, a simulator's
+/// slave path) has no line timing; everything else is taken as a real line.
+fn serial_kind(path: &str) -> LinkKind {
+    match std::fs::canonicalize(path) {
+        Ok(p) if p.starts_with("/dev/pts") => LinkKind::Pty,
+        _ => LinkKind::Serial,
+    }
+}
+
+/// Runs a session. `on_start` is called before each check (progress), `on_result` after
+/// each with the report so far (incremental output). `stop` cuts the run short; what ran
+/// is reported, marked incomplete, and changed registers are restored.
+pub fn run(
+    config: &SessionConfig,
+    stop: &AtomicBool,
+    on_start: &mut dyn FnMut(Mode, &Check),
+    on_result: &mut dyn FnMut(&Report),
+) -> Result<Report, SessionError> {
+    let vectors = VectorSet::builtin().ok();
+    let file = vectors.as_ref().and_then(|v| v.file(&config.model.id));
+    let l = config.line;
+    let mut report = Report {
+        started: now_rfc3339(),
+        device: Device {
+            model: config.model.id.clone(),
+            manual: config.model.manual.clone(),
+            address: config.options.address,
+            line: format!("{} baud {}{}{}", l.baud, l.data_bits, l.parity, l.stop_bits),
+            simulated: match &config.target {
+                Target::Sim { quirks, .. } => Some(quirks.iter().map(|q| q.to_string()).collect()),
+                _ => None,
+            },
+            ..Device::default()
+        },
+        options: RunOptions {
+            modes: config.modes.clone(),
+            read_only: config.options.read_only,
+            allow_motion: config.options.allow_motion,
+            timeout_ms: u64::try_from(config.options.timing.timeout.as_millis())
+                .unwrap_or(u64::MAX),
+            retries: config.options.timing.retries,
+            only: config.options.only.clone(),
+        },
+        ..Report::default()
+    };
+    on_result(&report);
+    for &mode in &config.modes {
+        if stop.load(Ordering::Relaxed) {
+            report.stopped = Some("interrupted".into());
+            break;
+        }
+        let (sim, transport): (Option<SimThread>, Box<dyn Transport>) = match &config.target {
+            Target::Serial { path } => (
+                None,
+                Box::new(SerialTransport::open(path, config.line, serial_kind(path))?),
+            ),
+            Target::Tcp { addr } => (
+                None,
+                Box::new(TcpTransport::connect(
+                    addr,
+                    config.options.timing.timeout.max(Duration::from_secs(2)),
+                )?),
+            ),
+            #[cfg(unix)]
+            Target::Sim {
+                quirks,
+                pace,
+                delay,
+                log,
+            } => {
+                let (s, t) = start_sim(config, mode, quirks, *pace, *delay, log.as_deref())?;
+                (Some(s), t)
+            }
+            #[cfg(not(unix))]
+            Target::Sim { .. } => return Err(SessionError::NoPty),
+        };
+        report
+            .device
+            .links
+            .insert(mode.to_string(), transport.describe());
+        let mode_run = {
+            let mut hooks = Hooks {
+                mode,
+                report: &mut report,
+                on_start: &mut *on_start,
+                on_result: &mut *on_result,
+            };
+            run_mode(
+                &config.model,
+                file,
+                mode,
+                transport,
+                &config.options,
+                stop,
+                &mut hooks,
+            )
+        };
+        drop(sim);
+        if report.device.identification.is_none() {
+            report.device.identification = mode_run.identification;
+        }
+        report.restore.extend(mode_run.restore);
+        if let Some(why) = mode_run.stopped {
+            report.stopped = Some(why);
+            break;
+        }
+    }
+    report.complete = report.stopped.is_none();
+    report.finished = Some(now_rfc3339());
+    on_result(&report);
+    Ok(report)
+}

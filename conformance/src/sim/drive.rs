@@ -1,0 +1,715 @@
+//! The simulated drive: a model's rules plus state, and the fault-injection quirks.
+//!
+//! [`Drive::handle`] is pure apart from the drive's own state: it takes one request frame
+//! and returns what goes on the line and when (an echo, a reply after the response delay),
+//! so it is tested without any I/O. The server ([`super::server`]) moves the bytes.
+
+use std::collections::BTreeMap;
+use std::fmt;
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use crate::codec::pdu::{Direction, Message, Pdu, Registers};
+use crate::codec::rtu::RtuFrame;
+use crate::codec::{ascii::AsciiFrame, Mode, MAX_RTU_FRAME};
+use crate::model::{Access, DriveModel, Expectation, Judgement, Role, SilenceReason};
+
+/// A deliberate deviation from the model, so that the runner can prove it notices.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum Quirk {
+    /// The two CRC bytes of every reply are swapped (in ASCII: the two LRC characters).
+    CrcSwap,
+    /// Broadcast requests are answered (from address 00H).
+    ReplyToBroadcast,
+    /// Every exception reply carries the model's code plus one.
+    WrongException,
+    /// Every reply comes this many milliseconds late.
+    LateReply(u64),
+    /// Every Nth reply is not sent.
+    DropEvery(u32),
+    /// Every request is echoed back before the reply, as a half-duplex adapter without
+    /// echo suppression does.
+    LocalEcho,
+    /// Three garbage bytes go on the line before every reply.
+    GarbageBeforeReply,
+    /// Every reply loses its last two bytes (RTU) or its last three characters (ASCII).
+    TruncatedReply,
+    /// Requests to any node address are answered.
+    AnswerEveryAddress,
+}
+
+/// The quirks, with their spelling and what each does, for help text and docs.
+pub const QUIRK_HELP: [(&str, &str); 9] = [
+    (
+        "crc-swap",
+        "swap the two CRC bytes of every reply (ASCII: the two LRC characters)",
+    ),
+    (
+        "reply-to-broadcast",
+        "answer broadcast requests (from address 00)",
+    ),
+    (
+        "wrong-exception",
+        "answer every exception with the model's code plus one",
+    ),
+    ("late-reply=MS", "send every reply MS milliseconds late"),
+    ("drop-every=N", "do not send every Nth reply"),
+    (
+        "local-echo",
+        "echo every request before the reply (half-duplex adapter)",
+    ),
+    (
+        "garbage-before-reply",
+        "send three garbage bytes before every reply",
+    ),
+    (
+        "truncated-reply",
+        "cut the last 2 bytes (RTU) / 3 characters (ASCII) off every reply",
+    ),
+    (
+        "answer-every-address",
+        "answer requests to any node address",
+    ),
+];
+
+/// A quirk that cannot be parsed.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("unknown quirk {0:?}; the quirks are crc-swap, reply-to-broadcast, wrong-exception, late-reply=MS, drop-every=N, local-echo, garbage-before-reply, truncated-reply, answer-every-address")]
+pub struct QuirkError(pub String);
+
+impl std::str::FromStr for Quirk {
+    type Err = QuirkError;
+
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        let err = || QuirkError(s.to_string());
+        let (name, arg) = match s.split_once('=') {
+            Some((n, a)) => (n, Some(a)),
+            None => (s, None),
+        };
+        let num = |a: Option<&str>| -> Result<u64, QuirkError> {
+            a.and_then(|a| a.parse::<u64>().ok()).ok_or_else(err)
+        };
+        Ok(match (name, arg) {
+            ("crc-swap", None) => Quirk::CrcSwap,
+            ("reply-to-broadcast", None) => Quirk::ReplyToBroadcast,
+            ("wrong-exception", None) => Quirk::WrongException,
+            ("late-reply", a) => Quirk::LateReply(num(a)?),
+            ("drop-every", a) => {
+                let n = u32::try_from(num(a)?).map_err(|_| err())?;
+                if n == 0 {
+                    return Err(err());
+                }
+                Quirk::DropEvery(n)
+            }
+            ("local-echo", None) => Quirk::LocalEcho,
+            ("garbage-before-reply", None) => Quirk::GarbageBeforeReply,
+            ("truncated-reply", None) => Quirk::TruncatedReply,
+            ("answer-every-address", None) => Quirk::AnswerEveryAddress,
+            _ => return Err(err()),
+        })
+    }
+}
+
+impl fmt::Display for Quirk {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Quirk::CrcSwap => f.write_str("crc-swap"),
+            Quirk::ReplyToBroadcast => f.write_str("reply-to-broadcast"),
+            Quirk::WrongException => f.write_str("wrong-exception"),
+            Quirk::LateReply(ms) => write!(f, "late-reply={ms}"),
+            Quirk::DropEvery(n) => write!(f, "drop-every={n}"),
+            Quirk::LocalEcho => f.write_str("local-echo"),
+            Quirk::GarbageBeforeReply => f.write_str("garbage-before-reply"),
+            Quirk::TruncatedReply => f.write_str("truncated-reply"),
+            Quirk::AnswerEveryAddress => f.write_str("answer-every-address"),
+        }
+    }
+}
+
+/// What a transmission is.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum SendKind {
+    /// The request echoed back (local-echo quirk).
+    Echo,
+    /// The drive's reply.
+    Reply,
+}
+
+/// Bytes the drive puts on the line, `after` the end of the request.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Transmission {
+    /// Delay after the end of the request.
+    pub after: Duration,
+    /// The bytes.
+    pub bytes: Vec<u8>,
+    /// Echo or reply.
+    pub kind: SendKind,
+}
+
+/// What the drive did with one request.
+#[derive(Debug, Clone)]
+pub struct Outcome {
+    /// The model's judgement of the request.
+    pub judgement: Judgement,
+    /// What goes on the line, in order.
+    pub sends: Vec<Transmission>,
+    /// Quirks that changed the behaviour, and other remarks for the log.
+    pub notes: Vec<String>,
+}
+
+/// Output frequency slew of the simulated motor: 60.00 Hz a second. A decision of the
+/// simulator (a real drive follows its acceleration time parameters).
+pub const RAMP_HUNDREDTHS_HZ_PER_S: f64 = 6000.0;
+
+/// A simulated drive of one model at one node address.
+pub struct Drive {
+    model: Arc<DriveModel>,
+    address: u8,
+    quirks: Vec<Quirk>,
+    response_delay: Duration,
+    values: BTreeMap<u16, u16>,
+    running: bool,
+    reverse: bool,
+    fault_code: u16,
+    output: f64,
+    last_tick: Option<Instant>,
+    replies: u64,
+}
+
+impl Drive {
+    /// A drive of `model` at node `address`, answering after `response_delay`.
+    pub fn new(model: Arc<DriveModel>, address: u8, response_delay: Duration) -> Self {
+        let mut values = BTreeMap::new();
+        for (r, v, ..) in &model.example_registers {
+            values.insert(*r, *v);
+        }
+        for (r, v, _) in &model.initial_values {
+            values.insert(*r, *v);
+        }
+        Drive {
+            model,
+            address,
+            quirks: Vec::new(),
+            response_delay,
+            values,
+            running: false,
+            reverse: false,
+            fault_code: 0,
+            output: 0.0,
+            last_tick: None,
+            replies: 0,
+        }
+    }
+
+    /// Adds fault-injection quirks.
+    pub fn with_quirks(mut self, quirks: &[Quirk]) -> Self {
+        self.quirks.extend_from_slice(quirks);
+        self
+    }
+
+    /// The model.
+    pub fn model(&self) -> &DriveModel {
+        &self.model
+    }
+
+    /// The node address.
+    pub fn address(&self) -> u8 {
+        self.address
+    }
+
+    /// The quirks in force.
+    pub fn quirks(&self) -> &[Quirk] {
+        &self.quirks
+    }
+
+    fn has(&self, q: Quirk) -> bool {
+        self.quirks.contains(&q)
+    }
+
+    fn late(&self) -> Duration {
+        self.quirks
+            .iter()
+            .find_map(|q| match q {
+                Quirk::LateReply(ms) => Some(Duration::from_millis(*ms)),
+                _ => None,
+            })
+            .unwrap_or_default()
+    }
+
+    fn drop_every(&self) -> Option<u32> {
+        self.quirks.iter().find_map(|q| match q {
+            Quirk::DropEvery(n) => Some(*n),
+            _ => None,
+        })
+    }
+
+    /// Advances the motor: the output frequency moves toward the frequency command while
+    /// running without a fault, toward zero otherwise.
+    pub fn tick(&mut self, now: Instant) {
+        let dt = match self.last_tick {
+            Some(t) => now.saturating_duration_since(t).as_secs_f64(),
+            None => 0.0,
+        };
+        self.last_tick = Some(now);
+        let target = if self.running && self.fault_code == 0 {
+            f64::from(self.frequency_command())
+        } else {
+            0.0
+        };
+        let step = RAMP_HUNDREDTHS_HZ_PER_S * dt;
+        if (target - self.output).abs() <= step {
+            self.output = target;
+        } else if target > self.output {
+            self.output += step;
+        } else {
+            self.output -= step;
+        }
+    }
+
+    fn frequency_command(&self) -> u16 {
+        self.model
+            .register_with_role(Role::FrequencyCommand)
+            .and_then(|r| self.values.get(&r).copied())
+            .unwrap_or(0)
+    }
+
+    /// The value a read of `register` (as the map knows it) returns now.
+    pub fn read_register(&self, register: u16) -> u16 {
+        let Some(info) = self.model.lookup(register) else {
+            return 0;
+        };
+        if info.access == Access::Reserved {
+            return 0;
+        }
+        let bit = |b: Option<u8>, on: bool| match b {
+            Some(b) if on => 1u16 << b,
+            _ => 0,
+        };
+        match self.model.named(info.register).and_then(|n| n.role) {
+            Some(Role::Status) => {
+                let bits = &self.model.bits;
+                bit(bits.running, self.running && self.fault_code == 0)
+                    | bit(bits.status_reverse, self.reverse)
+                    | bit(bits.ready, self.fault_code == 0)
+                    | bit(bits.fault, self.fault_code != 0)
+            }
+            Some(Role::FaultCode) => self.fault_code,
+            Some(Role::FrequencyCommandMonitor) => self.frequency_command(),
+            Some(Role::OutputFrequency) => self.output.round().clamp(0.0, 65535.0) as u16,
+            Some(Role::Identification) => self.model.identification.simulated,
+            _ => self.values.get(&info.register).copied().unwrap_or(0),
+        }
+    }
+
+    fn write_register(&mut self, register: u16, value: u16) {
+        self.values.insert(register, value);
+        if self.model.named(register).and_then(|n| n.role) == Some(Role::Operation) {
+            let bits = self.model.bits;
+            let on = |b: Option<u8>| b.is_some_and(|b| value & (1 << b) != 0);
+            if on(bits.fault_reset) {
+                self.fault_code = 0;
+            }
+            if on(bits.external_fault) {
+                self.fault_code = self.model.external_fault_code.as_ref().map_or(1, |c| c.0);
+            }
+            self.running = on(bits.run);
+            self.reverse = on(bits.reverse);
+        }
+    }
+
+    /// Handles one request frame received in `mode` (checksum included) at `now`.
+    pub fn handle(&mut self, mode: Mode, frame: &[u8], now: Instant) -> Outcome {
+        self.tick(now);
+        let mut notes = Vec::new();
+        let mut sends = Vec::new();
+        if self.has(Quirk::LocalEcho) {
+            sends.push(Transmission {
+                after: Duration::ZERO,
+                bytes: frame.to_vec(),
+                kind: SendKind::Echo,
+            });
+            notes.push("quirk local-echo: request echoed".to_string());
+        }
+        let mut judgement = self.model.judge(self.address, mode, frame);
+        let request_address = frame_address(mode, frame);
+        if judgement.expect == Expectation::Silence(SilenceReason::OtherAddress)
+            && self.has(Quirk::AnswerEveryAddress)
+        {
+            if let Some(a) = request_address {
+                judgement = self.model.judge(a, mode, frame);
+                notes.push(format!(
+                    "quirk answer-every-address: answering for node {a:02X}"
+                ));
+            }
+        }
+        if let Some(plan) = &judgement.write {
+            for &(r, v) in &plan.writes {
+                self.write_register(r, v);
+            }
+        }
+        // What to answer: the judgement, or for the reply-to-broadcast quirk what the
+        // drive would answer if the request were addressed to it.
+        let mut reply_to = judgement.expect.clone();
+        if judgement.expect == Expectation::Silence(SilenceReason::Broadcast)
+            && self.has(Quirk::ReplyToBroadcast)
+        {
+            if let Some(readdressed) = readdress(mode, frame, self.address) {
+                reply_to = self.model.judge(self.address, mode, &readdressed).expect;
+                notes.push("quirk reply-to-broadcast: answering a broadcast".to_string());
+            }
+        }
+        let reply = self.build_reply(mode, frame, &reply_to, request_address.unwrap_or(0));
+        if let Some(mut bytes) = reply {
+            self.replies += 1;
+            if let Some(n) = self.drop_every() {
+                if self.replies % u64::from(n) == 0 {
+                    notes.push(format!(
+                        "quirk drop-every={n}: reply {} not sent",
+                        self.replies
+                    ));
+                    return Outcome {
+                        judgement,
+                        sends,
+                        notes,
+                    };
+                }
+            }
+            if self.has(Quirk::CrcSwap) {
+                swap_checksum(mode, &mut bytes);
+                notes.push("quirk crc-swap: checksum bytes swapped".to_string());
+            }
+            if self.has(Quirk::TruncatedReply) {
+                let cut = if mode == Mode::Rtu { 2 } else { 3 };
+                bytes.truncate(bytes.len().saturating_sub(cut));
+                notes.push(format!("quirk truncated-reply: last {cut} bytes cut"));
+            }
+            if self.has(Quirk::GarbageBeforeReply) {
+                let garbage: &[u8] = match mode {
+                    Mode::Rtu => &[0xFF, 0x00, 0xA5],
+                    Mode::Ascii => b"#@!",
+                };
+                bytes.splice(0..0, garbage.iter().copied());
+                notes.push("quirk garbage-before-reply: 3 bytes before the reply".to_string());
+            }
+            let late = self.late();
+            if !late.is_zero() {
+                notes.push(format!("quirk late-reply: {} ms late", late.as_millis()));
+            }
+            sends.push(Transmission {
+                after: self.response_delay + late,
+                bytes,
+                kind: SendKind::Reply,
+            });
+        }
+        Outcome {
+            judgement,
+            sends,
+            notes,
+        }
+    }
+
+    fn build_reply(
+        &mut self,
+        mode: Mode,
+        frame: &[u8],
+        expect: &Expectation,
+        address: u8,
+    ) -> Option<Vec<u8>> {
+        let mut scratch = [0u8; MAX_RTU_FRAME];
+        let body: Vec<u8> = match mode {
+            Mode::Rtu => RtuFrame::new_checked(frame).ok()?.body().to_vec(),
+            Mode::Ascii => AsciiFrame::new_checked(frame)
+                .ok()?
+                .body_into(&mut scratch)
+                .to_vec(),
+        };
+        let request = Message::parse_body(&body, Direction::Request).ok();
+        let function = body.get(1).copied().unwrap_or(0);
+        let mut values = Vec::new();
+        let pdu = match expect {
+            Expectation::Read(plan) => {
+                for &r in &plan.registers {
+                    values.extend_from_slice(&self.read_register(r).to_be_bytes());
+                }
+                Pdu::ReadResponse {
+                    values: Registers::new(&values).ok()?,
+                }
+            }
+            Expectation::WriteSingle | Expectation::LoopBack => request?.pdu,
+            Expectation::WriteMultiple => match request?.pdu {
+                Pdu::WriteMultipleRequest { start, values } => Pdu::WriteMultipleResponse {
+                    start,
+                    count: u16::try_from(values.len()).ok()?,
+                },
+                _ => return None,
+            },
+            Expectation::Exception { code, .. } => {
+                let code = if self.has(Quirk::WrongException) {
+                    code.wrapping_add(1)
+                } else {
+                    *code
+                };
+                Pdu::Exception {
+                    function: function & 0x7F,
+                    code,
+                }
+            }
+            Expectation::Silence(_) => return None,
+        };
+        Message { address, pdu }.to_frame_vec(mode).ok()
+    }
+}
+
+fn frame_address(mode: Mode, frame: &[u8]) -> Option<u8> {
+    match mode {
+        Mode::Rtu => RtuFrame::new_checked(frame).ok().map(|f| f.address()),
+        Mode::Ascii => AsciiFrame::new_checked(frame).ok().map(|f| f.address()),
+    }
+}
+
+/// The same request addressed to `address`, with a new checksum.
+fn readdress(mode: Mode, frame: &[u8], address: u8) -> Option<Vec<u8>> {
+    let mut scratch = [0u8; MAX_RTU_FRAME];
+    let mut body = match mode {
+        Mode::Rtu => RtuFrame::new_checked(frame).ok()?.body().to_vec(),
+        Mode::Ascii => AsciiFrame::new_checked(frame)
+            .ok()?
+            .body_into(&mut scratch)
+            .to_vec(),
+    };
+    body[0] = address;
+    let m = Message::parse_body(&body, Direction::Request).ok()?;
+    m.to_frame_vec(mode).ok()
+}
+
+fn swap_checksum(mode: Mode, bytes: &mut [u8]) {
+    let n = bytes.len();
+    match mode {
+        Mode::Rtu if n >= 2 => bytes.swap(n - 2, n - 1),
+        Mode::Ascii if n >= 4 => bytes.swap(n - 4, n - 3),
+        _ => {}
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::model::Fault;
+
+    fn drive(quirks: &[Quirk]) -> Drive {
+        Drive::new(
+            Arc::new(DriveModel::builtin("f510").unwrap()),
+            1,
+            Duration::from_millis(10),
+        )
+        .with_quirks(quirks)
+    }
+
+    fn req(mode: Mode, address: u8, pdu: Pdu<'_>) -> Vec<u8> {
+        Message { address, pdu }.to_frame_vec(mode).unwrap()
+    }
+
+    fn reply(o: &Outcome) -> Option<&Transmission> {
+        o.sends.iter().find(|s| s.kind == SendKind::Reply)
+    }
+
+    #[test]
+    fn quirks_parse_and_print() {
+        for (spelling, _) in QUIRK_HELP {
+            let s = spelling.replace("=MS", "=200").replace("=N", "=3");
+            let q: Quirk = s.parse().unwrap();
+            assert_eq!(q.to_string(), s);
+        }
+        assert!("drop-every=0".parse::<Quirk>().is_err());
+        assert!("late-reply".parse::<Quirk>().is_err());
+        assert!("crc".parse::<Quirk>().is_err());
+    }
+
+    #[test]
+    fn the_example_exchanges_replay() {
+        let mut d = drive(&[]);
+        let now = Instant::now();
+        // F510 03H example: read 0123H -> 1770H.
+        let o = d.handle(
+            Mode::Rtu,
+            &[0x01, 0x03, 0x01, 0x23, 0x00, 0x01, 0x74, 0x3C],
+            now,
+        );
+        assert_eq!(
+            reply(&o).unwrap().bytes,
+            [0x01, 0x03, 0x02, 0x17, 0x70, 0xB6, 0x50]
+        );
+        assert_eq!(reply(&o).unwrap().after, Duration::from_millis(10));
+        // 06H example: echo.
+        let w = [0x01, 0x06, 0x01, 0x02, 0x17, 0x70, 0x27, 0xE2];
+        assert_eq!(reply(&d.handle(Mode::Rtu, &w, now)).unwrap().bytes, w);
+        // 08H example: echo.
+        let lb = [0x01, 0x08, 0x00, 0x00, 0xA5, 0x37, 0xDA, 0x8D];
+        assert_eq!(reply(&d.handle(Mode::Rtu, &lb, now)).unwrap().bytes, lb);
+        // 10H example: start and count.
+        let m = [
+            0x01, 0x10, 0x01, 0x01, 0x00, 0x02, 0x04, 0x00, 0x01, 0x17, 0x70, 0x60, 0x27,
+        ];
+        assert_eq!(
+            reply(&d.handle(Mode::Rtu, &m, now)).unwrap().bytes,
+            [0x01, 0x10, 0x01, 0x01, 0x00, 0x02, 0x11, 0xF4]
+        );
+    }
+
+    #[test]
+    fn state_follows_the_command_register() {
+        let mut d = drive(&[]);
+        let t0 = Instant::now();
+        let w = |d: &mut Drive, r: u16, v: u16, t| {
+            d.handle(
+                Mode::Rtu,
+                &req(
+                    Mode::Rtu,
+                    1,
+                    Pdu::WriteSingle {
+                        register: r,
+                        value: v,
+                    },
+                ),
+                t,
+            )
+        };
+        w(&mut d, 0x2502, 6000, t0);
+        assert_eq!(d.read_register(0x2523), 6000);
+        assert_eq!(
+            d.read_register(0x2520) & 0b1101,
+            0b0100,
+            "ready, not running"
+        );
+        w(&mut d, 0x2501, 0b11, t0); // run, reverse
+        d.tick(t0 + Duration::from_millis(500));
+        let half = d.read_register(0x2524);
+        assert!((2900..=3100).contains(&half), "{half}");
+        d.tick(t0 + Duration::from_secs(2));
+        assert_eq!(d.read_register(0x2524), 6000);
+        assert_eq!(d.read_register(0x2520) & 0b1111, 0b0111);
+        w(&mut d, 0x2501, 0b100, t0 + Duration::from_secs(2)); // external fault
+        assert_eq!(d.read_register(0x2520) & 0b1000, 0b1000);
+        assert_eq!(d.read_register(0x2521), 27);
+        w(&mut d, 0x2501, 0b1000, t0 + Duration::from_secs(2)); // fault reset
+        assert_eq!(d.read_register(0x2521), 0);
+        assert_eq!(d.read_register(0x252F), 0x0510);
+        assert_eq!(d.read_register(0x2500), 0);
+    }
+
+    #[test]
+    fn broadcast_writes_silently_and_other_nodes_are_ignored() {
+        let mut d = drive(&[]);
+        let now = Instant::now();
+        let o = d.handle(
+            Mode::Ascii,
+            &req(
+                Mode::Ascii,
+                0,
+                Pdu::WriteSingle {
+                    register: 0x2502,
+                    value: 0x0AAA,
+                },
+            ),
+            now,
+        );
+        assert!(o.sends.is_empty());
+        assert_eq!(d.read_register(0x2502), 0x0AAA);
+        let o = d.handle(
+            Mode::Rtu,
+            &req(
+                Mode::Rtu,
+                2,
+                Pdu::ReadRequest {
+                    start: 0x2520,
+                    count: 1,
+                },
+            ),
+            now,
+        );
+        assert!(o.sends.is_empty());
+    }
+
+    #[test]
+    fn each_quirk_changes_the_line() {
+        let now = Instant::now();
+        let read = req(
+            Mode::Rtu,
+            1,
+            Pdu::ReadRequest {
+                start: 0x2520,
+                count: 1,
+            },
+        );
+        let clean = reply(&drive(&[]).handle(Mode::Rtu, &read, now))
+            .unwrap()
+            .bytes
+            .clone();
+
+        let o = drive(&[Quirk::CrcSwap]).handle(Mode::Rtu, &read, now);
+        let b = &reply(&o).unwrap().bytes;
+        assert_eq!(b[..b.len() - 2], clean[..clean.len() - 2]);
+        assert_eq!(
+            (b[b.len() - 2], b[b.len() - 1]),
+            (clean[clean.len() - 1], clean[clean.len() - 2])
+        );
+
+        let bc = req(
+            Mode::Rtu,
+            0,
+            Pdu::WriteSingle {
+                register: 0x2502,
+                value: 1,
+            },
+        );
+        let o = drive(&[Quirk::ReplyToBroadcast]).handle(Mode::Rtu, &bc, now);
+        assert_eq!(reply(&o).unwrap().bytes[0], 0);
+
+        let bad = req(
+            Mode::Rtu,
+            1,
+            Pdu::Other {
+                function: 4,
+                data: &[0, 0, 0, 1],
+            },
+        );
+        let o = drive(&[Quirk::WrongException]).handle(Mode::Rtu, &bad, now);
+        assert_eq!(reply(&o).unwrap().bytes[..3], [1, 0x84, 2]);
+        assert!(matches!(
+            o.judgement.expect,
+            Expectation::Exception {
+                fault: Fault::IllegalFunction,
+                code: 1
+            }
+        ));
+
+        let o = drive(&[Quirk::LateReply(250)]).handle(Mode::Rtu, &read, now);
+        assert_eq!(reply(&o).unwrap().after, Duration::from_millis(260));
+
+        let mut d = drive(&[Quirk::DropEvery(2)]);
+        assert!(reply(&d.handle(Mode::Rtu, &read, now)).is_some());
+        assert!(reply(&d.handle(Mode::Rtu, &read, now)).is_none());
+        assert!(reply(&d.handle(Mode::Rtu, &read, now)).is_some());
+
+        let o = drive(&[Quirk::LocalEcho]).handle(Mode::Rtu, &read, now);
+        assert_eq!(o.sends[0].bytes, read);
+        assert_eq!(o.sends[0].kind, SendKind::Echo);
+
+        let o = drive(&[Quirk::GarbageBeforeReply]).handle(Mode::Rtu, &read, now);
+        assert_eq!(reply(&o).unwrap().bytes[3..], clean[..]);
+
+        let o = drive(&[Quirk::TruncatedReply]).handle(Mode::Rtu, &read, now);
+        assert_eq!(reply(&o).unwrap().bytes[..], clean[..clean.len() - 2]);
+
+        let other = req(
+            Mode::Rtu,
+            9,
+            Pdu::ReadRequest {
+                start: 0x2520,
+                count: 1,
+            },
+        );
+        let o = drive(&[Quirk::AnswerEveryAddress]).handle(Mode::Rtu, &other, now);
+        assert_eq!(reply(&o).unwrap().bytes[0], 9);
+    }
+}

@@ -1,0 +1,15 @@
+//! The simulated drive: a model's rules plus state, served over any transport.
+//!
+//! - [`drive`]: the drive itself ([`Drive::handle`]: one request in, transmissions out)
+//!   and the fault-injection [`Quirk`]s.
+//! - [`server`]: the loop that reads a transport, deframes requests, answers after the
+//!   response delay and logs the traffic. Bad input never stops it.
+//! - [`log`]: the traffic log.
+
+pub mod drive;
+pub mod log;
+pub mod server;
+
+pub use drive::{Drive, Outcome, Quirk, SendKind, Transmission, QUIRK_HELP};
+pub use log::{Dir, LogFormat, TrafficLog};
+pub use server::{serve, ServeStats, SimError};

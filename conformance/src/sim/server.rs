@@ -1,0 +1,197 @@
+//! The simulator's loop: read the transport, deframe requests with the codec's streaming
+//! deframers, answer through [`Drive::handle`] after its delay, log everything.
+//!
+//! Framing: on a real serial port RTU frames end at t3.5 of silence (Modbus over Serial
+//! Line 2.5.1.1). Pseudo-terminals and TCP have no line timing, so RTU frames are found
+//! by the length their function code implies; a burst whose length cannot be known that
+//! way (an unmodelled function) is taken as one frame once the link has been quiet for
+//! [`BURST_GAP`], if its CRC is valid: masters write a whole frame at once, so a burst
+//! is a frame. The start of a frame whose length is known waits [`PARTIAL_TIMEOUT`]
+//! for its rest, so a master that writes a frame in pieces is still answered. ASCII frames run from ':' to CR LF everywhere. Garbage, partial and
+//! oversized frames are logged and dropped; the next good frame is answered.
+
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::{Duration, Instant};
+
+use super::drive::{Drive, SendKind};
+use super::log::{Dir, TrafficLog};
+use crate::codec::crc::crc16;
+use crate::codec::deframe::{AsciiDeframer, Event, RtuDeframer, RtuFraming};
+use crate::codec::pdu::Direction;
+use crate::codec::Mode;
+use crate::transport::{sleep_until, LinkKind, Transport, TransportError};
+
+/// Quiet time after which a burst on a link without timing is judged (RTU).
+pub const BURST_GAP: Duration = Duration::from_millis(5);
+
+/// Quiet time after which the start of a frame whose length is known, with its rest
+/// missing, is dropped (RTU on links without timing), as the ASCII inter-character
+/// timeout does (Modbus over Serial Line V1.02, 2.5.2.1: 1 s).
+pub const PARTIAL_TIMEOUT: Duration = Duration::from_secs(1);
+
+/// Why the simulator stopped.
+#[derive(Debug, thiserror::Error)]
+pub enum SimError {
+    /// The link failed or closed.
+    #[error(transparent)]
+    Transport(#[from] TransportError),
+    /// The traffic log could not be written.
+    #[error("cannot write the traffic log: {0}")]
+    Log(#[from] std::io::Error),
+}
+
+/// What the simulator saw and did.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct ServeStats {
+    /// Valid frames received (any address).
+    pub frames: u64,
+    /// Replies sent.
+    pub replies: u64,
+    /// Bytes dropped as garbage, corrupt or incomplete frames.
+    pub dropped_bytes: u64,
+}
+
+enum Deframer {
+    Rtu(Box<RtuDeframer>, bool),
+    Ascii(Box<AsciiDeframer>),
+}
+
+#[derive(Debug)]
+enum Owned {
+    Frame(Vec<u8>),
+    Dropped(&'static str, Vec<u8>),
+}
+
+fn own(e: Event<'_>) -> Owned {
+    match e {
+        Event::Frame(b) => Owned::Frame(b.to_vec()),
+        Event::Corrupt(b) => Owned::Dropped("corrupt", b.to_vec()),
+        Event::Incomplete(b) => Owned::Dropped("incomplete", b.to_vec()),
+        Event::Garbage(b) => Owned::Dropped("garbage", b.to_vec()),
+    }
+}
+
+/// Serves `drive` in `mode` on `transport` until `stop` is set or the link fails.
+pub fn serve<T: Transport + ?Sized>(
+    transport: &mut T,
+    drive: &mut Drive,
+    mode: Mode,
+    log: &mut TrafficLog,
+    stop: &AtomicBool,
+) -> Result<ServeStats, SimError> {
+    let line = if transport.kind() == LinkKind::Serial {
+        transport.line_timing()
+    } else {
+        None
+    };
+    let mut deframer = match (mode, line) {
+        (Mode::Rtu, Some(l)) => Deframer::Rtu(
+            Box::new(RtuDeframer::new(
+                Direction::Request,
+                RtuFraming::BySilence(l),
+            )),
+            false,
+        ),
+        (Mode::Rtu, None) => Deframer::Rtu(
+            Box::new(RtuDeframer::new(Direction::Request, RtuFraming::ByLength)),
+            true,
+        ),
+        (Mode::Ascii, _) => Deframer::Ascii(Box::default()),
+    };
+    let poll = match line {
+        Some(_) => Duration::from_millis(1),
+        None => Duration::from_millis(2),
+    };
+    let epoch = Instant::now();
+    let mut stats = ServeStats::default();
+    let mut buf = [0u8; 512];
+    let mut last_rx: Option<Instant> = None;
+    while !stop.load(Ordering::Relaxed) {
+        let n = transport.recv(&mut buf, poll)?;
+        let now = Instant::now();
+        let now_us = u64::try_from(now.duration_since(epoch).as_micros()).unwrap_or(u64::MAX);
+        let mut events = Vec::new();
+        match &mut deframer {
+            Deframer::Rtu(d, by_length) => {
+                if n > 0 {
+                    d.push_at(now_us, &buf[..n], |e| events.push(own(e)));
+                } else {
+                    d.idle(now_us, |e| events.push(own(e)));
+                    let quiet_for = last_rx.map(|t| now.duration_since(t)).unwrap_or_default();
+                    // A frame whose length is known waits for its rest up to the partial
+                    // timeout; anything else is judged after the burst gap.
+                    let due = if d.awaiting_rest() {
+                        quiet_for >= PARTIAL_TIMEOUT
+                    } else {
+                        quiet_for >= BURST_GAP
+                    };
+                    if *by_length && due && d.pending() > 0 {
+                        let mut flushed = Vec::new();
+                        d.flush(|e| flushed.push(own(e)));
+                        // A quiet burst with a valid CRC is a frame of an unmodelled function.
+                        let mut burst = Vec::new();
+                        for e in flushed {
+                            match e {
+                                Owned::Dropped("garbage", b) => burst.extend(b),
+                                other => events.push(other),
+                            }
+                        }
+                        if !burst.is_empty() {
+                            if burst.len() >= 4 && crc16(&burst) == 0 {
+                                events.push(Owned::Frame(burst));
+                            } else {
+                                events.push(Owned::Dropped("garbage", burst));
+                            }
+                        }
+                    }
+                }
+            }
+            Deframer::Ascii(d) => {
+                if n > 0 {
+                    d.push_at(now_us, &buf[..n], |e| events.push(own(e)));
+                } else {
+                    d.idle(now_us, |e| events.push(own(e)));
+                }
+            }
+        }
+        if n > 0 {
+            last_rx = Some(now);
+        }
+        drive.tick(now);
+        for e in events {
+            match e {
+                Owned::Dropped(kind, bytes) => {
+                    stats.dropped_bytes += bytes.len() as u64;
+                    log.record(Dir::In, kind, &bytes, "dropped")?;
+                }
+                Owned::Frame(bytes) => {
+                    stats.frames += 1;
+                    let outcome = drive.handle(mode, &bytes, now);
+                    let mut note = format!(
+                        "{}: {}",
+                        outcome.judgement.expect.describe(),
+                        outcome.judgement.detail
+                    );
+                    for q in &outcome.notes {
+                        note.push_str("; ");
+                        note.push_str(q);
+                    }
+                    log.record(Dir::In, "frame", &bytes, &note)?;
+                    for s in outcome.sends {
+                        sleep_until(now + s.after);
+                        transport.send(&s.bytes)?;
+                        let kind = match s.kind {
+                            SendKind::Echo => "echo",
+                            SendKind::Reply => {
+                                stats.replies += 1;
+                                "reply"
+                            }
+                        };
+                        log.record(Dir::Out, kind, &s.bytes, "")?;
+                    }
+                }
+            }
+        }
+    }
+    Ok(stats)
+}

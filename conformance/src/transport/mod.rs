@@ -1,0 +1,139 @@
+//! Transports: one trait for every link a drive can sit behind, so the simulator and the
+//! runner use the same ones.
+//!
+//! - [`serial::SerialTransport`]: a real serial port (RS-485 adapter), by the `serialport`
+//!   crate; the only link whose timing is the line's.
+//! - [`pty::PtyMaster`] (Unix): the master side of a pseudo-terminal pair; another program
+//!   opens the slave path as if it were a serial port. Optionally paced at the line's
+//!   character time, so that timing checks have something real to measure.
+//! - [`tcp::TcpTransport`]: RTU or ASCII frames over TCP, as serial gateways carry them.
+//! - [`memory::MemoryEnd`]: an in-memory pair, for tests.
+//!
+//! Reads wait at most the timeout they are given and return 0 when nothing arrived; a
+//! closed link is [`TransportError::Closed`], never a silent empty read.
+
+pub mod memory;
+#[cfg(unix)]
+pub mod pty;
+pub mod serial;
+pub mod tcp;
+
+use std::fmt;
+use std::time::Duration;
+
+use crate::codec::timing::LineSettings;
+
+/// What kind of link a transport is.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum LinkKind {
+    /// A real serial port.
+    Serial,
+    /// A pseudo-terminal.
+    Pty,
+    /// A TCP connection.
+    Tcp,
+    /// An in-memory pair.
+    Memory,
+}
+
+impl fmt::Display for LinkKind {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(match self {
+            LinkKind::Serial => "serial",
+            LinkKind::Pty => "pty",
+            LinkKind::Tcp => "tcp",
+            LinkKind::Memory => "memory",
+        })
+    }
+}
+
+/// Why a transport failed.
+#[derive(Debug, thiserror::Error)]
+pub enum TransportError {
+    /// The link could not be opened.
+    #[error("cannot open {what}: {source}")]
+    Open {
+        /// The port, path or address.
+        what: String,
+        /// The cause.
+        source: std::io::Error,
+    },
+    /// A read or write failed.
+    #[error("{what} failed on {link}: {source}")]
+    Io {
+        /// "read" or "write".
+        what: &'static str,
+        /// The link.
+        link: String,
+        /// The cause.
+        source: std::io::Error,
+    },
+    /// The other end went away (adapter unplugged, connection closed, pty closed).
+    #[error("{link}: the other end closed the link")]
+    Closed {
+        /// The link.
+        link: String,
+    },
+}
+
+/// A bidirectional byte link to a drive or a master.
+pub trait Transport: Send {
+    /// Sends `bytes`; with pacing, returns after the line would have carried them.
+    fn send(&mut self, bytes: &[u8]) -> Result<(), TransportError>;
+
+    /// Waits at most `timeout` for input and returns how many bytes were put in `buf`;
+    /// 0 means nothing arrived in time.
+    fn recv(&mut self, buf: &mut [u8], timeout: Duration) -> Result<usize, TransportError>;
+
+    /// Drops input received but not yet read.
+    fn discard_input(&mut self) -> Result<(), TransportError>;
+
+    /// "serial /dev/ttyUSB0 9600 8E1", "pty /dev/pts/3", "tcp 127.0.0.1:5020".
+    fn describe(&self) -> String;
+
+    /// The kind of link.
+    fn kind(&self) -> LinkKind;
+
+    /// The line settings whose timing the link reproduces: a real serial port, or a
+    /// pseudo-terminal paced at the line's character time. `None` where bytes arrive with
+    /// the host's timing only.
+    fn line_timing(&self) -> Option<LineSettings>;
+}
+
+impl<T: Transport + ?Sized> Transport for Box<T> {
+    fn send(&mut self, bytes: &[u8]) -> Result<(), TransportError> {
+        (**self).send(bytes)
+    }
+    fn recv(&mut self, buf: &mut [u8], timeout: Duration) -> Result<usize, TransportError> {
+        (**self).recv(buf, timeout)
+    }
+    fn discard_input(&mut self) -> Result<(), TransportError> {
+        (**self).discard_input()
+    }
+    fn describe(&self) -> String {
+        (**self).describe()
+    }
+    fn kind(&self) -> LinkKind {
+        (**self).kind()
+    }
+    fn line_timing(&self) -> Option<LineSettings> {
+        (**self).line_timing()
+    }
+}
+
+/// Sleeps until `deadline`, in short steps at the end so that pacing at a character time
+/// of about a millisecond stays accurate.
+pub(crate) fn sleep_until(deadline: std::time::Instant) {
+    loop {
+        let now = std::time::Instant::now();
+        if now >= deadline {
+            return;
+        }
+        let left = deadline - now;
+        if left > Duration::from_micros(300) {
+            std::thread::sleep(left - Duration::from_micros(200));
+        } else {
+            std::hint::spin_loop();
+        }
+    }
+}

@@ -1,0 +1,141 @@
+//! A real serial port, by the `serialport` crate (built without libudev), with the line
+//! settings spelled as mbpoll spells them. It also opens the slave side of a
+//! pseudo-terminal, which is how the runner reaches the in-process simulator.
+
+use std::io::{Read, Write};
+use std::time::Duration;
+
+use super::{LinkKind, Transport, TransportError};
+use crate::codec::timing::{LineSettings, Parity};
+
+/// An open serial port.
+pub struct SerialTransport {
+    port: Box<dyn serialport::SerialPort>,
+    path: String,
+    line: LineSettings,
+    kind: LinkKind,
+    paced: bool,
+}
+
+impl SerialTransport {
+    /// Opens `path` with `line` settings. `kind` says whether it is a real port
+    /// ([`LinkKind::Serial`]) or a pseudo-terminal's slave ([`LinkKind::Pty`]), whose
+    /// timing is not a line's.
+    pub fn open(path: &str, line: LineSettings, kind: LinkKind) -> Result<Self, TransportError> {
+        let open_err = |e: serialport::Error| TransportError::Open {
+            what: path.to_string(),
+            source: e.into(),
+        };
+        let data_bits = match line.data_bits {
+            5 => serialport::DataBits::Five,
+            6 => serialport::DataBits::Six,
+            7 => serialport::DataBits::Seven,
+            _ => serialport::DataBits::Eight,
+        };
+        let parity = match line.parity {
+            Parity::None => serialport::Parity::None,
+            Parity::Even => serialport::Parity::Even,
+            Parity::Odd => serialport::Parity::Odd,
+        };
+        let stop_bits = if line.stop_bits == 2 {
+            serialport::StopBits::Two
+        } else {
+            serialport::StopBits::One
+        };
+        let port = serialport::new(path, line.baud)
+            .data_bits(data_bits)
+            .parity(parity)
+            .stop_bits(stop_bits)
+            .flow_control(serialport::FlowControl::None)
+            .timeout(Duration::from_millis(10))
+            .open()
+            .map_err(open_err)?;
+        Ok(SerialTransport {
+            port,
+            path: path.to_string(),
+            line,
+            kind,
+            paced: false,
+        })
+    }
+
+    /// Declares that the other end of this pseudo-terminal sends at the line's character
+    /// time (the simulator with pacing), so that arrival times are a line's timing.
+    pub fn paced_peer(mut self) -> Self {
+        self.paced = true;
+        self
+    }
+
+    fn err(&self, what: &'static str, source: std::io::Error) -> TransportError {
+        match source.kind() {
+            std::io::ErrorKind::BrokenPipe | std::io::ErrorKind::UnexpectedEof => {
+                TransportError::Closed {
+                    link: self.describe(),
+                }
+            }
+            _ => TransportError::Io {
+                what,
+                link: self.describe(),
+                source,
+            },
+        }
+    }
+}
+
+impl Transport for SerialTransport {
+    fn send(&mut self, bytes: &[u8]) -> Result<(), TransportError> {
+        self.port
+            .write_all(bytes)
+            .and_then(|_| self.port.flush())
+            .map_err(|e| self.err("write", e))
+    }
+
+    fn recv(&mut self, buf: &mut [u8], timeout: Duration) -> Result<usize, TransportError> {
+        // serialport treats a zero timeout as "block"; a microsecond is "don't wait".
+        let t = timeout.max(Duration::from_micros(1));
+        self.port
+            .set_timeout(t)
+            .map_err(|e| self.err("set timeout", e.into()))?;
+        match self.port.read(buf) {
+            Ok(0) => Err(TransportError::Closed {
+                link: self.describe(),
+            }),
+            Ok(n) => Ok(n),
+            Err(e) if e.kind() == std::io::ErrorKind::TimedOut => Ok(0),
+            Err(e) if e.kind() == std::io::ErrorKind::Interrupted => Ok(0),
+            Err(e) => Err(self.err("read", e)),
+        }
+    }
+
+    fn discard_input(&mut self) -> Result<(), TransportError> {
+        self.port
+            .clear(serialport::ClearBuffer::Input)
+            .map_err(|e| self.err("clear", e.into()))
+    }
+
+    fn describe(&self) -> String {
+        let l = self.line;
+        format!(
+            "{} {} {} {}{}{}{}",
+            self.kind,
+            self.path,
+            l.baud,
+            l.data_bits,
+            l.parity,
+            l.stop_bits,
+            if self.paced && self.kind != LinkKind::Serial {
+                " (the peer sends at the line's character time)"
+            } else {
+                ""
+            }
+        )
+    }
+
+    fn kind(&self) -> LinkKind {
+        self.kind
+    }
+
+    fn line_timing(&self) -> Option<LineSettings> {
+        (self.kind == LinkKind::Serial || self.paced).then_some(self.line)
+    }
+}

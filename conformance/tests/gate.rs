@@ -1,0 +1,205 @@
+//! The gate: the reference adapter (this suite's codec) passes; a deliberately broken one
+//! (it accepts every CRC) is caught; adapters that crash, hang or babble are reported as
+//! ERRORs case by case and the gate carries on; the pymodbus adapter completes.
+
+use std::process::{Command, Output};
+
+fn bin() -> &'static str {
+    env!("CARGO_BIN_EXE_conformance")
+}
+
+fn gate(codec: &str, extra: &[&str]) -> (Output, serde_json::Value) {
+    let mut args = vec!["gate", "--codec", codec, "--format", "json", "--quiet"];
+    args.extend_from_slice(extra);
+    let o = Command::new(bin()).args(&args).output().unwrap();
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap_or_else(|e| {
+        panic!(
+            "gate printed no JSON ({e}): {}\n{}",
+            String::from_utf8_lossy(&o.stdout),
+            String::from_utf8_lossy(&o.stderr)
+        )
+    });
+    (o, v)
+}
+
+fn schema_valid(v: &serde_json::Value) {
+    let text = include_str!("../../vectors/schema/report.schema.json");
+    let s = jsonschema::validator_for(&serde_json::from_str(text).unwrap()).unwrap();
+    let errors: Vec<String> = s
+        .iter_errors(v)
+        .map(|e| format!("{e} at {}", e.instance_path))
+        .collect();
+    assert!(errors.is_empty(), "{errors:#?}");
+}
+
+fn status_of<'a>(v: &'a serde_json::Value, id: &str) -> &'a str {
+    v["checks"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|c| c["id"] == id)
+        .unwrap_or_else(|| panic!("no case {id}"))["status"]
+        .as_str()
+        .unwrap()
+}
+
+fn reference() -> String {
+    format!("{} adapter", bin())
+}
+
+#[test]
+fn the_reference_adapter_passes_every_case() {
+    let (o, v) = gate(&reference(), &["--count", "2000"]);
+    assert_eq!(
+        o.status.code(),
+        Some(0),
+        "{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    assert_eq!(v["kind"], "gate");
+    assert_eq!(v["summary"]["deviation"], 0);
+    assert_eq!(v["summary"]["error"], 0);
+    assert!(
+        v["summary"]["pass"].as_u64().unwrap() > 2400,
+        "{}",
+        v["summary"]
+    );
+    // Incomplete frames of the manuals are skipped as printed.
+    assert_eq!(status_of(&v, "vector.f510.03.ascii.request.decode"), "skip");
+    assert_eq!(
+        status_of(&v, "vector.f510.03.ascii.request.corrected.decode"),
+        "pass"
+    );
+    schema_valid(&v);
+}
+
+#[test]
+fn an_adapter_that_accepts_every_crc_is_caught() {
+    let (o, v) = gate(&format!("{} --break accept-bad-checksum", reference()), &[]);
+    assert_eq!(o.status.code(), Some(1));
+    // Every checksum erratum of the manuals is a deviation.
+    for id in [
+        "vector.f510.03.rtu.response.decode",
+        "vector.a510.10.rtu.request.decode",
+        "vector.l510-legacy.08.ascii.exception.decode",
+    ] {
+        assert_eq!(status_of(&v, id), "deviation", "{id}");
+    }
+    // Consistent frames still pass.
+    assert_eq!(status_of(&v, "vector.f510.03.rtu.request.decode"), "pass");
+    let devs: Vec<&serde_json::Value> = v["checks"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter(|c| c["status"] == "deviation")
+        .collect();
+    assert!(devs.len() > 50, "{}", devs.len());
+    assert!(devs.iter().all(|c| c["summary"]
+        .as_str()
+        .unwrap()
+        .contains("accepted a frame that must be rejected")));
+    // The differential cases print a reproducible command.
+    let diff = devs
+        .iter()
+        .find(|c| c["id"].as_str().unwrap().starts_with("diff."))
+        .unwrap();
+    assert!(
+        diff["summary"]
+            .as_str()
+            .unwrap()
+            .contains("reproduce: conformance decode --"),
+        "{diff}"
+    );
+    schema_valid(&v);
+}
+
+const HELLO: &str = r#"{"id":0,"ok":true,"protocol":1,"adapter":"test","implementation":"test","version":"0","supports":["crc","lrc","decode","encode"]}"#;
+
+#[test]
+fn an_adapter_that_exits_is_restarted_once_then_the_run_is_incomplete() {
+    // Answers the handshake, then exits on the first request.
+    let crashy = format!("read l; echo '{HELLO}'; read l; exit 3");
+    let (o, v) = gate(&crashy, &["--no-vectors", "--count", "4"]);
+    assert_eq!(o.status.code(), Some(2));
+    assert_eq!(v["complete"], false);
+    let incidents = v["codec"]["incidents"].as_array().unwrap();
+    assert_eq!(incidents.len(), 2, "{incidents:?}");
+    assert!(incidents[0].as_str().unwrap().contains("restarted"));
+    assert!(incidents[1].as_str().unwrap().contains("not restarted"));
+    assert!(v["checks"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .all(|c| c["status"] == "error"));
+    schema_valid(&v);
+}
+
+#[test]
+fn malformed_and_missing_answers_are_errors_case_by_case() {
+    // Answers the handshake, then nonsense; the gate carries on through every case.
+    let babbler = format!("read l; echo '{HELLO}'; while read l; do echo 'this is not json'; done");
+    let (o, v) = gate(&babbler, &["--no-vectors", "--count", "5"]);
+    assert_eq!(o.status.code(), Some(2));
+    let checks = v["checks"].as_array().unwrap();
+    assert_eq!(checks.len(), 5);
+    assert!(checks
+        .iter()
+        .all(|c| c["status"] == "error"
+            && c["summary"].as_str().unwrap().contains("malformed answer")));
+    assert_eq!(v["complete"], true);
+    // An adapter that never answers: timeouts, each an error, and the gate ends.
+    let mute = format!("read l; echo '{HELLO}'; sleep 30");
+    let t0 = std::time::Instant::now();
+    let (_, v) = gate(&mute, &["--no-vectors", "--count", "2", "--timeout", "200"]);
+    assert!(t0.elapsed() < std::time::Duration::from_secs(10));
+    assert!(v["checks"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .all(|c| c["status"] == "error"));
+    // An adapter that refuses the protocol stops the gate with exit code 2.
+    let o = Command::new(bin())
+        .args([
+            "gate",
+            "--codec",
+            r#"read l; echo '{"id":1,"ok":false,"error":"protocol 2 only"}'"#,
+        ])
+        .output()
+        .unwrap();
+    assert_eq!(o.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("handshake failed"));
+}
+
+#[test]
+fn the_pymodbus_adapter_completes_and_its_deviations_are_reported() {
+    let probe = Command::new("python3")
+        .args(["-c", "import pymodbus"])
+        .output();
+    if !matches!(probe, Ok(ref o) if o.status.success()) {
+        let msg =
+            "SKIPPED: pymodbus not installed (pip install -r adapters/pymodbus/requirements.txt)";
+        assert!(std::env::var_os("CI").is_none(), "{msg}");
+        eprintln!("{msg}");
+        return;
+    }
+    let adapter = concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../adapters/pymodbus/adapter.py"
+    );
+    let (o, v) = gate(&format!("python3 {adapter}"), &["--count", "300"]);
+    assert_eq!(v["codec"]["implementation"], "pymodbus");
+    assert_eq!(v["complete"], true);
+    assert_eq!(v["summary"]["error"], 0, "{}", v["summary"]);
+    // Every golden vector: pymodbus agrees with the manuals' consistent frames.
+    for c in v["checks"].as_array().unwrap() {
+        if c["id"].as_str().unwrap().starts_with("vector.")
+            && c["id"].as_str().unwrap().ends_with(".decode")
+        {
+            assert_ne!(c["status"], "deviation", "{c}");
+        }
+    }
+    // The differential cases find what pymodbus 3.16.1 accepts and should not.
+    assert!(v["summary"]["deviation"].as_u64().unwrap() > 0);
+    assert_eq!(o.status.code(), Some(1));
+    schema_valid(&v);
+}

@@ -1,0 +1,53 @@
+#!/usr/bin/env python3
+"""A generic Modbus RTU/ASCII slave from pymodbus, on a serial port (a pseudo-terminal in
+the tests): one node with 65535 holding registers (0000H..FFFEH), all zero, and nothing TECO-specific.
+
+The conformance runner checks it as an F510 to show that it completes against a device
+that nobody here wrote, reports that device's deviations from the F510 manual, and
+neither panics nor hangs.
+
+    pymodbus_server.py PORT [rtu|ascii] [--address 1]
+"""
+import argparse
+import logging
+import sys
+
+from pymodbus import FramerType
+from pymodbus.datastore import (
+    ModbusDeviceContext,
+    ModbusSequentialDataBlock,
+    ModbusServerContext,
+)
+from pymodbus.server import StartSerialServer
+
+
+def main() -> int:
+    p = argparse.ArgumentParser(description=__doc__)
+    p.add_argument("port")
+    p.add_argument("mode", nargs="?", default="rtu", choices=["rtu", "ascii"])
+    p.add_argument("--address", type=int, default=1)
+    a = p.parse_args()
+    logging.basicConfig(level=logging.WARNING, stream=sys.stderr)
+    # pymodbus 3.16 numbers data blocks from 1 (protocol address 0 is block address 1)
+    # and takes at most 65535 registers: protocol addresses 0000H..FFFEH.
+    block = ModbusSequentialDataBlock(1, [0] * 65535)
+    device = ModbusDeviceContext(hr=block)
+    context = ModbusServerContext(devices={a.address: device}, single=False)
+    framer = FramerType.RTU if a.mode == "rtu" else FramerType.ASCII
+    print(f"pymodbus generic server on {a.port} ({a.mode}, node {a.address})", file=sys.stderr, flush=True)
+    # 8N1: pyserial on a Linux pseudo-terminal refuses a parity-only change (EINVAL).
+    StartSerialServer(
+        context=context,
+        framer=framer,
+        port=a.port,
+        baudrate=9600,
+        bytesize=8,
+        parity="N",
+        stopbits=1,
+        timeout=0.05,
+    )
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

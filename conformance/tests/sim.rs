@@ -1,0 +1,456 @@
+//! The simulated drive served over real links: TCP, a pseudo-terminal, the in-memory pair.
+//! Every quirk is shown on the wire; bad input never stops the server; the traffic log is
+//! JSON lines with every frame in and out; the command line serves on a pty and on TCP.
+
+use std::io::Write;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Mutex};
+use std::thread;
+use std::time::{Duration, Instant};
+
+use conformance::codec::pdu::{Message, Pdu};
+use conformance::codec::Mode;
+use conformance::model::DriveModel;
+use conformance::sim::{serve, Drive, LogFormat, Quirk, TrafficLog};
+use conformance::transport::memory;
+use conformance::transport::Transport;
+
+#[derive(Clone, Default)]
+struct SharedBuf(Arc<Mutex<Vec<u8>>>);
+
+impl Write for SharedBuf {
+    fn write(&mut self, b: &[u8]) -> std::io::Result<usize> {
+        self.0.lock().unwrap().extend_from_slice(b);
+        Ok(b.len())
+    }
+    fn flush(&mut self) -> std::io::Result<()> {
+        Ok(())
+    }
+}
+
+/// A simulator on one end of an in-memory link, served in a thread until dropped.
+struct Served {
+    stop: Arc<AtomicBool>,
+    handle: Option<thread::JoinHandle<()>>,
+    log: SharedBuf,
+}
+
+impl Drop for Served {
+    fn drop(&mut self) {
+        self.stop.store(true, Ordering::Relaxed);
+        if let Some(h) = self.handle.take() {
+            let _ = h.join();
+        }
+    }
+}
+
+fn start<T: Transport + 'static>(mut t: T, model: &str, mode: Mode, quirks: &[Quirk]) -> Served {
+    let model = Arc::new(DriveModel::builtin(model).unwrap());
+    let mut drive = Drive::new(model, 1, Duration::from_millis(2)).with_quirks(quirks);
+    let log = SharedBuf::default();
+    let mut traffic = TrafficLog::new().with_sink(LogFormat::Json, Box::new(log.clone()));
+    let stop = Arc::new(AtomicBool::new(false));
+    let s = stop.clone();
+    let handle = thread::spawn(move || {
+        let _ = serve(&mut t, &mut drive, mode, &mut traffic, &s);
+    });
+    Served {
+        stop,
+        handle: Some(handle),
+        log,
+    }
+}
+
+fn frame(mode: Mode, address: u8, pdu: Pdu<'_>) -> Vec<u8> {
+    Message { address, pdu }.to_frame_vec(mode).unwrap()
+}
+
+/// Sends `bytes` and collects what comes back until `quiet` passes without a byte.
+fn ask(t: &mut dyn Transport, bytes: &[u8], quiet: Duration) -> Vec<u8> {
+    t.send(bytes).unwrap();
+    collect(t, quiet)
+}
+
+fn collect(t: &mut dyn Transport, quiet: Duration) -> Vec<u8> {
+    let mut out = Vec::new();
+    let mut buf = [0u8; 512];
+    let deadline = Instant::now() + Duration::from_secs(3);
+    loop {
+        let n = t.recv(&mut buf, quiet).unwrap();
+        if n == 0 || Instant::now() > deadline {
+            return out;
+        }
+        out.extend_from_slice(&buf[..n]);
+    }
+}
+
+const Q: Duration = Duration::from_millis(60);
+
+fn read2520(mode: Mode, address: u8) -> Vec<u8> {
+    frame(
+        mode,
+        address,
+        Pdu::ReadRequest {
+            start: 0x2520,
+            count: 1,
+        },
+    )
+}
+
+#[test]
+fn bad_input_never_stops_the_server() {
+    for mode in [Mode::Rtu, Mode::Ascii] {
+        let (a, mut b) = memory::pair();
+        let served = start(a, "f510", mode, &[]);
+        let good = read2520(mode, 1);
+        let expected = ask(&mut b, &good, Q);
+        assert!(!expected.is_empty(), "{mode}: no answer to a good frame");
+        // Garbage, a frame with a wrong checksum, a partial frame, an oversized burst.
+        let mut bad_crc = good.clone();
+        let n = bad_crc.len();
+        bad_crc[n - 3] ^= 0x01;
+        let junk: Vec<&[u8]> = vec![
+            b"\xFF\x00\x13garbage\x7F",
+            &bad_crc,
+            &good[..good.len() / 2],
+            &[0x55u8; 600],
+        ];
+        for j in junk {
+            assert!(
+                ask(&mut b, j, Q).is_empty(),
+                "{mode}: junk {j:02X?} was answered"
+            );
+        }
+        // ASCII: a new ':' restarts; RTU: the length rule slides past the junk.
+        assert_eq!(
+            ask(&mut b, &good, Q),
+            expected,
+            "{mode}: the next good frame"
+        );
+        drop(served);
+    }
+}
+
+#[test]
+fn every_quirk_shows_on_the_wire() {
+    let clean = {
+        let (a, mut b) = memory::pair();
+        let _s = start(a, "f510", Mode::Rtu, &[]);
+        ask(&mut b, &read2520(Mode::Rtu, 1), Q)
+    };
+    assert_eq!(clean.len(), 7);
+    let on_wire = |quirk: Quirk, request: Vec<u8>| {
+        let (a, mut b) = memory::pair();
+        let _s = start(a, "f510", Mode::Rtu, &[quirk]);
+        ask(&mut b, &request, Duration::from_millis(400))
+    };
+    let swapped = on_wire(Quirk::CrcSwap, read2520(Mode::Rtu, 1));
+    assert_eq!(swapped[..5], clean[..5]);
+    assert_eq!((swapped[5], swapped[6]), (clean[6], clean[5]));
+
+    let bc = frame(
+        Mode::Rtu,
+        0,
+        Pdu::WriteSingle {
+            register: 0x2502,
+            value: 0x0101,
+        },
+    );
+    assert_eq!(on_wire(Quirk::ReplyToBroadcast, bc)[..2], [0x00, 0x06]);
+
+    let bad_fn = frame(
+        Mode::Rtu,
+        1,
+        Pdu::Other {
+            function: 0x04,
+            data: &[0x25, 0x20, 0, 1],
+        },
+    );
+    assert_eq!(
+        on_wire(Quirk::WrongException, bad_fn)[..3],
+        [0x01, 0x84, 0x02]
+    );
+
+    let (a, mut b) = memory::pair();
+    let _s = start(a, "f510", Mode::Rtu, &[Quirk::LateReply(150)]);
+    b.send(&read2520(Mode::Rtu, 1)).unwrap();
+    let t0 = Instant::now();
+    let mut buf = [0u8; 16];
+    let mut n = 0;
+    while n == 0 && t0.elapsed() < Duration::from_secs(2) {
+        n = b.recv(&mut buf, Duration::from_millis(10)).unwrap();
+    }
+    assert!(
+        t0.elapsed() >= Duration::from_millis(150),
+        "{:?}",
+        t0.elapsed()
+    );
+
+    let (a, mut b) = memory::pair();
+    let _s = start(a, "f510", Mode::Rtu, &[Quirk::DropEvery(2)]);
+    let answers: Vec<bool> = (0..4)
+        .map(|_| !ask(&mut b, &read2520(Mode::Rtu, 1), Q).is_empty())
+        .collect();
+    assert_eq!(answers, [true, false, true, false]);
+
+    let req = read2520(Mode::Rtu, 1);
+    let echoed = on_wire(Quirk::LocalEcho, req.clone());
+    assert_eq!(echoed[..8], req[..]);
+    assert_eq!(echoed[8..], clean[..]);
+
+    let g = on_wire(Quirk::GarbageBeforeReply, read2520(Mode::Rtu, 1));
+    assert_eq!(g[3..], clean[..]);
+    assert_eq!(g.len(), 10);
+
+    assert_eq!(
+        on_wire(Quirk::TruncatedReply, read2520(Mode::Rtu, 1)),
+        clean[..5]
+    );
+
+    let other = on_wire(Quirk::AnswerEveryAddress, read2520(Mode::Rtu, 9));
+    assert_eq!(other[0], 9);
+
+    // ASCII: the crc-swap quirk swaps the two LRC characters.
+    let (a, mut b) = memory::pair();
+    let _s = start(a, "f510", Mode::Ascii, &[Quirk::CrcSwap]);
+    let r = ask(&mut b, &read2520(Mode::Ascii, 1), Q);
+    let (a2, mut b2) = memory::pair();
+    let _s2 = start(a2, "f510", Mode::Ascii, &[]);
+    let c = ask(&mut b2, &read2520(Mode::Ascii, 1), Q);
+    let n = c.len();
+    assert_eq!((r[n - 4], r[n - 3]), (c[n - 3], c[n - 4]));
+}
+
+#[test]
+fn broadcast_is_executed_silently_and_other_nodes_are_ignored() {
+    let (a, mut b) = memory::pair();
+    let _s = start(a, "l510", Mode::Rtu, &[]);
+    let bc = frame(
+        Mode::Rtu,
+        0,
+        Pdu::WriteSingle {
+            register: 0x2502,
+            value: 0x0BB8,
+        },
+    );
+    assert!(ask(&mut b, &bc, Q).is_empty());
+    let r = ask(
+        &mut b,
+        &frame(
+            Mode::Rtu,
+            1,
+            Pdu::ReadRequest {
+                start: 0x2523,
+                count: 1,
+            },
+        ),
+        Q,
+    );
+    assert_eq!(r[3..5], [0x0B, 0xB8]);
+    assert!(ask(&mut b, &read2520(Mode::Rtu, 2), Q).is_empty());
+    // The loop-back echoes.
+    let lb = frame(
+        Mode::Rtu,
+        1,
+        Pdu::LoopBack {
+            test_code: 0,
+            data: &[0x12, 0x34],
+        },
+    );
+    assert_eq!(ask(&mut b, &lb, Q), lb);
+}
+
+#[test]
+fn the_traffic_log_has_every_frame_in_and_out() {
+    let (a, mut b) = memory::pair();
+    let served = start(a, "f510", Mode::Rtu, &[]);
+    ask(&mut b, b"\xFF\xFF", Q);
+    ask(&mut b, &read2520(Mode::Rtu, 1), Q);
+    let log = served.log.clone();
+    drop(served);
+    let text = String::from_utf8(log.0.lock().unwrap().clone()).unwrap();
+    let lines: Vec<serde_json::Value> = text
+        .lines()
+        .map(|l| serde_json::from_str(l).expect("each log line is JSON"))
+        .collect();
+    let events: Vec<(&str, &str)> = lines
+        .iter()
+        .map(|l| (l["dir"].as_str().unwrap(), l["event"].as_str().unwrap()))
+        .collect();
+    assert_eq!(
+        events,
+        [("in", "garbage"), ("in", "frame"), ("out", "reply")],
+        "{text}"
+    );
+    assert_eq!(lines[1]["hex"], "01 03 25 20 00 01 8E CC");
+    assert!(lines[1]["note"].as_str().unwrap().contains("2520H"));
+    assert!(lines[2]["time"].as_str().unwrap().ends_with('Z'));
+}
+
+#[cfg(unix)]
+#[test]
+fn a_frame_written_in_pieces_is_answered_on_a_pty() {
+    use conformance::codec::timing::{LineSettings, Parity};
+    use conformance::transport::pty::PtyMaster;
+    use conformance::transport::serial::SerialTransport;
+    use conformance::transport::LinkKind;
+    let master = PtyMaster::open(None).unwrap();
+    let path = master.slave_path().to_str().unwrap().to_string();
+    let _s = start(master, "f510", Mode::Rtu, &[]);
+    let line = LineSettings::new(9600, 8, Parity::Even, 1);
+    let mut client = SerialTransport::open(&path, line, LinkKind::Pty).unwrap();
+    let req = read2520(Mode::Rtu, 1);
+    client.send(&req[..3]).unwrap();
+    thread::sleep(Duration::from_millis(40));
+    let r = ask(&mut client, &req[3..], Q);
+    assert_eq!(r.len(), 7, "{r:02X?}");
+    // An unmodelled function (length unknown to the length rule) is answered too.
+    let r = ask(
+        &mut client,
+        &frame(
+            Mode::Rtu,
+            1,
+            Pdu::Other {
+                function: 0x2B,
+                data: &[0x0E, 1, 0],
+            },
+        ),
+        Q,
+    );
+    assert_eq!(r[..3], [0x01, 0xAB, 0x01]);
+}
+
+fn bin() -> &'static str {
+    env!("CARGO_BIN_EXE_conformance")
+}
+
+struct Child(std::process::Child);
+
+impl Drop for Child {
+    fn drop(&mut self) {
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
+}
+
+#[test]
+fn the_command_line_serves_over_tcp() {
+    use conformance::transport::tcp::TcpTransport;
+    let port = {
+        let l = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+        l.local_addr().unwrap().port()
+    };
+    let addr = format!("127.0.0.1:{port}");
+    let _child = Child(
+        std::process::Command::new(bin())
+            .args([
+                "simulate", "--model", "e510", "--mode", "ascii", "--tcp", &addr, "-q",
+            ])
+            .spawn()
+            .unwrap(),
+    );
+    let mut t = None;
+    for _ in 0..100 {
+        if let Ok(c) = TcpTransport::connect(&addr, Duration::from_millis(200)) {
+            t = Some(c);
+            break;
+        }
+        thread::sleep(Duration::from_millis(30));
+    }
+    let mut t = t.expect("the simulator listens");
+    let r = ask(
+        &mut t,
+        &frame(
+            Mode::Ascii,
+            1,
+            Pdu::WriteSingle {
+                register: 0x2520,
+                value: 0,
+            },
+        ),
+        Q,
+    );
+    // E510: a write to a monitor register gets 05 (Write mode error), the model's decision.
+    assert_eq!(
+        r,
+        frame(
+            Mode::Ascii,
+            1,
+            Pdu::Exception {
+                function: 6,
+                code: 5
+            }
+        )
+    );
+    // A client that goes away does not stop the simulator: the next one is served.
+    drop(t);
+    thread::sleep(Duration::from_millis(100));
+    let mut t = TcpTransport::connect(&addr, Duration::from_secs(1)).unwrap();
+    let r = ask(&mut t, &read2520(Mode::Ascii, 1), Q);
+    assert!(
+        r.starts_with(b":010302"),
+        "{:?}",
+        String::from_utf8_lossy(&r)
+    );
+}
+
+#[cfg(unix)]
+#[test]
+fn the_command_line_serves_on_a_pty_and_prints_its_path() {
+    use conformance::codec::timing::{LineSettings, Parity};
+    use conformance::transport::serial::SerialTransport;
+    use conformance::transport::LinkKind;
+    use std::io::BufRead;
+    let mut child = Child(
+        std::process::Command::new(bin())
+            .args([
+                "simulate",
+                "--model",
+                "l510-legacy",
+                "--pty",
+                "-q",
+                "--quirk",
+                "wrong-exception",
+            ])
+            .stdout(std::process::Stdio::piped())
+            .spawn()
+            .unwrap(),
+    );
+    let stdout = child.0.stdout.take().unwrap();
+    let mut path = String::new();
+    std::io::BufReader::new(stdout)
+        .read_line(&mut path)
+        .unwrap();
+    let path = path.trim();
+    assert!(path.starts_with("/dev/pts/"), "{path:?}");
+    let mut t = SerialTransport::open(
+        path,
+        LineSettings::new(9600, 8, Parity::Even, 1),
+        LinkKind::Pty,
+    )
+    .unwrap();
+    // Legacy numbering 51H..55H, plus one for the quirk: 52H becomes 53H.
+    let r = ask(
+        &mut t,
+        &frame(
+            Mode::Rtu,
+            1,
+            Pdu::ReadRequest {
+                start: 0x2530,
+                count: 1,
+            },
+        ),
+        Q,
+    );
+    assert_eq!(
+        r,
+        frame(
+            Mode::Rtu,
+            1,
+            Pdu::Exception {
+                function: 3,
+                code: 0x53
+            }
+        )
+    );
+}
