@@ -1076,6 +1076,12 @@ fn motion(model: &DriveModel, m: &str, out: &mut Vec<Check>) {
                 }
                 if let (Some(fr), Some((c, fact))) = (fault_reg, &code) {
                     match ctx.read(fr, 1)? {
+                        Ok(v) if v[0] == *c && fact.basis == Basis::Decision => {
+                            findings.push(Finding::observation(format!(
+                                "fault code {fr:04X}H reads {c}, as the model decides ({})",
+                                fact.citation()
+                            )))
+                        }
                         Ok(v) if v[0] == *c => {}
                         Ok(v) => findings.push(Finding {
                             severity: super::Severity::of(fact.basis),

@@ -549,6 +549,15 @@ pub fn run_mode(
 
 fn result_of(check: &Check, mode: Mode, mut v: Verdict, duration: Duration) -> CheckResult {
     v.findings.sort_by_key(|f| std::cmp::Reverse(f.severity));
+    // A finding that repeats the model's reason, which the check's source already quotes,
+    // keeps its first part only.
+    for f in &mut v.findings {
+        if let Some(at) = f.text.find(". Model: ") {
+            if check.source.contains(&f.text[at + 9..]) {
+                f.text.truncate(at);
+            }
+        }
+    }
     let (status, summary) = if let Some(e) = &v.error {
         (Status::Error, e.clone())
     } else if let Some(s) = &v.skip {

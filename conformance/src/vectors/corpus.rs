@@ -35,6 +35,19 @@ pub fn seeds(set: &VectorSet, files: &[(String, String)]) -> Vec<Seed> {
                     continue;
                 };
                 let name = format!("{}.{which}", v.id);
+                // The drive target: a model/mode selector byte, then the frame.
+                let model = crate::model::MODELS
+                    .iter()
+                    .position(|m| *m == file.document)
+                    .unwrap_or(0) as u8;
+                let mode_bit = if fv.mode == FileMode::Ascii { 0x80 } else { 0 };
+                let mut drive = vec![model | mode_bit];
+                drive.extend_from_slice(&bytes);
+                out.push(Seed {
+                    target: "drive",
+                    name: name.clone(),
+                    bytes: drive,
+                });
                 let mut stream = vec![CHUNK_CONTROL];
                 stream.extend_from_slice(&bytes);
                 match fv.mode {
