@@ -385,3 +385,26 @@ fn every_example_request_of_the_manuals_is_served_by_its_model() {
     }
     assert!(checked >= 35, "{checked} example requests checked");
 }
+
+#[test]
+fn the_command_line_shows_a_model_and_its_decisions() {
+    let run = |args: &[&str]| {
+        let o = std::process::Command::new(env!("CARGO_BIN_EXE_conformance"))
+            .args(args)
+            .output()
+            .unwrap();
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        String::from_utf8(o.stdout).unwrap()
+    };
+    let all = run(&["model", "e510"]);
+    assert!(all.contains("illegal-function: exception 01H  [documented]"), "{all}");
+    assert!(all.contains("147 marked '-'"), "{all}");
+    assert!(all.contains("20-07: printed 1404H"), "{all}");
+    let decisions = run(&["model", "e510", "--decisions"]);
+    assert!(decisions.contains("no-access: exception 02H  [decision]"), "{decisions}");
+    assert!(!decisions.contains("[documented]") && !decisions.contains("[derived]"));
+    let every = run(&["model"]);
+    for m in MODELS {
+        assert!(every.contains(&format!("{m} — ")), "{m}");
+    }
+}

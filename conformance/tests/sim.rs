@@ -454,3 +454,44 @@ fn the_command_line_serves_on_a_pty_and_prints_its_path() {
         )
     );
 }
+
+/// On a real serial line frames end at t3.5 of silence, and a silence over t1.5 inside a
+/// frame makes it incomplete. A pty paced at the line's character time stands in for the
+/// line; the simulator opens its side as a serial port.
+#[cfg(unix)]
+#[test]
+fn on_a_serial_line_frames_end_at_silence() {
+    use conformance::codec::timing::{LineSettings, Parity};
+    use conformance::transport::pty::PtyMaster;
+    use conformance::transport::serial::SerialTransport;
+    use conformance::transport::LinkKind;
+    // 1200 baud: t1.5 = 13.75 ms and t3.5 = 32.1 ms stand well above a busy host's
+    // scheduling jitter, which a pty paced by a thread is subject to.
+    let line = LineSettings::new(1200, 8, Parity::Even, 1);
+    let q = Duration::from_millis(200);
+    let mut client = PtyMaster::open(Some(line)).unwrap();
+    let path = client.slave_path().to_str().unwrap().to_string();
+    let port = SerialTransport::open(&path, line, LinkKind::Serial).unwrap();
+    assert_eq!(port.line_timing(), Some(line));
+    let served = start(port, "f510", Mode::Rtu, &[]);
+    let req = read2520(Mode::Rtu, 1);
+    let r = ask(&mut client, &req, q);
+    assert_eq!(r.len(), 7, "{r:02X?}");
+    // A silence of 80 ms (over t3.5) inside the frame ends it: two bad frames,
+    // no answer. (A gap between t1.5 and t3.5 makes a frame incomplete: the codec's
+    // deframer tests cover that; a pty's timing is too coarse to aim between them.)
+    client.send(&req[..4]).unwrap();
+    thread::sleep(Duration::from_millis(80));
+    assert!(ask(&mut client, &req[4..], q).is_empty());
+    // Garbage right before a frame, without a silence: one bad frame, no answer.
+    let mut glued = vec![0xFF, 0x13];
+    glued.extend_from_slice(&req);
+    assert!(ask(&mut client, &glued, q).is_empty());
+    // After a silence the next frame is answered.
+    assert_eq!(ask(&mut client, &req, q).len(), 7);
+    let log = served.log.clone();
+    drop(served);
+    let text = String::from_utf8(log.0.lock().unwrap().clone()).unwrap();
+    assert_eq!(text.matches("\"event\":\"corrupt\"").count(), 3, "{text}");
+    assert_eq!(text.matches("\"event\":\"reply\"").count(), 2, "{text}");
+}

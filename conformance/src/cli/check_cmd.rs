@@ -212,16 +212,11 @@ pub fn run(args: CheckArgs) -> anyhow::Result<ExitCode> {
             "say what to check: --sim MODEL, or --model MODEL with --port PATH or --tcp HOST:PORT"
         ),
     };
-    let model = Arc::new(load_model(&model_id, args.model_file.as_deref())?);
-    if !model.addresses.contains(&args.address) {
-        bail!(
-            "address {:02X} is outside the {} model's node addresses {:02X}..{:02X}",
-            args.address,
-            model.id,
-            model.addresses.start(),
-            model.addresses.end()
-        );
-    }
+    let model = Arc::new(load_model(
+        &model_id,
+        args.model_file.as_deref(),
+        args.address,
+    )?);
     let is_sim = matches!(target, Target::Sim { .. });
     let modes = match args.mode.unwrap_or(if is_sim {
         ModesArg::Both
@@ -347,15 +342,27 @@ pub fn run(args: CheckArgs) -> anyhow::Result<ExitCode> {
     if let Some(e) = write_error {
         return Err(e);
     }
-    let rendered = render(&report, args.format, args.verbose)?;
-    match &args.output {
+    finish(&report, args.format, args.verbose, args.output.as_deref())
+}
+
+/// Writes the final report to `output` (a one-line summary on stderr) or stdout, and
+/// gives the exit code.
+pub fn finish(
+    report: &Report,
+    format: Format,
+    verbose: bool,
+    output: Option<&Path>,
+) -> anyhow::Result<ExitCode> {
+    let rendered = render(report, format, verbose)?;
+    match output {
         Some(path) => {
             write_atomic(path, &rendered)
                 .with_context(|| format!("cannot write {}", path.display()))?;
             let s = report.summary();
             eprintln!(
-                "{} checks: {} pass, {} deviations, {} observations, {} skipped, {} errors{}; report in {}",
+                "{} {}: {} pass, {} deviations, {} observations, {} skipped, {} errors{}; report in {}",
                 s.total,
+                if report.kind == conformance::report::ReportKind::Gate { "cases" } else { "checks" },
                 s.pass,
                 s.deviation,
                 s.observation,

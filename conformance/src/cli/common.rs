@@ -83,10 +83,25 @@ impl LineArgs {
     }
 }
 
-/// Loads the built-in model `id`, or a model file given instead.
-pub fn load_model(id: &str, file: Option<&std::path::Path>) -> anyhow::Result<DriveModel> {
-    Ok(match file {
+/// Loads the built-in model `id`, or a model file given instead, and checks that
+/// `address` is one of its node addresses.
+pub fn load_model(
+    id: &str,
+    file: Option<&std::path::Path>,
+    address: u8,
+) -> anyhow::Result<DriveModel> {
+    let model = match file {
         Some(path) => DriveModel::from_path(path)?,
         None => DriveModel::builtin(id)?,
-    })
+    };
+    if !model.addresses.contains(&address) {
+        anyhow::bail!(
+            "address {:02X} is outside the {} model's node addresses {:02X}..{:02X}",
+            address,
+            model.id,
+            model.addresses.start(),
+            model.addresses.end()
+        );
+    }
+    Ok(model)
 }

@@ -12,7 +12,7 @@ use conformance::report::{Codec, Report, ReportKind, RunOptions};
 use conformance::runner::CheckResult;
 use conformance::vectors::VectorSet;
 
-use super::check_cmd::{render, write_atomic, Format};
+use super::check_cmd::{finish, render, write_atomic, Format};
 
 const AFTER_HELP: &str = "\
 The adapter protocol (line-delimited JSON on the adapter's stdin/stdout) is documented in
@@ -186,30 +186,7 @@ pub fn run(args: GateArgs) -> anyhow::Result<ExitCode> {
     if let Some(e) = progress.error {
         return Err(e);
     }
-    let rendered = render(&report, args.format, args.verbose)?;
-    match &args.output {
-        Some(path) => {
-            write_atomic(path, &rendered)
-                .with_context(|| format!("cannot write {}", path.display()))?;
-            let s = report.summary();
-            eprintln!(
-                "{} cases: {} pass, {} deviations, {} skipped, {} errors{}; report in {}",
-                s.total,
-                s.pass,
-                s.deviation,
-                s.skip,
-                s.error,
-                if report.complete { "" } else { " [INCOMPLETE]" },
-                path.display()
-            );
-        }
-        None => {
-            let mut out = std::io::stdout().lock();
-            out.write_all(rendered.as_bytes())?;
-            out.flush()?;
-        }
-    }
-    Ok(ExitCode::from(report.exit_code()))
+    finish(&report, args.format, args.verbose, args.output.as_deref())
 }
 
 #[derive(Debug, Args)]

@@ -4,6 +4,7 @@ mod check_cmd;
 mod codec_cmd;
 mod common;
 mod gate_cmd;
+mod model_cmd;
 mod simulate_cmd;
 mod vectors_cmd;
 
@@ -31,6 +32,8 @@ enum Command {
     Encode(codec_cmd::EncodeArgs),
     /// The golden vectors transcribed from the manuals: list, verify, export.
     Vectors(vectors_cmd::VectorsArgs),
+    /// Show a drive model: the manual's facts and the model's decisions, with their basis.
+    Model(model_cmd::ModelArgs),
     /// Run a simulated drive on a serial port, a pseudo-terminal or TCP.
     Simulate(simulate_cmd::SimulateArgs),
     /// Probe a real or simulated drive and report every deviation from its manual.
@@ -48,6 +51,7 @@ pub fn run(cli: Cli) -> anyhow::Result<ExitCode> {
         Command::Decode(a) => codec_cmd::decode(a),
         Command::Encode(a) => codec_cmd::encode(a),
         Command::Vectors(a) => vectors_cmd::run(a),
+        Command::Model(a) => model_cmd::run(a),
         Command::Simulate(a) => simulate_cmd::run(a),
         Command::Check(a) => check_cmd::run(a),
         Command::Gate(a) => gate_cmd::run(a),

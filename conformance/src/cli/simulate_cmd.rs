@@ -86,16 +86,11 @@ pub struct SimulateArgs {
 }
 
 pub fn run(args: SimulateArgs) -> anyhow::Result<ExitCode> {
-    let model = Arc::new(load_model(&args.model, args.model_file.as_deref())?);
-    if !model.addresses.contains(&args.address) {
-        bail!(
-            "address {:02X} is outside the {} model's node addresses {:02X}..{:02X}",
-            args.address,
-            model.id,
-            model.addresses.start(),
-            model.addresses.end()
-        );
-    }
+    let model = Arc::new(load_model(
+        &args.model,
+        args.model_file.as_deref(),
+        args.address,
+    )?);
     let mode: Mode = args.mode.into();
     let line = args.line.settings();
     if mode == Mode::Rtu && line.data_bits != 8 {

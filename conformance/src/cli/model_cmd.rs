@@ -1,0 +1,223 @@
+//! `conformance model`: what a drive model says, fact by fact, with its basis.
+
+use std::fmt::Write as _;
+use std::io::Write;
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+use clap::Args;
+use conformance::model::{Basis, DriveModel, Fact, Fault, SilenceReason, MODELS};
+
+#[derive(Debug, Args)]
+pub struct ModelArgs {
+    /// The model: f510, a510, l510, e510, l510-legacy (all of them if left out).
+    model: Option<String>,
+    /// Read the model from this file instead of the built-in one.
+    #[arg(long, value_name = "FILE")]
+    model_file: Option<PathBuf>,
+    /// Only the model's decisions (where the manual is silent or contradicts itself).
+    #[arg(long)]
+    decisions: bool,
+}
+
+fn fact(o: &mut String, what: &str, f: &Fact, only_decisions: bool) {
+    if only_decisions && f.basis != Basis::Decision {
+        return;
+    }
+    let _ = writeln!(o, "  {what}  [{}]", f.basis);
+    let _ = writeln!(o, "      {}", f.citation());
+}
+
+fn show(m: &DriveModel, only_decisions: bool) -> String {
+    let mut o = String::new();
+    let _ = writeln!(o, "{} — {}", m.id, m.title);
+    let _ = writeln!(
+        o,
+        "  addresses {:02X}..{:02X}, broadcast {:02X}; functions {}",
+        m.addresses.start(),
+        m.addresses.end(),
+        m.broadcast,
+        m.functions
+            .iter()
+            .map(|f| format!("{f:02X}H"))
+            .collect::<Vec<_>>()
+            .join(" ")
+    );
+    let _ = writeln!(
+        o,
+        "  exception table: {}",
+        m.exception_codes
+            .iter()
+            .map(|(c, t)| format!("{c:02X} {t}"))
+            .collect::<Vec<_>>()
+            .join("; ")
+    );
+    let l = &m.limits;
+    let _ = writeln!(
+        o,
+        "  limits: frame {} bytes; read {} (RTU) / {} (ASCII); write {} / {}; same group: {}; response {} ms",
+        l.max_frame, l.read.rtu, l.read.ascii, l.write.rtu, l.write.ascii, l.same_group, l.response_time_ms
+    );
+    let groups = m.parameter_groups().count();
+    let params: usize = m
+        .parameter_groups()
+        .flat_map(|g| g.registers.iter())
+        .map(|r| r.clone().count())
+        .sum();
+    let no_access: usize = m
+        .parameter_groups()
+        .flat_map(|g| g.no_access.iter())
+        .map(|r| r.clone().count())
+        .sum();
+    let _ = writeln!(
+        o,
+        "  parameters: {params} registers in {groups} groups, {no_access} marked '-' (no access)"
+    );
+    for fault in Fault::ALL {
+        if let Some(r) = m.exceptions.get(&fault) {
+            fact(
+                &mut o,
+                &format!("{fault}: exception {:02X}H", r.code),
+                &r.fact,
+                only_decisions,
+            );
+        }
+    }
+    for reason in SilenceReason::ALL {
+        fact(
+            &mut o,
+            &format!("{reason}: no reply"),
+            &m.silence[&reason],
+            only_decisions,
+        );
+    }
+    fact(
+        &mut o,
+        &format!("read limit {} / {}", l.read.rtu, l.read.ascii),
+        &l.read.fact,
+        only_decisions,
+    );
+    fact(
+        &mut o,
+        &format!("write limit {} / {}", l.write.rtu, l.write.ascii),
+        &l.write.fact,
+        only_decisions,
+    );
+    fact(
+        &mut o,
+        "same-group rule",
+        &l.same_group_fact,
+        only_decisions,
+    );
+    fact(
+        &mut o,
+        "identification",
+        &m.identification.fact,
+        only_decisions,
+    );
+    fact(
+        &mut o,
+        "parameter access",
+        &m.parameter_access,
+        only_decisions,
+    );
+    for n in &m.named {
+        if let Some((max, f)) = &n.max {
+            fact(
+                &mut o,
+                &format!("{:04X}H maximum {max:04X}H", n.register),
+                f,
+                only_decisions,
+            );
+        }
+    }
+    // Registers the model adds, as runs of one decision.
+    let added: Vec<_> = m
+        .named
+        .iter()
+        .filter(|n| n.fact.basis == Basis::Decision)
+        .collect();
+    let mut i = 0;
+    while i < added.len() {
+        let mut j = i;
+        while j + 1 < added.len()
+            && added[j + 1].register == added[j].register + 1
+            && added[j + 1].fact == added[i].fact
+        {
+            j += 1;
+        }
+        let (a, b) = (added[i], added[j]);
+        let what = if i == j {
+            format!("{:04X}H {} ({})", a.register, a.name, a.access)
+        } else {
+            format!(
+                "{:04X}H..{:04X}H {} ({})",
+                a.register, b.register, a.name, a.access
+            )
+        };
+        fact(&mut o, &what, &a.fact, only_decisions);
+        i = j + 1;
+    }
+    if let Some((code, f)) = &m.external_fault_code {
+        fact(
+            &mut o,
+            &format!("external fault code {code}"),
+            f,
+            only_decisions,
+        );
+    }
+    for (r, v, _, f) in &m.example_registers {
+        fact(
+            &mut o,
+            &format!("example register {r:04X}H = {v:04X}H"),
+            f,
+            only_decisions,
+        );
+    }
+    for (r, v, f) in &m.initial_values {
+        fact(
+            &mut o,
+            &format!("initial value {r:04X}H = {v:04X}H"),
+            f,
+            only_decisions,
+        );
+    }
+    for a in &m.aliases {
+        fact(
+            &mut o,
+            &format!(
+                "alias {:04X}H..{:04X}H = {:04X}H..",
+                a.span.start(),
+                a.span.end(),
+                a.target
+            ),
+            &a.fact,
+            only_decisions,
+        );
+    }
+    for g in m.parameter_groups() {
+        for n in &g.notes {
+            let _ = writeln!(o, "  {}: {n}", g.name);
+        }
+    }
+    o
+}
+
+pub fn run(args: ModelArgs) -> anyhow::Result<ExitCode> {
+    let models: Vec<DriveModel> = match (&args.model, &args.model_file) {
+        (_, Some(path)) => vec![DriveModel::from_path(path)?],
+        (Some(id), None) => vec![DriveModel::builtin(id)?],
+        (None, None) => MODELS
+            .iter()
+            .map(|m| DriveModel::builtin(m))
+            .collect::<Result<_, _>>()?,
+    };
+    let mut out = std::io::stdout().lock();
+    for (i, m) in models.iter().enumerate() {
+        if i > 0 {
+            writeln!(out)?;
+        }
+        out.write_all(show(m, args.decisions).as_bytes())?;
+    }
+    Ok(ExitCode::SUCCESS)
+}
