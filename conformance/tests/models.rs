@@ -397,11 +397,17 @@ fn the_command_line_shows_a_model_and_its_decisions() {
         String::from_utf8(o.stdout).unwrap()
     };
     let all = run(&["model", "e510"]);
-    assert!(all.contains("illegal-function: exception 01H  [documented]"), "{all}");
+    assert!(
+        all.contains("illegal-function: exception 01H  [documented]"),
+        "{all}"
+    );
     assert!(all.contains("147 marked '-'"), "{all}");
     assert!(all.contains("20-07: printed 1404H"), "{all}");
     let decisions = run(&["model", "e510", "--decisions"]);
-    assert!(decisions.contains("no-access: exception 02H  [decision]"), "{decisions}");
+    assert!(
+        decisions.contains("no-access: exception 02H  [decision]"),
+        "{decisions}"
+    );
     assert!(!decisions.contains("[documented]") && !decisions.contains("[derived]"));
     let every = run(&["model"]);
     for m in MODELS {

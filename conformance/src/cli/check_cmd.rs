@@ -303,6 +303,12 @@ pub fn run(args: CheckArgs) -> anyhow::Result<ExitCode> {
             .context("cannot install the Ctrl-C handler")?;
     }
     let total = session::list(&config).len() as u64;
+    if total == 0 {
+        bail!(
+            "no check matches --only {}; `--list` shows the check ids",
+            args.only.join(" --only ")
+        );
+    }
     let bar = if !args.quiet && std::io::stderr().is_terminal() {
         let b = indicatif::ProgressBar::new(total);
         b.set_style(

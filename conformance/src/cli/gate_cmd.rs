@@ -123,6 +123,12 @@ pub fn run(args: GateArgs) -> anyhow::Result<ExitCode> {
         writeln!(out, "{} cases", cases.len())?;
         return Ok(ExitCode::SUCCESS);
     }
+    if cases.is_empty() {
+        anyhow::bail!(
+            "no case matches --only {}; `--list` shows the case ids",
+            args.only.join(" --only ")
+        );
+    }
     let mut adapter = Adapter::start(&args.codec, opts.timeout)?;
     let hello = adapter.hello.clone();
     let started = humantime::format_rfc3339_seconds(SystemTime::now()).to_string();
