@@ -2,11 +2,10 @@
 //! (it accepts every CRC) is caught; adapters that crash, hang or babble are reported as
 //! ERRORs case by case and the gate carries on; the pymodbus adapter completes.
 
-use std::process::{Command, Output};
+mod common;
+use common::bin;
 
-fn bin() -> &'static str {
-    env!("CARGO_BIN_EXE_conformance")
-}
+use std::process::{Command, Output};
 
 fn gate(codec: &str, extra: &[&str]) -> (Output, serde_json::Value) {
     let mut args = vec!["gate", "--codec", codec, "--format", "json", "--quiet"];

@@ -3,18 +3,12 @@
 //! pseudo-terminal pair made by socat, checked as an F510. The run must complete, report
 //! the deviations a generic device has from the F510 manual, and neither panic nor hang.
 
+mod common;
+use common::{bin, Kill};
+
 use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Stdio};
+use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
-
-struct Kill(Child);
-
-impl Drop for Kill {
-    fn drop(&mut self) {
-        let _ = self.0.kill();
-        let _ = self.0.wait();
-    }
-}
 
 fn tool_or_skip(ok: bool, what: &str) -> bool {
     if ok {
@@ -84,7 +78,7 @@ fn run(mode: &str) {
     std::thread::sleep(Duration::from_millis(1500));
     let t0 = Instant::now();
     let mut check = Kill(
-        Command::new(env!("CARGO_BIN_EXE_conformance"))
+        Command::new(bin())
             .args([
                 "check",
                 "--model",

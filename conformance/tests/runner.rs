@@ -3,6 +3,9 @@
 //! disconnected run leaves a whole, valid report marked incomplete and restores what it
 //! changed; reports validate against their schema; the command line's exit codes.
 
+mod common;
+use common::{bin, Kill};
+
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::thread;
@@ -241,19 +244,6 @@ fn an_interrupted_run_is_reported_incomplete_and_restores_what_it_changed() {
     }
 }
 
-fn bin() -> &'static str {
-    env!("CARGO_BIN_EXE_conformance")
-}
-
-struct Child(std::process::Child);
-
-impl Drop for Child {
-    fn drop(&mut self) {
-        let _ = self.0.kill();
-        let _ = self.0.wait();
-    }
-}
-
 #[test]
 fn a_lost_link_ends_the_run_with_an_error_and_a_whole_report() {
     let port = std::net::TcpListener::bind("127.0.0.1:0")
@@ -262,7 +252,7 @@ fn a_lost_link_ends_the_run_with_an_error_and_a_whole_report() {
         .unwrap()
         .port();
     let addr = format!("127.0.0.1:{port}");
-    let child = Arc::new(std::sync::Mutex::new(Child(
+    let child = Arc::new(std::sync::Mutex::new(Kill(
         std::process::Command::new(bin())
             .args(["simulate", "--model", "l510", "--tcp", &addr, "-q"])
             .spawn()

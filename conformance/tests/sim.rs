@@ -2,6 +2,9 @@
 //! Every quirk is shown on the wire; bad input never stops the server; the traffic log is
 //! JSON lines with every frame in and out; the command line serves on a pty and on TCP.
 
+mod common;
+use common::{bin, Kill};
+
 use std::io::Write;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
@@ -320,19 +323,6 @@ fn a_frame_written_in_pieces_is_answered_on_a_pty() {
     assert_eq!(r[..3], [0x01, 0xAB, 0x01]);
 }
 
-fn bin() -> &'static str {
-    env!("CARGO_BIN_EXE_conformance")
-}
-
-struct Child(std::process::Child);
-
-impl Drop for Child {
-    fn drop(&mut self) {
-        let _ = self.0.kill();
-        let _ = self.0.wait();
-    }
-}
-
 #[test]
 fn the_command_line_serves_over_tcp() {
     use conformance::transport::tcp::TcpTransport;
@@ -341,7 +331,7 @@ fn the_command_line_serves_over_tcp() {
         l.local_addr().unwrap().port()
     };
     let addr = format!("127.0.0.1:{port}");
-    let _child = Child(
+    let _child = Kill(
         std::process::Command::new(bin())
             .args([
                 "simulate", "--model", "e510", "--mode", "ascii", "--tcp", &addr, "-q",
@@ -401,7 +391,7 @@ fn the_command_line_serves_on_a_pty_and_prints_its_path() {
     use conformance::transport::serial::SerialTransport;
     use conformance::transport::LinkKind;
     use std::io::BufRead;
-    let mut child = Child(
+    let mut child = Kill(
         std::process::Command::new(bin())
             .args([
                 "simulate",

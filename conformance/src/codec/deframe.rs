@@ -100,6 +100,17 @@ enum Implied {
     Len(usize),
 }
 
+/// The length of the RTU frame that starts `head`, as its function code implies for
+/// `direction`: `None` while `head` is too short to tell, or for a function whose length
+/// only a silence can tell (anything but 03H, 06H, 08H with two data bytes, 10H and
+/// exceptions). The rule the by-length deframer uses, for callers that split a capture.
+pub fn rtu_frame_len(direction: Direction, head: &[u8]) -> Option<usize> {
+    match implied_len(direction, head) {
+        Implied::Len(n) => Some(n),
+        Implied::NeedMore | Implied::Unknown => None,
+    }
+}
+
 fn implied_len(direction: Direction, head: &[u8]) -> Implied {
     let Some(&fc) = head.get(1) else {
         return Implied::NeedMore;
@@ -249,6 +260,28 @@ impl RtuDeframer {
                 self.garbage.flush(&mut emit);
             }
         }
+    }
+
+    /// With [`RtuFraming::ByLength`], when the link has gone quiet: the bytes held since
+    /// the last event are one burst. If they carry a valid CRC they are one frame (of a
+    /// function whose length the rule cannot tell: masters write a whole frame at once, so
+    /// on links without timing a burst is a frame); otherwise they are reported as
+    /// [`flush`](Self::flush) reports them. With [`RtuFraming::BySilence`] this is `flush`.
+    pub fn end_burst(&mut self, mut emit: impl FnMut(Event<'_>)) {
+        let held = self.garbage.len + self.end;
+        if self.framing == RtuFraming::ByLength && (4..=MAX_RTU_FRAME).contains(&held) {
+            // Held garbage and the buffered tail are contiguous: together the burst.
+            let mut burst = [0u8; MAX_RTU_FRAME];
+            burst[..self.garbage.len].copy_from_slice(&self.garbage.buf[..self.garbage.len]);
+            burst[self.garbage.len..held].copy_from_slice(&self.buf[..self.end]);
+            if crc16(&burst[..held]) == 0 {
+                emit(Event::Frame(&burst[..held]));
+                self.garbage.len = 0;
+                self.end = 0;
+                return;
+            }
+        }
+        self.flush(emit)
     }
 
     fn close_silent_frame(&mut self, emit: &mut impl FnMut(Event<'_>)) {
@@ -513,6 +546,35 @@ impl AsciiDeframer {
             self.len = 0;
         }
         self.garbage.flush(&mut emit);
+    }
+}
+
+#[cfg(test)]
+mod burst_tests {
+    use super::*;
+
+    #[test]
+    fn a_quiet_burst_with_a_valid_crc_is_a_frame() {
+        // Function 2BH: the length rule cannot tell its length.
+        let mut f = vec![0x01, 0x2B, 0x0E, 0x01, 0x00];
+        f.extend_from_slice(&crate::codec::CrcBytes::of(&f).wire());
+        let mut d = RtuDeframer::new(Direction::Request, RtuFraming::ByLength);
+        let mut events = Vec::new();
+        d.push(&f, |e| events.push(format!("{e:?}")));
+        assert!(events.is_empty(), "{events:?}");
+        d.end_burst(|e| events.push(format!("{e:?}")));
+        assert_eq!(events, [format!("{:?}", Event::Frame(&f))]);
+        assert_eq!(d.pending(), 0);
+        // Without a valid CRC the burst is garbage, reported once.
+        let mut g = f.clone();
+        g[2] ^= 1;
+        let mut seen = 0;
+        d.push(&g, |_| panic!("nothing before the burst ends"));
+        d.end_burst(|e| {
+            assert!(matches!(e, Event::Garbage(_)));
+            seen += e.bytes().len();
+        });
+        assert_eq!(seen, g.len());
     }
 }
 

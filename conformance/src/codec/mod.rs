@@ -168,3 +168,78 @@ impl Message<'_> {
         }
     }
 }
+
+/// Address, function and data of a frame, with its checksum.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct FrameParts {
+    /// Address, function and data.
+    pub body: Vec<u8>,
+    /// Carried and computed checksum.
+    pub checksum: Checksum,
+}
+
+/// Splits a complete frame into body and checksum, checking its framing (not its
+/// checksum, nor its fields).
+pub fn frame_parts(mode: Mode, bytes: &[u8]) -> Result<FrameParts, FrameError> {
+    match mode {
+        Mode::Rtu => {
+            let f = rtu::RtuFrame::new_checked(bytes)?;
+            Ok(FrameParts {
+                body: f.body().to_vec(),
+                checksum: f.checksum(),
+            })
+        }
+        Mode::Ascii => {
+            let f = ascii::AsciiFrame::new_checked(bytes)?;
+            let mut scratch = [0u8; MAX_RTU_FRAME];
+            Ok(FrameParts {
+                body: f.body_into(&mut scratch).to_vec(),
+                checksum: f.checksum(),
+            })
+        }
+    }
+}
+
+/// Length of an 03H response carrying `n` registers: bytes in RTU, characters in ASCII.
+pub fn read_response_len(mode: Mode, n: u16) -> usize {
+    frame_len(mode, 3 + 2 * usize::from(n))
+}
+
+/// Length of a 10H request carrying `n` registers: bytes in RTU, characters in ASCII.
+pub fn write_request_len(mode: Mode, n: u16) -> usize {
+    frame_len(mode, 7 + 2 * usize::from(n))
+}
+
+/// Length of the frame of a body (address, function, data) of `body` bytes: two CRC bytes
+/// in RTU; ':', two characters a byte and for the LRC, and CR LF in ASCII.
+pub fn frame_len(mode: Mode, body: usize) -> usize {
+    match mode {
+        Mode::Rtu => body + 2,
+        Mode::Ascii => 1 + 2 * (body + 1) + 2,
+    }
+}
+
+/// The frame of a body (address, function, data) in `mode`, whatever the function: its
+/// checksum computed, as emit writes it.
+pub fn frame_of_body(mode: Mode, body: &[u8]) -> Result<Vec<u8>, FrameError> {
+    match body {
+        [address, function, data @ ..] => Message {
+            address: *address,
+            pdu: Pdu::Other {
+                function: *function,
+                data,
+            },
+        }
+        .to_frame_vec(mode),
+        _ => Err(FrameError::RtuTooShort {
+            len: body.len() + 2,
+        }),
+    }
+}
+
+/// The same frame addressed to `address`, with its checksum computed anew.
+pub fn readdressed(mode: Mode, frame: &[u8], address: u8) -> Result<Vec<u8>, FrameError> {
+    let mut body = frame_parts(mode, frame)?.body;
+    body[0] = address;
+    frame_of_body(mode, &body)
+}

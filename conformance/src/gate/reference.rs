@@ -99,26 +99,6 @@ pub fn body_from_message(m: &Value) -> Result<Vec<u8>, String> {
     Ok(b)
 }
 
-/// The frame of `body` in `mode`.
-pub fn frame_of_body(mode: Mode, body: &[u8]) -> Vec<u8> {
-    match mode {
-        Mode::Rtu => {
-            let mut f = body.to_vec();
-            f.extend_from_slice(&codec::CrcBytes::of(body).wire());
-            f
-        }
-        Mode::Ascii => {
-            let mut f = vec![b':'];
-            for b in body {
-                f.extend_from_slice(&codec::hex::encode_byte(*b));
-            }
-            f.extend_from_slice(&codec::hex::encode_byte(lrc(body)));
-            f.extend_from_slice(b"\r\n");
-            f
-        }
-    }
-}
-
 fn mode_of(v: &Value) -> Result<Mode, String> {
     match v.get("mode").and_then(Value::as_str) {
         Some("rtu") => Ok(Mode::Rtu),
@@ -174,7 +154,9 @@ pub fn answer(req: &Value, fault: Option<Fault>) -> Value {
         Some("encode") => {
             let mode = mode_of(req)?;
             let body = body_from_message(req.get("message").ok_or("missing \"message\"")?)?;
-            Ok(json!({"frame": Hex(&frame_of_body(mode, &body)).to_string()}))
+            Ok(
+                json!({"frame": Hex(&codec::frame_of_body(mode, &body).map_err(|e| e.to_string())?).to_string()}),
+            )
         }
         Some("crc") => Ok(json!({"crc": format!("{:04X}", crc16(&bytes_of(req, "data")?))})),
         Some("lrc") => Ok(json!({"lrc": format!("{:02X}", lrc(&bytes_of(req, "data")?))})),

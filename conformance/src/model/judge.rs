@@ -8,9 +8,7 @@
 use std::fmt::Write as _;
 
 use super::{Access, Basis, DriveModel, Fact, Fault, Origin, SilenceReason};
-use crate::codec::ascii::AsciiFrame;
 use crate::codec::pdu::{Direction, Message, Pdu};
-use crate::codec::rtu::RtuFrame;
 use crate::codec::Mode;
 
 /// Registers a normal 03H reply reads, resolved through aliases.
@@ -112,26 +110,14 @@ impl DriveModel {
             facts: vec![self.silence[&reason].clone()],
             detail,
         };
-        let mut scratch = [0u8; crate::codec::MAX_RTU_FRAME];
-        let (body, checksum_ok) = match mode {
-            Mode::Rtu => match RtuFrame::new_checked(frame) {
-                Ok(f) => (f.body().to_vec(), f.checksum().is_valid()),
-                Err(e) => {
-                    return silence(SilenceReason::BadChecksum, format!("not an RTU frame: {e}"))
-                }
-            },
-            Mode::Ascii => match AsciiFrame::new_checked(frame) {
-                Ok(f) => {
-                    let ok = f.checksum().is_valid();
-                    (f.body_into(&mut scratch).to_vec(), ok)
-                }
-                Err(e) => {
-                    return silence(
-                        SilenceReason::BadChecksum,
-                        format!("not an ASCII frame: {e}"),
-                    )
-                }
-            },
+        let (body, checksum_ok) = match crate::codec::frame_parts(mode, frame) {
+            Ok(p) => (p.body, p.checksum.is_valid()),
+            Err(e) => {
+                return silence(
+                    SilenceReason::BadChecksum,
+                    format!("not a {mode} frame: {e}"),
+                )
+            }
         };
         if !checksum_ok {
             return silence(

@@ -18,6 +18,8 @@ use serde::{Deserialize, Serialize};
 pub use file::ModelFile;
 pub use judge::{Expectation, Judgement, ReadPlan, WritePlan};
 
+pub use crate::codec::{frame_len, read_response_len, write_request_len};
+
 use crate::codec::Mode;
 
 /// The models, in the order reports list them.
@@ -1148,25 +1150,5 @@ fn check_fact(model: &str, what: &str, f: &file::FactFile) -> Result<(), ModelEr
             problem: format!("{what}: {p}"),
         }),
         None => Ok(()),
-    }
-}
-
-/// Length of an 03H response carrying `n` registers: bytes in RTU, characters in ASCII.
-pub fn read_response_len(mode: Mode, n: u16) -> usize {
-    let body = 3 + 2 * usize::from(n);
-    frame_len(mode, body)
-}
-
-/// Length of a 10H request carrying `n` registers.
-pub fn write_request_len(mode: Mode, n: u16) -> usize {
-    let body = 7 + 2 * usize::from(n);
-    frame_len(mode, body)
-}
-
-/// Frame length for a body (address, function, data) of `body` bytes.
-pub fn frame_len(mode: Mode, body: usize) -> usize {
-    match mode {
-        Mode::Rtu => body + 2,
-        Mode::Ascii => 1 + 2 * (body + 1) + 2,
     }
 }

@@ -86,24 +86,36 @@ pub fn junit(r: &Report) -> String {
             esc(&r.started)
         );
         let _ = writeln!(o, "    <properties>");
-        for (k, v) in [
-            ("model", r.device.model.clone()),
-            ("manual", r.device.manual.clone()),
-            ("address", format!("{:02X}", r.device.address)),
-            (
-                "link",
-                r.device.links.get(&mode).cloned().unwrap_or_default(),
-            ),
-            ("line", r.device.line.clone()),
-            (
-                "identification",
-                r.device
-                    .identification
-                    .map(|v| format!("{v:04X}"))
-                    .unwrap_or_default(),
-            ),
-            ("complete", r.complete.to_string()),
-        ] {
+        let properties: Vec<(&str, String)> = match &r.codec {
+            Some(c) => vec![
+                ("implementation", c.implementation.clone()),
+                ("version", c.version.clone()),
+                ("adapter", c.adapter.clone()),
+                ("command", c.command.clone()),
+                ("seed", format!("{:#x}", c.seed)),
+                ("count", c.count.to_string()),
+                ("complete", r.complete.to_string()),
+            ],
+            None => vec![
+                ("model", r.device.model.clone()),
+                ("manual", r.device.manual.clone()),
+                ("address", format!("{:02X}", r.device.address)),
+                (
+                    "link",
+                    r.device.links.get(&mode).cloned().unwrap_or_default(),
+                ),
+                ("line", r.device.line.clone()),
+                (
+                    "identification",
+                    r.device
+                        .identification
+                        .map(|v| format!("{v:04X}"))
+                        .unwrap_or_default(),
+                ),
+                ("complete", r.complete.to_string()),
+            ],
+        };
+        for (k, v) in properties {
             let _ = writeln!(o, "      <property name=\"{k}\" value=\"{}\"/>", esc(&v));
         }
         let _ = writeln!(o, "    </properties>");

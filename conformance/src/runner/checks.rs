@@ -205,7 +205,8 @@ fn examples(model: &DriveModel, vectors: Option<&VectorFile>, mode: Mode, out: &
             // Address the device, not the manual's node 01.
             let mut frame = request.clone();
             if ctx.opts.address != 1 {
-                frame = readdressed(ctx, &request);
+                frame = crate::codec::readdressed(ctx.mode, &request, ctx.opts.address)
+                    .unwrap_or(frame);
             }
             for &(r, _) in &plan_writes {
                 if let Err(e) = ctx.remember(r)? {
@@ -230,19 +231,6 @@ fn examples(model: &DriveModel, vectors: Option<&VectorFile>, mode: Mode, out: &
             }
             Ok(v)
         }));
-    }
-}
-
-fn readdressed(ctx: &Ctx<'_>, frame: &[u8]) -> Vec<u8> {
-    match super::compare::body_of(ctx.mode, frame) {
-        Some(mut body) => {
-            body[0] = ctx.opts.address;
-            match crate::codec::pdu::Message::parse_body(&body, crate::codec::Direction::Request) {
-                Ok(m) => m.to_frame_vec(ctx.mode).unwrap_or_default(),
-                Err(_) => frame.to_vec(),
-            }
-        }
-        None => frame.to_vec(),
     }
 }
 
@@ -681,6 +669,8 @@ fn writes(model: &DriveModel, mode: Mode, m: &str, out: &mut Vec<Check>) {
         }
     }
     if let Some(ro) = model.register_with_role(Role::Status) {
+        // Not journalled: 2520H is state, not a stored value, and writing it back at the
+        // end would be a second write to a read-only register.
         out.push(probe_check(
             format!("{m}.write.read-only"),
             format!("Write 0000H to the monitor register {ro:04X}H (read-only)"),

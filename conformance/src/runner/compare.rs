@@ -90,56 +90,53 @@ pub fn explain_invalid(mode: Mode, rx: &[u8]) -> String {
         Mode::Rtu => Hex(rx).to_string(),
         Mode::Ascii => format!("{:?}", String::from_utf8_lossy(rx)),
     };
-    let why =
-        match mode {
-            Mode::Rtu => {
-                match RtuFrame::new_checked(rx) {
-                    Ok(f) => {
-                        let c = f.checksum();
-                        if c.is_valid() {
-                            format!(
-                                "a frame that does not answer the request ({})",
-                                describe_reply(mode, rx)
-                            )
-                        } else {
-                            let (carried, computed) = (f.carried_crc(), f.computed_crc());
-                            let swapped = carried.swap_bytes() == computed;
-                            format!(
-                        "CRC mismatch: frame carries {carried:04X}, computed {computed:04X}{}",
-                        if swapped { " (the two CRC bytes are swapped)" } else { "" }
-                    )
-                        }
+    let why = match mode {
+        Mode::Rtu => match RtuFrame::new_checked(rx) {
+            Ok(f) if f.checksum().is_valid() => format!(
+                "a frame that does not answer the request ({})",
+                describe_reply(mode, rx)
+            ),
+            Ok(f) => {
+                let swapped = f.carried_crc().swap_bytes() == f.computed_crc();
+                format!(
+                    "{}{}",
+                    f.checksum(),
+                    if swapped {
+                        " (the two CRC bytes are swapped)"
+                    } else {
+                        ""
                     }
-                    Err(e) => e.to_string(),
-                }
+                )
             }
-            Mode::Ascii => match rx.iter().position(|&c| c == b':') {
-                None => "no ':' start character".to_string(),
-                Some(s) => match AsciiFrame::new_checked(&rx[s..]) {
-                    Ok(f) => {
-                        let c = f.checksum();
-                        if c.is_valid() {
-                            "a frame that does not answer the request".to_string()
-                        } else {
-                            let b = f.as_bytes();
-                            let n = b.len();
-                            let mut fixed = b.to_vec();
-                            fixed.swap(n - 4, n - 3);
-                            let swapped = crate::codec::ascii::is_valid_frame(&fixed);
-                            format!(
-                                "{c}{}",
-                                if swapped {
-                                    " (the two LRC characters are swapped)"
-                                } else {
-                                    ""
-                                }
-                            )
-                        }
+            Err(e) => e.to_string(),
+        },
+        Mode::Ascii => match rx.iter().position(|&c| c == b':') {
+            None => "no ':' start character".to_string(),
+            Some(s) => match AsciiFrame::new_checked(&rx[s..]) {
+                Ok(f) => {
+                    let c = f.checksum();
+                    if c.is_valid() {
+                        "a frame that does not answer the request".to_string()
+                    } else {
+                        let b = f.as_bytes();
+                        let n = b.len();
+                        let mut fixed = b.to_vec();
+                        fixed.swap(n - 4, n - 3);
+                        let swapped = crate::codec::ascii::is_valid_frame(&fixed);
+                        format!(
+                            "{c}{}",
+                            if swapped {
+                                " (the two LRC characters are swapped)"
+                            } else {
+                                ""
+                            }
+                        )
                     }
-                    Err(e) => e.to_string(),
-                },
+                }
+                Err(e) => e.to_string(),
             },
-        };
+        },
+    };
     format!("{} bytes without a valid reply: {shown}: {why}", rx.len())
 }
 
@@ -420,15 +417,7 @@ fn predicted_len(mode: Mode, judgement: &Judgement, request: &[u8]) -> Option<us
 
 /// Address, function and data of a frame whose structure is sound (checksum not checked).
 pub fn body_of(mode: Mode, frame: &[u8]) -> Option<Vec<u8>> {
-    match mode {
-        Mode::Rtu => RtuFrame::new_checked(frame).ok().map(|f| f.body().to_vec()),
-        Mode::Ascii => {
-            let mut scratch = [0u8; codec::MAX_RTU_FRAME];
-            AsciiFrame::new_checked(frame)
-                .ok()
-                .map(|f| f.body_into(&mut scratch).to_vec())
-        }
-    }
+    codec::frame_parts(mode, frame).ok().map(|p| p.body)
 }
 
 /// Bytes for a report line: hex in RTU, the characters in ASCII.

@@ -9,7 +9,9 @@
 use std::time::{Duration, Instant};
 
 use crate::codec::crc::crc16;
+use crate::codec::deframe::rtu_frame_len;
 use crate::codec::pdu::function;
+use crate::codec::pdu::Direction;
 use crate::codec::{ascii, Mode, MAX_ASCII_FRAME};
 use crate::transport::{sleep_until, Transport, TransportError};
 
@@ -171,7 +173,9 @@ impl<T: Transport + ?Sized> Master<T> {
         let echo_type = matches!(
             match self.mode {
                 Mode::Rtu => request.get(1).copied(),
-                Mode::Ascii => ascii_function(request),
+                Mode::Ascii => ascii::AsciiFrame::new_checked(request)
+                    .ok()
+                    .map(|f| f.function()),
             },
             Some(function::WRITE_SINGLE_REGISTER | function::LOOP_BACK)
         );
@@ -240,16 +244,6 @@ impl<T: Transport + ?Sized> Master<T> {
     }
 }
 
-/// The function code of an ASCII request (its 4th and 5th characters).
-fn ascii_function(request: &[u8]) -> Option<u8> {
-    if request.first() != Some(&ascii::START) {
-        return None;
-    }
-    let hi = crate::codec::hex::decode_nibble(*request.get(3)?)?;
-    let lo = crate::codec::hex::decode_nibble(*request.get(4)?)?;
-    Some(hi << 4 | lo)
-}
-
 /// Arrival time of byte number `skip` of the received stream.
 fn first_arrival_after(chunks: &[Chunk], skip: usize) -> Option<Duration> {
     let mut seen = 0;
@@ -274,18 +268,16 @@ pub fn find_reply(mode: Mode, request: &[u8], rx: &[u8]) -> (Vec<u8>, Option<Vec
                 if f != fc && f != fc | function::EXCEPTION_BIT {
                     continue;
                 }
-                let len = match f {
-                    f if f & function::EXCEPTION_BIT != 0 => Some(5),
-                    function::READ_HOLDING_REGISTERS => rest.get(2).map(|&n| 5 + usize::from(n)),
-                    function::WRITE_SINGLE_REGISTER | function::WRITE_MULTIPLE_REGISTERS => Some(8),
-                    // A loop-back reply is as long as its request.
-                    function::LOOP_BACK => Some(request.len()),
-                    _ => None,
-                };
-                let candidates: Vec<usize> = match len {
-                    Some(n) => vec![n],
-                    // Unmodelled function: any length ending in a valid CRC.
-                    None => (4..=rest.len()).collect(),
+                // The deframer's length rule; a loop-back reply is as long as its request
+                // (the rule knows two data bytes only); an unmodelled function ends wherever
+                // a valid CRC does.
+                let candidates: Vec<usize> = if f == function::LOOP_BACK {
+                    vec![request.len()]
+                } else {
+                    match rtu_frame_len(Direction::Response, rest) {
+                        Some(n) => vec![n],
+                        None => (4..=rest.len()).collect(),
+                    }
                 };
                 for n in candidates {
                     if n >= 4 && n <= rest.len() && crc16(&rest[..n]) == 0 {

@@ -216,6 +216,8 @@ pub struct Probed {
     pub exchange: Exchange,
     /// The comparison.
     pub comparison: compare::Comparison,
+    /// The mode of the exchange.
+    pub mode: Mode,
 }
 
 impl Probed {
@@ -240,18 +242,10 @@ impl Probed {
     /// Values of a normal 03H reply, if that is what came.
     pub fn read_values(&self) -> Option<Vec<u16>> {
         let reply = self.exchange.reply.as_ref()?;
-        let body = compare::body_of(self.exchange_mode(), reply)?;
+        let body = compare::body_of(self.mode, reply)?;
         match Message::parse_body(&body, Direction::Response).ok()?.pdu {
             Pdu::ReadResponse { values } => Some(values.iter().collect()),
             _ => None,
-        }
-    }
-
-    fn exchange_mode(&self) -> Mode {
-        if self.exchange.request.first() == Some(&b':') {
-            Mode::Ascii
-        } else {
-            Mode::Rtu
         }
     }
 }
@@ -334,6 +328,7 @@ impl<'a> Ctx<'a> {
             judgement,
             exchange,
             comparison,
+            mode: self.mode,
         })
     }
 

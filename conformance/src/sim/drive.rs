@@ -10,8 +10,7 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use crate::codec::pdu::{Direction, Message, Pdu, Registers};
-use crate::codec::rtu::RtuFrame;
-use crate::codec::{ascii::AsciiFrame, Mode, MAX_RTU_FRAME};
+use crate::codec::{frame_parts, readdressed, Mode};
 use crate::model::{Access, DriveModel, Expectation, Judgement, Role, SilenceReason};
 
 /// A deliberate deviation from the model, so that the runner can prove it notices.
@@ -353,7 +352,7 @@ impl Drive {
         if judgement.expect == Expectation::Silence(SilenceReason::Broadcast)
             && self.has(Quirk::ReplyToBroadcast)
         {
-            if let Some(readdressed) = readdress(mode, frame, self.address) {
+            if let Ok(readdressed) = readdressed(mode, frame, self.address) {
                 reply_to = self.model.judge(self.address, mode, &readdressed).expect;
                 notes.push("quirk reply-to-broadcast: answering a broadcast".to_string());
             }
@@ -415,14 +414,7 @@ impl Drive {
         expect: &Expectation,
         address: u8,
     ) -> Option<Vec<u8>> {
-        let mut scratch = [0u8; MAX_RTU_FRAME];
-        let body: Vec<u8> = match mode {
-            Mode::Rtu => RtuFrame::new_checked(frame).ok()?.body().to_vec(),
-            Mode::Ascii => AsciiFrame::new_checked(frame)
-                .ok()?
-                .body_into(&mut scratch)
-                .to_vec(),
-        };
+        let body = frame_parts(mode, frame).ok()?.body;
         let request = Message::parse_body(&body, Direction::Request).ok();
         let function = body.get(1).copied().unwrap_or(0);
         let mut values = Vec::new();
@@ -461,25 +453,7 @@ impl Drive {
 }
 
 fn frame_address(mode: Mode, frame: &[u8]) -> Option<u8> {
-    match mode {
-        Mode::Rtu => RtuFrame::new_checked(frame).ok().map(|f| f.address()),
-        Mode::Ascii => AsciiFrame::new_checked(frame).ok().map(|f| f.address()),
-    }
-}
-
-/// The same request addressed to `address`, with a new checksum.
-fn readdress(mode: Mode, frame: &[u8], address: u8) -> Option<Vec<u8>> {
-    let mut scratch = [0u8; MAX_RTU_FRAME];
-    let mut body = match mode {
-        Mode::Rtu => RtuFrame::new_checked(frame).ok()?.body().to_vec(),
-        Mode::Ascii => AsciiFrame::new_checked(frame)
-            .ok()?
-            .body_into(&mut scratch)
-            .to_vec(),
-    };
-    body[0] = address;
-    let m = Message::parse_body(&body, Direction::Request).ok()?;
-    m.to_frame_vec(mode).ok()
+    frame_parts(mode, frame).ok().map(|p| p.body[0])
 }
 
 fn swap_checksum(mode: Mode, bytes: &mut [u8]) {

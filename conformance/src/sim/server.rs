@@ -15,7 +15,6 @@ use std::time::{Duration, Instant};
 
 use super::drive::{Drive, SendKind};
 use super::log::{Dir, TrafficLog};
-use crate::codec::crc::crc16;
 use crate::codec::deframe::{AsciiDeframer, Event, RtuDeframer, RtuFraming};
 use crate::codec::pdu::Direction;
 use crate::codec::Mode;
@@ -126,23 +125,7 @@ pub fn serve<T: Transport + ?Sized>(
                         quiet_for >= BURST_GAP
                     };
                     if *by_length && due && d.pending() > 0 {
-                        let mut flushed = Vec::new();
-                        d.flush(|e| flushed.push(own(e)));
-                        // A quiet burst with a valid CRC is a frame of an unmodelled function.
-                        let mut burst = Vec::new();
-                        for e in flushed {
-                            match e {
-                                Owned::Dropped("garbage", b) => burst.extend(b),
-                                other => events.push(other),
-                            }
-                        }
-                        if !burst.is_empty() {
-                            if burst.len() >= 4 && crc16(&burst) == 0 {
-                                events.push(Owned::Frame(burst));
-                            } else {
-                                events.push(Owned::Dropped("garbage", burst));
-                            }
-                        }
+                        d.end_burst(|e| events.push(own(e)));
                     }
                 }
             }

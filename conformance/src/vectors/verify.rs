@@ -10,10 +10,7 @@ use super::model::*;
 use super::set::VectorSet;
 use crate::codec::hex::Hex;
 use crate::codec::lrc::{lrc, lrc_chars};
-use crate::codec::{
-    ascii::AsciiFrame, crc::CrcBytes, Checksum, Direction, FrameError, Message, Mode, Pdu,
-    Registers, RtuFrame,
-};
+use crate::codec::{crc::CrcBytes, Direction, FrameError, Message, Mode, Pdu};
 
 /// Flags the checks can observe in a frame. Other flags (`ocr-repair`,
 /// `checksum-placeholder`) describe the transcription and are checked separately.
@@ -51,36 +48,7 @@ impl VectorReport {
     }
 }
 
-/// Address, function and data of a frame, with its checksum.
-#[derive(Debug, Clone, PartialEq, Eq)]
-pub struct FrameParts {
-    /// Address, function and data.
-    pub body: Vec<u8>,
-    /// Carried and computed checksum.
-    pub checksum: Checksum,
-}
-
-/// Splits a complete frame into body and checksum, checking its framing (not its
-/// checksum, nor its fields).
-pub fn frame_parts(mode: Mode, bytes: &[u8]) -> Result<FrameParts, FrameError> {
-    match mode {
-        Mode::Rtu => {
-            let f = RtuFrame::new_checked(bytes)?;
-            Ok(FrameParts {
-                body: f.body().to_vec(),
-                checksum: f.checksum(),
-            })
-        }
-        Mode::Ascii => {
-            let f = AsciiFrame::new_checked(bytes)?;
-            let mut scratch = [0u8; crate::codec::MAX_RTU_FRAME];
-            Ok(FrameParts {
-                body: f.body_into(&mut scratch).to_vec(),
-                checksum: f.checksum(),
-            })
-        }
-    }
-}
+pub use crate::codec::{frame_parts, FrameParts};
 
 /// The body (address, function, data) a frame vector stands for: from `printed` when its
 /// body bytes are all known, else from `corrected`.
@@ -516,35 +484,26 @@ fn check_frame(set: &VectorSet, v: &Vector, fv: &FrameVector, rep: &mut VectorRe
     }
 }
 
-/// Largest `n` registers whose frame (as `frame_len(n)`) fits in `max` bytes.
-fn max_registers(max: u32, frame_len: impl Fn(usize) -> usize) -> u32 {
-    (0u32..=125)
-        .take_while(|&n| frame_len(n as usize) <= max as usize)
+/// Largest `n` registers (at most 125) whose frame (as `frame_len(n)`) fits in `max`.
+fn max_registers(max: u32, frame_len: impl Fn(u16) -> usize) -> u32 {
+    (0u16..=125)
+        .take_while(|&n| frame_len(n) <= max as usize)
         .last()
-        .unwrap_or(0)
+        .map_or(0, u32::from)
 }
 
 /// The registers per read and per write, in each mode, that fit a frame of `max_frame`
 /// bytes (characters in ASCII): the read response and the write request are the longest
 /// frames of 03H and 10H.
 pub fn derived_register_limits(max_frame: u32) -> (PerMode, PerMode) {
-    let zeros = [0u8; 250];
-    // Frame length of `n` registers read (response) or written (request); 2n <= 250.
-    let len = |n: usize, mode: Mode, write: bool| {
-        Registers::new(&zeros[..2 * n]).map_or(usize::MAX, |values| {
-            let pdu = if write {
-                Pdu::WriteMultipleRequest { start: 0, values }
-            } else {
-                Pdu::ReadResponse { values }
-            };
-            Message { address: 1, pdu }.frame_len(mode)
-        })
+    let per_mode = |len: fn(Mode, u16) -> usize| PerMode {
+        ascii: max_registers(max_frame, |n| len(Mode::Ascii, n)),
+        rtu: max_registers(max_frame, |n| len(Mode::Rtu, n)),
     };
-    let per_mode = |write: bool| PerMode {
-        ascii: max_registers(max_frame, |n| len(n, Mode::Ascii, write)),
-        rtu: max_registers(max_frame, |n| len(n, Mode::Rtu, write)),
-    };
-    (per_mode(false), per_mode(true))
+    (
+        per_mode(crate::codec::read_response_len),
+        per_mode(crate::codec::write_request_len),
+    )
 }
 
 fn check_other(v: &Vector, rep: &mut VectorReport) {
