@@ -123,7 +123,7 @@ fn start_sim(
     use crate::transport::pty::PtyMaster;
     let mut master = PtyMaster::open(pace.then_some(config.line))?;
     let path = master.slave_path().to_string_lossy().into_owned();
-    let delay = delay.unwrap_or(Duration::from_millis(config.model.limits.response_time_ms));
+    let delay = delay.unwrap_or_else(|| config.model.response_delay(&config.line));
     let mut drive =
         Drive::new(config.model.clone(), config.options.address, delay).with_quirks(quirks);
     let mut traffic = TrafficLog::new();
@@ -274,6 +274,11 @@ pub fn run(
             )
         };
         drop(sim);
+        if mode_run.echo == Some(true) {
+            if let Some(link) = report.device.links.get_mut(&mode.to_string()) {
+                link.push_str(" (local echo: every request comes back before the reply; stripped)");
+            }
+        }
         if report.device.identification.is_none() {
             report.device.identification = mode_run.identification;
         }

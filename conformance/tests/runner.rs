@@ -40,6 +40,8 @@ fn options(only: &[&str]) -> Options {
         // the machine is busy (the tests run in parallel).
         gap_allowance: Duration::from_millis(20),
         seed: 1,
+        echo: conformance::runner::EchoMode::Auto,
+        allow_restart: false,
     }
 }
 

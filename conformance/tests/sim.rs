@@ -307,6 +307,17 @@ fn a_frame_written_in_pieces_is_answered_on_a_pty() {
     thread::sleep(Duration::from_millis(40));
     let r = ask(&mut client, &req[3..], Q);
     assert_eq!(r.len(), 7, "{r:02X?}");
+    // The first byte alone, then the rest 20 ms later (issue: the lone address byte was
+    // dropped as garbage after the 5 ms burst gap, and the rest with it).
+    client.send(&req[..1]).unwrap();
+    thread::sleep(Duration::from_millis(20));
+    let r = ask(&mut client, &req[1..], Q);
+    assert_eq!(r.len(), 7, "first byte alone: {r:02X?}");
+    // A lone garbage byte before a whole frame does not hide the frame.
+    client.send(&[0xFF]).unwrap();
+    thread::sleep(Duration::from_millis(20));
+    let r = ask(&mut client, &req, Q);
+    assert_eq!(r.len(), 7, "garbage byte first: {r:02X?}");
     // An unmodelled function (length unknown to the length rule) is answered too.
     let r = ask(
         &mut client,

@@ -12,7 +12,7 @@ use anyhow::{bail, Context};
 use clap::{Args, ValueEnum};
 use conformance::codec::Mode;
 use conformance::report::{junit, text, Report};
-use conformance::runner::{MasterTiming, Options};
+use conformance::runner::{EchoMode, MasterTiming, Options};
 use conformance::session::{self, SessionConfig, Target};
 use conformance::sim::Quirk;
 
@@ -29,6 +29,12 @@ Safety on a real drive: the run and external-fault bits are never set without
 --allow-motion (which warns first). Every register a check writes is read first and
 written back at the end, also after Ctrl-C, and the restore is verified by reading back;
 --read-only skips all writes.
+
+A silent device passes nothing: a preflight read must be answered before the first
+check (no answer: exit 2, with what was tried and what to try), and every silence is
+followed by a liveness probe; a device that stops answering mid-run ends the run, and
+every check left is an ERROR. A local echo (--echo) is stripped and shown on the link
+line.
 
 Statuses: PASS; DEVIATION (the manual says X, the device did Y); OBSERVATION (the manual
 is silent or contradicts itself: what the device did); SKIP (with the reason); ERROR (the
@@ -109,6 +115,16 @@ pub struct CheckArgs {
     /// Enable the checks that set the run and external-fault bits (the motor may turn).
     #[arg(long)]
     allow_motion: bool,
+    /// Enable the 08H checks that restart the device's communications (sub-function
+    /// 0001H) or make it stop answering (0004H, Force Listen Only Mode, then 0001H).
+    #[arg(long)]
+    allow_restart: bool,
+    /// Local echo of every request (a 2-wire RS-485 adapter whose receiver hears its own
+    /// transmission): auto learns it from the preflight read, on expects it, off trusts
+    /// that there is none. An echo is stripped and the reply awaited for the whole
+    /// response window; it is reported on the link line, not as a deviation.
+    #[arg(long, value_name = "auto|on|off", default_value = "auto")]
+    echo: EchoMode,
     /// Milliseconds to wait for a reply.
     #[arg(long, value_name = "MS", default_value_t = 1000)]
     timeout: u64,
@@ -263,6 +279,8 @@ pub fn run(args: CheckArgs) -> anyhow::Result<ExitCode> {
         response_allowance: Duration::from_millis(args.response_allowance),
         gap_allowance: Duration::from_micros(args.gap_allowance.unwrap_or(20_000)),
         seed: args.seed,
+        echo: args.echo,
+        allow_restart: args.allow_restart,
     };
     let config = SessionConfig {
         model,
@@ -276,9 +294,10 @@ pub fn run(args: CheckArgs) -> anyhow::Result<ExitCode> {
         let checks = session::list(&config);
         let mut out = std::io::stdout().lock();
         for (_, c) in &checks {
-            let flags = match (c.writes, c.motion) {
-                (_, true) => "motion",
-                (true, false) => "writes",
+            let flags = match (c.writes, c.motion, c.restarts) {
+                (_, true, _) => "motion",
+                (_, _, true) => "restart",
+                (true, false, false) => "writes",
                 _ => "",
             };
             writeln!(out, "{:<44} {:<7} {}", c.id, flags, c.title)?;

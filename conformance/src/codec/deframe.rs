@@ -174,8 +174,12 @@ impl RtuDeframer {
             return false;
         }
         match implied_len(self.direction, &self.buf[..self.end]) {
-            // One byte has no function code yet: nothing says a frame is under way.
-            Implied::NeedMore => self.end >= 2,
+            // One byte has no function code yet. Alone, it may be the address of a frame
+            // whose rest is on its way (a master or a USB adapter that sends the first
+            // byte alone): wait for the rest as for any other frame; the next bytes slide
+            // it out if it was garbage. After held garbage it is the tail of a burst the
+            // length rule could not place (an unmodelled function): no frame is under way.
+            Implied::NeedMore => self.end >= 2 || self.garbage.len == 0,
             Implied::Len(n) => n > self.end && n <= MAX_RTU_FRAME,
             Implied::Unknown => false,
         }

@@ -188,12 +188,9 @@ fn compare_inner(
     } else {
         "characters"
     };
-    if ex.echo {
-        findings.push(Finding::deviation(format!(
-            "the device echoed the request ({} {unit}) before anything else: a local echo (half-duplex adapter without echo suppression?)",
-            ex.request.len()
-        )));
-    }
+    // A local echo is the adapter's, not the device's: the master strips it (and the
+    // report's link line says so); with --echo off it stays in the bytes and shows as
+    // bytes before or after the reply.
     if ex.retries > 0 {
         findings.push(Finding::observation(format!(
             "answered only after {} resend(s)",

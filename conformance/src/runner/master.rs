@@ -60,6 +60,43 @@ impl Exchange {
     }
 }
 
+/// What the master does about a local echo (a 2-wire RS-485 adapter whose receiver hears
+/// its own transmission returns every request before the reply).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum EchoMode {
+    /// Learn it from the first exchange whose request cannot be mistaken for its reply
+    /// (an 03H or 10H request; the runner's preflight read is one), then strip it.
+    #[default]
+    Auto,
+    /// Every request comes back first: strip it, then wait for the reply.
+    On,
+    /// Nothing comes back but the reply: a copy of the request is the device's.
+    Off,
+}
+
+impl std::str::FromStr for EchoMode {
+    type Err = String;
+
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        match s {
+            "auto" => Ok(EchoMode::Auto),
+            "on" => Ok(EchoMode::On),
+            "off" => Ok(EchoMode::Off),
+            _ => Err(format!("unknown echo mode {s:?}: auto, on or off")),
+        }
+    }
+}
+
+impl std::fmt::Display for EchoMode {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            EchoMode::Auto => "auto",
+            EchoMode::On => "on",
+            EchoMode::Off => "off",
+        })
+    }
+}
+
 /// Timing of the master.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct MasterTiming {
@@ -80,6 +117,9 @@ pub struct Master<T: Transport + ?Sized> {
     mode: Mode,
     timing: MasterTiming,
     last_end: Option<Instant>,
+    echo_mode: EchoMode,
+    /// With [`EchoMode::Auto`]: what the line has shown (None until an exchange told).
+    echo_seen: Option<bool>,
     transport: Box<T>,
 }
 
@@ -90,7 +130,30 @@ impl<T: Transport + ?Sized> Master<T> {
             mode,
             timing,
             last_end: None,
+            echo_mode: EchoMode::Auto,
+            echo_seen: None,
             transport,
+        }
+    }
+
+    /// Sets what to do about a local echo.
+    pub fn with_echo(mut self, echo: EchoMode) -> Self {
+        self.echo_mode = echo;
+        self
+    }
+
+    /// The echo mode configured.
+    pub fn echo_mode(&self) -> EchoMode {
+        self.echo_mode
+    }
+
+    /// Whether the line echoes requests: as configured, or as learnt (None while
+    /// [`EchoMode::Auto`] has not seen an exchange that tells).
+    pub fn echoes(&self) -> Option<bool> {
+        match self.echo_mode {
+            EchoMode::On => Some(true),
+            EchoMode::Off => Some(false),
+            EchoMode::Auto => self.echo_seen,
         }
     }
 
@@ -132,10 +195,20 @@ impl<T: Transport + ?Sized> Master<T> {
         request: &[u8],
         expect_reply: bool,
     ) -> Result<Exchange, TransportError> {
+        self.exchange_retrying(request, expect_reply, self.timing.retries)
+    }
+
+    /// [`Master::exchange`] with `max_retries` resends instead of the configured number.
+    pub fn exchange_retrying(
+        &mut self,
+        request: &[u8],
+        expect_reply: bool,
+        max_retries: u32,
+    ) -> Result<Exchange, TransportError> {
         let mut retries = 0;
         loop {
             let ex = self.exchange_once(request, expect_reply, retries)?;
-            if expect_reply && ex.raw.is_empty() && retries < self.timing.retries {
+            if expect_reply && ex.after_echo().is_empty() && retries < max_retries {
                 retries += 1;
                 continue;
             }
@@ -168,9 +241,9 @@ impl<T: Transport + ?Sized> Master<T> {
             None => Duration::from_millis(5),
         };
         let mut buf = [0u8; 512];
-        // 06H and 08H replies are copies of the request: one copy is the reply, and only
-        // a second copy makes the first an echo.
-        let echo_type = matches!(
+        // 06H and 08H replies are copies of the request, so a copy of one of these
+        // requests may be the reply or an echo; a copy of any other request is an echo.
+        let copy_may_be_reply = matches!(
             match self.mode {
                 Mode::Rtu => request.get(1).copied(),
                 Mode::Ascii => ascii::AsciiFrame::new_checked(request)
@@ -179,10 +252,13 @@ impl<T: Transport + ?Sized> Master<T> {
             },
             Some(function::WRITE_SINGLE_REGISTER | function::LOOP_BACK)
         );
+        let echoes = self.echoes();
         loop {
             let now = Instant::now();
-            let only_echo = raw.is_empty() || (raw == request && !echo_type);
-            let limit = if only_echo {
+            let seen = Seen::of(request, &raw, echoes, copy_may_be_reply);
+            let limit = if seen.waiting() {
+                // Nothing but (part of) an echo, or a copy that may be an echo: the reply
+                // may still come, so listen for the whole response window.
                 deadline.saturating_duration_since(now)
             } else {
                 // Once a whole reply is in, a short settle catches trailing bytes; before
@@ -206,27 +282,37 @@ impl<T: Transport + ?Sized> Master<T> {
                 raw.extend_from_slice(&buf[..n]);
                 last_rx = Some(t);
                 if expect_reply {
-                    let skip = if raw.len() > request.len() && raw.starts_with(request) {
-                        request.len()
-                    } else {
-                        0
-                    };
+                    let skip = Seen::of(request, &raw, echoes, copy_may_be_reply).skip(request);
                     complete = find_reply(self.mode, request, &raw[skip..]).1.is_some();
                 }
                 // A reply longer than any frame is not a reply: stop collecting.
                 if raw.len() > 4 * MAX_ASCII_FRAME {
                     break;
                 }
-            } else if Instant::now() >= deadline && only_echo {
+            } else if Instant::now() >= deadline && seen.waiting() {
                 break;
             }
         }
         let end = Instant::now();
         self.last_end = Some(end);
-        let echo = raw.len() >= request.len()
-            && raw[..request.len()] == *request
-            && (raw.len() > request.len() || !echo_type);
-        let skip = if echo { request.len() } else { 0 };
+        let seen = Seen::of(request, &raw, echoes, copy_may_be_reply);
+        // What the exchange taught about the line (auto mode): a copy followed by more
+        // bytes, or a copy of a request that cannot be its own reply, is an echo; a reply
+        // without a copy before it shows there is none.
+        if self.echo_mode == EchoMode::Auto && self.echo_seen.is_none() {
+            match seen {
+                Seen::Echo | Seen::EchoOnly => self.echo_seen = Some(true),
+                Seen::Plain
+                    if !raw.is_empty() && find_reply(self.mode, request, &raw).1.is_some() =>
+                {
+                    // A lone copy of a 06H/08H request is the reply of a line without echo.
+                    self.echo_seen = Some(false)
+                }
+                _ => {}
+            }
+        }
+        let skip = seen.skip(request);
+        let echo = skip > 0;
         let first_byte = first_arrival_after(&chunks, skip);
         let (leading, reply, trailing) = find_reply(self.mode, request, &raw[skip..]);
         Ok(Exchange {
@@ -241,6 +327,66 @@ impl<T: Transport + ?Sized> Master<T> {
             listened: end.duration_since(sent),
             retries,
         })
+    }
+}
+
+/// What the received bytes are so far, as far as an echo goes.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Seen {
+    /// Nothing, or the first bytes of a copy of the request that is an echo.
+    PartialEcho,
+    /// Exactly a copy of the request, which is an echo (nothing else yet).
+    EchoOnly,
+    /// Exactly a copy of a 06H/08H request on a line whose echo is not known: an echo or
+    /// the reply; only the rest of the response window tells.
+    Ambiguous,
+    /// A copy of the request, then more bytes: the copy is the echo.
+    Echo,
+    /// Bytes that do not start with an echo.
+    Plain,
+}
+
+impl Seen {
+    fn of(request: &[u8], raw: &[u8], echoes: Option<bool>, copy_may_be_reply: bool) -> Seen {
+        let n = request.len();
+        if raw.is_empty() {
+            return Seen::PartialEcho;
+        }
+        if echoes == Some(false) {
+            return Seen::Plain;
+        }
+        if raw.len() < n {
+            // A prefix of the request: an echo under way, where echo is expected; a reply
+            // under way (or garbage) where it is not known.
+            return if echoes == Some(true) && request.starts_with(raw) {
+                Seen::PartialEcho
+            } else {
+                Seen::Plain
+            };
+        }
+        if raw[..n] != *request {
+            return Seen::Plain;
+        }
+        if raw.len() > n {
+            return Seen::Echo;
+        }
+        match (echoes, copy_may_be_reply) {
+            (Some(true), _) | (None, false) => Seen::EchoOnly,
+            _ => Seen::Ambiguous,
+        }
+    }
+
+    /// Whether only an echo (or what may be one) has come: keep listening for the reply.
+    fn waiting(self) -> bool {
+        matches!(self, Seen::PartialEcho | Seen::EchoOnly | Seen::Ambiguous)
+    }
+
+    /// How many leading bytes of the received ones are the echo of `request`.
+    fn skip(self, request: &[u8]) -> usize {
+        match self {
+            Seen::Echo | Seen::EchoOnly => request.len(),
+            _ => 0,
+        }
     }
 }
 

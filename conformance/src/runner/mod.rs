@@ -12,6 +12,7 @@
 
 pub mod checks;
 pub mod compare;
+pub mod liveness;
 pub mod master;
 
 use std::collections::BTreeSet;
@@ -22,13 +23,25 @@ use serde::Serialize;
 
 pub use checks::{plan, Check};
 pub use compare::{Finding, Severity};
-pub use master::{Exchange, Master, MasterTiming};
+pub use master::{EchoMode, Exchange, Master, MasterTiming};
 
 use crate::codec::pdu::{Direction, Message, Pdu};
 use crate::codec::Mode;
 use crate::model::{DriveModel, Fact, Judgement};
 use crate::transport::{Transport, TransportError};
 use crate::vectors::VectorFile;
+
+/// Why a check could not go on.
+#[derive(Debug, thiserror::Error)]
+pub enum RunError {
+    /// The link failed.
+    #[error(transparent)]
+    Transport(#[from] TransportError),
+    /// The device stopped answering: neither the check's request nor a liveness probe
+    /// got a byte back. The run ends; nothing after this can be judged.
+    #[error("{0}")]
+    DeviceLost(String),
+}
 
 /// How a check ended.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize)]
@@ -154,6 +167,11 @@ pub struct Options {
     pub gap_allowance: Duration,
     /// Seed of the arbitrary data the checks send.
     pub seed: u64,
+    /// What to do about a local echo of every request.
+    pub echo: EchoMode,
+    /// Send the 08H sub-functions that restart the device's communications (0001H) or
+    /// silence it (0004H, Force Listen Only Mode, undone by 0001H).
+    pub allow_restart: bool,
 }
 
 /// A register the run changed and restored.
@@ -180,6 +198,8 @@ pub struct ModeRun {
     pub identification: Option<u16>,
     /// Why the run stopped early, if it did.
     pub stopped: Option<String>,
+    /// Whether the line echoed requests (None: no exchange told).
+    pub echo: Option<bool>,
 }
 
 /// State shared by the checks of one mode.
@@ -206,6 +226,14 @@ pub struct Ctx<'a> {
     pub codes_seen: BTreeSet<u8>,
     /// The identification register's value.
     pub identification: Option<u16>,
+    /// The id of the check that is running.
+    pub current: String,
+    /// The last check in which the device sent anything.
+    pub answered_in: Option<String>,
+    /// Set when the device stopped answering: why.
+    pub lost: Option<String>,
+    /// Liveness probes sent (after silences).
+    pub liveness_probes: usize,
 }
 
 /// A probe: one exchange judged by the model.
@@ -218,6 +246,9 @@ pub struct Probed {
     pub comparison: compare::Comparison,
     /// The mode of the exchange.
     pub mode: Mode,
+    /// Where nothing came back: whether a liveness probe right after was answered
+    /// (always true, or the probe would have ended the run with [`RunError::DeviceLost`]).
+    pub proven_alive: bool,
 }
 
 impl Probed {
@@ -264,7 +295,7 @@ impl<'a> Ctx<'a> {
             vectors,
             mode,
             opts,
-            master: Master::new(transport, mode, opts.timing),
+            master: Master::new(transport, mode, opts.timing).with_echo(opts.echo),
             journal: Vec::new(),
             latencies: Vec::new(),
             gaps: Vec::new(),
@@ -272,7 +303,16 @@ impl<'a> Ctx<'a> {
             gap_replies: 0,
             codes_seen: BTreeSet::new(),
             identification: None,
+            current: String::new(),
+            answered_in: None,
+            lost: None,
+            liveness_probes: 0,
         }
+    }
+
+    /// Whether the line echoes requests, as configured or learnt.
+    pub fn echoes(&self) -> Option<bool> {
+        self.master.echoes()
     }
 
     /// The transport's description.
@@ -303,9 +343,9 @@ impl<'a> Ctx<'a> {
         &mut self,
         frame: Vec<u8>,
         known: Option<(Vec<Option<u16>>, Fact)>,
-    ) -> Result<Probed, TransportError> {
+    ) -> Result<Probed, RunError> {
         let judgement = self.model.judge(self.opts.address, self.mode, &frame);
-        let exchange = self.master.exchange(&frame, judgement.expect.replies())?;
+        let (exchange, proven_alive) = self.exchange(&frame, judgement.expect.replies())?;
         let comparison = compare::compare(
             self.model,
             self.mode,
@@ -329,6 +369,7 @@ impl<'a> Ctx<'a> {
             exchange,
             comparison,
             mode: self.mode,
+            proven_alive,
         })
     }
 
@@ -368,11 +409,7 @@ impl<'a> Ctx<'a> {
     }
 
     /// Reads `count` registers from `start`; the values, or why not.
-    pub fn read(
-        &mut self,
-        start: u16,
-        count: u16,
-    ) -> Result<Result<Vec<u16>, String>, TransportError> {
+    pub fn read(&mut self, start: u16, count: u16) -> Result<Result<Vec<u16>, String>, RunError> {
         let frame = self.frame(Pdu::ReadRequest { start, count });
         let p = self.probe(frame, None)?;
         Ok(match p.read_values() {
@@ -386,7 +423,7 @@ impl<'a> Ctx<'a> {
 
     /// Reads `register`'s value before a check changes it, once per run, so that the
     /// restore can put it back.
-    pub fn remember(&mut self, register: u16) -> Result<Result<u16, String>, TransportError> {
+    pub fn remember(&mut self, register: u16) -> Result<Result<u16, String>, RunError> {
         if let Some((_, v)) = self.journal.iter().find(|(r, _)| *r == register) {
             return Ok(Ok(*v));
         }
@@ -401,13 +438,9 @@ impl<'a> Ctx<'a> {
 
     /// Writes one register and reports whether the device confirmed it (plain, for
     /// set-up and restore).
-    pub fn write(
-        &mut self,
-        register: u16,
-        value: u16,
-    ) -> Result<Result<(), String>, TransportError> {
+    pub fn write(&mut self, register: u16, value: u16) -> Result<Result<(), String>, RunError> {
         let frame = self.frame(Pdu::WriteSingle { register, value });
-        let ex = self.master.exchange(&frame, true)?;
+        let (ex, _) = self.exchange(&frame, true)?;
         Ok(match &ex.reply {
             Some(r) if *r == frame => Ok(()),
             Some(r) => Err(format!(
@@ -426,9 +459,27 @@ impl<'a> Ctx<'a> {
     }
 
     /// Writes back every journalled register, newest first, and verifies by reading.
+    /// After the device stopped answering, one liveness probe decides whether to try.
     pub fn restore(&mut self) -> Vec<RestoreRecord> {
         let journal: Vec<(u16, u16)> = self.journal.drain(..).rev().collect();
         let mut out = Vec::new();
+        if let Some(why) = self.lost.clone() {
+            if !journal.is_empty() && matches!(self.liveness(), Ok(true)) {
+                self.lost = None;
+            } else {
+                for (register, original) in journal {
+                    out.push(RestoreRecord {
+                        register,
+                        original,
+                        restored: false,
+                        detail: format!(
+                            "not restored: the device does not answer ({why}); write {original:04X}H back by hand"
+                        ),
+                    });
+                }
+                return out;
+            }
+        }
         for (register, original) in journal {
             let rec = |restored, detail: String| RestoreRecord {
                 register,
@@ -503,15 +554,23 @@ pub fn run_mode(
     stop: &AtomicBool,
     progress: &mut dyn Progress,
 ) -> ModeRun {
-    let checks = plan(model, vectors, mode, opts);
+    let selected_checks: Vec<Check> = plan(model, vectors, mode, opts)
+        .into_iter()
+        .filter(|c| selected(&c.id, &opts.only))
+        .collect();
     let mut ctx = Ctx::new(model, vectors, mode, opts, transport);
     let mut run = ModeRun::default();
-    for check in checks.iter().filter(|c| selected(&c.id, &opts.only)) {
+    // The preflight runs first, whatever --only selects: nothing can be judged on a line
+    // where the device does not answer.
+    let preflight = checks::preflight(model, mode);
+    let mut queue = std::iter::once(&preflight).chain(selected_checks.iter());
+    for check in queue.by_ref() {
         if stop.load(Ordering::Relaxed) {
             run.stopped = Some("interrupted".to_string());
             break;
         }
         progress.started(check);
+        ctx.current = check.id.clone();
         let started = Instant::now();
         let verdict = if check.motion && !opts.allow_motion {
             Ok(Verdict::skip(
@@ -519,12 +578,17 @@ pub fn run_mode(
             ))
         } else if check.writes && opts.read_only {
             Ok(Verdict::skip("writes registers; --read-only"))
+        } else if check.restarts && !opts.allow_restart {
+            Ok(Verdict::skip(
+                "restarts or silences the device's communications (08H 0001H/0004H); needs --allow-restart",
+            ))
         } else {
             (check.run)(&mut ctx)
         };
         let (verdict, fatal) = match verdict {
             Ok(v) => (v, None),
-            Err(e) => {
+            Err(RunError::DeviceLost(why)) => (Verdict::error(why), None),
+            Err(RunError::Transport(e)) => {
                 let msg = e.to_string();
                 (Verdict::error(msg.clone()), Some(msg))
             }
@@ -536,8 +600,40 @@ pub fn run_mode(
             run.stopped = Some(msg);
             break;
         }
+        if ctx.lost.is_some() {
+            break;
+        }
+    }
+    if let Some(why) = ctx.lost.clone() {
+        let lost_in = ctx.current.clone();
+        if lost_in == preflight.id {
+            run.stopped = Some(format!(
+                "no answer to the preflight: nothing was checked (see [{lost_in}])"
+            ));
+            let _ = why;
+        } else {
+            // Every check that did not run is an ERROR: none of them can pass.
+            for check in queue {
+                progress.started(check);
+                let result = result_of(
+                    check,
+                    mode,
+                    Verdict::error(liveness::not_run(&lost_in)),
+                    Duration::ZERO,
+                );
+                progress.finished(&result);
+                run.results.push(result);
+            }
+            run.stopped = Some(match &ctx.answered_in {
+                Some(last) => format!(
+                    "the device stopped answering in {lost_in} (the last check it answered was {last})"
+                ),
+                None => format!("the device stopped answering in {lost_in}"),
+            });
+        }
     }
     run.identification = ctx.identification;
+    run.echo = ctx.echoes();
     run.restore = ctx.restore();
     run
 }

@@ -35,10 +35,15 @@ pub enum Quirk {
     TruncatedReply,
     /// Requests to any node address are answered.
     AnswerEveryAddress,
+    /// Nothing is ever sent: an unplugged, unpowered or wrongly addressed drive.
+    Dead,
+    /// After this many frames (any address) nothing is sent any more: firmware that
+    /// hangs mid-run.
+    FreezeAfter(u64),
 }
 
 /// The quirks, with their spelling and what each does, for help text and docs.
-pub const QUIRK_HELP: [(&str, &str); 9] = [
+pub const QUIRK_HELP: [(&str, &str); 12] = [
     (
         "crc-swap",
         "swap the two CRC bytes of every reply (ASCII: the two LRC characters)",
@@ -69,11 +74,23 @@ pub const QUIRK_HELP: [(&str, &str); 9] = [
         "answer-every-address",
         "answer requests to any node address",
     ),
+    (
+        "dead",
+        "never send anything (unplugged, unpowered, wrong address)",
+    ),
+    (
+        "freeze-after=N",
+        "stop sending anything after N received frames (hung firmware)",
+    ),
+    (
+        "slow=MS",
+        "the same as late-reply=MS: replies within the timeout, but late",
+    ),
 ];
 
 /// A quirk that cannot be parsed.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
-#[error("unknown quirk {0:?}; the quirks are crc-swap, reply-to-broadcast, wrong-exception, late-reply=MS, drop-every=N, local-echo, garbage-before-reply, truncated-reply, answer-every-address")]
+#[error("unknown quirk {0:?}; the quirks are crc-swap, reply-to-broadcast, wrong-exception, late-reply=MS, drop-every=N, local-echo, garbage-before-reply, truncated-reply, answer-every-address, dead, freeze-after=N, slow=MS")]
 pub struct QuirkError(pub String);
 
 impl std::str::FromStr for Quirk {
@@ -104,6 +121,10 @@ impl std::str::FromStr for Quirk {
             ("garbage-before-reply", None) => Quirk::GarbageBeforeReply,
             ("truncated-reply", None) => Quirk::TruncatedReply,
             ("answer-every-address", None) => Quirk::AnswerEveryAddress,
+            ("dead", None) => Quirk::Dead,
+            ("freeze-after", a) => Quirk::FreezeAfter(num(a)?),
+            // The name for a drive that answers within the timeout, but late.
+            ("slow", a) => Quirk::LateReply(num(a)?),
             _ => return Err(err()),
         })
     }
@@ -121,6 +142,8 @@ impl fmt::Display for Quirk {
             Quirk::GarbageBeforeReply => f.write_str("garbage-before-reply"),
             Quirk::TruncatedReply => f.write_str("truncated-reply"),
             Quirk::AnswerEveryAddress => f.write_str("answer-every-address"),
+            Quirk::Dead => f.write_str("dead"),
+            Quirk::FreezeAfter(n) => write!(f, "freeze-after={n}"),
         }
     }
 }
@@ -173,6 +196,7 @@ pub struct Drive {
     output: f64,
     last_tick: Option<Instant>,
     replies: u64,
+    frames: u64,
 }
 
 impl Drive {
@@ -197,6 +221,7 @@ impl Drive {
             output: 0.0,
             last_tick: None,
             replies: 0,
+            frames: 0,
         }
     }
 
@@ -319,6 +344,7 @@ impl Drive {
     /// Handles one request frame received in `mode` (checksum included) at `now`.
     pub fn handle(&mut self, mode: Mode, frame: &[u8], now: Instant) -> Outcome {
         self.tick(now);
+        self.frames += 1;
         let mut notes = Vec::new();
         let mut sends = Vec::new();
         if self.has(Quirk::LocalEcho) {
@@ -328,6 +354,24 @@ impl Drive {
                 kind: SendKind::Echo,
             });
             notes.push("quirk local-echo: request echoed".to_string());
+        }
+        let frozen = self.quirks.iter().find_map(|q| match q {
+            Quirk::Dead => Some("quirk dead: nothing sent".to_string()),
+            Quirk::FreezeAfter(n) if self.frames > *n => Some(format!(
+                "quirk freeze-after={n}: frame {} ignored",
+                self.frames
+            )),
+            _ => None,
+        });
+        if let Some(note) = frozen {
+            // A dead or hung drive neither acts on a request nor answers it.
+            // The echo, if any, is the adapter's: it still comes.
+            notes.push(note);
+            return Outcome {
+                judgement: self.model.judge(self.address, mode, frame),
+                sends,
+                notes,
+            };
         }
         let mut judgement = self.model.judge(self.address, mode, frame);
         let request_address = frame_address(mode, frame);

@@ -97,6 +97,13 @@ pub fn serve<T: Transport + ?Sized>(
         ),
         (Mode::Ascii, _) => Deframer::Ascii(Box::default()),
     };
+    // On a link that has a line's timing but is framed by length (a paced
+    // pseudo-terminal), bytes come a character time apart: a burst of an unmodelled
+    // function ends at t3.5 of quiet, not before.
+    let burst_gap = match transport.line_timing() {
+        Some(l) => BURST_GAP.max(Duration::from_micros(l.t3_5_us() + 2_000)),
+        None => BURST_GAP,
+    };
     let poll = match line {
         Some(_) => Duration::from_millis(1),
         None => Duration::from_millis(2),
@@ -110,6 +117,7 @@ pub fn serve<T: Transport + ?Sized>(
         let now = Instant::now();
         let now_us = u64::try_from(now.duration_since(epoch).as_micros()).unwrap_or(u64::MAX);
         let mut events = Vec::new();
+        let mut ended_at: Option<Instant> = None;
         match &mut deframer {
             Deframer::Rtu(d, by_length) => {
                 if n > 0 {
@@ -122,9 +130,11 @@ pub fn serve<T: Transport + ?Sized>(
                     let due = if d.awaiting_rest() {
                         quiet_for >= PARTIAL_TIMEOUT
                     } else {
-                        quiet_for >= BURST_GAP
+                        quiet_for >= burst_gap
                     };
                     if *by_length && due && d.pending() > 0 {
+                        // The frame ended with its last byte, not when the quiet was seen.
+                        ended_at = last_rx;
                         d.end_burst(|e| events.push(own(e)));
                     }
                 }
@@ -160,8 +170,9 @@ pub fn serve<T: Transport + ?Sized>(
                         note.push_str(q);
                     }
                     log.record(Dir::In, "frame", &bytes, &note)?;
+                    let end = ended_at.unwrap_or(now);
                     for s in outcome.sends {
-                        sleep_until(now + s.after);
+                        sleep_until(end + s.after);
                         transport.send(&s.bytes)?;
                         let kind = match s.kind {
                             SendKind::Echo => "echo",

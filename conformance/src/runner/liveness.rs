@@ -1,0 +1,229 @@
+//! Liveness: a silent line proves nothing by itself.
+//!
+//! A device that is unplugged, frozen, at another address or at another baud rate is
+//! silent, and silence is exactly what the broadcast, other-address and bad-checksum
+//! checks expect. So silence is never taken on its own:
+//!
+//! - before the first check of a mode, a **preflight** read that the model says must be
+//!   answered; no answer ends the run at once (exit 2) with what was tried and what to try;
+//! - after **every** exchange that brought nothing back (whether silence was expected or a
+//!   reply was), a **liveness probe** (the same read, with at least one resend); silence
+//!   counts as the device's answer only when that probe is answered;
+//! - when the probe is not answered either, the device has stopped answering: the check
+//!   ends as ERROR ([`RunError::DeviceLost`]), every remaining check is ERROR, and the
+//!   restore first asks whether the device is back.
+
+use std::time::Duration;
+
+use super::master::{EchoMode, Exchange};
+use super::{compare, Ctx, ExchangeRecord, RunError, Verdict};
+use crate::codec::hex::Hex;
+use crate::codec::pdu::Pdu;
+use crate::codec::Mode;
+use crate::model::{DriveModel, Expectation, Role};
+
+/// The register a liveness probe reads: the status register, or the identification
+/// register, or the first register of the map; one the model says a read of is answered
+/// with data.
+pub fn liveness_register(model: &DriveModel, address: u8, mode: Mode) -> Option<u16> {
+    let candidates = [
+        model.register_with_role(Role::Status),
+        model.register_with_role(Role::Identification),
+    ]
+    .into_iter()
+    .flatten()
+    .chain(model.registers().map(|(r, _)| r));
+    for r in candidates {
+        let frame = crate::codec::pdu::Message {
+            address,
+            pdu: Pdu::ReadRequest { start: r, count: 1 },
+        }
+        .to_frame_vec(mode)
+        .ok()?;
+        if matches!(
+            model.judge(address, mode, &frame).expect,
+            Expectation::Read(_)
+        ) {
+            return Some(r);
+        }
+    }
+    None
+}
+
+impl Ctx<'_> {
+    /// Sends `frame` and collects the answer. Where nothing comes back, a liveness probe
+    /// follows: the second value says it was answered; if it was not, the device has
+    /// stopped answering and the run cannot judge anything more.
+    pub fn exchange(
+        &mut self,
+        frame: &[u8],
+        expect_reply: bool,
+    ) -> Result<(Exchange, bool), RunError> {
+        if let Some(why) = &self.lost {
+            return Err(RunError::DeviceLost(why.clone()));
+        }
+        let ex = self.master.exchange(frame, expect_reply)?;
+        if !ex.after_echo().is_empty() {
+            self.answered_in = Some(self.current.clone());
+            return Ok((ex, false));
+        }
+        if self.liveness()? {
+            return Ok((ex, true));
+        }
+        let why = format!(
+            "the device stopped answering in {}: no byte came back to {} ({}) nor to {} liveness probe(s) (a read of {}); {}",
+            self.current,
+            compare::show(self.mode, frame),
+            if expect_reply { "a reply was due" } else { "silence was due, so it had to be proven" },
+            self.liveness_attempts() + 1,
+            self.liveness_what(),
+            match &self.answered_in {
+                Some(c) => format!("the last check it answered was {c}"),
+                None => "it answered nothing in this mode".to_string(),
+            }
+        );
+        self.lost = Some(why.clone());
+        Err(RunError::DeviceLost(why))
+    }
+
+    fn liveness_attempts(&self) -> u32 {
+        self.opts.timing.retries.max(1)
+    }
+
+    fn liveness_frame(&self) -> Option<Vec<u8>> {
+        let r = liveness_register(self.model, self.opts.address, self.mode)?;
+        Some(self.frame(Pdu::ReadRequest { start: r, count: 1 }))
+    }
+
+    fn liveness_what(&self) -> String {
+        match liveness_register(self.model, self.opts.address, self.mode) {
+            Some(r) => format!("{r:04X}H"),
+            None => "no register".to_string(),
+        }
+    }
+
+    /// One liveness probe (with at least one resend): whether the device sent anything
+    /// back. A model without any readable register has no probe: the device counts as
+    /// alive (the preflight says so).
+    pub fn liveness(&mut self) -> Result<bool, RunError> {
+        let Some(frame) = self.liveness_frame() else {
+            return Ok(true);
+        };
+        self.liveness_probes += 1;
+        let ex = self
+            .master
+            .exchange_retrying(&frame, true, self.liveness_attempts())?;
+        Ok(!ex.after_echo().is_empty())
+    }
+
+    /// The preflight: a read the model says must be answered. Its verdict is PASS, or
+    /// ERROR with what was tried and what to try, in which case [`Ctx::lost`] is set and
+    /// the run ends.
+    pub fn preflight(&mut self) -> Result<Verdict, RunError> {
+        let Some(frame) = self.liveness_frame() else {
+            return Ok(Verdict {
+                pass_summary: "the model has no register a read of is answered; no preflight"
+                    .into(),
+                ..Verdict::default()
+            });
+        };
+        let ex = self.master.exchange(&frame, true)?;
+        let record = ExchangeRecord {
+            request: ex.request.clone(),
+            expected: None,
+            received: ex.raw.clone(),
+            reply: ex.reply.clone(),
+            predicted: "a normal 03H reply".into(),
+            actual: match &ex.reply {
+                Some(r) => compare::describe_reply(self.mode, r),
+                None if ex.after_echo().is_empty() => "no reply".into(),
+                None => compare::explain_invalid(self.mode, ex.after_echo()),
+            },
+            latency: ex.first_byte,
+        };
+        let echo = match (self.opts.echo, ex.echo) {
+            (EchoMode::On, false) if ex.reply.is_some() => {
+                let why = format!(
+                    "--echo on, but the preflight request {} did not come back before the reply: this adapter does not echo; use --echo auto or --echo off",
+                    compare::show(self.mode, &frame)
+                );
+                self.lost = Some(why.clone());
+                return Ok(Verdict {
+                    exchanges: vec![record],
+                    ..Verdict::error(why)
+                });
+            }
+            (_, true) => "the line echoes every request (a 2-wire adapter that hears itself); the echo is stripped and the reply awaited for the whole response window",
+            (_, false) => "no local echo",
+        };
+        if let Some(reply) = &ex.reply {
+            self.answered_in = Some(self.current.clone());
+            let latency = ex
+                .first_byte
+                .map(|t| format!(" in {:.1} ms", t.as_secs_f64() * 1000.0))
+                .unwrap_or_default();
+            return Ok(Verdict {
+                exchanges: vec![record],
+                pass_summary: format!(
+                    "node {:02X} answered{latency}: {}; {echo}",
+                    self.opts.address,
+                    compare::describe_reply(self.mode, reply)
+                ),
+                ..Verdict::default()
+            });
+        }
+        let why = self.no_answer_advice(&frame, &ex);
+        self.lost = Some(why.clone());
+        Ok(Verdict {
+            exchanges: vec![record],
+            ..Verdict::error(why)
+        })
+    }
+
+    /// What the preflight tried, what came back, and what to try.
+    fn no_answer_advice(&self, frame: &[u8], ex: &Exchange) -> String {
+        let line = match self.line_timing() {
+            Some(l) => l.to_string(),
+            None => String::new(),
+        };
+        let tried = format!(
+            "no answer from node {:02X}: sent {} (read {}) {} time(s) in {} over {}{}, waiting {} ms each",
+            self.opts.address,
+            compare::show(self.mode, frame),
+            self.liveness_what(),
+            1 + self.opts.timing.retries,
+            self.mode.to_string().to_uppercase(),
+            self.link(),
+            if line.is_empty() { String::new() } else { format!(" ({line})") },
+            self.opts.timing.timeout.as_millis()
+        );
+        let rx = ex.after_echo();
+        let got = if ex.raw.is_empty() {
+            "nothing came back".to_string()
+        } else if rx.is_empty() {
+            "only the echo of the request came back (the adapter echoes; the drive did not answer)"
+                .to_string()
+        } else {
+            format!(
+                "{} bytes came back that are not a reply: {} (bytes that are no frame usually mean another baud rate or parity, or the other mode)",
+                rx.len(),
+                Hex(&rx[..rx.len().min(64)])
+            )
+        };
+        let other = match self.mode {
+            Mode::Rtu => "--mode ascii",
+            Mode::Ascii => "--mode rtu",
+        };
+        format!(
+            "{tried}; {got}. Check: the node address (-a; the drive's communication address parameter), the baud rate (-b), parity (-P none|even|odd), data and stop bits (-d, -s), the mode ({other}), a longer --timeout, the wiring (A/B swapped, no common ground, termination), that the drive is powered, and that the adapter drives the RS-485 direction itself"
+        )
+    }
+}
+
+/// Statuses that a lost device leaves to the checks that did not run.
+pub fn not_run(lost_in: &str) -> String {
+    format!("not run: the device stopped answering in {lost_in}")
+}
+
+/// How long after a restart of communications (08H 0001H) to wait before probing.
+pub const RESTART_SETTLE: Duration = Duration::from_secs(2);
