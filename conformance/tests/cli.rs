@@ -3,13 +3,21 @@
 use std::process::Command;
 
 fn conformance(args: &[&str]) -> (i32, String) {
+    let (code, stdout, stderr) = conformance_split(args);
+    (code, stdout + &stderr)
+}
+
+/// Exit code, stdout and stderr apart.
+fn conformance_split(args: &[&str]) -> (i32, String, String) {
     let out = Command::new(env!("CARGO_BIN_EXE_conformance"))
         .args(args)
         .output()
         .expect("binary runs");
-    let text =
-        String::from_utf8_lossy(&out.stdout).to_string() + &String::from_utf8_lossy(&out.stderr);
-    (out.status.code().unwrap_or(-1), text)
+    (
+        out.status.code().unwrap_or(-1),
+        String::from_utf8_lossy(&out.stdout).to_string(),
+        String::from_utf8_lossy(&out.stderr).to_string(),
+    )
 }
 
 #[test]
@@ -68,6 +76,133 @@ fn encode_builds_both_modes() {
     assert!(out.contains(r#"":0106250217704B\r\n""#), "{out}");
     let (code, out) = conformance(&["encode", "exception", "--function", "0x83", "--code", "2"]);
     assert_eq!(code, 2, "{out}");
+}
+
+#[test]
+fn encode_reads_register_numbers_in_hex_with_h_or_0x() {
+    for start in ["2520H", "2520h", "0x2520"] {
+        let (code, out, err) =
+            conformance_split(&["encode", "read", "--start", start, "--count", "1"]);
+        assert_eq!(code, 0, "{start}: {out}{err}");
+        assert!(
+            out.contains("RTU    01 03 25 20 00 01 8E CC"),
+            "{start}: {out}"
+        );
+        assert!(err.is_empty(), "{start}: no note for hex: {err}");
+    }
+    let (code, out, err) = conformance_split(&[
+        "encode",
+        "--address",
+        "0x01",
+        "write",
+        "--register",
+        "2502H",
+        "--value",
+        "1770h",
+    ]);
+    assert_eq!(code, 0, "{out}{err}");
+    assert!(out.contains("RTU    01 06 25 02 17 70 2D 12"), "{out}");
+    assert!(err.is_empty(), "{err}");
+}
+
+#[test]
+fn encode_reads_a_bare_number_as_decimal_with_a_note() {
+    let (code, out, err) =
+        conformance_split(&["encode", "read", "--start", "2520", "--count", "1"]);
+    assert_eq!(code, 0, "{out}{err}");
+    assert!(out.contains("start=09D8"), "{out}");
+    assert!(out.contains("RTU    01 03 09 D8 00 01 07 AD"), "{out}");
+    assert_eq!(
+        err.trim_end(),
+        "note: --start 2520 is decimal (09D8H); write 2520H or 0x2520 for hex"
+    );
+    // Every register number, value and code gets the note; a count and 0..9 do not.
+    let (code, out, err) = conformance_split(&[
+        "encode",
+        "--address",
+        "10",
+        "write-multi",
+        "--start",
+        "0x0100",
+        "--values",
+        "6000,7,12",
+    ]);
+    assert_eq!(code, 0, "{out}{err}");
+    assert!(out.contains("values=[1770 0007 000C]"), "{out}");
+    assert!(
+        err.contains("note: --address 10 is decimal (0AH); write 10H or 0x10 for hex"),
+        "{err}"
+    );
+    assert!(
+        err.contains("note: --values 6000 is decimal (1770H)"),
+        "{err}"
+    );
+    assert!(
+        err.contains("note: --values 12 is decimal (000CH)"),
+        "{err}"
+    );
+    assert!(!err.contains("--values 7 "), "{err}");
+    assert!(!err.contains("--start"), "{err}");
+    let (code, _, err) =
+        conformance_split(&["encode", "exception", "--function", "16", "--code", "2"]);
+    assert_eq!(code, 0, "{err}");
+    assert!(
+        err.contains("note: --function 16 is decimal (10H); write 16H or 0x16 for hex"),
+        "{err}"
+    );
+    let (code, _, err) =
+        conformance_split(&["encode", "read", "--start", "0x0000", "--count", "10"]);
+    assert_eq!(code, 0, "{err}");
+    assert!(err.is_empty(), "no note for a count: {err}");
+}
+
+#[test]
+fn encode_refuses_bad_numbers_with_their_text() {
+    let (code, out) = conformance(&["encode", "read", "--start", "25G0H", "--count", "1"]);
+    assert_eq!(code, 2, "{out}");
+    assert!(
+        out.contains("invalid value '25G0H' for '--start <START>': \"25G0H\" is not a number: write hex with H suffix or 0x prefix (2520H, 0x2520); a bare number is decimal (9504)"),
+        "{out}"
+    );
+    let (code, out) = conformance(&[
+        "encode",
+        "write",
+        "--register",
+        "0x2502",
+        "--value",
+        "0x10000",
+    ]);
+    assert_eq!(code, 2, "{out}");
+    assert!(out.contains("\"0x10000\" is over FFFFH (65535)"), "{out}");
+    let (code, out) = conformance(&[
+        "encode",
+        "--address",
+        "100H",
+        "read",
+        "--start",
+        "0",
+        "--count",
+        "1",
+    ]);
+    assert_eq!(code, 2, "{out}");
+    assert!(out.contains("\"100H\" is over FFH (255)"), "{out}");
+    let (code, out) = conformance(&["encode", "loopback", "--data", "A5 3G"]);
+    assert_eq!(code, 2, "{out}");
+    assert!(
+        out.contains("reading --data \"A5 3G\" (hex bytes): invalid hex character 'G'"),
+        "{out}"
+    );
+}
+
+#[test]
+fn encode_help_states_the_number_rule() {
+    let (code, out) = conformance(&["encode", "read", "--help"]);
+    assert_eq!(code, 0, "{out}");
+    assert!(out.contains("hex with H suffix or 0x prefix (2520H, 0x2520); a bare number is decimal (2520 is 09D8H)"), "{out}");
+    let (code, out) = conformance(&["encode", "--help"]);
+    assert_eq!(code, 0, "{out}");
+    assert!(out.contains("a bare number is decimal"), "{out}");
+    assert!(out.contains("--start 2520H"), "{out}");
 }
 
 #[test]

@@ -16,7 +16,7 @@ use conformance::runner::{EchoMode, MasterTiming, Options};
 use conformance::session::{self, SessionConfig, Target};
 use conformance::sim::Quirk;
 
-use super::common::{load_model, parse_u8, LineArgs};
+use super::common::{load_model, LineArgs, Number};
 
 const AFTER_HELP: &str = "\
 Examples:
@@ -90,12 +90,14 @@ pub struct CheckArgs {
     /// Transmission mode (default: rtu for a device, both for --sim).
     #[arg(short = 'm', long, value_enum)]
     mode: Option<ModesArg>,
-    /// Node address of the device.
-    #[arg(short = 'a', long, value_parser = parse_u8, default_value = "1")]
+    /// Node address of the device: decimal as in mbpoll (a bare number is decimal), or hex
+    /// with H suffix or 0x prefix (0AH, 0x0A).
+    #[arg(short = 'a', long, value_parser = Number::<u8>::quiet(), default_value = "1")]
     address: u8,
     /// A node address no device on the line has, for the other-address check (default:
-    /// the model's highest address, or the one below the device's).
-    #[arg(long, value_parser = parse_u8)]
+    /// the model's highest address, or the one below the device's). A bare number is
+    /// decimal; hex with H suffix or 0x prefix (F7H, 0xF7).
+    #[arg(long, value_parser = Number::<u8>::quiet())]
     other_address: Option<u8>,
     /// Report format.
     #[arg(long, value_enum, default_value = "text")]

@@ -5,7 +5,7 @@ use std::process::ExitCode;
 use anyhow::{bail, Context};
 use clap::{Args, Subcommand};
 
-use super::common::{parse_u16, parse_u8};
+use super::common::Number;
 use conformance::codec::{
     self, ascii::Scratch, hex::parse_hex, hex::Hex, Direction, Message, Mode, Pdu, Registers,
     MAX_RTU_FRAME,
@@ -106,11 +106,23 @@ pub fn decode(args: DecodeArgs) -> anyhow::Result<ExitCode> {
     Ok(ExitCode::from(best))
 }
 
-/// A number as people write them: `0x2520`, `2520H`, or decimal `9504`.
+/// Numbers, everywhere in `encode`: hex with H suffix or 0x prefix (2520H, 0x2520), as the
+/// manuals, the reports and `decode` write them; a bare number is decimal (2520 is 09D8H).
+/// A bare register number, value or code whose digits would be another value read as hex
+/// gets a note on stderr.
 #[derive(Debug, Args)]
+#[command(
+    after_help = "Numbers: hex with H suffix or 0x prefix (2520H, 0x2520), as the manuals, \
+the reports and `decode` write them; a bare number is decimal (2520 is 09D8H), and a bare \
+register number, value or code whose digits differ read as hex gets a note on stderr. \
+--data is hex bytes.\n\nExamples:\n  conformance encode read --start 2520H --count 2\n  \
+conformance encode --address 0x01 write --register 0x2502 --value 1770H\n  \
+conformance encode loopback --data \"A5 37\""
+)]
 pub struct EncodeArgs {
-    /// Node address (0 is broadcast).
-    #[arg(short, long, value_parser = parse_u8, default_value = "1")]
+    /// Node address (0 is broadcast): hex with H suffix or 0x prefix (0AH, 0x0A); a bare
+    /// number is decimal.
+    #[arg(short, long, value_parser = Number::<u8>::noted(), default_value = "1")]
     address: u8,
     #[command(subcommand)]
     message: EncodeMessage,
@@ -120,60 +132,83 @@ pub struct EncodeArgs {
 enum EncodeMessage {
     /// 03H request: read holding registers.
     Read {
-        #[arg(long, value_parser = parse_u16)]
+        /// First register: hex with H suffix or 0x prefix (2520H, 0x2520); a bare number
+        /// is decimal (2520 is 09D8H).
+        #[arg(long, value_parser = Number::<u16>::noted())]
         start: u16,
-        #[arg(long, value_parser = parse_u16)]
+        /// Number of registers: a bare number is decimal (10); hex with H suffix or 0x
+        /// prefix (0AH, 0x0A).
+        #[arg(long, value_parser = Number::<u16>::quiet())]
         count: u16,
     },
     /// 03H response: the values read.
     ReadReply {
-        /// Values, comma separated (0x1770,0x0000).
-        #[arg(long, value_parser = parse_u16, value_delimiter = ',', required = true)]
+        /// Values, comma separated (1770H,0x0000): hex with H suffix or 0x prefix; a bare
+        /// number is decimal (6000 is 1770H).
+        #[arg(long, value_parser = Number::<u16>::noted(), value_delimiter = ',', required = true)]
         values: Vec<u16>,
     },
     /// 06H request (its normal response is the same frame).
     Write {
-        #[arg(long, value_parser = parse_u16)]
+        /// Register: hex with H suffix or 0x prefix (2502H, 0x2502); a bare number is
+        /// decimal (2502 is 09C6H).
+        #[arg(long, value_parser = Number::<u16>::noted())]
         register: u16,
-        #[arg(long, value_parser = parse_u16)]
+        /// Value: hex with H suffix or 0x prefix (1770H, 0x1770); a bare number is decimal
+        /// (6000 is 1770H).
+        #[arg(long, value_parser = Number::<u16>::noted())]
         value: u16,
     },
     /// 08H loop-back request (its normal response is the same frame).
     Loopback {
-        #[arg(long, value_parser = parse_u16, default_value = "0")]
+        /// Test code (sub-function): hex with H suffix or 0x prefix (0000H, 0x0000); a
+        /// bare number is decimal.
+        #[arg(long, value_parser = Number::<u16>::noted(), default_value = "0")]
         test_code: u16,
-        /// Data bytes in hex ("A5 37").
+        /// Data bytes, always hex, with or without spaces ("A5 37", "A537").
         #[arg(long, default_value = "00 00")]
         data: String,
     },
     /// 10H request: write several registers.
     WriteMulti {
-        #[arg(long, value_parser = parse_u16)]
+        /// First register: hex with H suffix or 0x prefix (2502H, 0x2502); a bare number
+        /// is decimal (2502 is 09C6H).
+        #[arg(long, value_parser = Number::<u16>::noted())]
         start: u16,
-        #[arg(long, value_parser = parse_u16, value_delimiter = ',', required = true)]
+        /// Values, comma separated (1770H,0x0000): hex with H suffix or 0x prefix; a bare
+        /// number is decimal (6000 is 1770H).
+        #[arg(long, value_parser = Number::<u16>::noted(), value_delimiter = ',', required = true)]
         values: Vec<u16>,
     },
     /// 10H response: start and count echoed.
     WriteMultiReply {
-        #[arg(long, value_parser = parse_u16)]
+        /// First register: hex with H suffix or 0x prefix (2502H, 0x2502); a bare number
+        /// is decimal (2502 is 09C6H).
+        #[arg(long, value_parser = Number::<u16>::noted())]
         start: u16,
-        #[arg(long, value_parser = parse_u16)]
+        /// Number of registers: a bare number is decimal (10); hex with H suffix or 0x
+        /// prefix (0AH, 0x0A).
+        #[arg(long, value_parser = Number::<u16>::quiet())]
         count: u16,
     },
     /// Exception response.
     Exception {
-        /// Function code of the failed request (without 80H).
-        #[arg(long, value_parser = parse_u8)]
+        /// Function code of the failed request, without 80H: hex with H suffix or 0x
+        /// prefix (03H, 0x10); a bare number is decimal (16 is 10H).
+        #[arg(long, value_parser = Number::<u8>::noted())]
         function: u8,
-        /// Exception code.
-        #[arg(long, value_parser = parse_u8)]
+        /// Exception code: hex with H suffix or 0x prefix (02H, 0x51); a bare number is
+        /// decimal.
+        #[arg(long, value_parser = Number::<u8>::noted())]
         code: u8,
     },
     /// Any function code with raw data.
     Raw {
-        #[arg(long, value_parser = parse_u8)]
+        /// Function code: hex with H suffix or 0x prefix (41H, 0x41); a bare number is
+        /// decimal.
+        #[arg(long, value_parser = Number::<u8>::noted())]
         function: u8,
-        /// Data bytes in hex.
+        /// Data bytes, always hex, with or without spaces ("25 20 00 01").
         #[arg(long, default_value = "")]
         data: String,
     },
@@ -185,9 +220,10 @@ pub fn encode(args: EncodeArgs) -> anyhow::Result<ExitCode> {
         EncodeMessage::ReadReply { values } | EncodeMessage::WriteMulti { values, .. } => {
             (words(values), vec![])
         }
-        EncodeMessage::Loopback { data, .. } | EncodeMessage::Raw { data, .. } => {
-            (vec![], parse_hex(data).context("reading --data")?)
-        }
+        EncodeMessage::Loopback { data, .. } | EncodeMessage::Raw { data, .. } => (
+            vec![],
+            parse_hex(data).with_context(|| format!("reading --data {data:?} (hex bytes)"))?,
+        ),
         _ => (vec![], vec![]),
     };
     let pdu = match args.message {

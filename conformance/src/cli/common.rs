@@ -1,28 +1,155 @@
 //! Arguments shared by several commands: numbers in hex or decimal, the serial line as
 //! mbpoll spells it, the model and the transmission mode.
+//!
+//! The number rule, everywhere: `2520H`, `2520h`, `0x2520` are hex, as the manuals and
+//! the reports write registers; a bare number is decimal (`2520` is 09D8H), kept so for
+//! the command lines written before hex was accepted. Options that take register
+//! numbers, values or codes print a note on stderr when a bare number's digits would be
+//! another value read as hex.
 
+use std::ffi::OsStr;
+use std::marker::PhantomData;
+
+use clap::builder::TypedValueParser;
 use clap::{Args, ValueEnum};
 use conformance::codec::timing::{LineSettings, Parity};
 use conformance::codec::Mode;
 use conformance::model::DriveModel;
 
-/// A 16-bit number: 0x2520, 2520H or decimal 9504.
-pub fn parse_u16(s: &str) -> Result<u16, String> {
-    let t = s.trim();
-    let parsed = if let Some(h) = t.strip_prefix("0x").or_else(|| t.strip_prefix("0X")) {
-        u16::from_str_radix(h, 16)
-    } else if let Some(h) = t.strip_suffix('H').or_else(|| t.strip_suffix('h')) {
-        u16::from_str_radix(h, 16)
-    } else {
-        t.parse::<u16>()
-    };
-    parsed.map_err(|e| format!("{s:?} is not a 16-bit number (0x2520, 2520H or 9504): {e}"))
+/// How numbers are spelled on the command line; every numeric option's help says it.
+pub const NUMBER_RULE: &str =
+    "hex with H suffix or 0x prefix (2520H, 0x2520); a bare number is decimal (9504)";
+
+/// Why a number on the command line was refused.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum NumberError {
+    /// Not a number in any of the accepted spellings.
+    #[error("{text:?} is not a number: write {}", NUMBER_RULE)]
+    NotANumber {
+        /// The text given.
+        text: String,
+    },
+    /// A number too large for the field.
+    #[error("{text:?} is over {max:X}H ({max}), the largest value of this field")]
+    TooLarge {
+        /// The text given.
+        text: String,
+        /// The largest value the field holds.
+        max: u16,
+    },
 }
 
-/// An 8-bit number, spelled as for [`parse_u16`].
-pub fn parse_u8(s: &str) -> Result<u8, String> {
-    let v = parse_u16(s)?;
-    u8::try_from(v).map_err(|_| format!("{s:?} does not fit in one byte (00..FF)"))
+/// Reads a number spelled as [`NUMBER_RULE`] says: `2520H`, `2520h`, `0x2520`, `0X2520`
+/// are hex, a bare number of digits is decimal; at most `max`.
+pub fn parse_number(text: &str, max: u16) -> Result<u16, NumberError> {
+    let t = text.trim();
+    let (digits, radix) = if let Some(h) = t.strip_prefix("0x").or_else(|| t.strip_prefix("0X")) {
+        (h, 16)
+    } else if let Some(h) = t.strip_suffix(['H', 'h']) {
+        (h, 16)
+    } else {
+        (t, 10)
+    };
+    if digits.is_empty() || !digits.chars().all(|c| c.is_digit(radix)) {
+        return Err(NumberError::NotANumber { text: text.into() });
+    }
+    let too_large = || NumberError::TooLarge {
+        text: text.into(),
+        max,
+    };
+    // Only digits of the radix are left, so the one possible error is an overflow.
+    let v = u64::from_str_radix(digits, radix).map_err(|_| too_large())?;
+    u16::try_from(v)
+        .ok()
+        .filter(|&v| v <= max)
+        .ok_or_else(too_large)
+}
+
+/// The note for a bare number whose digits, read as hex, are another value of the field:
+/// `note: --start 2520 is decimal (09D8H); write 2520H or 0x2520 for hex`. `None` where
+/// the number is spelled as hex or reads the same both ways (0..9).
+pub fn decimal_note(option: &str, text: &str, value: u16, max: u16) -> Option<String> {
+    let t = text.trim();
+    if t.is_empty() || !t.bytes().all(|b| b.is_ascii_digit()) {
+        return None;
+    }
+    let hex = u64::from_str_radix(t, 16)
+        .ok()
+        .filter(|&h| h <= u64::from(max))?;
+    if hex == u64::from(value) {
+        return None;
+    }
+    let width = if max > 0xFF { 4 } else { 2 };
+    Some(format!(
+        "note: {option} {t} is decimal ({value:0width$X}H); write {t}H or 0x{t} for hex"
+    ))
+}
+
+/// A field of the width of `T` (u8 or u16).
+pub trait Width: Copy + TryFrom<u16> + Send + Sync + 'static {
+    /// The largest value.
+    const MAX: u16;
+}
+
+impl Width for u8 {
+    const MAX: u16 = 0xFF;
+}
+
+impl Width for u16 {
+    const MAX: u16 = 0xFFFF;
+}
+
+/// The value parser of a numeric option: [`parse_number`], and, with `note`, the
+/// [`decimal_note`] on stderr for a bare number that would differ as hex.
+#[derive(Debug, Clone, Copy)]
+pub struct Number<T> {
+    note: bool,
+    width: PhantomData<T>,
+}
+
+impl<T: Width> Number<T> {
+    /// A register number, value or code: a bare number that reads differently as hex
+    /// gets the note.
+    pub const fn noted() -> Self {
+        Number {
+            note: true,
+            width: PhantomData,
+        }
+    }
+
+    /// A quantity or an address people give in decimal: no note.
+    pub const fn quiet() -> Self {
+        Number {
+            note: false,
+            width: PhantomData,
+        }
+    }
+}
+
+impl<T: Width> TypedValueParser for Number<T> {
+    type Value = T;
+
+    fn parse_ref(
+        &self,
+        cmd: &clap::Command,
+        arg: Option<&clap::Arg>,
+        value: &OsStr,
+    ) -> Result<T, clap::Error> {
+        // Through clap's own parser of a function, for its usual error text:
+        // "invalid value '25G0H' for '--start <START>': ...".
+        let n = (|s: &str| parse_number(s, T::MAX)).parse_ref(cmd, arg, value)?;
+        if self.note {
+            let text = value.to_string_lossy();
+            let option = arg
+                .and_then(|a| a.get_long())
+                .map_or_else(|| "value".to_string(), |l| format!("--{l}"));
+            if let Some(note) = decimal_note(&option, &text, n, T::MAX) {
+                eprintln!("{note}");
+            }
+        }
+        T::try_from(n)
+            .map_err(|_| clap::Error::new(clap::error::ErrorKind::ValueValidation).with_cmd(cmd))
+    }
 }
 
 /// Transmission mode.
@@ -104,4 +231,63 @@ pub fn load_model(
         );
     }
     Ok(model)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn hex_with_h_or_0x_and_bare_decimal() {
+        for t in ["2520H", "2520h", "0x2520", "0X2520", " 2520H "] {
+            assert_eq!(parse_number(t, 0xFFFF), Ok(0x2520), "{t}");
+        }
+        assert_eq!(parse_number("2520", 0xFFFF), Ok(2520));
+        assert_eq!(parse_number("FFH", 0xFF), Ok(0xFF));
+        assert_eq!(parse_number("0", 0xFF), Ok(0));
+    }
+
+    #[test]
+    fn bad_numbers_name_the_text() {
+        for t in [
+            "", "H", "0x", "25G0H", "+5", "-1", "0x2520H", "2520HH", "12 34",
+        ] {
+            assert_eq!(
+                parse_number(t, 0xFFFF),
+                Err(NumberError::NotANumber { text: t.into() }),
+                "{t}"
+            );
+        }
+        let e = parse_number("0x100", 0xFF).unwrap_err();
+        assert_eq!(
+            e.to_string(),
+            "\"0x100\" is over FFH (255), the largest value of this field"
+        );
+        assert!(matches!(
+            parse_number("99999999999999999999999", 0xFFFF),
+            Err(NumberError::TooLarge { .. })
+        ));
+        assert!(parse_number("25G0H", 0xFFFF)
+            .unwrap_err()
+            .to_string()
+            .starts_with("\"25G0H\" is not a number: write hex with H suffix"));
+    }
+
+    #[test]
+    fn the_note_only_for_bare_numbers_that_differ_as_hex() {
+        assert_eq!(
+            decimal_note("--start", "2520", 2520, 0xFFFF).as_deref(),
+            Some("note: --start 2520 is decimal (09D8H); write 2520H or 0x2520 for hex")
+        );
+        assert_eq!(
+            decimal_note("--address", "10", 10, 0xFF).as_deref(),
+            Some("note: --address 10 is decimal (0AH); write 10H or 0x10 for hex")
+        );
+        // Spelled as hex, the same both ways, or too large as hex for the field.
+        assert_eq!(decimal_note("--start", "2520H", 0x2520, 0xFFFF), None);
+        assert_eq!(decimal_note("--start", "0x2520", 0x2520, 0xFFFF), None);
+        assert_eq!(decimal_note("--start", "9", 9, 0xFFFF), None);
+        assert_eq!(decimal_note("--address", "200", 200, 0xFF), None);
+        assert_eq!(decimal_note("--start", "65535", 65535, 0xFFFF), None);
+    }
 }

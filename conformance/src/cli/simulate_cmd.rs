@@ -16,7 +16,7 @@ use conformance::transport::serial::SerialTransport;
 use conformance::transport::tcp::TcpTransport;
 use conformance::transport::{LinkKind, Transport, TransportError};
 
-use super::common::{load_model, parse_u8, LineArgs, ModeArg};
+use super::common::{load_model, LineArgs, ModeArg, Number};
 
 fn quirk_help() -> String {
     let mut s = String::from("Fault injection (--quirk, repeatable):\n");
@@ -45,8 +45,9 @@ pub struct SimulateArgs {
     /// Read the model from this file instead of the built-in one.
     #[arg(long, value_name = "FILE")]
     model_file: Option<PathBuf>,
-    /// Node address of the drive.
-    #[arg(short = 'a', long, value_parser = parse_u8, default_value = "1")]
+    /// Node address of the drive: decimal as in mbpoll (a bare number is decimal), or hex
+    /// with H suffix or 0x prefix (0AH, 0x0A).
+    #[arg(short = 'a', long, value_parser = Number::<u8>::quiet(), default_value = "1")]
     address: u8,
     /// Transmission mode.
     #[arg(short = 'm', long, value_enum, default_value = "rtu")]

@@ -1,0 +1,293 @@
+//! The runner against a second device that nobody here wrote: libmodbus's RTU server
+//! (Debian libmodbus-dev 3.1.6), a small C program (`tests/libmodbus/server.c`) that this
+//! test builds with `cc` and runs on one end of a socat pseudo-terminal pair, serving
+//! 65536 holding registers (0000H..FFFFH, all zero) and nothing TECO-specific. It is
+//! checked as an F510 in RTU (libmodbus has no ASCII mode). The run must complete, with
+//! exit code 1, no ERROR, no panic, in bounded time, and report the deviations that are
+//! true of libmodbus.
+//!
+//! What libmodbus does on the wire, checked by hand against this server with a pyserial
+//! script (frames below are what it sent) and against modbus.h / modbus-rtu.h:
+//! - It serves every register of its mapping: a read past the end of an F510 group or
+//!   block (2530H, 0039H, ...) and a read across groups answer data, 01 03 02 00 00 B8 44,
+//!   not exception 02H. Deviation (`map.*.past-end`, `map.*.gap-*`).
+//! - Its read limit is Modbus's 125 (MODBUS_MAX_READ_REGISTERS), not the F510's 37: 38
+//!   registers answer 76 data bytes; 125 answer; 126 get 01 83 03 01 31. Deviation
+//!   (`read-count.over-limit`). Likewise a 36-register 10H write (81 bytes) is taken:
+//!   an observation, since the F510 model only decides what happens to a long frame.
+//! - Count 0 (03H and 10H) gets exception 03H, as the F510 model says, but late: before
+//!   an "illegal data value" exception libmodbus sleeps its response timeout (500 ms by
+//!   default) and flushes its input; the reply came after 507 ms. So the run uses
+//!   `--timeout 1000`: with 500 the runner saw no reply. The response-time check then
+//!   reports these two replies as late (an observation: the median stays under 10 ms).
+//! - 04H (read input registers) is a function libmodbus serves; with no input registers
+//!   mapped it answers 01 84 02 C2 C1 (illegal data address), not 01H. Deviation.
+//! - 08H and 41H get no reply at all, not an echo or exception 01H: libmodbus sizes an
+//!   incoming request by its function code, and for a code it does not know (08H is not
+//!   implemented in 3.1.6) it expects nothing after the function code, so it takes
+//!   `01 08 00 00` as a whole frame with CRC 0000, drops it ("Invalid CRC" on the
+//!   server's stderr) and the server flushes the rest. Deviation (`example.f510.08.*`,
+//!   `loop-back.*`, `function.41`).
+//! - A broadcast write is executed without a reply (the value reads back), a broadcast
+//!   read is not answered, a request to another node is not answered, a frame with a bad
+//!   CRC is not answered: all as the model says (pass).
+//! - After a request to another node, libmodbus takes the next frame within its response
+//!   timeout for that node's reply and ignores it (checked: a read 50 ms after a request
+//!   to node 02 got no reply; 1.2 s after, it did). Garbage that starts with a byte that
+//!   is not its address is such a request, so the read 30 ms after the garbage gets no
+//!   reply. Deviation (`garbage-then-frame`).
+//! - It frames by length and a 500 ms byte timeout, not by the t3.5 silence: half a
+//!   frame, 30 ms of silence and a whole frame are read as one 8-byte frame with a bad
+//!   CRC, and nothing is answered (after 700 ms of silence it answers). Deviation
+//!   (`partial-then-frame`).
+//! - Writes to read-only (2520H) and reserved (2500H) registers and the out-of-range
+//!   value FFFFH to 2502H are taken: observations (the F510 manual does not say which
+//!   exception they get; the model decides).
+//!
+//! A missing tool (socat, cc, pkg-config, libmodbus-dev) makes the test print
+//! `SKIPPED: ...` and pass, except when the environment variable `CI` is set: then it
+//! fails.
+
+mod common;
+use common::{bin, Kill};
+
+use std::io::{BufRead, BufReader};
+use std::path::{Path, PathBuf};
+use std::process::{Command, Stdio};
+use std::sync::mpsc;
+use std::time::{Duration, Instant};
+
+const SERVER_C: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/libmodbus/server.c");
+
+fn tool_or_skip(ok: bool, what: &str) -> bool {
+    if ok {
+        return true;
+    }
+    let msg = format!("SKIPPED: {what}");
+    assert!(std::env::var_os("CI").is_none(), "{msg}");
+    eprintln!("{msg}");
+    false
+}
+
+fn runs(cmd: &str, args: &[&str]) -> bool {
+    Command::new(cmd)
+        .args(args)
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .status()
+        .is_ok_and(|s| s.success())
+}
+
+fn wait_for(p: &Path) {
+    let t0 = Instant::now();
+    while !p.exists() {
+        assert!(
+            t0.elapsed() < Duration::from_secs(10),
+            "{} did not appear",
+            p.display()
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    }
+}
+
+/// Builds the server into `dir`; `None` (after SKIPPED) when a tool is missing.
+fn build_server(dir: &Path) -> Option<PathBuf> {
+    let install = "apt-get install socat gcc pkg-config libmodbus-dev";
+    if !tool_or_skip(
+        runs("socat", &["-V"]),
+        &format!("socat not installed ({install})"),
+    ) || !tool_or_skip(
+        runs("cc", &["--version"]),
+        &format!("no C compiler `cc` ({install})"),
+    ) || !tool_or_skip(
+        runs("pkg-config", &["--exists", "libmodbus"]),
+        &format!("libmodbus-dev or pkg-config not installed ({install})"),
+    ) {
+        return None;
+    }
+    let flags = Command::new("pkg-config")
+        .args(["--cflags", "--libs", "libmodbus"])
+        .output()
+        .unwrap();
+    assert!(flags.status.success());
+    let flags = String::from_utf8(flags.stdout).unwrap();
+    let exe = dir.join("libmodbus-server");
+    let out = Command::new("cc")
+        .args(["-Wall", "-Wextra", "-Werror", "-O2", "-o"])
+        .arg(&exe)
+        .arg(SERVER_C)
+        .args(flags.split_whitespace())
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "cc server.c failed:\n{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    Some(exe)
+}
+
+/// The check of `id` in the report.
+fn check<'a>(v: &'a serde_json::Value, id: &str) -> &'a serde_json::Value {
+    v["checks"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|c| c["id"] == id)
+        .unwrap_or_else(|| panic!("no check {id} in the report"))
+}
+
+/// Asserts the status of check `id` and returns its first exchange.
+fn status<'a>(v: &'a serde_json::Value, id: &str, want: &str) -> &'a serde_json::Value {
+    let c = check(v, id);
+    assert_eq!(c["status"], want, "{id}: {}", c["summary"]);
+    &c["exchanges"][0]
+}
+
+#[test]
+fn libmodbus_rtu_server_checked_as_f510() {
+    let dir = std::env::temp_dir().join(format!("teco-libmodbus-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let Some(server) = build_server(&dir) else {
+        return;
+    };
+    let (a, b): (PathBuf, PathBuf) = (dir.join("ttyA"), dir.join("ttyB"));
+    let _socat = Kill(
+        Command::new("socat")
+            .arg(format!("pty,raw,echo=0,link={}", a.display()))
+            .arg(format!("pty,raw,echo=0,link={}", b.display()))
+            .stderr(Stdio::null())
+            .spawn()
+            .unwrap(),
+    );
+    wait_for(&a);
+    wait_for(&b);
+    let mut server = Kill(
+        Command::new(&server)
+            .args([a.to_str().unwrap(), "1"])
+            .stdout(Stdio::piped())
+            .stderr(Stdio::null())
+            .spawn()
+            .unwrap(),
+    );
+    // The server prints "ready" once the port is open, and nothing else on stdout.
+    let stdout = server.0.stdout.take().unwrap();
+    let (tx, rx) = mpsc::channel();
+    std::thread::spawn(move || {
+        let mut lines = BufReader::new(stdout).lines();
+        let _ = tx.send(lines.next().and_then(Result::ok));
+        assert!(lines.next().is_none(), "the server wrote more than 'ready'");
+    });
+    let ready = rx.recv_timeout(Duration::from_secs(10));
+    assert_eq!(
+        ready,
+        Ok(Some("ready".to_string())),
+        "the server did not start"
+    );
+
+    let t0 = Instant::now();
+    let mut run = Kill(
+        Command::new(bin())
+            .args(["check", "--model", "f510", "--port", b.to_str().unwrap()])
+            .args(["-P", "none", "--mode", "rtu", "--timeout", "1000"])
+            .args(["--format", "json", "--quiet", "-o"])
+            .arg(dir.join("report.json"))
+            .stdout(Stdio::null())
+            .stderr(Stdio::piped())
+            .spawn()
+            .unwrap(),
+    );
+    // Bounded: a hang is a failure, not a stalled CI job (the run takes about 15 s).
+    let exit = loop {
+        if let Some(s) = run.0.try_wait().unwrap() {
+            break s;
+        }
+        assert!(t0.elapsed() < Duration::from_secs(180), "the runner hangs");
+        std::thread::sleep(Duration::from_millis(100));
+    };
+    let mut err = Vec::new();
+    std::io::Read::read_to_end(run.0.stderr.as_mut().unwrap(), &mut err).unwrap();
+    let stderr = String::from_utf8_lossy(&err);
+    assert!(!stderr.contains("panicked"), "{stderr}");
+    let out = std::fs::read(dir.join("report.json")).unwrap();
+    let v: serde_json::Value =
+        serde_json::from_slice(&out).unwrap_or_else(|e| panic!("{e}: {stderr}"));
+    let schema = jsonschema::validator_for(
+        &serde_json::from_str(include_str!("../../vectors/schema/report.schema.json")).unwrap(),
+    )
+    .unwrap();
+    assert!(schema.is_valid(&v));
+    assert_eq!(v["complete"], true, "{}", v["stopped"]);
+    assert_eq!(v["summary"]["error"], 0, "{}", v["summary"]);
+    assert_eq!(exit.code(), Some(1), "{}: {stderr}", v["summary"]);
+    assert_eq!(v["exit_code"], 1);
+    assert!(
+        v["summary"]["pass"].as_u64().unwrap() > 10,
+        "the runner talked to the device: {}",
+        v["summary"]
+    );
+
+    // Reads past the F510 map answer data, not exception 02H.
+    let x = status(&v, "rtu.map.monitor.past-end", "deviation");
+    assert_eq!(x["request"], "01 03 25 30 00 01 8F 09");
+    assert_eq!(x["received"], "01 03 02 00 00 B8 44");
+    status(&v, "rtu.map.group-0.past-end", "deviation");
+    // Modbus's read limit (125), not the F510's 37.
+    let x = status(&v, "rtu.read-count.over-limit", "deviation");
+    assert!(
+        x["received"].as_str().unwrap().starts_with("01 03 4C "),
+        "{x}"
+    );
+    // 04H is served: exception 02H (no input registers), not 01H.
+    let x = status(&v, "rtu.function.04", "deviation");
+    assert_eq!(x["received"], "01 84 02 C2 C1");
+    // 08H and 41H are taken for frames without data and dropped on their CRC.
+    for id in [
+        "rtu.example.f510.08.rtu.request",
+        "rtu.loop-back.1",
+        "rtu.function.41",
+        "rtu.garbage-then-frame",
+        "rtu.partial-then-frame",
+    ] {
+        let x = status(&v, id, "deviation");
+        assert_eq!(x["received"], "", "{id}: {x}");
+    }
+    // Count 0: the right exception, after libmodbus's 500 ms sleep.
+    for (id, reply) in [
+        ("rtu.read-count.zero", "01 83 03 01 31"),
+        ("rtu.write-count.zero", "01 90 03 0C 01"),
+    ] {
+        let x = status(&v, id, "pass");
+        assert_eq!(x["received"], reply, "{id}");
+        assert!(x["latency_ms"].as_f64().unwrap() > 400.0, "{id}: {x}");
+    }
+    let c = check(&v, "rtu.response-time");
+    assert_eq!(c["status"], "observation", "{}", c["summary"]);
+    // What libmodbus gets right: silence for broadcast, another node and a bad CRC; a
+    // broadcast write is taken.
+    for id in [
+        "rtu.broadcast.write",
+        "rtu.broadcast.read",
+        "rtu.other-address",
+        "rtu.bad-crc",
+    ] {
+        status(&v, id, "pass");
+    }
+    eprintln!("libmodbus: {} in {:?}", v["summary"], t0.elapsed());
+
+    // The server ends cleanly on SIGTERM: it never exits on what the runner sent it.
+    assert!(server.0.try_wait().unwrap().is_none(), "the server exited");
+    // SAFETY: kill(2) on the pid of a child this test started and has not reaped.
+    let rc = unsafe { libc::kill(server.0.id() as libc::pid_t, libc::SIGTERM) };
+    assert_eq!(rc, 0);
+    let t1 = Instant::now();
+    let code = loop {
+        if let Some(s) = server.0.try_wait().unwrap() {
+            break s.code();
+        }
+        assert!(t1.elapsed() < Duration::from_secs(5), "SIGTERM ignored");
+        std::thread::sleep(Duration::from_millis(20));
+    };
+    assert_eq!(code, Some(0));
+    let _ = std::fs::remove_dir_all(&dir);
+}
