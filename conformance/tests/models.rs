@@ -414,3 +414,224 @@ fn the_command_line_shows_a_model_and_its_decisions() {
         assert!(every.contains(&format!("{m} — ")), "{m}");
     }
 }
+
+fn write_multiple(m: &DriveModel, start: u16, values: &[u16]) -> Expectation {
+    let bytes: Vec<u8> = values.iter().flat_map(|v| v.to_be_bytes()).collect();
+    m.judge(
+        1,
+        Mode::Rtu,
+        &frame(
+            Mode::Rtu,
+            1,
+            Pdu::WriteMultipleRequest {
+                start,
+                values: Registers::new(&bytes).unwrap(),
+            },
+        ),
+    )
+    .expect
+}
+
+/// F510's own tables: 2502H takes 0..400.00 Hz (Metasys 'AO1 Set frequency Register 2502H
+/// Hz R/W 0 ~ 400.00'), documented; 9C40H is accepted and 9C41H is out of range.
+#[test]
+fn f510_frequency_command_max_is_400_hz_documented() {
+    let f = model("f510");
+    let (r, max, fact) = f.frequency_command_max().unwrap();
+    assert_eq!((r, max), (0x2502, 0x9C40));
+    assert_eq!(fact.basis, Basis::Documented);
+    let source = fact.source.as_deref().unwrap();
+    assert!(
+        source.contains("AO1 Set frequency Register 2502H Hz R/W 0 ~ 400.00"),
+        "{source}"
+    );
+    assert!(source.contains("line 3115"), "{source}");
+    let named = f.named(0x2502).unwrap();
+    assert!(named.max_lines.as_deref().unwrap().contains("3115"));
+    assert!(
+        named.max_notes.iter().any(|n| n.contains("0 - 60")),
+        "the BACnet AO0 row is noted"
+    );
+
+    assert_eq!(write(&f, 0x2502, 0x9C40), Expectation::WriteSingle);
+    assert_eq!(
+        write_multiple(&f, 0x2502, &[0x9C40]),
+        Expectation::WriteMultiple
+    );
+    for v in [0x9C41, 0xE9FC, 0xFFFF] {
+        assert_eq!(
+            write(&f, 0x2502, v),
+            exception(&f, Fault::DataOutOfRange),
+            "{v:04X}"
+        );
+        assert_eq!(
+            write_multiple(&f, 0x2502, &[v]),
+            exception(&f, Fault::DataOutOfRange),
+            "{v:04X}"
+        );
+    }
+    let j = f.judge(
+        1,
+        Mode::Rtu,
+        &frame(
+            Mode::Rtu,
+            1,
+            Pdu::WriteSingle {
+                register: 0x2502,
+                value: 0x9C41,
+            },
+        ),
+    );
+    assert!(j.facts.contains(fact), "the judgement cites the max");
+    // The other models keep 599.00 Hz, a decision; those that borrow it say so.
+    for id in ["a510", "l510", "e510", "l510-legacy"] {
+        let m = model(id);
+        let (_, max, fact) = m.frequency_command_max().unwrap();
+        assert_eq!(max, 0xE9FC, "{id}");
+        assert_eq!(fact.basis, Basis::Decision, "{id}");
+    }
+    for id in ["a510", "l510-legacy"] {
+        let m = model(id);
+        let why = m.frequency_command_max().unwrap().2.why.clone().unwrap();
+        assert!(why.contains("borrows"), "{id}: {why}");
+    }
+    // 2505H/2506H: 'AO1 (0 ~ 1000)' in the Modbus chapter.
+    assert_eq!(write(&f, 0x2505, 1000), Expectation::WriteSingle);
+    assert_eq!(
+        write(&f, 0x2506, 1001),
+        exception(&f, Fault::DataOutOfRange)
+    );
+}
+
+/// F510's Metasys table marks 12-16, 12-17, 12-18, 12-24, 12-25, 12-26 and 12-45 'R':
+/// writes get the read-only rule (06H and 10H), reads are served.
+#[test]
+fn f510_read_only_parameters_refuse_writes_and_serve_reads() {
+    let f = model("f510");
+    let expected: Vec<u16> = vec![0x0C10, 0x0C11, 0x0C12, 0x0C18, 0x0C19, 0x0C1A, 0x0C2D];
+    let listed: Vec<u16> = f.read_only_parameters().map(|(r, _)| r).collect();
+    assert_eq!(listed, expected);
+    for (r, fact) in f.read_only_parameters() {
+        assert_eq!(fact.basis, Basis::Documented);
+        let source = fact.source.as_deref().unwrap();
+        assert!(source.contains("MetaSys"), "{source}");
+        assert!(source.contains("not the Modbus chapter"), "{source}");
+        let number = format!("12-{:02}", r & 0xFF);
+        assert!(source.contains(&number), "{r:04X}: {source}");
+        assert!(f.read_only_parameter(r).unwrap().lines.is_some());
+
+        assert_eq!(f.lookup(r).unwrap().access, Access::ReadOnly, "{r:04X}");
+        assert_eq!(write(&f, r, 0), exception(&f, Fault::ReadOnly), "{r:04X}");
+        assert_eq!(
+            write_multiple(&f, r, &[0]),
+            exception(&f, Fault::ReadOnly),
+            "{r:04X}"
+        );
+        let j = f.judge(
+            1,
+            Mode::Rtu,
+            &frame(
+                Mode::Rtu,
+                1,
+                Pdu::WriteSingle {
+                    register: r,
+                    value: 1,
+                },
+            ),
+        );
+        assert!(
+            j.facts.contains(fact),
+            "{r:04X}: the judgement cites the mark"
+        );
+        assert!(j.detail.contains(&number), "{}", j.detail);
+        assert!(j.write.is_none());
+        match read(&f, Mode::Rtu, r, 1) {
+            Expectation::Read(p) => assert_eq!(p.registers, vec![r]),
+            other => panic!("{r:04X}: read gives {other:?}"),
+        }
+    }
+    // A 10H write that covers a read-only parameter is refused as a whole; its
+    // neighbours stay writable, and a read across them is served.
+    assert_eq!(
+        write_multiple(&f, 0x0C0E, &[0, 0, 0, 0]),
+        exception(&f, Fault::ReadOnly)
+    );
+    assert_eq!(write(&f, 0x0C0F, 0), Expectation::WriteSingle);
+    assert_eq!(write(&f, 0x0C13, 0), Expectation::WriteSingle);
+    assert!(read(&f, Mode::Rtu, 0x0C00, 37).replies());
+    // The other models mark none.
+    for id in ["a510", "l510", "e510", "l510-legacy"] {
+        let m = model(id);
+        assert_eq!(m.read_only_parameters().count(), 0, "{id}");
+        assert_ne!(
+            m.lookup(0x0C10).map(|i| i.access),
+            Some(Access::ReadOnly),
+            "{id}"
+        );
+    }
+    assert_eq!(write(&model("a510"), 0x0C10, 0), Expectation::WriteSingle);
+}
+
+/// A510: 'If the maximum output frequency of the motor is over 300Hz the frequency
+/// resolution is 0.1Hz'. The model accepts 30001 (7531H), 2502H keeps it, the drive uses
+/// 30000.
+#[test]
+fn a510_resolution_over_300_hz_is_a_tenth_of_a_hertz() {
+    let a = model("a510");
+    let res = a.frequency_resolution().unwrap();
+    assert_eq!((res.above, res.step), (30000, 10));
+    assert_eq!(res.fact.basis, Basis::Documented);
+    assert!(res.fact.source.as_deref().unwrap().contains("over 300Hz"));
+    assert_eq!(res.handling.basis, Basis::Decision);
+    assert_eq!(write(&a, 0x2502, 30001), Expectation::WriteSingle);
+    assert_eq!(a.frequency_in_use(30001), 30000);
+    assert_eq!(a.frequency_in_use(30019), 30010);
+    assert_eq!(a.frequency_in_use(30000), 30000);
+    assert_eq!(a.frequency_in_use(29999), 29999);
+    assert_eq!(a.frequency_in_use(1234), 1234);
+    // The other models have no such rule.
+    assert!(model("f510").frequency_resolution().is_none());
+    assert_eq!(model("f510").frequency_in_use(30001), 30001);
+}
+
+#[test]
+fn read_only_parameter_entries_are_checked_on_load() {
+    let text = DriveModel::builtin_files()[0].1;
+    let broken = |f: &dyn Fn(&mut serde_json::Value)| {
+        let mut v: serde_json::Value = serde_json::from_str(text).unwrap();
+        f(&mut v);
+        DriveModel::from_json("f510", &v.to_string())
+            .unwrap_err()
+            .to_string()
+    };
+    let e =
+        broken(&|v| v["parameter_access"]["read_only"][0]["parameters"] = "12-16..12-19".into());
+    assert!(e.contains("group x 100H + number"), "{e}");
+    let e = broken(&|v| {
+        v["parameter_access"]["read_only"][0]["registers"] = "0C4D".into();
+        v["parameter_access"]["read_only"][0]["parameters"] = "12-77".into();
+    });
+    assert!(e.contains("not a listed parameter register"), "{e}");
+    let e = broken(&|v| {
+        v["parameter_access"]["read_only"][1]["registers"] = "0C12".into();
+        v["parameter_access"]["read_only"][1]["parameters"] = "12-18".into();
+    });
+    assert!(e.contains("overlaps"), "{e}");
+    let e = broken(&|v| {
+        v["parameter_access"]["read_only"][0]
+            .as_object_mut()
+            .unwrap()
+            .remove("source");
+    });
+    assert!(e.contains("a documented fact needs a source"), "{e}");
+    let e = broken(&|v| {
+        let r = v["registers"]
+            .as_array_mut()
+            .unwrap()
+            .iter_mut()
+            .find(|r| r["register"] == "2520")
+            .unwrap();
+        r["max"] = serde_json::json!({"value": "0001", "basis": "documented", "source": "x"});
+    });
+    assert!(e.contains("needs a read-write register"), "{e}");
+}

@@ -496,3 +496,76 @@ fn on_a_serial_line_frames_end_at_silence() {
     assert_eq!(text.matches("\"event\":\"corrupt\"").count(), 3, "{text}");
     assert_eq!(text.matches("\"event\":\"reply\"").count(), 2, "{text}");
 }
+
+/// The simulator answers from the model: F510's read-only parameters (Metasys table) refuse
+/// 06H and 10H writes and serve reads; 2502H takes 9C40H (400.00 Hz) and refuses 9C41H; an
+/// A510 keeps 30001 in 2502H and uses 30000 (0.1 Hz over 300 Hz).
+#[test]
+fn the_simulator_follows_read_only_parameters_and_frequency_facts() {
+    let mode = Mode::Rtu;
+    let (a, mut b) = memory::pair();
+    let served = start(a, "f510", mode, &[]);
+    let model = DriveModel::builtin("f510").unwrap();
+    let ro = model.rule(conformance::model::Fault::ReadOnly).code;
+    let range = model.rule(conformance::model::Fault::DataOutOfRange).code;
+    let exception = |function: u8, code: u8| frame(mode, 1, Pdu::Exception { function, code });
+    for r in [0x0C10, 0x0C11, 0x0C12, 0x0C18, 0x0C19, 0x0C1A, 0x0C2D] {
+        let w = frame(
+            mode,
+            1,
+            Pdu::WriteSingle {
+                register: r,
+                value: 1,
+            },
+        );
+        assert_eq!(ask(&mut b, &w, Q), exception(0x06, ro), "06H {r:04X}");
+        let values = conformance::codec::pdu::Registers::new(&[0, 1]).unwrap();
+        let w = frame(mode, 1, Pdu::WriteMultipleRequest { start: r, values });
+        assert_eq!(ask(&mut b, &w, Q), exception(0x10, ro), "10H {r:04X}");
+        let rd = frame(mode, 1, Pdu::ReadRequest { start: r, count: 1 });
+        let reply = ask(&mut b, &rd, Q);
+        assert_eq!(&reply[..3], &[1, 0x03, 2], "read {r:04X}: {reply:02X?}");
+    }
+    let over = frame(
+        mode,
+        1,
+        Pdu::WriteSingle {
+            register: 0x2502,
+            value: 0x9C41,
+        },
+    );
+    assert_eq!(ask(&mut b, &over, Q), exception(0x06, range));
+    let max = frame(
+        mode,
+        1,
+        Pdu::WriteSingle {
+            register: 0x2502,
+            value: 0x9C40,
+        },
+    );
+    assert_eq!(ask(&mut b, &max, Q), max, "9C40H is echoed");
+    drop(served);
+
+    let (a, mut b) = memory::pair();
+    let served = start(a, "a510", mode, &[]);
+    let w = frame(
+        mode,
+        1,
+        Pdu::WriteSingle {
+            register: 0x2502,
+            value: 30001,
+        },
+    );
+    assert_eq!(ask(&mut b, &w, Q), w, "30001 is accepted");
+    let read_one = |b: &mut dyn Transport, start: u16| {
+        let reply = ask(b, &frame(mode, 1, Pdu::ReadRequest { start, count: 1 }), Q);
+        u16::from_be_bytes([reply[3], reply[4]])
+    };
+    assert_eq!(
+        read_one(&mut b, 0x2502),
+        30001,
+        "2502H keeps what was written"
+    );
+    assert_eq!(read_one(&mut b, 0x2523), 30000, "the drive uses 300.00 Hz");
+    drop(served);
+}

@@ -121,12 +121,55 @@ fn show(m: &DriveModel, only_decisions: bool) -> String {
         &m.parameter_access,
         only_decisions,
     );
+    for p in &m.parameter_read_only {
+        fact(
+            &mut o,
+            &if p.registers.start() == p.registers.end() {
+                format!(
+                    "parameter {} ({:04X}H) read-only",
+                    p.parameters,
+                    p.registers.start()
+                )
+            } else {
+                format!(
+                    "parameters {} ({:04X}H..{:04X}H) read-only",
+                    p.parameters,
+                    p.registers.start(),
+                    p.registers.end()
+                )
+            },
+            &p.fact,
+            only_decisions,
+        );
+    }
     for n in &m.named {
         if let Some((max, f)) = &n.max {
             fact(
                 &mut o,
                 &format!("{:04X}H maximum {max:04X}H", n.register),
                 f,
+                only_decisions,
+            );
+            if !only_decisions {
+                for note in &n.max_notes {
+                    let _ = writeln!(o, "      note: {note}");
+                }
+            }
+        }
+        if let Some(r) = &n.resolution {
+            fact(
+                &mut o,
+                &format!(
+                    "{:04X}H resolution {} units over {:04X}H",
+                    n.register, r.step, r.above
+                ),
+                &r.fact,
+                only_decisions,
+            );
+            fact(
+                &mut o,
+                &format!("{:04X}H value between steps", n.register),
+                &r.handling,
                 only_decisions,
             );
         }

@@ -65,8 +65,9 @@ pub struct ModelFile {
     pub identification: IdentificationFile,
     /// Parameter groups from the "Parameter Data" tables.
     pub parameter_groups: Vec<ParameterGroupFile>,
-    /// What the model assumes about parameter access and values.
-    pub parameter_access: FactFile,
+    /// What the model assumes about parameter access and values, and the parameters
+    /// some table of the document marks read-only.
+    pub parameter_access: ParameterAccessFile,
     /// Registers used by the manual's examples outside its tables.
     pub example_registers: Vec<ExampleRegisterFile>,
     /// Values the simulator starts with, other than 0000H.
@@ -201,6 +202,56 @@ pub struct BoundFile {
     /// Basis and citation.
     #[serde(flatten)]
     pub fact: FactFile,
+    /// Lines of the manual's text extraction the bound comes from.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub lines: Option<String>,
+    /// Other rows that contradict the bound, and which one the model takes.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub notes: Vec<String>,
+}
+
+/// A coarser resolution of a register above a value (A510: 0.1 Hz over 300 Hz).
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct ResolutionFile {
+    /// Values over this one (hex) have the coarser resolution.
+    pub above: String,
+    /// The step, in the register's units (10 = 0.1 Hz for a 0.01 Hz register).
+    pub step: u16,
+    /// Basis and citation of the resolution.
+    #[serde(flatten)]
+    pub fact: FactFile,
+    /// Lines of the manual's text extraction it comes from.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub lines: Option<String>,
+    /// What a drive of the model does with a value that is not a whole step.
+    pub handling: FactFile,
+}
+
+/// Parameter access: the general assumption and the parameters marked read-only.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct ParameterAccessFile {
+    /// What the model assumes about every other parameter.
+    #[serde(flatten)]
+    pub fact: FactFile,
+    /// Parameters some table of the document marks read-only.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub read_only: Vec<ReadOnlyParameterFile>,
+}
+
+/// Parameter registers marked read-only.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct ReadOnlyParameterFile {
+    /// Registers, as "XXXX" or "XXXX-YYYY".
+    pub registers: String,
+    /// The same as parameter numbers, "GG-NN" or "GG-NN..GG-NN" (register = group x 100H
+    /// + number).
+    pub parameters: String,
+    /// Basis and citation.
+    #[serde(flatten)]
+    pub fact: FactFile,
+    /// Lines of the manual's text extraction it comes from.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub lines: Option<String>,
 }
 
 /// A fault code with its basis.
@@ -232,6 +283,9 @@ pub struct RegisterFile {
     /// Largest value accepted.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub max: Option<BoundFile>,
+    /// A coarser resolution above some value.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub resolution: Option<ResolutionFile>,
     /// For the fault-code register: the code the external-fault bit raises.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub external_fault_code: Option<CodeFile>,

@@ -355,11 +355,25 @@ impl DriveModel {
                     ))
                 }
                 Access::ReadOnly => {
-                    return Err(self.exception(
-                        Fault::ReadOnly,
-                        vec![],
-                        format!("{} is read-only", self.describe(r)),
-                    ))
+                    // A parameter marked read-only: the mark's own fact counts too.
+                    return Err(match self.read_only_parameter(info.register) {
+                        Some(p) => self.exception(
+                            Fault::ReadOnly,
+                            vec![p.fact.clone()],
+                            format!(
+                                "{} is parameter {}-{:02}, which the {} marks read-only",
+                                self.describe(r),
+                                info.register >> 8,
+                                info.register & 0xFF,
+                                self.manual
+                            ),
+                        ),
+                        None => self.exception(
+                            Fault::ReadOnly,
+                            vec![],
+                            format!("{} is read-only", self.describe(r)),
+                        ),
+                    });
                 }
                 Access::Reserved => {
                     return Err(self.exception(

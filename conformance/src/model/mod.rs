@@ -128,7 +128,8 @@ pub enum Fault {
     IllegalCount,
     /// A value out of the register's range.
     DataOutOfRange,
-    /// A write to a read-only (monitor) register.
+    /// A write to a read-only register: a monitor register, or a parameter a table marks
+    /// read-only.
     ReadOnly,
     /// A write to a reserved register.
     ReservedWrite,
@@ -221,7 +222,7 @@ impl fmt::Display for SilenceReason {
 pub enum Access {
     /// Read and write.
     ReadWrite,
-    /// Read only (monitor registers).
+    /// Read only (monitor registers, and parameters a table marks read-only).
     ReadOnly,
     /// Reserved: reads answer 0000H, writes get the reserved-write exception.
     Reserved,
@@ -325,8 +326,54 @@ pub struct NamedRegister {
     pub role: Option<Role>,
     /// Largest value accepted, with its basis.
     pub max: Option<(u16, Fact)>,
+    /// Lines of the manual's text extraction the maximum comes from.
+    pub max_lines: Option<String>,
+    /// Rows that contradict the maximum, and which one the model takes.
+    pub max_notes: Vec<String>,
+    /// A coarser resolution above some value (the A510's 0.1 Hz over 300 Hz).
+    pub resolution: Option<Resolution>,
     /// Basis: documented, or the model's decision for registers it adds.
     pub fact: Fact,
+}
+
+/// A coarser resolution of a register above a value: the A510's "If the maximum output
+/// frequency of the motor is over 300Hz the frequency resolution is 0.1Hz".
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Resolution {
+    /// Values over this one have the coarser resolution.
+    pub above: u16,
+    /// The step in the register's units (10: 0.1 Hz in a 0.01 Hz register).
+    pub step: u16,
+    /// Basis of the resolution.
+    pub fact: Fact,
+    /// Lines of the manual's text extraction it comes from.
+    pub lines: Option<String>,
+    /// What a drive of the model does with a value that is not a whole step.
+    pub handling: Fact,
+}
+
+impl Resolution {
+    /// The value as the drive uses it: over `above`, the part below one step is dropped.
+    pub fn apply(&self, value: u16) -> u16 {
+        if value > self.above && self.step > 1 {
+            value - value % self.step
+        } else {
+            value
+        }
+    }
+}
+
+/// Parameter registers that a table of the document marks read-only.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct ReadOnlyParameter {
+    /// The registers.
+    pub registers: RangeInclusive<u16>,
+    /// The same as parameter numbers, as printed ("12-16..12-18").
+    pub parameters: String,
+    /// Basis and citation.
+    pub fact: Fact,
+    /// Lines of the manual's text extraction it comes from.
+    pub lines: Option<String>,
 }
 
 /// Which table a register comes from.
@@ -525,8 +572,12 @@ pub struct DriveModel {
     pub external_fault_code: Option<(u16, Fact)>,
     /// The identification register.
     pub identification: Identification,
-    /// Parameter access and values.
+    /// Parameter access and values: what the model assumes of parameters that no table
+    /// marks.
     pub parameter_access: Fact,
+    /// Parameters a table of the document marks read-only (see
+    /// [`DriveModel::read_only_parameters`]).
+    pub parameter_read_only: Vec<ReadOnlyParameter>,
     /// Example-only registers: register, initial value, access, basis.
     pub example_registers: Vec<(u16, u16, Access, Fact)>,
     /// Values the simulator starts with.
@@ -839,6 +890,35 @@ impl DriveModel {
                 }
                 None => None,
             };
+            let resolution = match &r.resolution {
+                Some(res) => {
+                    check_fact(m, &format!("register {register:04X} resolution"), &res.fact)?;
+                    check_fact(
+                        m,
+                        &format!("register {register:04X} resolution handling"),
+                        &res.handling,
+                    )?;
+                    if res.step < 2 {
+                        return Err(invalid(format!(
+                            "register {register:04X}: resolution step {} must be 2 or more",
+                            res.step
+                        )));
+                    }
+                    Some(Resolution {
+                        above: hex16(m, "registers.resolution.above", &res.above)?,
+                        step: res.step,
+                        fact: Fact::from_file(&res.fact),
+                        lines: res.lines.clone(),
+                        handling: Fact::from_file(&res.handling),
+                    })
+                }
+                None => None,
+            };
+            if (max.is_some() || resolution.is_some()) && access != Access::ReadWrite {
+                return Err(invalid(format!(
+                    "register {register:04X}: a max or resolution needs a read-write register"
+                )));
+            }
             if let Some(code) = &r.external_fault_code {
                 check_fact(m, "external_fault_code", &code.fact)?;
                 external_fault_code = Some((code.value, Fact::from_file(&code.fact)));
@@ -875,6 +955,9 @@ impl DriveModel {
                 access,
                 role,
                 max,
+                max_lines: r.max.as_ref().and_then(|b| b.lines.clone()),
+                max_notes: r.max.as_ref().map(|b| b.notes.clone()).unwrap_or_default(),
+                resolution,
                 fact,
             });
         }
@@ -1027,12 +1110,12 @@ impl DriveModel {
                 Fact::from_file(&v.fact),
             ));
         }
-        check_fact(m, "parameter_access", &f.parameter_access)?;
+        check_fact(m, "parameter_access", &f.parameter_access.fact)?;
         check_fact(m, "addresses", &f.addresses.fact)?;
         check_fact(m, "functions", &f.functions.fact)?;
         check_fact(m, "loop_back", &f.loop_back.fact)?;
 
-        let model = DriveModel {
+        let mut model = DriveModel {
             id: f.model.clone(),
             title: f.title.clone(),
             manual: f.manual.clone(),
@@ -1053,12 +1136,14 @@ impl DriveModel {
             bits,
             external_fault_code,
             identification,
-            parameter_access: Fact::from_file(&f.parameter_access),
+            parameter_access: Fact::from_file(&f.parameter_access.fact),
+            parameter_read_only: Vec::new(),
             example_registers,
             initial_values,
             aliases,
             map,
         };
+        model.parameter_read_only = read_only_parameters(&model, &f.parameter_access.read_only)?;
         for (r, ..) in &model.initial_values {
             if model.lookup(*r).is_none() {
                 return Err(invalid(format!(
@@ -1085,13 +1170,57 @@ impl DriveModel {
         };
         let i = self.map.partition_point(|(r, ..)| *r.end() < register);
         let (r, access, group, origin) = self.map.get(i)?;
+        let access = match (origin, access) {
+            (Origin::Parameter, Access::ReadWrite)
+                if self.read_only_parameter(register).is_some() =>
+            {
+                Access::ReadOnly
+            }
+            _ => *access,
+        };
         r.contains(&register).then_some(RegisterInfo {
             register,
-            access: *access,
+            access,
             group: *group,
             origin: *origin,
             via_alias,
         })
+    }
+
+    /// The parameter registers a table of the document marks read-only, one by one, each
+    /// with its fact (basis and citation). A write to one gets the `read-only` exception
+    /// rule; reads are served.
+    pub fn read_only_parameters(&self) -> impl Iterator<Item = (u16, &Fact)> + '_ {
+        self.parameter_read_only
+            .iter()
+            .flat_map(|p| p.registers.clone().map(move |r| (r, &p.fact)))
+    }
+
+    /// The read-only entry that covers parameter register `register`, if any.
+    pub fn read_only_parameter(&self, register: u16) -> Option<&ReadOnlyParameter> {
+        self.parameter_read_only
+            .iter()
+            .find(|p| p.registers.contains(&register))
+    }
+
+    /// The frequency command register, its largest accepted value and that value's fact.
+    pub fn frequency_command_max(&self) -> Option<(u16, u16, &Fact)> {
+        let r = self.register_with_role(Role::FrequencyCommand)?;
+        let (max, fact) = self.named(r)?.max.as_ref()?;
+        Some((r, *max, fact))
+    }
+
+    /// The frequency command's coarser resolution, if the model has one (A510).
+    pub fn frequency_resolution(&self) -> Option<&Resolution> {
+        let r = self.register_with_role(Role::FrequencyCommand)?;
+        self.named(r)?.resolution.as_ref()
+    }
+
+    /// The frequency command `value` as the drive uses it (the frequency command monitor
+    /// and the output frequency): `value` itself, or with the resolution applied.
+    pub fn frequency_in_use(&self, value: u16) -> u16 {
+        self.frequency_resolution()
+            .map_or(value, |res| res.apply(value))
     }
 
     /// The named register `register` (command or monitor table), if any.
@@ -1156,6 +1285,75 @@ impl file::FactFile {
     fn citation_text(&self) -> String {
         Fact::from_file(self).citation()
     }
+}
+
+/// "12-16" as (group, number).
+fn parameter_number(s: &str) -> Option<(u8, u8)> {
+    let (g, n) = s.split_once('-')?;
+    let ok = |t: &str| !t.is_empty() && t.len() <= 2 && t.bytes().all(|c| c.is_ascii_digit());
+    if !ok(g) || !ok(n) {
+        return None;
+    }
+    Some((g.parse().ok()?, n.parse().ok()?))
+}
+
+/// Checks the read-only entries against the map built so far: every register a listed
+/// parameter (not "-"), the parameter numbers spelling the same registers, no overlaps.
+fn read_only_parameters(
+    model: &DriveModel,
+    entries: &[file::ReadOnlyParameterFile],
+) -> Result<Vec<ReadOnlyParameter>, ModelError> {
+    let m = model.id.as_str();
+    let invalid = |problem: String| ModelError::Invalid {
+        model: m.to_string(),
+        problem,
+    };
+    let mut out: Vec<ReadOnlyParameter> = Vec::new();
+    for e in entries {
+        let what = format!("parameter_access.read_only {}", e.registers);
+        let registers = hex_range(m, "parameter_access.read_only.registers", &e.registers)?;
+        check_fact(m, &what, &e.fact)?;
+        let (a, b) = match e.parameters.split_once("..") {
+            Some((a, b)) => (a, b),
+            None => (e.parameters.as_str(), e.parameters.as_str()),
+        };
+        let spelled = parameter_number(a)
+            .zip(parameter_number(b))
+            .map(|((ga, na), (gb, nb))| {
+                (u16::from(ga) << 8 | u16::from(na))..=(u16::from(gb) << 8 | u16::from(nb))
+            });
+        if spelled.as_ref() != Some(&registers) {
+            return Err(invalid(format!(
+                "{what}: parameters {:?} are not registers {:04X}..{:04X} (register = group x 100H + number)",
+                e.parameters,
+                registers.start(),
+                registers.end()
+            )));
+        }
+        for r in registers.clone() {
+            let i = model.map.partition_point(|(x, ..)| *x.end() < r);
+            match model.map.get(i) {
+                Some((x, Access::ReadWrite, _, Origin::Parameter)) if x.contains(&r) => {}
+                _ => {
+                    return Err(invalid(format!(
+                        "{what}: {r:04X}H is not a listed parameter register of the map"
+                    )))
+                }
+            }
+        }
+        if let Some(o) = out.iter().find(|o| {
+            o.registers.start() <= registers.end() && registers.start() <= o.registers.end()
+        }) {
+            return Err(invalid(format!("{what}: overlaps {}", o.parameters)));
+        }
+        out.push(ReadOnlyParameter {
+            registers,
+            parameters: e.parameters.clone(),
+            fact: Fact::from_file(&e.fact),
+            lines: e.lines.clone(),
+        });
+    }
+    Ok(out)
 }
 
 fn check_fact(model: &str, what: &str, f: &file::FactFile) -> Result<(), ModelError> {

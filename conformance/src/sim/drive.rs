@@ -290,11 +290,15 @@ impl Drive {
         }
     }
 
+    /// The frequency command as the drive uses it: the value written to the command
+    /// register, at the model's resolution (the A510 drops the hundredths over 300 Hz).
     fn frequency_command(&self) -> u16 {
-        self.model
+        let written = self
+            .model
             .register_with_role(Role::FrequencyCommand)
             .and_then(|r| self.values.get(&r).copied())
-            .unwrap_or(0)
+            .unwrap_or(0);
+        self.model.frequency_in_use(written)
     }
 
     /// The value a read of `register` (as the map knows it) returns now.
@@ -319,7 +323,9 @@ impl Drive {
             }
             Some(Role::FaultCode) => self.fault_code,
             Some(Role::FrequencyCommandMonitor) => self.frequency_command(),
-            Some(Role::OutputFrequency) => self.output.round().clamp(0.0, 65535.0) as u16,
+            Some(Role::OutputFrequency) => self
+                .model
+                .frequency_in_use(self.output.round().clamp(0.0, 65535.0) as u16),
             Some(Role::Identification) => self.model.identification.simulated,
             _ => self.values.get(&info.register).copied().unwrap_or(0),
         }
