@@ -22,6 +22,10 @@ pub const CODE_DOES_NOT_COMPILE: &str = "code-does-not-compile";
 /// Flag of a rule sentence that the document's own example frames contradict.
 pub const PROSE_CONTRADICTS_EXAMPLES: &str = "prose-contradicts-examples";
 
+/// The longest text repairs may produce: far more than any printed program, and a bound on
+/// what a vector file (or a fuzzer) can make the repairs allocate.
+pub const MAX_LISTING_BYTES: usize = 1 << 20;
+
 /// Why recorded repairs cannot be applied to a listing.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
 pub enum RepairError {
@@ -38,6 +42,14 @@ pub enum RepairError {
         index: usize,
         /// The text.
         find: String,
+    },
+    /// The repaired text would be longer than any printed program.
+    #[error("repair {index}: the text would grow past {limit} bytes")]
+    TooLong {
+        /// Position of the repair in its list.
+        index: usize,
+        /// The limit.
+        limit: usize,
     },
     /// The text to repair occurs a different number of times than recorded.
     #[error("repair {index}: {find:?} occurs {found} times, the repair says {expected}")]
@@ -74,6 +86,15 @@ pub fn apply_repairs(text: &str, repairs: &[TextRepair]) -> Result<String, Repai
                 find: r.find.clone(),
                 expected: r.count,
                 found,
+            });
+        }
+        let grown = found
+            .checked_mul(r.replace.len())
+            .and_then(|added| out.len().checked_add(added));
+        if grown.map_or(true, |n| n > MAX_LISTING_BYTES) {
+            return Err(RepairError::TooLong {
+                index,
+                limit: MAX_LISTING_BYTES,
             });
         }
         out = out.replace(r.find.as_str(), &r.replace);
@@ -472,6 +493,16 @@ mod tests {
         assert!(matches!(
             apply_repairs(text, &[repair("long", "long", 2)]),
             Err(RepairError::NoChange { .. })
+        ));
+        // Repairs cannot blow a text up without bound.
+        let tenfold = repair("a", "aaaaaaaaaa", 1);
+        let mut grow = vec![tenfold];
+        for i in 1..8u32 {
+            grow.push(repair("a", "aaaaaaaaaa", 10u32.pow(i)));
+        }
+        assert!(matches!(
+            apply_repairs("a", &grow),
+            Err(RepairError::TooLong { .. })
         ));
     }
 
