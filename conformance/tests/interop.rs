@@ -25,7 +25,10 @@
 //!   8E1 on a pty, and the script falls back to 8N1 (see tests/interop/pymodbus_master.py).
 //! - The Python interpreter is `python3`, or `$INTEROP_PYTHON` when set.
 
-use std::io::{BufRead, BufReader, Read, Write};
+mod common;
+use common::{missing, note};
+
+use std::io::{BufRead, BufReader, Read};
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, ExitStatus, Stdio};
 use std::sync::mpsc;
@@ -67,12 +70,6 @@ impl Mode {
             Mode::Ascii => 17,
         }
     }
-}
-
-/// Writes straight to the process's stderr, past the test harness's output capture, so
-/// that a SKIPPED line is seen in a normal `cargo test` run.
-fn note(line: &str) {
-    let _ = writeln!(std::io::stderr(), "{line}");
 }
 
 // ---------------------------------------------------------------------------------------
@@ -242,16 +239,6 @@ fn run_bounded(cmd: &mut Command) -> std::io::Result<Run> {
 
 // ---------------------------------------------------------------------------------------
 // Missing tools: SKIPPED, or a failure under CI.
-
-/// Reports a missing tool: panics when `CI` is set, otherwise prints SKIPPED and returns
-/// false so that the test can return.
-fn missing(what: &str) -> bool {
-    if std::env::var_os("CI").is_some() {
-        panic!("FAILED: {what} (CI is set, so a missing tool is an error)");
-    }
-    note(&format!("SKIPPED: {what}"));
-    false
-}
 
 fn have_mbpoll() -> bool {
     match run_bounded(Command::new("mbpoll").arg("-V")) {

@@ -141,7 +141,116 @@ fn rendering_snapshot() {
     let set = set();
     let mut out = String::new();
     for (_, v) in set.iter() {
-        out.push_str(&vectors::render(v));
+        out.push_str(&vectors::render_in(&set, v));
     }
     insta::assert_snapshot!("all_vectors", out);
+}
+
+fn verify_one(set: &VectorSet, id: &str) -> vectors::VectorReport {
+    let v = set.get(id).unwrap().clone();
+    vectors::verify_vector(set, &v)
+}
+
+fn body_mut<'a>(set: &'a mut VectorSet, id: &str) -> &'a mut Body {
+    &mut set
+        .files
+        .iter_mut()
+        .flat_map(|f| f.vectors.iter_mut())
+        .find(|v| v.id == id)
+        .unwrap()
+        .body
+}
+
+#[test]
+fn a_listing_corrected_beyond_its_repairs_is_caught() {
+    for id in ["f510.crc-listing", "e510.crc-listing"] {
+        assert!(verify_one(&set(), id).passed(), "{id}");
+        // One more change in `corrected` than the repairs record.
+        let mut s = set();
+        if let Body::CListing(l) = body_mut(&mut s, id) {
+            l.corrected = l.corrected.replace("0xa001", "0xA001");
+        }
+        let r = verify_one(&s, id);
+        assert!(
+            r.problems.iter().any(|p| p.contains("recorded repairs")),
+            "{id}: {:?}",
+            r.problems
+        );
+        // A repair whose count is wrong.
+        let mut s = set();
+        if let Body::CListing(l) = body_mut(&mut s, id) {
+            l.repairs[0].count = 1;
+        }
+        assert!(!verify_one(&s, id).passed(), "{id}");
+        // The printed text corrected in place: the repairs no longer apply.
+        let mut s = set();
+        if let Body::CListing(l) = body_mut(&mut s, id) {
+            l.printed = l.printed.replace("rxdbuff++", "*rxdbuff++");
+        }
+        assert!(!verify_one(&s, id).passed(), "{id}");
+    }
+    // The E510's OCR repairs need their flag.
+    let mut s = set();
+    let v = s.files[3]
+        .vectors
+        .iter_mut()
+        .find(|v| v.id == "e510.crc-listing")
+        .unwrap();
+    v.flags.retain(|f| f != "ocr-repair");
+    assert!(!verify_one(&s, "e510.crc-listing").passed());
+}
+
+#[test]
+fn the_exception_rule_is_checked_against_its_frames() {
+    let id = "f510.exception-rule";
+    let r = verify_one(&set(), id);
+    assert!(r.passed(), "{:?}", r.problems);
+    assert_eq!(r.observed, ["prose-contradicts-examples"]);
+    // Were the sentence an OR, it would not contradict the examples: the flag is then wrong.
+    let mut s = set();
+    if let Body::ExceptionRule(rule) = body_mut(&mut s, id) {
+        rule.stated_operation = conformance::vectors::model::BitOperation::Or;
+    }
+    let r = verify_one(&s, id);
+    assert!(
+        r.problems
+            .iter()
+            .any(|p| p.contains("declares prose-contradicts-examples")),
+        "{:?}",
+        r.problems
+    );
+    // An evidence frame that carries what the AND reading gives (00H) is caught.
+    let mut s = set();
+    if let Body::Frame(f) = body_mut(&mut s, "f510.06.rtu.exception") {
+        f.printed = "01 06 52 C3 9D".into();
+    }
+    let r = verify_one(&s, id);
+    assert!(
+        r.problems
+            .iter()
+            .any(|p| p.contains("f510.06.rtu.exception")),
+        "{:?}",
+        r.problems
+    );
+    // Evidence must be complete and must exist.
+    let mut s = set();
+    if let Body::ExceptionRule(rule) = body_mut(&mut s, id) {
+        rule.evidence.pop();
+        rule.evidence.push("f510.03.rtu.response".into());
+    }
+    let r = verify_one(&s, id);
+    assert!(r.problems.len() >= 2, "{:?}", r.problems);
+}
+
+#[test]
+fn the_new_vectors_are_found_by_flag() {
+    let set = set();
+    for flag in ["code-does-not-compile", "prose-contradicts-examples"] {
+        assert!(set.flags.flags.contains_key(flag), "{flag} is explained");
+        let n = set
+            .iter()
+            .filter(|(_, v)| v.flags.iter().any(|f| f == flag))
+            .count();
+        assert_eq!(n, DOCUMENTS.len(), "{flag}");
+    }
 }

@@ -131,7 +131,7 @@ pub fn run(args: VectorsArgs) -> anyhow::Result<ExitCode> {
                     v.flags.join(",")
                 );
                 if long {
-                    print!("{}", vectors::render(v));
+                    print!("{}", vectors::render_in(&set, v));
                 }
             }
             println!("{n} vectors");

@@ -126,6 +126,10 @@ pub enum Body {
     NodeAddress(NodeAddress),
     /// Stated limits.
     Limits(Limits),
+    /// A program printed in the document (the CRC routine in C).
+    CListing(CListing),
+    /// A sentence that states how the exception function code is formed.
+    ExceptionRule(ExceptionRule),
 }
 
 impl Body {
@@ -138,6 +142,8 @@ impl Body {
             Body::ExceptionCodes(_) => "exception-codes",
             Body::NodeAddress(_) => "node-address",
             Body::Limits(_) => "limits",
+            Body::CListing(_) => "c-listing",
+            Body::ExceptionRule(_) => "exception-rule",
         }
     }
 }
@@ -331,6 +337,85 @@ pub struct Limits {
     pub quotes: Vec<String>,
 }
 
+/// One textual repair of a printed program: every occurrence of `find` becomes `replace`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct TextRepair {
+    /// The text as it stands before the repair.
+    pub find: String,
+    /// What it becomes.
+    pub replace: String,
+    /// How many times `find` occurs (all occurrences are replaced).
+    pub count: u32,
+    /// Why the repair is needed.
+    pub why: String,
+}
+
+/// A program listing printed in a document, kept character for character, with what it
+/// takes to make it compile and compute what the document says it computes.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct CListing {
+    /// The listing exactly as the source text has it (line breaks, spacing and all).
+    pub printed: String,
+    /// OCR sources only: the repairs that turn the extracted characters into what the
+    /// page prints (flag `ocr-repair`), applied before `repairs`.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub ocr_repairs: Vec<TextRepair>,
+    /// Type names the listing uses without defining them, and the C type each must be.
+    pub types: BTreeMap<String, String>,
+    /// The smallest edits that make the listing a correct program, applied in order.
+    pub repairs: Vec<TextRepair>,
+    /// The listing after `ocr_repairs` and `repairs`.
+    pub corrected: String,
+}
+
+/// A bitwise operation a sentence or an example applies to a function code.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum BitOperation {
+    /// `f & operand`.
+    And,
+    /// `f | operand`.
+    Or,
+    /// `f ^ operand`.
+    Xor,
+}
+
+impl BitOperation {
+    /// The operation applied to `f`.
+    pub fn apply(self, f: u8, operand: u8) -> u8 {
+        match self {
+            BitOperation::And => f & operand,
+            BitOperation::Or => f | operand,
+            BitOperation::Xor => f ^ operand,
+        }
+    }
+}
+
+impl fmt::Display for BitOperation {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(match self {
+            BitOperation::And => "AND",
+            BitOperation::Or => "OR",
+            BitOperation::Xor => "XOR",
+        })
+    }
+}
+
+/// The sentence that says how an error reply's function code is made from the request's.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ExceptionRule {
+    /// The sentence, verbatim.
+    pub quote: String,
+    /// The operation the sentence names.
+    pub stated_operation: BitOperation,
+    /// Its operand (hex).
+    pub operand: String,
+    /// The operation the document's example exception frames apply.
+    pub examples_operation: BitOperation,
+    /// Ids of the document's example exception frames the rule is checked against.
+    pub evidence: Vec<String>,
+}
+
 /// A byte of a printed frame: known, or left blank by the manual.
 pub type Printed = Vec<Option<u8>>;
 
@@ -434,6 +519,20 @@ impl VectorFile {
                 problem,
                 value: value.to_string(),
             };
+            let fixed_id = match &v.body {
+                Body::CListing(_) => Some("crc-listing"),
+                Body::ExceptionRule(_) => Some("exception-rule"),
+                _ => None,
+            };
+            if let Some(tail) = fixed_id {
+                if v.id != format!("{prefix}{tail}") {
+                    return Err(fmt_err(format!(
+                        "a {} vector's id is {prefix}{tail}, not {:?}",
+                        v.body.type_name(),
+                        v.id
+                    )));
+                }
+            }
             if let Body::Frame(fv) = &v.body {
                 parse_printed(&fv.printed).map_err(|p| hex_err("printed", p, &fv.printed))?;
                 if let Some(c) = &fv.corrected {

@@ -52,7 +52,7 @@ pub use crate::codec::{frame_parts, FrameParts};
 
 /// The body (address, function, data) a frame vector stands for: from `printed` when its
 /// body bytes are all known, else from `corrected`.
-fn effective_body(fv: &FrameVector) -> Option<Vec<u8>> {
+pub(crate) fn effective_body(fv: &FrameVector) -> Option<Vec<u8>> {
     let mode: Mode = fv.mode.into();
     let printed = parse_printed(&fv.printed).ok()?;
     if let Some(known) = printed.iter().copied().collect::<Option<Vec<u8>>>() {
@@ -510,7 +510,7 @@ fn check_other(v: &Vector, rep: &mut VectorReport) {
     let declared: BTreeSet<&str> = v.flags.iter().map(String::as_str).collect();
     let mut observed: BTreeSet<&'static str> = BTreeSet::new();
     match &v.body {
-        Body::Frame(_) => {}
+        Body::Frame(_) | Body::CListing(_) | Body::ExceptionRule(_) => {}
         Body::LrcExample(e) => {
             let input = match parse_known(&e.input) {
                 Ok(i) => i,
@@ -670,6 +670,8 @@ pub fn verify_vector(set: &VectorSet, v: &Vector) -> VectorReport {
     }
     match &v.body {
         Body::Frame(fv) => check_frame(set, v, fv, &mut rep),
+        Body::CListing(l) => super::listing::check_listing(v, l, &mut rep),
+        Body::ExceptionRule(r) => super::listing::check_exception_rule(set, v, r, &mut rep),
         _ => check_other(v, &mut rep),
     }
     rep
@@ -698,6 +700,8 @@ pub fn required_ids(document: &str) -> Vec<String> {
         "exception-codes",
         "node-address",
         "limits",
+        "crc-listing",
+        "exception-rule",
     ] {
         ids.push(format!("{document}.{tail}"));
     }
@@ -723,6 +727,15 @@ pub fn missing(set: &VectorSet) -> Vec<String> {
 
 /// A human-readable rendering of one vector: what it is and what the codec makes of it.
 pub fn render(v: &Vector) -> String {
+    render_inner(None, v)
+}
+
+/// [`render`], with what the vector's evidence frames in `set` show (exception rules).
+pub fn render_in(set: &VectorSet, v: &Vector) -> String {
+    render_inner(Some(set), v)
+}
+
+fn render_inner(set: Option<&VectorSet>, v: &Vector) -> String {
     let mut s = String::new();
     let flags = if v.flags.is_empty() {
         String::new()
@@ -819,6 +832,8 @@ pub fn render(v: &Vector) -> String {
                 let _ = writeln!(s, "  same group: {rule}");
             }
         }
+        Body::CListing(l) => super::listing::render_listing(l, &mut s),
+        Body::ExceptionRule(r) => super::listing::render_rule(set, v, r, &mut s),
     }
     if !v.notes.is_empty() {
         let _ = writeln!(s, "  notes     {}", v.notes);
