@@ -425,17 +425,17 @@ fn mbpoll_suite(sim: &Sim, ident: u16) {
         "06H 2520H read-only (exception 02)",
     );
     assert_exception(
-        mbpoll_write(sim, 0x2502, &[0xE9FD]),
+        mbpoll_write(sim, 0x2502, &[0x9C41]),
         "Slave device or server failure",
-        "06H 2502H = E9FDH over the maximum (exception 04)",
+        "06H 2502H = 9C41H over the F510 maximum of 400.00 Hz (exception 04)",
     );
     assert_eq!(
         read_ok(sim, 0x2502, 1),
         [0x1770],
         "2502H after a rejected write"
     );
-    write_ok(sim, 0x2502, &[0xE9FC]);
-    assert_eq!(read_ok(sim, 0x2502, 1), [0xE9FC], "2502H at its maximum");
+    write_ok(sim, 0x2502, &[0x9C40]);
+    assert_eq!(read_ok(sim, 0x2502, 1), [0x9C40], "2502H at its maximum");
     assert_exception(
         mbpoll_read(sim, 0x0000, Mode::Rtu.max_read() + 1),
         "Illegal data value",

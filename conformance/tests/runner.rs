@@ -171,7 +171,6 @@ fn each_quirk_is_named_by_a_deviation() {
         (Quirk::WrongException, "in the manual's table"),
         (Quirk::LateReply(200), "replies are late"),
         (Quirk::DropEvery(3), "device: no reply within"),
-        (Quirk::LocalEcho, "echoed the request"),
         (Quirk::GarbageBeforeReply, "bytes before the reply"),
         (Quirk::TruncatedReply, "a truncated reply"),
         (
@@ -341,7 +340,8 @@ fn the_command_line_gives_exit_codes_and_every_format() {
         .descendants()
         .filter(|n| n.has_tag_name("testcase"))
         .count();
-    assert_eq!(cases, 4, "{text}");
+    // Three monitor checks and the preflight, which runs whatever --only selects.
+    assert_eq!(cases, 4 + 1, "{text}");
     // A quirk: exit 1; the deviation is a JUnit failure and leads the text report.
     let o = out(&[
         "check",
@@ -381,7 +381,7 @@ fn the_command_line_gives_exit_codes_and_every_format() {
         text.lines()
             .nth(1)
             .unwrap()
-            .starts_with("RESULT: 1 checks: 0 pass, 1 deviation,"),
+            .starts_with("RESULT: 2 checks: 1 pass, 1 deviation,"),
         "{text}"
     );
     assert!(
@@ -408,7 +408,8 @@ fn the_command_line_gives_exit_codes_and_every_format() {
     ]);
     let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
     assert!(schema().is_valid(&v));
-    assert_eq!(v["checks"][0]["status"], "observation");
+    assert_eq!(v["checks"][0]["id"], "ascii.preflight");
+    assert_eq!(v["checks"][1]["status"], "observation");
     // Bad arguments: exit 2 with a message.
     let o = out(&["check", "--sim", "f999"]);
     assert_eq!(o.status.code(), Some(2));

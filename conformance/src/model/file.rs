@@ -105,6 +105,9 @@ pub struct FunctionsFile {
 pub struct LoopBackFile {
     /// Data bytes after the test code in the manual's frames.
     pub data_bytes: usize,
+    /// What a test code (sub-function) other than 0000H gets: the manuals show 0000H
+    /// only; the legacy note says any test code is echoed.
+    pub other_test_codes: FactFile,
     /// Basis and citation.
     #[serde(flatten)]
     pub fact: FactFile,

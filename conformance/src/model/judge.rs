@@ -240,11 +240,20 @@ impl DriveModel {
                     Err(j) => j,
                 }
             }
-            Pdu::LoopBack { .. } => Judgement {
+            Pdu::LoopBack { test_code: 0, .. } => Judgement {
                 expect: Expectation::LoopBack,
                 write: None,
                 facts: vec![self.loop_back_fact.clone()],
                 detail: "loop-back: echo".to_string(),
+            },
+            Pdu::LoopBack { test_code, .. } => Judgement {
+                expect: Expectation::LoopBack,
+                write: None,
+                facts: vec![
+                    self.loop_back_fact.clone(),
+                    self.loop_back_other_fact.clone(),
+                ],
+                detail: format!("loop-back with test code {test_code:04X}H: echo"),
             },
             // Parsed as a request, a served function code always gives one of the above.
             _ => self.exception(Fault::Malformed, vec![], "unexpected layout".to_string()),

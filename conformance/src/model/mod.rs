@@ -552,6 +552,8 @@ pub struct DriveModel {
     pub loop_back_data_bytes: usize,
     /// Basis of the loop-back.
     pub loop_back_fact: Fact,
+    /// Basis of the echo of a test code (sub-function) other than 0000H.
+    pub loop_back_other_fact: Fact,
     /// The exception-code table.
     pub exception_codes: Vec<(u8, String)>,
     /// Where the table is.
@@ -1114,6 +1116,11 @@ impl DriveModel {
         check_fact(m, "addresses", &f.addresses.fact)?;
         check_fact(m, "functions", &f.functions.fact)?;
         check_fact(m, "loop_back", &f.loop_back.fact)?;
+        check_fact(
+            m,
+            "loop_back.other_test_codes",
+            &f.loop_back.other_test_codes,
+        )?;
 
         let mut model = DriveModel {
             id: f.model.clone(),
@@ -1126,6 +1133,7 @@ impl DriveModel {
             functions_fact: Fact::from_file(&f.functions.fact),
             loop_back_data_bytes: f.loop_back.data_bytes,
             loop_back_fact: Fact::from_file(&f.loop_back.fact),
+            loop_back_other_fact: Fact::from_file(&f.loop_back.other_test_codes),
             exception_codes,
             exception_codes_source: f.exception_codes_source.clone(),
             exceptions,

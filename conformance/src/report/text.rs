@@ -107,11 +107,36 @@ pub fn text(r: &Report, verbose: bool) -> String {
         }
     );
     let section = |o: &mut String, status: Status, heading: &str, exchanges: bool| {
-        let items: Vec<&CheckResult> = r.results.iter().filter(|c| c.status == status).collect();
-        if items.is_empty() {
+        let all: Vec<&CheckResult> = r.results.iter().filter(|c| c.status == status).collect();
+        if all.is_empty() {
             return;
         }
-        let _ = writeln!(o, "\n{heading} ({})", items.len());
+        let _ = writeln!(o, "\n{heading} ({})", all.len());
+        // Checks that never ran because the device stopped answering say one thing: one
+        // line for all of them (--verbose lists them).
+        let (not_run, items): (Vec<&CheckResult>, Vec<&CheckResult>) = all
+            .into_iter()
+            .partition(|c| status == Status::Error && c.summary.starts_with("not run: "));
+        if let Some(first) = not_run.first() {
+            let _ = writeln!(
+                o,
+                "  {} checks {}{}",
+                not_run.len(),
+                first.summary,
+                if verbose {
+                    format!(
+                        ": {}",
+                        not_run
+                            .iter()
+                            .map(|c| c.id.as_str())
+                            .collect::<Vec<_>>()
+                            .join(" ")
+                    )
+                } else {
+                    " (--verbose lists them)".to_string()
+                }
+            );
+        }
         for c in items {
             let _ = writeln!(o, "  [{}] {}", c.id, c.title);
             let _ = writeln!(o, "      source   {}", c.source);

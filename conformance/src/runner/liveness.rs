@@ -156,18 +156,28 @@ impl Ctx<'_> {
             (_, true) => "the line echoes every request (a 2-wire adapter that hears itself); the echo is stripped and the reply awaited for the whole response window",
             (_, false) => "no local echo",
         };
-        if let Some(reply) = &ex.reply {
+        let latency = ex
+            .first_byte
+            .map(|t| format!(" in {:.1} ms", t.as_secs_f64() * 1000.0))
+            .unwrap_or_default();
+        let answer = match &ex.reply {
+            Some(reply) => Some(compare::describe_reply(self.mode, reply)),
+            // Not a valid reply, but the device's own start of one (its address and the
+            // function or its exception): a device that answers badly is alive, and the
+            // checks will say what is wrong with its answers.
+            None if starts_an_answer(self.mode, &frame, ex.after_echo()) => Some(format!(
+                "an invalid answer: {}",
+                compare::explain_invalid(self.mode, ex.after_echo())
+            )),
+            None => None,
+        };
+        if let Some(answer) = answer {
             self.answered_in = Some(self.current.clone());
-            let latency = ex
-                .first_byte
-                .map(|t| format!(" in {:.1} ms", t.as_secs_f64() * 1000.0))
-                .unwrap_or_default();
             return Ok(Verdict {
                 exchanges: vec![record],
                 pass_summary: format!(
-                    "node {:02X} answered{latency}: {}; {echo}",
-                    self.opts.address,
-                    compare::describe_reply(self.mode, reply)
+                    "node {:02X} answered{latency}: {answer}; {echo}",
+                    self.opts.address
                 ),
                 ..Verdict::default()
             });
@@ -218,6 +228,27 @@ impl Ctx<'_> {
             "{tried}; {got}. Check: the node address (-a; the drive's communication address parameter), the baud rate (-b), parity (-P none|even|odd), data and stop bits (-d, -s), the mode ({other}), a longer --timeout, the wiring (A/B swapped, no common ground, termination), that the drive is powered, and that the adapter drives the RS-485 direction itself"
         )
     }
+}
+
+/// Whether `rx` holds the start of an answer to `request`: its address and function (or
+/// the function's exception) in RTU, a ':' and those in ASCII.
+fn starts_an_answer(mode: Mode, request: &[u8], rx: &[u8]) -> bool {
+    let Ok(parts) = crate::codec::frame_parts(mode, request) else {
+        return false;
+    };
+    let (Some(&address), Some(&function)) = (parts.body.first(), parts.body.get(1)) else {
+        return false;
+    };
+    let heads: Vec<Vec<u8>> = [function, function | 0x80]
+        .iter()
+        .map(|&f| match mode {
+            Mode::Rtu => vec![address, f],
+            Mode::Ascii => format!(":{address:02X}{f:02X}").into_bytes(),
+        })
+        .collect();
+    heads
+        .iter()
+        .any(|h| rx.windows(h.len()).any(|w| w.eq_ignore_ascii_case(h)))
 }
 
 /// Statuses that a lost device leaves to the checks that did not run.

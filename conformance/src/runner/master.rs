@@ -181,9 +181,16 @@ impl<T: Transport + ?Sized> Master<T> {
         Ok(())
     }
 
+    /// Waits until the line has been quiet for the configured gap, and never less than
+    /// t3.5 of the line where it has timing (a frame must follow 3.5 character times of
+    /// silence: Modbus over Serial Line V1.02, 2.5.1.1).
     fn wait_gap(&self) {
         if let Some(t) = self.last_end {
-            sleep_until(t + self.timing.gap);
+            let t35 = self
+                .transport
+                .line_timing()
+                .map_or(Duration::ZERO, |l| Duration::from_micros(l.t3_5_us()));
+            sleep_until(t + self.timing.gap.max(t35));
         }
     }
 

@@ -436,6 +436,15 @@ impl<'a> Ctx<'a> {
         })
     }
 
+    /// The value `register` holds now, journalling it first if no check changed it yet
+    /// (so that the restore can put it back).
+    pub fn remember_current(&mut self, register: u16) -> Result<Result<u16, String>, RunError> {
+        if self.journal.iter().any(|(r, _)| *r == register) {
+            return Ok(self.read(register, 1)?.map(|v| v[0]));
+        }
+        self.remember(register)
+    }
+
     /// Writes one register and reports whether the device confirmed it (plain, for
     /// set-up and restore).
     pub fn write(&mut self, register: u16, value: u16) -> Result<Result<(), String>, RunError> {

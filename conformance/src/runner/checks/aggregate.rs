@@ -1,0 +1,153 @@
+//! Checks over every exchange of a mode: response time, line timing, exception codes.
+
+use std::time::Duration;
+
+use super::*;
+
+pub(super) fn aggregates(model: &DriveModel, m: &str, out: &mut Vec<Check>) {
+    out.push(check(
+        format!("{m}.response-time"),
+        format!("Response time of every reply of this mode against the manual's {} ms", model.limits.response_time_ms),
+        cite(model, &model.limits.response_time_fact),
+        false,
+        false,
+        |ctx| {
+            if ctx.latencies.is_empty() {
+                return Ok(Verdict::skip("no replies were measured"));
+            }
+            let mut l = ctx.latencies.clone();
+            l.sort();
+            let median = l[l.len() / 2];
+            let max = l[l.len() - 1];
+            // Below 4800 baud t3.5 is longer than the manuals' 10 ms: no reply may start
+            // sooner, so t3.5 is the response time a drive can keep there.
+            let line = ctx.line_timing();
+            let manual = ctx.model.response_time_on(line.as_ref());
+            // The first byte of a reply is received one character time after it starts
+            // (a UART hands over a byte after its stop bit).
+            let first_char = line.map_or(Duration::ZERO, |l| Duration::from_micros(l.char_time_us()));
+            let limit = manual + first_char + ctx.opts.response_allowance;
+            let ms = |d: Duration| d.as_secs_f64() * 1000.0;
+            let stats = format!(
+                "median {:.1} ms, max {:.1} ms over {} replies (manual: {} ms{}; allowance for host and adapter {} ms)",
+                ms(median),
+                ms(max),
+                l.len(),
+                ctx.model.limits.response_time_ms,
+                if manual.as_millis() > u128::from(ctx.model.limits.response_time_ms) {
+                    format!(", t3.5 on this line: {:.1} ms", ms(manual))
+                } else {
+                    String::new()
+                },
+                ctx.opts.response_allowance.as_millis()
+            );
+            let mut v = Verdict { pass_summary: stats.clone(), ..Verdict::default() };
+            if median > limit {
+                v.findings.push(Finding::deviation(format!("replies are late: {stats}")));
+            } else if max > limit {
+                let late = l.iter().filter(|d| **d > limit).count();
+                v.findings.push(Finding::observation(format!("{late} replies took longer than {:.0} ms: {stats}", ms(limit))));
+            }
+            Ok(v)
+        },
+    ));
+    out.push(check(
+        format!("{m}.line-timing"),
+        "Silence inside replies (at most t1.5) and before them (at least t3.5), on a line with timing".to_string(),
+        "Modbus over Serial Line V1.02, 2.5.1.1 (t1.5, t3.5)".to_string(),
+        false,
+        false,
+        |ctx| {
+            let Some(line) = ctx.line_timing() else {
+                return Ok(Verdict::skip(
+                    "the link has no line timing (a pseudo-terminal without pacing, or TCP): gaps are the host's, not the device's",
+                ));
+            };
+            if ctx.gap_replies == 0 {
+                return Ok(Verdict::skip("no replies were measured"));
+            }
+            let t15 = Duration::from_micros(line.t1_5_us());
+            let t35 = Duration::from_micros(line.t3_5_us());
+            let mut v = Verdict {
+                pass_summary: format!(
+                    "{} replies: largest gap inside a reply {} us (t1.5 = {} us), none sooner than t3.5 = {} us",
+                    ctx.gap_replies,
+                    ctx.max_gap.as_micros(),
+                    t15.as_micros(),
+                    t35.as_micros()
+                ),
+                ..Verdict::default()
+            };
+            if let Some((req, gap)) = ctx.gaps.first() {
+                v.findings.push(Finding::deviation(format!(
+                    "{} replies had a silence over t1.5 ({} us + allowance {} us) inside them; the first, to request {req}, had {} us",
+                    ctx.gaps.len(),
+                    t15.as_micros(),
+                    ctx.opts.gap_allowance.as_micros(),
+                    gap.as_micros()
+                )));
+            }
+            // The host reads the end of its request a little late (the write returns after
+            // the bytes left): one character time of tolerance.
+            let tolerance = Duration::from_micros(line.char_time_us());
+            let early: Vec<&Duration> = ctx.latencies.iter().filter(|l| **l + tolerance < t35).collect();
+            if let Some(first) = early.iter().min() {
+                v.findings.push(Finding::deviation(format!(
+                    "{} replies began less than t3.5 ({} us, less a tolerance of one character, {} us) after the request ended; the earliest after {} us",
+                    early.len(),
+                    t35.as_micros(),
+                    tolerance.as_micros(),
+                    first.as_micros()
+                )));
+            }
+            Ok(v)
+        },
+    ));
+    out.push(check(
+        format!("{m}.exception-codes"),
+        "Exception codes the device sent during this mode's checks, against the manual's table"
+            .to_string(),
+        format!("{}, {}", model.manual, model.exception_codes_source),
+        false,
+        false,
+        |ctx| {
+            let table: Vec<u8> = ctx.model.exception_codes.iter().map(|(c, _)| *c).collect();
+            let seen: Vec<u8> = ctx.codes_seen.iter().copied().collect();
+            let hex = |v: &[u8]| {
+                v.iter()
+                    .map(|c| format!("{c:02X}"))
+                    .collect::<Vec<_>>()
+                    .join(" ")
+            };
+            let foreign: Vec<u8> = seen
+                .iter()
+                .copied()
+                .filter(|c| !table.contains(c))
+                .collect();
+            let unseen: Vec<u8> = table
+                .iter()
+                .copied()
+                .filter(|c| !seen.contains(c))
+                .collect();
+            let mut v = Verdict {
+                pass_summary: format!("table {}; sent {}", hex(&table), hex(&seen)),
+                ..Verdict::default()
+            };
+            if !foreign.is_empty() {
+                v.findings.push(Finding::deviation(format!(
+                    "the device sent exception codes that are not in the manual's table ({}): {}",
+                    hex(&table),
+                    hex(&foreign)
+                )));
+            }
+            if !unseen.is_empty() {
+                v.findings.push(Finding::observation(format!(
+                    "codes of the table that no check elicited: {} (sent: {})",
+                    hex(&unseen),
+                    hex(&seen)
+                )));
+            }
+            Ok(v)
+        },
+    ));
+}

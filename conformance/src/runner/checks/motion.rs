@@ -1,0 +1,146 @@
+//! Checks that move the motor (run/stop, external fault): only with --allow-motion.
+
+use std::time::Duration;
+
+use super::*;
+
+pub(super) fn motion(model: &DriveModel, m: &str, out: &mut Vec<Check>) {
+    let (Some(op), Some(st)) = (
+        model.register_with_role(Role::Operation),
+        model.register_with_role(Role::Status),
+    ) else {
+        return;
+    };
+    let bits = model.bits;
+    let fc = model.register_with_role(Role::FrequencyCommand);
+    let outf = model.register_with_role(Role::OutputFrequency);
+    let src = model
+        .named(op)
+        .and_then(|n| n.fact.source.clone())
+        .unwrap_or_default();
+    let source = format!("{}, {src}", model.manual);
+    if let (Some(run), Some(running)) = (bits.run, bits.running) {
+        out.push(check(
+            format!("{m}.motion.run-stop"),
+            format!("Run at 10.00 Hz ({op:04X}H bit {run}), watch {st:04X}H and the output frequency, then stop"),
+            source.clone(),
+            true,
+            true,
+            move |ctx| {
+                let mut findings = Vec::new();
+                for r in [Some(op), fc].into_iter().flatten() {
+                    if let Err(e) = ctx.remember(r)? {
+                        return Ok(Verdict::error(format!("cannot read {r:04X}H first: {e}")));
+                    }
+                }
+                if let Some(f) = fc {
+                    if let Err(e) = ctx.write(f, 1000)? {
+                        return Ok(Verdict::error(e));
+                    }
+                }
+                let w = ctx.probe(ctx.frame(Pdu::WriteSingle { register: op, value: 1 << run }), None)?;
+                findings.extend(w.comparison.findings.clone());
+                std::thread::sleep(Duration::from_millis(300));
+                match ctx.read(st, 1)? {
+                    Ok(v) if v[0] & (1 << running) != 0 => {}
+                    Ok(v) => findings.push(Finding::deviation(format!("after the run command {st:04X}H reads {:04X}H: bit {running} (running) is 0", v[0]))),
+                    Err(e) => findings.push(Finding::deviation(e)),
+                }
+                if let Some(o) = outf {
+                    let mut moving = false;
+                    for _ in 0..30 {
+                        if let Ok(v) = ctx.read(o, 1)? {
+                            if v[0] > 0 {
+                                moving = true;
+                                break;
+                            }
+                        }
+                        std::thread::sleep(Duration::from_millis(100));
+                    }
+                    if !moving {
+                        findings.push(Finding::observation(format!("the output frequency {o:04X}H stayed 0 for 3 s after the run command (acceleration time?)")));
+                    }
+                }
+                let s = ctx.probe(ctx.frame(Pdu::WriteSingle { register: op, value: 0 }), None)?;
+                findings.extend(s.comparison.findings.clone());
+                let mut stopped = false;
+                for _ in 0..100 {
+                    if let Ok(v) = ctx.read(st, 1)? {
+                        if v[0] & (1 << running) == 0 {
+                            stopped = true;
+                            break;
+                        }
+                    }
+                    std::thread::sleep(Duration::from_millis(100));
+                }
+                if !stopped {
+                    findings.push(Finding::deviation(format!("{st:04X}H bit {running} (running) still set 10 s after the stop command")));
+                }
+                Ok(Verdict {
+                    findings,
+                    exchanges: vec![w.record(), s.record()],
+                    pass_summary: format!("{st:04X}H bit {running} follows the run command, the output frequency rises, and the drive stops"),
+                    ..Verdict::default()
+                })
+            },
+        ));
+    }
+    if let (Some(ef), Some(reset), Some(fault)) =
+        (bits.external_fault, bits.fault_reset, bits.fault)
+    {
+        let code = model.external_fault_code.clone();
+        let fault_reg = model.register_with_role(Role::FaultCode);
+        out.push(check(
+            format!("{m}.motion.external-fault"),
+            format!("Raise an external fault ({op:04X}H bit {ef}), read {st:04X}H and the fault code, then reset it (bit {reset})"),
+            source,
+            true,
+            true,
+            move |ctx| {
+                let mut findings = Vec::new();
+                if let Err(e) = ctx.remember(op)? {
+                    return Ok(Verdict::error(format!("cannot read {op:04X}H first: {e}")));
+                }
+                let w = ctx.probe(ctx.frame(Pdu::WriteSingle { register: op, value: 1 << ef }), None)?;
+                findings.extend(w.comparison.findings.clone());
+                std::thread::sleep(Duration::from_millis(200));
+                match ctx.read(st, 1)? {
+                    Ok(v) if v[0] & (1 << fault) != 0 => {}
+                    Ok(v) => findings.push(Finding::deviation(format!("after the external fault {st:04X}H reads {:04X}H: bit {fault} (fault) is 0", v[0]))),
+                    Err(e) => findings.push(Finding::deviation(e)),
+                }
+                if let (Some(fr), Some((c, fact))) = (fault_reg, &code) {
+                    match ctx.read(fr, 1)? {
+                        Ok(v) if v[0] == *c && fact.basis == Basis::Decision => {
+                            findings.push(Finding::observation(format!(
+                                "fault code {fr:04X}H reads {c}, as the model decides ({})",
+                                fact.citation()
+                            )))
+                        }
+                        Ok(v) if v[0] == *c => {}
+                        Ok(v) => findings.push(Finding {
+                            severity: super::super::Severity::of(fact.basis),
+                            text: format!("fault code {fr:04X}H reads {} (model: {c}, {})", v[0], fact.citation()),
+                        }),
+                        Err(e) => findings.push(Finding::deviation(e)),
+                    }
+                }
+                let r = ctx.probe(ctx.frame(Pdu::WriteSingle { register: op, value: 1 << reset }), None)?;
+                findings.extend(r.comparison.findings.clone());
+                std::thread::sleep(Duration::from_millis(200));
+                let _ = ctx.write(op, 0)?;
+                match ctx.read(st, 1)? {
+                    Ok(v) if v[0] & (1 << fault) == 0 => {}
+                    Ok(v) => findings.push(Finding::deviation(format!("after the fault reset {st:04X}H reads {:04X}H: bit {fault} (fault) is still 1", v[0]))),
+                    Err(e) => findings.push(Finding::deviation(e)),
+                }
+                Ok(Verdict {
+                    findings,
+                    exchanges: vec![w.record(), r.record()],
+                    pass_summary: format!("{st:04X}H bit {fault} shows the external fault and clears on reset"),
+                    ..Verdict::default()
+                })
+            },
+        ));
+    }
+}
