@@ -49,7 +49,7 @@
 //! fails.
 
 mod common;
-use common::{bin, Kill};
+use common::{tool_or_skip, Kill};
 
 use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
@@ -59,16 +59,6 @@ use std::time::{Duration, Instant};
 
 const SERVER_C: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/libmodbus/server.c");
 
-fn tool_or_skip(ok: bool, what: &str) -> bool {
-    if ok {
-        return true;
-    }
-    let msg = format!("SKIPPED: {what}");
-    assert!(std::env::var_os("CI").is_none(), "{msg}");
-    eprintln!("{msg}");
-    false
-}
-
 fn runs(cmd: &str, args: &[&str]) -> bool {
     Command::new(cmd)
         .args(args)
@@ -76,18 +66,6 @@ fn runs(cmd: &str, args: &[&str]) -> bool {
         .stderr(Stdio::null())
         .status()
         .is_ok_and(|s| s.success())
-}
-
-fn wait_for(p: &Path) {
-    let t0 = Instant::now();
-    while !p.exists() {
-        assert!(
-            t0.elapsed() < Duration::from_secs(10),
-            "{} did not appear",
-            p.display()
-        );
-        std::thread::sleep(Duration::from_millis(20));
-    }
 }
 
 /// Builds the server into `dir`; `None` (after SKIPPED) when a tool is missing.
@@ -151,17 +129,7 @@ fn libmodbus_rtu_server_checked_as_f510() {
     let Some(server) = build_server(&dir) else {
         return;
     };
-    let (a, b): (PathBuf, PathBuf) = (dir.join("ttyA"), dir.join("ttyB"));
-    let _socat = Kill(
-        Command::new("socat")
-            .arg(format!("pty,raw,echo=0,link={}", a.display()))
-            .arg(format!("pty,raw,echo=0,link={}", b.display()))
-            .stderr(Stdio::null())
-            .spawn()
-            .unwrap(),
-    );
-    wait_for(&a);
-    wait_for(&b);
+    let (_socat, a, b) = common::socat_pair(&dir);
     let mut server = Kill(
         Command::new(&server)
             .args([a.to_str().unwrap(), "1"])
@@ -185,41 +153,27 @@ fn libmodbus_rtu_server_checked_as_f510() {
         "the server did not start"
     );
 
-    let t0 = Instant::now();
-    let mut run = Kill(
-        Command::new(bin())
-            .args(["check", "--model", "f510", "--port", b.to_str().unwrap()])
-            .args(["-P", "none", "--mode", "rtu", "--timeout", "1000"])
-            .args(["--format", "json", "--quiet", "-o"])
-            .arg(dir.join("report.json"))
-            .stdout(Stdio::null())
-            .stderr(Stdio::piped())
-            .spawn()
-            .unwrap(),
+    // Bounded: a hang is a failure, not a stalled CI job (the run takes about 30 s).
+    let t0 = std::time::Instant::now();
+    let (exit, v) = common::check_device(
+        &dir,
+        &[
+            "--model",
+            "f510",
+            "--port",
+            b.to_str().unwrap(),
+            "-P",
+            "none",
+            "--mode",
+            "rtu",
+            "--timeout",
+            "1000",
+        ],
+        Duration::from_secs(180),
     );
-    // Bounded: a hang is a failure, not a stalled CI job (the run takes about 15 s).
-    let exit = loop {
-        if let Some(s) = run.0.try_wait().unwrap() {
-            break s;
-        }
-        assert!(t0.elapsed() < Duration::from_secs(180), "the runner hangs");
-        std::thread::sleep(Duration::from_millis(100));
-    };
-    let mut err = Vec::new();
-    std::io::Read::read_to_end(run.0.stderr.as_mut().unwrap(), &mut err).unwrap();
-    let stderr = String::from_utf8_lossy(&err);
-    assert!(!stderr.contains("panicked"), "{stderr}");
-    let out = std::fs::read(dir.join("report.json")).unwrap();
-    let v: serde_json::Value =
-        serde_json::from_slice(&out).unwrap_or_else(|e| panic!("{e}: {stderr}"));
-    let schema = jsonschema::validator_for(
-        &serde_json::from_str(include_str!("../../vectors/schema/report.schema.json")).unwrap(),
-    )
-    .unwrap();
-    assert!(schema.is_valid(&v));
     assert_eq!(v["complete"], true, "{}", v["stopped"]);
     assert_eq!(v["summary"]["error"], 0, "{}", v["summary"]);
-    assert_eq!(exit.code(), Some(1), "{}: {stderr}", v["summary"]);
+    assert_eq!(exit, Some(1), "{}", v["summary"]);
     assert_eq!(v["exit_code"], 1);
     assert!(
         v["summary"]["pass"].as_u64().unwrap() > 10,

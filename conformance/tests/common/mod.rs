@@ -34,3 +34,81 @@ pub fn missing(what: &str) -> bool {
     note(&format!("SKIPPED: {what}"));
     false
 }
+
+/// Prints `SKIPPED: <what>` and returns false when `ok` is false (panics under CI).
+pub fn tool_or_skip(ok: bool, what: &str) -> bool {
+    ok || missing(what)
+}
+
+/// Waits (at most 10 s) for a path to appear.
+pub fn wait_for(p: &std::path::Path) {
+    let t0 = std::time::Instant::now();
+    while !p.exists() {
+        assert!(
+            t0.elapsed() < std::time::Duration::from_secs(10),
+            "{} did not appear",
+            p.display()
+        );
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    }
+}
+
+/// A socat pseudo-terminal pair linked at `dir/ttyA` and `dir/ttyB`: a line between a
+/// device under test (on A) and the runner (on B).
+pub fn socat_pair(dir: &std::path::Path) -> (Kill, std::path::PathBuf, std::path::PathBuf) {
+    let (a, b) = (dir.join("ttyA"), dir.join("ttyB"));
+    let socat = Kill(
+        std::process::Command::new("socat")
+            .arg(format!("pty,raw,echo=0,link={}", a.display()))
+            .arg(format!("pty,raw,echo=0,link={}", b.display()))
+            .stderr(std::process::Stdio::null())
+            .spawn()
+            .unwrap(),
+    );
+    wait_for(&a);
+    wait_for(&b);
+    (socat, a, b)
+}
+
+/// Runs `conformance check ARGS --format json -o dir/report.json` with a bound on its
+/// time (a hang is a failure, not a stalled CI job), asserts it did not panic and that
+/// the report matches its schema; returns the exit code and the report.
+pub fn check_device(
+    dir: &std::path::Path,
+    args: &[&str],
+    limit: std::time::Duration,
+) -> (Option<i32>, serde_json::Value) {
+    let report = dir.join("report.json");
+    let t0 = std::time::Instant::now();
+    let mut run = Kill(
+        std::process::Command::new(bin())
+            .arg("check")
+            .args(args)
+            .args(["--format", "json", "--quiet", "-o"])
+            .arg(&report)
+            .stdout(std::process::Stdio::null())
+            .stderr(std::process::Stdio::piped())
+            .spawn()
+            .unwrap(),
+    );
+    let exit = loop {
+        if let Some(s) = run.0.try_wait().unwrap() {
+            break s;
+        }
+        assert!(t0.elapsed() < limit, "the runner hangs");
+        std::thread::sleep(std::time::Duration::from_millis(100));
+    };
+    let mut err = Vec::new();
+    std::io::Read::read_to_end(run.0.stderr.as_mut().unwrap(), &mut err).unwrap();
+    let stderr = String::from_utf8_lossy(&err);
+    assert!(!stderr.contains("panicked"), "{stderr}");
+    let out = std::fs::read(&report).unwrap();
+    let v: serde_json::Value =
+        serde_json::from_slice(&out).unwrap_or_else(|e| panic!("{e}: {stderr}"));
+    let schema = jsonschema::validator_for(
+        &serde_json::from_str(include_str!("../../../vectors/schema/report.schema.json")).unwrap(),
+    )
+    .unwrap();
+    assert!(schema.is_valid(&v), "the report does not match its schema");
+    (exit.code(), v)
+}
