@@ -283,6 +283,7 @@ pub fn run(
             report.device.identification = mode_run.identification;
         }
         report.restore.extend(mode_run.restore);
+        report.budget.insert(mode.to_string(), mode_run.budget);
         if let Some(why) = mode_run.stopped {
             report.stopped = Some(why);
             break;

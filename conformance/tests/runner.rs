@@ -29,6 +29,7 @@ fn options(only: &[&str]) -> Options {
         timing: MasterTiming {
             timeout: Duration::from_millis(500),
             silence: Duration::from_millis(250),
+            derive_silence: false,
             quiet: Duration::from_millis(30),
             gap: Duration::from_millis(5),
             retries: 0,
@@ -42,6 +43,7 @@ fn options(only: &[&str]) -> Options {
         seed: 1,
         echo: conformance::runner::EchoMode::Auto,
         allow_restart: false,
+        line: None,
     }
 }
 

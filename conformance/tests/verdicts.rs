@@ -98,6 +98,25 @@ fn is_aggregate(id: &str) -> bool {
     AGGREGATES.iter().any(|a| id.ends_with(a))
 }
 
+/// The timing aggregates: what they say depends on how busy the host is (a paced
+/// pseudo-terminal on a loaded machine stalls for tens of milliseconds), so the matrix
+/// does not hold them to a verdict, except where a quirk's effect is far over any noise
+/// (a reply 400 ms late). Timing is measured by the benches and by the runner's own
+/// single-session test, not asserted here.
+fn is_timing(id: &str) -> bool {
+    id.ends_with("response-time") || id.ends_with("line-timing")
+}
+
+/// Whether swapping the two checksum bytes (RTU) or characters (ASCII) of `reply`
+/// changes it: a swap of two equal ones is no fault on the wire.
+fn swap_shows(mode: Mode, reply: &[u8]) -> bool {
+    let n = reply.len();
+    match mode {
+        Mode::Rtu => n >= 2 && reply[n - 1] != reply[n - 2],
+        Mode::Ascii => n >= 4 && reply[n - 3] != reply[n - 4],
+    }
+}
+
 fn run(cell: Cell, quirk: Option<Quirk>) -> Report {
     let line = LineSettings::new(cell.baud, 8, Parity::Even, 1);
     let options = Options {
@@ -109,6 +128,7 @@ fn run(cell: Cell, quirk: Option<Quirk>) -> Report {
         timing: MasterTiming {
             timeout: Duration::from_millis(1000),
             silence: Duration::from_millis(250),
+            derive_silence: false,
             quiet: Duration::from_millis(30),
             gap: Duration::from_millis(5),
             retries: 0,
@@ -119,6 +139,7 @@ fn run(cell: Cell, quirk: Option<Quirk>) -> Report {
         seed: 1,
         echo: EchoMode::Auto,
         allow_restart: false,
+        line: None,
     };
     let config = SessionConfig {
         model: Arc::new(DriveModel::builtin(cell.model).unwrap()),
@@ -171,7 +192,7 @@ fn judge(cell: Cell, quirk: Option<Quirk>, clean: &Report, r: &Report) -> Result
     let before = statuses(clean);
     let after = statuses(r);
     let same_as_clean = |ids: &mut dyn Iterator<Item = &String>| -> Result<(), String> {
-        for id in ids {
+        for id in ids.filter(|id| !is_timing(id)) {
             if before.get(id) != after.get(id) {
                 return Err(format!(
                     "{id} changed from {:?} to {:?}, but this quirk should not touch it",
@@ -184,12 +205,21 @@ fn judge(cell: Cell, quirk: Option<Quirk>, clean: &Report, r: &Report) -> Result
     };
     let of = |id: &str| clean.results.iter().find(|c| c.id == id);
     let Some(q) = quirk else {
-        // Clean: exit 0, no deviation, no error, complete.
-        if r.exit_code() != 0 || !r.complete {
+        // Clean: complete, and no deviation or error (the timing aggregates aside).
+        let bad: Vec<&CheckResult> = r
+            .results
+            .iter()
+            .filter(|c| !is_timing(&c.id))
+            .filter(|c| matches!(c.status, Status::Deviation | Status::Error))
+            .collect();
+        if !r.complete || !bad.is_empty() {
             return fail(format!(
-                "the clean simulator exits {} ({:?})",
-                r.exit_code(),
-                r.stopped
+                "the clean simulator: {:?}; {}",
+                r.stopped,
+                bad.iter()
+                    .map(|c| format!("{} {}", c.status, c.id))
+                    .collect::<Vec<_>>()
+                    .join(", ")
             ));
         }
         return Ok(());
@@ -258,7 +288,12 @@ fn judge(cell: Cell, quirk: Option<Quirk>, clean: &Report, r: &Report) -> Result
                     continue;
                 }
                 let now = after.get(&c.id).copied();
-                if gets_reply(c) && !matches!(now, Some(Status::Deviation | Status::Error)) {
+                let shows = name != "crc-swap"
+                    || c.exchanges
+                        .iter()
+                        .any(|e| e.reply.as_deref().is_some_and(|x| swap_shows(cell.mode, x)));
+                if gets_reply(c) && shows && !matches!(now, Some(Status::Deviation | Status::Error))
+                {
                     return fail(format!("{} gets a reply but is {now:?}", c.id));
                 }
             }
@@ -278,7 +313,11 @@ fn judge(cell: Cell, quirk: Option<Quirk>, clean: &Report, r: &Report) -> Result
                 let now = after.get(&c.id).copied();
                 let want_caught = gets_exception(c, cell.mode);
                 let ok = match (want_caught, c.status) {
-                    (true, Status::Pass) => now == Some(Status::Deviation),
+                    // Caught: a deviation, or an observation where the code the model
+                    // predicts is a decision.
+                    (true, Status::Pass) => {
+                        matches!(now, Some(Status::Deviation | Status::Observation))
+                    }
                     (true, _) => matches!(now, Some(Status::Deviation | Status::Observation)),
                     (false, s) => now == Some(s),
                 };
@@ -305,7 +344,7 @@ fn judge(cell: Cell, quirk: Option<Quirk>, clean: &Report, r: &Report) -> Result
                     if now != Some(Status::Deviation) {
                         return fail(format!("{} should catch it but is {now:?}", c.id));
                     }
-                } else if !is_aggregate(&c.id) && now != Some(c.status) {
+                } else if !is_timing(&c.id) && now != Some(c.status) {
                     return fail(format!("{} changed from {:?} to {now:?}", c.id, c.status));
                 }
             }
@@ -319,7 +358,7 @@ fn judge(cell: Cell, quirk: Option<Quirk>, clean: &Report, r: &Report) -> Result
             same_as_clean(&mut before.keys().filter(|id| !is_aggregate(id)))
         }
         n if n.starts_with("drop-every") => {
-            if !r.complete || r.summary().error != 0 {
+            if !r.complete || r.results.iter().any(|c| c.status == Status::Error) {
                 return fail("the liveness probes must prove the device alive after each dropped reply: no ERROR, complete".into());
             }
             if !r

@@ -131,7 +131,8 @@ pub struct CheckArgs {
     #[arg(long, value_name = "MS", default_value_t = 1000)]
     timeout: u64,
     /// Milliseconds to listen where no reply is expected (broadcast, bad CRC, ...);
-    /// default: the timeout, or 300 with --sim (the simulator answers in 10 ms).
+    /// default: derived from the device's measured response time (twice the longest
+    /// reply delay, plus t3.5 and 20 ms, at least 50 ms, at most the timeout).
     #[arg(long, value_name = "MS")]
     silence: Option<u64>,
     /// Resend a request this many times when no byte comes back.
@@ -269,11 +270,10 @@ pub fn run(args: CheckArgs) -> anyhow::Result<ExitCode> {
         only: args.only.clone(),
         timing: MasterTiming {
             timeout,
-            silence: Duration::from_millis(args.silence.unwrap_or(if is_sim {
-                args.timeout.min(300)
-            } else {
-                args.timeout
-            })),
+            // Given: used as it is. Not given: derived from the device's measured
+            // response time, at most the timeout.
+            silence: Duration::from_millis(args.silence.unwrap_or(args.timeout)),
+            derive_silence: args.silence.is_none(),
             quiet: Duration::from_millis(30),
             gap: Duration::from_millis(5).max(Duration::from_micros(line.t3_5_us())),
             retries: args.retries,
@@ -282,6 +282,7 @@ pub fn run(args: CheckArgs) -> anyhow::Result<ExitCode> {
         gap_allowance: Duration::from_micros(args.gap_allowance.unwrap_or(20_000)),
         seed: args.seed,
         echo: args.echo,
+        line: Some(line),
         allow_restart: args.allow_restart,
     };
     let config = SessionConfig {

@@ -18,7 +18,7 @@ pub use text::text;
 
 use crate::codec::hex::Hex;
 use crate::codec::Mode;
-use crate::runner::{CheckResult, RestoreRecord, Status};
+use crate::runner::{CheckResult, ModeBudget, RestoreRecord, Status};
 
 /// Schema version of the JSON report.
 pub const SCHEMA_VERSION: u32 = 1;
@@ -113,6 +113,8 @@ pub struct Report {
     pub results: Vec<CheckResult>,
     /// Registers restored at the end.
     pub restore: Vec<RestoreRecord>,
+    /// Per mode: the wall time against the line's lower bound.
+    pub budget: BTreeMap<String, ModeBudget>,
 }
 
 /// Counts per status.
@@ -237,8 +239,27 @@ impl Report {
             },
             "checks": checks,
             "restore": restore,
+            "budget": self.budget.iter().map(|(mode, b)| (mode.clone(), budget_json(b))).collect::<serde_json::Map<String, Value>>(),
         })
     }
+}
+
+fn ms(d: std::time::Duration) -> f64 {
+    (d.as_secs_f64() * 10_000.0).round() / 10.0
+}
+
+fn budget_json(b: &ModeBudget) -> Value {
+    json!({
+        "wall_ms": ms(b.wall),
+        "bound_ms": ms(b.bound),
+        "efficiency": (b.efficiency() * 1000.0).round() / 1000.0,
+        "frames": b.line.frames,
+        "bytes_sent": b.line.bytes_sent,
+        "bytes_received": b.line.bytes_received,
+        "response_ms": ms(b.line.response),
+        "max_response_ms": ms(b.line.max_response),
+        "silences": b.line.silences,
+    })
 }
 
 fn check_json(r: &CheckResult) -> Value {

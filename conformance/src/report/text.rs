@@ -106,6 +106,17 @@ pub fn text(r: &Report, verbose: bool) -> String {
             format!(", only {}", r.options.only.join(" "))
         }
     );
+    for (mode, b) in &r.budget {
+        let _ = writeln!(
+            o,
+            "budget:  {mode}: {:.1} s for {} frames; the line and the device need {:.1} s ({:.0}%: bytes at the character time, t3.5 before each frame, the device's response delays, its longest delay for each of {} silences)",
+            b.wall.as_secs_f64(),
+            b.line.frames,
+            b.bound.as_secs_f64(),
+            b.efficiency() * 100.0,
+            b.line.silences
+        );
+    }
     let section = |o: &mut String, status: Status, heading: &str, exchanges: bool| {
         let all: Vec<&CheckResult> = r.results.iter().filter(|c| c.status == status).collect();
         if all.is_empty() {

@@ -97,13 +97,55 @@ impl std::fmt::Display for EchoMode {
     }
 }
 
+/// Where a mode's time went, against what the line needs: the lower bound of a run is
+/// the bytes on the wire at the line's character time, t3.5 before every frame, the
+/// device's measured response delays, and for every silence the device's longest
+/// measured response delay (the least wait that proves no reply is coming).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct LineBudget {
+    /// Requests sent (resends included) and raw sends.
+    pub frames: u64,
+    /// Bytes (RTU) or characters (ASCII) sent.
+    pub bytes_sent: u64,
+    /// Bytes or characters received.
+    pub bytes_received: u64,
+    /// Sum of the device's response delays (request end to reply start).
+    pub response: Duration,
+    /// Exchanges that ended in silence.
+    pub silences: u64,
+    /// Longest response delay measured.
+    pub max_response: Duration,
+    /// Wall time of the exchanges (waiting for the gap, sending, listening).
+    pub busy: Duration,
+}
+
+impl LineBudget {
+    /// The lower bound of the exchanges on `line`: what the line and the device need.
+    pub fn bound(&self, line: &crate::codec::timing::LineSettings) -> Duration {
+        let ct = Duration::from_micros(line.char_time_us());
+        let t35 = Duration::from_micros(line.t3_5_us());
+        let wire = ct * u32::try_from(self.bytes_sent + self.bytes_received).unwrap_or(u32::MAX);
+        let gaps = t35 * u32::try_from(self.frames).unwrap_or(u32::MAX);
+        let silences = (self.max_response + ct) * u32::try_from(self.silences).unwrap_or(u32::MAX);
+        wire + gaps + self.response + silences
+    }
+}
+
+/// Least silence window the master derives (the device's measured response time decides
+/// beyond it).
+pub const SILENCE_FLOOR: Duration = Duration::from_millis(50);
+
 /// Timing of the master.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct MasterTiming {
     /// How long to wait for the first byte of a reply.
     pub timeout: Duration,
-    /// How long to listen when no reply is expected.
+    /// How long to listen when no reply is expected; with `derive_silence`, the most.
     pub silence: Duration,
+    /// Derive the silence window from the device's measured response time: twice the
+    /// longest reply delay seen, plus t3.5 and 20 ms, at least [`SILENCE_FLOOR`], at most
+    /// `silence` (which is used as it is until a reply has been measured).
+    pub derive_silence: bool,
     /// Quiet time that ends a reply.
     pub quiet: Duration,
     /// Least time between the end of one exchange and the next request.
@@ -120,6 +162,7 @@ pub struct Master<T: Transport + ?Sized> {
     echo_mode: EchoMode,
     /// With [`EchoMode::Auto`]: what the line has shown (None until an exchange told).
     echo_seen: Option<bool>,
+    budget: LineBudget,
     transport: Box<T>,
 }
 
@@ -132,8 +175,29 @@ impl<T: Transport + ?Sized> Master<T> {
             last_end: None,
             echo_mode: EchoMode::Auto,
             echo_seen: None,
+            budget: LineBudget::default(),
             transport,
         }
+    }
+
+    /// Where the time of the exchanges so far went.
+    pub fn budget(&self) -> LineBudget {
+        self.budget
+    }
+
+    /// The silence window: fixed, or derived from the device's measured response time.
+    pub fn silence_window(&self) -> Duration {
+        let cap = self.timing.silence;
+        if !self.timing.derive_silence || self.budget.max_response.is_zero() {
+            return cap;
+        }
+        let t35 = self
+            .transport
+            .line_timing()
+            .map_or(Duration::ZERO, |l| Duration::from_micros(l.t3_5_us()));
+        (self.budget.max_response * 2 + t35 + Duration::from_millis(20))
+            .max(SILENCE_FLOOR)
+            .min(cap)
     }
 
     /// Sets what to do about a local echo.
@@ -174,10 +238,14 @@ impl<T: Transport + ?Sized> Master<T> {
 
     /// Sends raw bytes that are not a request (garbage, a partial frame) and waits the gap.
     pub fn send_raw(&mut self, bytes: &[u8], pause: Duration) -> Result<(), TransportError> {
+        let t0 = Instant::now();
         self.wait_gap();
         self.transport.send(bytes)?;
         std::thread::sleep(pause);
         self.last_end = Some(Instant::now());
+        self.budget.frames += 1;
+        self.budget.bytes_sent += bytes.len() as u64;
+        self.budget.busy += t0.elapsed();
         Ok(())
     }
 
@@ -229,14 +297,15 @@ impl<T: Transport + ?Sized> Master<T> {
         expect_reply: bool,
         retries: u32,
     ) -> Result<Exchange, TransportError> {
+        let t0 = Instant::now();
         self.wait_gap();
         self.transport.discard_input()?;
         self.transport.send(request)?;
-        let sent = Instant::now();
+        let sent = self.transport.sent_at().unwrap_or_else(Instant::now);
         let wait = if expect_reply {
             self.timing.timeout
         } else {
-            self.timing.silence
+            self.silence_window()
         };
         let deadline = sent + wait;
         let mut raw = Vec::new();
@@ -263,9 +332,14 @@ impl<T: Transport + ?Sized> Master<T> {
         loop {
             let now = Instant::now();
             let seen = Seen::of(request, &raw, echoes, copy_may_be_reply);
-            let limit = if seen.waiting() {
-                // Nothing but (part of) an echo, or a copy that may be an echo: the reply
-                // may still come, so listen for the whole response window.
+            let skip = seen.skip(request);
+            let unfinished =
+                expect_reply && !complete && starts_a_reply(self.mode, request, &raw[skip..]);
+            let limit = if seen.waiting() || unfinished {
+                // Nothing but (part of) an echo, or a copy that may be an echo, or a reply
+                // whose rest has not come: listen for the whole response window (a reply
+                // that stalls mid-frame, on a busy host or behind a USB adapter's latency
+                // timer, is still collected whole; the line-timing check reports the gap).
                 deadline.saturating_duration_since(now)
             } else {
                 // Once a whole reply is in, a short settle catches trailing bytes; before
@@ -296,12 +370,14 @@ impl<T: Transport + ?Sized> Master<T> {
                 if raw.len() > 4 * MAX_ASCII_FRAME {
                     break;
                 }
-            } else if Instant::now() >= deadline && seen.waiting() {
+            } else if Instant::now() >= deadline && (seen.waiting() || unfinished) {
                 break;
             }
         }
         let end = Instant::now();
-        self.last_end = Some(end);
+        // The line has been quiet since the last byte (or since the request): the gap
+        // before the next request counts from there, not from the end of listening.
+        self.last_end = Some(last_rx.unwrap_or(sent));
         let seen = Seen::of(request, &raw, echoes, copy_may_be_reply);
         // What the exchange taught about the line (auto mode): a copy followed by more
         // bytes, or a copy of a request that cannot be its own reply, is an echo; a reply
@@ -322,6 +398,7 @@ impl<T: Transport + ?Sized> Master<T> {
         let echo = skip > 0;
         let first_byte = first_arrival_after(&chunks, skip);
         let (leading, reply, trailing) = find_reply(self.mode, request, &raw[skip..]);
+        self.account(request, &raw[skip..], first_byte, reply.is_some(), end - t0);
         Ok(Exchange {
             request: request.to_vec(),
             raw,
@@ -334,6 +411,36 @@ impl<T: Transport + ?Sized> Master<T> {
             listened: end.duration_since(sent),
             retries,
         })
+    }
+}
+
+impl<T: Transport + ?Sized> Master<T> {
+    fn account(
+        &mut self,
+        request: &[u8],
+        rx: &[u8],
+        first_byte: Option<Duration>,
+        replied: bool,
+        busy: Duration,
+    ) {
+        let b = &mut self.budget;
+        b.frames += 1;
+        b.bytes_sent += request.len() as u64;
+        b.bytes_received += rx.len() as u64;
+        b.busy += busy;
+        if rx.is_empty() {
+            b.silences += 1;
+        }
+        if let (true, Some(t)) = (replied, first_byte) {
+            // The first byte arrives one character after the reply starts on a line.
+            let ct = self
+                .transport
+                .line_timing()
+                .map_or(Duration::ZERO, |l| Duration::from_micros(l.char_time_us()));
+            let delay = t.saturating_sub(ct);
+            b.response += delay;
+            b.max_response = b.max_response.max(delay);
+        }
     }
 }
 
@@ -394,6 +501,50 @@ impl Seen {
             Seen::Echo | Seen::EchoOnly => request.len(),
             _ => 0,
         }
+    }
+}
+
+/// Whether `rx` ends in the start of a reply to `request` whose rest is missing: in RTU
+/// the request's address, then its function (or its exception) with fewer bytes than
+/// the length rule gives; in ASCII a ':' without the CR LF that ends it.
+fn starts_a_reply(mode: Mode, request: &[u8], rx: &[u8]) -> bool {
+    match mode {
+        Mode::Rtu => {
+            let (Some(&address), Some(&fc)) = (request.first(), request.get(1)) else {
+                return false;
+            };
+            (0..rx.len()).any(|i| {
+                let rest = &rx[i..];
+                if rest[0] != address {
+                    return false;
+                }
+                match rest.get(1) {
+                    // A lone address byte is a reply under way only at the start.
+                    None => i == 0,
+                    Some(&f) if f == fc || f == fc | function::EXCEPTION_BIT => {
+                        let want = if f == function::LOOP_BACK {
+                            Some(request.len())
+                        } else {
+                            rtu_frame_len(Direction::Response, rest)
+                        };
+                        match want {
+                            Some(n) => n > rest.len() && n <= crate::codec::MAX_RTU_FRAME,
+                            // The byte count is not in yet (03H), or the length of an
+                            // unmodelled function's reply is unknown: only a count that
+                            // is still missing says more is coming.
+                            None => f == function::READ_HOLDING_REGISTERS && rest.len() < 3,
+                        }
+                    }
+                    Some(_) => false,
+                }
+            })
+        }
+        Mode::Ascii => match rx.iter().rposition(|&c| c == ascii::START) {
+            Some(s) => {
+                !rx[s..].windows(2).any(|w| w == ascii::END) && rx.len() - s < MAX_ASCII_FRAME
+            }
+            None => false,
+        },
     }
 }
 
@@ -469,6 +620,129 @@ pub fn find_reply(mode: Mode, request: &[u8], rx: &[u8]) -> (Vec<u8>, Option<Vec
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::transport::memory;
+
+    fn timing() -> MasterTiming {
+        MasterTiming {
+            timeout: Duration::from_millis(800),
+            silence: Duration::from_millis(100),
+            derive_silence: false,
+            quiet: Duration::from_millis(30),
+            gap: Duration::from_millis(1),
+            retries: 0,
+        }
+    }
+
+    /// A peer that reads one request and answers with `pieces`, each after its delay.
+    /// It hands its end back, so that the line stays open until the test is done.
+    fn peer(
+        mut t: memory::MemoryEnd,
+        pieces: Vec<(u64, Vec<u8>)>,
+    ) -> std::thread::JoinHandle<memory::MemoryEnd> {
+        std::thread::spawn(move || {
+            let mut buf = [0u8; 64];
+            let t0 = Instant::now();
+            while t.recv(&mut buf, Duration::from_millis(20)).unwrap_or(0) == 0 {
+                if t0.elapsed() > Duration::from_secs(2) {
+                    return t;
+                }
+            }
+            for (ms, bytes) in pieces {
+                std::thread::sleep(Duration::from_millis(ms));
+                let _ = t.send(&bytes);
+            }
+            t
+        })
+    }
+
+    #[test]
+    fn a_reply_that_stalls_mid_frame_is_collected_whole() {
+        let req = [0x01, 0x03, 0x25, 0x20, 0x00, 0x01, 0x8E, 0xCC];
+        let reply = vec![0x01, 0x03, 0x02, 0x00, 0x04, 0xB9, 0x87];
+        for (mode_split, at) in [(Mode::Rtu, 1), (Mode::Rtu, 3), (Mode::Rtu, 6)] {
+            let (a, b) = memory::pair();
+            let h = peer(
+                b,
+                vec![(5, reply[..at].to_vec()), (120, reply[at..].to_vec())],
+            );
+            let mut m = Master::new(Box::new(a), mode_split, timing());
+            let ex = m.exchange(&req, true).unwrap();
+            h.join().unwrap();
+            assert_eq!(
+                ex.reply.as_deref(),
+                Some(&reply[..]),
+                "split at {at}: {:02X?}",
+                ex.raw
+            );
+        }
+        // ASCII: the CR LF comes 120 ms after the rest.
+        let (a, b) = memory::pair();
+        let h = peer(
+            b,
+            vec![(5, b":010302000AF0".to_vec()), (120, b"\r\n".to_vec())],
+        );
+        let mut m = Master::new(Box::new(a), Mode::Ascii, timing());
+        let ex = m.exchange(b":010325200001B6\r\n", true).unwrap();
+        h.join().unwrap();
+        assert_eq!(ex.reply.as_deref(), Some(&b":010302000AF0\r\n"[..]));
+        // A reply cut short for good is kept as it is, after the timeout.
+        let (a, b) = memory::pair();
+        let h = peer(b, vec![(5, reply[..5].to_vec())]);
+        let mut m = Master::new(Box::new(a), Mode::Rtu, timing());
+        let ex = m.exchange(&req, true).unwrap();
+        h.join().unwrap();
+        assert!(ex.reply.is_none());
+        assert_eq!(ex.raw, reply[..5]);
+        assert!(
+            ex.listened >= Duration::from_millis(700),
+            "{:?}",
+            ex.listened
+        );
+    }
+
+    #[test]
+    fn an_echo_is_stripped_and_the_reply_awaited() {
+        // A 06H request: its echo and its reply are the same bytes.
+        let req = vec![0x01, 0x06, 0x25, 0x02, 0x04, 0xD2, 0x20, 0x7F];
+        let req = {
+            let mut r = req[..6].to_vec();
+            let c = crate::codec::crc::crc16(&r);
+            r.extend_from_slice(&c.to_le_bytes());
+            r
+        };
+        let exception = {
+            let mut r = vec![0x01, 0x86, 0x04];
+            let c = crate::codec::crc::crc16(&r);
+            r.extend_from_slice(&c.to_le_bytes());
+            r
+        };
+        // Echo learnt (on), the reply an exception 100 ms after the echo: the exception
+        // is the reply, not the echo.
+        let (a, b) = memory::pair();
+        let h = peer(b, vec![(1, req.clone()), (100, exception.clone())]);
+        let mut m = Master::new(Box::new(a), Mode::Rtu, timing()).with_echo(EchoMode::On);
+        let ex = m.exchange(&req, true).unwrap();
+        h.join().unwrap();
+        assert!(ex.echo);
+        assert_eq!(ex.reply.as_deref(), Some(&exception[..]));
+        // Echo unknown (auto, nothing learnt): a lone copy is not taken while the window
+        // is open; the exception that follows is the reply, and the echo is learnt.
+        let (a, b) = memory::pair();
+        let h = peer(b, vec![(1, req.clone()), (100, exception.clone())]);
+        let mut m = Master::new(Box::new(a), Mode::Rtu, timing());
+        let ex = m.exchange(&req, true).unwrap();
+        h.join().unwrap();
+        assert_eq!(ex.reply.as_deref(), Some(&exception[..]));
+        assert_eq!(m.echoes(), Some(true));
+        // No echo (off): the copy is the reply.
+        let (a, b) = memory::pair();
+        let h = peer(b, vec![(1, req.clone())]);
+        let mut m = Master::new(Box::new(a), Mode::Rtu, timing()).with_echo(EchoMode::Off);
+        let ex = m.exchange(&req, true).unwrap();
+        h.join().unwrap();
+        assert!(!ex.echo);
+        assert_eq!(ex.reply.as_deref(), Some(&req[..]));
+    }
 
     #[test]
     fn the_reply_is_found_after_echo_and_garbage() {

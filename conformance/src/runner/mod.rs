@@ -23,7 +23,7 @@ use serde::Serialize;
 
 pub use checks::{plan, Check};
 pub use compare::{Finding, Severity};
-pub use master::{EchoMode, Exchange, Master, MasterTiming};
+pub use master::{EchoMode, Exchange, LineBudget, Master, MasterTiming};
 
 use crate::codec::pdu::{Direction, Message, Pdu};
 use crate::codec::Mode;
@@ -169,6 +169,9 @@ pub struct Options {
     pub seed: u64,
     /// What to do about a local echo of every request.
     pub echo: EchoMode,
+    /// The line's settings, for the budget where the link has no timing of its own (a
+    /// pseudo-terminal or TCP carries the frames of a line with these settings).
+    pub line: Option<crate::codec::timing::LineSettings>,
     /// Send the 08H sub-functions that restart the device's communications (0001H) or
     /// silence it (0004H, Force Listen Only Mode, undone by 0001H).
     pub allow_restart: bool,
@@ -200,6 +203,29 @@ pub struct ModeRun {
     pub stopped: Option<String>,
     /// Whether the line echoed requests (None: no exchange told).
     pub echo: Option<bool>,
+    /// Where the time went.
+    pub budget: ModeBudget,
+}
+
+/// A mode's wall time against its lower bound on the line.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct ModeBudget {
+    /// Wall time of the mode, restore included.
+    pub wall: Duration,
+    /// What the exchanges needed (see [`LineBudget`]).
+    pub line: LineBudget,
+    /// The line's lower bound for those exchanges.
+    pub bound: Duration,
+}
+
+impl ModeBudget {
+    /// Bound over wall time (1.0: no time beyond what the line and the device need).
+    pub fn efficiency(&self) -> f64 {
+        if self.wall.is_zero() {
+            return 0.0;
+        }
+        self.bound.as_secs_f64() / self.wall.as_secs_f64()
+    }
 }
 
 /// State shared by the checks of one mode.
@@ -567,6 +593,7 @@ pub fn run_mode(
         .into_iter()
         .filter(|c| selected(&c.id, &opts.only))
         .collect();
+    let mode_started = Instant::now();
     let mut ctx = Ctx::new(model, vectors, mode, opts, transport);
     let mut run = ModeRun::default();
     // The preflight runs first, whatever --only selects: nothing can be judged on a line
@@ -644,6 +671,15 @@ pub fn run_mode(
     run.identification = ctx.identification;
     run.echo = ctx.echoes();
     run.restore = ctx.restore();
+    let line = ctx.master.budget();
+    run.budget = ModeBudget {
+        wall: mode_started.elapsed(),
+        line,
+        bound: ctx
+            .line_timing()
+            .or(opts.line)
+            .map_or(Duration::ZERO, |l| line.bound(&l)),
+    };
     run
 }
 

@@ -542,8 +542,15 @@ mod tests {
         for (spelling, _) in QUIRK_HELP {
             let s = spelling.replace("=MS", "=200").replace("=N", "=3");
             let q: Quirk = s.parse().unwrap();
-            assert_eq!(q.to_string(), s);
+            // slow=MS is another spelling of late-reply=MS, which is how it prints.
+            assert_eq!(q.to_string(), s.replace("slow=", "late-reply="));
         }
+        assert_eq!("slow=400".parse::<Quirk>(), Ok(Quirk::LateReply(400)));
+        assert_eq!(
+            "freeze-after=7".parse::<Quirk>(),
+            Ok(Quirk::FreezeAfter(7))
+        );
+        assert!("dead=1".parse::<Quirk>().is_err());
         assert!("drop-every=0".parse::<Quirk>().is_err());
         assert!("late-reply".parse::<Quirk>().is_err());
         assert!("crc".parse::<Quirk>().is_err());

@@ -94,6 +94,13 @@ pub trait Transport: Send {
     /// The kind of link.
     fn kind(&self) -> LinkKind;
 
+    /// When the last character of the last `send` left the line, where the transport
+    /// knows better than the clock read after `send` returns (a paced pseudo-terminal
+    /// computes it from the time of its last write). None: read the clock.
+    fn sent_at(&self) -> Option<std::time::Instant> {
+        None
+    }
+
     /// The line settings whose timing the link reproduces: a real serial port, or a
     /// pseudo-terminal paced at the line's character time. `None` where bytes arrive with
     /// the host's timing only.
@@ -118,6 +125,9 @@ impl<T: Transport + ?Sized> Transport for Box<T> {
     }
     fn line_timing(&self) -> Option<LineSettings> {
         (**self).line_timing()
+    }
+    fn sent_at(&self) -> Option<std::time::Instant> {
+        (**self).sent_at()
     }
 }
 

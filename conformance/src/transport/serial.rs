@@ -5,7 +5,7 @@
 use std::io::{Read, Write};
 use std::time::Duration;
 
-use super::{LinkKind, Transport, TransportError};
+use super::{sleep_until, LinkKind, Transport, TransportError};
 use crate::codec::timing::{LineSettings, Parity};
 
 /// An open serial port.
@@ -15,6 +15,7 @@ pub struct SerialTransport {
     line: LineSettings,
     kind: LinkKind,
     paced: bool,
+    sent_at: Option<std::time::Instant>,
 }
 
 impl SerialTransport {
@@ -56,11 +57,13 @@ impl SerialTransport {
             line,
             kind,
             paced: false,
+            sent_at: None,
         })
     }
 
-    /// Declares that the other end of this pseudo-terminal sends at the line's character
-    /// time (the simulator with pacing), so that arrival times are a line's timing.
+    /// Declares that this pseudo-terminal stands in for a line: the other end sends at the
+    /// line's character time (the simulator with pacing), and so does this end, so that
+    /// arrival times and request times are a line's timing.
     pub fn paced_peer(mut self) -> Self {
         self.paced = true;
         self
@@ -84,10 +87,35 @@ impl SerialTransport {
 
 impl Transport for SerialTransport {
     fn send(&mut self, bytes: &[u8]) -> Result<(), TransportError> {
-        self.port
-            .write_all(bytes)
-            .and_then(|_| self.port.flush())
-            .map_err(|e| self.err("write", e))
+        if !self.paced || self.kind == LinkKind::Serial {
+            return self
+                .port
+                .write_all(bytes)
+                .and_then(|_| self.port.flush())
+                .map_err(|e| self.err("write", e));
+        }
+        // A pseudo-terminal standing in for a line: this end sends at the line's
+        // character time too, so that a request takes its time on the wire.
+        let char_time = Duration::from_micros(self.line.char_time_us());
+        let start = std::time::Instant::now();
+        for (i, b) in bytes.iter().enumerate() {
+            sleep_until(start + char_time * u32::try_from(i).unwrap_or(u32::MAX));
+            self.port
+                .write_all(std::slice::from_ref(b))
+                .and_then(|_| self.port.flush())
+                .map_err(|e| self.err("write", e))?;
+        }
+        // The last character is on the line for one more character time, counted from
+        // when it was written (a busy host may write it late, or wake late from here).
+        let end = (start + char_time * u32::try_from(bytes.len()).unwrap_or(u32::MAX))
+            .max(std::time::Instant::now() + char_time);
+        self.sent_at = Some(end);
+        sleep_until(end);
+        Ok(())
+    }
+
+    fn sent_at(&self) -> Option<std::time::Instant> {
+        self.sent_at
     }
 
     fn recv(&mut self, buf: &mut [u8], timeout: Duration) -> Result<usize, TransportError> {
@@ -124,7 +152,7 @@ impl Transport for SerialTransport {
             l.parity,
             l.stop_bits,
             if self.paced && self.kind != LinkKind::Serial {
-                " (the peer sends at the line's character time)"
+                " (both ends send at the line's character time)"
             } else {
                 ""
             }
