@@ -41,6 +41,10 @@ if sys.path and os.path.abspath(sys.path[0] or ".") == os.path.dirname(
 import minimalmodbus as mm  # noqa: E402
 
 PROTOCOL = 1
+# A deliberately broken variant, to show the gate catching it (conformance/tests/gate.rs):
+# with MINIMALMODBUS_ADAPTER_BREAK=accept-bad-checksum every received frame's CRC or LRC
+# is replaced by the right one before minimalmodbus sees it.
+BREAK = os.environ.get("MINIMALMODBUS_ADAPTER_BREAK", "")
 _OUT = sys.stdout
 sys.stdout = sys.stderr
 
@@ -95,13 +99,26 @@ def word(b: bytes) -> int:
 # --------------------------------------------------------------------------
 
 
+def mend_checksum(mode: str, frame: bytes) -> bytes:
+    """The broken variant's fault: the frame with the checksum its bytes should carry."""
+    try:
+        if mode == "rtu" and len(frame) >= 4:
+            return frame[:-2] + mm._calculate_crc(frame[:-2])
+        if mode == "ascii" and len(frame) >= 7 and frame.endswith(b"\r\n"):
+            body = mm._hexdecode(frame[1:-4])
+            return frame[:-4] + mm._hexencode(mm._calculate_lrc(body)) + b"\r\n"
+    except (TypeError, ValueError):
+        pass
+    return frame
+
+
 def op_hello(req):
     if req.get("protocol") != PROTOCOL:
         return {"ok": False, "error": f"protocol {req.get('protocol')!r} not spoken; this adapter speaks 1"}
     return {
         "ok": True,
         "protocol": PROTOCOL,
-        "adapter": "minimalmodbus-adapter",
+        "adapter": "minimalmodbus-adapter" + (f" (broken: {BREAK})" if BREAK else ""),
         "implementation": "minimalmodbus",
         "version": mm.__version__,
         "supports": ["decode", "encode", "crc", "lrc"],
@@ -151,6 +168,8 @@ def op_decode(req):
     else:
         sent = mm._create_payload(16, 0, [0], 0, 1, 0, False, 0, REG.REGISTERS)
     frame = frame[: mm._predict_response_size(mode, function, sent)]
+    if BREAK == "accept-bad-checksum":
+        frame = mend_checksum(mode, frame)
     try:
         payload = mm._extract_payload(frame, address, mode, function)
     except mm.SlaveReportedException as exc:

@@ -732,6 +732,12 @@ fn judge(case: &Case, answer: &Value) -> (Vec<Finding>, String) {
             )),
         );
     }
+    // An adapter may say more than the protocol's fields (what the implementation's own
+    // reply to the frame was, bytes it left unread): kept with the answer in the report.
+    let text = match answer.get("note").and_then(Value::as_str) {
+        Some(note) if !note.is_empty() => format!("{text} (adapter's note: {note})"),
+        _ => text,
+    };
     (f, text)
 }
 
