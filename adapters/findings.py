@@ -103,9 +103,37 @@ def kind_of(summary: str, check: dict) -> str:
     return KINDS[-1][0]
 
 
-def shorten(text: str, n: int = 150) -> str:
+def shorten(text: str, n: int = 170) -> str:
     text = text.split("; reproduce:")[0]
+    # Paths of the machine that ran it (crate registry, node_modules) say nothing to a reader.
+    text = re.sub(r"/[^\s\"()]*/(?=[\w.-]+\.(?:js|rs|py):\d)", "", text)
     return text if len(text) <= n else text[: n - 1] + "…"
+
+
+def function_of(check: dict) -> str:
+    """The function code of the frame a decode case sent ("" for other cases)."""
+    try:
+        frame = [int(b, 16) for b in check["exchanges"][0]["request"].split()]
+        if " ascii " in check.get("title", "") or frame[:1] == [0x3A]:
+            return bytes(frame[3:5]).decode("ascii").upper()
+        return f"{frame[1]:02X}"
+    except (KeyError, IndexError, ValueError, UnicodeDecodeError, AttributeError):
+        return ""
+
+
+def form_of(check: dict) -> str:
+    """A deviation's wording with its particulars (bytes, numbers, decoded JSON) taken out,
+    and the frame's function code: cases of one form are one finding."""
+    summary = check.get("summary", "")
+    text = summary.split("; reproduce:")[0].split(" and decoded it as")[0]
+    text = re.sub(r"\{.*\}", "{}", text)
+    text = re.sub(r"b(['\"]).*?\1", "b''", text)
+    text = re.sub(r"\b[0-9A-Fa-f]{2}( [0-9A-Fa-f]{2})+\b", "<bytes>", text)
+    text = re.sub(r"\b[0-9A-Fa-f]{2,4}H?\b|\d+", "#", text)
+    return function_of(check) + " " + text[:120]
+
+
+MAX_FORMS = 6
 
 
 def analyse(name: str, cmd: str, count: int, report: dict) -> dict:
@@ -181,9 +209,18 @@ def markdown(results: list, count: int) -> tuple[str, str]:
         for kind, cases in r["groups"].items():
             if not cases:
                 continue
-            first = cases[0]
-            detail = shorten(first.get("summary", "")).replace("|", "\\|")
-            lines.append(f"| {kind} | {len(cases)} | `{first['id']}`: {detail} | `{r['repro'](first['id'])}` |")
+            forms: "OrderedDict[str, list]" = OrderedDict()
+            for c in cases:
+                forms.setdefault(form_of(c), []).append(c)
+            ranked = sorted(forms.values(), key=len, reverse=True)
+            for n, group in enumerate(ranked[:MAX_FORMS]):
+                first = group[0]
+                detail = shorten(first.get("summary", "")).replace("|", "\\|")
+                label = f"{kind} ({len(cases)})" if n == 0 else "″"
+                lines.append(f"| {label} | {len(group)} | `{first['id']}`: {detail} | `{r['repro'](first['id'])}` |")
+            rest = ranked[MAX_FORMS:]
+            if rest:
+                lines.append(f"| ″ | {sum(len(g) for g in rest)} | {len(rest)} other forms: see the gate's report | |")
         lines.append("")
     return table, "\n".join(lines)
 

@@ -278,6 +278,25 @@ fn a_broken_minimalmodbus_adapter_that_accepts_every_checksum_is_caught() {
 }
 
 #[test]
+fn an_adapter_that_starts_slowly_gets_longer_than_the_case_timeout_for_its_hello() {
+    // An interpreter importing a large library on a loaded machine: 2.5 s before the hello,
+    // then quick answers. The per-case timeout (500 ms) does not apply to the handshake.
+    let slow = format!(
+        r#"sleep 2.5; read l; echo '{HELLO}'; sed -u -E 's/.*"id":([0-9]+).*/{{"id":\1,"ok":true,"accepted":false,"reason":"no"}}/'"#
+    );
+    let (o, v) = gate(&slow, &["--no-vectors", "--count", "3", "--timeout", "500"]);
+    assert_ne!(
+        o.status.code(),
+        Some(2),
+        "{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    assert_eq!(v["complete"], true);
+    assert_eq!(v["summary"]["error"], 0, "{}", v["summary"]);
+    assert_eq!(v["summary"]["total"], 3);
+}
+
+#[test]
 fn an_adapter_that_rejects_every_frame_may_reject_responses_that_answer_no_request() {
     // Rejects every frame: the gate must not count a refused read response of 0
     // registers (or a write response for 0 or over 123) as a deviation, since no valid
