@@ -278,7 +278,8 @@ async function answer(req) {
         result = req.direction === 'request' ? decodeRequest(frame) : await decodeResponse(frame);
       } catch (e) {
         if (e instanceof Unsupported || e instanceof BadRequest) throw e;
-        const where = e && e.stack ? e.stack.split('\n')[1].trim() : '';
+        // The first frame of the stack, with the machine's path to node_modules left out.
+        const where = e && e.stack ? e.stack.split('\n')[1].trim().replace(/\/\S*\/node_modules\//, '') : '';
         return {
           ok: true,
           accepted: false,

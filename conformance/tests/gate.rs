@@ -326,3 +326,51 @@ fn an_adapter_that_rejects_every_frame_may_reject_responses_that_answer_no_reque
             .unwrap()
             .starts_with("rejected a valid frame")));
 }
+
+#[test]
+fn the_libmodbus_adapter_drives_libmodbus_over_a_pty_and_completes() {
+    if !std::path::Path::new("/usr/include/modbus/modbus.h").exists()
+        && !common::missing("libmodbus-dev not installed (apt-get install libmodbus-dev)")
+    {
+        return;
+    }
+    let adapter = concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../adapters/libmodbus/adapter.py"
+    );
+    let (o, v) = gate(
+        &format!("python3 {adapter}"),
+        &["--only", "vector.f510.*.rtu.*", "--timeout", "5000"],
+    );
+    assert_eq!(v["codec"]["implementation"], "libmodbus");
+    assert_eq!(v["complete"], true);
+    assert_eq!(v["summary"]["error"], 0, "{}", v["summary"]);
+    // The manual's 03H request goes through modbus_receive, and modbus_reply answers it.
+    let read = v["checks"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|c| c["id"] == "vector.f510.03.rtu.request.decode")
+        .unwrap();
+    assert_eq!(read["status"], "pass", "{read}");
+    assert!(read["exchanges"][0]["actual"]
+        .as_str()
+        .unwrap()
+        .contains("modbus_reply answers 01 03"));
+    // Its wrong-CRC response as printed is refused by libmodbus's client.
+    assert_eq!(status_of(&v, "vector.f510.03.rtu.response.decode"), "pass");
+    // libmodbus 3.1.6 sizes an 08H request wrongly and refuses it as "Invalid CRC".
+    let loop_back = v["checks"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|c| c["id"] == "vector.f510.08.rtu.request.decode")
+        .unwrap();
+    assert_eq!(loop_back["status"], "deviation");
+    assert!(loop_back["summary"]
+        .as_str()
+        .unwrap()
+        .contains("Invalid CRC"));
+    assert_eq!(o.status.code(), Some(1));
+    schema_valid(&v);
+}
