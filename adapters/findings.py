@@ -233,6 +233,8 @@ def write_readme_table(table: str) -> None:
     i, j = text.find(start), text.find(end)
     if i < 0 or j < i:
         sys.exit(f"README.md has no {start} ... {end} block to fill")
+    # The rows link to their sections, which are in FINDINGS.md.
+    table = table.replace("](#", "](adapters/FINDINGS.md#")
     text = text[: i + len(start)] + "\n" + table + "\n" + text[j:]
     with open(path, "w", encoding="utf-8") as f:
         f.write(text)
