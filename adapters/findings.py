@@ -4,6 +4,7 @@
     python3 adapters/findings.py                 # build, run all six, write adapters/FINDINGS.md and README.md's table
     python3 adapters/findings.py --count 300     # fewer differential cases (default: the gate's 1000)
     python3 adapters/findings.py --only libmodbus --no-write   # one adapter, print only
+    python3 adapters/findings.py --reuse         # rewrite the tables from the last run's reports
 
 Every adapter runs with the gate's default seed, so each reproducing command below
 (`conformance gate --codec ... --only CASE`) finds the same case again. Deviations are
@@ -106,7 +107,7 @@ def kind_of(summary: str, check: dict) -> str:
 def shorten(text: str, n: int = 170) -> str:
     text = text.split("; reproduce:")[0]
     # Paths of the machine that ran it (crate registry, node_modules) say nothing to a reader.
-    text = re.sub(r"/[^\s\"()]*/(?=[\w.-]+\.(?:js|rs|py):\d)", "", text)
+    text = re.sub(r"(?<![\w.-])/[^\s\"()]*/(?=[\w.-]+\.(?:js|rs|py):\d)", "", text)
     return text if len(text) <= n else text[: n - 1] + "…"
 
 
@@ -114,9 +115,13 @@ def function_of(check: dict) -> str:
     """The function code of the frame a decode case sent ("" for other cases)."""
     try:
         frame = [int(b, 16) for b in check["exchanges"][0]["request"].split()]
-        if " ascii " in check.get("title", "") or frame[:1] == [0x3A]:
-            return bytes(frame[3:5]).decode("ascii").upper()
-        return f"{frame[1]:02X}"
+        title = check.get("title", "")
+        if " ascii " in title or "(ascii " in title or ".ascii." in check.get("id", ""):
+            function = int(bytes(frame[3:5]).decode("ascii"), 16)
+        else:
+            function = frame[1]
+        # Exception responses are one form whatever function they answer.
+        return "exception" if function & 0x80 else f"{function:02X}"
     except (KeyError, IndexError, ValueError, UnicodeDecodeError, AttributeError):
         return ""
 
@@ -246,15 +251,27 @@ def main() -> int:
     ap.add_argument("--only", action="append", choices=list(ADAPTERS), help="run only this adapter (repeatable)")
     ap.add_argument("--no-build", action="store_true", help="use the binaries already in target/release")
     ap.add_argument("--no-write", action="store_true", help="print the table; write no file")
+    ap.add_argument(
+        "--reuse",
+        action="store_true",
+        help="write the tables from the last run's reports (target/findings/*.json) without running the gate",
+    )
     args = ap.parse_args()
-    if not args.no_build:
+    if not args.no_build and not args.reuse:
         build()
     results = []
     incomplete = False
     for name, (_, cmd) in ADAPTERS.items():
         if args.only and name not in args.only:
             continue
-        report = run_gate(name, cmd, args.count)
+        if args.reuse:
+            with open(os.path.join(TARGET, "findings", f"{name}.json"), encoding="utf-8") as f:
+                report = json.load(f)
+            report["_exit"] = 1 if report.get("summary", {}).get("deviation") else 0
+            report["_exit"] = report["_exit"] if report.get("complete") else 2
+            args.count = (report.get("codec") or {}).get("count", args.count)
+        else:
+            report = run_gate(name, cmd, args.count)
         r = analyse(name, cmd, args.count, report)
         s = r["summary"]
         print(
