@@ -1,6 +1,8 @@
 //! The gate: the reference adapter (this suite's codec) passes; a deliberately broken one
 //! (it accepts every CRC) is caught; adapters that crash, hang or babble are reported as
-//! ERRORs case by case and the gate carries on; the pymodbus adapter completes.
+//! ERRORs case by case and the gate carries on; the pymodbus adapter completes; a broken
+//! variant of the minimalmodbus adapter (it mends every checksum) is caught; a response that
+//! answers no valid request may be refused.
 
 mod common;
 use common::bin;
@@ -199,6 +201,176 @@ fn the_pymodbus_adapter_completes_and_its_deviations_are_reported() {
     }
     // The differential cases find what pymodbus 3.16.1 accepts and should not.
     assert!(v["summary"]["deviation"].as_u64().unwrap() > 0);
+    assert_eq!(o.status.code(), Some(1));
+    schema_valid(&v);
+}
+
+/// Whether python3 can import `module`; otherwise reports it missing (fails under CI).
+fn python_has(module: &str, install: &str) -> bool {
+    let probe = Command::new("python3")
+        .args(["-c", &format!("import {module}")])
+        .output();
+    if matches!(probe, Ok(ref o) if o.status.success()) {
+        return true;
+    }
+    common::missing(&format!("{module} not installed ({install})"))
+}
+
+#[test]
+fn a_broken_minimalmodbus_adapter_that_accepts_every_checksum_is_caught() {
+    if !python_has(
+        "minimalmodbus",
+        "pip install -r adapters/minimalmodbus/requirements.txt",
+    ) {
+        return;
+    }
+    let adapter = concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../adapters/minimalmodbus/adapter.py"
+    );
+    // The F510 manual's 03H response as printed has a wrong CRC: minimalmodbus refuses it.
+    let erratum = "vector.f510.03.rtu.response.decode";
+    let (o, v) = gate(&format!("python3 {adapter}"), &["--only", erratum]);
+    assert_eq!(o.status.code(), Some(0), "{}", v["summary"]);
+    assert_eq!(status_of(&v, erratum), "pass");
+    // The broken variant mends every checksum before minimalmodbus sees it.
+    let (o, v) = gate(
+        &format!("MINIMALMODBUS_ADAPTER_BREAK=accept-bad-checksum python3 {adapter}"),
+        &["--count", "200"],
+    );
+    assert_eq!(o.status.code(), Some(1), "{}", v["summary"]);
+    assert_eq!(v["complete"], true);
+    assert!(v["codec"]["adapter"]
+        .as_str()
+        .unwrap()
+        .contains("broken: accept-bad-checksum"));
+    let erratum_case = v["checks"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|c| c["id"] == erratum)
+        .unwrap();
+    assert_eq!(erratum_case["status"], "deviation", "{erratum_case}");
+    assert!(erratum_case["summary"]
+        .as_str()
+        .unwrap()
+        .contains("accepted a frame that must be rejected"));
+    // Corrupted differential frames, in both modes, are caught as accepted.
+    let caught: Vec<&str> = v["checks"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter(|c| {
+            c["status"] == "deviation"
+                && c["id"].as_str().unwrap().starts_with("diff.")
+                && c["summary"]
+                    .as_str()
+                    .unwrap()
+                    .starts_with("accepted a frame that must be rejected")
+        })
+        .map(|c| c["title"].as_str().unwrap())
+        .collect();
+    assert!(
+        caught.iter().any(|t| t.contains(" rtu ")) && caught.iter().any(|t| t.contains(" ascii ")),
+        "{caught:#?}"
+    );
+    schema_valid(&v);
+}
+
+#[test]
+fn an_adapter_that_starts_slowly_gets_longer_than_the_case_timeout_for_its_hello() {
+    // An interpreter importing a large library on a loaded machine: 2.5 s before the hello,
+    // then quick answers. The per-case timeout (500 ms) does not apply to the handshake.
+    let slow = format!(
+        r#"sleep 2.5; read l; echo '{HELLO}'; sed -u -E 's/.*"id":([0-9]+).*/{{"id":\1,"ok":true,"accepted":false,"reason":"no"}}/'"#
+    );
+    let (o, v) = gate(&slow, &["--no-vectors", "--count", "3", "--timeout", "500"]);
+    assert_ne!(
+        o.status.code(),
+        Some(2),
+        "{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    assert_eq!(v["complete"], true);
+    assert_eq!(v["summary"]["error"], 0, "{}", v["summary"]);
+    assert_eq!(v["summary"]["total"], 3);
+}
+
+#[test]
+fn an_adapter_that_rejects_every_frame_may_reject_responses_that_answer_no_request() {
+    // Rejects every frame: the gate must not count a refused read response of 0
+    // registers (or a write response for 0 or over 123) as a deviation, since no valid
+    // request has such an answer; it still counts refused valid frames.
+    let rejecter = format!(
+        r#"read l; echo '{HELLO}'; sed -u -E 's/.*"id":([0-9]+).*/{{"id":\1,"ok":true,"accepted":false,"reason":"no"}}/'"#
+    );
+    let (_, v) = gate(&rejecter, &["--no-vectors", "--count", "1500"]);
+    let checks = v["checks"].as_array().unwrap();
+    let answers_no_request: Vec<&serde_json::Value> = checks
+        .iter()
+        .filter(|c| {
+            c["exchanges"][0]["predicted"]
+                .as_str()
+                .unwrap_or("")
+                .contains("answers no valid request")
+        })
+        .collect();
+    assert!(!answers_no_request.is_empty());
+    assert!(
+        answers_no_request.iter().all(|c| c["status"] == "pass"),
+        "{answers_no_request:#?}"
+    );
+    assert!(checks.iter().any(|c| c["status"] == "deviation"
+        && c["summary"]
+            .as_str()
+            .unwrap()
+            .starts_with("rejected a valid frame")));
+}
+
+#[test]
+fn the_libmodbus_adapter_drives_libmodbus_over_a_pty_and_completes() {
+    if !std::path::Path::new("/usr/include/modbus/modbus.h").exists()
+        && !common::missing("libmodbus-dev not installed (apt-get install libmodbus-dev)")
+    {
+        return;
+    }
+    let adapter = concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../adapters/libmodbus/adapter.py"
+    );
+    let (o, v) = gate(
+        &format!("python3 {adapter}"),
+        &["--only", "vector.f510.*.rtu.*", "--timeout", "5000"],
+    );
+    assert_eq!(v["codec"]["implementation"], "libmodbus");
+    assert_eq!(v["complete"], true);
+    assert_eq!(v["summary"]["error"], 0, "{}", v["summary"]);
+    // The manual's 03H request goes through modbus_receive, and modbus_reply answers it.
+    let read = v["checks"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|c| c["id"] == "vector.f510.03.rtu.request.decode")
+        .unwrap();
+    assert_eq!(read["status"], "pass", "{read}");
+    assert!(read["exchanges"][0]["actual"]
+        .as_str()
+        .unwrap()
+        .contains("modbus_reply answers 01 03"));
+    // Its wrong-CRC response as printed is refused by libmodbus's client.
+    assert_eq!(status_of(&v, "vector.f510.03.rtu.response.decode"), "pass");
+    // libmodbus 3.1.6 sizes an 08H request wrongly and refuses it as "Invalid CRC".
+    let loop_back = v["checks"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|c| c["id"] == "vector.f510.08.rtu.request.decode")
+        .unwrap();
+    assert_eq!(loop_back["status"], "deviation");
+    assert!(loop_back["summary"]
+        .as_str()
+        .unwrap()
+        .contains("Invalid CRC"));
     assert_eq!(o.status.code(), Some(1));
     schema_valid(&v);
 }

@@ -16,7 +16,7 @@ use super::check_cmd::{finish, render, write_atomic, Format};
 
 const AFTER_HELP: &str = "\
 The adapter protocol (line-delimited JSON on the adapter's stdin/stdout) is documented in
-adapters/PROTOCOL.md; adapters/pymodbus and adapters/rmodbus are examples.
+adapters/PROTOCOL.md; adapters/*/ holds adapters for six implementations in four languages.
 
 Examples:
   conformance gate --codec \"python3 adapters/pymodbus/adapter.py\"

@@ -20,6 +20,9 @@ pub const PROTOCOL: u64 = 1;
 /// Longest answer line the gate reads; a longer one is malformed.
 const MAX_LINE: usize = 1 << 20;
 
+/// The least time the gate waits for the hello's answer (the adapter's start).
+pub const HANDSHAKE_TIMEOUT: Duration = Duration::from_secs(10);
+
 /// Consecutive timeouts after which a hung adapter is restarted.
 const HUNG_AFTER: u32 = 3;
 
@@ -207,9 +210,14 @@ impl Adapter {
     }
 
     fn handshake(&mut self) -> Result<Hello, String> {
-        let v = self
-            .raw_call_with_id(0, json!({"op": "hello", "protocol": PROTOCOL}))
-            .map_err(|e| e.to_string())?;
+        // The first answer comes after the adapter's start: an interpreter importing a large
+        // library can take seconds on a loaded CI machine, so it gets at least
+        // HANDSHAKE_TIMEOUT, whatever the per-case timeout.
+        let per_case = self.timeout;
+        self.timeout = per_case.max(HANDSHAKE_TIMEOUT);
+        let answer = self.raw_call_with_id(0, json!({"op": "hello", "protocol": PROTOCOL}));
+        self.timeout = per_case;
+        let v = answer.map_err(|e| e.to_string())?;
         if v.get("ok") != Some(&Value::Bool(true)) {
             return Err(format!("the adapter refused protocol {PROTOCOL}: {v}"));
         }

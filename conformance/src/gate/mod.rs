@@ -67,7 +67,10 @@ pub enum Want {
     /// Accept, with these fields. With `may_reject`, rejecting is right too: the frame is
     /// sound but a value is outside the Modbus application protocol's range (a read of 0
     /// or over 125 registers, a write of over 123), which an implementation may refuse
-    /// while decoding (the protocol lets a server answer exception 03); the text says why.
+    /// while decoding (the protocol lets a server answer exception 03), or a response
+    /// answers no request within those ranges (a read response of 0 or over 125
+    /// registers, a write response for 0 or over 123), which a master that checks the
+    /// response against its request rejects; the text says why.
     Accept {
         /// The fields.
         message: Value,
@@ -132,6 +135,19 @@ pub fn ours(mode: Mode, direction: Direction, frame: &[u8]) -> Want {
                     Some(format!(
                         "a write of {} registers (Modbus allows 1..123)",
                         values.len()
+                    ))
+                }
+                // A response that answers no valid request: a master that checks it
+                // against the request it sent rejects it, and may.
+                Pdu::ReadResponse { values } if values.is_empty() || values.len() > 125 => {
+                    Some(format!(
+                        "a read response of {} registers answers no valid request (Modbus reads 1..125)",
+                        values.len()
+                    ))
+                }
+                Pdu::WriteMultipleResponse { count, .. } if !(1..=123).contains(&count) => {
+                    Some(format!(
+                        "a write response for {count} registers answers no valid request (Modbus writes 1..123)"
                     ))
                 }
                 _ => None,
@@ -716,6 +732,12 @@ fn judge(case: &Case, answer: &Value) -> (Vec<Finding>, String) {
             )),
         );
     }
+    // An adapter may say more than the protocol's fields (what the implementation's own
+    // reply to the frame was, bytes it left unread): kept with the answer in the report.
+    let text = match answer.get("note").and_then(Value::as_str) {
+        Some(note) if !note.is_empty() => format!("{text} (adapter's note: {note})"),
+        _ => text,
+    };
     (f, text)
 }
 
@@ -874,6 +896,29 @@ mod tests {
             Want::Crc(0x3C74)
         );
         assert_eq!(get("vector.f510.lrc-example.lrc").want, Want::Lrc(0xF1));
+    }
+
+    #[test]
+    fn responses_that_answer_no_valid_request_may_be_rejected() {
+        let may_reject = |frame: &[u8]| match ours(Mode::Rtu, Direction::Response, frame) {
+            Want::Accept { may_reject, .. } => may_reject,
+            other => panic!("{other:?}"),
+        };
+        let rtu = |body: &[u8]| frame(Mode::Rtu, body);
+        // A read response of 0 registers, and one of 1 (an answer to a valid read).
+        assert!(may_reject(&rtu(&[0x01, 0x03, 0x00]))
+            .unwrap()
+            .contains("0 registers"));
+        assert_eq!(may_reject(&rtu(&[0x01, 0x03, 0x02, 0x17, 0x70])), None);
+        // A write response for 0 and for 537 registers, and one for 2.
+        assert!(may_reject(&rtu(&[0x01, 0x10, 0x01, 0x01, 0x00, 0x00])).is_some());
+        assert!(may_reject(&rtu(&[0x01, 0x10, 0x01, 0x01, 0x02, 0x19]))
+            .unwrap()
+            .contains("537"));
+        assert_eq!(
+            may_reject(&rtu(&[0x01, 0x10, 0x01, 0x01, 0x00, 0x02])),
+            None
+        );
     }
 
     #[test]
