@@ -42,7 +42,7 @@ fn run(mode: &str) {
             .spawn()
             .unwrap(),
     );
-    std::thread::sleep(Duration::from_millis(1500));
+    common::wait_until_answers(&b, mode, &["-P", "none"]);
     let t0 = std::time::Instant::now();
     let (exit, v) = common::check_device(
         &dir,

@@ -546,10 +546,7 @@ mod tests {
             assert_eq!(q.to_string(), s.replace("slow=", "late-reply="));
         }
         assert_eq!("slow=400".parse::<Quirk>(), Ok(Quirk::LateReply(400)));
-        assert_eq!(
-            "freeze-after=7".parse::<Quirk>(),
-            Ok(Quirk::FreezeAfter(7))
-        );
+        assert_eq!("freeze-after=7".parse::<Quirk>(), Ok(Quirk::FreezeAfter(7)));
         assert!("dead=1".parse::<Quirk>().is_err());
         assert!("drop-every=0".parse::<Quirk>().is_err());
         assert!("late-reply".parse::<Quirk>().is_err());

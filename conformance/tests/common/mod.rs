@@ -112,3 +112,28 @@ pub fn check_device(
     assert!(schema.is_valid(&v), "the report does not match its schema");
     (exit.code(), v)
 }
+
+/// Waits (at most 30 s) until a device on `port` answers the runner's preflight in `mode`
+/// (a slow-starting server, such as pymodbus on a busy machine, is not a dead device).
+pub fn wait_until_answers(port: &std::path::Path, mode: &str, line: &[&str]) {
+    let t0 = std::time::Instant::now();
+    loop {
+        let o = std::process::Command::new(bin())
+            .args(["check", "--model", "f510", "--mode", mode, "--port"])
+            .arg(port)
+            .args(line)
+            .args(["--only", "identification", "--timeout", "300", "--quiet"])
+            .output()
+            .unwrap();
+        if o.status.code() != Some(2) {
+            return;
+        }
+        assert!(
+            t0.elapsed() < std::time::Duration::from_secs(30),
+            "the device on {} does not answer: {}",
+            port.display(),
+            String::from_utf8_lossy(&o.stdout)
+        );
+        std::thread::sleep(std::time::Duration::from_millis(200));
+    }
+}
