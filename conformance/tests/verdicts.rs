@@ -127,8 +127,10 @@ fn run(cell: Cell, quirk: Option<Quirk>) -> Report {
         only: families(cell.mode),
         timing: MasterTiming {
             timeout: Duration::from_millis(1000),
-            silence: Duration::from_millis(250),
-            derive_silence: false,
+            // As `check` does by default: silence windows derived from the device's
+            // measured response time, at most the timeout.
+            silence: Duration::from_millis(1000),
+            derive_silence: true,
             quiet: Duration::from_millis(30),
             gap: Duration::from_millis(5),
             retries: 0,
