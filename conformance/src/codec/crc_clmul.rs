@@ -1,8 +1,9 @@
-//! CRC-16/MODBUS by carry-less multiplication folding (PCLMULQDQ, x86-64).
+//! CRC-16/MODBUS by carry-less multiplication folding (x86-64): PCLMULQDQ on 128-bit
+//! lanes, and VPCLMULQDQ on 512-bit registers (AVX-512) for long inputs.
 //!
-//! The one module of the crate with `unsafe` code: SIMD intrinsics, used only after
-//! runtime detection of the CPU feature, and unaligned loads from slices whose length is
-//! checked first.
+//! The one module of the crate with `unsafe` code: SIMD intrinsics, each kernel called only
+//! after runtime detection of the CPU features it is compiled for, and unaligned loads at
+//! offsets whose bounds are checked against the slice's length first.
 //!
 //! # How it works
 //!
@@ -10,15 +11,30 @@
 //! x^2 + 1. Folding replaces a 128-bit block B, which stands D bits before the end of the
 //! data processed so far, with B·x^D mod P computed lazily: B = Bh·x^64 + Bl, and
 //! Bh·(x^(D+64) mod P) + Bl·(x^D mod P) is congruent to B·x^D and only 80 bits wide, so it
-//! can be XORed into the block D bits later. Four independent 128-bit accumulators fold by
-//! 512 bits each step (hiding the multiplier's latency), are folded into one at the end,
-//! and the last 16 bytes of state plus the tail are finished by the table-driven CRC.
+//! can be XORed into the block D bits later. Several independent accumulators fold the
+//! input in parallel (hiding the multiplier's latency) and are folded into one at the end.
 //!
 //! The data is "reflected" (least significant bit first), which is exactly how 16 bytes
 //! read as a little-endian 128-bit lane represent the polynomial; a carry-less product of
 //! two reflected 64-bit values is the reflected product shifted by one bit, hence the
 //! constants x^(D+63) and x^(D-1) instead of x^(D+64) and x^D.
+//!
+//! # The paths
+//!
+//! - **PCLMULQDQ** (`pclmulqdq`, `sse4.1`): four 128-bit accumulators fold 64 bytes a step.
+//! - **AVX-512** (`avx512f`, `avx512vl`, `vpclmulqdq`): four 512-bit accumulators fold
+//!   256 bytes a step, each instruction folding four 128-bit lanes; then one accumulator
+//!   folds 64 bytes a step, and the four lanes are folded into one 128-bit value, which
+//!   the PCLMULQDQ code finishes.
+//!
+//! Both end the same way, without a loop over single bytes: the last 1..15 bytes are
+//! taken with one 16-byte load that overlaps data already folded (the accumulator is
+//! shifted by the same number of bytes, and its top part folded over them), and the
+//! final 128-bit value is folded to 80 bits, whose remainder modulo P is one eight-byte
+//! step of the table-driven CRC.
 #![allow(unsafe_code)]
+
+use std::sync::atomic::{AtomicU8, Ordering};
 
 /// P(x) with its x^16 term.
 const POLY: u32 = 0x1_8005;
@@ -46,14 +62,53 @@ const fn fold_constants(d: u32) -> (u64, u64) {
 }
 
 const FOLD_128: (u64, u64) = fold_constants(128);
+const FOLD_256: (u64, u64) = fold_constants(256);
+const FOLD_384: (u64, u64) = fold_constants(384);
 const FOLD_512: (u64, u64) = fold_constants(512);
+const FOLD_1024: (u64, u64) = fold_constants(1024);
+const FOLD_2048: (u64, u64) = fold_constants(2048);
+/// Multiplies the high 64 bits of a 128-bit value by x^80 mod P (the final fold to 80
+/// bits; see `x86::finish`).
+const FOLD_TO_80: u64 = xpow_mod(79).reverse_bits();
 
-/// Shortest input worth the SIMD path (four 16-byte lanes).
+/// Shortest input for which [`crc16_update`] takes a SIMD path (below it, the table
+/// wins): four 16-byte lanes.
 pub const MIN_LEN: usize = 64;
 
-/// Whether this CPU can run [`crc16_update`]. `std` caches the detection.
+/// Shortest input for which [`crc16_update`] takes the AVX-512 path rather than
+/// PCLMULQDQ, where the CPU has both.
+pub const AVX512_MIN_LEN: usize = 256;
+
+/// The best SIMD level of this CPU, detected once: 0 not yet known, then one of the
+/// `LEVEL_*` values.
+static LEVEL: AtomicU8 = AtomicU8::new(0);
+const LEVEL_NONE: u8 = 1;
+const LEVEL_PCLMUL: u8 = 2;
+const LEVEL_AVX512: u8 = 3;
+
 #[inline]
-pub fn available() -> bool {
+fn level() -> u8 {
+    match LEVEL.load(Ordering::Relaxed) {
+        0 => detect(),
+        l => l,
+    }
+}
+
+#[cold]
+fn detect() -> u8 {
+    let l = if avx512_available() {
+        LEVEL_AVX512
+    } else if pclmul_available() {
+        LEVEL_PCLMUL
+    } else {
+        LEVEL_NONE
+    };
+    LEVEL.store(l, Ordering::Relaxed);
+    l
+}
+
+/// Whether this CPU can run the PCLMULQDQ path. `std` caches the detection.
+pub fn pclmul_available() -> bool {
     #[cfg(target_arch = "x86_64")]
     {
         std::arch::is_x86_feature_detected!("pclmulqdq")
@@ -65,15 +120,67 @@ pub fn available() -> bool {
     }
 }
 
-/// Continues a CRC-16/MODBUS from register `crc` over `data` with PCLMULQDQ; `None` when
-/// the CPU lacks the instructions or `data` is shorter than [`MIN_LEN`].
-pub fn crc16_update(crc: u16, data: &[u8]) -> Option<u16> {
+/// Whether this CPU can run the AVX-512 (VPCLMULQDQ) path, which also needs PCLMULQDQ
+/// for its end.
+pub fn avx512_available() -> bool {
     #[cfg(target_arch = "x86_64")]
     {
-        if data.len() >= MIN_LEN && available() {
-            // SAFETY: the features `x86::crc16` is compiled for were detected just above,
-            // and it requires at least MIN_LEN bytes, checked just above.
-            return Some(unsafe { x86::crc16(crc, data) });
+        pclmul_available()
+            && std::arch::is_x86_feature_detected!("avx512f")
+            && std::arch::is_x86_feature_detected!("avx512vl")
+            && std::arch::is_x86_feature_detected!("vpclmulqdq")
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        false
+    }
+}
+
+/// Continues a CRC-16/MODBUS from register `crc` over `data` with the fastest SIMD path
+/// for this CPU and length; `None` when the CPU has none or `data` is shorter than
+/// [`MIN_LEN`], where the table-driven CRC is the faster.
+#[inline]
+pub fn crc16_update(crc: u16, data: &[u8]) -> Option<u16> {
+    if data.len() < MIN_LEN {
+        return None;
+    }
+    match level() {
+        LEVEL_AVX512 if data.len() >= AVX512_MIN_LEN => crc16_avx512(crc, data),
+        LEVEL_AVX512 | LEVEL_PCLMUL => crc16_pclmul(crc, data),
+        _ => None,
+    }
+}
+
+/// The PCLMULQDQ path on any length (the table-driven CRC below 16 bytes); `None` when
+/// the CPU lacks the instructions.
+pub fn crc16_pclmul(crc: u16, data: &[u8]) -> Option<u16> {
+    #[cfg(target_arch = "x86_64")]
+    {
+        if data.len() >= x86::PCLMUL_MIN && pclmul_available() {
+            // SAFETY: the features `x86::crc16_pclmul` is compiled for were detected just
+            // above, and it requires at least PCLMUL_MIN bytes, checked just above.
+            return Some(unsafe { x86::crc16_pclmul(crc, data) });
+        }
+        if pclmul_available() {
+            return Some(super::crc::crc16_update_table(crc, data));
+        }
+    }
+    let _ = (crc, data);
+    None
+}
+
+/// The AVX-512 path on any length (shorter inputs end in the PCLMULQDQ code or the
+/// table); `None` when the CPU lacks the instructions.
+pub fn crc16_avx512(crc: u16, data: &[u8]) -> Option<u16> {
+    #[cfg(target_arch = "x86_64")]
+    {
+        if avx512_available() {
+            if data.len() >= x86::AVX512_MIN {
+                // SAFETY: the features `x86::crc16_avx512` is compiled for were detected
+                // just above, and it requires at least AVX512_MIN bytes, checked just above.
+                return Some(unsafe { x86::crc16_avx512(crc, data) });
+            }
+            return crc16_pclmul(crc, data);
         }
     }
     let _ = (crc, data);
@@ -84,64 +191,244 @@ pub fn crc16_update(crc: u16, data: &[u8]) -> Option<u16> {
 mod x86 {
     use std::arch::x86_64::*;
 
-    use super::{FOLD_128, FOLD_512, MIN_LEN};
-    use crate::codec::crc::crc16_update_table;
+    use super::{
+        FOLD_1024, FOLD_128, FOLD_2048, FOLD_256, FOLD_384, FOLD_512, FOLD_TO_80,
+    };
+    use crate::codec::crc::crc16_table_u64;
 
+    /// Shortest input of [`crc16_pclmul`]: one 16-byte block.
+    pub(super) const PCLMUL_MIN: usize = 16;
+    /// Shortest input of [`crc16_avx512`]: one 64-byte register.
+    pub(super) const AVX512_MIN: usize = 64;
+
+    /// Byte-shuffle masks: the 16 bytes from offset `s` shift a register left by `16 - s`
+    /// bytes (zeros enter: PSHUFB writes zero where the mask byte's top bit is set), and
+    /// the 16 bytes from `16 + s` shift it right by `s`.
+    static SHIFT: [u8; 48] = {
+        let mut t = [0x80u8; 48];
+        let mut i = 0;
+        while i < 16 {
+            t[16 + i] = i as u8;
+            i += 1;
+        }
+        t
+    };
+
+    /// Folding constants as a 128-bit lane: low lane's constant low.
     #[inline(always)]
-    unsafe fn constants(k: (u64, u64)) -> __m128i {
-        _mm_set_epi64x(k.1 as i64, k.0 as i64)
+    fn constants(k: (u64, u64)) -> __m128i {
+        // SAFETY: SSE2, part of the x86-64 baseline, is all this needs.
+        unsafe { _mm_set_epi64x(k.1 as i64, k.0 as i64) }
     }
 
-    /// One fold: `x`·x^D mod P (lazily), XORed into `next`.
-    #[inline(always)]
+    /// # Safety
+    /// The CPU must support `pclmulqdq`.
+    #[inline]
+    #[target_feature(enable = "pclmulqdq,sse4.1")]
     unsafe fn fold_into(x: __m128i, k: __m128i, next: __m128i) -> __m128i {
         let lo = _mm_clmulepi64_si128(x, k, 0x00);
         let hi = _mm_clmulepi64_si128(x, k, 0x11);
         _mm_xor_si128(_mm_xor_si128(lo, hi), next)
     }
 
+    /// The 16 bytes of `data` at `at`.
+    ///
     /// # Safety
-    /// The CPU must support `pclmulqdq` and `sse4.1`, and `data.len() >= MIN_LEN`.
+    /// `at + 16 <= data.len()`.
+    #[inline(always)]
+    unsafe fn load128(data: &[u8], at: usize) -> __m128i {
+        debug_assert!(at + 16 <= data.len());
+        // SAFETY: the 16 bytes read are inside `data` (the caller's promise); the load is
+        // unaligned, so any address is valid.
+        unsafe { _mm_loadu_si128(data.as_ptr().add(at).cast()) }
+    }
+
+    /// The 16 bytes of `SHIFT` from `from` (at most 32) as a shuffle mask.
+    #[inline(always)]
+    fn shift_mask(from: usize) -> __m128i {
+        let m = &SHIFT[from..from + 16];
+        // SAFETY: `m` is 16 bytes long (the slice above is bounds-checked); unaligned load.
+        unsafe { _mm_loadu_si128(m.as_ptr().cast()) }
+    }
+
+    /// Ends a computation: `x` is the folded state of `data[..at]` (at >= 16), followed by
+    /// `data[at..]`, fewer than 64 bytes. Returns the CRC register.
+    ///
+    /// # Safety
+    /// The CPU must support `pclmulqdq` and `sse4.1`; `16 <= at <= data.len()` and
+    /// `data.len() - at < 64`.
+    #[inline]
     #[target_feature(enable = "pclmulqdq,sse4.1")]
-    pub(super) unsafe fn crc16(crc: u16, data: &[u8]) -> u16 {
-        debug_assert!(data.len() >= MIN_LEN);
-        let load = |at: usize| -> __m128i {
-            // `at + 16 <= data.len()` at every call below.
-            _mm_loadu_si128(data.as_ptr().add(at).cast())
-        };
-        let k512 = constants(FOLD_512);
+    unsafe fn finish(mut x: __m128i, data: &[u8], mut at: usize) -> u16 {
+        debug_assert!(at >= 16 && at <= data.len());
         let k128 = constants(FOLD_128);
-        // The initial register value enters as an XOR into the first two bytes.
-        let mut x0 = _mm_xor_si128(load(0), _mm_cvtsi32_si128(i32::from(crc)));
-        let mut x1 = load(16);
-        let mut x2 = load(32);
-        let mut x3 = load(48);
-        let mut at = 64;
-        while at + 64 <= data.len() {
-            x0 = fold_into(x0, k512, load(at));
-            x1 = fold_into(x1, k512, load(at + 16));
-            x2 = fold_into(x2, k512, load(at + 32));
-            x3 = fold_into(x3, k512, load(at + 48));
-            at += 64;
-        }
-        let mut x = fold_into(x0, k128, x1);
-        x = fold_into(x, k128, x2);
-        x = fold_into(x, k128, x3);
         while at + 16 <= data.len() {
-            x = fold_into(x, k128, load(at));
+            // SAFETY: `at + 16 <= data.len()` is the loop condition.
+            x = fold_into(x, k128, unsafe { load128(data, at) });
             at += 16;
         }
-        let mut state = [0u8; 16];
-        _mm_storeu_si128(state.as_mut_ptr().cast(), x);
-        let crc = crc16_update_table(0, &state);
-        crc16_update_table(crc, &data[at..])
+        let t = data.len() - at;
+        if t > 0 {
+            // The last t bytes: the state's first t bytes are folded over the 16 bytes
+            // made of the state's other 16 - t bytes and the t new ones.
+            // SAFETY: `data.len() >= at >= 16`, so the last 16 bytes are inside `data`.
+            let last = unsafe { load128(data, data.len() - 16) };
+            let high = _mm_shuffle_epi8(x, shift_mask(t));
+            let low = _mm_shuffle_epi8(x, shift_mask(16 + t));
+            // The left-shift mask has its top bit set exactly where `low` keeps state.
+            let block = _mm_blendv_epi8(last, low, shift_mask(t));
+            x = fold_into(high, k128, block);
+        }
+        // x = H·x^64 + L stands for x·x^16 mod P. H·(x^80 mod P) + L·x^16 is congruent and
+        // 80 bits wide: its top 64 bits are an eight-byte message whose CRC (from zero) the
+        // table gives in one step, and its low 16 bits add to that.
+        let h = _mm_clmulepi64_si128(x, _mm_cvtsi64_si128(FOLD_TO_80 as i64), 0x00);
+        let l = _mm_srli_si128(_mm_unpackhi_epi64(_mm_setzero_si128(), x), 2);
+        let t80 = _mm_srli_si128(_mm_xor_si128(h, l), 6);
+        let message = _mm_cvtsi128_si64(t80) as u64;
+        let low16 = _mm_extract_epi16(t80, 4) as u16;
+        crc16_table_u64(0, message) ^ low16
+    }
+
+    /// Folds 64-byte blocks with four 128-bit accumulators, then single blocks.
+    ///
+    /// # Safety
+    /// The CPU must support `pclmulqdq` and `sse4.1`, and `data.len() >= PCLMUL_MIN`.
+    #[target_feature(enable = "pclmulqdq,sse4.1")]
+    pub(super) unsafe fn crc16_pclmul(crc: u16, data: &[u8]) -> u16 {
+        debug_assert!(data.len() >= PCLMUL_MIN);
+        // The initial register value enters as an XOR into the first two bytes.
+        let init = _mm_cvtsi32_si128(i32::from(crc));
+        // SAFETY (every `load128` below): `at + 16 <= data.len()` holds at each call, by
+        // the length checks of the branch or loop around it.
+        let mut x = _mm_xor_si128(unsafe { load128(data, 0) }, init);
+        let mut at = 16;
+        if data.len() >= 64 {
+            let k512 = constants(FOLD_512);
+            let mut x0 = x;
+            let mut x1 = unsafe { load128(data, 16) };
+            let mut x2 = unsafe { load128(data, 32) };
+            let mut x3 = unsafe { load128(data, 48) };
+            at = 64;
+            while at + 64 <= data.len() {
+                x0 = fold_into(x0, k512, unsafe { load128(data, at) });
+                x1 = fold_into(x1, k512, unsafe { load128(data, at + 16) });
+                x2 = fold_into(x2, k512, unsafe { load128(data, at + 32) });
+                x3 = fold_into(x3, k512, unsafe { load128(data, at + 48) });
+                at += 64;
+            }
+            // A tree, so two multiplications stand in the dependency chain, not three.
+            let k128 = constants(FOLD_128);
+            let y0 = fold_into(x0, k128, x1);
+            let y1 = fold_into(x2, k128, x3);
+            x = fold_into(y0, constants(FOLD_256), y1);
+        }
+        // SAFETY: features as required; 16 <= at <= data.len() and fewer than 64 bytes
+        // remain after `at` (the loop above stops there, or data.len() < 64).
+        unsafe { finish(x, data, at) }
+    }
+
+    /// A 128-bit lane's constants in all four lanes of a 512-bit register.
+    #[inline]
+    #[target_feature(enable = "avx512f")]
+    fn broadcast(k: (u64, u64)) -> __m512i {
+        _mm512_broadcast_i32x4(constants(k))
+    }
+
+    /// One fold of four lanes at once, with a three-way XOR in one instruction.
+    #[inline]
+    #[target_feature(enable = "avx512f,vpclmulqdq")]
+    fn fold512(x: __m512i, k: __m512i, next: __m512i) -> __m512i {
+        let lo = _mm512_clmulepi64_epi128(x, k, 0x00);
+        let hi = _mm512_clmulepi64_epi128(x, k, 0x11);
+        _mm512_ternarylogic_epi64(lo, hi, next, 0x96)
+    }
+
+    /// The 64 bytes of `data` at `at`.
+    ///
+    /// # Safety
+    /// The CPU must support `avx512f`; `at + 64 <= data.len()`.
+    #[inline]
+    #[target_feature(enable = "avx512f")]
+    unsafe fn load512(data: &[u8], at: usize) -> __m512i {
+        debug_assert!(at + 64 <= data.len());
+        // SAFETY: the 64 bytes read are inside `data` (the caller's promise); the load is
+        // unaligned, so any address is valid.
+        unsafe { _mm512_loadu_si512(data.as_ptr().add(at).cast()) }
+    }
+
+    /// Folds 256-byte blocks with four 512-bit accumulators, then 64-byte blocks with one,
+    /// then folds its four lanes into one and lets [`finish`] end.
+    ///
+    /// # Safety
+    /// The CPU must support `avx512f`, `avx512vl`, `vpclmulqdq`, `pclmulqdq` and `sse4.1`,
+    /// and `data.len() >= AVX512_MIN`.
+    #[target_feature(enable = "avx512f,avx512vl,vpclmulqdq,pclmulqdq,sse4.1")]
+    pub(super) unsafe fn crc16_avx512(crc: u16, data: &[u8]) -> u16 {
+        debug_assert!(data.len() >= AVX512_MIN);
+        let init = _mm512_castsi128_si512(_mm_cvtsi32_si128(i32::from(crc)));
+        let k512 = broadcast(FOLD_512);
+        // SAFETY (every `load512` below): the features were promised by the caller, and
+        // `at + 64 <= data.len()` holds at each call, by the length checks of the branch
+        // or loop around it.
+        let mut x = _mm512_xor_si512(unsafe { load512(data, 0) }, init);
+        let mut at = 64;
+        if data.len() >= 256 {
+            let k2048 = broadcast(FOLD_2048);
+            let mut x0 = x;
+            let mut x1 = unsafe { load512(data, 64) };
+            let mut x2 = unsafe { load512(data, 128) };
+            let mut x3 = unsafe { load512(data, 192) };
+            at = 256;
+            while at + 256 <= data.len() {
+                x0 = fold512(x0, k2048, unsafe { load512(data, at) });
+                x1 = fold512(x1, k2048, unsafe { load512(data, at + 64) });
+                x2 = fold512(x2, k2048, unsafe { load512(data, at + 128) });
+                x3 = fold512(x3, k2048, unsafe { load512(data, at + 192) });
+                at += 256;
+            }
+            let y0 = fold512(x0, k512, x1);
+            let y1 = fold512(x2, k512, x3);
+            x = fold512(y0, broadcast(FOLD_1024), y1);
+        }
+        while at + 64 <= data.len() {
+            x = fold512(x, k512, unsafe { load512(data, at) });
+            at += 64;
+        }
+        // Lanes 0, 1, 2 stand 48, 32 and 16 bytes before lane 3: fold each by its distance
+        // in one pair of multiplications (lane 3's constants are zero), then add them up.
+        let k = _mm512_set_epi64(
+            0,
+            0,
+            FOLD_128.1 as i64,
+            FOLD_128.0 as i64,
+            FOLD_256.1 as i64,
+            FOLD_256.0 as i64,
+            FOLD_384.1 as i64,
+            FOLD_384.0 as i64,
+        );
+        let folded = _mm512_xor_si512(
+            _mm512_clmulepi64_epi128(x, k, 0x00),
+            _mm512_clmulepi64_epi128(x, k, 0x11),
+        );
+        let lanes01 = _mm_xor_si128(
+            _mm512_castsi512_si128(folded),
+            _mm512_extracti32x4_epi32(folded, 1),
+        );
+        let lanes23 = _mm_xor_si128(
+            _mm512_extracti32x4_epi32(folded, 2),
+            _mm512_extracti32x4_epi32(x, 3),
+        );
+        // SAFETY: features as required; 64 <= at <= data.len() and fewer than 64 bytes
+        // remain after `at` (the loop above stops there).
+        unsafe { finish(_mm_xor_si128(lanes01, lanes23), data, at) }
     }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::codec::crc::crc16_reference;
+    use crate::codec::crc::{crc16_reference, crc16_update_table};
 
     #[test]
     fn constants_are_powers_of_x() {
@@ -150,33 +437,54 @@ mod tests {
         assert_eq!(xpow_mod(16), 0x8005);
     }
 
-    #[test]
-    fn equals_reference_on_every_length_and_init() {
-        if !available() {
-            eprintln!("pclmulqdq not available: SIMD CRC not tested on this CPU");
-            return;
-        }
-        let mut state: u64 = 0x2545_F491_4F6C_DD1D;
-        let mut next = || {
+    fn xorshift(mut state: u64) -> impl FnMut() -> u64 {
+        move || {
             state ^= state << 13;
             state ^= state >> 7;
             state ^= state << 17;
             state
-        };
-        for len in MIN_LEN..=2100 {
+        }
+    }
+
+    fn check_path(name: &str, available: bool, f: fn(u16, &[u8]) -> Option<u16>) {
+        if !available {
+            eprintln!("{name} not available: that SIMD CRC is not tested on this CPU");
+            assert_eq!(f(0xFFFF, &[0; 300]), None);
+            return;
+        }
+        let mut next = xorshift(0x2545_F491_4F6C_DD1D);
+        for len in 0..=2100 {
             let data: Vec<u8> = (0..len).map(|_| next() as u8).collect();
             let init = next() as u16;
-            let want = crate::codec::crc::crc16_update_table(init, &data);
+            let want = crc16_update_table(init, &data);
+            assert_eq!(f(init, &data), Some(want), "{name}: len {len} init {init:04X}");
             assert_eq!(
-                crc16_update(init, &data),
-                Some(want),
-                "len {len} init {init:04X}"
+                f(0xFFFF, &data),
+                Some(crc16_reference(&data)),
+                "{name}: len {len}"
             );
-            if init == 0xFFFF {
-                assert_eq!(want, crc16_reference(&data));
-            }
         }
-        let data: Vec<u8> = (0..4096).map(|_| next() as u8).collect();
-        assert_eq!(crc16_update(0xFFFF, &data), Some(crc16_reference(&data)));
+        let data: Vec<u8> = (0..70_000).map(|_| next() as u8).collect();
+        assert_eq!(f(0xFFFF, &data), Some(crc16_reference(&data)));
+    }
+
+    #[test]
+    fn pclmul_equals_reference_on_every_length_and_init() {
+        check_path("pclmulqdq", pclmul_available(), crc16_pclmul);
+    }
+
+    #[test]
+    fn avx512_equals_reference_on_every_length_and_init() {
+        check_path("avx512+vpclmulqdq", avx512_available(), crc16_avx512);
+    }
+
+    #[test]
+    fn automatic_choice_equals_reference() {
+        let mut next = xorshift(0x9E37_79B9_7F4A_7C15);
+        for len in [0, 1, 63, 64, 65, 255, 256, 257, 1024, 4096, 4097] {
+            let data: Vec<u8> = (0..len).map(|_| next() as u8).collect();
+            let want = crc16_update_table(0x1234, &data);
+            assert_eq!(crc16_update(0x1234, &data).unwrap_or(want), want);
+        }
     }
 }
