@@ -1,7 +1,9 @@
 //! CRC-16/MODBUS and LRC: the manuals' bitwise reference, our implementations, and the
 //! peer crates `crc-fast` (SIMD), `crc` (Table<1>, Table<16>) and `crc16`, in the same run.
 
-use conformance::codec::crc::{crc16, crc16_reference, crc16_update_table};
+use conformance::codec::crc::{
+    crc16, crc16_reference, crc16_update_table, crc16_update_with, CrcPath,
+};
 use conformance::codec::lrc::lrc;
 use criterion::{black_box, criterion_group, criterion_main, BenchmarkId, Criterion, Throughput};
 
@@ -30,6 +32,9 @@ fn crc(c: &mut Criterion) {
         assert_eq!(table16.checksum(&d), want);
         assert_eq!(crc16::State::<crc16::MODBUS>::calculate(&d), want);
         assert_eq!(crc_fast_modbus(&d), want);
+        for path in CrcPath::supported() {
+            assert_eq!(crc16_update_with(path, 0xFFFF, &d), Some(want));
+        }
 
         group.throughput(Throughput::Bytes(size as u64));
         group.bench_with_input(BenchmarkId::new("manual-bitwise", size), &d, |b, d| {
@@ -41,6 +46,13 @@ fn crc(c: &mut Criterion) {
         group.bench_with_input(BenchmarkId::new("ours-table", size), &d, |b, d| {
             b.iter(|| crc16_update_table(0xFFFF, black_box(d)))
         });
+        // Each SIMD path forced, where this CPU has it ("ours" picks one by length).
+        for path in CrcPath::supported().filter(|p| *p != CrcPath::Table) {
+            let id = BenchmarkId::new(format!("ours-{}", path.name()), size);
+            group.bench_with_input(id, &d, |b, d| {
+                b.iter(|| crc16_update_with(path, 0xFFFF, black_box(d)))
+            });
+        }
         group.bench_with_input(BenchmarkId::new("crc-fast", size), &d, |b, d| {
             b.iter(|| crc_fast_modbus(black_box(d)))
         });

@@ -6,7 +6,7 @@
 //! rather than as an unreadable frame.
 
 use super::error::FrameError;
-use super::hex::{decode_nibble, encode_byte};
+use super::hex::{decode_nibble, encode_byte, nibble_or_ff};
 use super::lrc::lrc;
 use super::pdu::{Direction, Message};
 use super::{Checksum, Unchecked, MAX_ASCII_FRAME, MAX_RTU_FRAME};
@@ -156,6 +156,7 @@ pub fn is_valid_frame(frame: &[u8]) -> bool {
 
 /// Decodes an ASCII frame, checking delimiters, hex, LRC and every count field. The binary
 /// bytes are written into `scratch`, which the returned message borrows.
+#[inline]
 pub fn decode_ascii<'b>(
     frame: &[u8],
     direction: Direction,
@@ -168,11 +169,24 @@ pub fn decode_ascii<'b>(
 
 /// Decodes an ASCII frame without rejecting a wrong LRC (see
 /// [`decode_rtu_unchecked`](super::decode_rtu_unchecked)).
+#[inline]
 pub fn decode_ascii_unchecked<'b>(
     frame: &[u8],
     direction: Direction,
     scratch: &'b mut Scratch,
 ) -> Result<Unchecked<'b>, FrameError> {
+    if let Some((n, sum)) = decode_hex_fast(frame, scratch) {
+        let scratch: &'b Scratch = scratch;
+        let carried = scratch[n - 1];
+        // The sum of all bytes, the LRC included, minus the LRC is the sum of the body.
+        let computed = carried.wrapping_sub(sum);
+        let message = Message::parse_body(&scratch[..n - 1], direction)?;
+        return Ok(Unchecked {
+            message,
+            checksum: Checksum::Lrc { carried, computed },
+        });
+    }
+    // A malformed frame: the checks one by one, for the error that says what is wrong.
     let view = AsciiFrame::new_checked(frame)?;
     let carried = view.carried_lrc();
     let body = view.body_into(scratch);
@@ -182,6 +196,33 @@ pub fn decode_ascii_unchecked<'b>(
     };
     let message = Message::parse_body(body, direction)?;
     Ok(Unchecked { message, checksum })
+}
+
+/// The common case in one pass: a well-formed frame's hex decoded into `scratch`.
+/// Returns the number of bytes decoded (LRC included) and their 8-bit sum, or `None`
+/// when the frame is malformed in any way [`AsciiFrame::new_checked`] rejects.
+#[inline]
+fn decode_hex_fast(frame: &[u8], scratch: &mut Scratch) -> Option<(usize, u8)> {
+    let len = frame.len();
+    if !(MIN_ASCII_FRAME..=MAX_ASCII_FRAME).contains(&len)
+        || frame[0] != START
+        || frame[len - 2..] != END
+        || (len - 3) % 2 != 0
+    {
+        return None;
+    }
+    let hex = &frame[1..len - 2];
+    let mut bad = 0u8;
+    let mut sum = 0u8;
+    // At most 255 pairs (513 characters), so `zip` never runs out of scratch.
+    for (slot, pair) in scratch.iter_mut().zip(hex.chunks_exact(2)) {
+        let (h, l) = (nibble_or_ff(pair[0]), nibble_or_ff(pair[1]));
+        bad |= h | l;
+        let b = h << 4 | l;
+        *slot = b;
+        sum = sum.wrapping_add(b);
+    }
+    (bad & 0xF0 == 0).then_some((hex.len() / 2, sum))
 }
 
 /// Writes ':' + hex of `body` + LRC + CR LF into `out`; returns the length.
