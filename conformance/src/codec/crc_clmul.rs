@@ -191,9 +191,7 @@ pub fn crc16_avx512(crc: u16, data: &[u8]) -> Option<u16> {
 mod x86 {
     use std::arch::x86_64::*;
 
-    use super::{
-        FOLD_1024, FOLD_128, FOLD_2048, FOLD_256, FOLD_384, FOLD_512, FOLD_TO_80,
-    };
+    use super::{FOLD_1024, FOLD_128, FOLD_2048, FOLD_256, FOLD_384, FOLD_512, FOLD_TO_80};
     use crate::codec::crc::crc16_table_u64;
 
     /// Shortest input of [`crc16_pclmul`]: one 16-byte block.
@@ -457,7 +455,11 @@ mod tests {
             let data: Vec<u8> = (0..len).map(|_| next() as u8).collect();
             let init = next() as u16;
             let want = crc16_update_table(init, &data);
-            assert_eq!(f(init, &data), Some(want), "{name}: len {len} init {init:04X}");
+            assert_eq!(
+                f(init, &data),
+                Some(want),
+                "{name}: len {len} init {init:04X}"
+            );
             assert_eq!(
                 f(0xFFFF, &data),
                 Some(crc16_reference(&data)),

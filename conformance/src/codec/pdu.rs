@@ -446,7 +446,7 @@ pub struct Message<'a> {
 
 impl<'a> Message<'a> {
     /// Parses address, function and data (no checksum) for `direction`.
-    #[inline]
+    #[inline(always)]
     pub fn parse_body(body: &'a [u8], direction: Direction) -> Result<Self, FrameError> {
         match body {
             [address, function, data @ ..] => Ok(Message {
