@@ -5,9 +5,7 @@
 //! Each function **panics when the codec breaks a law**: that is its purpose, as a test
 //! oracle. Nothing in the codec calls these.
 
-use crate::codec::crc::{
-    crc16, crc16_reference, crc16_update, crc16_update_with, CrcPath,
-};
+use crate::codec::crc::{crc16, crc16_reference, crc16_update, crc16_update_with, CrcPath};
 use crate::codec::timing::{LineSettings, Parity};
 use crate::codec::{
     ascii_to_rtu, decode_ascii, decode_ascii_unchecked, decode_rtu, decode_rtu_unchecked,

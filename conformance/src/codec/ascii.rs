@@ -139,7 +139,7 @@ pub fn is_valid_frame(frame: &[u8]) -> bool {
     if !(MIN_ASCII_FRAME..=MAX_ASCII_FRAME).contains(&len)
         || frame[0] != START
         || frame[len - 2..] != END
-        || (len - 3) % 2 != 0
+        || !(len - 3).is_multiple_of(2)
     {
         return false;
     }
@@ -207,7 +207,7 @@ fn decode_hex_fast(frame: &[u8], scratch: &mut Scratch) -> Option<(usize, u8)> {
     if !(MIN_ASCII_FRAME..=MAX_ASCII_FRAME).contains(&len)
         || frame[0] != START
         || frame[len - 2..] != END
-        || (len - 3) % 2 != 0
+        || !(len - 3).is_multiple_of(2)
     {
         return None;
     }

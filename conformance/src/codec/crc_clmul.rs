@@ -1,9 +1,9 @@
 //! CRC-16/MODBUS by carry-less multiplication folding (x86-64): PCLMULQDQ on 128-bit
 //! lanes, and VPCLMULQDQ on 512-bit registers (AVX-512) for long inputs.
 //!
-//! The one module of the crate with `unsafe` code: SIMD intrinsics, each kernel called only
-//! after runtime detection of the CPU features it is compiled for, and unaligned loads at
-//! offsets whose bounds are checked against the slice's length first.
+//! The one module of the crate with `unsafe` code: each kernel is called only after
+//! runtime detection of the CPU features it is compiled for, and every load reads from a
+//! reference to an array of exactly the bytes it loads.
 //!
 //! # How it works
 //!
@@ -156,13 +156,10 @@ pub fn crc16_update(crc: u16, data: &[u8]) -> Option<u16> {
 pub fn crc16_pclmul(crc: u16, data: &[u8]) -> Option<u16> {
     #[cfg(target_arch = "x86_64")]
     {
-        if data.len() >= x86::PCLMUL_MIN && pclmul_available() {
-            // SAFETY: the features `x86::crc16_pclmul` is compiled for were detected just
-            // above, and it requires at least PCLMUL_MIN bytes, checked just above.
-            return Some(unsafe { x86::crc16_pclmul(crc, data) });
-        }
         if pclmul_available() {
-            return Some(super::crc::crc16_update_table(crc, data));
+            // SAFETY: `x86::crc16_pclmul` is compiled for `pclmulqdq` and `sse4.1`, which
+            // `pclmul_available` has just detected on this CPU; it takes any length.
+            return Some(unsafe { x86::crc16_pclmul(crc, data) });
         }
     }
     let _ = (crc, data);
@@ -175,106 +172,91 @@ pub fn crc16_avx512(crc: u16, data: &[u8]) -> Option<u16> {
     #[cfg(target_arch = "x86_64")]
     {
         if avx512_available() {
-            if data.len() >= x86::AVX512_MIN {
-                // SAFETY: the features `x86::crc16_avx512` is compiled for were detected
-                // just above, and it requires at least AVX512_MIN bytes, checked just above.
-                return Some(unsafe { x86::crc16_avx512(crc, data) });
-            }
-            return crc16_pclmul(crc, data);
+            // SAFETY: `x86::crc16_avx512` is compiled for `avx512f`, `avx512vl`,
+            // `vpclmulqdq`, `pclmulqdq` and `sse4.1`, which `avx512_available` has just
+            // detected on this CPU; it takes any length.
+            return Some(unsafe { x86::crc16_avx512(crc, data) });
         }
     }
     let _ = (crc, data);
     None
 }
 
+/// The kernels. They are safe functions with `#[target_feature]`: calling one needs
+/// `unsafe` (and the features detected) only from code compiled without those features.
+/// Every load reads from a reference to an array of exactly the bytes loaded, made by
+/// `as_chunks`, `first_chunk` or `last_chunk`, so no offset arithmetic can leave the
+/// slice and no length check can panic.
 #[cfg(target_arch = "x86_64")]
 mod x86 {
     use std::arch::x86_64::*;
 
     use super::{FOLD_1024, FOLD_128, FOLD_2048, FOLD_256, FOLD_384, FOLD_512, FOLD_TO_80};
-    use crate::codec::crc::crc16_table_u64;
-
-    /// Shortest input of [`crc16_pclmul`]: one 16-byte block.
-    pub(super) const PCLMUL_MIN: usize = 16;
-    /// Shortest input of [`crc16_avx512`]: one 64-byte register.
-    pub(super) const AVX512_MIN: usize = 64;
-
-    /// Byte-shuffle masks: the 16 bytes from offset `s` shift a register left by `16 - s`
-    /// bytes (zeros enter: PSHUFB writes zero where the mask byte's top bit is set), and
-    /// the 16 bytes from `16 + s` shift it right by `s`.
-    static SHIFT: [u8; 48] = {
-        let mut t = [0x80u8; 48];
-        let mut i = 0;
-        while i < 16 {
-            t[16 + i] = i as u8;
-            i += 1;
-        }
-        t
-    };
+    use crate::codec::crc::{crc16_table_u64, crc16_update_table};
 
     /// Folding constants as a 128-bit lane: low lane's constant low.
-    #[inline(always)]
+    #[inline]
+    #[target_feature(enable = "sse2")]
     fn constants(k: (u64, u64)) -> __m128i {
-        // SAFETY: SSE2, part of the x86-64 baseline, is all this needs.
-        unsafe { _mm_set_epi64x(k.1 as i64, k.0 as i64) }
+        _mm_set_epi64x(k.1 as i64, k.0 as i64)
     }
 
-    /// # Safety
-    /// The CPU must support `pclmulqdq`.
+    /// One fold: `x`·x^D mod P (lazily), XORed into `next`.
     #[inline]
     #[target_feature(enable = "pclmulqdq,sse4.1")]
-    unsafe fn fold_into(x: __m128i, k: __m128i, next: __m128i) -> __m128i {
+    fn fold_into(x: __m128i, k: __m128i, next: __m128i) -> __m128i {
         let lo = _mm_clmulepi64_si128(x, k, 0x00);
         let hi = _mm_clmulepi64_si128(x, k, 0x11);
         _mm_xor_si128(_mm_xor_si128(lo, hi), next)
     }
 
-    /// The 16 bytes of `data` at `at`.
-    ///
-    /// # Safety
-    /// `at + 16 <= data.len()`.
-    #[inline(always)]
-    unsafe fn load128(data: &[u8], at: usize) -> __m128i {
-        debug_assert!(at + 16 <= data.len());
-        // SAFETY: the 16 bytes read are inside `data` (the caller's promise); the load is
-        // unaligned, so any address is valid.
-        unsafe { _mm_loadu_si128(data.as_ptr().add(at).cast()) }
+    /// Sixteen bytes as a register.
+    #[inline]
+    #[target_feature(enable = "sse2")]
+    fn load128(bytes: &[u8; 16]) -> __m128i {
+        // SAFETY: `bytes` refers to 16 readable bytes, exactly what the load reads; the
+        // load is unaligned, so any address is valid.
+        unsafe { _mm_loadu_si128(bytes.as_ptr().cast()) }
     }
 
-    /// The 16 bytes of `SHIFT` from `from` (at most 32) as a shuffle mask.
-    #[inline(always)]
-    fn shift_mask(from: usize) -> __m128i {
-        let m = &SHIFT[from..from + 16];
-        // SAFETY: `m` is 16 bytes long (the slice above is bounds-checked); unaligned load.
-        unsafe { _mm_loadu_si128(m.as_ptr().cast()) }
+    /// Lane `I` (16 bytes at 16·I) of a 64-byte block as a register.
+    #[inline]
+    #[target_feature(enable = "sse2")]
+    fn lane128<const I: usize>(block: &[u8; 64]) -> __m128i {
+        const { assert!(I < 4) };
+        // SAFETY: I < 4 (checked at compile time), so the 16 bytes at 16·I lie inside
+        // the 64 that `block` refers to; the load is unaligned.
+        unsafe { _mm_loadu_si128(block.as_ptr().add(16 * I).cast()) }
     }
 
-    /// Ends a computation: `x` is the folded state of `data[..at]` (at >= 16), followed by
-    /// `data[at..]`, fewer than 64 bytes. Returns the CRC register.
-    ///
-    /// # Safety
-    /// The CPU must support `pclmulqdq` and `sse4.1`; `16 <= at <= data.len()` and
-    /// `data.len() - at < 64`.
+    /// Ends a computation: `x` is the folded state of the data before `rest`, at least 16
+    /// bytes, and `last` the last 16 bytes of all the data (`rest` included). Returns the
+    /// CRC register.
     #[inline]
     #[target_feature(enable = "pclmulqdq,sse4.1")]
-    unsafe fn finish(mut x: __m128i, data: &[u8], mut at: usize) -> u16 {
-        debug_assert!(at >= 16 && at <= data.len());
+    fn finish(mut x: __m128i, rest: &[u8], last: &[u8; 16]) -> u16 {
         let k128 = constants(FOLD_128);
-        while at + 16 <= data.len() {
-            // SAFETY: `at + 16 <= data.len()` is the loop condition.
-            x = fold_into(x, k128, unsafe { load128(data, at) });
-            at += 16;
+        let (blocks, tail) = rest.as_chunks::<16>();
+        for block in blocks {
+            x = fold_into(x, k128, load128(block));
         }
-        let t = data.len() - at;
+        let t = tail.len();
         if t > 0 {
             // The last t bytes: the state's first t bytes are folded over the 16 bytes
-            // made of the state's other 16 - t bytes and the t new ones.
-            // SAFETY: `data.len() >= at >= 16`, so the last 16 bytes are inside `data`.
-            let last = unsafe { load128(data, data.len() - 16) };
-            let high = _mm_shuffle_epi8(x, shift_mask(t));
-            let low = _mm_shuffle_epi8(x, shift_mask(16 + t));
-            // The left-shift mask has its top bit set exactly where `low` keeps state.
-            let block = _mm_blendv_epi8(last, low, shift_mask(t));
+            // made of the state's other 16 - t bytes and the t new ones, which are the
+            // end of `last`. Shuffle masks from 0, 1, .., 15: byte i of `high` is state
+            // byte i - (16 - t) (zero where that is negative: PSHUFB writes zero where the
+            // mask byte's top bit is set), byte i of `low` is state byte i + t (zero past
+            // the end).
+            let t = t as i8;
+            let iota = _mm_setr_epi8(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15);
+            let to_high = _mm_add_epi8(iota, _mm_set1_epi8(t - 16));
+            let down = _mm_add_epi8(iota, _mm_set1_epi8(t));
+            let to_low = _mm_or_si128(down, _mm_cmpgt_epi8(down, _mm_set1_epi8(15)));
+            let high = _mm_shuffle_epi8(x, to_high);
+            let low = _mm_shuffle_epi8(x, to_low);
+            // `to_high` has its top bit set exactly where `low` keeps state bytes.
+            let block = _mm_blendv_epi8(load128(last), low, to_high);
             x = fold_into(high, k128, block);
         }
         // x = H·x^64 + L stands for x·x^16 mod P. H·(x^80 mod P) + L·x^16 is congruent and
@@ -288,42 +270,37 @@ mod x86 {
         crc16_table_u64(0, message) ^ low16
     }
 
-    /// Folds 64-byte blocks with four 128-bit accumulators, then single blocks.
-    ///
-    /// # Safety
-    /// The CPU must support `pclmulqdq` and `sse4.1`, and `data.len() >= PCLMUL_MIN`.
+    /// Folds 64-byte blocks with four 128-bit accumulators, then single 16-byte blocks;
+    /// the table below 16 bytes.
     #[target_feature(enable = "pclmulqdq,sse4.1")]
-    pub(super) unsafe fn crc16_pclmul(crc: u16, data: &[u8]) -> u16 {
-        debug_assert!(data.len() >= PCLMUL_MIN);
+    pub(super) fn crc16_pclmul(crc: u16, data: &[u8]) -> u16 {
+        let (Some((first, after_first)), Some(last)) =
+            (data.split_first_chunk::<16>(), data.last_chunk::<16>())
+        else {
+            return crc16_update_table(crc, data);
+        };
         // The initial register value enters as an XOR into the first two bytes.
         let init = _mm_cvtsi32_si128(i32::from(crc));
-        // SAFETY (every `load128` below): `at + 16 <= data.len()` holds at each call, by
-        // the length checks of the branch or loop around it.
-        let mut x = _mm_xor_si128(unsafe { load128(data, 0) }, init);
-        let mut at = 16;
-        if data.len() >= 64 {
-            let k512 = constants(FOLD_512);
-            let mut x0 = x;
-            let mut x1 = unsafe { load128(data, 16) };
-            let mut x2 = unsafe { load128(data, 32) };
-            let mut x3 = unsafe { load128(data, 48) };
-            at = 64;
-            while at + 64 <= data.len() {
-                x0 = fold_into(x0, k512, unsafe { load128(data, at) });
-                x1 = fold_into(x1, k512, unsafe { load128(data, at + 16) });
-                x2 = fold_into(x2, k512, unsafe { load128(data, at + 32) });
-                x3 = fold_into(x3, k512, unsafe { load128(data, at + 48) });
-                at += 64;
-            }
-            // A tree, so two multiplications stand in the dependency chain, not three.
-            let k128 = constants(FOLD_128);
-            let y0 = fold_into(x0, k128, x1);
-            let y1 = fold_into(x2, k128, x3);
-            x = fold_into(y0, constants(FOLD_256), y1);
+        let (blocks, rest) = data.as_chunks::<64>();
+        let Some((head, blocks)) = blocks.split_first() else {
+            return finish(_mm_xor_si128(load128(first), init), after_first, last);
+        };
+        let k512 = constants(FOLD_512);
+        let mut x0 = _mm_xor_si128(lane128::<0>(head), init);
+        let mut x1 = lane128::<1>(head);
+        let mut x2 = lane128::<2>(head);
+        let mut x3 = lane128::<3>(head);
+        for block in blocks {
+            x0 = fold_into(x0, k512, lane128::<0>(block));
+            x1 = fold_into(x1, k512, lane128::<1>(block));
+            x2 = fold_into(x2, k512, lane128::<2>(block));
+            x3 = fold_into(x3, k512, lane128::<3>(block));
         }
-        // SAFETY: features as required; 16 <= at <= data.len() and fewer than 64 bytes
-        // remain after `at` (the loop above stops there, or data.len() < 64).
-        unsafe { finish(x, data, at) }
+        // A tree, so two multiplications stand in the dependency chain, not three.
+        let k128 = constants(FOLD_128);
+        let y0 = fold_into(x0, k128, x1);
+        let y1 = fold_into(x2, k128, x3);
+        finish(fold_into(y0, constants(FOLD_256), y1), rest, last)
     }
 
     /// A 128-bit lane's constants in all four lanes of a 512-bit register.
@@ -342,56 +319,60 @@ mod x86 {
         _mm512_ternarylogic_epi64(lo, hi, next, 0x96)
     }
 
-    /// The 64 bytes of `data` at `at`.
-    ///
-    /// # Safety
-    /// The CPU must support `avx512f`; `at + 64 <= data.len()`.
+    /// Sixty-four bytes as a register.
     #[inline]
     #[target_feature(enable = "avx512f")]
-    unsafe fn load512(data: &[u8], at: usize) -> __m512i {
-        debug_assert!(at + 64 <= data.len());
-        // SAFETY: the 64 bytes read are inside `data` (the caller's promise); the load is
-        // unaligned, so any address is valid.
-        unsafe { _mm512_loadu_si512(data.as_ptr().add(at).cast()) }
+    fn load512(bytes: &[u8; 64]) -> __m512i {
+        // SAFETY: `bytes` refers to 64 readable bytes, exactly what the load reads; the
+        // load is unaligned, so any address is valid.
+        unsafe { _mm512_loadu_si512(bytes.as_ptr().cast()) }
+    }
+
+    /// Register `I` (64 bytes at 64·I) of a 256-byte block.
+    #[inline]
+    #[target_feature(enable = "avx512f")]
+    fn lane512<const I: usize>(block: &[u8; 256]) -> __m512i {
+        const { assert!(I < 4) };
+        // SAFETY: I < 4 (checked at compile time), so the 64 bytes at 64·I lie inside
+        // the 256 that `block` refers to; the load is unaligned.
+        unsafe { _mm512_loadu_si512(block.as_ptr().add(64 * I).cast()) }
     }
 
     /// Folds 256-byte blocks with four 512-bit accumulators, then 64-byte blocks with one,
-    /// then folds its four lanes into one and lets [`finish`] end.
-    ///
-    /// # Safety
-    /// The CPU must support `avx512f`, `avx512vl`, `vpclmulqdq`, `pclmulqdq` and `sse4.1`,
-    /// and `data.len() >= AVX512_MIN`.
+    /// then folds its four lanes into one and lets [`finish`] end; the PCLMULQDQ kernel
+    /// below 64 bytes.
     #[target_feature(enable = "avx512f,avx512vl,vpclmulqdq,pclmulqdq,sse4.1")]
-    pub(super) unsafe fn crc16_avx512(crc: u16, data: &[u8]) -> u16 {
-        debug_assert!(data.len() >= AVX512_MIN);
+    pub(super) fn crc16_avx512(crc: u16, data: &[u8]) -> u16 {
+        let (Some((first, after_first)), Some(last)) =
+            (data.split_first_chunk::<64>(), data.last_chunk::<16>())
+        else {
+            return crc16_pclmul(crc, data);
+        };
         let init = _mm512_castsi128_si512(_mm_cvtsi32_si128(i32::from(crc)));
         let k512 = broadcast(FOLD_512);
-        // SAFETY (every `load512` below): the features were promised by the caller, and
-        // `at + 64 <= data.len()` holds at each call, by the length checks of the branch
-        // or loop around it.
-        let mut x = _mm512_xor_si512(unsafe { load512(data, 0) }, init);
-        let mut at = 64;
-        if data.len() >= 256 {
-            let k2048 = broadcast(FOLD_2048);
-            let mut x0 = x;
-            let mut x1 = unsafe { load512(data, 64) };
-            let mut x2 = unsafe { load512(data, 128) };
-            let mut x3 = unsafe { load512(data, 192) };
-            at = 256;
-            while at + 256 <= data.len() {
-                x0 = fold512(x0, k2048, unsafe { load512(data, at) });
-                x1 = fold512(x1, k2048, unsafe { load512(data, at + 64) });
-                x2 = fold512(x2, k2048, unsafe { load512(data, at + 128) });
-                x3 = fold512(x3, k2048, unsafe { load512(data, at + 192) });
-                at += 256;
+        let (big, after_big) = data.as_chunks::<256>();
+        let (mut x, rest) = match big.split_first() {
+            None => (_mm512_xor_si512(load512(first), init), after_first),
+            Some((head, blocks)) => {
+                let k2048 = broadcast(FOLD_2048);
+                let mut x0 = _mm512_xor_si512(lane512::<0>(head), init);
+                let mut x1 = lane512::<1>(head);
+                let mut x2 = lane512::<2>(head);
+                let mut x3 = lane512::<3>(head);
+                for block in blocks {
+                    x0 = fold512(x0, k2048, lane512::<0>(block));
+                    x1 = fold512(x1, k2048, lane512::<1>(block));
+                    x2 = fold512(x2, k2048, lane512::<2>(block));
+                    x3 = fold512(x3, k2048, lane512::<3>(block));
+                }
+                let y0 = fold512(x0, k512, x1);
+                let y1 = fold512(x2, k512, x3);
+                (fold512(y0, broadcast(FOLD_1024), y1), after_big)
             }
-            let y0 = fold512(x0, k512, x1);
-            let y1 = fold512(x2, k512, x3);
-            x = fold512(y0, broadcast(FOLD_1024), y1);
-        }
-        while at + 64 <= data.len() {
-            x = fold512(x, k512, unsafe { load512(data, at) });
-            at += 64;
+        };
+        let (blocks, rest) = rest.as_chunks::<64>();
+        for block in blocks {
+            x = fold512(x, k512, load512(block));
         }
         // Lanes 0, 1, 2 stand 48, 32 and 16 bytes before lane 3: fold each by its distance
         // in one pair of multiplications (lane 3's constants are zero), then add them up.
@@ -417,9 +398,7 @@ mod x86 {
             _mm512_extracti32x4_epi32(folded, 2),
             _mm512_extracti32x4_epi32(x, 3),
         );
-        // SAFETY: features as required; 64 <= at <= data.len() and fewer than 64 bytes
-        // remain after `at` (the loop above stops there).
-        unsafe { finish(_mm_xor_si128(lanes01, lanes23), data, at) }
+        finish(_mm_xor_si128(lanes01, lanes23), rest, last)
     }
 }
 

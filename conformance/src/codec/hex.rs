@@ -134,7 +134,7 @@ pub fn parse_hex(input: &str) -> Result<Vec<u8>, HexError> {
                 });
             }
         }
-        if token.len() % 2 != 0 {
+        if !token.len().is_multiple_of(2) {
             return Err(HexError::OddDigits {
                 token: token.to_string(),
                 column,

@@ -54,7 +54,7 @@ impl<'a> Registers<'a> {
     /// Wraps big-endian register bytes; their length must be even.
     #[inline]
     pub fn new(bytes: &'a [u8]) -> Result<Self, FrameError> {
-        if bytes.len() % 2 != 0 {
+        if !bytes.len().is_multiple_of(2) {
             return Err(FrameError::OddRegisterBytes { len: bytes.len() });
         }
         Ok(Registers(bytes))
