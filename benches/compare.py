@@ -26,7 +26,7 @@ STAT = "mean"
 def load(root, which):
     out = {}
     for dirpath, _dirs, files in os.walk(root):
-        if os.path.basename(dirpath) != which or "estimates.json" not in files:
+        if os.path.basename(dirpath) != which or not {"estimates.json", "benchmark.json"} <= set(files):
             continue
         with open(os.path.join(dirpath, "benchmark.json")) as f:
             bench = json.load(f)
