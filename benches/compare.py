@@ -8,6 +8,11 @@
 Reads target/criterion/**/{new,<baseline>}/{estimates,benchmark}.json. Prints one row per
 bench: mean time, throughput, and with --baseline the change of the mean; a slowdown over
 the threshold (default 10%) is flagged REGRESSION and makes the exit code 1.
+
+--peers prints the comparisons of issue 17 from the latest run instead: CRC-16 per size
+(ours against crc-fast, crc Table<16> and crc16) and checked decode of the F510 03H
+request and response (ours RTU and ASCII against modbus-core and rmodbus), as ratios.
+--stat median uses criterion's median instead of the mean (steadier on a shared machine).
 """
 import argparse
 import json
@@ -15,16 +20,19 @@ import os
 import sys
 
 
+STAT = "mean"
+
+
 def load(root, which):
     out = {}
     for dirpath, _dirs, files in os.walk(root):
-        if os.path.basename(dirpath) != which or "estimates.json" not in files:
+        if os.path.basename(dirpath) != which or not {"estimates.json", "benchmark.json"} <= set(files):
             continue
         with open(os.path.join(dirpath, "benchmark.json")) as f:
             bench = json.load(f)
         with open(os.path.join(dirpath, "estimates.json")) as f:
             est = json.load(f)
-        out[bench["full_id"]] = (est["mean"]["point_estimate"], bench.get("throughput"))
+        out[bench["full_id"]] = (est[STAT]["point_estimate"], bench.get("throughput"))
     return out
 
 
@@ -47,18 +55,70 @@ def fmt_thrpt(ns, thr):
     return ""
 
 
+def peers(new, markdown):
+    """Ratios of the issue-17 goals; a ratio > 1 means ours is faster."""
+    def row(cells):
+        if markdown:
+            print("| " + " | ".join(cells) + " |")
+        else:
+            print("  ".join(c.ljust(14) for c in cells).rstrip())
+
+    def head(cells):
+        row(cells)
+        if markdown:
+            print("|" + "---|" * len(cells))
+
+    sizes = sorted({int(b.rsplit("/", 1)[1]) for b in new if b.startswith("crc16/ours/")})
+    peers_crc = ["crc-fast", "crc-table16", "crc16-crate"]
+    head(["size", "path", "ours"] + peers_crc + ["vs crc-fast", "vs Table<16>", "vs crc16"])
+    for size in sizes:
+        ours = new.get(f"crc16/ours/{size}", (None,))[0]
+        times = [new.get(f"crc16/{p}/{size}", (None,))[0] for p in peers_crc]
+        cells = [fmt_size(size), crc_path(size), fmt_time(ours)]
+        cells += [fmt_time(t) if t else "-" for t in times]
+        cells += [f"{t / ours:.2f}x" if t else "-" for t in times]
+        row(cells)
+    print()
+    head(["message", "ours RTU", "ours ASCII", "modbus-core", "rmodbus", "vs modbus-core", "ASCII/RTU"])
+    for group in sorted({b.rsplit("/", 1)[0] for b in new if b.startswith("peers/")}):
+        t = {k: new.get(f"{group}/{k}", (None,))[0] for k in ("ours", "ours-ascii", "modbus-core", "rmodbus")}
+        if not t["ours"]:
+            continue
+        row([group.split("/", 1)[1]] + [fmt_time(v) if v else "-" for v in t.values()] + [
+            f"{t['modbus-core'] / t['ours']:.2f}x" if t["modbus-core"] else "-",
+            f"{t['ours-ascii'] / t['ours']:.2f}x" if t["ours-ascii"] else "-",
+        ])
+
+
+def fmt_size(n):
+    return f"{n // 1024} KiB" if n >= 1024 and n % 1024 == 0 else f"{n} B"
+
+
+def crc_path(n):
+    """The path `crc16` takes at this length on a CPU with AVX-512 and VPCLMULQDQ
+    (thresholds of conformance/src/codec/crc_clmul.rs)."""
+    return "table" if n < 64 else ("pclmul" if n < 256 else "avx512")
+
+
 def main():
+    global STAT
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--criterion-dir", default="target/criterion")
     ap.add_argument("--baseline", help="name given to --save-baseline")
     ap.add_argument("--threshold", type=float, default=10.0, help="regression threshold in percent")
     ap.add_argument("--filter", default="", help="only benches whose id contains this")
     ap.add_argument("--markdown", action="store_true", help="print a Markdown table")
+    ap.add_argument("--peers", action="store_true", help="print the issue-17 comparisons with ratios")
+    ap.add_argument("--stat", choices=["mean", "median"], default="mean", help="criterion estimate to use")
     args = ap.parse_args()
+    STAT = args.stat
 
     new = load(args.criterion_dir, "new")
     if not new:
         sys.exit(f"no criterion results under {args.criterion_dir}: run cargo bench first")
+    if args.peers:
+        peers(new, args.markdown)
+        return
     base = load(args.criterion_dir, args.baseline) if args.baseline else {}
     if args.baseline and not base:
         sys.exit(f"no baseline named {args.baseline!r} under {args.criterion_dir}")

@@ -1,14 +1,21 @@
 //! CRC-16/MODBUS and LRC: the manuals' bitwise reference, our implementations, and the
-//! peer crates `crc` (Table<1>, Table<16>) and `crc16`, in the same run.
+//! peer crates `crc-fast` (SIMD), `crc` (Table<1>, Table<16>) and `crc16`, in the same run.
 
-use conformance::codec::crc::{crc16, crc16_reference, crc16_update_table};
+use conformance::codec::crc::{
+    crc16, crc16_reference, crc16_update_table, crc16_update_with, CrcPath,
+};
 use conformance::codec::lrc::lrc;
 use criterion::{black_box, criterion_group, criterion_main, BenchmarkId, Criterion, Throughput};
 
-const SIZES: [usize; 4] = [8, 80, 256, 64 * 1024];
+const SIZES: [usize; 6] = [8, 80, 256, 1024, 4096, 64 * 1024];
 
 fn data(size: usize) -> Vec<u8> {
     (0..size).map(|i| (i.wrapping_mul(31) + 7) as u8).collect()
+}
+
+/// CRC-16/MODBUS by `crc-fast`, whose one-shot API returns every width as `u64`.
+fn crc_fast_modbus(d: &[u8]) -> u16 {
+    crc_fast::checksum(crc_fast::CrcAlgorithm::Crc16Modbus, d) as u16
 }
 
 fn crc(c: &mut Criterion) {
@@ -24,6 +31,10 @@ fn crc(c: &mut Criterion) {
         assert_eq!(table1.checksum(&d), want);
         assert_eq!(table16.checksum(&d), want);
         assert_eq!(crc16::State::<crc16::MODBUS>::calculate(&d), want);
+        assert_eq!(crc_fast_modbus(&d), want);
+        for path in CrcPath::supported() {
+            assert_eq!(crc16_update_with(path, 0xFFFF, &d), Some(want));
+        }
 
         group.throughput(Throughput::Bytes(size as u64));
         group.bench_with_input(BenchmarkId::new("manual-bitwise", size), &d, |b, d| {
@@ -34,6 +45,16 @@ fn crc(c: &mut Criterion) {
         });
         group.bench_with_input(BenchmarkId::new("ours-table", size), &d, |b, d| {
             b.iter(|| crc16_update_table(0xFFFF, black_box(d)))
+        });
+        // Each SIMD path forced, where this CPU has it ("ours" picks one by length).
+        for path in CrcPath::supported().filter(|p| *p != CrcPath::Table) {
+            let id = BenchmarkId::new(format!("ours-{}", path.name()), size);
+            group.bench_with_input(id, &d, |b, d| {
+                b.iter(|| crc16_update_with(path, 0xFFFF, black_box(d)))
+            });
+        }
+        group.bench_with_input(BenchmarkId::new("crc-fast", size), &d, |b, d| {
+            b.iter(|| crc_fast_modbus(black_box(d)))
         });
         group.bench_with_input(BenchmarkId::new("crc-table1", size), &d, |b, d| {
             b.iter(|| table1.checksum(black_box(d)))

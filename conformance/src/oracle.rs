@@ -5,7 +5,7 @@
 //! Each function **panics when the codec breaks a law**: that is its purpose, as a test
 //! oracle. Nothing in the codec calls these.
 
-use crate::codec::crc::{crc16, crc16_reference, crc16_update};
+use crate::codec::crc::{crc16, crc16_reference, crc16_update, crc16_update_with, CrcPath};
 use crate::codec::timing::{LineSettings, Parity};
 use crate::codec::{
     ascii_to_rtu, decode_ascii, decode_ascii_unchecked, decode_rtu, decode_rtu_unchecked,
@@ -189,13 +189,38 @@ pub fn ascii_deframer(data: &[u8]) {
     );
 }
 
-/// CRC differential: the fast CRC equals the manuals' reference, whole and in pieces.
+/// CRC differential: the fast CRC, and every path this CPU can run forced (table,
+/// PCLMULQDQ, AVX-512), equals the manuals' reference, whole and in pieces. The first two
+/// bytes choose the split; the input is also taken at every offset 0..64 of itself, so
+/// each SIMD path sees every alignment.
 pub fn crc_differential(data: &[u8]) {
     let reference = crc16_reference(data);
     assert_eq!(crc16(data), reference);
-    let split = data.first().map_or(0, |&b| usize::from(b)).min(data.len());
+    let split = data
+        .get(..2)
+        .map_or(0, |b| usize::from(u16::from_le_bytes([b[0], b[1]])))
+        .min(data.len());
     let (a, b) = data.split_at(split);
     assert_eq!(crc16_update(crc16_update(0xFFFF, a), b), reference);
+    for path in CrcPath::supported() {
+        let name = path.name();
+        assert_eq!(
+            crc16_update_with(path, 0xFFFF, data),
+            Some(reference),
+            "{name}"
+        );
+        let first = crc16_update_with(path, 0xFFFF, a);
+        let whole = first.and_then(|c| crc16_update_with(path, c, b));
+        assert_eq!(whole, Some(reference), "{name} split at {split}");
+        for offset in 1..data.len().min(64) {
+            let tail = &data[offset..];
+            assert_eq!(
+                crc16_update_with(path, 0xFFFF, tail),
+                Some(crc16_reference(tail)),
+                "{name} at offset {offset}"
+            );
+        }
+    }
 }
 
 /// Vector-file loader: never panics on any text; a file that loads verifies without

@@ -1,7 +1,7 @@
 //! Laws of the codec, under proptest: checksums, round trips, ASCII/RTU equivalence,
 //! streaming deframing and totality.
 
-use conformance::codec::crc::CrcBytes;
+use conformance::codec::crc::{crc16_update_table, crc16_update_with, CrcBytes, CrcPath};
 use conformance::codec::timing::{LineSettings, Parity};
 use conformance::codec::{
     ascii_to_rtu, crc16, crc16_reference, decode_ascii, decode_ascii_unchecked, decode_rtu,
@@ -119,6 +119,30 @@ proptest! {
     #[test]
     fn fast_crc_equals_reference(data in vec(any::<u8>(), 0..600)) {
         prop_assert_eq!(crc16(&data), crc16_reference(&data));
+    }
+
+    /// Every path this CPU can run, forced, from any register value, whole and in two
+    /// pieces, up to 2100 bytes (past every threshold and loop of the SIMD paths).
+    #[test]
+    fn every_crc_path_equals_reference(
+        data in vec(any::<u8>(), 0..=2100),
+        init in any::<u16>(),
+        cut in any::<usize>(),
+    ) {
+        let want = crc16_update_table(init, &data);
+        if init == 0xFFFF {
+            prop_assert_eq!(want, crc16_reference(&data));
+        }
+        let (a, b) = data.split_at(cut % (data.len() + 1));
+        for path in CrcPath::supported() {
+            prop_assert_eq!(crc16_update_with(path, init, &data), Some(want), "{}", path.name());
+            let pieces = crc16_update_with(path, init, a)
+                .and_then(|c| crc16_update_with(path, c, b));
+            prop_assert_eq!(pieces, Some(want), "{} in pieces", path.name());
+        }
+        for path in CrcPath::ALL.into_iter().filter(|p| !p.available()) {
+            prop_assert_eq!(crc16_update_with(path, init, &data), None);
+        }
     }
 
     #[test]

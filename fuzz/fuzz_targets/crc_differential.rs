@@ -1,4 +1,5 @@
-//! Fuzz target: see `conformance::oracle::crc_differential` for the laws it checks.
+//! Fuzz target: see `conformance::oracle::crc_differential` for the laws it checks (every
+//! CRC path this CPU can run, forced, against the manuals' bitwise reference).
 #![no_main]
 
 use libfuzzer_sys::fuzz_target;

@@ -6,7 +6,7 @@
 //! rather than as an unreadable frame.
 
 use super::error::FrameError;
-use super::hex::{decode_nibble, encode_byte};
+use super::hex::{decode_nibble, encode_byte, nibble_or_ff};
 use super::lrc::lrc;
 use super::pdu::{Direction, Message};
 use super::{Checksum, Unchecked, MAX_ASCII_FRAME, MAX_RTU_FRAME};
@@ -139,7 +139,7 @@ pub fn is_valid_frame(frame: &[u8]) -> bool {
     if !(MIN_ASCII_FRAME..=MAX_ASCII_FRAME).contains(&len)
         || frame[0] != START
         || frame[len - 2..] != END
-        || (len - 3) % 2 != 0
+        || !(len - 3).is_multiple_of(2)
     {
         return false;
     }
@@ -156,6 +156,7 @@ pub fn is_valid_frame(frame: &[u8]) -> bool {
 
 /// Decodes an ASCII frame, checking delimiters, hex, LRC and every count field. The binary
 /// bytes are written into `scratch`, which the returned message borrows.
+#[inline]
 pub fn decode_ascii<'b>(
     frame: &[u8],
     direction: Direction,
@@ -168,11 +169,24 @@ pub fn decode_ascii<'b>(
 
 /// Decodes an ASCII frame without rejecting a wrong LRC (see
 /// [`decode_rtu_unchecked`](super::decode_rtu_unchecked)).
+#[inline]
 pub fn decode_ascii_unchecked<'b>(
     frame: &[u8],
     direction: Direction,
     scratch: &'b mut Scratch,
 ) -> Result<Unchecked<'b>, FrameError> {
+    if let Some((n, sum)) = decode_hex_fast(frame, scratch) {
+        let scratch: &'b Scratch = scratch;
+        let carried = scratch[n - 1];
+        // The sum of all bytes, the LRC included, minus the LRC is the sum of the body.
+        let computed = carried.wrapping_sub(sum);
+        let message = Message::parse_body(&scratch[..n - 1], direction)?;
+        return Ok(Unchecked {
+            message,
+            checksum: Checksum::Lrc { carried, computed },
+        });
+    }
+    // A malformed frame: the checks one by one, for the error that says what is wrong.
     let view = AsciiFrame::new_checked(frame)?;
     let carried = view.carried_lrc();
     let body = view.body_into(scratch);
@@ -182,6 +196,96 @@ pub fn decode_ascii_unchecked<'b>(
     };
     let message = Message::parse_body(body, direction)?;
     Ok(Unchecked { message, checksum })
+}
+
+/// The common case in one pass: a well-formed frame's hex decoded into `scratch`.
+/// Returns the number of bytes decoded (LRC included) and their 8-bit sum, or `None`
+/// when the frame is malformed in any way [`AsciiFrame::new_checked`] rejects.
+#[inline]
+fn decode_hex_fast(frame: &[u8], scratch: &mut Scratch) -> Option<(usize, u8)> {
+    let len = frame.len();
+    if !(MIN_ASCII_FRAME..=MAX_ASCII_FRAME).contains(&len)
+        || frame[0] != START
+        || frame[len - 2..] != END
+        || !(len - 3).is_multiple_of(2)
+    {
+        return None;
+    }
+    let hex = &frame[1..len - 2];
+    let word_at = |at: usize| -> Option<u64> {
+        let c = hex.get(at..at + 8)?;
+        Some(u64::from_le_bytes([
+            c[0], c[1], c[2], c[3], c[4], c[5], c[6], c[7],
+        ]))
+    };
+    if hex.len() < 8 {
+        // Only the shortest frame (address, function, LRC): pair by pair.
+        let mut bad = 0u8;
+        let mut sum = 0u8;
+        for (slot, pair) in scratch.iter_mut().zip(hex.chunks_exact(2)) {
+            let (h, l) = (nibble_or_ff(pair[0]), nibble_or_ff(pair[1]));
+            bad |= h | l;
+            let b = h << 4 | l;
+            *slot = b;
+            sum = sum.wrapping_add(b);
+        }
+        return (bad & 0xF0 == 0).then_some((hex.len() / 2, sum));
+    }
+    // Eight characters (four bytes) at a time; at most 510 characters, so `zip` never
+    // runs out of scratch.
+    let whole = hex.len() / 8;
+    let mut sums = 0u64;
+    for (i, out) in scratch.chunks_exact_mut(4).take(whole).enumerate() {
+        let (bytes, lanes) = hex8(word_at(8 * i)?)?;
+        out.copy_from_slice(&bytes.to_le_bytes());
+        sums += lanes;
+    }
+    // The last 2, 4 or 6 characters: the last eight, overlapping pairs already decoded,
+    // which are written again with the same values and left out of the sum.
+    let rest = hex.len() % 8;
+    if rest != 0 {
+        let (bytes, lanes) = hex8(word_at(hex.len() - 8)?)?;
+        let again = (8 - rest) / 2;
+        let at = 4 * whole - again;
+        scratch
+            .get_mut(at..at + 4)?
+            .copy_from_slice(&bytes.to_le_bytes());
+        sums += lanes & (u64::MAX << (16 * again));
+    }
+    // Four 16-bit lanes, each at most 64 x 255: their total lands in the top lane without
+    // a carry from below.
+    let sum = (sums.wrapping_mul(0x0001_0001_0001_0001) >> 48) as u8;
+    Some((hex.len() / 2, sum))
+}
+
+/// Eight hex characters (upper or lower case), read little-endian into `w`, as the four
+/// bytes they spell (first pair in the low byte) and those bytes in the low halves of
+/// four 16-bit lanes (for summing); `None` if any character is not a hex digit.
+///
+/// SWAR: with every byte below 80H, adding 80H - k to a byte sets its top bit exactly
+/// when the byte is at least k, and no carry crosses bytes.
+#[inline(always)]
+fn hex8(w: u64) -> Option<(u32, u64)> {
+    const ONES: u64 = 0x0101_0101_0101_0101;
+    const TOPS: u64 = 0x8080_8080_8080_8080;
+    const LOW_BYTES: u64 = 0x00FF_00FF_00FF_00FF;
+    let at_least = |k: u8| (w + u64::from(0x80 - k) * ONES) & TOPS;
+    if w & TOPS != 0 {
+        return None;
+    }
+    let digit = at_least(b'0') & !at_least(b'9' + 1);
+    let upper = at_least(b'A') & !at_least(b'F' + 1);
+    let lower = at_least(b'a') & !at_least(b'f' + 1);
+    if digit | upper | lower != TOPS {
+        return None;
+    }
+    // A digit's value is its low nibble; a letter's (bit 6 set) is its low nibble + 9.
+    let nibbles = (w & (0x0F * ONES)) + ((w >> 6) & ONES) * 9;
+    // Each 16-bit lane holds one pair: high nibble in its low byte, low nibble above.
+    let lanes = ((nibbles & LOW_BYTES) << 4) | ((nibbles >> 8) & LOW_BYTES);
+    let packed = (lanes | (lanes >> 8)) & 0x0000_FFFF_0000_FFFF;
+    let packed = (packed | (packed >> 16)) & 0xFFFF_FFFF;
+    Some((packed as u32, lanes))
 }
 
 /// Writes ':' + hex of `body` + LRC + CR LF into `out`; returns the length.
@@ -343,6 +447,52 @@ mod tests {
         assert_eq!(d(&[b':'; 600]), FrameError::AsciiTooLong { len: 600 });
         assert_eq!(d(b":"), FrameError::AsciiTooShort { len: 1 });
         assert_eq!(d(b""), FrameError::AsciiTooShort { len: 0 });
+    }
+
+    /// The one-pass decode agrees with the checks one by one: on every valid frame of
+    /// 1..=40 bytes, and on each of them with any one character replaced by any byte.
+    #[test]
+    fn fast_hex_decode_agrees_with_the_checked_view() {
+        let agree = |frame: &[u8]| {
+            let mut fast = [0u8; MAX_RTU_FRAME];
+            let got = decode_hex_fast(frame, &mut fast);
+            match AsciiFrame::new_checked(frame) {
+                Ok(view) => {
+                    let (n, sum) = got.unwrap_or_else(|| panic!("rejected {frame:?}"));
+                    let mut slow = [0u8; MAX_RTU_FRAME];
+                    let body = view.body_into(&mut slow);
+                    assert_eq!(n, view.binary_len());
+                    assert_eq!(&fast[..n - 1], body, "{frame:?}");
+                    assert_eq!(fast[n - 1], view.carried_lrc());
+                    assert_eq!(sum, lrc(body).wrapping_neg().wrapping_add(fast[n - 1]));
+                }
+                Err(_) => assert_eq!(got, None, "accepted {frame:?}"),
+            }
+        };
+        let mut state: u32 = 0x1234_5678;
+        for n in 1..=40usize {
+            let body: Vec<u8> = (0..n)
+                .map(|_| {
+                    state = state.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
+                    (state >> 24) as u8
+                })
+                .collect();
+            let mut frame = vec![START];
+            for &b in body.iter().chain(std::iter::once(&lrc(&body))) {
+                frame.extend_from_slice(&encode_byte(b));
+            }
+            frame.extend_from_slice(&END);
+            agree(&frame);
+            agree(&frame.to_ascii_lowercase());
+            agree(&frame[..frame.len() - 1]);
+            for at in 0..frame.len() {
+                for c in 0..=255u8 {
+                    let mut f = frame.clone();
+                    f[at] = c;
+                    agree(&f);
+                }
+            }
+        }
     }
 
     #[test]

@@ -32,6 +32,14 @@ static NIBBLE: [u8; 256] = {
     t
 };
 
+/// The value of one hex character, upper or lower case; FFH for anything else (any value
+/// with a bit above the low four set is not a digit), so a loop can check a whole run of
+/// characters at once by ORing these together.
+#[inline(always)]
+pub(crate) fn nibble_or_ff(c: u8) -> u8 {
+    NIBBLE[usize::from(c)]
+}
+
 /// The value of one hex character, upper or lower case; `None` for anything else.
 #[inline]
 pub fn decode_nibble(c: u8) -> Option<u8> {
@@ -126,7 +134,7 @@ pub fn parse_hex(input: &str) -> Result<Vec<u8>, HexError> {
                 });
             }
         }
-        if token.len() % 2 != 0 {
+        if !token.len().is_multiple_of(2) {
             return Err(HexError::OddDigits {
                 token: token.to_string(),
                 column,

@@ -52,8 +52,9 @@ pub struct Registers<'a>(&'a [u8]);
 
 impl<'a> Registers<'a> {
     /// Wraps big-endian register bytes; their length must be even.
+    #[inline]
     pub fn new(bytes: &'a [u8]) -> Result<Self, FrameError> {
-        if bytes.len() % 2 != 0 {
+        if !bytes.len().is_multiple_of(2) {
             return Err(FrameError::OddRegisterBytes { len: bytes.len() });
         }
         Ok(Registers(bytes))
@@ -176,6 +177,7 @@ fn be16(b: &[u8], at: usize) -> u16 {
 
 impl<'a> Pdu<'a> {
     /// Parses the data that follows function code `function`, for `direction`.
+    #[inline]
     pub fn parse(function: u8, data: &'a [u8], direction: Direction) -> Result<Self, FrameError> {
         let exact = |n: usize, expected: &'static str| {
             if data.len() == n {
@@ -444,6 +446,7 @@ pub struct Message<'a> {
 
 impl<'a> Message<'a> {
     /// Parses address, function and data (no checksum) for `direction`.
+    #[inline(always)]
     pub fn parse_body(body: &'a [u8], direction: Direction) -> Result<Self, FrameError> {
         match body {
             [address, function, data @ ..] => Ok(Message {

@@ -29,6 +29,7 @@ pub struct RtuFrame<T: AsRef<[u8]>> {
 
 impl<T: AsRef<[u8]>> RtuFrame<T> {
     /// Wraps `buffer` after checking that its length is 4..=256 bytes.
+    #[inline]
     pub fn new_checked(buffer: T) -> Result<Self, FrameError> {
         let len = buffer.as_ref().len();
         if len < MIN_RTU_FRAME {
@@ -41,6 +42,7 @@ impl<T: AsRef<[u8]>> RtuFrame<T> {
     }
 
     /// All bytes of the frame.
+    #[inline]
     pub fn as_bytes(&self) -> &[u8] {
         self.buffer.as_ref()
     }
@@ -56,6 +58,7 @@ impl<T: AsRef<[u8]>> RtuFrame<T> {
     }
 
     /// Address, function and data: what the CRC covers.
+    #[inline]
     pub fn body(&self) -> &[u8] {
         let b = self.as_bytes();
         &b[..b.len() - field::CRC_LEN]
@@ -67,12 +70,14 @@ impl<T: AsRef<[u8]>> RtuFrame<T> {
     }
 
     /// The CRC the frame carries.
+    #[inline]
     pub fn carried_crc(&self) -> u16 {
         let b = self.as_bytes();
         CrcBytes::from_wire([b[b.len() - 2], b[b.len() - 1]]).value
     }
 
     /// The CRC of the frame's body.
+    #[inline]
     pub fn computed_crc(&self) -> u16 {
         crc16(self.body())
     }
@@ -93,6 +98,7 @@ impl<T: AsRef<[u8]>> RtuFrame<T> {
 
 impl<'a> RtuFrame<&'a [u8]> {
     /// Address, function and data, borrowed for as long as the underlying bytes.
+    #[inline]
     pub fn into_body(self) -> &'a [u8] {
         let b = self.buffer;
         &b[..b.len() - field::CRC_LEN]
@@ -100,9 +106,13 @@ impl<'a> RtuFrame<&'a [u8]> {
 }
 
 /// Decodes an RTU frame, checking its length, CRC and every count field.
+#[inline]
 pub fn decode_rtu(frame: &[u8], direction: Direction) -> Result<Message<'_>, FrameError> {
     let view = RtuFrame::new_checked(frame)?;
-    view.verify_crc()?;
+    let (carried, computed) = (view.carried_crc(), view.computed_crc());
+    if carried != computed {
+        return Err(FrameError::CrcMismatch { carried, computed });
+    }
     Message::parse_body(view.into_body(), direction)
 }
 

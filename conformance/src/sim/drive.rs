@@ -411,7 +411,7 @@ impl Drive {
         if let Some(mut bytes) = reply {
             self.replies += 1;
             if let Some(n) = self.drop_every() {
-                if self.replies % u64::from(n) == 0 {
+                if self.replies.is_multiple_of(u64::from(n)) {
                     notes.push(format!(
                         "quirk drop-every={n}: reply {} not sent",
                         self.replies
