@@ -91,7 +91,7 @@ pub fn apply_repairs(text: &str, repairs: &[TextRepair]) -> Result<String, Repai
         let grown = found
             .checked_mul(r.replace.len())
             .and_then(|added| out.len().checked_add(added));
-        if grown.map_or(true, |n| n > MAX_LISTING_BYTES) {
+        if grown.is_none_or(|n| n > MAX_LISTING_BYTES) {
             return Err(RepairError::TooLong {
                 index,
                 limit: MAX_LISTING_BYTES,
