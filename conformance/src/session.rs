@@ -123,6 +123,7 @@ fn start_sim(
     use crate::transport::pty::PtyMaster;
     let mut master = PtyMaster::open(pace.then_some(config.line))?;
     let path = master.slave_path().to_string_lossy().into_owned();
+    let clock = master.pacing_clock();
     let delay = delay.unwrap_or_else(|| config.model.response_delay(&config.line));
     let mut drive =
         Drive::new(config.model.clone(), config.options.address, delay).with_quirks(quirks);
@@ -147,7 +148,7 @@ fn start_sim(
     });
     let mut client = SerialTransport::open(&path, config.line, LinkKind::Pty)?;
     if pace {
-        client = client.paced_peer();
+        client = client.paced_peer().with_peer_clock(clock);
     }
     Ok((
         SimThread {

@@ -346,6 +346,12 @@ impl<'a> Ctx<'a> {
         self.master.transport().describe()
     }
 
+    /// How late the emulated line's paced writes came, where the other end is the
+    /// simulator (see [`Transport::peer_lateness`]).
+    pub fn peer_lateness(&self) -> Option<Duration> {
+        self.master.transport().peer_lateness()
+    }
+
     /// The line settings whose timing the link has.
     pub fn line_timing(&self) -> Option<crate::codec::timing::LineSettings> {
         self.master.transport().line_timing()
@@ -683,7 +689,12 @@ pub fn run_mode(
     run
 }
 
-fn result_of(check: &Check, mode: Mode, mut v: Verdict, duration: Duration) -> CheckResult {
+pub(crate) fn result_of(
+    check: &Check,
+    mode: Mode,
+    mut v: Verdict,
+    duration: Duration,
+) -> CheckResult {
     v.findings.sort_by_key(|f| std::cmp::Reverse(f.severity));
     // A finding that repeats the model's reason, which the check's source already quotes,
     // keeps its first part only.

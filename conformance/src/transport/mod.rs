@@ -101,6 +101,13 @@ pub trait Transport: Send {
         None
     }
 
+    /// Where the other end is an emulated line paced by this host (the simulator): how
+    /// late its paced writes came, at most. Gaps up to that long are the host's. None
+    /// where the other end is a real device.
+    fn peer_lateness(&self) -> Option<Duration> {
+        None
+    }
+
     /// The line settings whose timing the link reproduces: a real serial port, or a
     /// pseudo-terminal paced at the line's character time. `None` where bytes arrive with
     /// the host's timing only.
@@ -128,6 +135,9 @@ impl<T: Transport + ?Sized> Transport for Box<T> {
     }
     fn sent_at(&self) -> Option<std::time::Instant> {
         (**self).sent_at()
+    }
+    fn peer_lateness(&self) -> Option<Duration> {
+        (**self).peer_lateness()
     }
 }
 

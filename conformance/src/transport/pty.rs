@@ -25,7 +25,14 @@ pub struct PtyMaster {
     _slave: OwnedFd,
     slave_path: PathBuf,
     pace: Option<LineSettings>,
+    late: PacingClock,
 }
+
+/// How late a paced sender's writes came against their schedule, at most, in
+/// microseconds: on a busy host the thread that paces a line's characters wakes late, and
+/// the gaps it leaves are the host's, not the device's. Shared with the other end's
+/// transport so that a master can tell.
+pub type PacingClock = std::sync::Arc<std::sync::atomic::AtomicU64>;
 
 fn io(e: Errno) -> std::io::Error {
     std::io::Error::from_raw_os_error(e as i32)
@@ -48,7 +55,13 @@ impl PtyMaster {
             _slave: pair.slave,
             slave_path,
             pace,
+            late: PacingClock::default(),
         })
+    }
+
+    /// How late this end's paced writes came, at most (shared; see [`PacingClock`]).
+    pub fn pacing_clock(&self) -> PacingClock {
+        self.late.clone()
     }
 
     /// The path another program opens as its serial port.
@@ -86,7 +99,12 @@ impl Transport for PtyMaster {
                 let start = Instant::now();
                 for (i, b) in bytes.iter().enumerate() {
                     let i = u32::try_from(i).unwrap_or(u32::MAX);
-                    sleep_until(start + char_time * i);
+                    let due = start + char_time * i;
+                    sleep_until(due);
+                    let late = u64::try_from(Instant::now().duration_since(due).as_micros())
+                        .unwrap_or(u64::MAX);
+                    self.late
+                        .fetch_max(late, std::sync::atomic::Ordering::Relaxed);
                     self.write_all(std::slice::from_ref(b))?;
                 }
                 // The last character is on the line for one more character time.

@@ -16,6 +16,7 @@ pub struct SerialTransport {
     kind: LinkKind,
     paced: bool,
     sent_at: Option<std::time::Instant>,
+    peer_clock: Option<std::sync::Arc<std::sync::atomic::AtomicU64>>,
 }
 
 impl SerialTransport {
@@ -58,6 +59,7 @@ impl SerialTransport {
             kind,
             paced: false,
             sent_at: None,
+            peer_clock: None,
         })
     }
 
@@ -66,6 +68,13 @@ impl SerialTransport {
     /// arrival times and request times are a line's timing.
     pub fn paced_peer(mut self) -> Self {
         self.paced = true;
+        self
+    }
+
+    /// Shares the pacing clock of the other end (the simulator's pseudo-terminal), so
+    /// that [`Transport::peer_lateness`] can say which gaps the host made.
+    pub fn with_peer_clock(mut self, clock: std::sync::Arc<std::sync::atomic::AtomicU64>) -> Self {
+        self.peer_clock = Some(clock);
         self
     }
 
@@ -116,6 +125,12 @@ impl Transport for SerialTransport {
 
     fn sent_at(&self) -> Option<std::time::Instant> {
         self.sent_at
+    }
+
+    fn peer_lateness(&self) -> Option<Duration> {
+        self.peer_clock
+            .as_ref()
+            .map(|c| Duration::from_micros(c.load(std::sync::atomic::Ordering::Relaxed)))
     }
 
     fn recv(&mut self, buf: &mut [u8], timeout: Duration) -> Result<usize, TransportError> {
