@@ -163,6 +163,7 @@ pub struct Master<T: Transport + ?Sized> {
     /// With [`EchoMode::Auto`]: what the line has shown (None until an exchange told).
     echo_seen: Option<bool>,
     budget: LineBudget,
+    broken_requests: u64,
     transport: Box<T>,
 }
 
@@ -176,8 +177,14 @@ impl<T: Transport + ?Sized> Master<T> {
             echo_mode: EchoMode::Auto,
             echo_seen: None,
             budget: LineBudget::default(),
+            broken_requests: 0,
             transport,
         }
+    }
+
+    /// Requests sent again because the host broke them while pacing them.
+    pub fn broken_requests(&self) -> u64 {
+        self.broken_requests
     }
 
     /// Where the time of the exchanges so far went.
@@ -281,8 +288,17 @@ impl<T: Transport + ?Sized> Master<T> {
         max_retries: u32,
     ) -> Result<Exchange, TransportError> {
         let mut retries = 0;
+        let mut broken = 0;
         loop {
             let ex = self.exchange_once(request, expect_reply, retries)?;
+            // A request that left this host with a gap over t1.5 inside it (the host
+            // stalled while pacing it) is not the request on the line: send it again, a
+            // few times at most, before judging anything.
+            if self.transport.send_was_broken() && broken < 3 {
+                broken += 1;
+                self.broken_requests += 1;
+                continue;
+            }
             if expect_reply && ex.after_echo().is_empty() && retries < max_retries {
                 retries += 1;
                 continue;
@@ -333,14 +349,19 @@ impl<T: Transport + ?Sized> Master<T> {
             let now = Instant::now();
             let seen = Seen::of(request, &raw, echoes, copy_may_be_reply);
             let skip = seen.skip(request);
-            let unfinished =
-                expect_reply && !complete && starts_a_reply(self.mode, request, &raw[skip..]);
-            let limit = if seen.waiting() || unfinished {
-                // Nothing but (part of) an echo, or a copy that may be an echo, or a reply
-                // whose rest has not come: listen for the whole response window (a reply
-                // that stalls mid-frame, on a busy host or behind a USB adapter's latency
-                // timer, is still collected whole; the line-timing check reports the gap).
+            let unfinished = !complete && starts_a_reply(self.mode, request, &raw[skip..]);
+            let limit = if seen.waiting() {
+                // Nothing but (part of) an echo, or a copy that may be an echo: listen for
+                // the whole response window.
                 deadline.saturating_duration_since(now)
+            } else if unfinished {
+                // A reply (expected or not) whose rest has not come: the timeout is how long
+                // to wait for a byte, so wait that long after the last one (a reply that
+                // stalls mid-frame, on a busy host or behind a USB adapter's latency timer,
+                // or a long reply at a low baud rate, is collected whole; the line-timing
+                // check reports any gap).
+                let after_last = last_rx.unwrap_or(now) + self.timing.timeout;
+                deadline.max(after_last).saturating_duration_since(now)
             } else {
                 // Once a whole reply is in, a short settle catches trailing bytes; before
                 // that, the quiet window waits for the rest of a reply in pieces.
@@ -362,15 +383,14 @@ impl<T: Transport + ?Sized> Master<T> {
                 });
                 raw.extend_from_slice(&buf[..n]);
                 last_rx = Some(t);
-                if expect_reply {
-                    let skip = Seen::of(request, &raw, echoes, copy_may_be_reply).skip(request);
-                    complete = find_reply(self.mode, request, &raw[skip..]).1.is_some();
-                }
+                // Also where silence was expected: an answer that comes is collected whole.
+                let skip = Seen::of(request, &raw, echoes, copy_may_be_reply).skip(request);
+                complete = find_reply(self.mode, request, &raw[skip..]).1.is_some();
                 // A reply longer than any frame is not a reply: stop collecting.
                 if raw.len() > 4 * MAX_ASCII_FRAME {
                     break;
                 }
-            } else if Instant::now() >= deadline && (seen.waiting() || unfinished) {
+            } else if Instant::now() >= deadline && seen.waiting() {
                 break;
             }
         }

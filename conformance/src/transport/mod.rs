@@ -108,6 +108,12 @@ pub trait Transport: Send {
         None
     }
 
+    /// Whether the last `send`, paced by this host, left a gap over t1.5 between two of
+    /// its characters (the host stalled): the frame on the line is not the one sent.
+    fn send_was_broken(&self) -> bool {
+        false
+    }
+
     /// The line settings whose timing the link reproduces: a real serial port, or a
     /// pseudo-terminal paced at the line's character time. `None` where bytes arrive with
     /// the host's timing only.
@@ -138,6 +144,9 @@ impl<T: Transport + ?Sized> Transport for Box<T> {
     }
     fn peer_lateness(&self) -> Option<Duration> {
         (**self).peer_lateness()
+    }
+    fn send_was_broken(&self) -> bool {
+        (**self).send_was_broken()
     }
 }
 

@@ -16,6 +16,7 @@ pub struct SerialTransport {
     kind: LinkKind,
     paced: bool,
     sent_at: Option<std::time::Instant>,
+    broken: bool,
     peer_clock: Option<std::sync::Arc<std::sync::atomic::AtomicU64>>,
 }
 
@@ -59,6 +60,7 @@ impl SerialTransport {
             kind,
             paced: false,
             sent_at: None,
+            broken: false,
             peer_clock: None,
         })
     }
@@ -106,9 +108,17 @@ impl Transport for SerialTransport {
         // A pseudo-terminal standing in for a line: this end sends at the line's
         // character time too, so that a request takes its time on the wire.
         let char_time = Duration::from_micros(self.line.char_time_us());
+        let t15 = Duration::from_micros(self.line.t1_5_us());
         let start = std::time::Instant::now();
+        self.broken = false;
+        let mut previous: Option<std::time::Instant> = None;
         for (i, b) in bytes.iter().enumerate() {
             sleep_until(start + char_time * u32::try_from(i).unwrap_or(u32::MAX));
+            let now = std::time::Instant::now();
+            if previous.is_some_and(|p| now.duration_since(p) > char_time + t15) {
+                self.broken = true;
+            }
+            previous = Some(now);
             self.port
                 .write_all(std::slice::from_ref(b))
                 .and_then(|_| self.port.flush())
@@ -125,6 +135,10 @@ impl Transport for SerialTransport {
 
     fn sent_at(&self) -> Option<std::time::Instant> {
         self.sent_at
+    }
+
+    fn send_was_broken(&self) -> bool {
+        self.broken
     }
 
     fn peer_lateness(&self) -> Option<Duration> {
