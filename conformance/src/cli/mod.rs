@@ -43,6 +43,8 @@ enum Command {
     Gate(gate_cmd::GateArgs),
     /// Render a saved JSON report as HTML, text, JUnit XML, CSV or JSON.
     Report(report_cmd::ReportArgs),
+    /// What changed between two runs of the same model (e.g. two firmware versions).
+    Diff(report_cmd::DiffArgs),
     /// This suite's codec behind the adapter protocol, on stdin/stdout (the reference
     /// adapter: `conformance gate --codec "conformance adapter"`).
     Adapter(gate_cmd::AdapterArgs),
@@ -60,5 +62,6 @@ pub fn run(cli: Cli) -> anyhow::Result<ExitCode> {
         Command::Gate(a) => gate_cmd::run(a),
         Command::Adapter(a) => gate_cmd::adapter(a),
         Command::Report(a) => report_cmd::report(a),
+        Command::Diff(a) => report_cmd::diff(a),
     }
 }

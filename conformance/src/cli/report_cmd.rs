@@ -64,3 +64,64 @@ pub fn report(args: ReportArgs) -> anyhow::Result<ExitCode> {
     )?;
     Ok(ExitCode::SUCCESS)
 }
+
+const DIFF_AFTER_HELP: &str = "\
+Examples:
+  conformance check --model f510 --port /dev/ttyUSB0 --format json -o fw-1.20.json
+  conformance check --model f510 --port /dev/ttyUSB0 --format json -o fw-1.21.json
+  conformance diff fw-1.20.json fw-1.21.json --format html -o changes.html
+
+Noise: a median response time (per mode, and per check where both runs timed at least 3
+of its replies) counts as changed when it moved by more than max(20 % of the old median,
+5 ms).
+
+Exit codes: 0 nothing got worse; 1 something got worse (a check's status, a check new in
+the second run that does not pass, or a median response time beyond noise); 2 a file is
+not a report, or the two are of different models.";
+
+/// Output format of a diff.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum DiffFormat {
+    /// Human text.
+    Text,
+    /// JSON.
+    Json,
+    /// One self-contained HTML page.
+    Html,
+}
+
+#[derive(Debug, Args)]
+#[command(after_help = DIFF_AFTER_HELP)]
+pub struct DiffArgs {
+    /// The earlier run's JSON report.
+    #[arg(value_name = "OLD.json")]
+    old: PathBuf,
+    /// The later run's JSON report.
+    #[arg(value_name = "NEW.json")]
+    new: PathBuf,
+    /// Output format.
+    #[arg(long, value_enum, default_value = "text")]
+    format: DiffFormat,
+    /// Write here instead of stdout.
+    #[arg(short, long, value_name = "FILE")]
+    output: Option<PathBuf>,
+}
+
+pub fn diff(args: DiffArgs) -> anyhow::Result<ExitCode> {
+    let old = load(&args.old)?;
+    let new = load(&args.new)?;
+    let d = conformance::report::diff::Diff::new(&old, &new).with_context(|| {
+        format!(
+            "cannot compare {} with {}",
+            args.old.display(),
+            args.new.display()
+        )
+    })?;
+    let text = match args.format {
+        DiffFormat::Text => d.text(),
+        DiffFormat::Json => serde_json::to_string_pretty(&d.to_json())? + "\n",
+        DiffFormat::Html => d.html(),
+    };
+    emit(&text, args.output.as_deref())?;
+    Ok(ExitCode::from(d.exit_code()))
+}

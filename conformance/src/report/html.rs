@@ -8,6 +8,8 @@
 
 mod svg;
 
+pub(crate) use svg::{latencies, median};
+
 use std::fmt::Write;
 
 use super::{diff_positions, Report, ReportKind};

@@ -7,7 +7,7 @@
 //! report of what ran, marked incomplete.
 
 mod csv;
-
+pub mod diff;
 mod html;
 mod junit;
 mod parse;
