@@ -242,7 +242,14 @@ fn header(out: &mut String, report: &Report) {
             ),
         )
     } else if s.deviation > 0 {
-        ("bad", format!("{} deviations from the manual", s.deviation))
+        (
+            "bad",
+            format!(
+                "{} deviation{} from the manual",
+                s.deviation,
+                if s.deviation == 1 { "" } else { "s" }
+            ),
+        )
     } else if s.error > 0 {
         ("incomplete", format!("{} checks could not tell", s.error))
     } else {
