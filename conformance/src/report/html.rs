@@ -65,7 +65,7 @@ td.num,th.num{text-align:right;font-variant-numeric:tabular-nums}
 .badge{display:inline-block;min-width:88px;text-align:center;padding:1px 6px;border-radius:3px;font-size:11.5px;font-weight:600;color:#fff}
 .badge.pass{background:var(--pass)}.badge.deviation{background:var(--dev)}.badge.observation{background:var(--obs);color:#222}.badge.skip{background:var(--skip);color:#222}.badge.error{background:var(--err)}
 .finding{border:1px solid var(--line);border-left:6px solid var(--dev);border-radius:4px;padding:10px 14px;margin:10px 0;page-break-inside:avoid}
-.finding.observation{border-left-color:var(--obs)}.finding.error{border-left-color:var(--err)}
+.finding.observation{border-left-color:var(--obs);padding:3px 12px;margin:3px 0}.finding.error{border-left-color:var(--err)}
 .finding summary{cursor:pointer;list-style:none}.finding summary h3,.finding summary div{display:inline}.finding summary div{margin-left:8px}
 .finding .cite{color:var(--muted);font-size:12.5px}
 .finding ul{margin:6px 0 8px 18px;padding:0}
@@ -76,6 +76,7 @@ td.num,th.num{text-align:right;font-variant-numeric:tabular-nums}
 .ex{border-top:1px dashed var(--line);padding-top:6px;margin-top:6px}
 .controls{display:flex;gap:10px;align-items:center;flex-wrap:wrap;margin:8px 0}
 .controls input,.controls select{font:inherit;padding:3px 6px}
+#checks td{font-size:13px}#checks td:nth-child(5){width:38%}#checks td:nth-child(4){width:26%}
 #checks tbody tr:hover{background:#f3f6fa}
 #checks tr.deviation td.id{color:var(--dev);font-weight:600}
 svg.plot{width:100%;height:auto;display:block;margin:6px 0 14px;font-family:inherit}
@@ -152,6 +153,8 @@ fn exchange(out: &mut String, e: &ExchangeRecord) {
     let diff = match (&e.expected, &e.reply) {
         (Some(x), Some(y)) => diff_positions(x, y),
         (Some(x), None) => (0..x.len()).collect(),
+        // A reply where the model predicts none: all of it is unexpected.
+        (None, Some(y)) if e.predicted.starts_with("no reply") => (0..y.len()).collect(),
         _ => Vec::new(),
     };
     out.push_str("<div class=\"ex\"><table class=\"frames\">");

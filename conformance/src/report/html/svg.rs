@@ -111,7 +111,7 @@ pub(super) fn latency_plot(report: &Report) -> String {
     let x_max = (top / tick).ceil() * tick;
     let bins = 60usize;
     let bin_w = x_max / bins as f64;
-    let (left, right, row_h, gap) = (70.0, 20.0, 90.0, 30.0);
+    let (left, right, row_h, gap) = (110.0, 20.0, 90.0, 30.0);
     let width = 900.0;
     let plot_w = width - left - right;
     let height = 20.0 + by_mode.len() as f64 * (row_h + gap) + 20.0;
@@ -172,12 +172,12 @@ pub(super) fn latency_plot(report: &Report) -> String {
         );
         w!(
             s,
-            "<line class=\"median\" x1=\"{0:.1}\" y1=\"{1}\" x2=\"{0:.1}\" y2=\"{base}\"><title>median {2:.2} ms</title></line><text class=\"small\" x=\"{3:.1}\" y=\"{4}\">median {2:.1} ms</text>",
+            "<line class=\"median\" x1=\"{0:.1}\" y1=\"{1}\" x2=\"{0:.1}\" y2=\"{base}\"><title>median {2:.2} ms</title></line><text class=\"small\" x=\"{3}\" y=\"{4}\" text-anchor=\"end\">median {2:.1} ms</text>",
             x(med),
             top_y,
             med,
-            x(med) + 4.0,
-            top_y + 30.0
+            left - 8.0,
+            top_y + row_h / 2.0 + 28.0
         );
         let mut t = 0.0;
         while t <= x_max + 1e-9 {
