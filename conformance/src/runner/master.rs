@@ -658,7 +658,7 @@ mod tests {
     #[test]
     fn a_reply_that_stalls_mid_frame_is_collected_whole() {
         let req = [0x01, 0x03, 0x25, 0x20, 0x00, 0x01, 0x8E, 0xCC];
-        let reply = vec![0x01, 0x03, 0x02, 0x00, 0x04, 0xB9, 0x87];
+        let reply = [0x01, 0x03, 0x02, 0x00, 0x04, 0xB9, 0x87];
         for (mode_split, at) in [(Mode::Rtu, 1), (Mode::Rtu, 3), (Mode::Rtu, 6)] {
             let (a, b) = memory::pair();
             let h = peer(
@@ -703,7 +703,7 @@ mod tests {
     #[test]
     fn an_echo_is_stripped_and_the_reply_awaited() {
         // A 06H request: its echo and its reply are the same bytes.
-        let req = vec![0x01, 0x06, 0x25, 0x02, 0x04, 0xD2, 0x20, 0x7F];
+        let req = [0x01, 0x06, 0x25, 0x02, 0x04, 0xD2, 0x20, 0x7F];
         let req = {
             let mut r = req[..6].to_vec();
             let c = crate::codec::crc::crc16(&r);
