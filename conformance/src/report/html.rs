@@ -76,7 +76,7 @@ td.num,th.num{text-align:right;font-variant-numeric:tabular-nums}
 .ex{border-top:1px dashed var(--line);padding-top:6px;margin-top:6px}
 .controls{display:flex;gap:10px;align-items:center;flex-wrap:wrap;margin:8px 0}
 .controls input,.controls select{font:inherit;padding:3px 6px}
-#checks td{font-size:13px}#checks td:nth-child(5){width:38%}#checks td:nth-child(4){width:26%}
+#checks{table-layout:fixed}#checks td{font-size:13px;overflow-wrap:anywhere}#checks th:nth-child(1){width:24%}#checks th:nth-child(2){width:6%}#checks th:nth-child(3){width:11%}#checks th:nth-child(4){width:22%}#checks th:nth-child(6){width:8%}
 #checks tbody tr:hover{background:#f3f6fa}
 #checks tr.deviation td.id{color:var(--dev);font-weight:600}
 svg.plot{width:100%;height:auto;display:block;margin:6px 0 14px;font-family:inherit}
@@ -334,16 +334,18 @@ fn header(out: &mut String, report: &Report) {
             .unwrap_or_else(|| "<i>not finished</i>".into()),
     );
     let o = &report.options;
-    row(
-        out,
-        "modes",
-        &esc(&o
-            .modes
-            .iter()
-            .map(|m| m.to_string().to_uppercase())
-            .collect::<Vec<_>>()
-            .join(", ")),
-    );
+    if !o.modes.is_empty() {
+        row(
+            out,
+            "modes",
+            &esc(&o
+                .modes
+                .iter()
+                .map(|m| m.to_string().to_uppercase())
+                .collect::<Vec<_>>()
+                .join(", ")),
+        );
+    }
     let mut flags = Vec::new();
     if o.read_only {
         flags.push("read-only");
@@ -449,7 +451,14 @@ pub fn html(report: &Report) -> String {
         "<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\"><meta name=\"viewport\" content=\"width=device-width,initial-scale=1\"><title>{}</title><style>{CSS}</style></head><body><main>",
         esc(&title)
     );
-    out.push_str("<nav class=\"toc\"><a href=\"#deviations\">Deviations</a> · <a href=\"#observations\">Observations</a> · <a href=\"#plots\">Response time</a> · <a href=\"#timeline\">Timeline</a> · <a href=\"#map\">Register map</a> · <a href=\"#all\">Every check</a> · <a href=\"#restore\">Restore journal</a></nav>");
+    let drive = report.kind == ReportKind::Drive;
+    out.push_str("<nav class=\"toc\"><a href=\"#deviations\">Deviations</a> · <a href=\"#observations\">Observations</a> · ");
+    if drive {
+        out.push_str("<a href=\"#plots\">Response time</a> · <a href=\"#timeline\">Timeline</a> · <a href=\"#map\">Register map</a> · ");
+    }
+    out.push_str(
+        "<a href=\"#all\">Every check</a> · <a href=\"#restore\">Restore journal</a></nav>",
+    );
     header(&mut out, report);
 
     // Deviations first, then what the run could not tell; observations (the manual is
@@ -468,7 +477,7 @@ pub fn html(report: &Report) -> String {
         .collect();
     notable.sort_by_key(|r| r.status != Status::Deviation);
     if notable.is_empty() {
-        out.push_str("<p>None: no check found the device doing other than its manual says.</p>");
+        out.push_str("<p>None: every check that ran agreed with the manual.</p>");
     }
     for r in notable {
         finding_block(&mut out, r, false);
@@ -488,14 +497,17 @@ pub fn html(report: &Report) -> String {
         }
     }
 
-    out.push_str("<h2 id=\"plots\">Response time</h2><p class=\"muted\">How long the device took to start each reply, per mode, against the manual's response time and the allowance beyond which a reply counts as late.</p>");
-    out.push_str(&svg::latency_plot(report));
-    out.push_str("<h2 id=\"timeline\">Timeline of the exchanges</h2>");
-    legend(&mut out);
-    out.push_str(&svg::timeline_plot(report));
-    out.push_str("<h2 id=\"map\">Register map</h2><p class=\"muted\">Each register group (block) against the map checks: its first and last register, the whole block, one past its end, the gaps inside it, registers without access, and a write to the group; a cell is coloured by the worst status of its checks (hover for the ids).</p>");
-    legend(&mut out);
-    out.push_str(&svg::map_grid(report));
+    // A gate's cases are not timed exchanges with a device: no plots.
+    if drive {
+        out.push_str("<h2 id=\"plots\">Response time</h2><p class=\"muted\">How long the device took to start each reply, per mode, against the manual's response time and the allowance beyond which a reply counts as late.</p>");
+        out.push_str(&svg::latency_plot(report));
+        out.push_str("<h2 id=\"timeline\">Timeline of the exchanges</h2>");
+        legend(&mut out);
+        out.push_str(&svg::timeline_plot(report));
+        out.push_str("<h2 id=\"map\">Register map</h2><p class=\"muted\">Each register group (block) against the map checks: its first and last register, the whole block, one past its end, the gaps inside it, registers without access, and a write to the group; a cell is coloured by the worst status of its checks (hover for the ids).</p>");
+        legend(&mut out);
+        out.push_str(&svg::map_grid(report));
+    }
 
     let mut modes: Vec<String> = report
         .results
@@ -654,6 +666,20 @@ mod tests {
             "01 03 02 00 <span class=\"d\">01</span> <span class=\"d\">79</span> <span class=\"d\">84</span>"
         ));
         assert!(page.contains("7.00 ms"));
+    }
+
+    #[test]
+    fn a_gate_report_has_no_device_plots() {
+        let mut r = hostile();
+        r.kind = ReportKind::Gate;
+        let page = html(&r);
+        assert!(!page.contains("<svg"));
+        assert!(!page.contains("href=\"#map\""));
+        assert!(page.contains("data-id=\"rtu.map."));
+        let drive = html(&hostile());
+        for plot in ["plot-latency", "plot-timeline", "plot-map"] {
+            assert!(drive.contains(&format!("<svg id=\"{plot}\"")), "{plot}");
+        }
     }
 
     #[test]

@@ -238,8 +238,12 @@ pub(super) fn timeline_plot(report: &Report) -> String {
         .iter()
         .flat_map(|r| r.exchanges.iter().filter_map(|e| e.latency.map(ms)))
         .fold(0.0f64, f64::max);
-    if report.results.iter().all(|r| r.exchanges.is_empty()) {
-        return "<p class=\"muted\">No exchanges.</p>".into();
+    if report
+        .results
+        .iter()
+        .all(|r| r.exchanges.iter().all(|e| e.latency.is_none()))
+    {
+        return "<p class=\"muted\">No reply was timed.</p>".into();
     }
     let late = report
         .options
