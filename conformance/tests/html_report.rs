@@ -309,6 +309,41 @@ fn html_csv_and_diff_of_a_clean_and_a_quirky_run() {
         );
         common::note(&format!("screenshot: {}", shot.display()));
     }
+    // The filter: a link preselects it; the rows it hides are hidden.
+    let quirk_page = &pages[1].1;
+    let filtered = PathBuf::from(format!(
+        "{}#status=deviation&mode=rtu&id=past-end",
+        quirk_page.display()
+    ));
+    let (dom, log) = browse(chromium, &filtered, &["--dump-dom"]);
+    no_console_errors(&log, quirk_page);
+    let past_end_deviations = quirk["checks"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter(|c| c["status"] == "deviation" && c["id"].as_str().unwrap().contains("past-end"))
+        .count();
+    assert!(past_end_deviations > 0);
+    assert!(
+        dom.contains(&format!("<span id=\"shown\">{past_end_deviations}</span>")),
+        "filtered count"
+    );
+    let rows = dom.matches("<tr class=").count();
+    let hidden = dom.matches("style=\"display: none;\"").count();
+    assert_eq!(rows - hidden, past_end_deviations);
+    // Printable: Chromium prints it to PDF.
+    let pdf = quirk_page.with_extension("pdf");
+    let (_, log) = browse(
+        chromium,
+        quirk_page,
+        &[
+            &format!("--print-to-pdf={}", pdf.display()),
+            "--no-pdf-header-footer",
+        ],
+    );
+    no_console_errors(&log, quirk_page);
+    assert!(std::fs::read(&pdf).unwrap().starts_with(b"%PDF"));
+
     let (dom, log) = browse(chromium, &diff_html, &["--dump-dom"]);
     no_console_errors(&log, &diff_html);
     assert!(dom.contains("Something got worse"));

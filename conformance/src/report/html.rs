@@ -1,6 +1,7 @@
 //! HTML: one self-contained file for people (a QA lead, the drive's vendor, an auditor).
 //! Inline CSS and SVG, nothing fetched from anywhere, readable offline and printable; a
-//! small inline script filters the table of checks (without it every check is shown).
+//! small inline script filters the table of checks (without it every check is shown); a
+//! link can preselect the filter: `report.html#status=deviation&mode=rtu&id=map`.
 //!
 //! Built from the [`Report`], the same data the JSON holds (a saved JSON report is read
 //! back with [`Report::from_json`]). Every string that came from a device, a model file
@@ -107,6 +108,7 @@ function f(){var t=q.value.toLowerCase(),s=st.value,m=md.value,c=0;
 document.querySelectorAll('#checks tbody tr').forEach(function(r){
 var ok=(!s||r.dataset.status===s)&&(!m||r.dataset.mode===m)&&(!t||r.dataset.id.toLowerCase().indexOf(t)>=0);
 r.style.display=ok?'':'none';if(ok)c++;});n.textContent=c;}
+var h=location.hash.slice(1);if(h.indexOf('=')>0){h.split('&').forEach(function(kv){var p=kv.split('='),v=decodeURIComponent(p[1]||'');if(p[0]==='status')st.value=v;if(p[0]==='mode')md.value=v;if(p[0]==='id')q.value=v;});}
 [q,st,md].forEach(function(e){e.addEventListener('input',f);e.addEventListener('change',f);});f();
 })();
 "#;
