@@ -292,6 +292,19 @@ impl Diff {
         u8::from(self.worse())
     }
 
+    /// One line of counts.
+    pub fn counts(&self) -> String {
+        let worse = self.status.iter().filter(|c| c.worse()).count();
+        format!(
+            "{worse} checks worse, {} better; {} deviations with other bytes; {} response-time shifts; {} checks only in the old run, {} only in the new",
+            self.status.len() - worse,
+            self.bytes.len(),
+            self.timing.len(),
+            self.only_old.len(),
+            self.only_new.len()
+        )
+    }
+
     /// Human text.
     pub fn text(&self) -> String {
         let mut out = String::new();
@@ -307,6 +320,9 @@ impl Diff {
                 "Changed, nothing got worse."
             }
         );
+        if !self.is_empty() {
+            w!(out, "{}\n", self.counts());
+        }
         if !self.status.is_empty() {
             w!(out, "\nStatus changes ({}):\n", self.status.len());
             for c in &self.status {
