@@ -108,7 +108,7 @@ function f(){var t=q.value.toLowerCase(),s=st.value,m=md.value,c=0;
 document.querySelectorAll('#checks tbody tr').forEach(function(r){
 var ok=(!s||r.dataset.status===s)&&(!m||r.dataset.mode===m)&&(!t||r.dataset.id.toLowerCase().indexOf(t)>=0);
 r.style.display=ok?'':'none';if(ok)c++;});n.textContent=c;}
-var h=location.hash.slice(1);if(h.indexOf('=')>0){h.split('&').forEach(function(kv){var p=kv.split('='),v=decodeURIComponent(p[1]||'');if(p[0]==='status')st.value=v;if(p[0]==='mode')md.value=v;if(p[0]==='id')q.value=v;});}
+var h=location.hash.slice(1);if(h.indexOf('=')>0){h.split('&').forEach(function(kv){var p=kv.split('='),v=p[1]||'';try{v=decodeURIComponent(v);}catch(e){}if(p[0]==='status')st.value=v;if(p[0]==='mode')md.value=v;if(p[0]==='id')q.value=v;});}
 [q,st,md].forEach(function(e){e.addEventListener('input',f);e.addEventListener('change',f);});f();
 })();
 "#;
