@@ -219,6 +219,10 @@ pub fn run(
                 .unwrap_or(u64::MAX),
             retries: config.options.timing.retries,
             only: config.options.only.clone(),
+            response_time_ms: Some(config.model.response_time_on(Some(&l)).as_secs_f64() * 1000.0),
+            response_allowance_ms: Some(
+                u64::try_from(config.options.response_allowance.as_millis()).unwrap_or(u64::MAX),
+            ),
         },
         ..Report::default()
     };

@@ -11,7 +11,7 @@ use std::time::Duration;
 use anyhow::{bail, Context};
 use clap::{Args, ValueEnum};
 use conformance::codec::Mode;
-use conformance::report::{junit, text, Report};
+use conformance::report::{csv, html, junit, text, Report};
 use conformance::runner::{EchoMode, MasterTiming, Options};
 use conformance::session::{self, SessionConfig, Target};
 use conformance::sim::Quirk;
@@ -24,6 +24,8 @@ Examples:
   conformance check --model f510 --port /dev/ttyUSB0 -b 9600 -P even --mode rtu -a 1
   conformance check --model l510 --tcp 10.0.0.7:4001 --mode ascii --format junit -o report.xml
   conformance check --sim a510 --quirk wrong-exception --only 'rtu.*'
+  conformance check --sim f510 --format html -o report.html   a page for people
+  conformance report report.json --format html -o report.html (a saved JSON report)
 
 Safety on a real drive: the run and external-fault bits are never set without
 --allow-motion (which warns first). Every register a check writes is read first and
@@ -53,6 +55,11 @@ pub enum Format {
     Json,
     /// JUnit XML: one test case per check, deviations as failures.
     Junit,
+    /// One self-contained HTML page: summary, deviations with their frames, plots, every
+    /// check (filterable), the restore journal.
+    Html,
+    /// CSV: one row per check (id, mode, status, title, source, summary), RFC 4180.
+    Csv,
 }
 
 /// Modes to run.
@@ -171,6 +178,8 @@ pub fn render(report: &Report, format: Format, verbose: bool) -> anyhow::Result<
         Format::Text => text(report, verbose),
         Format::Json => serde_json::to_string_pretty(&report.to_json())? + "\n",
         Format::Junit => junit(report),
+        Format::Html => html(report),
+        Format::Csv => csv(report),
     })
 }
 

@@ -5,6 +5,7 @@ mod codec_cmd;
 mod common;
 mod gate_cmd;
 mod model_cmd;
+mod report_cmd;
 mod simulate_cmd;
 mod vectors_cmd;
 
@@ -40,6 +41,10 @@ enum Command {
     Check(check_cmd::CheckArgs),
     /// Check another Modbus codec through an adapter (adapters/PROTOCOL.md).
     Gate(gate_cmd::GateArgs),
+    /// Render a saved JSON report as HTML, text, JUnit XML, CSV or JSON.
+    Report(report_cmd::ReportArgs),
+    /// What changed between two runs of the same model (e.g. two firmware versions).
+    Diff(report_cmd::DiffArgs),
     /// This suite's codec behind the adapter protocol, on stdin/stdout (the reference
     /// adapter: `conformance gate --codec "conformance adapter"`).
     Adapter(gate_cmd::AdapterArgs),
@@ -56,5 +61,7 @@ pub fn run(cli: Cli) -> anyhow::Result<ExitCode> {
         Command::Check(a) => check_cmd::run(a),
         Command::Gate(a) => gate_cmd::run(a),
         Command::Adapter(a) => gate_cmd::adapter(a),
+        Command::Report(a) => report_cmd::report(a),
+        Command::Diff(a) => report_cmd::diff(a),
     }
 }

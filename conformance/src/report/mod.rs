@@ -6,14 +6,21 @@
 //! run ends, so a run cut short by a disconnect or an interruption still leaves a whole
 //! report of what ran, marked incomplete.
 
+mod csv;
+pub mod diff;
+mod html;
 mod junit;
+mod parse;
 mod text;
 
 use std::collections::BTreeMap;
 
 use serde_json::{json, Value};
 
+pub use csv::csv;
+pub use html::html;
 pub use junit::junit;
+pub use parse::ReportError;
 pub use text::text;
 
 use crate::codec::hex::Hex;
@@ -57,6 +64,10 @@ pub struct RunOptions {
     pub retries: u32,
     /// --only patterns.
     pub only: Vec<String>,
+    /// The manual's response time on the run's line (or t3.5 where that is longer), ms.
+    pub response_time_ms: Option<f64>,
+    /// Allowance over it before a reply counts as late, ms.
+    pub response_allowance_ms: Option<u64>,
 }
 
 /// What a report is about.
@@ -232,6 +243,8 @@ impl Report {
                 "timeout_ms": self.options.timeout_ms,
                 "retries": self.options.retries,
                 "only": self.options.only,
+                "response_time_ms": self.options.response_time_ms,
+                "response_allowance_ms": self.options.response_allowance_ms,
             },
             "summary": {
                 "total": s.total, "pass": s.pass, "deviation": s.deviation,

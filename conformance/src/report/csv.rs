@@ -1,0 +1,80 @@
+//! CSV: one row per check (id, mode, status, title, source, summary), quoted as RFC 4180
+//! says (CRLF line ends; a field with a comma, a quote or a line break is quoted, its
+//! quotes doubled), for spreadsheets and test records.
+
+use super::Report;
+
+/// One CSV field: quoted when it holds a comma, a quote or a line break.
+fn field(s: &str) -> String {
+    if s.contains([',', '"', '\n', '\r']) {
+        format!("\"{}\"", s.replace('"', "\"\""))
+    } else {
+        s.to_string()
+    }
+}
+
+/// The report as CSV, with a header row.
+pub fn csv(report: &Report) -> String {
+    let mut out = String::from("id,mode,status,title,source,summary\r\n");
+    for r in &report.results {
+        let mode = r.mode.map(|m| m.to_string()).unwrap_or_default();
+        let row = [
+            r.id.as_str(),
+            mode.as_str(),
+            &r.status.to_string(),
+            r.title.as_str(),
+            r.source.as_str(),
+            r.summary.as_str(),
+        ]
+        .map(field)
+        .join(",");
+        out.push_str(&row);
+        out.push_str("\r\n");
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::codec::Mode;
+    use crate::runner::{CheckResult, Status};
+
+    fn result(id: &str, summary: &str) -> CheckResult {
+        CheckResult {
+            id: id.into(),
+            title: "Read \"first\", then last".into(),
+            mode: Some(Mode::Rtu),
+            source: "F510 manual, 4.3".into(),
+            status: Status::Deviation,
+            summary: summary.into(),
+            findings: vec![],
+            exchanges: vec![],
+            duration: std::time::Duration::ZERO,
+        }
+    }
+
+    #[test]
+    fn fields_with_commas_quotes_and_line_breaks_are_quoted() {
+        let report = Report {
+            results: vec![
+                result("rtu.plain", "plain"),
+                result("rtu.odd", "line one\nline two, \"quoted\""),
+            ],
+            ..Report::default()
+        };
+        let out = csv(&report);
+        let lines: Vec<&str> = out.split("\r\n").collect();
+        assert_eq!(lines[0], "id,mode,status,title,source,summary");
+        assert_eq!(
+            lines[1],
+            "rtu.plain,rtu,DEVIATION,\"Read \"\"first\"\", then last\",\"F510 manual, 4.3\",plain"
+        );
+        assert_eq!(
+            lines[2],
+            "rtu.odd,rtu,DEVIATION,\"Read \"\"first\"\", then last\",\"F510 manual, 4.3\",\"line one\nline two, \"\"quoted\"\"\""
+        );
+        assert_eq!(lines[3], "");
+        assert_eq!(lines.len(), 4);
+    }
+}

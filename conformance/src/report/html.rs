@@ -1,0 +1,698 @@
+//! HTML: one self-contained file for people (a QA lead, the drive's vendor, an auditor).
+//! Inline CSS and SVG, nothing fetched from anywhere, readable offline and printable; a
+//! small inline script filters the table of checks (without it every check is shown); a
+//! link can preselect the filter: `report.html#status=deviation&mode=rtu&id=map`.
+//!
+//! Built from the [`Report`], the same data the JSON holds (a saved JSON report is read
+//! back with [`Report::from_json`]). Every string that came from a device, a model file
+//! or a report file is escaped.
+
+mod svg;
+
+pub(crate) use svg::{latencies, median};
+
+use std::fmt::Write;
+
+use super::{diff_positions, Report, ReportKind};
+use crate::runner::{CheckResult, ExchangeRecord, Status};
+
+macro_rules! w {
+    ($out:expr, $($arg:tt)*) => {{
+        // Writing to a String cannot fail.
+        let _ = write!($out, $($arg)*);
+    }};
+}
+
+/// Escapes text for HTML element content and attribute values.
+pub(crate) fn esc(s: &str) -> String {
+    let mut out = String::with_capacity(s.len());
+    for c in s.chars() {
+        match c {
+            '&' => out.push_str("&amp;"),
+            '<' => out.push_str("&lt;"),
+            '>' => out.push_str("&gt;"),
+            '"' => out.push_str("&quot;"),
+            '\'' => out.push_str("&#39;"),
+            c => out.push(c),
+        }
+    }
+    out
+}
+
+pub(crate) const CSS: &str = r#"
+:root{--pass:#4caf50;--dev:#d32f2f;--obs:#f0a800;--skip:#b0b0b0;--err:#7b1fa2;--ink:#1d232b;--muted:#5f6b7a;--line:#d8dde3;--bg:#f6f7f9}
+*{box-sizing:border-box}
+body{font:14px/1.45 system-ui,-apple-system,"Segoe UI",Roboto,"DejaVu Sans",sans-serif;color:var(--ink);margin:0;background:var(--bg)}
+main{max-width:1200px;margin:0 auto;padding:20px 28px 40px;background:#fff;min-height:100vh}
+h1{font-size:22px;margin:0 0 4px}
+h2{font-size:17px;margin:28px 0 10px;padding-bottom:4px;border-bottom:2px solid var(--line)}
+h3{font-size:15px;margin:0 0 4px}
+code,.hex,td.id{font-family:ui-monospace,"DejaVu Sans Mono",Menlo,Consolas,monospace;font-size:12.5px}
+.muted{color:var(--muted)}
+.small{font-size:11px;fill:var(--muted)}
+.verdict{display:inline-block;padding:3px 12px;border-radius:4px;font-weight:600;color:#fff;margin:6px 0}
+.verdict.ok{background:var(--pass)}.verdict.bad{background:var(--dev)}.verdict.incomplete{background:var(--err)}
+.tiles{display:flex;gap:10px;flex-wrap:wrap;margin:12px 0}
+.tile{border:1px solid var(--line);border-left:6px solid var(--skip);border-radius:4px;padding:6px 14px;min-width:110px}
+.tile b{display:block;font-size:22px}
+.tile.pass{border-left-color:var(--pass)}.tile.deviation{border-left-color:var(--dev)}.tile.observation{border-left-color:var(--obs)}.tile.error{border-left-color:var(--err)}
+.facts{display:grid;grid-template-columns:repeat(auto-fit,minmax(340px,1fr));gap:4px 28px}
+.facts table td:first-child{color:var(--muted);white-space:nowrap;padding-right:12px;vertical-align:top}
+table{border-collapse:collapse;width:100%}
+th,td{text-align:left;padding:4px 8px;border-bottom:1px solid var(--line);vertical-align:top}
+.facts td{border:none;padding:2px 0}
+th{background:#eef1f4;font-weight:600}
+td.num,th.num{text-align:right;font-variant-numeric:tabular-nums}
+.badge{display:inline-block;min-width:88px;text-align:center;padding:1px 6px;border-radius:3px;font-size:11.5px;font-weight:600;color:#fff}
+.badge.pass{background:var(--pass)}.badge.deviation{background:var(--dev)}.badge.observation{background:var(--obs);color:#222}.badge.skip{background:var(--skip);color:#222}.badge.error{background:var(--err)}
+.finding{border:1px solid var(--line);border-left:6px solid var(--dev);border-radius:4px;padding:10px 14px;margin:10px 0;page-break-inside:avoid}
+.finding.observation{border-left-color:var(--obs);padding:3px 12px;margin:3px 0}.finding.error{border-left-color:var(--err)}
+.finding summary{cursor:pointer;list-style:none}.finding summary h3,.finding summary div{display:inline}.finding summary div{margin-left:8px}
+.finding .cite{color:var(--muted);font-size:12.5px}
+.finding ul{margin:6px 0 8px 18px;padding:0}
+.frames{margin-top:6px}
+.frames td{border:none;padding:1px 8px 1px 0}
+.frames td:first-child{color:var(--muted);width:90px}
+.hex span.d{background:#ffd5d5;color:#a00000;font-weight:700;border-radius:2px;outline:1px solid #e88}
+.ex{border-top:1px dashed var(--line);padding-top:6px;margin-top:6px}
+.controls{display:flex;gap:10px;align-items:center;flex-wrap:wrap;margin:8px 0}
+.controls input,.controls select{font:inherit;padding:3px 6px}
+#checks{table-layout:fixed}#checks td{font-size:13px;overflow-wrap:anywhere}#checks th:nth-child(1){width:24%}#checks th:nth-child(2){width:6%}#checks th:nth-child(3){width:11%}#checks th:nth-child(4){width:22%}#checks th:nth-child(6){width:8%}
+#checks tbody tr:hover{background:#f3f6fa}
+#checks tr.deviation td.id{color:var(--dev);font-weight:600}
+svg.plot{width:100%;height:auto;display:block;margin:6px 0 14px;font-family:inherit}
+svg .lab{font-size:12px;fill:var(--ink)}
+svg .axis{stroke:#555;stroke-width:1}
+svg .tick{stroke:#555}
+svg .grid{stroke:#e4e7eb}
+svg .bar{fill:#5b8cc9}svg .bar.late{fill:var(--dev)}
+svg .median{stroke:#1d3f6e;stroke-dasharray:2 2}
+svg .limit{stroke:#2a7a2a;stroke-width:1.5;stroke-dasharray:6 3}
+svg .limit.late{stroke:var(--dev)}
+svg .limit-t{fill:#2a7a2a}svg .late-t{fill:var(--dev)}
+svg .band0{fill:#f3f6fa}svg .band1{fill:#fbf7ee}
+svg .dot{stroke:#fff;stroke-width:.5}
+svg .silent{stroke-width:1.5;fill:none}
+svg .cell.none{fill:#fff;stroke:#ddd;stroke-dasharray:3 2}
+.legend{display:flex;gap:14px;flex-wrap:wrap;font-size:12px;color:var(--muted)}
+.legend i{display:inline-block;width:12px;height:12px;border-radius:2px;margin-right:4px;vertical-align:-2px}
+nav.toc{font-size:12.5px;margin-bottom:10px}nav.toc a{color:#1d5fa8;text-decoration:none}
+footer{margin-top:30px;color:var(--muted);font-size:12px}
+@media print{body{background:#fff}main{padding:0;max-width:none}.controls{display:none}#checks tr{display:table-row!important}a{color:inherit;text-decoration:none}}
+"#;
+
+const SCRIPT: &str = r#"
+(function(){
+var q=document.getElementById('q'),st=document.getElementById('fs'),md=document.getElementById('fm'),n=document.getElementById('shown');
+function f(){var t=q.value.toLowerCase(),s=st.value,m=md.value,c=0;
+document.querySelectorAll('#checks tbody tr').forEach(function(r){
+var ok=(!s||r.dataset.status===s)&&(!m||r.dataset.mode===m)&&(!t||r.dataset.id.toLowerCase().indexOf(t)>=0);
+r.style.display=ok?'':'none';if(ok)c++;});n.textContent=c;}
+var h=location.hash.slice(1);if(h.indexOf('=')>0){h.split('&').forEach(function(kv){var p=kv.split('='),v=p[1]||'';try{v=decodeURIComponent(v);}catch(e){}if(p[0]==='status')st.value=v;if(p[0]==='mode')md.value=v;if(p[0]==='id')q.value=v;});}
+[q,st,md].forEach(function(e){e.addEventListener('input',f);e.addEventListener('change',f);});f();
+})();
+"#;
+
+fn class(s: Status) -> &'static str {
+    match s {
+        Status::Pass => "pass",
+        Status::Deviation => "deviation",
+        Status::Observation => "observation",
+        Status::Skip => "skip",
+        Status::Error => "error",
+    }
+}
+
+fn badge(s: Status) -> String {
+    format!("<span class=\"badge {}\">{s}</span>", class(s))
+}
+
+/// Bytes in hex, the ones at `diff` marked.
+fn hex_marked(bytes: &[u8], diff: &[usize]) -> String {
+    let mut out = String::from("<span class=\"hex\">");
+    for (i, b) in bytes.iter().enumerate() {
+        if i > 0 {
+            out.push(' ');
+        }
+        if diff.contains(&i) {
+            w!(out, "<span class=\"d\">{b:02X}</span>");
+        } else {
+            w!(out, "{b:02X}");
+        }
+    }
+    if bytes.is_empty() {
+        out.push_str("<i class=\"muted\">nothing</i>");
+    }
+    out.push_str("</span>");
+    out
+}
+
+fn row(out: &mut String, label: &str, value: &str) {
+    w!(out, "<tr><td>{}</td><td>{value}</td></tr>", esc(label));
+}
+
+fn exchange(out: &mut String, e: &ExchangeRecord) {
+    let diff = match (&e.expected, &e.reply) {
+        (Some(x), Some(y)) => diff_positions(x, y),
+        (Some(x), None) => (0..x.len()).collect(),
+        // A reply where the model predicts none: all of it is unexpected.
+        (None, Some(y)) if e.predicted.starts_with("no reply") => (0..y.len()).collect(),
+        _ => Vec::new(),
+    };
+    out.push_str("<div class=\"ex\"><table class=\"frames\">");
+    row(out, "request", &hex_marked(&e.request, &[]));
+    match &e.expected {
+        Some(x) => row(out, "expected", &hex_marked(x, &diff)),
+        None => row(out, "expected", &esc(&e.predicted)),
+    }
+    match &e.reply {
+        Some(r) => row(out, "reply", &hex_marked(r, &diff)),
+        None => row(out, "reply", "<i class=\"muted\">no reply frame found</i>"),
+    }
+    if e.reply.as_deref() != Some(&e.received[..]) {
+        row(out, "received", &hex_marked(&e.received, &[]));
+    }
+    row(
+        out,
+        "decoded",
+        &format!(
+            "{} <span class=\"muted\">(predicted: {})</span>",
+            esc(&e.actual),
+            esc(&e.predicted)
+        ),
+    );
+    row(
+        out,
+        "latency",
+        &match e.latency {
+            Some(l) => format!("{:.2} ms", l.as_secs_f64() * 1000.0),
+            None => "<i class=\"muted\">no reply</i>".into(),
+        },
+    );
+    out.push_str("</table></div>");
+}
+
+fn finding_block(out: &mut String, r: &CheckResult, folded: bool) {
+    let (open, close) = if folded {
+        ("<details><summary>", "</summary>")
+    } else {
+        ("", "")
+    };
+    w!(
+        out,
+        "<article class=\"finding {0}\" id=\"f-{1}\">{open}<h3>{2} <code>{1}</code></h3><div>{3}</div>{close}<div class=\"cite\">Manual: {4}</div><p>{5}</p>",
+        class(r.status),
+        esc(&r.id),
+        badge(r.status),
+        esc(&r.title),
+        esc(&r.source),
+        esc(&r.summary)
+    );
+    if r.findings.len() > 1 || r.findings.first().is_some_and(|f| f.text != r.summary) {
+        out.push_str("<ul>");
+        for f in &r.findings {
+            w!(out, "<li>{}</li>", esc(&f.text));
+        }
+        out.push_str("</ul>");
+    }
+    for e in &r.exchanges {
+        exchange(out, e);
+    }
+    if folded {
+        out.push_str("</details>");
+    }
+    out.push_str("</article>");
+}
+
+fn header(out: &mut String, report: &Report) {
+    let s = report.summary();
+    let what = match report.kind {
+        ReportKind::Drive => format!("TECO {} drive", report.device.model),
+        ReportKind::Gate => match &report.codec {
+            Some(c) => format!("codec {} {}", c.implementation, c.version),
+            None => "codec".into(),
+        },
+    };
+    w!(out, "<h1>Modbus conformance report: {}</h1>", esc(&what));
+    let (cls, verdict) = if !report.complete {
+        (
+            "incomplete",
+            format!(
+                "INCOMPLETE{}",
+                report
+                    .stopped
+                    .as_deref()
+                    .map(|s| format!(": {}", esc(s)))
+                    .unwrap_or_default()
+            ),
+        )
+    } else if s.deviation > 0 {
+        (
+            "bad",
+            format!(
+                "{} deviation{} from the manual",
+                s.deviation,
+                if s.deviation == 1 { "" } else { "s" }
+            ),
+        )
+    } else if s.error > 0 {
+        ("incomplete", format!("{} checks could not tell", s.error))
+    } else {
+        ("ok", "No deviations from the manual".into())
+    };
+    w!(
+        out,
+        "<div class=\"verdict {cls}\" id=\"verdict\">{verdict}</div> <span class=\"muted\">exit code {}</span>",
+        report.exit_code()
+    );
+    out.push_str("<div class=\"tiles\" id=\"summary\">");
+    for (name, c, n) in [
+        ("checks", "", s.total),
+        ("pass", "pass", s.pass),
+        ("deviations", "deviation", s.deviation),
+        ("observations", "observation", s.observation),
+        ("skipped", "skip", s.skip),
+        ("errors", "error", s.error),
+    ] {
+        w!(out, "<div class=\"tile {c}\"><b>{n}</b>{name}</div>");
+    }
+    out.push_str("</div><div class=\"facts\"><table>");
+    match report.kind {
+        ReportKind::Drive => {
+            let d = &report.device;
+            row(out, "model", &esc(&d.model));
+            row(out, "manual", &esc(&d.manual));
+            row(out, "node address", &format!("{:02X}H", d.address));
+            if let Some(id) = d.identification {
+                row(out, "identification", &format!("{id:04X}H"));
+            }
+            row(
+                out,
+                "device",
+                &match &d.simulated {
+                    None => "a real drive".into(),
+                    Some(q) if q.is_empty() => "this suite's simulator".into(),
+                    Some(q) => format!(
+                        "this suite's simulator, with quirks: <b>{}</b>",
+                        esc(&q.join(", "))
+                    ),
+                },
+            );
+            row(out, "line", &esc(&d.line));
+            for (mode, link) in &d.links {
+                row(out, &format!("link ({mode})"), &esc(link));
+            }
+        }
+        ReportKind::Gate => {
+            if let Some(c) = &report.codec {
+                row(out, "adapter", &esc(&c.adapter));
+                row(
+                    out,
+                    "implementation",
+                    &esc(&format!("{} {}", c.implementation, c.version)),
+                );
+                row(out, "command", &format!("<code>{}</code>", esc(&c.command)));
+                row(out, "supports", &esc(&c.supports.join(", ")));
+                row(
+                    out,
+                    "differential cases",
+                    &format!("{} (seed {:#x})", c.count, c.seed),
+                );
+                for i in &c.incidents {
+                    row(out, "incident", &esc(i));
+                }
+            }
+        }
+    }
+    out.push_str("</table><table>");
+    row(out, "started", &esc(&report.started));
+    row(
+        out,
+        "finished",
+        &report
+            .finished
+            .as_deref()
+            .map(esc)
+            .unwrap_or_else(|| "<i>not finished</i>".into()),
+    );
+    let o = &report.options;
+    if !o.modes.is_empty() {
+        row(
+            out,
+            "modes",
+            &esc(&o
+                .modes
+                .iter()
+                .map(|m| m.to_string().to_uppercase())
+                .collect::<Vec<_>>()
+                .join(", ")),
+        );
+    }
+    let mut flags = Vec::new();
+    if o.read_only {
+        flags.push("read-only");
+    }
+    if o.allow_motion {
+        flags.push("motion allowed");
+    }
+    row(
+        out,
+        "options",
+        &esc(&format!(
+            "timeout {} ms, {} retries{}{}",
+            o.timeout_ms,
+            o.retries,
+            if flags.is_empty() { "" } else { ", " },
+            flags.join(", ")
+        )),
+    );
+    if let Some(m) = o.response_time_ms {
+        row(
+            out,
+            "response time",
+            &format!(
+                "{m:.1} ms (manual){}",
+                o.response_allowance_ms
+                    .map(|a| format!(", late beyond {:.1} ms (allowance {a} ms)", m + a as f64))
+                    .unwrap_or_default()
+            ),
+        );
+    }
+    if !o.only.is_empty() {
+        row(out, "only", &esc(&o.only.join(", ")));
+    }
+    row(
+        out,
+        "suite",
+        &esc(&format!(
+            "{} {}",
+            env!("CARGO_PKG_NAME"),
+            env!("CARGO_PKG_VERSION")
+        )),
+    );
+    out.push_str("</table></div>");
+    if !report.budget.is_empty() {
+        out.push_str("<h2 id=\"budget\">Line budget</h2><table class=\"budget\"><thead><tr><th>mode</th><th class=\"num\">wall</th><th class=\"num\">line's bound</th><th class=\"num\">efficiency</th><th class=\"num\">frames</th><th class=\"num\">bytes sent / received</th><th class=\"num\">silences</th><th class=\"num\">mean response</th><th class=\"num\">longest response</th></tr></thead><tbody>");
+        for (mode, b) in &report.budget {
+            let replies = b.line.frames.saturating_sub(b.line.silences).max(1);
+            w!(
+                out,
+                "<tr><td>{}</td><td class=\"num\">{:.1} s</td><td class=\"num\">{:.1} s</td><td class=\"num\">{:.0} %</td><td class=\"num\">{}</td><td class=\"num\">{} / {}</td><td class=\"num\">{}</td><td class=\"num\">{:.1} ms</td><td class=\"num\">{:.1} ms</td></tr>",
+                esc(&mode.to_uppercase()),
+                b.wall.as_secs_f64(),
+                b.bound.as_secs_f64(),
+                b.efficiency() * 100.0,
+                b.line.frames,
+                b.line.bytes_sent,
+                b.line.bytes_received,
+                b.line.silences,
+                b.line.response.as_secs_f64() * 1000.0 / replies as f64,
+                b.line.max_response.as_secs_f64() * 1000.0
+            );
+        }
+        out.push_str("</tbody></table><p class=\"muted\">The line's bound: what the bytes on the wire, the gaps between frames, the device's response delays and the silences where no reply comes need at the line's speed; efficiency is the bound over the wall time.</p>");
+    }
+}
+
+fn legend(out: &mut String) {
+    out.push_str("<div class=\"legend\">");
+    for s in [
+        Status::Pass,
+        Status::Deviation,
+        Status::Observation,
+        Status::Skip,
+        Status::Error,
+    ] {
+        w!(
+            out,
+            "<span><i style=\"background:{}\"></i>{s}</span>",
+            svg::colour(s)
+        );
+    }
+    out.push_str("</div>");
+}
+
+fn worst_latency(r: &CheckResult) -> String {
+    r.exchanges
+        .iter()
+        .filter_map(|e| e.latency)
+        .max()
+        .map(|l| format!("{:.1}", l.as_secs_f64() * 1000.0))
+        .unwrap_or_default()
+}
+
+/// The report as one self-contained HTML page.
+pub fn html(report: &Report) -> String {
+    let mut out = String::with_capacity(64 * 1024 + report.results.len() * 600);
+    let title = match report.kind {
+        ReportKind::Drive => format!("Conformance report: {}", report.device.model),
+        ReportKind::Gate => "Conformance report: codec gate".to_string(),
+    };
+    w!(
+        out,
+        "<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\"><meta name=\"viewport\" content=\"width=device-width,initial-scale=1\"><title>{}</title><style>{CSS}</style></head><body><main>",
+        esc(&title)
+    );
+    let drive = report.kind == ReportKind::Drive;
+    out.push_str("<nav class=\"toc\"><a href=\"#deviations\">Deviations</a> · <a href=\"#observations\">Observations</a> · ");
+    if drive {
+        out.push_str("<a href=\"#plots\">Response time</a> · <a href=\"#timeline\">Timeline</a> · <a href=\"#map\">Register map</a> · ");
+    }
+    out.push_str(
+        "<a href=\"#all\">Every check</a> · <a href=\"#restore\">Restore journal</a></nav>",
+    );
+    header(&mut out, report);
+
+    // Deviations first, then what the run could not tell; observations (the manual is
+    // silent) after them, folded.
+    let s = report.summary();
+    w!(
+        out,
+        "<h2 id=\"deviations\">Deviations ({}) and errors ({})</h2>",
+        s.deviation,
+        s.error
+    );
+    let mut notable: Vec<&CheckResult> = report
+        .results
+        .iter()
+        .filter(|r| matches!(r.status, Status::Deviation | Status::Error))
+        .collect();
+    notable.sort_by_key(|r| r.status != Status::Deviation);
+    if notable.is_empty() {
+        out.push_str("<p>None: every check that ran agreed with the manual.</p>");
+    }
+    for r in notable {
+        finding_block(&mut out, r, false);
+    }
+    if s.observation > 0 {
+        w!(
+            out,
+            "<h2 id=\"observations\">Observations ({})</h2><p class=\"muted\">Where the manual is silent or contradicts itself: what the device did (click one for its frames).</p>",
+            s.observation
+        );
+        for r in report
+            .results
+            .iter()
+            .filter(|r| r.status == Status::Observation)
+        {
+            finding_block(&mut out, r, true);
+        }
+    }
+
+    // A gate's cases are not timed exchanges with a device: no plots.
+    if drive {
+        out.push_str("<h2 id=\"plots\">Response time</h2><p class=\"muted\">How long the device took to start each reply, per mode, against the manual's response time and the allowance beyond which a reply counts as late.</p>");
+        out.push_str(&svg::latency_plot(report));
+        out.push_str("<h2 id=\"timeline\">Timeline of the exchanges</h2>");
+        legend(&mut out);
+        out.push_str(&svg::timeline_plot(report));
+        out.push_str("<h2 id=\"map\">Register map</h2><p class=\"muted\">Each register group (block) against the map checks: its first and last register, the whole block, one past its end, the gaps inside it, registers without access, and a write to the group; a cell is coloured by the worst status of its checks (hover for the ids).</p>");
+        legend(&mut out);
+        out.push_str(&svg::map_grid(report));
+    }
+
+    let mut modes: Vec<String> = report
+        .results
+        .iter()
+        .map(|r| {
+            r.mode
+                .map(|m| m.to_string())
+                .unwrap_or_else(|| "run".into())
+        })
+        .collect();
+    modes.dedup();
+    modes.sort();
+    modes.dedup();
+    w!(
+        out,
+        "<h2 id=\"all\">Every check ({})</h2><div class=\"controls\"><label>id contains <input id=\"q\" type=\"search\" placeholder=\"e.g. map.group\"></label><label>status <select id=\"fs\"><option value=\"\">any</option>",
+        report.results.len()
+    );
+    for st in [
+        Status::Deviation,
+        Status::Error,
+        Status::Observation,
+        Status::Pass,
+        Status::Skip,
+    ] {
+        w!(out, "<option value=\"{}\">{st}</option>", class(st));
+    }
+    out.push_str("</select></label><label>mode <select id=\"fm\"><option value=\"\">any</option>");
+    for m in &modes {
+        w!(out, "<option value=\"{0}\">{0}</option>", esc(m));
+    }
+    w!(
+        out,
+        "</select></label><span class=\"muted\"><span id=\"shown\">{}</span> shown</span></div>",
+        report.results.len()
+    );
+    out.push_str("<table id=\"checks\"><thead><tr><th>id</th><th>mode</th><th>status</th><th>title</th><th>summary</th><th class=\"num\">latency (ms)</th></tr></thead><tbody>");
+    for r in &report.results {
+        let mode = r
+            .mode
+            .map(|m| m.to_string())
+            .unwrap_or_else(|| "run".into());
+        let id = esc(&r.id);
+        let link = if matches!(r.status, Status::Pass | Status::Skip) {
+            id.clone()
+        } else {
+            format!("<a href=\"#f-{id}\">{id}</a>")
+        };
+        w!(
+            out,
+            "<tr class=\"{c}\" data-id=\"{id}\" data-status=\"{c}\" data-mode=\"{m}\"><td class=\"id\">{link}</td><td>{m}</td><td>{b}</td><td>{t}<div class=\"muted\">{src}</div></td><td>{sum}</td><td class=\"num\">{lat}</td></tr>",
+            c = class(r.status),
+            m = esc(&mode),
+            b = badge(r.status),
+            t = esc(&r.title),
+            src = esc(&r.source),
+            sum = esc(&r.summary),
+            lat = worst_latency(r)
+        );
+    }
+    out.push_str("</tbody></table>");
+
+    out.push_str("<h2 id=\"restore\">Restore journal</h2>");
+    if report.restore.is_empty() {
+        out.push_str("<p>No register was changed, so none needed restoring.</p>");
+    } else {
+        out.push_str("<table><thead><tr><th>register</th><th>original value</th><th>restored</th><th>detail</th></tr></thead><tbody>");
+        for r in &report.restore {
+            w!(
+                out,
+                "<tr><td class=\"id\">{:04X}H</td><td class=\"id\">{:04X}H</td><td>{}</td><td>{}</td></tr>",
+                r.register,
+                r.original,
+                if r.restored {
+                    badge(Status::Pass).replace("PASS", "yes")
+                } else {
+                    badge(Status::Deviation).replace("DEVIATION", "NOT RESTORED")
+                },
+                esc(&r.detail)
+            );
+        }
+        out.push_str("</tbody></table>");
+    }
+    w!(
+        out,
+        "<footer>Generated by {} {} from the run's report data (the same as its JSON report). Offline and self-contained.</footer></main><script>{SCRIPT}</script></body></html>\n",
+        env!("CARGO_PKG_NAME"),
+        env!("CARGO_PKG_VERSION")
+    );
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::codec::Mode;
+    use crate::runner::{Finding, Severity};
+
+    fn hostile() -> Report {
+        let evil = "<script>alert(1)</script>";
+        Report {
+            started: evil.into(),
+            complete: true,
+            device: crate::report::Device {
+                model: evil.into(),
+                manual: "\"quoted\" & 'single'".into(),
+                line: evil.into(),
+                simulated: Some(vec![evil.into()]),
+                ..Default::default()
+            },
+            results: vec![CheckResult {
+                id: "rtu.map.<img src=x onerror=alert(1)>.first".into(),
+                title: evil.into(),
+                mode: Some(Mode::Rtu),
+                source: evil.into(),
+                status: Status::Deviation,
+                summary: evil.into(),
+                findings: vec![Finding {
+                    severity: Severity::Deviation,
+                    text: evil.into(),
+                }],
+                exchanges: vec![ExchangeRecord {
+                    request: vec![1, 3, 0, 0, 0, 1, 0x84, 0x0A],
+                    expected: Some(vec![1, 3, 2, 0, 0, 0xB8, 0x44]),
+                    received: vec![1, 3, 2, 0, 1, 0x79, 0x84],
+                    reply: Some(vec![1, 3, 2, 0, 1, 0x79, 0x84]),
+                    predicted: evil.into(),
+                    actual: evil.into(),
+                    latency: Some(std::time::Duration::from_millis(7)),
+                }],
+                duration: std::time::Duration::from_millis(20),
+            }],
+            ..Report::default()
+        }
+    }
+
+    #[test]
+    fn everything_from_a_device_or_a_file_is_escaped() {
+        let page = html(&hostile());
+        assert!(!page.contains("<script>alert"), "unescaped script");
+        assert!(!page.contains("<img"), "unescaped tag");
+        assert!(page.contains("&lt;script&gt;alert(1)&lt;/script&gt;"));
+        assert!(page.contains("&quot;quoted&quot; &amp; &#39;single&#39;"));
+        // The only script is the page's own filter.
+        assert_eq!(page.matches("<script>").count(), 1);
+    }
+
+    #[test]
+    fn differing_bytes_are_marked() {
+        let page = html(&hostile());
+        // Expected 00 00 B8 44 against 00 01 79 84: the last three bytes differ.
+        assert!(page.contains(
+            "01 03 02 00 <span class=\"d\">00</span> <span class=\"d\">B8</span> <span class=\"d\">44</span>"
+        ));
+        assert!(page.contains(
+            "01 03 02 00 <span class=\"d\">01</span> <span class=\"d\">79</span> <span class=\"d\">84</span>"
+        ));
+        assert!(page.contains("7.00 ms"));
+    }
+
+    #[test]
+    fn a_gate_report_has_no_device_plots() {
+        let mut r = hostile();
+        r.kind = ReportKind::Gate;
+        let page = html(&r);
+        assert!(!page.contains("<svg"));
+        assert!(!page.contains("href=\"#map\""));
+        assert!(page.contains("data-id=\"rtu.map."));
+        let drive = html(&hostile());
+        for plot in ["plot-latency", "plot-timeline", "plot-map"] {
+            assert!(drive.contains(&format!("<svg id=\"{plot}\"")), "{plot}");
+        }
+    }
+
+    #[test]
+    fn the_page_holds_nothing_fetched() {
+        let page = html(&hostile());
+        for outside in ["http://", "https://", "src=\"", "@import", "url("] {
+            let hits: Vec<_> = page
+                .match_indices(outside)
+                .filter(|(i, _)| !page[..*i].ends_with("xmlns=\""))
+                .collect();
+            assert!(hits.is_empty(), "{outside} in the page");
+        }
+    }
+}

@@ -1,0 +1,423 @@
+//! Reading a saved JSON report back into a [`Report`], so that every format (text, JUnit,
+//! HTML, CSV) and `conformance diff` work from the one source: the JSON a run wrote.
+
+use std::collections::BTreeMap;
+use std::time::Duration;
+
+use serde_json::Value;
+
+use super::{Codec, Device, Report, ReportKind, RunOptions};
+use crate::codec::hex::parse_hex;
+use crate::codec::Mode;
+use crate::runner::{
+    CheckResult, ExchangeRecord, Finding, LineBudget, ModeBudget, RestoreRecord, Severity, Status,
+};
+
+/// Why a JSON value is not a report.
+#[derive(Debug, thiserror::Error)]
+pub enum ReportError {
+    /// The text is not JSON.
+    #[error("not JSON: {0}")]
+    Json(#[from] serde_json::Error),
+    /// The JSON is not a report of this suite.
+    #[error("not a conformance report: {0}")]
+    NotAReport(String),
+    /// A field is missing or has the wrong type or value.
+    #[error("{path}: {problem}")]
+    Field {
+        /// Where, e.g. `checks[3].status`.
+        path: String,
+        /// What is wrong.
+        problem: String,
+    },
+}
+
+fn field(path: &str, problem: impl Into<String>) -> ReportError {
+    ReportError::Field {
+        path: path.to_string(),
+        problem: problem.into(),
+    }
+}
+
+fn get<'a>(v: &'a Value, key: &str, path: &str) -> Result<&'a Value, ReportError> {
+    v.get(key)
+        .ok_or_else(|| field(&format!("{path}.{key}"), "missing"))
+}
+
+fn string(v: &Value, key: &str, path: &str) -> Result<String, ReportError> {
+    get(v, key, path)?
+        .as_str()
+        .map(str::to_string)
+        .ok_or_else(|| field(&format!("{path}.{key}"), "not a string"))
+}
+
+fn opt_string(v: &Value, key: &str, path: &str) -> Result<Option<String>, ReportError> {
+    match v.get(key) {
+        None | Some(Value::Null) => Ok(None),
+        Some(Value::String(s)) => Ok(Some(s.clone())),
+        Some(_) => Err(field(&format!("{path}.{key}"), "not a string")),
+    }
+}
+
+fn boolean(v: &Value, key: &str, path: &str) -> Result<bool, ReportError> {
+    get(v, key, path)?
+        .as_bool()
+        .ok_or_else(|| field(&format!("{path}.{key}"), "not true or false"))
+}
+
+fn uint(v: &Value, key: &str, path: &str) -> Result<u64, ReportError> {
+    get(v, key, path)?
+        .as_u64()
+        .ok_or_else(|| field(&format!("{path}.{key}"), "not a whole number"))
+}
+
+fn millis(v: &Value, key: &str, path: &str) -> Result<Duration, ReportError> {
+    let ms = get(v, key, path)?
+        .as_f64()
+        .filter(|x| x.is_finite() && *x >= 0.0 && *x < 1e12)
+        .ok_or_else(|| field(&format!("{path}.{key}"), "not a number of milliseconds"))?;
+    Ok(Duration::from_secs_f64(ms / 1000.0))
+}
+
+fn array<'a>(v: &'a Value, key: &str, path: &str) -> Result<&'a Vec<Value>, ReportError> {
+    get(v, key, path)?
+        .as_array()
+        .ok_or_else(|| field(&format!("{path}.{key}"), "not an array"))
+}
+
+fn strings(v: &Value, key: &str, path: &str) -> Result<Vec<String>, ReportError> {
+    array(v, key, path)?
+        .iter()
+        .enumerate()
+        .map(|(i, s)| {
+            s.as_str()
+                .map(str::to_string)
+                .ok_or_else(|| field(&format!("{path}.{key}[{i}]"), "not a string"))
+        })
+        .collect()
+}
+
+fn hex_u(v: &Value, key: &str, path: &str) -> Result<u64, ReportError> {
+    let s = string(v, key, path)?;
+    let digits = s.strip_prefix("0x").unwrap_or(&s);
+    u64::from_str_radix(digits, 16)
+        .map_err(|_| field(&format!("{path}.{key}"), format!("{s:?} is not hex")))
+}
+
+fn bytes(s: &str, path: &str) -> Result<Vec<u8>, ReportError> {
+    parse_hex(s).map_err(|e| field(path, format!("not hex bytes: {e}")))
+}
+
+fn mode(s: &str, path: &str) -> Result<Mode, ReportError> {
+    match s {
+        "rtu" => Ok(Mode::Rtu),
+        "ascii" => Ok(Mode::Ascii),
+        _ => Err(field(path, format!("{s:?} is not rtu or ascii"))),
+    }
+}
+
+fn status(s: &str, path: &str) -> Result<Status, ReportError> {
+    Ok(match s {
+        "pass" => Status::Pass,
+        "deviation" => Status::Deviation,
+        "observation" => Status::Observation,
+        "skip" => Status::Skip,
+        "error" => Status::Error,
+        _ => return Err(field(path, format!("{s:?} is not a status"))),
+    })
+}
+
+fn exchange(e: &Value, path: &str) -> Result<ExchangeRecord, ReportError> {
+    let opt_bytes = |key: &str| -> Result<Option<Vec<u8>>, ReportError> {
+        opt_string(e, key, path)?
+            .map(|s| bytes(&s, &format!("{path}.{key}")))
+            .transpose()
+    };
+    Ok(ExchangeRecord {
+        request: bytes(&string(e, "request", path)?, &format!("{path}.request"))?,
+        expected: opt_bytes("expected")?,
+        received: bytes(&string(e, "received", path)?, &format!("{path}.received"))?,
+        reply: opt_bytes("reply")?,
+        predicted: string(e, "predicted", path)?,
+        actual: string(e, "actual", path)?,
+        latency: match e.get("latency_ms") {
+            None | Some(Value::Null) => None,
+            Some(_) => Some(millis(e, "latency_ms", path)?),
+        },
+    })
+}
+
+fn check(c: &Value, path: &str) -> Result<CheckResult, ReportError> {
+    let findings = array(c, "findings", path)?
+        .iter()
+        .enumerate()
+        .map(|(i, f)| {
+            let p = format!("{path}.findings[{i}]");
+            let severity = match string(f, "severity", &p)?.as_str() {
+                "deviation" => Severity::Deviation,
+                "observation" => Severity::Observation,
+                s => return Err(field(&p, format!("{s:?} is not a severity"))),
+            };
+            Ok(Finding {
+                severity,
+                text: string(f, "text", &p)?,
+            })
+        })
+        .collect::<Result<Vec<_>, _>>()?;
+    let exchanges = array(c, "exchanges", path)?
+        .iter()
+        .enumerate()
+        .map(|(i, e)| exchange(e, &format!("{path}.exchanges[{i}]")))
+        .collect::<Result<Vec<_>, _>>()?;
+    Ok(CheckResult {
+        id: string(c, "id", path)?,
+        title: string(c, "title", path)?,
+        mode: opt_string(c, "mode", path)?
+            .map(|m| mode(&m, &format!("{path}.mode")))
+            .transpose()?,
+        source: string(c, "source", path)?,
+        status: status(&string(c, "status", path)?, &format!("{path}.status"))?,
+        summary: string(c, "summary", path)?,
+        findings,
+        exchanges,
+        duration: millis(c, "duration_ms", path)?,
+    })
+}
+
+fn budget(b: &Value, path: &str) -> Result<ModeBudget, ReportError> {
+    Ok(ModeBudget {
+        wall: millis(b, "wall_ms", path)?,
+        bound: millis(b, "bound_ms", path)?,
+        line: LineBudget {
+            frames: uint(b, "frames", path)?,
+            bytes_sent: uint(b, "bytes_sent", path)?,
+            bytes_received: uint(b, "bytes_received", path)?,
+            response: millis(b, "response_ms", path)?,
+            silences: uint(b, "silences", path)?,
+            max_response: millis(b, "max_response_ms", path)?,
+            busy: Duration::ZERO,
+        },
+    })
+}
+
+impl Report {
+    /// Parses the text of a JSON report.
+    pub fn from_json_str(text: &str) -> Result<Report, ReportError> {
+        Report::from_json(&serde_json::from_str(text)?)
+    }
+
+    /// Reads a report back from the JSON [`Report::to_json`] wrote (schema
+    /// `vectors/schema/report.schema.json`). What the JSON does not hold (the line's busy
+    /// time) is zero.
+    pub fn from_json(v: &Value) -> Result<Report, ReportError> {
+        if v.get("schema").and_then(Value::as_str) != Some("teco-modbus-conformance/report") {
+            return Err(ReportError::NotAReport(
+                "no \"schema\": \"teco-modbus-conformance/report\" field".into(),
+            ));
+        }
+        let version = uint(v, "schema_version", "")?;
+        if version != u64::from(super::SCHEMA_VERSION) {
+            return Err(ReportError::NotAReport(format!(
+                "schema version {version}; this suite reads version {}",
+                super::SCHEMA_VERSION
+            )));
+        }
+        let kind = match string(v, "kind", "")?.as_str() {
+            "drive" => ReportKind::Drive,
+            "gate" => ReportKind::Gate,
+            k => return Err(field(".kind", format!("{k:?} is not drive or gate"))),
+        };
+        let device = match get(v, "device", "")? {
+            Value::Null => Device::default(),
+            d => {
+                let p = ".device";
+                let links = match d.get("links") {
+                    Some(Value::Object(m)) => m
+                        .iter()
+                        .map(|(k, l)| {
+                            l.as_str()
+                                .map(|s| (k.clone(), s.to_string()))
+                                .ok_or_else(|| field(&format!("{p}.links.{k}"), "not a string"))
+                        })
+                        .collect::<Result<BTreeMap<_, _>, _>>()?,
+                    _ => BTreeMap::new(),
+                };
+                Device {
+                    model: string(d, "model", p)?,
+                    manual: string(d, "manual", p)?,
+                    address: u8::try_from(hex_u(d, "address", p)?)
+                        .map_err(|_| field(".device.address", "not a node address"))?,
+                    links,
+                    line: string(d, "line", p)?,
+                    identification: match opt_string(d, "identification", p)? {
+                        None => None,
+                        Some(s) => Some(u16::from_str_radix(&s, 16).map_err(|_| {
+                            field(".device.identification", format!("{s:?} is not hex"))
+                        })?),
+                    },
+                    simulated: if boolean(d, "simulated", p)? {
+                        Some(strings(d, "quirks", p)?)
+                    } else {
+                        None
+                    },
+                }
+            }
+        };
+        let codec = match v.get("codec") {
+            None | Some(Value::Null) => None,
+            Some(c) => {
+                let p = ".codec";
+                Some(Codec {
+                    adapter: string(c, "adapter", p)?,
+                    implementation: string(c, "implementation", p)?,
+                    version: string(c, "version", p)?,
+                    command: string(c, "command", p)?,
+                    supports: strings(c, "supports", p)?,
+                    incidents: strings(c, "incidents", p)?,
+                    seed: hex_u(c, "seed", p)?,
+                    count: usize::try_from(uint(c, "count", p)?).unwrap_or(usize::MAX),
+                })
+            }
+        };
+        let o = get(v, "options", "")?;
+        let p = ".options";
+        let options = RunOptions {
+            modes: strings(o, "modes", p)?
+                .iter()
+                .map(|m| mode(m, ".options.modes"))
+                .collect::<Result<_, _>>()?,
+            read_only: boolean(o, "read_only", p)?,
+            allow_motion: boolean(o, "allow_motion", p)?,
+            timeout_ms: uint(o, "timeout_ms", p)?,
+            retries: u32::try_from(uint(o, "retries", p)?).unwrap_or(u32::MAX),
+            only: strings(o, "only", p)?,
+            response_time_ms: o.get("response_time_ms").and_then(Value::as_f64),
+            response_allowance_ms: o.get("response_allowance_ms").and_then(Value::as_u64),
+        };
+        let results = array(v, "checks", "")?
+            .iter()
+            .enumerate()
+            .map(|(i, c)| check(c, &format!(".checks[{i}]")))
+            .collect::<Result<Vec<_>, _>>()?;
+        let restore = array(v, "restore", "")?
+            .iter()
+            .enumerate()
+            .map(|(i, r)| {
+                let p = format!(".restore[{i}]");
+                Ok(RestoreRecord {
+                    register: u16::try_from(hex_u(r, "register", &p)?)
+                        .map_err(|_| field(&p, "register beyond FFFF"))?,
+                    original: u16::try_from(hex_u(r, "original", &p)?)
+                        .map_err(|_| field(&p, "value beyond FFFF"))?,
+                    restored: boolean(r, "restored", &p)?,
+                    detail: string(r, "detail", &p)?,
+                })
+            })
+            .collect::<Result<Vec<_>, ReportError>>()?;
+        let budget = match v.get("budget") {
+            Some(Value::Object(m)) => m
+                .iter()
+                .map(|(k, b)| Ok((k.clone(), budget(b, &format!(".budget.{k}"))?)))
+                .collect::<Result<BTreeMap<_, _>, ReportError>>()?,
+            _ => BTreeMap::new(),
+        };
+        Ok(Report {
+            kind,
+            codec,
+            started: string(v, "started", "")?,
+            finished: opt_string(v, "finished", "")?,
+            complete: boolean(v, "complete", "")?,
+            stopped: opt_string(v, "stopped", "")?,
+            device,
+            options,
+            results,
+            restore,
+            budget,
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::runner::CheckResult;
+
+    fn sample() -> Report {
+        Report {
+            started: "2026-01-01T00:00:00Z".into(),
+            finished: Some("2026-01-01T00:01:00Z".into()),
+            complete: true,
+            device: Device {
+                model: "f510".into(),
+                manual: "F510 manual".into(),
+                address: 0x0A,
+                links: [("rtu".to_string(), "pty /dev/pts/3".to_string())].into(),
+                line: "9600 baud 8E1".into(),
+                identification: Some(0x0510),
+                simulated: Some(vec!["wrong-exception".into()]),
+            },
+            options: RunOptions {
+                modes: vec![Mode::Rtu, Mode::Ascii],
+                timeout_ms: 1000,
+                only: vec!["rtu.*".into()],
+                response_time_ms: Some(10.0),
+                response_allowance_ms: Some(20),
+                ..RunOptions::default()
+            },
+            results: vec![CheckResult {
+                id: "rtu.map.group-0.past-end".into(),
+                title: "Read past the end".into(),
+                mode: Some(Mode::Rtu),
+                source: "F510 manual, 1.0.3".into(),
+                status: Status::Deviation,
+                summary: "manual: 02; device: 03".into(),
+                findings: vec![Finding::deviation("code 03 instead of 02")],
+                exchanges: vec![ExchangeRecord {
+                    request: vec![1, 3, 0, 0x39, 0, 1, 0x54, 7],
+                    expected: Some(vec![1, 0x83, 2, 0xC0, 0xF1]),
+                    received: vec![1, 0x83, 3, 1, 0x31],
+                    reply: Some(vec![1, 0x83, 3, 1, 0x31]),
+                    predicted: "exception 02H".into(),
+                    actual: "exception 03H".into(),
+                    latency: Some(Duration::from_micros(8_960)),
+                }],
+                duration: Duration::from_micros(21_500),
+            }],
+            restore: vec![RestoreRecord {
+                register: 0x2502,
+                original: 0x04D2,
+                restored: true,
+                detail: "read back 04D2".into(),
+            }],
+            ..Report::default()
+        }
+    }
+
+    #[test]
+    fn a_report_reads_back_as_it_was_written() {
+        let json = sample().to_json();
+        let back = Report::from_json(&json).unwrap();
+        assert_eq!(back.to_json(), json);
+        assert_eq!(
+            back.results[0].exchanges[0].reply,
+            Some(vec![1, 0x83, 3, 1, 0x31])
+        );
+    }
+
+    #[test]
+    fn a_broken_report_names_the_field() {
+        let mut json = sample().to_json();
+        json["checks"][0]["status"] = "fine".into();
+        let e = Report::from_json(&json).unwrap_err().to_string();
+        assert!(e.contains(".checks[0].status"), "{e}");
+        assert!(e.contains("\"fine\" is not a status"), "{e}");
+        assert!(matches!(
+            Report::from_json_str("[1, 2]"),
+            Err(ReportError::NotAReport(_))
+        ));
+        assert!(matches!(
+            Report::from_json_str("{ nope"),
+            Err(ReportError::Json(_))
+        ));
+    }
+}

@@ -1,0 +1,420 @@
+//! The reports people read: `check --format html|csv`, `report FILE.json` and `diff`,
+//! on a clean run and a run with a quirk of the simulated F510; the HTML pages loaded in
+//! headless Chromium (the DOM it dumps, its console, a screenshot).
+
+mod common;
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+use std::time::Duration;
+
+use serde_json::Value;
+
+fn dir(tag: &str) -> PathBuf {
+    let d = Path::new(env!("CARGO_TARGET_TMPDIR")).join(format!("html_report-{tag}"));
+    let _ = std::fs::remove_dir_all(&d);
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+fn conformance(args: &[&str]) -> Output {
+    let o = Command::new(common::bin()).args(args).output().unwrap();
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert!(!stderr.contains("panicked"), "{stderr}");
+    o
+}
+
+fn path(p: &Path) -> &str {
+    p.to_str().unwrap()
+}
+
+fn chromium() -> Option<&'static str> {
+    ["chromium", "chromium-browser"].into_iter().find(|c| {
+        Command::new(c)
+            .arg("--version")
+            .output()
+            .is_ok_and(|o| o.status.success())
+    })
+}
+
+/// Headless Chromium on `page`: the DOM after the page's script ran, and the browser's
+/// log (console messages are logged as `:CONSOLE`).
+fn browse(chromium: &str, page: &Path, extra: &[&str]) -> (String, String) {
+    let profile = page.with_extension("profile");
+    let o = Command::new("timeout")
+        .arg("120")
+        .arg(chromium)
+        .args([
+            "--headless",
+            "--no-sandbox",
+            "--disable-gpu",
+            "--disable-quic",
+            "--no-first-run",
+            "--disable-background-networking",
+            "--disable-component-update",
+            "--disable-sync",
+            "--enable-logging=stderr",
+            "--v=0",
+        ])
+        .arg(format!("--user-data-dir={}", profile.display()))
+        .args(extra)
+        .arg(format!("file://{}", page.display()))
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "chromium failed on {}", page.display());
+    (
+        String::from_utf8_lossy(&o.stdout).into_owned(),
+        String::from_utf8_lossy(&o.stderr).into_owned(),
+    )
+}
+
+fn no_console_errors(log: &str, page: &Path) {
+    let bad: Vec<&str> = log
+        .lines()
+        .filter(|l| l.contains(":CONSOLE") || l.contains("Uncaught"))
+        .collect();
+    assert!(bad.is_empty(), "{}: console: {bad:#?}", page.display());
+}
+
+fn ids(v: &Value) -> Vec<String> {
+    v["checks"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|c| c["id"].as_str().unwrap().to_string())
+        .collect()
+}
+
+/// A clean and a quirky RTU run of the simulated F510 as JSON.
+fn runs(d: &Path) -> [(PathBuf, Value, Option<i32>); 2] {
+    let limit = Duration::from_secs(240);
+    let clean_dir = d.join("clean");
+    let quirk_dir = d.join("quirk");
+    std::fs::create_dir_all(&clean_dir).unwrap();
+    std::fs::create_dir_all(&quirk_dir).unwrap();
+    // One after the other: the simulator is paced at the line's character time, and two
+    // at once on a busy host add timing deviations to the clean run.
+    let (clean_code, clean) =
+        common::check_device(&clean_dir, &["--sim", "f510", "--mode", "rtu"], limit);
+    let (quirk_code, quirk) = common::check_device(
+        &quirk_dir,
+        &[
+            "--sim",
+            "f510",
+            "--mode",
+            "rtu",
+            "--quirk",
+            "wrong-exception",
+        ],
+        limit,
+    );
+    [
+        (clean_dir.join("report.json"), clean, clean_code),
+        (quirk_dir.join("report.json"), quirk, quirk_code),
+    ]
+}
+
+#[test]
+fn html_csv_and_diff_of_a_clean_and_a_quirky_run() {
+    let d = dir("runs");
+    let [(clean_json, clean, clean_code), (quirk_json, quirk, quirk_code)] = runs(&d);
+    // The clean simulator has no deviations of its own; on a loaded host a timing check
+    // may still find one, so the test asserts what the quirk adds.
+    let deviating = |v: &Value| -> Vec<String> {
+        v["checks"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .filter(|c| c["status"] == "deviation")
+            .map(|c| c["id"].as_str().unwrap().to_string())
+            .collect()
+    };
+    let (clean_devs, quirk_devs) = (deviating(&clean), deviating(&quirk));
+    let added: Vec<&String> = quirk_devs
+        .iter()
+        .filter(|id| !clean_devs.contains(id))
+        .collect();
+    assert!(
+        clean_code == Some(0) || !clean_devs.is_empty(),
+        "{clean_code:?}"
+    );
+    assert_eq!(quirk_code, Some(1));
+    assert!(added.len() >= 30, "{added:?}");
+    assert!(quirk_devs.contains(&"rtu.map.group-0.past-end".to_string()));
+    assert!(clean["options"]["response_time_ms"].as_f64().unwrap() >= 10.0);
+
+    // `report` renders the saved JSON in every format; its JSON is the JSON it read.
+    let again = conformance(&["report", path(&clean_json), "--format", "json"]);
+    assert!(again.status.success());
+    let again: Value = serde_json::from_slice(&again.stdout).unwrap();
+    assert_eq!(again["checks"], clean["checks"]);
+    assert_eq!(again["summary"], clean["summary"]);
+    let text = conformance(&["report", path(&quirk_json), "--format", "text"]);
+    assert!(String::from_utf8_lossy(&text.stdout).contains("rtu.map.group-0.past-end"));
+    let junit = conformance(&["report", path(&quirk_json), "--format", "junit"]);
+    roxmltree::Document::parse(&String::from_utf8_lossy(&junit.stdout)).unwrap();
+
+    // CSV: a header and one row per check.
+    let csv = conformance(&["report", path(&quirk_json), "--format", "csv"]);
+    assert!(csv.status.success());
+    let csv = String::from_utf8(csv.stdout).unwrap();
+    assert!(csv.starts_with("id,mode,status,title,source,summary\r\n"));
+    for id in ids(&quirk) {
+        assert!(csv.contains(&format!("\r\n{id},")), "{id} not in the CSV");
+    }
+    let deviations = csv.matches(",rtu,DEVIATION,").count();
+    assert_eq!(
+        deviations as u64,
+        quirk["summary"]["deviation"].as_u64().unwrap()
+    );
+
+    // diff: the quirk made things worse (exit 1), new deviations first; the way back is
+    // better (exit 0 unless the host's timing moved beyond noise); a run against itself
+    // shows nothing.
+    let worse = conformance(&["diff", path(&clean_json), path(&quirk_json)]);
+    assert_eq!(worse.status.code(), Some(1));
+    let worse_text = String::from_utf8_lossy(&worse.stdout);
+    assert!(worse_text.contains("WORSE"), "{worse_text}");
+    let first_change = worse_text
+        .lines()
+        .find(|l| l.trim_start().starts_with("worse ") || l.trim_start().starts_with("better "))
+        .unwrap();
+    assert!(first_change.contains("PASS -> DEVIATION"), "{first_change}");
+    let dj = conformance(&[
+        "diff",
+        path(&clean_json),
+        path(&quirk_json),
+        "--format",
+        "json",
+    ]);
+    let dj: Value = serde_json::from_slice(&dj.stdout).unwrap();
+    let worse_ids: Vec<&str> = dj["status_changes"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter(|c| c["worse"] == true)
+        .map(|c| c["id"].as_str().unwrap())
+        .collect();
+    for id in &added {
+        assert!(worse_ids.contains(&id.as_str()), "{id} not a worse change");
+    }
+    let same = conformance(&["diff", path(&quirk_json), path(&quirk_json)]);
+    assert_eq!(same.status.code(), Some(0));
+    assert!(String::from_utf8_lossy(&same.stdout).contains("No differences."));
+    let diff_html = d.join("diff.html");
+    let dh = conformance(&[
+        "diff",
+        path(&clean_json),
+        path(&quirk_json),
+        "--format",
+        "html",
+        "-o",
+        path(&diff_html),
+    ]);
+    assert_eq!(dh.status.code(), Some(1));
+
+    // A report whose strings came from a hostile device or file: escaped.
+    let mut hostile = quirk.clone();
+    hostile["checks"][0]["summary"] = "<script>alert('x')</script>".into();
+    hostile["device"]["model"] = "<b onmouseover=alert(1)>f510</b>".into();
+    let hostile_json = d.join("hostile.json");
+    std::fs::write(&hostile_json, serde_json::to_string(&hostile).unwrap()).unwrap();
+
+    let mut pages = Vec::new();
+    for (name, json) in [
+        ("clean", &clean_json),
+        ("quirk", &quirk_json),
+        ("hostile", &hostile_json),
+    ] {
+        let page = d.join(format!("{name}.html"));
+        let o = conformance(&["report", path(json), "--format", "html", "-o", path(&page)]);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        pages.push((name, page));
+    }
+    let hostile_page = std::fs::read_to_string(&pages[2].1).unwrap();
+    assert!(!hostile_page.contains("<script>alert"));
+    assert!(hostile_page.contains("&lt;script&gt;alert(&#39;x&#39;)&lt;/script&gt;"));
+    assert!(!hostile_page.contains("<b onmouseover"));
+
+    let Some(chromium) = chromium() else {
+        common::missing("chromium is not installed (apt-get install chromium)");
+        return;
+    };
+    for ((name, page), report) in pages.iter().zip([&clean, &quirk, &hostile]) {
+        let (dom, log) = browse(chromium, page, &["--dump-dom"]);
+        no_console_errors(&log, page);
+        // Every check is in the table, and the filter script ran and counted them all.
+        for id in ids(report) {
+            assert!(
+                dom.contains(&format!("data-id=\"{id}\"")),
+                "{name}: {id} missing from the DOM"
+            );
+        }
+        let total = report["summary"]["total"].as_u64().unwrap();
+        assert!(
+            dom.contains(&format!("<span id=\"shown\">{total}</span>")),
+            "{name}: filter script"
+        );
+        // The plots.
+        for plot in ["plot-latency", "plot-timeline", "plot-map"] {
+            assert!(
+                dom.contains(&format!("<svg id=\"{plot}\"")),
+                "{name}: {plot}"
+            );
+        }
+        assert!(dom.contains("<rect class=\"bar"), "{name}: histogram bars");
+        assert!(
+            dom.contains("<circle class=\"dot\""),
+            "{name}: timeline dots"
+        );
+        assert!(
+            dom.contains("<rect class=\"cell pass\""),
+            "{name}: map cells"
+        );
+        let deviations = report["summary"]["deviation"].as_u64().unwrap() as usize;
+        assert_eq!(
+            dom.matches("<article class=\"finding deviation\"").count(),
+            deviations,
+            "{name}: one block per deviation"
+        );
+        if deviations == 0 {
+            assert!(dom.contains("No deviations from the manual"), "{name}");
+        } else {
+            assert!(dom.contains("from the manual</div>"), "{name}");
+        }
+        if *name != "clean" {
+            // The differing bytes of the past-end check: code 03 where 02 was expected.
+            assert!(dom.contains("01 83 <span class=\"d\">03</span>"), "{name}");
+            assert!(dom.contains("01 83 <span class=\"d\">02</span>"), "{name}");
+            assert!(dom.contains("<rect class=\"cell deviation\""), "{name}");
+            assert!(
+                dom.contains("with quirks: <b>wrong-exception</b>"),
+                "{name}"
+            );
+        }
+        if *name == "hostile" {
+            // The script in a summary is text, not an element.
+            assert!(dom.contains("&lt;script&gt;alert('x')&lt;/script&gt;"));
+            assert!(!dom.contains("onmouseover=\"alert"));
+        }
+        let shot = page.with_extension("png");
+        let shot_arg = format!("--screenshot={}", shot.display());
+        let (_, log) = browse(chromium, page, &[&shot_arg, "--window-size=1280,2000"]);
+        no_console_errors(&log, page);
+        let png = std::fs::read(&shot).unwrap();
+        assert!(
+            png.starts_with(b"\x89PNG") && png.len() > 20_000,
+            "{}",
+            shot.display()
+        );
+        common::note(&format!("screenshot: {}", shot.display()));
+    }
+    // The filter: a link preselects it; the rows it hides are hidden.
+    let quirk_page = &pages[1].1;
+    let filtered = PathBuf::from(format!(
+        "{}#status=deviation&mode=rtu&id=past-end",
+        quirk_page.display()
+    ));
+    let (dom, log) = browse(chromium, &filtered, &["--dump-dom"]);
+    no_console_errors(&log, quirk_page);
+    let past_end_deviations = quirk["checks"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter(|c| c["status"] == "deviation" && c["id"].as_str().unwrap().contains("past-end"))
+        .count();
+    assert!(past_end_deviations > 0);
+    assert!(
+        dom.contains(&format!("<span id=\"shown\">{past_end_deviations}</span>")),
+        "filtered count"
+    );
+    let rows = dom.matches("<tr class=").count();
+    let hidden = dom.matches("style=\"display: none;\"").count();
+    assert_eq!(rows - hidden, past_end_deviations);
+    // Printable: Chromium prints it to PDF.
+    let pdf = quirk_page.with_extension("pdf");
+    let (_, log) = browse(
+        chromium,
+        quirk_page,
+        &[
+            &format!("--print-to-pdf={}", pdf.display()),
+            "--no-pdf-header-footer",
+        ],
+    );
+    no_console_errors(&log, quirk_page);
+    assert!(std::fs::read(&pdf).unwrap().starts_with(b"%PDF"));
+
+    let (dom, log) = browse(chromium, &diff_html, &["--dump-dom"]);
+    no_console_errors(&log, &diff_html);
+    assert!(dom.contains("Something got worse"));
+    assert!(dom.contains("rtu.map.group-0.past-end"));
+}
+
+#[test]
+fn check_writes_html_and_csv_directly() {
+    let d = dir("direct");
+    for (format, marker) in [
+        ("html", "<svg id=\"plot-map\""),
+        ("csv", "\r\nrtu.identification,rtu,"),
+    ] {
+        let out = d.join(format!("report.{format}"));
+        let o = conformance(&[
+            "check",
+            "--sim",
+            "f510",
+            "--mode",
+            "rtu",
+            "--only",
+            "identification",
+            "--only",
+            "*map.group-0.*",
+            "--quiet",
+            "--format",
+            format,
+            "-o",
+            path(&out),
+        ]);
+        assert_eq!(
+            o.status.code(),
+            Some(0),
+            "{}",
+            String::from_utf8_lossy(&o.stderr)
+        );
+        let text = std::fs::read_to_string(&out).unwrap();
+        assert!(text.contains(marker), "{format}: {marker} missing");
+    }
+}
+
+#[test]
+fn a_file_that_is_not_a_report_is_refused_by_name() {
+    let d = dir("bad");
+    let cases = [
+        ("not-json.json", "{ this is not json", "not JSON"),
+        ("other.json", "{\"schema\": \"something/else\"}", "not a conformance report"),
+        (
+            "broken.json",
+            "{\"schema\": \"teco-modbus-conformance/report\", \"schema_version\": 1, \"kind\": \"drive\", \"device\": null, \"options\": {}}",
+            ".options.modes: missing",
+        ),
+    ];
+    for (file, contents, problem) in cases {
+        let p = d.join(file);
+        std::fs::write(&p, contents).unwrap();
+        for args in [
+            vec!["report", path(&p), "--format", "html"],
+            vec!["diff", path(&p), path(&p)],
+        ] {
+            let o = conformance(&args);
+            assert_eq!(o.status.code(), Some(2), "{args:?}");
+            let err = String::from_utf8_lossy(&o.stderr);
+            assert!(
+                err.contains(file) && err.contains(problem),
+                "{args:?}: {err}"
+            );
+        }
+    }
+    let missing = d.join("missing.json");
+    let o = conformance(&["diff", path(&missing), path(&missing)]);
+    assert_eq!(o.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("cannot read"));
+}
