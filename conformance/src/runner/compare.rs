@@ -174,6 +174,19 @@ pub fn compare(
     c
 }
 
+/// Only the differences between `ex` and `judgement`: [`compare`] without the
+/// observation that the device did what a decision of the model says (the fuzzer's
+/// oracle, for which agreeing is no finding).
+pub fn differences(
+    model: &DriveModel,
+    mode: Mode,
+    judgement: &Judgement,
+    ex: &Exchange,
+    known: Option<(&[Option<u16>], &Fact)>,
+) -> Comparison {
+    compare_inner(model, mode, judgement, ex, known.map(|(v, f)| (v, f.basis)))
+}
+
 fn compare_inner(
     model: &DriveModel,
     mode: Mode,
