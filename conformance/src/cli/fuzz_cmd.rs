@@ -115,8 +115,9 @@ pub fn run(args: FuzzArgs) -> anyhow::Result<ExitCode> {
             let mut t = args.target.timing(is_sim, sim_silence);
             if is_sim && args.target.no_pace {
                 // The unpaced simulator answers at once and in one piece.
+                // Still t3.5 of the line between frames, as the standard wants.
                 t.quiet = Duration::from_millis(3);
-                t.gap = Duration::ZERO;
+                t.gap = Duration::from_micros(line.t3_5_us());
             }
             t
         },

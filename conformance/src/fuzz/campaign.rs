@@ -46,6 +46,8 @@ pub struct Observed {
     pub exchange: Option<ExchangeRecord>,
     /// For a wrong value: the register.
     pub register: Option<u16>,
+    /// For a hang found without losing the device: how long it was gone.
+    pub recovery: Option<Option<Duration>>,
 }
 
 /// The fact behind a value a read must return: the device confirmed writing it.
@@ -81,15 +83,35 @@ pub fn observe(
         Step::Burst(frames) => {
             let all: Vec<u8> = frames.concat();
             let pause = ctx.opts.timing.silence;
+            let t0 = Instant::now();
             ctx.send_raw(&all, pause)?;
-            if ctx.liveness()? {
-                Ok(None)
-            } else {
-                Err(RunError::DeviceLost(format!(
-                    "no answer to the liveness probes after {} frames sent back to back",
-                    frames.len()
-                )))
+            // The next request must be answered at once: one probe without a resend (a
+            // resend a timeout later would hide a receiver that needs a silence to
+            // recover); if it is not, the liveness probe (with its resend) tells whether
+            // the device came back.
+            let Some(r) =
+                crate::runner::liveness::liveness_register(ctx.model, ctx.opts.address, ctx.mode)
+            else {
+                return Ok(None);
+            };
+            let probe = ctx.frame(crate::codec::pdu::Pdu::ReadRequest { start: r, count: 1 });
+            let (ex, _) = ctx.exchange(&probe, true)?;
+            if !ex.after_echo().is_empty() {
+                return Ok(None);
             }
+            Ok(Some(Observed {
+                kind: Kind::Hang,
+                severity: Severity::Deviation,
+                text: format!(
+                    "after {} frames sent back to back (less than t3.5 apart), the next request {} got no reply; the device answered again {:.1} s later",
+                    frames.len(),
+                    compare::show(ctx.mode, &probe),
+                    t0.elapsed().as_secs_f64()
+                ),
+                exchange: None,
+                register: None,
+                recovery: Some(Some(t0.elapsed())),
+            }))
         }
         Step::Frame(frame) => {
             let model = ctx.model;
@@ -166,6 +188,7 @@ pub fn observe(
                 text,
                 exchange: Some(p.record()),
                 register: wrong,
+                recovery: None,
             }))
         }
     }
@@ -337,6 +360,7 @@ pub fn fuzz_mode(
             break;
         }
         out.cases += 1;
+        let sent_at = Instant::now();
         let result = match lost {
             Some(w) => Err(RunError::DeviceLost(w)),
             None => observe(&mut ctx, &case.step, &mut state),
@@ -361,15 +385,19 @@ pub fn fuzz_mode(
         };
         bound += line_time(&ctx, &case.step, replied);
         let observed = match result {
-            Ok(o) => o.map(|o| (o, None)),
+            Ok(o) => o.map(|o| {
+                let r = o.recovery;
+                (o, r)
+            }),
             Err(RunError::Transport(e)) => {
                 out.stopped = Some(e.to_string());
                 break;
             }
             Err(RunError::DeviceLost(why)) => {
                 let t = Instant::now();
+                // How long it was gone: from the case that silenced it.
                 let recovery = match recover(&mut ctx, cfg.recover_wait) {
-                    Ok(r) => r,
+                    Ok(r) => r.map(|_| sent_at.elapsed()),
                     Err(e) => {
                         out.stopped = Some(e.to_string());
                         None
@@ -393,6 +421,7 @@ pub fn fuzz_mode(
                         ),
                         exchange: None,
                         register: None,
+                        recovery: None,
                     },
                     Some(recovery),
                 ))

@@ -185,9 +185,14 @@ impl<'a> Generator<'a> {
         items[self.rng.below(items.len() as u64) as usize]
     }
 
-    fn register(&mut self) -> u16 {
-        match self.rng.below(4) {
+    fn register(&mut self, known: &BTreeMap<u16, u16>) -> u16 {
+        match self.rng.below(5) {
             0 => self.rng.word(),
+            // A register read or written before: a read of it again must agree.
+            2 if !known.is_empty() => {
+                let k = self.rng.below(known.len() as u64) as usize;
+                known.keys().nth(k).copied().unwrap_or(0)
+            }
             1 if !self.writable.is_empty() => {
                 let w = self.writable.clone();
                 self.pick(&w)
@@ -221,10 +226,20 @@ impl<'a> Generator<'a> {
             1 => limit.saturating_add(self.rng.below(2) as u16),
             _ => 1 + self.rng.below(4) as u16,
         };
-        let start = self.register();
+        let start = self.register(known);
         let wants_write = self.writes != Writes::None && self.rng.below(3) == 0;
         if wants_write {
-            let r = if self.writable.is_empty() {
+            // Half the time a writable register at a border (group ends, gaps), which
+            // the reads favour too, so that a written value is read back soon.
+            let edge_writable: Vec<u16> = self
+                .edges
+                .iter()
+                .copied()
+                .filter(|r| self.writable.binary_search(r).is_ok())
+                .collect();
+            let r = if !edge_writable.is_empty() && self.rng.below(2) == 0 {
+                self.pick(&edge_writable)
+            } else if self.writable.is_empty() {
                 start
             } else {
                 let w = self.writable.clone();
@@ -337,7 +352,7 @@ impl<'a> Generator<'a> {
             78..=85 => {
                 // A 10H whose byte count or register count disagrees with its data, under
                 // a valid checksum.
-                let r = self.register();
+                let r = self.register(known);
                 let [h, l] = r.to_be_bytes();
                 let words = self.rng.below(4) as usize;
                 let count = self.pick(&[words as u16, words as u16 + 1, 0, 0x7B, 0xFFFF]);
