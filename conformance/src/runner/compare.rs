@@ -366,7 +366,13 @@ fn expected_frame(
         }
         .to_frame_vec(mode)
         .ok()?,
-        Expectation::WriteSingle | Expectation::LoopBack => request.to_vec(),
+        // The echo of the request, in the frame a device emits: an ASCII request in lower
+        // case is answered in the upper case of the standard (Modbus over Serial Line
+        // V1.02, 2.5.2.1: hexadecimal characters 0-9, A-F).
+        Expectation::WriteSingle | Expectation::LoopBack => match mode {
+            Mode::Ascii => codec::frame_of_body(mode, &req_body).ok()?,
+            Mode::Rtu => request.to_vec(),
+        },
         Expectation::WriteMultiple => {
             let m = Message::parse_body(&req_body, Direction::Request).ok()?;
             let Pdu::WriteMultipleRequest { start, values } = m.pdu else {
