@@ -66,7 +66,7 @@ fn plain(model: &DriveModel, register: u16) -> bool {
     model.named(register).and_then(|n| n.role).is_none()
         && model
             .named(register)
-            .is_none_or(|n| n.role != Some(Role::Operation))
+            .map_or(true, |n| n.role != Some(Role::Operation))
         && model
             .lookup(register)
             .is_some_and(|i| i.access == crate::model::Access::ReadWrite && i.register == register)
@@ -82,7 +82,16 @@ pub fn observe(
     match step {
         Step::Burst(frames) => {
             let all: Vec<u8> = frames.concat();
-            let pause = ctx.opts.timing.silence;
+            // Long enough for the answers to every frame of the burst to be over before
+            // the probe (on a paced line, each answer takes its delay and its bytes).
+            let per_frame = match ctx.line_timing() {
+                Some(l) => {
+                    ctx.model.response_delay(&l) + Duration::from_micros(16 * l.char_time_us())
+                }
+                None => Duration::from_millis(2),
+            };
+            let n = u32::try_from(frames.len()).unwrap_or(u32::MAX);
+            let pause = ctx.opts.timing.silence + per_frame * n;
             let t0 = Instant::now();
             ctx.send_raw(&all, pause)?;
             // The next request must be answered at once: one probe without a resend (a
@@ -435,7 +444,7 @@ pub fn fuzz_mode(
                 None => {
                     let t = Instant::now();
                     let mut finding = finding;
-                    if cfg.minimize && recovery.is_none_or(|r| r.is_some()) {
+                    if cfg.minimize && recovery.map_or(true, |r| r.is_some()) {
                         super::minimize::minimize(&mut ctx, &mut finding, &mut state, cfg);
                     }
                     spent_minimizing += t.elapsed();
