@@ -696,8 +696,17 @@ mod tests {
                 .replace("=N", "=3")
                 .replace("=REG", "=2502H");
             let q: Quirk = s.parse().unwrap();
-            assert_eq!(q.to_string(), s);
+            // `slow=MS` is another spelling of `late-reply=MS`.
+            let printed = s.replace("slow=", "late-reply=");
+            assert_eq!(q.to_string(), printed);
+            assert_eq!(printed.parse::<Quirk>().unwrap(), q);
         }
+        assert_eq!(
+            "wrong-value-at=0x0500".parse::<Quirk>().unwrap(),
+            Quirk::WrongValueAt(0x0500)
+        );
+        assert!("overflow-after=0".parse::<Quirk>().is_err());
+        assert!("wrong-value-at=FFFFFH".parse::<Quirk>().is_err());
         assert!("drop-every=0".parse::<Quirk>().is_err());
         assert!("late-reply".parse::<Quirk>().is_err());
         assert!("crc".parse::<Quirk>().is_err());
