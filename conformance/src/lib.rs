@@ -9,6 +9,7 @@
 //! - [`transport`]: serial port, pseudo-terminal, TCP, in-memory links behind one trait.
 //! - [`sim`]: the simulated drive, with fault injection.
 //! - [`runner`]: the conformance checks, run as a Modbus master against a device.
+//! - [`fuzz`]: malformed and hostile traffic, every answer predicted by the model.
 //! - [`gate`]: checks another Modbus codec through an adapter process.
 //! - [`report`]: text, JSON and JUnit XML reports of a run.
 //! - [`session`]: a whole run against a serial port, a TCP gateway or the in-process simulator.
@@ -17,6 +18,7 @@
 #![warn(missing_docs)]
 
 pub mod codec;
+pub mod fuzz;
 pub mod gate;
 pub mod model;
 pub mod oracle;

@@ -96,8 +96,9 @@ pub fn list(config: &SessionConfig) -> Vec<(Mode, Check)> {
     out
 }
 
-/// A simulator running in a thread on the master side of a pseudo-terminal pair.
-struct SimThread {
+/// A simulator running in a thread on the master side of a pseudo-terminal pair; it
+/// stops when this is dropped.
+pub struct SimThread {
     stop: Arc<AtomicBool>,
     handle: Option<thread::JoinHandle<Result<(), String>>>,
 }
@@ -125,8 +126,9 @@ fn start_sim(
     let path = master.slave_path().to_string_lossy().into_owned();
     let clock = master.pacing_clock();
     let delay = delay.unwrap_or_else(|| config.model.response_delay(&config.line));
-    let mut drive =
-        Drive::new(config.model.clone(), config.options.address, delay).with_quirks(quirks);
+    let mut drive = Drive::new(config.model.clone(), config.options.address, delay)
+        .with_quirks(quirks)
+        .with_line(config.line, pace);
     let mut traffic = TrafficLog::new();
     if let Some(p) = log {
         let file = std::fs::OpenOptions::new()
@@ -186,19 +188,43 @@ fn serial_kind(path: &str) -> LinkKind {
     }
 }
 
-/// Runs a session. `on_start` is called before each check (progress), `on_result` after
-/// each with the report so far (incremental output). `stop` cuts the run short; what ran
-/// is reported, marked incomplete, and changed registers are restored.
-pub fn run(
+/// Opens the target for `mode`: the serial port, the TCP gateway, or a simulator started
+/// on a pseudo-terminal pair (stopped when the guard is dropped).
+pub fn open(
     config: &SessionConfig,
-    stop: &AtomicBool,
-    on_start: &mut dyn FnMut(Mode, &Check),
-    on_result: &mut dyn FnMut(&Report),
-) -> Result<Report, SessionError> {
-    let vectors = VectorSet::builtin().ok();
-    let file = vectors.as_ref().and_then(|v| v.file(&config.model.id));
+    mode: Mode,
+) -> Result<(Option<SimThread>, Box<dyn Transport>), SessionError> {
+    Ok(match &config.target {
+        Target::Serial { path } => (
+            None,
+            Box::new(SerialTransport::open(path, config.line, serial_kind(path))?),
+        ),
+        Target::Tcp { addr } => (
+            None,
+            Box::new(TcpTransport::connect(
+                addr,
+                config.options.timing.timeout.max(Duration::from_secs(2)),
+            )?),
+        ),
+        #[cfg(unix)]
+        Target::Sim {
+            quirks,
+            pace,
+            delay,
+            log,
+        } => {
+            let (s, t) = start_sim(config, mode, quirks, *pace, *delay, log.as_deref())?;
+            (Some(s), t)
+        }
+        #[cfg(not(unix))]
+        Target::Sim { .. } => return Err(SessionError::NoPty),
+    })
+}
+
+/// The report's header for `config`.
+fn header(config: &SessionConfig) -> Report {
     let l = config.line;
-    let mut report = Report {
+    Report {
         started: now_rfc3339(),
         device: Device {
             model: config.model.id.clone(),
@@ -225,38 +251,87 @@ pub fn run(
             ),
         },
         ..Report::default()
+    }
+}
+
+/// Runs a fuzz campaign in each mode of `config` (see [`crate::fuzz`]); `progress` is
+/// told the cases and findings so far. The report has one result per finding signature
+/// and one per mode for the campaign.
+pub fn fuzz(
+    config: &SessionConfig,
+    cfg: &crate::fuzz::FuzzConfig,
+    stop: &AtomicBool,
+    progress: &mut dyn FnMut(Mode, u64, usize),
+) -> Result<Report, SessionError> {
+    let vectors = VectorSet::builtin().ok();
+    let file = vectors.as_ref().and_then(|v| v.file(&config.model.id));
+    let mut report = header(config);
+    report.kind = crate::report::ReportKind::Fuzz;
+    let mut summary = crate::fuzz::report::FuzzSummary {
+        seed: cfg.seed,
+        writes: cfg.writes.to_string(),
+        modes: Vec::new(),
     };
+    for &mode in &config.modes {
+        if stop.load(Ordering::Relaxed) {
+            report.stopped = Some("interrupted".into());
+            break;
+        }
+        let (sim, transport) = open(config, mode)?;
+        report
+            .device
+            .links
+            .insert(mode.to_string(), transport.describe());
+        let outcome = crate::fuzz::fuzz_mode(
+            &config.model,
+            file,
+            mode,
+            transport,
+            &config.options,
+            cfg,
+            stop,
+            &mut |n, f| progress(mode, n, f),
+        );
+        drop(sim);
+        report
+            .results
+            .push(crate::fuzz::report::campaign_result(&outcome));
+        for f in &outcome.findings {
+            report.results.push(crate::fuzz::report::finding_result(f));
+        }
+        report.restore.extend(outcome.restore.clone());
+        let stopped = outcome.stopped.clone();
+        summary.modes.push(outcome);
+        if let Some(why) = stopped {
+            report.stopped = Some(why);
+            break;
+        }
+    }
+    report.fuzz = Some(summary);
+    report.complete = report.stopped.is_none();
+    report.finished = Some(now_rfc3339());
+    Ok(report)
+}
+
+/// Runs a session. `on_start` is called before each check (progress), `on_result` after
+/// each with the report so far (incremental output). `stop` cuts the run short; what ran
+/// is reported, marked incomplete, and changed registers are restored.
+pub fn run(
+    config: &SessionConfig,
+    stop: &AtomicBool,
+    on_start: &mut dyn FnMut(Mode, &Check),
+    on_result: &mut dyn FnMut(&Report),
+) -> Result<Report, SessionError> {
+    let vectors = VectorSet::builtin().ok();
+    let file = vectors.as_ref().and_then(|v| v.file(&config.model.id));
+    let mut report = header(config);
     on_result(&report);
     for &mode in &config.modes {
         if stop.load(Ordering::Relaxed) {
             report.stopped = Some("interrupted".into());
             break;
         }
-        let (sim, transport): (Option<SimThread>, Box<dyn Transport>) = match &config.target {
-            Target::Serial { path } => (
-                None,
-                Box::new(SerialTransport::open(path, config.line, serial_kind(path))?),
-            ),
-            Target::Tcp { addr } => (
-                None,
-                Box::new(TcpTransport::connect(
-                    addr,
-                    config.options.timing.timeout.max(Duration::from_secs(2)),
-                )?),
-            ),
-            #[cfg(unix)]
-            Target::Sim {
-                quirks,
-                pace,
-                delay,
-                log,
-            } => {
-                let (s, t) = start_sim(config, mode, quirks, *pace, *delay, log.as_deref())?;
-                (Some(s), t)
-            }
-            #[cfg(not(unix))]
-            Target::Sim { .. } => return Err(SessionError::NoPty),
-        };
+        let (sim, transport) = open(config, mode)?;
         report
             .device
             .links

@@ -12,11 +12,10 @@ use anyhow::{bail, Context};
 use clap::{Args, ValueEnum};
 use conformance::codec::Mode;
 use conformance::report::{csv, html, junit, text, Report};
-use conformance::runner::{EchoMode, MasterTiming, Options};
-use conformance::session::{self, SessionConfig, Target};
-use conformance::sim::Quirk;
+use conformance::runner::Options;
+use conformance::session::{self, SessionConfig};
 
-use super::common::{load_model, LineArgs, Number};
+use super::link::{Resolved, SafetyArgs, TargetArgs};
 
 const AFTER_HELP: &str = "\
 Examples:
@@ -62,50 +61,11 @@ pub enum Format {
     Csv,
 }
 
-/// Modes to run.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
-pub enum ModesArg {
-    /// RTU only.
-    Rtu,
-    /// ASCII only.
-    Ascii,
-    /// RTU, then ASCII (the simulator is restarted in each mode; a real drive is in one).
-    Both,
-}
-
 #[derive(Debug, Args)]
 #[command(after_help = AFTER_HELP)]
 pub struct CheckArgs {
-    /// Run the suite against this suite's simulator of MODEL, started in-process on a
-    /// pseudo-terminal pair (no hardware needed).
-    #[arg(long, value_name = "MODEL", group = "target")]
-    sim: Option<String>,
-    /// Drive model of the device: f510, a510, l510, e510, l510-legacy.
-    #[arg(long, value_name = "MODEL")]
-    model: Option<String>,
-    /// Read the model from this file instead of the built-in one.
-    #[arg(long, value_name = "FILE")]
-    model_file: Option<PathBuf>,
-    /// Serial port of the device.
-    #[arg(long, value_name = "PATH", group = "target")]
-    port: Option<String>,
-    /// A serial gateway carrying RTU or ASCII frames over TCP.
-    #[arg(long, value_name = "HOST:PORT", group = "target")]
-    tcp: Option<String>,
     #[command(flatten)]
-    line: LineArgs,
-    /// Transmission mode (default: rtu for a device, both for --sim).
-    #[arg(short = 'm', long, value_enum)]
-    mode: Option<ModesArg>,
-    /// Node address of the device: decimal as in mbpoll (a bare number is decimal), or hex
-    /// with H suffix or 0x prefix (0AH, 0x0A).
-    #[arg(short = 'a', long, value_parser = Number::<u8>::quiet(), default_value = "1")]
-    address: u8,
-    /// A node address no device on the line has, for the other-address check (default:
-    /// the model's highest address, or the one below the device's). A bare number is
-    /// decimal; hex with H suffix or 0x prefix (F7H, 0xF7).
-    #[arg(long, value_parser = Number::<u8>::quiet())]
-    other_address: Option<u8>,
+    target: TargetArgs,
     /// Report format.
     #[arg(long, value_enum, default_value = "text")]
     format: Format,
@@ -121,30 +81,8 @@ pub struct CheckArgs {
     /// Skip every check that writes.
     #[arg(long, conflicts_with = "allow_motion")]
     read_only: bool,
-    /// Enable the checks that set the run and external-fault bits (the motor may turn).
-    #[arg(long)]
-    allow_motion: bool,
-    /// Enable the 08H checks that restart the device's communications (sub-function
-    /// 0001H) or make it stop answering (0004H, Force Listen Only Mode, then 0001H).
-    #[arg(long)]
-    allow_restart: bool,
-    /// Local echo of every request (a 2-wire RS-485 adapter whose receiver hears its own
-    /// transmission): auto learns it from the preflight read, on expects it, off trusts
-    /// that there is none. An echo is stripped and the reply awaited for the whole
-    /// response window; it is reported on the link line, not as a deviation.
-    #[arg(long, value_name = "auto|on|off", default_value = "auto")]
-    echo: EchoMode,
-    /// Milliseconds to wait for a reply.
-    #[arg(long, value_name = "MS", default_value_t = 1000)]
-    timeout: u64,
-    /// Milliseconds to listen where no reply is expected (broadcast, bad CRC, ...);
-    /// default: derived from the device's measured response time (twice the longest
-    /// reply delay, plus t3.5 and 20 ms, at least 50 ms, at most the timeout).
-    #[arg(long, value_name = "MS")]
-    silence: Option<u64>,
-    /// Resend a request this many times when no byte comes back.
-    #[arg(long, value_name = "N", default_value_t = 0)]
-    retries: u32,
+    #[command(flatten)]
+    safety: SafetyArgs,
     /// Milliseconds over the manual's response time before replies count as late.
     #[arg(long, value_name = "MS", default_value_t = 20)]
     response_allowance: u64,
@@ -156,15 +94,6 @@ pub struct CheckArgs {
     /// Seed of the arbitrary data some checks send.
     #[arg(long, default_value_t = 0x7ECC0)]
     seed: u64,
-    /// With --sim: inject a fault into the simulator (see `conformance simulate --help`).
-    #[arg(long = "quirk", value_name = "QUIRK", requires = "sim")]
-    quirks: Vec<Quirk>,
-    /// With --sim: do not pace the simulator at the line's character time.
-    #[arg(long, requires = "sim")]
-    no_pace: bool,
-    /// With --sim: write the simulator's traffic log (JSON lines) to this file.
-    #[arg(long, value_name = "FILE", requires = "sim")]
-    sim_log: Option<PathBuf>,
     /// List every passing check and every exchange in the text report.
     #[arg(short, long)]
     verbose: bool,
@@ -198,107 +127,33 @@ pub fn write_atomic(path: &Path, contents: &str) -> std::io::Result<()> {
 }
 
 pub fn run(args: CheckArgs) -> anyhow::Result<ExitCode> {
-    let (model_id, target) = match (&args.sim, &args.port, &args.tcp) {
-        (Some(m), None, None) => {
-            if let Some(other) = &args.model {
-                if other != m {
-                    bail!("--sim {m} and --model {other} name different models");
-                }
-            }
-            (
-                m.clone(),
-                Target::Sim {
-                    quirks: args.quirks.clone(),
-                    pace: !args.no_pace,
-                    delay: None,
-                    log: args.sim_log.clone(),
-                },
-            )
-        }
-        (None, Some(p), None) => (
-            args.model
-                .clone()
-                .context("--port needs --model (f510, a510, l510, e510, l510-legacy)")?,
-            Target::Serial { path: p.clone() },
-        ),
-        (None, None, Some(a)) => (
-            args.model
-                .clone()
-                .context("--tcp needs --model (f510, a510, l510, e510, l510-legacy)")?,
-            Target::Tcp { addr: a.clone() },
-        ),
-        _ if args.list => (
-            args.model.clone().unwrap_or_else(|| "f510".into()),
-            Target::Sim {
-                quirks: vec![],
-                pace: true,
-                delay: None,
-                log: None,
-            },
-        ),
-        _ => bail!(
-            "say what to check: --sim MODEL, or --model MODEL with --port PATH or --tcp HOST:PORT"
-        ),
-    };
-    let model = Arc::new(load_model(
-        &model_id,
-        args.model_file.as_deref(),
-        args.address,
-    )?);
-    let is_sim = matches!(target, Target::Sim { .. });
-    let modes = match args.mode.unwrap_or(if is_sim {
-        ModesArg::Both
-    } else {
-        ModesArg::Rtu
-    }) {
-        ModesArg::Rtu => vec![Mode::Rtu],
-        ModesArg::Ascii => vec![Mode::Ascii],
-        ModesArg::Both => vec![Mode::Rtu, Mode::Ascii],
-    };
-    let line = args.line.settings();
-    if modes.contains(&Mode::Rtu) && line.data_bits != 8 {
-        bail!("RTU needs 8 data bits (-d 8)");
-    }
-    let other_address = args.other_address.unwrap_or_else(|| {
-        let last = *model.addresses.end();
-        if args.address != last {
-            last
-        } else {
-            args.address - 1
-        }
-    });
-    if other_address == args.address || other_address == 0 {
-        bail!("--other-address must differ from the device's address and from 00 (broadcast)");
-    }
-    let timeout = Duration::from_millis(args.timeout);
+    let Resolved {
+        model,
+        target,
+        modes,
+        line: _,
+        is_sim,
+        other_address,
+    } = args.target.resolve(args.list, None)?;
     let options = Options {
-        address: args.address,
+        address: args.target.address,
         other_address,
         read_only: args.read_only,
-        allow_motion: args.allow_motion,
+        allow_motion: args.safety.allow_motion,
         only: args.only.clone(),
-        timing: MasterTiming {
-            timeout,
-            // Given: used as it is. Not given: derived from the device's measured
-            // response time, at most the timeout.
-            silence: Duration::from_millis(args.silence.unwrap_or(args.timeout)),
-            derive_silence: args.silence.is_none(),
-            quiet: Duration::from_millis(30),
-            gap: Duration::from_millis(5).max(Duration::from_micros(line.t3_5_us())),
-            retries: args.retries,
-        },
+        timing: args.target.timing(is_sim, 300),
         response_allowance: Duration::from_millis(args.response_allowance),
         gap_allowance: Duration::from_micros(args.gap_allowance.unwrap_or(20_000)),
         seed: args.seed,
-        echo: args.echo,
-        line: Some(line),
-        allow_restart: args.allow_restart,
+        echo: args.target.echo,
+        line: Some(args.target.line.settings()),
+        allow_restart: args.safety.allow_restart,
     };
     let config = SessionConfig {
         model,
         target,
         modes,
-        line,
+        line: args.target.line.settings(),
         options,
     };
 
@@ -319,10 +174,10 @@ pub fn run(args: CheckArgs) -> anyhow::Result<ExitCode> {
         return Ok(ExitCode::SUCCESS);
     }
 
-    if args.allow_motion && !is_sim {
+    if args.safety.allow_motion && !is_sim {
         eprintln!(
             "WARNING: --allow-motion: checks will set the run bit (the motor turns at 10.00 Hz) and the external-fault bit of node {:02X}. Make sure the machine is safe to move. Starting in 5 s; Ctrl-C to abort.",
-            args.address
+            args.target.address
         );
         std::thread::sleep(Duration::from_secs(5));
     }

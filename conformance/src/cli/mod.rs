@@ -3,9 +3,12 @@
 mod check_cmd;
 mod codec_cmd;
 mod common;
+mod fuzz_cmd;
 mod gate_cmd;
+mod link;
 mod model_cmd;
 mod report_cmd;
+mod send_cmd;
 mod simulate_cmd;
 mod vectors_cmd;
 
@@ -39,6 +42,12 @@ enum Command {
     Simulate(simulate_cmd::SimulateArgs),
     /// Probe a real or simulated drive and report every deviation from its manual.
     Check(check_cmd::CheckArgs),
+    /// Send malformed and hostile traffic to a real or simulated drive, predict every
+    /// answer from its model, detect hangs, and minimize what is found.
+    Fuzz(fuzz_cmd::FuzzArgs),
+    /// Send raw frames (hex) to a device and show what comes back, with timestamps and the
+    /// model's prediction.
+    Send(send_cmd::SendArgs),
     /// Check another Modbus codec through an adapter (adapters/PROTOCOL.md).
     Gate(gate_cmd::GateArgs),
     /// Render a saved JSON report as HTML, text, JUnit XML, CSV or JSON.
@@ -59,6 +68,8 @@ pub fn run(cli: Cli) -> anyhow::Result<ExitCode> {
         Command::Model(a) => model_cmd::run(a),
         Command::Simulate(a) => simulate_cmd::run(a),
         Command::Check(a) => check_cmd::run(a),
+        Command::Fuzz(a) => fuzz_cmd::run(a),
+        Command::Send(a) => send_cmd::run(a),
         Command::Gate(a) => gate_cmd::run(a),
         Command::Adapter(a) => gate_cmd::adapter(a),
         Command::Report(a) => report_cmd::report(a),

@@ -103,7 +103,9 @@ pub fn run(args: SimulateArgs) -> anyhow::Result<ExitCode> {
         Some(ms) => Duration::from_millis(ms),
         None => model.response_delay(&line),
     };
-    let mut drive = Drive::new(model.clone(), args.address, delay).with_quirks(&args.quirks);
+    let mut drive = Drive::new(model.clone(), args.address, delay)
+        .with_quirks(&args.quirks)
+        .with_line(line, args.pace || args.port.is_some());
 
     let mut log = TrafficLog::new();
     if !args.quiet {

@@ -185,6 +185,18 @@ impl RtuDeframer {
         }
     }
 
+    /// Whether the bytes held are exactly one whole frame by its checksum (four bytes at
+    /// least, a valid CRC), whatever length its function code implies: on a link without
+    /// timing, a burst that ends there is a frame whose length field disagrees with it.
+    pub fn holds_checked_burst(&self) -> bool {
+        let held = self.garbage.len + self.end;
+        (4..=MAX_RTU_FRAME).contains(&held)
+            && crate::codec::crc::crc16_update(
+                crc16(&self.garbage.buf[..self.garbage.len]),
+                &self.buf[..self.end],
+            ) == 0
+    }
+
     /// Feeds bytes that follow the previous ones without a silence.
     pub fn push(&mut self, input: &[u8], mut emit: impl FnMut(Event<'_>)) {
         match self.framing {

@@ -227,7 +227,7 @@ fn finding_block(out: &mut String, r: &CheckResult, folded: bool) {
 fn header(out: &mut String, report: &Report) {
     let s = report.summary();
     let what = match report.kind {
-        ReportKind::Drive => format!("TECO {} drive", report.device.model),
+        ReportKind::Drive | ReportKind::Fuzz => format!("TECO {} drive", report.device.model),
         ReportKind::Gate => match &report.codec {
             Some(c) => format!("codec {} {}", c.implementation, c.version),
             None => "codec".into(),
@@ -278,7 +278,7 @@ fn header(out: &mut String, report: &Report) {
     }
     out.push_str("</div><div class=\"facts\"><table>");
     match report.kind {
-        ReportKind::Drive => {
+        ReportKind::Drive | ReportKind::Fuzz => {
             let d = &report.device;
             row(out, "model", &esc(&d.model));
             row(out, "manual", &esc(&d.manual));
@@ -445,7 +445,7 @@ fn worst_latency(r: &CheckResult) -> String {
 pub fn html(report: &Report) -> String {
     let mut out = String::with_capacity(64 * 1024 + report.results.len() * 600);
     let title = match report.kind {
-        ReportKind::Drive => format!("Conformance report: {}", report.device.model),
+        ReportKind::Drive | ReportKind::Fuzz => format!("Conformance report: {}", report.device.model),
         ReportKind::Gate => "Conformance report: codec gate".to_string(),
     };
     w!(

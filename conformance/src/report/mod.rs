@@ -78,6 +78,8 @@ pub enum ReportKind {
     Drive,
     /// A codec, checked by `conformance gate` through an adapter.
     Gate,
+    /// A drive (real or simulated), fuzzed by `conformance fuzz`.
+    Fuzz,
 }
 
 /// The codec a gate report is about.
@@ -126,6 +128,8 @@ pub struct Report {
     pub restore: Vec<RestoreRecord>,
     /// Per mode: the wall time against the line's lower bound.
     pub budget: BTreeMap<String, ModeBudget>,
+    /// For a fuzz report: the campaign.
+    pub fuzz: Option<crate::fuzz::report::FuzzSummary>,
 }
 
 /// Counts per status.
@@ -175,7 +179,7 @@ impl Report {
         let s = self.summary();
         if !self.complete || s.error > 0 || !self.unrestored().is_empty() {
             2
-        } else if s.deviation > 0 {
+        } else if s.deviation > 0 || (self.kind == ReportKind::Fuzz && s.observation > 0) {
             1
         } else {
             0
@@ -200,7 +204,7 @@ impl Report {
             .collect();
         let device = match self.kind {
             ReportKind::Gate => Value::Null,
-            ReportKind::Drive => json!({
+            ReportKind::Drive | ReportKind::Fuzz => json!({
                 "model": self.device.model,
                 "manual": self.device.manual,
                 "address": format!("{:02X}", self.device.address),
@@ -227,7 +231,7 @@ impl Report {
         json!({
             "schema": "teco-modbus-conformance/report",
             "schema_version": SCHEMA_VERSION,
-            "kind": match self.kind { ReportKind::Drive => "drive", ReportKind::Gate => "gate" },
+            "kind": match self.kind { ReportKind::Drive => "drive", ReportKind::Gate => "gate", ReportKind::Fuzz => "fuzz" },
             "suite": { "name": env!("CARGO_PKG_NAME"), "version": env!("CARGO_PKG_VERSION") },
             "started": self.started,
             "finished": self.finished,
@@ -253,6 +257,7 @@ impl Report {
             "checks": checks,
             "restore": restore,
             "budget": self.budget.iter().map(|(mode, b)| (mode.clone(), budget_json(b))).collect::<serde_json::Map<String, Value>>(),
+            "fuzz": self.fuzz.as_ref().map(|f| f.to_json()),
         })
     }
 }

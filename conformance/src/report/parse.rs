@@ -225,7 +225,8 @@ impl Report {
         let kind = match string(v, "kind", "")?.as_str() {
             "drive" => ReportKind::Drive,
             "gate" => ReportKind::Gate,
-            k => return Err(field(".kind", format!("{k:?} is not drive or gate"))),
+            "fuzz" => ReportKind::Fuzz,
+            k => return Err(field(".kind", format!("{k:?} is not drive, gate or fuzz"))),
         };
         let device = match get(v, "device", "")? {
             Value::Null => Device::default(),
@@ -333,6 +334,8 @@ impl Report {
             results,
             restore,
             budget,
+            // The campaign summary of a fuzz report is not read back: its checks are.
+            fuzz: None,
         })
     }
 }

@@ -174,6 +174,19 @@ pub fn compare(
     c
 }
 
+/// Only the differences between `ex` and `judgement`: [`compare`] without the
+/// observation that the device did what a decision of the model says (the fuzzer's
+/// oracle, for which agreeing is no finding).
+pub fn differences(
+    model: &DriveModel,
+    mode: Mode,
+    judgement: &Judgement,
+    ex: &Exchange,
+    known: Option<(&[Option<u16>], &Fact)>,
+) -> Comparison {
+    compare_inner(model, mode, judgement, ex, known.map(|(v, f)| (v, f.basis)))
+}
+
 fn compare_inner(
     model: &DriveModel,
     mode: Mode,
@@ -353,7 +366,13 @@ fn expected_frame(
         }
         .to_frame_vec(mode)
         .ok()?,
-        Expectation::WriteSingle | Expectation::LoopBack => request.to_vec(),
+        // The echo of the request, in the frame a device emits: an ASCII request in lower
+        // case is answered in the upper case of the standard (Modbus over Serial Line
+        // V1.02, 2.5.2.1: hexadecimal characters 0-9, A-F).
+        Expectation::WriteSingle | Expectation::LoopBack => match mode {
+            Mode::Ascii => codec::frame_of_body(mode, &req_body).ok()?,
+            Mode::Rtu => request.to_vec(),
+        },
         Expectation::WriteMultiple => {
             let m = Message::parse_body(&req_body, Direction::Request).ok()?;
             let Pdu::WriteMultipleRequest { start, values } = m.pdu else {

@@ -352,6 +352,11 @@ impl<'a> Ctx<'a> {
         self.master.transport().peer_lateness()
     }
 
+    /// What kind of link the device is on.
+    pub fn link_kind(&self) -> crate::transport::LinkKind {
+        self.master.transport().kind()
+    }
+
     /// The line settings whose timing the link has.
     pub fn line_timing(&self) -> Option<crate::codec::timing::LineSettings> {
         self.master.transport().line_timing()

@@ -40,10 +40,27 @@ pub enum Quirk {
     /// After this many frames (any address) nothing is sent any more: firmware that
     /// hangs mid-run.
     FreezeAfter(u64),
+    /// A planted firmware bug: a 10H request whose byte count is larger than the data it
+    /// carries, under a valid checksum, makes the drive silent for [`HANG_TIME`] (the
+    /// length-field bug of CVE-2020-7584).
+    HangOnByteCount,
+    /// A planted firmware bug: reads of this register (as the map knows it, after
+    /// aliases) return its value with the lowest bit flipped.
+    WrongValueAt(u16),
+    /// A planted firmware bug: the Nth frame in a row that arrives less than t3.5 after
+    /// the previous one overflows the receiver; nothing is answered until
+    /// [`OVERFLOW_RECOVERY`] passes without a frame.
+    OverflowAfter(u64),
 }
 
+/// How long the hang-on-byte-count quirk keeps the drive silent.
+pub const HANG_TIME: Duration = Duration::from_secs(5);
+
+/// The silence that ends the overflow-after quirk's overflow.
+pub const OVERFLOW_RECOVERY: Duration = Duration::from_secs(1);
+
 /// The quirks, with their spelling and what each does, for help text and docs.
-pub const QUIRK_HELP: [(&str, &str); 12] = [
+pub const QUIRK_HELP: [(&str, &str); 15] = [
     (
         "crc-swap",
         "swap the two CRC bytes of every reply (ASCII: the two LRC characters)",
@@ -86,11 +103,23 @@ pub const QUIRK_HELP: [(&str, &str); 12] = [
         "slow=MS",
         "the same as late-reply=MS: replies within the timeout, but late",
     ),
+    (
+        "hang-on-byte-count",
+        "planted bug: a 10H request whose byte count exceeds its data (valid checksum) silences the drive for 5 s",
+    ),
+    (
+        "wrong-value-at=REG",
+        "planted bug: reads of register REG (hex: 2520H, 0x2520) return the value with bit 0 flipped",
+    ),
+    (
+        "overflow-after=N",
+        "planted bug: the Nth frame in a row less than t3.5 after the previous one stops all answers until 1 s without a frame",
+    ),
 ];
 
 /// A quirk that cannot be parsed.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
-#[error("unknown quirk {0:?}; the quirks are crc-swap, reply-to-broadcast, wrong-exception, late-reply=MS, drop-every=N, local-echo, garbage-before-reply, truncated-reply, answer-every-address, dead, freeze-after=N, slow=MS")]
+#[error("unknown quirk {0:?}; the quirks are crc-swap, reply-to-broadcast, wrong-exception, late-reply=MS, drop-every=N, local-echo, garbage-before-reply, truncated-reply, answer-every-address, dead, freeze-after=N, slow=MS, hang-on-byte-count, wrong-value-at=REG, overflow-after=N")]
 pub struct QuirkError(pub String);
 
 impl std::str::FromStr for Quirk {
@@ -125,6 +154,15 @@ impl std::str::FromStr for Quirk {
             ("freeze-after", a) => Quirk::FreezeAfter(num(a)?),
             // The name for a drive that answers within the timeout, but late.
             ("slow", a) => Quirk::LateReply(num(a)?),
+            ("hang-on-byte-count", None) => Quirk::HangOnByteCount,
+            ("wrong-value-at", Some(a)) => Quirk::WrongValueAt(parse_register(a).ok_or_else(err)?),
+            ("overflow-after", a) => {
+                let n = num(a)?;
+                if n == 0 {
+                    return Err(err());
+                }
+                Quirk::OverflowAfter(n)
+            }
             _ => return Err(err()),
         })
     }
@@ -144,7 +182,24 @@ impl fmt::Display for Quirk {
             Quirk::AnswerEveryAddress => f.write_str("answer-every-address"),
             Quirk::Dead => f.write_str("dead"),
             Quirk::FreezeAfter(n) => write!(f, "freeze-after={n}"),
+            Quirk::HangOnByteCount => f.write_str("hang-on-byte-count"),
+            Quirk::WrongValueAt(r) => write!(f, "wrong-value-at={r:04X}H"),
+            Quirk::OverflowAfter(n) => write!(f, "overflow-after={n}"),
         }
+    }
+}
+
+/// A register number as the manuals write it: `2520H`, `0x2520`, or decimal.
+fn parse_register(text: &str) -> Option<u16> {
+    let t = text.trim();
+    if let Some(h) = t
+        .strip_prefix("0x")
+        .or_else(|| t.strip_prefix("0X"))
+        .or_else(|| t.strip_suffix(['H', 'h']))
+    {
+        u16::from_str_radix(h, 16).ok()
+    } else {
+        t.parse().ok()
     }
 }
 
@@ -197,6 +252,14 @@ pub struct Drive {
     last_tick: Option<Instant>,
     replies: u64,
     frames: u64,
+    /// The frame gap under which frames count as back to back (t3.5 of the line).
+    t3_5: Duration,
+    /// Time of one character on the line (zero where the link has no timing).
+    char_time: Duration,
+    last_frame: Option<Instant>,
+    close_frames: u64,
+    overflowed: bool,
+    silent_until: Option<Instant>,
 }
 
 impl Drive {
@@ -222,7 +285,90 @@ impl Drive {
             last_tick: None,
             replies: 0,
             frames: 0,
+            t3_5: Duration::from_micros(
+                crate::codec::timing::LineSettings::new(
+                    9600,
+                    8,
+                    crate::codec::timing::Parity::Even,
+                    1,
+                )
+                .t3_5_us(),
+            ),
+            char_time: Duration::ZERO,
+            last_frame: None,
+            close_frames: 0,
+            overflowed: false,
+            silent_until: None,
         }
+    }
+
+    /// Sets the line whose t3.5 the overflow-after quirk measures gaps against; with
+    /// `paced`, frames take their characters' time on the line.
+    pub fn with_line(mut self, line: crate::codec::timing::LineSettings, paced: bool) -> Self {
+        self.t3_5 = Duration::from_micros(line.t3_5_us());
+        self.char_time = if paced {
+            Duration::from_micros(line.char_time_us())
+        } else {
+            Duration::ZERO
+        };
+        self
+    }
+
+    /// The planted bugs that silence the drive: whether `frame`, received at `now`, is
+    /// ignored, and why.
+    fn planted_silence(&mut self, mode: Mode, frame: &[u8], now: Instant) -> Option<String> {
+        let previous = self.last_frame.replace(now);
+        if let Some(n) = self.quirks.iter().find_map(|q| match q {
+            Quirk::OverflowAfter(n) => Some(*n),
+            _ => None,
+        }) {
+            let since = previous.map(|p| now.saturating_duration_since(p));
+            if self.overflowed && since.is_some_and(|s| s >= OVERFLOW_RECOVERY) {
+                self.overflowed = false;
+                self.close_frames = 0;
+            }
+            // The gap before this frame: the time since the previous one ended, less this
+            // frame's own time on the line.
+            let on_line = self.char_time * u32::try_from(frame.len()).unwrap_or(u32::MAX);
+            let close = since.is_some_and(|s| s.saturating_sub(on_line) < self.t3_5);
+            self.close_frames = if close { self.close_frames + 1 } else { 0 };
+            if self.close_frames >= n {
+                self.overflowed = true;
+            }
+            if self.overflowed {
+                return Some(format!(
+                    "quirk overflow-after={n}: receiver overflowed; silent until {} ms without a frame",
+                    OVERFLOW_RECOVERY.as_millis()
+                ));
+            }
+        }
+        if let Some(until) = self.silent_until {
+            if now < until {
+                return Some("quirk hang-on-byte-count: hung".to_string());
+            }
+            self.silent_until = None;
+        }
+        if self.has(Quirk::HangOnByteCount) {
+            if let Ok(parts) = frame_parts(mode, frame) {
+                let b = &parts.body;
+                let for_me = b.first().is_some_and(|&a| a == self.address || a == 0);
+                if parts.checksum.is_valid()
+                    && for_me
+                    && b.len() >= 7
+                    && b[1] == crate::codec::pdu::function::WRITE_MULTIPLE_REGISTERS
+                    && usize::from(b[6]) > b.len() - 7
+                {
+                    self.silent_until = Some(now + HANG_TIME);
+                    return Some(format!(
+                        "quirk hang-on-byte-count: byte count {} over the {} data bytes; silent for {} s",
+                        b[6],
+                        b.len() - 7,
+                        HANG_TIME.as_secs()
+                    ));
+                }
+            }
+        }
+        None
     }
 
     /// Adds fault-injection quirks.
@@ -369,6 +515,7 @@ impl Drive {
             )),
             _ => None,
         });
+        let frozen = frozen.or_else(|| self.planted_silence(mode, frame, now));
         if let Some(note) = frozen {
             // A dead or hung drive neither acts on a request nor answers it.
             // The echo, if any, is the adapter's: it still comes.
@@ -471,7 +618,11 @@ impl Drive {
         let pdu = match expect {
             Expectation::Read(plan) => {
                 for &r in &plan.registers {
-                    values.extend_from_slice(&self.read_register(r).to_be_bytes());
+                    let mut v = self.read_register(r);
+                    if self.quirks.contains(&Quirk::WrongValueAt(r)) {
+                        v ^= 1;
+                    }
+                    values.extend_from_slice(&v.to_be_bytes());
                 }
                 Pdu::ReadResponse {
                     values: Registers::new(&values).ok()?,
@@ -540,12 +691,22 @@ mod tests {
     #[test]
     fn quirks_parse_and_print() {
         for (spelling, _) in QUIRK_HELP {
-            let s = spelling.replace("=MS", "=200").replace("=N", "=3");
+            let s = spelling
+                .replace("=MS", "=200")
+                .replace("=N", "=3")
+                .replace("=REG", "=2502H");
             let q: Quirk = s.parse().unwrap();
-            // slow=MS is another spelling of late-reply=MS, which is how it prints.
-            assert_eq!(q.to_string(), s.replace("slow=", "late-reply="));
+            // `slow=MS` is another spelling of `late-reply=MS`.
+            let printed = s.replace("slow=", "late-reply=");
+            assert_eq!(q.to_string(), printed);
+            assert_eq!(printed.parse::<Quirk>().unwrap(), q);
         }
-        assert_eq!("slow=400".parse::<Quirk>(), Ok(Quirk::LateReply(400)));
+        assert_eq!(
+            "wrong-value-at=0x0500".parse::<Quirk>().unwrap(),
+            Quirk::WrongValueAt(0x0500)
+        );
+        assert!("overflow-after=0".parse::<Quirk>().is_err());
+        assert!("wrong-value-at=FFFFFH".parse::<Quirk>().is_err());
         assert_eq!("freeze-after=7".parse::<Quirk>(), Ok(Quirk::FreezeAfter(7)));
         assert!("dead=1".parse::<Quirk>().is_err());
         assert!("drop-every=0".parse::<Quirk>().is_err());

@@ -127,8 +127,11 @@ pub fn serve<T: Transport + ?Sized>(
                     let quiet_for = last_rx.map(|t| now.duration_since(t)).unwrap_or_default();
                     // A frame whose length is known waits for its rest up to the partial
                     // timeout; anything else is judged after the burst gap.
+                    // A burst that carries a valid CRC is one frame, also when its
+                    // length field promises more (a master writes a whole frame at once).
                     let due = if d.awaiting_rest() {
                         quiet_for >= PARTIAL_TIMEOUT
+                            || (quiet_for >= burst_gap && d.holds_checked_burst())
                     } else {
                         quiet_for >= burst_gap
                     };

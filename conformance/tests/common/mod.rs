@@ -78,11 +78,23 @@ pub fn check_device(
     args: &[&str],
     limit: std::time::Duration,
 ) -> (Option<i32>, serde_json::Value) {
-    let report = dir.join("report.json");
+    report_of("check", dir, args, limit)
+}
+
+/// Runs `conformance COMMAND ARGS --format json -o DIR/COMMAND.json` (check or fuzz),
+/// bounded by `limit`, and returns its exit code and the report, checked against the
+/// report schema.
+pub fn report_of(
+    command: &str,
+    dir: &std::path::Path,
+    args: &[&str],
+    limit: std::time::Duration,
+) -> (Option<i32>, serde_json::Value) {
+    let report = dir.join(format!("{command}.json"));
     let t0 = std::time::Instant::now();
     let mut run = Kill(
         std::process::Command::new(bin())
-            .arg("check")
+            .arg(command)
             .args(args)
             .args(["--format", "json", "--quiet", "-o"])
             .arg(&report)
@@ -95,7 +107,7 @@ pub fn check_device(
         if let Some(s) = run.0.try_wait().unwrap() {
             break s;
         }
-        assert!(t0.elapsed() < limit, "the runner hangs");
+        assert!(t0.elapsed() < limit, "conformance {command} hangs");
         std::thread::sleep(std::time::Duration::from_millis(100));
     };
     let mut err = Vec::new();

@@ -1,0 +1,201 @@
+//! `conformance fuzz`: malformed and hostile traffic against a real or simulated drive,
+//! every answer predicted by the model (see the library's `fuzz` module).
+
+use std::io::IsTerminal;
+use std::path::PathBuf;
+use std::process::ExitCode;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use anyhow::{bail, Context};
+use clap::Args;
+use conformance::codec::Mode;
+use conformance::fuzz::{FuzzConfig, Writes};
+use conformance::runner::Options;
+use conformance::session::{self, SessionConfig};
+
+use super::check_cmd::{finish, Format};
+use super::link::{Resolved, SafetyArgs, TargetArgs};
+
+const AFTER_HELP: &str = "\
+Examples:
+  conformance fuzz --sim f510                                   2000 cases per mode, simulator
+  conformance fuzz --sim f510 --quirk hang-on-byte-count --cases 500 --mode rtu
+  conformance fuzz --model f510 --port /dev/ttyUSB0 -b 9600 -P even -a 1 --duration 10m
+  conformance fuzz --model l510 --tcp 10.0.0.7:4001 --writes none --format json -o fuzz.json
+
+Every case is judged by the model: a reply other than the predicted one, a reply where
+silence is predicted, silence where a reply is predicted (the device answering the
+liveness probe right after), a read that does not return a value the device confirmed
+writing, and a hang (the device does not answer its liveness probes; it is waited for
+with --recover-wait and the time it took to come back is reported) are findings. Each is
+replayed smaller until it is the shortest frame or sequence that still reproduces it,
+grouped by signature (mode.kind.function.field-class) with a count, and printed with the
+`conformance send` command that replays it.
+
+Safety on a real drive: --writes preserving (the default) sends a write only to this
+device and only with the value the device just returned for that register; --writes none
+sends no write; --writes any writes anything (with a warning; every register is
+journalled and restored at the end, also after Ctrl-C). Parameter group 09 (the
+communication parameters) is never written; the run and external-fault register only
+with --allow-motion; 08H sub-functions 0001H and 0004H only with --allow-restart.
+
+Exit codes: 0 no finding; 1 findings; 2 the run could not run or complete (no answer to
+the preflight, the link failed, a hung device did not come back, a register could not be
+restored).";
+
+#[derive(Debug, Args)]
+#[command(after_help = AFTER_HELP)]
+pub struct FuzzArgs {
+    #[command(flatten)]
+    target: TargetArgs,
+    #[command(flatten)]
+    safety: SafetyArgs,
+    /// Which writes may be sent: none, preserving (only the value just read, to this
+    /// device), any.
+    #[arg(long, value_name = "none|preserving|any", default_value = "preserving")]
+    writes: Writes,
+    /// Seed of the cases: the same seed gives the same cases.
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+    /// Cases per mode (default 2000 when --duration is not given).
+    #[arg(long, value_name = "N")]
+    cases: Option<u64>,
+    /// Time per mode (e.g. 30s, 10m); with --cases, whichever comes first.
+    #[arg(long, value_name = "TIME")]
+    duration: Option<humantime::Duration>,
+    /// A liveness probe at least every K cases (besides the one after every silence).
+    #[arg(long, value_name = "K", default_value_t = 50)]
+    probe_every: u64,
+    /// How long to wait for a device that stopped answering to come back.
+    #[arg(long, value_name = "TIME", default_value = "10s")]
+    recover_wait: humantime::Duration,
+    /// Do not minimize findings by replaying.
+    #[arg(long)]
+    no_minimize: bool,
+    /// Report format.
+    #[arg(long, value_enum, default_value = "text")]
+    format: Format,
+    /// Write the report here instead of stdout.
+    #[arg(short, long, value_name = "FILE")]
+    output: Option<PathBuf>,
+    /// List every exchange in the text report.
+    #[arg(short, long)]
+    verbose: bool,
+    /// No progress bar.
+    #[arg(short, long)]
+    quiet: bool,
+}
+
+pub fn run(args: FuzzArgs) -> anyhow::Result<ExitCode> {
+    // Unpaced, the simulator answers at once (the fuzzer measures the device's answers,
+    // not its timing).
+    let sim_delay = args.target.no_pace.then_some(Duration::ZERO);
+    let Resolved {
+        model,
+        target,
+        modes,
+        line,
+        is_sim,
+        other_address,
+    } = args.target.resolve(false, sim_delay)?;
+    let sim_silence = if args.target.no_pace {
+        8
+    } else {
+        (model.response_delay(&line).as_millis() as u64 + 40).max(60)
+    };
+    let options = Options {
+        address: args.target.address,
+        other_address,
+        read_only: args.writes == Writes::None,
+        allow_motion: args.safety.allow_motion,
+        only: Vec::new(),
+        timing: {
+            let mut t = args.target.timing(is_sim, sim_silence);
+            if is_sim && args.target.no_pace {
+                // The unpaced simulator answers at once and in one piece.
+                // Still t3.5 of the line between frames, as the standard wants.
+                t.quiet = Duration::from_millis(3);
+                t.gap = Duration::from_micros(line.t3_5_us());
+            }
+            t
+        },
+        response_allowance: Duration::from_millis(20),
+        gap_allowance: Duration::from_millis(20),
+        seed: args.seed,
+        echo: args.target.echo,
+        line: Some(args.target.line.settings()),
+        allow_restart: args.safety.allow_restart,
+    };
+    let cases = match (args.cases, args.duration) {
+        (None, None) => Some(2000),
+        (c, _) => c,
+    };
+    if cases == Some(0) {
+        bail!("--cases 0: nothing to send");
+    }
+    let cfg = FuzzConfig {
+        seed: args.seed,
+        cases,
+        duration: args.duration.map(Into::into),
+        writes: args.writes,
+        probe_every: args.probe_every.max(1),
+        recover_wait: args.recover_wait.into(),
+        minimize: !args.no_minimize,
+        replay: args.target.replay_prefix("send", &model.id),
+    };
+    if !is_sim && (args.writes == Writes::Any || args.safety.allow_motion) {
+        eprintln!(
+            "WARNING: --writes {}{}: the fuzzer will write values the drive did not hold{} at node {:02X}; every register written is journalled and restored at the end. Starting in 5 s; Ctrl-C to abort.",
+            args.writes,
+            if args.safety.allow_motion { " --allow-motion" } else { "" },
+            if args.safety.allow_motion { " and may set the run bit (the motor may turn)" } else { "" },
+            args.target.address
+        );
+        std::thread::sleep(Duration::from_secs(5));
+    }
+    let config = SessionConfig {
+        model,
+        target,
+        modes,
+        line,
+        options,
+    };
+    let stop = Arc::new(AtomicBool::new(false));
+    {
+        let stop = stop.clone();
+        ctrlc::set_handler(move || stop.store(true, Ordering::Relaxed))
+            .context("cannot install the Ctrl-C handler")?;
+    }
+    let bar = if !args.quiet && std::io::stderr().is_terminal() {
+        let b = indicatif::ProgressBar::new(cases.unwrap_or(0));
+        b.set_style(
+            indicatif::ProgressStyle::with_template("{bar:30} {pos}/{len} {wide_msg}")
+                .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+        );
+        Some(b)
+    } else {
+        None
+    };
+    let mut started = Instant::now();
+    let mut last_mode = None;
+    let mut progress = |mode: Mode, n: u64, findings: usize| {
+        if last_mode != Some(mode) {
+            last_mode = Some(mode);
+            started = Instant::now();
+        }
+        if let Some(b) = &bar {
+            b.set_position(n);
+            b.set_message(format!(
+                "{mode}: {:.0} cases/s, {findings} finding(s)",
+                n as f64 / started.elapsed().as_secs_f64().max(1e-3)
+            ));
+        }
+    };
+    let report = session::fuzz(&config, &cfg, &stop, &mut progress)?;
+    if let Some(b) = &bar {
+        b.finish_and_clear();
+    }
+    finish(&report, args.format, args.verbose, args.output.as_deref())
+}

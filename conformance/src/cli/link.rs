@@ -1,0 +1,250 @@
+//! The options `check`, `fuzz` and `send` share: what to talk to (the simulator, a
+//! serial port, a TCP gateway), the model, the serial line, the modes, the node address,
+//! echo and timing; and the safety switches.
+
+use std::path::PathBuf;
+use std::sync::Arc;
+use std::time::Duration;
+
+use anyhow::{bail, Context};
+use clap::{Args, ValueEnum};
+use conformance::codec::timing::LineSettings;
+use conformance::codec::Mode;
+use conformance::model::DriveModel;
+use conformance::runner::{EchoMode, MasterTiming};
+use conformance::session::Target;
+use conformance::sim::Quirk;
+
+use super::common::{load_model, LineArgs, Number};
+
+/// Modes to run.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum ModesArg {
+    /// RTU only.
+    Rtu,
+    /// ASCII only.
+    Ascii,
+    /// RTU, then ASCII (the simulator is restarted in each mode; a real drive is in one).
+    Both,
+}
+
+/// The device and the link to it.
+#[derive(Debug, Args)]
+pub struct TargetArgs {
+    /// Run against this suite's simulator of MODEL, started in-process on a
+    /// pseudo-terminal pair (no hardware needed).
+    #[arg(long, value_name = "MODEL", group = "target")]
+    pub sim: Option<String>,
+    /// Drive model of the device: f510, a510, l510, e510, l510-legacy.
+    #[arg(long, value_name = "MODEL")]
+    pub model: Option<String>,
+    /// Read the model from this file instead of the built-in one.
+    #[arg(long, value_name = "FILE")]
+    pub model_file: Option<PathBuf>,
+    /// Serial port of the device.
+    #[arg(long, value_name = "PATH", group = "target")]
+    pub port: Option<String>,
+    /// A serial gateway carrying RTU or ASCII frames over TCP.
+    #[arg(long, value_name = "HOST:PORT", group = "target")]
+    pub tcp: Option<String>,
+    #[command(flatten)]
+    pub line: LineArgs,
+    /// Transmission mode (default: rtu for a device, both for --sim).
+    #[arg(short = 'm', long, value_enum)]
+    pub mode: Option<ModesArg>,
+    /// Node address of the device: decimal as in mbpoll (a bare number is decimal), or hex
+    /// with H suffix or 0x prefix (0AH, 0x0A).
+    #[arg(short = 'a', long, value_parser = Number::<u8>::quiet(), default_value = "1")]
+    pub address: u8,
+    /// A node address no device on the line has, for the other-address cases (default:
+    /// the model's highest address, or the one below the device's). A bare number is
+    /// decimal; hex with H suffix or 0x prefix (F7H, 0xF7).
+    #[arg(long, value_parser = Number::<u8>::quiet())]
+    pub other_address: Option<u8>,
+    /// Local echo of every request (a 2-wire RS-485 adapter whose receiver hears its own
+    /// transmission): auto learns it from the preflight read, on expects it, off trusts
+    /// that there is none. An echo is stripped and the reply awaited for the whole
+    /// response window; it is reported on the link line, not as a deviation.
+    #[arg(long, value_name = "auto|on|off", default_value = "auto")]
+    pub echo: EchoMode,
+    /// Milliseconds to wait for a reply.
+    #[arg(long, value_name = "MS", default_value_t = 1000)]
+    pub timeout: u64,
+    /// Milliseconds to listen where no reply is expected (broadcast, bad CRC, ...);
+    /// default: derived from the device's measured response time (twice the longest
+    /// reply delay, plus t3.5 and 20 ms, at least 50 ms, at most the timeout).
+    #[arg(long, value_name = "MS")]
+    pub silence: Option<u64>,
+    /// Resend a request this many times when no byte comes back.
+    #[arg(long, value_name = "N", default_value_t = 0)]
+    pub retries: u32,
+    /// With --sim: inject a fault into the simulator (see `conformance simulate --help`).
+    #[arg(long = "quirk", value_name = "QUIRK", requires = "sim")]
+    pub quirks: Vec<Quirk>,
+    /// With --sim: do not pace the simulator at the line's character time.
+    #[arg(long, requires = "sim")]
+    pub no_pace: bool,
+    /// With --sim: write the simulator's traffic log (JSON lines) to this file.
+    #[arg(long, value_name = "FILE", requires = "sim")]
+    pub sim_log: Option<PathBuf>,
+}
+
+/// The safety switches of a real drive.
+#[derive(Debug, Args)]
+pub struct SafetyArgs {
+    /// Allow writes to the run and external-fault bits (the motor may turn).
+    #[arg(long)]
+    pub allow_motion: bool,
+    /// Allow the 08H sub-functions that restart the device's communications (0001H) or
+    /// make it stop answering (0004H, Force Listen Only Mode, then 0001H).
+    #[arg(long)]
+    pub allow_restart: bool,
+}
+
+/// The target resolved: the model, what to open, the modes and the line.
+pub struct Resolved {
+    /// The model.
+    pub model: Arc<DriveModel>,
+    /// What to open.
+    pub target: Target,
+    /// Modes, in order.
+    pub modes: Vec<Mode>,
+    /// The line.
+    pub line: LineSettings,
+    /// Whether it is the simulator.
+    pub is_sim: bool,
+    /// An address no device has.
+    pub other_address: u8,
+}
+
+impl TargetArgs {
+    /// The model, target, modes and line; `fallback` gives a target where none is named
+    /// (for `--list`).
+    pub fn resolve(&self, fallback: bool, sim_delay: Option<Duration>) -> anyhow::Result<Resolved> {
+        let (model_id, target) = match (&self.sim, &self.port, &self.tcp) {
+            (Some(m), None, None) => {
+                if let Some(other) = &self.model {
+                    if other != m {
+                        bail!("--sim {m} and --model {other} name different models");
+                    }
+                }
+                (
+                    m.clone(),
+                    Target::Sim {
+                        quirks: self.quirks.clone(),
+                        pace: !self.no_pace,
+                        delay: sim_delay,
+                        log: self.sim_log.clone(),
+                    },
+                )
+            }
+            (None, Some(p), None) => (
+                self.model
+                    .clone()
+                    .context("--port needs --model (f510, a510, l510, e510, l510-legacy)")?,
+                Target::Serial { path: p.clone() },
+            ),
+            (None, None, Some(a)) => (
+                self.model
+                    .clone()
+                    .context("--tcp needs --model (f510, a510, l510, e510, l510-legacy)")?,
+                Target::Tcp { addr: a.clone() },
+            ),
+            _ if fallback => (
+                self.model.clone().unwrap_or_else(|| "f510".into()),
+                Target::Sim {
+                    quirks: vec![],
+                    pace: true,
+                    delay: None,
+                    log: None,
+                },
+            ),
+            _ => bail!(
+                "say what to talk to: --sim MODEL, or --model MODEL with --port PATH or --tcp HOST:PORT"
+            ),
+        };
+        let model = Arc::new(load_model(
+            &model_id,
+            self.model_file.as_deref(),
+            self.address,
+        )?);
+        let is_sim = matches!(target, Target::Sim { .. });
+        let modes = match self.mode.unwrap_or(if is_sim {
+            ModesArg::Both
+        } else {
+            ModesArg::Rtu
+        }) {
+            ModesArg::Rtu => vec![Mode::Rtu],
+            ModesArg::Ascii => vec![Mode::Ascii],
+            ModesArg::Both => vec![Mode::Rtu, Mode::Ascii],
+        };
+        let line = self.line.settings();
+        if modes.contains(&Mode::Rtu) && line.data_bits != 8 {
+            bail!("RTU needs 8 data bits (-d 8)");
+        }
+        let other_address = self.other_address.unwrap_or_else(|| {
+            let last = *model.addresses.end();
+            if self.address != last {
+                last
+            } else {
+                self.address - 1
+            }
+        });
+        if other_address == self.address || other_address == 0 {
+            bail!("--other-address must differ from the device's address and from 00 (broadcast)");
+        }
+        Ok(Resolved {
+            model,
+            target,
+            modes,
+            line,
+            is_sim,
+            other_address,
+        })
+    }
+
+    /// The master's timing. A `--silence` given is used as it is; otherwise the silence
+    /// window is derived from the device's measured response time, at most the timeout
+    /// (`is_sim` and `sim_silence` no longer change it: the derived window is shorter).
+    pub fn timing(&self, is_sim: bool, sim_silence: u64) -> MasterTiming {
+        let _ = (is_sim, sim_silence);
+        let line = self.line.settings();
+        MasterTiming {
+            timeout: Duration::from_millis(self.timeout),
+            silence: Duration::from_millis(self.silence.unwrap_or(self.timeout)),
+            derive_silence: self.silence.is_none(),
+            quiet: Duration::from_millis(30),
+            gap: Duration::from_millis(5).max(Duration::from_micros(line.t3_5_us())),
+            retries: self.retries,
+        }
+    }
+
+    /// The options that name this target again, for a replay command line.
+    pub fn replay_prefix(&self, command: &str, model: &str) -> String {
+        let mut s = format!("conformance {command}");
+        match (&self.sim, &self.port, &self.tcp) {
+            (Some(m), _, _) => {
+                s.push_str(&format!(" --sim {m}"));
+                for q in &self.quirks {
+                    s.push_str(&format!(" --quirk {q}"));
+                }
+                if self.no_pace {
+                    s.push_str(" --no-pace");
+                }
+            }
+            (_, Some(p), _) => s.push_str(&format!(" --model {model} --port {p}")),
+            (_, _, Some(t)) => s.push_str(&format!(" --model {model} --tcp {t}")),
+            _ => {}
+        }
+        let l = &self.line;
+        s.push_str(&format!(
+            " -b {} -P {} -d {} -s {} -a {}",
+            l.baud,
+            format!("{:?}", l.parity).to_lowercase(),
+            l.data_bits,
+            l.stop_bits,
+            self.address
+        ));
+        s
+    }
+}

@@ -1,0 +1,540 @@
+//! The oracle and the campaign of one mode.
+//!
+//! Every case goes through the runner's [`Ctx`]: the model judges the frame, the master
+//! sends it and collects the answer (stripping a local echo), and every exchange that
+//! brought nothing back is followed by a liveness probe. The comparison is the runner's
+//! ([`compare::differences`]): any difference is a finding. Frames sent back to back are
+//! judged by a liveness probe only (the standard leaves open whether a receiver takes them
+//! as one frame or two). A liveness probe also follows every `probe_every` cases.
+//!
+//! A device that does not answer its probe has hung: the campaign waits, re-probing with
+//! growing pauses (a device that stays overloaded while it hears frames needs silence to
+//! recover), records how long it took, and carries on only if it came back.
+
+use std::collections::BTreeMap;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::{Duration, Instant};
+
+use super::cases::{Case, Generator, Step};
+use super::{FuzzConfig, FuzzFinding, Kind, ModeOutcome};
+use crate::codec::{frame_parts, Mode};
+use crate::model::{Basis, DriveModel, Expectation, Fact, Role};
+use crate::runner::compare::{self, Severity};
+use crate::runner::{Ctx, ExchangeRecord, Options, RunError};
+use crate::transport::{LinkKind, Transport};
+use crate::vectors::VectorFile;
+
+/// What the device's state is known to be.
+#[derive(Debug, Default)]
+pub struct State {
+    /// Values the device returned for registers (what a preserving write may carry).
+    pub known: BTreeMap<u16, u16>,
+    /// Values the device confirmed writing, for plain parameters: a read must return them.
+    pub written: BTreeMap<u16, u16>,
+}
+
+/// One difference, before grouping.
+#[derive(Debug, Clone)]
+pub struct Observed {
+    /// Kind.
+    pub kind: Kind,
+    /// Severity.
+    pub severity: Severity,
+    /// Words.
+    pub text: String,
+    /// The exchange.
+    pub exchange: Option<ExchangeRecord>,
+    /// For a wrong value: the register.
+    pub register: Option<u16>,
+    /// For a hang found without losing the device: how long it was gone.
+    pub recovery: Option<Option<Duration>>,
+}
+
+/// The fact behind a value a read must return: the device confirmed writing it.
+fn written_fact() -> Fact {
+    Fact {
+        basis: Basis::Derived,
+        source: Some("Modbus Application Protocol V1.1b3, 6.6 and 6.12: a normal 06H/10H response confirms the write".into()),
+        rule: Some("a register the device confirmed writing returns the written value (plain parameters)".into()),
+        why: None,
+    }
+}
+
+/// Whether a read of `register` must return what was written to it: a plain read/write
+/// parameter, not a register the drive changes itself or that has a role.
+fn plain(model: &DriveModel, register: u16) -> bool {
+    model.named(register).and_then(|n| n.role).is_none()
+        && model
+            .named(register)
+            .map_or(true, |n| n.role != Some(Role::Operation))
+        && model
+            .lookup(register)
+            .is_some_and(|i| i.access == crate::model::Access::ReadWrite && i.register == register)
+}
+
+/// Sends one step and judges it. `Ok(None)`: the device did what the model predicts.
+/// `Err(DeviceLost)`: it stopped answering (a hang).
+pub fn observe(
+    ctx: &mut Ctx<'_>,
+    step: &Step,
+    state: &mut State,
+) -> Result<Option<Observed>, RunError> {
+    match step {
+        Step::Burst(frames) => {
+            let all: Vec<u8> = frames.concat();
+            // Long enough for the answers to every frame of the burst to be over before
+            // the probe (on a paced line, each answer takes its delay and its bytes).
+            let per_frame = match ctx.line_timing() {
+                Some(l) => {
+                    ctx.model.response_delay(&l) + Duration::from_micros(16 * l.char_time_us())
+                }
+                None => Duration::from_millis(2),
+            };
+            let n = u32::try_from(frames.len()).unwrap_or(u32::MAX);
+            let pause = ctx.opts.timing.silence + per_frame * n;
+            let t0 = Instant::now();
+            ctx.send_raw(&all, pause)?;
+            // The next request must be answered at once: one probe without a resend (a
+            // resend a timeout later would hide a receiver that needs a silence to
+            // recover); if it is not, the liveness probe (with its resend) tells whether
+            // the device came back.
+            let Some(r) =
+                crate::runner::liveness::liveness_register(ctx.model, ctx.opts.address, ctx.mode)
+            else {
+                return Ok(None);
+            };
+            let probe = ctx.frame(crate::codec::pdu::Pdu::ReadRequest { start: r, count: 1 });
+            let (ex, _) = ctx.exchange(&probe, true)?;
+            if !ex.after_echo().is_empty() {
+                return Ok(None);
+            }
+            Ok(Some(Observed {
+                kind: Kind::Hang,
+                severity: Severity::Deviation,
+                text: format!(
+                    "after {} frames sent back to back (less than t3.5 apart), the next request {} got no reply; the device answered again {:.1} s later",
+                    frames.len(),
+                    compare::show(ctx.mode, &probe),
+                    t0.elapsed().as_secs_f64()
+                ),
+                exchange: None,
+                register: None,
+                recovery: Some(Some(t0.elapsed())),
+            }))
+        }
+        Step::Frame(frame) => {
+            let model = ctx.model;
+            let mode = ctx.mode;
+            let judgement = model.judge(ctx.opts.address, mode, frame);
+            let fact = written_fact();
+            let known: Option<Vec<Option<u16>>> = match &judgement.expect {
+                Expectation::Read(plan)
+                    if plan.registers.iter().any(|r| state.written.contains_key(r)) =>
+                {
+                    Some(
+                        plan.registers
+                            .iter()
+                            .map(|r| state.written.get(r).copied())
+                            .collect(),
+                    )
+                }
+                _ => None,
+            };
+            let p = ctx.probe(frame.clone(), known.clone().map(|k| (k, fact.clone())))?;
+            let diff = compare::differences(
+                model,
+                mode,
+                &p.judgement,
+                &p.exchange,
+                known.as_deref().map(|k| (k, &fact)),
+            );
+            let values = p.read_values();
+            // What the device now holds, as far as its answers tell.
+            let mut wrong = None;
+            if let (Expectation::Read(plan), Some(v)) = (&p.judgement.expect, &values) {
+                for (r, x) in plan.registers.iter().zip(v) {
+                    if let Some(&w) = state.written.get(r) {
+                        if w != *x && wrong.is_none() {
+                            wrong = Some(*r);
+                        }
+                    }
+                    state.known.insert(*r, *x);
+                }
+            }
+            if diff.findings.is_empty() {
+                if let (Some(plan), true) = (&p.judgement.write, p.judgement.expect.replies()) {
+                    for &(r, v) in &plan.writes {
+                        state.known.insert(r, v);
+                        if plain(model, r) {
+                            state.written.insert(r, v);
+                        }
+                    }
+                }
+                return Ok(None);
+            }
+            let rx_empty = p.exchange.after_echo().is_empty();
+            let kind = match (&p.judgement.expect, rx_empty) {
+                (Expectation::Silence(_), _) => Kind::UnexpectedReply,
+                (_, true) => Kind::NoReply,
+                _ if wrong.is_some() => Kind::WrongValue,
+                _ => Kind::Mismatch,
+            };
+            let severity = diff
+                .findings
+                .iter()
+                .map(|f| f.severity)
+                .max()
+                .unwrap_or(Severity::Deviation);
+            let text = diff
+                .findings
+                .iter()
+                .map(|f| f.text.as_str())
+                .collect::<Vec<_>>()
+                .join("; ");
+            Ok(Some(Observed {
+                kind,
+                severity,
+                text,
+                exchange: Some(p.record()),
+                register: wrong,
+                recovery: None,
+            }))
+        }
+    }
+}
+
+/// Waits for a device that stopped answering: re-probes with growing pauses until it
+/// answers or `wait` has passed. How long it took, or None.
+pub fn recover(ctx: &mut Ctx<'_>, wait: Duration) -> Result<Option<Duration>, RunError> {
+    let t0 = Instant::now();
+    let mut pause = Duration::from_millis(250);
+    loop {
+        ctx.lost = None;
+        if ctx.liveness()? {
+            return Ok(Some(t0.elapsed()));
+        }
+        if t0.elapsed() >= wait {
+            return Ok(None);
+        }
+        std::thread::sleep(pause.min(wait.saturating_sub(t0.elapsed())));
+        pause = (pause * 2).min(Duration::from_secs(2));
+    }
+}
+
+/// The function code of a frame (its second byte, leniently in ASCII).
+pub fn function_of(mode: Mode, frame: &[u8]) -> u8 {
+    match frame_parts(mode, frame) {
+        Ok(p) => p.body.get(1).copied().unwrap_or(0),
+        Err(_) => match mode {
+            Mode::Rtu => frame.get(1).copied().unwrap_or(0),
+            Mode::Ascii => frame
+                .get(3..5)
+                .and_then(|h| std::str::from_utf8(h).ok())
+                .and_then(|h| u8::from_str_radix(h, 16).ok())
+                .unwrap_or(0),
+        },
+    }
+}
+
+/// The least time `case` needs on a line with timing: its bytes at the character time,
+/// t3.5 before each frame, the model's response delay or the silence window, and the
+/// liveness probe after a silence.
+fn line_time(ctx: &Ctx<'_>, step: &Step, replied: Option<usize>) -> Duration {
+    let Some(line) = ctx.line_timing() else {
+        return Duration::ZERO;
+    };
+    let ch = Duration::from_micros(line.char_time_us());
+    let t35 = Duration::from_micros(line.t3_5_us());
+    let delay = ctx.model.response_delay(&line);
+    let n = |k: usize| ch * u32::try_from(k).unwrap_or(u32::MAX);
+    let probe = |ctx: &Ctx<'_>| {
+        let len = if ctx.mode == Mode::Rtu {
+            8 + 7
+        } else {
+            17 + 15
+        };
+        n(len) + t35 * 2 + delay
+    };
+    match step {
+        Step::Burst(fs) => {
+            n(fs.iter().map(Vec::len).sum()) + t35 + ctx.opts.timing.silence + probe(ctx)
+        }
+        Step::Frame(f) => match replied {
+            Some(r) => n(f.len() + r) + t35 * 2 + delay,
+            None => n(f.len()) + t35 + ctx.opts.timing.silence + probe(ctx),
+        },
+    }
+}
+
+/// Runs the campaign of `mode`: preflight, cases until the count or the duration is
+/// reached (or `stop`), minimizing each new finding, then the restore.
+#[allow(clippy::too_many_arguments)]
+pub fn fuzz_mode(
+    model: &DriveModel,
+    vectors: Option<&VectorFile>,
+    mode: Mode,
+    transport: Box<dyn Transport>,
+    opts: &Options,
+    cfg: &FuzzConfig,
+    stop: &AtomicBool,
+    progress: &mut dyn FnMut(u64, usize),
+) -> ModeOutcome {
+    let mut ctx = Ctx::new(model, vectors, mode, opts, transport);
+    let mut out = ModeOutcome {
+        mode: Some(mode),
+        ..ModeOutcome::default()
+    };
+    ctx.current = format!("{mode}.fuzz.preflight");
+    match ctx.preflight() {
+        Ok(v) if ctx.lost.is_none() => {
+            out.ran = true;
+            out.preflight = v.pass_summary;
+        }
+        Ok(v) => {
+            out.preflight = v.error.unwrap_or_default();
+            out.stopped = Some(format!("no answer to the preflight: {}", out.preflight));
+            return out;
+        }
+        Err(e) => {
+            out.stopped = Some(e.to_string());
+            return out;
+        }
+    }
+    let timed = ctx.link_kind() == LinkKind::Serial;
+    let mut gen = Generator::new(
+        model,
+        vectors,
+        mode,
+        opts.address,
+        opts.other_address,
+        cfg.writes,
+        cfg.seed,
+        timed,
+    );
+    let mut state = State::default();
+    let mut by_signature: BTreeMap<String, usize> = BTreeMap::new();
+    let mut bound = Duration::ZERO;
+    let started = Instant::now();
+    let mut spent_minimizing = Duration::ZERO;
+    loop {
+        if stop.load(Ordering::Relaxed) {
+            out.stopped = Some("interrupted".into());
+            break;
+        }
+        if cfg.cases.is_some_and(|n| out.cases >= n) {
+            break;
+        }
+        if cfg
+            .duration
+            .is_some_and(|d| started.elapsed().saturating_sub(spent_minimizing) >= d)
+        {
+            break;
+        }
+        let case = gen.next_case(&state.known);
+        // Safety: every frame vetted, whatever made it.
+        let mut journal = Vec::new();
+        let mut refused = None;
+        for f in case.step.frames() {
+            match super::safety::vet(
+                model,
+                mode,
+                f,
+                opts.address,
+                cfg.writes,
+                opts.allow_motion,
+                opts.allow_restart,
+                &state.known,
+            ) {
+                Ok(regs) => journal.extend(regs),
+                Err(why) => refused = Some(why),
+            }
+        }
+        if let Some(why) = refused {
+            *out.skipped.entry(why).or_default() += 1;
+            continue;
+        }
+        ctx.current = format!("{mode}.fuzz.case-{}", case.index);
+        let mut lost = None;
+        for r in journal {
+            match ctx.remember(r) {
+                Ok(_) => {}
+                Err(RunError::DeviceLost(w)) => lost = Some(w),
+                Err(RunError::Transport(e)) => {
+                    out.stopped = Some(e.to_string());
+                    break;
+                }
+            }
+        }
+        if out.stopped.is_some() {
+            break;
+        }
+        out.cases += 1;
+        let sent_at = Instant::now();
+        let result = match lost {
+            Some(w) => Err(RunError::DeviceLost(w)),
+            None => observe(&mut ctx, &case.step, &mut state),
+        };
+        let result = match result {
+            Ok(None) if (case.index + 1) % cfg.probe_every.max(1) == 0 => match ctx.liveness() {
+                Ok(true) => Ok(None),
+                Ok(false) => Err(RunError::DeviceLost(format!(
+                    "no answer to the periodic liveness probe after case {}",
+                    case.index
+                ))),
+                Err(e) => Err(e),
+            },
+            r => r,
+        };
+        let replied = match (&result, &case.step) {
+            (Ok(None), Step::Frame(f)) => {
+                let j = model.judge(opts.address, mode, f);
+                j.expect.replies().then(|| predicted_len(mode, &j.expect))
+            }
+            _ => None,
+        };
+        bound += line_time(&ctx, &case.step, replied);
+        let observed = match result {
+            Ok(o) => o.map(|o| {
+                let r = o.recovery;
+                (o, r)
+            }),
+            Err(RunError::Transport(e)) => {
+                out.stopped = Some(e.to_string());
+                break;
+            }
+            Err(RunError::DeviceLost(why)) => {
+                let t = Instant::now();
+                // How long it was gone: from the case that silenced it.
+                let recovery = match recover(&mut ctx, cfg.recover_wait) {
+                    Ok(r) => r.map(|_| sent_at.elapsed()),
+                    Err(e) => {
+                        out.stopped = Some(e.to_string());
+                        None
+                    }
+                };
+                spent_minimizing += t.elapsed();
+                Some((
+                    super::campaign::Observed {
+                        kind: Kind::Hang,
+                        severity: Severity::Deviation,
+                        text: format!(
+                            "{why}; {}",
+                            match recovery {
+                                Some(d) =>
+                                    format!("it answered again after {:.1} s", d.as_secs_f64()),
+                                None => format!(
+                                    "it did not answer again within {:.1} s (--recover-wait)",
+                                    cfg.recover_wait.as_secs_f64()
+                                ),
+                            }
+                        ),
+                        exchange: None,
+                        register: None,
+                        recovery: None,
+                    },
+                    Some(recovery),
+                ))
+            }
+        };
+        if let Some((o, recovery)) = observed {
+            let finding = finding_of(mode, &case, o, recovery, cfg);
+            let sig = finding.signature();
+            match by_signature.get(&sig) {
+                Some(&i) => out.findings[i].count += 1,
+                None => {
+                    let t = Instant::now();
+                    let mut finding = finding;
+                    if cfg.minimize && recovery.map_or(true, |r| r.is_some()) {
+                        super::minimize::minimize(&mut ctx, &mut finding, &mut state, cfg);
+                    }
+                    spent_minimizing += t.elapsed();
+                    finding.replay = replay_line(&cfg.replay, mode, &finding);
+                    by_signature.insert(sig, out.findings.len());
+                    out.findings.push(finding);
+                }
+            }
+            if matches!(recovery, Some(None)) {
+                out.stopped = Some(format!(
+                    "the device stopped answering in case {} and did not come back",
+                    case.index
+                ));
+                ctx.lost = Some(out.stopped.clone().unwrap_or_default());
+                break;
+            }
+            ctx.lost = None;
+        }
+        progress(out.cases, out.findings.len());
+    }
+    out.elapsed = started.elapsed().saturating_sub(spent_minimizing);
+    out.bound = ctx.line_timing().map(|_| bound);
+    out.probes = ctx.liveness_probes;
+    out.echo = ctx.echoes();
+    out.restore = ctx.restore();
+    out
+}
+
+/// The predicted reply's length on the line.
+fn predicted_len(mode: Mode, e: &Expectation) -> usize {
+    let body = match e {
+        Expectation::Read(p) => 3 + 2 * p.registers.len(),
+        Expectation::WriteSingle | Expectation::WriteMultiple | Expectation::LoopBack => 6,
+        Expectation::Exception { .. } => 3,
+        Expectation::Silence(_) => 0,
+    };
+    crate::codec::frame_len(mode, body)
+}
+
+fn finding_of(
+    mode: Mode,
+    case: &Case,
+    o: Observed,
+    recovery: Option<Option<Duration>>,
+    _cfg: &FuzzConfig,
+) -> FuzzFinding {
+    let frames: Vec<Vec<u8>> = case.step.frames().iter().map(|f| f.to_vec()).collect();
+    FuzzFinding {
+        kind: o.kind,
+        mode,
+        function: frames.first().map_or(0, |f| function_of(mode, f)),
+        class: case.class,
+        count: 1,
+        first_case: case.index,
+        burst: matches!(case.step, Step::Burst(_)),
+        frames,
+        minimized: Vec::new(),
+        reproduced: false,
+        replays: 0,
+        text: o.text,
+        severity: o.severity,
+        exchange: o.exchange,
+        recovery,
+        register: o.register,
+        replay: String::new(),
+    }
+}
+
+/// The one-line command that replays a finding's reproducer (or its frames).
+pub fn replay_line(prefix: &str, mode: Mode, f: &FuzzFinding) -> String {
+    let frames = if f.minimized.is_empty() {
+        &f.frames
+    } else {
+        &f.minimized
+    };
+    let shown: Vec<String> = frames
+        .iter()
+        .map(|fr| match mode {
+            Mode::Rtu => crate::codec::hex::Hex(fr).to_string().replace(' ', ""),
+            Mode::Ascii => format!(
+                "'{}'",
+                String::from_utf8_lossy(fr)
+                    .replace('\r', "\\r")
+                    .replace('\n', "\\n")
+            ),
+        })
+        .collect();
+    format!(
+        "{prefix} --mode {mode}{} {}",
+        if f.burst { " --burst" } else { "" },
+        shown.join(" ")
+    )
+}

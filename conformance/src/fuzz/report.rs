@@ -1,0 +1,165 @@
+//! A campaign as the suite's report: one result per finding signature (with its count,
+//! its reproducer and the command that replays it), one result per mode for the campaign
+//! itself (cases, cases/s, the line's bound), and the `fuzz` section of the JSON report.
+
+use std::time::Duration;
+
+use serde_json::{json, Value};
+
+use super::{FuzzFinding, Kind, ModeOutcome};
+use crate::codec::hex::Hex;
+use crate::runner::{CheckResult, Finding, Severity, Status};
+
+/// The fuzz section of a report.
+#[derive(Debug, Clone, Default)]
+pub struct FuzzSummary {
+    /// Seed.
+    pub seed: u64,
+    /// Write level.
+    pub writes: String,
+    /// Per mode.
+    pub modes: Vec<ModeOutcome>,
+}
+
+fn ms(d: Duration) -> f64 {
+    (d.as_secs_f64() * 1e6).round() / 1e3
+}
+
+/// The result of one finding signature.
+pub fn finding_result(f: &FuzzFinding) -> CheckResult {
+    let status = match (f.kind, f.severity) {
+        (Kind::Hang, _) | (_, Severity::Deviation) => Status::Deviation,
+        (_, Severity::Observation) => Status::Observation,
+    };
+    let mut lines = vec![Finding {
+        severity: f.severity,
+        text: f.text.clone(),
+    }];
+    let frames = |fs: &[Vec<u8>]| {
+        fs.iter()
+            .map(|x| crate::runner::compare::show(f.mode, x))
+            .collect::<Vec<_>>()
+            .join(", ")
+    };
+    lines.push(Finding::observation(format!(
+        "first in case {} ({} case(s) with this signature): {}{}",
+        f.first_case,
+        f.count,
+        frames(&f.frames),
+        if f.burst { " (back to back)" } else { "" }
+    )));
+    if !f.minimized.is_empty() {
+        lines.push(Finding::observation(format!(
+            "minimized to {} frame(s) in {} replay(s){}: {}",
+            f.minimized.len(),
+            f.replays,
+            if f.reproduced {
+                ", reproduced"
+            } else {
+                ", NOT reproduced on replay"
+            },
+            frames(&f.minimized)
+        )));
+    }
+    lines.push(Finding::observation(format!("replay: {}", f.replay)));
+    CheckResult {
+        id: format!("fuzz.{}", f.signature()),
+        title: format!(
+            "{} on {:02X}H ({} cases)",
+            f.kind.name(),
+            f.function,
+            f.class
+        ),
+        mode: Some(f.mode),
+        source: "the model's prediction (DriveModel::judge) for every frame; liveness probes after every silence".into(),
+        status,
+        summary: format!("{} x{}: {}", f.kind.name(), f.count, f.text),
+        findings: lines,
+        exchanges: f.exchange.clone().into_iter().collect(),
+        duration: f.recovery.flatten().unwrap_or_default(),
+    }
+}
+
+/// The result of a mode's campaign.
+pub fn campaign_result(m: &ModeOutcome) -> CheckResult {
+    let mode = m.mode.unwrap_or(crate::codec::Mode::Rtu);
+    let bound = match m.bound_rate() {
+        Some(b) => format!(
+            "; the line allows {b:.1} cases/s, {:.0}% of it used",
+            100.0 * m.rate() / b.max(1e-9)
+        ),
+        None => "; the link has no line timing (no bound)".into(),
+    };
+    let skipped: u64 = m.skipped.values().sum();
+    let summary = format!(
+        "{} cases in {:.1} s ({:.1} cases/s{bound}), {} liveness probes, {} finding signature(s){}",
+        m.cases,
+        m.elapsed.as_secs_f64(),
+        m.rate(),
+        m.probes,
+        m.findings.len(),
+        if skipped > 0 {
+            format!(", {skipped} case(s) not sent by the safety rules")
+        } else {
+            String::new()
+        }
+    );
+    let (status, summary) = match (&m.stopped, m.ran) {
+        (Some(why), false) => (Status::Error, why.clone()),
+        (Some(why), true) if why != "interrupted" => {
+            (Status::Error, format!("{summary}; stopped: {why}"))
+        }
+        _ => (Status::Pass, summary),
+    };
+    CheckResult {
+        id: format!("fuzz.{mode}.campaign"),
+        title: "fuzz campaign: every answer predicted by the model".into(),
+        mode: Some(mode),
+        source: "conformance fuzz".into(),
+        status,
+        summary,
+        findings: Vec::new(),
+        exchanges: Vec::new(),
+        duration: m.elapsed,
+    }
+}
+
+impl FuzzSummary {
+    /// The `fuzz` section of the JSON report.
+    pub fn to_json(&self) -> Value {
+        let modes: Vec<Value> = self
+            .modes
+            .iter()
+            .map(|m| {
+                json!({
+                    "mode": m.mode.map(|x| x.to_string()),
+                    "cases": m.cases,
+                    "skipped": m.skipped,
+                    "elapsed_ms": ms(m.elapsed),
+                    "cases_per_s": (m.rate() * 10.0).round() / 10.0,
+                    "bound_cases_per_s": m.bound_rate().map(|b| (b * 10.0).round() / 10.0),
+                    "liveness_probes": m.probes,
+                    "findings": m.findings.iter().map(|f| json!({
+                        "signature": f.signature(),
+                        "kind": f.kind.name(),
+                        "function": format!("{:02X}", f.function),
+                        "field_class": f.class,
+                        "count": f.count,
+                        "first_case": f.first_case,
+                        "frames": f.frames.iter().map(|x| Hex(x).to_string()).collect::<Vec<_>>(),
+                        "burst": f.burst,
+                        "minimized": f.minimized.iter().map(|x| Hex(x).to_string()).collect::<Vec<_>>(),
+                        "reproduced": f.reproduced,
+                        "recovery_ms": f.recovery.map(|r| r.map(ms)),
+                        "replay": f.replay,
+                    })).collect::<Vec<_>>(),
+                })
+            })
+            .collect();
+        json!({
+            "seed": format!("{:#x}", self.seed),
+            "writes": self.writes,
+            "modes": modes,
+        })
+    }
+}
