@@ -66,7 +66,7 @@ fn plain(model: &DriveModel, register: u16) -> bool {
     model.named(register).and_then(|n| n.role).is_none()
         && model
             .named(register)
-            .map_or(true, |n| n.role != Some(Role::Operation))
+            .is_none_or(|n| n.role != Some(Role::Operation))
         && model
             .lookup(register)
             .is_some_and(|i| i.access == crate::model::Access::ReadWrite && i.register == register)
@@ -375,14 +375,16 @@ pub fn fuzz_mode(
             None => observe(&mut ctx, &case.step, &mut state),
         };
         let result = match result {
-            Ok(None) if (case.index + 1) % cfg.probe_every.max(1) == 0 => match ctx.liveness() {
-                Ok(true) => Ok(None),
-                Ok(false) => Err(RunError::DeviceLost(format!(
-                    "no answer to the periodic liveness probe after case {}",
-                    case.index
-                ))),
-                Err(e) => Err(e),
-            },
+            Ok(None) if (case.index + 1).is_multiple_of(cfg.probe_every.max(1)) => {
+                match ctx.liveness() {
+                    Ok(true) => Ok(None),
+                    Ok(false) => Err(RunError::DeviceLost(format!(
+                        "no answer to the periodic liveness probe after case {}",
+                        case.index
+                    ))),
+                    Err(e) => Err(e),
+                }
+            }
             r => r,
         };
         let replied = match (&result, &case.step) {
@@ -444,7 +446,7 @@ pub fn fuzz_mode(
                 None => {
                     let t = Instant::now();
                     let mut finding = finding;
-                    if cfg.minimize && recovery.map_or(true, |r| r.is_some()) {
+                    if cfg.minimize && recovery.is_none_or(|r| r.is_some()) {
                         super::minimize::minimize(&mut ctx, &mut finding, &mut state, cfg);
                     }
                     spent_minimizing += t.elapsed();

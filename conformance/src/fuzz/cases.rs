@@ -131,8 +131,8 @@ impl<'a> Generator<'a> {
         let in_map: std::collections::BTreeSet<u16> = model.registers().map(|(r, _)| r).collect();
         let mut edges: Vec<u16> = vec![0, 1, 0x7D, 0x7E, 0xFF, 0x100, 0xFFFE, 0xFFFF];
         for &r in &in_map {
-            let below = r.checked_sub(1).map_or(true, |b| !in_map.contains(&b));
-            let above = r.checked_add(1).map_or(true, |a| !in_map.contains(&a));
+            let below = r.checked_sub(1).is_none_or(|b| !in_map.contains(&b));
+            let above = r.checked_add(1).is_none_or(|a| !in_map.contains(&a));
             if below || above {
                 edges.extend(
                     [Some(r), r.checked_sub(1), r.checked_add(1)]

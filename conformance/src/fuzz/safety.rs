@@ -100,7 +100,7 @@ pub fn writable_register(model: &DriveModel, register: u16) -> bool {
     !COMMUNICATION_GROUP.contains(&register)
         && model
             .lookup(register)
-            .map_or(true, |i| !COMMUNICATION_GROUP.contains(&i.register))
+            .is_none_or(|i| !COMMUNICATION_GROUP.contains(&i.register))
         && model.named(register).and_then(|n| n.role) != Some(Role::Operation)
 }
 

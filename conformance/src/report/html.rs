@@ -445,7 +445,9 @@ fn worst_latency(r: &CheckResult) -> String {
 pub fn html(report: &Report) -> String {
     let mut out = String::with_capacity(64 * 1024 + report.results.len() * 600);
     let title = match report.kind {
-        ReportKind::Drive | ReportKind::Fuzz => format!("Conformance report: {}", report.device.model),
+        ReportKind::Drive | ReportKind::Fuzz => {
+            format!("Conformance report: {}", report.device.model)
+        }
         ReportKind::Gate => "Conformance report: codec gate".to_string(),
     };
     w!(
