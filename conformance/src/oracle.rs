@@ -6,11 +6,12 @@
 //! oracle. Nothing in the codec calls these.
 
 use crate::codec::crc::{crc16, crc16_reference, crc16_update};
+use crate::codec::deframe::rtu_frame_len;
 use crate::codec::timing::{LineSettings, Parity};
 use crate::codec::{
     ascii_to_rtu, decode_ascii, decode_ascii_unchecked, decode_rtu, decode_rtu_unchecked,
-    rtu_to_ascii, AsciiDeframer, Direction, Event, RtuDeframer, RtuFraming, MAX_ASCII_FRAME,
-    MAX_RTU_FRAME,
+    rtu_to_ascii, AsciiDeframer, Direction, Event, Message, Mode, RtuDeframer, RtuFraming,
+    MAX_ASCII_FRAME, MAX_RTU_FRAME,
 };
 
 const DIRECTIONS: [Direction; 2] = [Direction::Request, Direction::Response];
@@ -46,6 +47,51 @@ fn is_upper_of(emitted: &[u8], data: &[u8]) -> bool {
             .iter()
             .zip(data)
             .all(|(e, d)| *e == d.to_ascii_uppercase())
+}
+
+/// The rest of the codec's view of a frame that decoded to `m` in `mode`: the frame view's
+/// fields, the lengths every layer computes, the mode-generic entry points, re-addressing,
+/// and the human forms (which must not panic). Run on frames that decode only, where it
+/// costs little.
+fn message_views(m: &Message<'_>, dir: Direction, mode: Mode, data: &[u8]) {
+    use crate::codec::{decode, decode_unchecked, frame_len, frame_of_body, readdressed};
+    let function = m.pdu.function_code();
+    match mode {
+        Mode::Rtu => {
+            let v = crate::codec::RtuFrame::new_checked(data).expect("a decoded frame's view");
+            assert_eq!((v.address(), v.function()), (m.address, function));
+            assert_eq!(v.data(), &v.body()[2..]);
+            assert_eq!(v.carried_crc(), v.computed_crc());
+        }
+        Mode::Ascii => {
+            let v = crate::codec::AsciiFrame::new_checked(data).expect("a decoded frame's view");
+            assert_eq!((v.address(), v.function()), (m.address, function));
+            assert_eq!(v.binary_len(), m.body_len() + 1, "body and LRC");
+            let hex = &data[1..data.len() - 2];
+            assert_eq!(v.is_upper_case(), !hex.iter().any(u8::is_ascii_lowercase));
+        }
+    }
+    assert_eq!(m.frame_len(mode), data.len());
+    assert_eq!(frame_len(mode, m.body_len()), data.len());
+    let mut scratch = [0u8; MAX_RTU_FRAME];
+    assert_eq!(decode(mode, data, dir, &mut scratch).as_ref(), Ok(m));
+    let mut scratch = [0u8; MAX_RTU_FRAME];
+    let u = decode_unchecked(mode, data, dir, &mut scratch).expect("unchecked decodes");
+    assert_eq!(&u.message, m);
+    assert!(m.pdu.direction().is_none_or(|d| d == dir));
+    assert!(!m.pdu.name().is_empty());
+    let fields = m.fields();
+    assert_eq!(fields[0].0, "address");
+    assert!(!m.to_string().is_empty() && !format!("{m:?}").is_empty());
+    let mut body = [0u8; MAX_RTU_FRAME];
+    let n = m.emit_body(&mut body).expect("the body emits");
+    let again = frame_of_body(mode, &body[..n]).expect("a frame of the body");
+    assert_eq!(again.len(), data.len());
+    let other = m.address.wrapping_add(1);
+    let re = readdressed(mode, data, other).expect("a decoded frame re-addresses");
+    let mut scratch = [0u8; MAX_RTU_FRAME];
+    let r = decode(mode, &re, dir, &mut scratch).expect("the re-addressed frame decodes");
+    assert_eq!((r.address, &r.pdu), (other, &m.pdu));
 }
 
 /// RTU frame parser, both directions: never panics; a frame that decodes re-encodes to
@@ -107,6 +153,11 @@ pub fn ascii_frame(data: &[u8]) {
                     assert_eq!(&u.message, m, "unchecked and checked decode differently");
                     let n = m.emit_ascii(ascii).expect("a decoded message re-encodes");
                     assert!(is_upper_of(&ascii[..n], data), "emit(parse(x)) != x");
+                    assert!(
+                        m.emit_ascii(&mut ascii2[..n - 1]).is_err(),
+                        "emit into a buffer one byte short"
+                    );
+                    message_views(m, dir, Mode::Ascii, data);
                     if !converted {
                         let k = ascii_to_rtu(data, rtu3).expect("a valid frame converts");
                         let n = rtu_to_ascii(&rtu3[..k], ascii2).expect("and converts back");
@@ -256,13 +307,32 @@ pub fn rtu_deframer(data: &[u8]) {
     let dir = f.direction;
     let mut whole = Tally::default();
     let mut d = Box::new(RtuDeframer::new(dir, RtuFraming::ByLength));
-    d.push(stream, whole.sink(true));
+    d.push(stream, |e| {
+        if let Event::Frame(fr) = e {
+            // By length, a frame is as long as its function code says.
+            assert_eq!(rtu_frame_len(dir, fr), Some(fr.len()), "frame length");
+        }
+        whole.sink(true)(e)
+    });
     d.flush(whole.sink(true));
     assert_eq!(whole.bytes, stream.len(), "bytes lost or duplicated");
+    assert_eq!(d.pending(), 0, "bytes held after a flush");
     let mut parts = Tally::default();
     *d = RtuDeframer::new(dir, RtuFraming::ByLength);
+    let mut pushed = 0;
     for (c, _) in Chunks::new(&f, stream) {
         d.push(c, parts.sink(true));
+        pushed += c.len();
+        // Every byte is either reported or held.
+        assert_eq!(
+            parts.bytes + d.pending(),
+            pushed,
+            "bytes lost or duplicated"
+        );
+        assert!(
+            !d.awaiting_rest() || d.pending() > 0,
+            "awaiting with nothing held"
+        );
     }
     d.flush(parts.sink(true));
     assert_eq!(whole, parts, "chunking changed the frames");
@@ -282,23 +352,45 @@ pub fn rtu_deframer(data: &[u8]) {
         );
     }
     if f.silences {
-        // 9600 8E1: t1.5 = 1.7 ms, t3.5 = 4 ms. Gaps of 1 ms (inside a frame), 3 ms (a
-        // broken frame) and 10 ms (a new frame).
-        let line = LineSettings::new(9600, 8, Parity::Even, 1);
+        // A line chosen by the seed; gaps under t1.5 (inside a frame), between t1.5 and
+        // t3.5 (a broken frame), over t3.5 (a new frame), or none (push without a time).
+        let line = line_of(f.seed);
+        let (t15, t35) = (line.t1_5_us(), line.t3_5_us());
         let mut silent = Tally::default();
         *d = RtuDeframer::new(dir, RtuFraming::BySilence(line));
         let mut now = 0u64;
         for (c, draw) in Chunks::new(&f, stream) {
-            now += [1_000, 1_000, 3_000, 10_000][(draw & 3) as usize];
+            if draw & 7 == 7 {
+                d.push(c, silent.sink(true));
+                continue;
+            }
+            now += [t15 / 2, t15 / 2, (t15 + t35) / 2, 2 * t35][(draw & 3) as usize];
             d.push_at(now, c, silent.sink(true));
         }
-        d.idle(now + 100_000, silent.sink(true));
+        d.idle(now + 2 * t35, silent.sink(true));
+        d.flush(silent.sink(true));
         assert_eq!(
             silent.bytes,
             stream.len(),
             "bytes lost or duplicated (by silence)"
         );
+        assert_eq!(d.pending(), 0, "bytes held after a flush");
     }
+}
+
+/// A serial line drawn from `seed`: any of the usual rates, parity and stop bits.
+fn line_of(seed: u32) -> LineSettings {
+    const BAUDS: [u32; 8] = [1200, 2400, 4800, 9600, 19_200, 38_400, 57_600, 115_200];
+    let parity = [Parity::None, Parity::Even, Parity::Odd][(seed >> 8) as usize % 3];
+    let line = LineSettings::new(
+        BAUDS[(seed >> 4) as usize % 8],
+        8,
+        parity,
+        1 + (seed & 1) as u8,
+    );
+    assert!(line.t1_5_us() < line.t3_5_us() && line.char_time_us() > 0);
+    assert!(!line.to_string().is_empty());
+    line
 }
 
 /// ASCII stream deframer: never panics; every frame event has a valid LRC; every byte is
@@ -315,10 +407,18 @@ pub fn ascii_deframer(data: &[u8]) {
     assert_eq!(whole.bytes, stream.len(), "bytes lost or duplicated");
     let mut parts = Tally::default();
     *d = AsciiDeframer::default();
+    let mut pushed = 0;
     for (i, (c, _)) in Chunks::new(&f, stream).enumerate() {
         d.push_at(i as u64 * 1_000, c, parts.sink(false));
+        pushed += c.len();
+        assert_eq!(
+            parts.bytes + d.pending(),
+            pushed,
+            "bytes lost or duplicated"
+        );
     }
     d.flush(parts.sink(false));
+    assert_eq!(d.pending(), 0, "bytes held after a flush");
     assert_eq!(whole, parts, "chunking changed the frames");
     if f.bursts {
         // A 5 ms timeout, chunks 1 ms or 10 ms apart: some frames are abandoned.
@@ -327,6 +427,9 @@ pub fn ascii_deframer(data: &[u8]) {
         let mut now = 0u64;
         for (c, draw) in Chunks::new(&f, stream) {
             now += if draw & 3 == 3 { 10_000 } else { 1_000 };
+            if draw & 4 != 0 {
+                d.idle(now, timed.sink(false));
+            }
             d.push_at(now, c, timed.sink(false));
         }
         d.flush(timed.sink(false));
