@@ -54,6 +54,8 @@ fn is_upper_of(emitted: &[u8], data: &[u8]) -> bool {
 /// and the human forms (which must not panic). Run on frames that decode only, where it
 /// costs little.
 fn message_views(m: &Message<'_>, dir: Direction, mode: Mode, data: &[u8]) {
+    use crate::codec::hex::Hex;
+    use crate::codec::pdu::Pdu;
     use crate::codec::{decode, decode_unchecked, frame_len, frame_of_body, readdressed};
     let function = m.pdu.function_code();
     match mode {
@@ -78,15 +80,32 @@ fn message_views(m: &Message<'_>, dir: Direction, mode: Mode, data: &[u8]) {
     let mut scratch = [0u8; MAX_RTU_FRAME];
     let u = decode_unchecked(mode, data, dir, &mut scratch).expect("unchecked decodes");
     assert_eq!(&u.message, m);
-    assert!(m.pdu.direction().is_none_or(|d| d == dir));
+    assert!(
+        !matches!(m.pdu.direction(), Some(d) if d != dir),
+        "layout of the other direction"
+    );
     assert!(!m.pdu.name().is_empty());
     let fields = m.fields();
     assert_eq!(fields[0].0, "address");
     assert!(!m.to_string().is_empty() && !format!("{m:?}").is_empty());
+    assert!(!dir.to_string().is_empty() && !format!("{:?}", Hex(data)).is_empty());
+    if let Pdu::ReadResponse { values } = &m.pdu {
+        assert_eq!(values.is_empty(), values.as_bytes().is_empty());
+    }
     let mut body = [0u8; MAX_RTU_FRAME];
     let n = m.emit_body(&mut body).expect("the body emits");
+    assert!(
+        m.emit_body(&mut [0u8; MAX_RTU_FRAME][..n - 1]).is_err(),
+        "short body buffer"
+    );
+    let k = m.pdu.data_len();
+    assert!(k == 0 || m.pdu.emit_data(&mut [0u8; MAX_RTU_FRAME][..k - 1]).is_err());
     let again = frame_of_body(mode, &body[..n]).expect("a frame of the body");
     assert_eq!(again.len(), data.len());
+    assert!(
+        frame_of_body(mode, &body[..1]).is_err(),
+        "a body without a function code"
+    );
     let other = m.address.wrapping_add(1);
     let re = readdressed(mode, data, other).expect("a decoded frame re-addresses");
     let mut scratch = [0u8; MAX_RTU_FRAME];
@@ -106,11 +125,16 @@ pub fn rtu_frame(data: &[u8]) {
             (Ok(m), Ok(u)) => {
                 assert!(u.checksum.is_valid(), "checked accepts a bad CRC");
                 assert_eq!(&u.message, m, "unchecked and checked decode differently");
+                message_views(m, dir, Mode::Rtu, data);
                 with_scratch(|s| {
                     let n = m
                         .emit_rtu(&mut s.rtu)
                         .expect("a decoded message re-encodes");
                     assert_eq!(&s.rtu[..n], data, "emit(parse(x)) != x");
+                    assert!(
+                        m.emit_rtu(&mut s.rtu2[..n - 1]).is_err(),
+                        "emit into a buffer one byte short"
+                    );
                     // The conversion does not depend on the direction: once per frame.
                     if !converted {
                         let n = rtu_to_ascii(data, &mut s.ascii).expect("a valid frame converts");
@@ -160,6 +184,10 @@ pub fn ascii_frame(data: &[u8]) {
                     message_views(m, dir, Mode::Ascii, data);
                     if !converted {
                         let k = ascii_to_rtu(data, rtu3).expect("a valid frame converts");
+                        assert!(
+                            ascii_to_rtu(data, &mut rtu2[..k - 1]).is_err(),
+                            "short buffer"
+                        );
                         let n = rtu_to_ascii(&rtu3[..k], ascii2).expect("and converts back");
                         assert!(is_upper_of(&ascii2[..n], data), "ASCII -> RTU -> ASCII");
                     }
@@ -317,6 +345,8 @@ pub fn rtu_deframer(data: &[u8]) {
     d.flush(whole.sink(true));
     assert_eq!(whole.bytes, stream.len(), "bytes lost or duplicated");
     assert_eq!(d.pending(), 0, "bytes held after a flush");
+    // One byte has no function code: no length yet.
+    assert_eq!(rtu_frame_len(dir, &stream[..stream.len().min(1)]), None);
     let mut parts = Tally::default();
     *d = RtuDeframer::new(dir, RtuFraming::ByLength);
     let mut pushed = 0;
