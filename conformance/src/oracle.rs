@@ -520,7 +520,8 @@ pub fn crc_differential(data: &[u8]) {
     assert_eq!(crc16_update(crc16_update(0xFFFF, a), b), reference);
 }
 
-/// Vector-file loader: never panics on any text; a file that loads verifies (in the
+/// Vector-file loader, and the hex reader on the same text: never panics on any text; a
+/// file that loads verifies (in the
 /// built-in set, in the place of its document's file) and renders without panicking, and
 /// exports. The export maps each file on its own, so the file is exported alone: the
 /// built-in files' export is the same on every run and is not repeated.
@@ -529,6 +530,7 @@ pub fn vector_loader(data: &[u8]) {
     let Ok(text) = std::str::from_utf8(data) else {
         return;
     };
+    hex_text(text);
     thread_local! {
         // The built-in set, and whether a run that panicked left a file swapped in.
         static BUILTIN: std::cell::RefCell<(VectorSet, bool)> = std::cell::RefCell::new((
@@ -565,6 +567,32 @@ pub fn vector_loader(data: &[u8]) {
         set.files = builtin_files;
         *dirty = false;
     });
+}
+
+/// The hex reader for text typed by a person (vector files, the command line), on any
+/// text: never panics; what it reads, printed canonically, reads back the same; an error
+/// names a character or token that is where its column says.
+fn hex_text(text: &str) {
+    use crate::codec::hex::{parse_hex, Hex, HexError};
+    match parse_hex(text) {
+        Ok(bytes) => assert_eq!(
+            parse_hex(&Hex(&bytes).to_string()).as_deref(),
+            Ok(&bytes[..]),
+            "hex printed canonically reads back"
+        ),
+        Err(HexError::BadChar { found, column }) => assert!(
+            text.get(column - 1..).is_some_and(|t| t.starts_with(found)),
+            "a bad character where its column says"
+        ),
+        Err(HexError::OddDigits { token, column }) => {
+            assert!(token.len() % 2 == 1);
+            assert!(
+                text.get(column - 1..)
+                    .is_some_and(|t| t.starts_with(&token)),
+                "an odd token where its column says"
+            );
+        }
+    }
 }
 
 /// An owned message, for generators (proptest, `arbitrary`) that cannot build the codec's
