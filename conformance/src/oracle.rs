@@ -749,8 +749,53 @@ pub fn roundtrip_bytes(data: &[u8]) {
     } else {
         Direction::Request
     };
+    too_long_is_refused(address, &pdu);
     if let Some(m) = OwnedMessage::new(address, pdu, direction) {
         roundtrip(&m, direction);
+    }
+}
+
+/// A message longer than a frame (before [`OwnedMessage::new`] cuts it) is refused by every
+/// emitter with `TooLongToEncode`, never cut or wrapped.
+fn too_long_is_refused(address: u8, pdu: &OwnedPdu) {
+    use crate::codec::pdu::{Pdu, Registers};
+    use crate::codec::FrameError;
+    let too_long =
+        |r: Result<usize, FrameError>| matches!(r, Err(FrameError::TooLongToEncode { .. }));
+    let mut out = [0u8; 2 * MAX_ASCII_FRAME];
+    let registers: Vec<u8>;
+    let p = match pdu {
+        OwnedPdu::LoopBack(_, d) | OwnedPdu::Other(_, d) if d.len() > 252 => Pdu::Other {
+            function: 0x41,
+            data: d,
+        },
+        OwnedPdu::ReadResponse(v) | OwnedPdu::WriteMultipleRequest(_, v) if v.len() > 127 => {
+            registers = v.iter().flat_map(|x| x.to_be_bytes()).collect();
+            let values = Registers::new(&registers).expect("whole registers");
+            if matches!(pdu, OwnedPdu::ReadResponse(_)) {
+                Pdu::ReadResponse { values }
+            } else {
+                Pdu::WriteMultipleRequest { start: 0, values }
+            }
+        }
+        _ => return,
+    };
+    let m = Message { address, pdu: p };
+    assert!(
+        too_long(m.emit_rtu(&mut out)),
+        "RTU emits a message over a frame"
+    );
+    assert!(
+        too_long(m.emit_ascii(&mut out)),
+        "ASCII emits a message over a frame"
+    );
+    assert!(too_long(m.emit_body(&mut out)), "a body over a frame");
+    if !matches!(m.pdu, Pdu::Other { .. }) {
+        // A byte count over 255 cannot be written.
+        assert!(
+            too_long(m.pdu.emit_data(&mut out)),
+            "data over a byte count"
+        );
     }
 }
 
@@ -828,6 +873,14 @@ mod tests {
             }
         }
         assert_eq!(crc16_bytewise(b"123456789"), crc16_reference(b"123456789"));
+    }
+
+    #[test]
+    fn messages_over_a_frame_are_refused() {
+        too_long_is_refused(1, &OwnedPdu::Other(0x41, vec![0; 253]));
+        too_long_is_refused(1, &OwnedPdu::LoopBack(0, vec![0; 300]));
+        too_long_is_refused(1, &OwnedPdu::ReadResponse(vec![0; 128]));
+        too_long_is_refused(1, &OwnedPdu::WriteMultipleRequest(0, vec![0; 200]));
     }
 
     /// The control byte's feedings: every chunk is non-empty, at most the chosen size, and
