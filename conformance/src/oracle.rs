@@ -773,7 +773,6 @@ fn too_long_is_refused(address: u8, pdu: &OwnedPdu) {
     use crate::codec::FrameError;
     let too_long =
         |r: Result<usize, FrameError>| matches!(r, Err(FrameError::TooLongToEncode { .. }));
-    let mut out = [0u8; 2 * MAX_ASCII_FRAME];
     let registers: Vec<u8>;
     let p = match pdu {
         OwnedPdu::LoopBack(_, d) | OwnedPdu::Other(_, d) if d.len() > 252 => Pdu::Other {
@@ -792,6 +791,7 @@ fn too_long_is_refused(address: u8, pdu: &OwnedPdu) {
         _ => return,
     };
     let m = Message { address, pdu: p };
+    let mut out = vec![0u8; 2 * MAX_ASCII_FRAME];
     assert!(
         too_long(m.emit_rtu(&mut out)),
         "RTU emits a message over a frame"
