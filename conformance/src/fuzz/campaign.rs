@@ -91,7 +91,7 @@ pub fn observe(
                 None => Duration::from_millis(2),
             };
             let n = u32::try_from(frames.len()).unwrap_or(u32::MAX);
-            let pause = ctx.opts.timing.silence + per_frame * n;
+            let pause = ctx.silence_window() + per_frame * n;
             let t0 = Instant::now();
             ctx.send_raw(&all, pause)?;
             // The next request must be answered at once: one probe without a resend (a
@@ -257,11 +257,11 @@ fn line_time(ctx: &Ctx<'_>, step: &Step, replied: Option<usize>) -> Duration {
     };
     match step {
         Step::Burst(fs) => {
-            n(fs.iter().map(Vec::len).sum()) + t35 + ctx.opts.timing.silence + probe(ctx)
+            n(fs.iter().map(Vec::len).sum()) + t35 + ctx.silence_window() + probe(ctx)
         }
         Step::Frame(f) => match replied {
             Some(r) => n(f.len() + r) + t35 * 2 + delay,
-            None => n(f.len()) + t35 + ctx.opts.timing.silence + probe(ctx),
+            None => n(f.len()) + t35 + ctx.silence_window() + probe(ctx),
         },
     }
 }

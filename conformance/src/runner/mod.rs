@@ -336,6 +336,12 @@ impl<'a> Ctx<'a> {
         }
     }
 
+    /// How long the master listens where no reply is expected: fixed, or derived from
+    /// the device's measured response time.
+    pub fn silence_window(&self) -> Duration {
+        self.master.silence_window()
+    }
+
     /// Whether the line echoes requests, as configured or learnt.
     pub fn echoes(&self) -> Option<bool> {
         self.master.echoes()
