@@ -109,8 +109,8 @@ fn runs(d: &Path) -> [(PathBuf, Value, Option<i32>); 2] {
         limit,
     );
     [
-        (clean_dir.join("report.json"), clean, clean_code),
-        (quirk_dir.join("report.json"), quirk, quirk_code),
+        (clean_dir.join("check.json"), clean, clean_code),
+        (quirk_dir.join("check.json"), quirk, quirk_code),
     ]
 }
 

@@ -470,7 +470,14 @@ impl<'a> Ctx<'a> {
         if let Some((_, v)) = self.journal.iter().find(|(r, _)| *r == register) {
             return Ok(Ok(*v));
         }
-        Ok(match self.read(register, 1)? {
+        // A set-up read is not what a check judges: where no reply came (and the
+        // liveness probe showed the device alive), it is sent once more.
+        let first = self.read(register, 1)?;
+        let read = match first {
+            Err(e) if e.ends_with("no reply") => self.read(register, 1)?,
+            other => other,
+        };
+        Ok(match read {
             Ok(v) => {
                 self.journal.push((register, v[0]));
                 Ok(v[0])

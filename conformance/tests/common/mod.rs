@@ -70,7 +70,7 @@ pub fn socat_pair(dir: &std::path::Path) -> (Kill, std::path::PathBuf, std::path
     (socat, a, b)
 }
 
-/// Runs `conformance check ARGS --format json -o dir/report.json` with a bound on its
+/// Runs `conformance check ARGS --format json -o dir/check.json` with a bound on its
 /// time (a hang is a failure, not a stalled CI job), asserts it did not panic and that
 /// the report matches its schema; returns the exit code and the report.
 pub fn check_device(
