@@ -503,8 +503,9 @@ fn encode_response(message: &Value) -> Result<Vec<u8>, String> {
         "loop-back" => {
             expect_function(function, 0x08, kind)?;
             if std::env::var_os("MODBUS_CORE_ADAPTER_TRY_UNIMPLEMENTED").is_none() {
-                // Response::pdu_len is `unimplemented!()` for Diagnostics in 0.2.0: encoding
-                // one panics by the crate's own design (a TODO), so it is not attempted.
+                // modbus-core 0.2.0 gives no length for a Diagnostics response (its
+                // Response::pdu_len panics there, by the crate's design), so encoding one is
+                // not attempted unless MODBUS_CORE_ADAPTER_TRY_UNIMPLEMENTED is set.
                 return Err("unsupported: modbus-core 0.2.0 leaves the length of a Diagnostics response unimplemented (encoding one panics)".into());
             }
             let mut data = hex_num(f, "test_code")?.to_be_bytes().to_vec();
