@@ -156,7 +156,7 @@ fn peers(c: &mut Criterion) {
     group.throughput(Throughput::Bytes(request.len() as u64));
     group.bench_function(BenchmarkId::from_parameter("ours"), |b| {
         b.iter(|| {
-            match decode_rtu(black_box(&request), Direction::Request)
+            match decode_rtu(black_box(&request[..]), Direction::Request)
                 .unwrap()
                 .pdu
             {
@@ -185,7 +185,7 @@ fn peers(c: &mut Criterion) {
         b.iter(|| {
             let mut frame = rmodbus::server::ModbusFrame::new(
                 1,
-                black_box(&request),
+                black_box(&request[..]),
                 rmodbus::ModbusProto::Rtu,
                 &mut response_buf,
             );
@@ -195,7 +195,7 @@ fn peers(c: &mut Criterion) {
     });
     group.bench_function(BenchmarkId::from_parameter("modbus-core"), |b| {
         b.iter(|| {
-            modbus_core::rtu::server::decode_request(black_box(&request))
+            modbus_core::rtu::server::decode_request(black_box(&request[..]))
                 .unwrap()
                 .unwrap()
                 .hdr
@@ -208,7 +208,7 @@ fn peers(c: &mut Criterion) {
     group.throughput(Throughput::Bytes(response.len() as u64));
     group.bench_function(BenchmarkId::from_parameter("ours"), |b| {
         b.iter(|| {
-            match decode_rtu(black_box(&response), Direction::Response)
+            match decode_rtu(black_box(&response[..]), Direction::Response)
                 .unwrap()
                 .pdu
             {
@@ -237,13 +237,14 @@ fn peers(c: &mut Criterion) {
         let mut values: Vec<u16> = Vec::with_capacity(8);
         b.iter(|| {
             values.clear();
-            req.parse_u16(black_box(&response), &mut values).unwrap();
+            req.parse_u16(black_box(&response[..]), &mut values)
+                .unwrap();
             values[0]
         })
     });
     group.bench_function(BenchmarkId::from_parameter("modbus-core"), |b| {
         b.iter(|| {
-            modbus_core::rtu::client::decode_response(black_box(&response))
+            modbus_core::rtu::client::decode_response(black_box(&response[..]))
                 .unwrap()
                 .unwrap()
                 .hdr

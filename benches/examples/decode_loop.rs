@@ -1,99 +1,140 @@
 //! A profiling aid, not a benchmark: checked decode of the F510 03H request and response
 //! (RTU and ASCII) and modbus-core's RTU decode of the same frames, each in a loop, with
-//! the best of several rounds printed. Run under `valgrind --tool=callgrind` to see where
-//! the instructions go:
+//! the best of several rounds printed. Criterion (`benches/frames.rs`, group `peers`) gives
+//! the figures; this gives the instructions. Run one case under
+//! `valgrind --tool=callgrind` to count where its instructions go:
 //!
 //! ```sh
 //! cargo build --release -p conformance-benches --example decode_loop
-//! valgrind --tool=callgrind target/release/examples/decode_loop 200000
+//! target/release/examples/decode_loop 1000000                 # every case, best of 7
+//! valgrind --tool=callgrind target/release/examples/decode_loop 200000 "request rtu"
 //! ```
 use std::hint::black_box;
 use std::time::Instant;
 
-use conformance::codec::{decode_ascii, decode_rtu, Direction, MAX_RTU_FRAME};
+use conformance::codec::{decode_ascii, decode_rtu, Direction, Pdu, MAX_RTU_FRAME};
 
-fn best_ns(n: usize, mut f: impl FnMut() -> usize) -> f64 {
-    (0..7)
-        .map(|_| {
-            let t = Instant::now();
+const REQUEST: [u8; 8] = [0x01, 0x03, 0x01, 0x23, 0x00, 0x01, 0x74, 0x3C];
+const RESPONSE: [u8; 7] = [0x01, 0x03, 0x02, 0x17, 0x70, 0xB6, 0x50];
+const REQUEST_ASCII: &[u8] = b":010301230001D7\r\n";
+const RESPONSE_ASCII: &[u8] = b":010302177073\r\n";
+
+/// What each case keeps of the decoded message: the fields the criterion bench keeps (the
+/// start and count of the request, the first value of the response), so that no part of
+/// the decode is dead code.
+fn kept(p: &Pdu<'_>) -> usize {
+    match p {
+        Pdu::ReadRequest { start, count } => usize::from(start ^ count),
+        Pdu::ReadResponse { values } => usize::from(values.get(0).unwrap_or(0)),
+        _ => unreachable!(),
+    }
+}
+
+fn cases() -> Vec<(&'static str, Box<dyn FnMut() -> usize>)> {
+    let mut scratch = [0u8; MAX_RTU_FRAME];
+    let mut scratch2 = [0u8; MAX_RTU_FRAME];
+    vec![
+        (
+            "request rtu",
+            Box::new(|| {
+                kept(
+                    &decode_rtu(black_box(&REQUEST[..]), Direction::Request)
+                        .unwrap()
+                        .pdu,
+                )
+            }),
+        ),
+        (
+            "request ascii",
+            Box::new(move || {
+                kept(
+                    &decode_ascii(black_box(REQUEST_ASCII), Direction::Request, &mut scratch)
+                        .unwrap()
+                        .pdu,
+                )
+            }),
+        ),
+        (
+            "request modbus-core",
+            Box::new(|| {
+                let r = modbus_core::rtu::server::decode_request(black_box(&REQUEST[..]))
+                    .unwrap()
+                    .unwrap();
+                match r.pdu.0 {
+                    modbus_core::Request::ReadHoldingRegisters(a, q) => usize::from(a ^ q),
+                    _ => unreachable!(),
+                }
+            }),
+        ),
+        (
+            "response rtu",
+            Box::new(|| {
+                kept(
+                    &decode_rtu(black_box(&RESPONSE[..]), Direction::Response)
+                        .unwrap()
+                        .pdu,
+                )
+            }),
+        ),
+        (
+            "response ascii",
+            Box::new(move || {
+                kept(
+                    &decode_ascii(
+                        black_box(RESPONSE_ASCII),
+                        Direction::Response,
+                        &mut scratch2,
+                    )
+                    .unwrap()
+                    .pdu,
+                )
+            }),
+        ),
+        (
+            "response modbus-core",
+            Box::new(|| {
+                modbus_core::rtu::client::decode_response(black_box(&RESPONSE[..]))
+                    .unwrap()
+                    .unwrap()
+                    .hdr
+                    .slave
+                    .into()
+            }),
+        ),
+    ]
+}
+
+fn main() {
+    let mut args = std::env::args().skip(1);
+    let n: usize = args
+        .next()
+        .and_then(|s| s.parse().ok())
+        .unwrap_or(1_000_000);
+    let only = args.next();
+    for (name, mut f) in cases() {
+        if only.as_deref().is_some_and(|o| o != name) {
+            continue;
+        }
+        if only.is_some() {
+            // One pass, for callgrind: instructions per decode = total / n.
             let mut acc = 0;
             for _ in 0..n {
                 acc += f();
             }
             black_box(acc);
-            t.elapsed().as_nanos() as f64 / n as f64
-        })
-        .fold(f64::INFINITY, f64::min)
-}
-
-fn main() {
-    let n: usize = std::env::args()
-        .nth(1)
-        .and_then(|s| s.parse().ok())
-        .unwrap_or(1_000_000);
-    let request = [0x01u8, 0x03, 0x01, 0x23, 0x00, 0x01, 0x74, 0x3C];
-    let response = [0x01u8, 0x03, 0x02, 0x17, 0x70, 0xB6, 0x50];
-    let request_ascii = b":010301230001D7\r\n";
-    let response_ascii = b":010302177073\r\n";
-    let rtu =
-        |f: &'static [u8], d| move || usize::from(decode_rtu(black_box(f), d).unwrap().address);
-    let ascii = |f: &'static [u8], d| {
-        move || {
-            let mut s = [0u8; MAX_RTU_FRAME];
-            usize::from(decode_ascii(black_box(f), d, &mut s).unwrap().address)
+            continue;
         }
-    };
-    let request: &'static [u8] = Box::leak(Box::new(request));
-    let response: &'static [u8] = Box::leak(Box::new(response));
-    let mut scratch = [0u8; MAX_RTU_FRAME];
-    let reused = best_ns(n, || {
-        usize::from(
-            decode_ascii(black_box(request_ascii), Direction::Request, &mut scratch)
-                .unwrap()
-                .address,
-        )
-    });
-    let rows: [(&str, f64); 7] = [
-        ("request ascii reused", reused),
-        ("request rtu", best_ns(n, rtu(request, Direction::Request))),
-        (
-            "request ascii",
-            best_ns(n, ascii(request_ascii, Direction::Request)),
-        ),
-        (
-            "request modbus-core",
-            best_ns(n, || {
-                usize::from(
-                    modbus_core::rtu::server::decode_request(black_box(request))
-                        .unwrap()
-                        .unwrap()
-                        .hdr
-                        .slave,
-                )
-            }),
-        ),
-        (
-            "response rtu",
-            best_ns(n, rtu(response, Direction::Response)),
-        ),
-        (
-            "response ascii",
-            best_ns(n, ascii(response_ascii, Direction::Response)),
-        ),
-        (
-            "response modbus-core",
-            best_ns(n, || {
-                usize::from(
-                    modbus_core::rtu::client::decode_response(black_box(response))
-                        .unwrap()
-                        .unwrap()
-                        .hdr
-                        .slave,
-                )
-            }),
-        ),
-    ];
-    for (name, ns) in rows {
-        println!("{name:22} {ns:6.2} ns");
+        let best = (0..7)
+            .map(|_| {
+                let t = Instant::now();
+                let mut acc = 0;
+                for _ in 0..n {
+                    acc += f();
+                }
+                black_box(acc);
+                t.elapsed().as_nanos() as f64 / n as f64
+            })
+            .fold(f64::INFINITY, f64::min);
+        println!("{name:22} {best:6.2} ns");
     }
 }

@@ -156,7 +156,7 @@ pub fn is_valid_frame(frame: &[u8]) -> bool {
 
 /// Decodes an ASCII frame, checking delimiters, hex, LRC and every count field. The binary
 /// bytes are written into `scratch`, which the returned message borrows.
-#[inline]
+#[inline(always)]
 pub fn decode_ascii<'b>(
     frame: &[u8],
     direction: Direction,
@@ -169,7 +169,7 @@ pub fn decode_ascii<'b>(
 
 /// Decodes an ASCII frame without rejecting a wrong LRC (see
 /// [`decode_rtu_unchecked`](super::decode_rtu_unchecked)).
-#[inline]
+#[inline(always)]
 pub fn decode_ascii_unchecked<'b>(
     frame: &[u8],
     direction: Direction,
@@ -201,7 +201,7 @@ pub fn decode_ascii_unchecked<'b>(
 /// The common case in one pass: a well-formed frame's hex decoded into `scratch`.
 /// Returns the number of bytes decoded (LRC included) and their 8-bit sum, or `None`
 /// when the frame is malformed in any way [`AsciiFrame::new_checked`] rejects.
-#[inline]
+#[inline(always)]
 fn decode_hex_fast(frame: &[u8], scratch: &mut Scratch) -> Option<(usize, u8)> {
     let len = frame.len();
     if !(MIN_ASCII_FRAME..=MAX_ASCII_FRAME).contains(&len)
@@ -213,10 +213,8 @@ fn decode_hex_fast(frame: &[u8], scratch: &mut Scratch) -> Option<(usize, u8)> {
     }
     let hex = &frame[1..len - 2];
     let word_at = |at: usize| -> Option<u64> {
-        let c = hex.get(at..at + 8)?;
-        Some(u64::from_le_bytes([
-            c[0], c[1], c[2], c[3], c[4], c[5], c[6], c[7],
-        ]))
+        let c: &[u8; 8] = hex.get(at..at + 8)?.try_into().ok()?;
+        Some(u64::from_le_bytes(*c))
     };
     if hex.len() < 8 {
         // Only the shortest frame (address, function, LRC): pair by pair.
@@ -269,14 +267,16 @@ fn hex8(w: u64) -> Option<(u32, u64)> {
     const ONES: u64 = 0x0101_0101_0101_0101;
     const TOPS: u64 = 0x8080_8080_8080_8080;
     const LOW_BYTES: u64 = 0x00FF_00FF_00FF_00FF;
-    let at_least = |k: u8| (w + u64::from(0x80 - k) * ONES) & TOPS;
+    let at_least = |v: u64, k: u8| (v + u64::from(0x80 - k) * ONES) & TOPS;
     if w & TOPS != 0 {
         return None;
     }
-    let digit = at_least(b'0') & !at_least(b'9' + 1);
-    let upper = at_least(b'A') & !at_least(b'F' + 1);
-    let lower = at_least(b'a') & !at_least(b'f' + 1);
-    if digit | upper | lower != TOPS {
+    // Setting bit 5 turns 'A'..'F' into 'a'..'f' and leaves digits as they are; no other
+    // byte becomes a letter a..f that way (only 41H..46H and 61H..66H end in 61H..66H).
+    let folded = w | 0x20 * ONES;
+    let digit = at_least(w, b'0') & !at_least(w, b'9' + 1);
+    let letter = at_least(folded, b'a') & !at_least(folded, b'f' + 1);
+    if digit | letter != TOPS {
         return None;
     }
     // A digit's value is its low nibble; a letter's (bit 6 set) is its low nibble + 9.

@@ -95,6 +95,28 @@ pub fn crc16_update(crc: u16, data: &[u8]) -> u16 {
     crc16_update_table(crc, data)
 }
 
+/// Whether `frame` (a body followed by its CRC, low byte first, as RTU carries it) has a
+/// right CRC: the register after the body *and* its CRC is zero (CRC-16/MODBUS has no
+/// final XOR, so appending the CRC clears the register). For the frames a poll is made
+/// of (4..=8 bytes: every 03H/06H/08H request, and short replies) this is one table step
+/// over one word, without splitting off the CRC or comparing; the carried and computed
+/// values are only needed when it fails.
+#[inline(always)]
+pub fn crc16_frame_ok(frame: &[u8]) -> bool {
+    match <&[u8; 8]>::try_from(frame).ok() {
+        Some(word) => crc16_table_u64(0xFFFF, u64::from_le_bytes(*word)) == 0,
+        None if frame.len() < 8 => crc16_table_short(0xFFFF, frame) == 0,
+        None => crc16_long_frame_ok(frame),
+    }
+}
+
+/// [`crc16_frame_ok`] for frames over eight bytes, out of line so that the short path
+/// stays small where it is inlined.
+#[inline(never)]
+fn crc16_long_frame_ok(frame: &[u8]) -> bool {
+    crc16_update(0xFFFF, frame) == 0
+}
+
 /// The portable table-driven CRC (slice-by-8), whatever the CPU: the fallback of
 /// [`crc16_update`], public so it can be benchmarked and tested on its own.
 #[inline]

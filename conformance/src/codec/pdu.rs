@@ -177,7 +177,7 @@ fn be16(b: &[u8], at: usize) -> u16 {
 
 impl<'a> Pdu<'a> {
     /// Parses the data that follows function code `function`, for `direction`.
-    #[inline]
+    #[inline(always)]
     pub fn parse(function: u8, data: &'a [u8], direction: Direction) -> Result<Self, FrameError> {
         let exact = |n: usize, expected: &'static str| {
             if data.len() == n {

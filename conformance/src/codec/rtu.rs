@@ -3,7 +3,7 @@
 //! [`RtuFrame`] is a zero-copy view that knows where each field is; [`decode_rtu`] and
 //! [`Message::emit_rtu`] go between bytes and a typed [`Message`].
 
-use super::crc::{crc16, CrcBytes};
+use super::crc::{crc16, crc16_frame_ok, CrcBytes};
 use super::error::FrameError;
 use super::pdu::{Direction, Message};
 use super::{Checksum, Unchecked, MAX_RTU_FRAME};
@@ -106,14 +106,23 @@ impl<'a> RtuFrame<&'a [u8]> {
 }
 
 /// Decodes an RTU frame, checking its length, CRC and every count field.
-#[inline]
+#[inline(always)]
 pub fn decode_rtu(frame: &[u8], direction: Direction) -> Result<Message<'_>, FrameError> {
     let view = RtuFrame::new_checked(frame)?;
-    let (carried, computed) = (view.carried_crc(), view.computed_crc());
-    if carried != computed {
-        return Err(FrameError::CrcMismatch { carried, computed });
+    if !crc16_frame_ok(frame) {
+        return Err(crc_mismatch(&view));
     }
     Message::parse_body(view.into_body(), direction)
+}
+
+/// The error of a frame whose CRC is wrong, with both values (out of the hot path).
+#[cold]
+#[inline(never)]
+fn crc_mismatch(view: &RtuFrame<&[u8]>) -> FrameError {
+    FrameError::CrcMismatch {
+        carried: view.carried_crc(),
+        computed: view.computed_crc(),
+    }
 }
 
 /// Decodes an RTU frame without rejecting a wrong CRC: the message is returned with the
