@@ -187,7 +187,10 @@ fn tempfile_dir(name: &str) -> std::path::PathBuf {
 #[test]
 fn a_wrong_setting_yields_garbage_and_is_skipped_early() {
     let device_line = LineSettings::new(19_200, 8, Parity::Odd, 1);
-    let mut device = PtyMaster::open(None).unwrap().with_line_emulation(device_line);
+    let mut device = PtyMaster::open(None)
+        .unwrap()
+        .with_line_emulation(device_line)
+        .unwrap();
     let path = device.slave_path().to_string_lossy().into_owned();
     let reply = frame_of_body(Mode::Rtu, &[0x01, 0x03, 0x02, 0x05, 0x10]).unwrap();
     let stop = Arc::new(AtomicBool::new(false));

@@ -159,7 +159,7 @@ pub fn run(args: SimulateArgs) -> anyhow::Result<ExitCode> {
         {
             let mut t = conformance::transport::pty::PtyMaster::open(args.pace.then_some(line))?;
             if args.emulate_line {
-                t = t.with_line_emulation(line);
+                t = t.with_line_emulation(line)?;
             }
             let path = t.slave_path().to_path_buf();
             if let Some(link) = &args.link {

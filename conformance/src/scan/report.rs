@@ -88,7 +88,11 @@ pub fn text(r: &ScanReport) -> String {
             let _ = writeln!(
                 out,
                 "{:<9} {:<6} {:<10} {:<52} {}",
-                address, f.setting.mode, line, answered, ident
+                address,
+                f.setting.mode.to_string(),
+                line,
+                answered,
+                ident
             );
             if f.echo {
                 let _ = writeln!(out, "{:<9} (local echo: the request came back first)", "");

@@ -17,7 +17,7 @@
 //! from this side's, what it sends is read as a drive's UART at this side's settings
 //! would read it ([`super::uart::transcode`]; characters with errors are dropped), and
 //! what this side sends reaches it as its UART would deliver it (errors handled as its
-//! input flags say). A peer whose termios names no standard baud rate is not emulated.
+//! input flags say). A peer whose input and output baud rates differ is not emulated.
 
 use std::os::fd::{AsFd, OwnedFd};
 use std::path::PathBuf;
@@ -40,6 +40,9 @@ pub struct PtyMaster {
     pace: Option<LineSettings>,
     late: PacingClock,
     emulate: Option<LineSettings>,
+    // A second handle on the slave, for its baud rate: masters that set any rate
+    // (serialport) use BOTHER and termios2, which only TCGETS2 reads back.
+    probe: Option<serialport::TTYPort>,
     // Characters read through the emulation that did not fit the caller's buffer.
     pending: std::collections::VecDeque<u8>,
 }
@@ -54,42 +57,10 @@ pub struct PeerLine {
     pub policy: ErrorPolicy,
 }
 
-/// The baud rate of a termios speed code (B9600 -> 9600); None for codes without a
-/// standard rate (BOTHER).
+/// The peer's line from its baud rate and raw termios flags: see the module notes for
+/// what a pty carries.
 #[cfg(target_os = "linux")]
-fn baud_of(code: libc::speed_t) -> Option<u32> {
-    Some(match code {
-        libc::B50 => 50,
-        libc::B75 => 75,
-        libc::B110 => 110,
-        libc::B134 => 134,
-        libc::B150 => 150,
-        libc::B200 => 200,
-        libc::B300 => 300,
-        libc::B600 => 600,
-        libc::B1200 => 1200,
-        libc::B1800 => 1800,
-        libc::B2400 => 2400,
-        libc::B4800 => 4800,
-        libc::B9600 => 9600,
-        libc::B19200 => 19_200,
-        libc::B38400 => 38_400,
-        libc::B57600 => 57_600,
-        libc::B115200 => 115_200,
-        libc::B230400 => 230_400,
-        libc::B460800 => 460_800,
-        libc::B500000 => 500_000,
-        libc::B576000 => 576_000,
-        libc::B921600 => 921_600,
-        libc::B1000000 => 1_000_000,
-        _ => return None,
-    })
-}
-
-/// The peer's line from a raw termios: see the module notes for what a pty carries.
-#[cfg(target_os = "linux")]
-pub fn peer_line_of(t: &libc::termios, data_bits: u8) -> Option<PeerLine> {
-    let baud = baud_of(t.c_cflag & libc::CBAUD)?;
+pub fn peer_line_of(baud: u32, t: &libc::termios, data_bits: u8) -> PeerLine {
     let c = t.c_cflag;
     let i = t.c_iflag;
     let parity = if c & libc::PARENB != 0 {
@@ -117,10 +88,10 @@ pub fn peer_line_of(t: &libc::termios, data_bits: u8) -> Option<PeerLine> {
     } else {
         ErrorPolicy::Zero
     };
-    Some(PeerLine {
+    PeerLine {
         line: LineSettings::new(baud, data_bits, parity, stop_bits),
         policy,
-    })
+    }
 }
 
 /// How late a paced sender's writes came against their schedule, at most, in
@@ -152,15 +123,35 @@ impl PtyMaster {
             pace,
             late: PacingClock::default(),
             emulate: None,
+            probe: None,
             pending: std::collections::VecDeque::new(),
         })
     }
 
     /// Behaves like a drive whose UART is set to `line`: a peer at other settings (as
     /// its termios says) gets what a real line would give it (see the module notes).
-    pub fn with_line_emulation(mut self, line: LineSettings) -> Self {
+    pub fn with_line_emulation(mut self, line: LineSettings) -> Result<Self, TransportError> {
+        let path = self.slave_path.to_string_lossy().into_owned();
+        let open_err = |e: serialport::Error| TransportError::Open {
+            what: format!("{path} (to read the other end's line settings)"),
+            source: e.into(),
+        };
+        // Opened before any client: the settings it sets are the client's to change.
+        let probe = serialport::new(&path, line.baud)
+            .exclusive(false)
+            .open_native()
+            .map_err(open_err)?;
+        // Not locked either: the client (the serialport crate takes an exclusive flock)
+        // must be able to open the slave.
+        {
+            use std::os::fd::AsRawFd;
+            #[allow(deprecated)]
+            nix::fcntl::flock(probe.as_raw_fd(), nix::fcntl::FlockArg::Unlock)
+                .map_err(|e| open_err(serialport::Error::from(io(e))))?;
+        }
+        self.probe = Some(probe);
         self.emulate = Some(line);
-        self
+        Ok(self)
     }
 
     /// The other end's line, as its termios says (Linux); None where it cannot be read
@@ -168,10 +159,12 @@ impl PtyMaster {
     pub fn peer_line(&self) -> Option<PeerLine> {
         #[cfg(target_os = "linux")]
         {
+            use serialport::SerialPort;
+            let baud = self.probe.as_ref()?.baud_rate().ok()?;
             let t = tcgetattr(&self._slave).ok()?;
             let raw: libc::termios = t.into();
             let data_bits = self.emulate.or(self.pace).map_or(8, |l| l.data_bits);
-            peer_line_of(&raw, data_bits)
+            Some(peer_line_of(baud, &raw, data_bits))
         }
         #[cfg(not(target_os = "linux"))]
         {
