@@ -117,8 +117,18 @@ fn scan_finds_a_simulator_at_an_unusual_setting() {
     // Narrowed, as JSON: the same device.
     let (code, out, err) = run(
         &[
-            "scan", "--port", &path, "-b", "19200", "-m", "ascii", "--addresses", "10-20",
-            "--format", "json", "--quiet",
+            "scan",
+            "--port",
+            &path,
+            "-b",
+            "19200",
+            "-m",
+            "ascii",
+            "--addresses",
+            "10-20",
+            "--format",
+            "json",
+            "--quiet",
         ],
         Duration::from_secs(60),
     );
@@ -141,7 +151,15 @@ fn an_empty_line_finds_nothing_with_exit_1() {
     let a = a.to_string_lossy().into_owned();
     let (code, out, err) = run(
         &[
-            "scan", "--port", &a, "-b", "19200,9600", "-P", "even", "--addresses", "1-20",
+            "scan",
+            "--port",
+            &a,
+            "-b",
+            "19200,9600",
+            "-P",
+            "even",
+            "--addresses",
+            "1-20",
             "--quiet",
         ],
         Duration::from_secs(60),
@@ -151,19 +169,23 @@ fn an_empty_line_finds_nothing_with_exit_1() {
     assert!(out.contains("4 silent"), "{out}");
 
     // A simulator at the right setting but outside the address range: nothing either.
-    let (_sim, path) = simulator(&[
-        "--emulate-line",
-        "-b",
-        "9600",
-        "-P",
-        "even",
-        "-a",
-        "30",
-    ]);
+    let (_sim, path) = simulator(&["--emulate-line", "-b", "9600", "-P", "even", "-a", "30"]);
     let (code, out, err) = run(
         &[
-            "scan", "--port", &path, "-b", "9600", "-P", "even", "-m", "rtu", "--addresses",
-            "1-29", "--format", "json", "--quiet",
+            "scan",
+            "--port",
+            &path,
+            "-b",
+            "9600",
+            "-P",
+            "even",
+            "-m",
+            "rtu",
+            "--addresses",
+            "1-29",
+            "--format",
+            "json",
+            "--quiet",
         ],
         Duration::from_secs(60),
     );
@@ -254,15 +276,26 @@ fn rts_needs_a_port_with_an_rts_line() {
     // A pseudo-terminal has no modem lines: --rts is refused with the reason, exit 2.
     let (code, out, err) = run(
         &[
-            "check", "--model", "f510", "--port", &path, "--rts", "--rts-delay", "200",
-            "--quiet", "--only", "identification",
+            "check",
+            "--model",
+            "f510",
+            "--port",
+            &path,
+            "--rts",
+            "--rts-delay",
+            "200",
+            "--quiet",
+            "--only",
+            "identification",
         ],
         Duration::from_secs(30),
     );
     assert_eq!(code, Some(2), "{out}\n{err}");
     assert!(err.contains("RTS"), "{err}");
     let (code, _, err) = run(
-        &["scan", "--port", &path, "-b", "9600", "-P", "even", "-m", "rtu", "--rts", "--quiet"],
+        &[
+            "scan", "--port", &path, "-b", "9600", "-P", "even", "-m", "rtu", "--rts", "--quiet",
+        ],
         Duration::from_secs(30),
     );
     assert_eq!(code, Some(2), "{err}");
@@ -273,7 +306,10 @@ fn rts_needs_a_port_with_an_rts_line() {
         Duration::from_secs(30),
     );
     assert_eq!(code, Some(2), "{err}");
-    assert!(err.contains("--rts drives the RTS line of a serial port"), "{err}");
+    assert!(
+        err.contains("--rts drives the RTS line of a serial port"),
+        "{err}"
+    );
 }
 
 /// mbpoll at the simulator's setting reads it; at another baud rate it gets nothing,
@@ -312,7 +348,11 @@ fn mbpoll_against_the_emulated_line() {
     // 252FH is register 9519 counted from 0; mbpoll counts from 1 (-r 9520).
     let o = mbpoll("19200");
     let out = String::from_utf8_lossy(&o.stdout);
-    assert!(o.status.success(), "{out}{}", String::from_utf8_lossy(&o.stderr));
+    assert!(
+        o.status.success(),
+        "{out}{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
     assert!(out.contains("[9520]: \t0x0110"), "{out}");
     let o = mbpoll("9600");
     let text = format!(

@@ -199,7 +199,10 @@ pub fn run(args: ScanArgs) -> anyhow::Result<ExitCode> {
                     modes.push(s.mode);
                 }
             }
-            settings = modes.into_iter().map(|mode| Setting { line, mode }).collect();
+            settings = modes
+                .into_iter()
+                .map(|mode| Setting { line, mode })
+                .collect();
             let t = TcpTransport::connect(addr, Duration::from_secs(2))?;
             Box::new(FixedLink::new(Box::new(t), Duration::from_millis(20)))
         }

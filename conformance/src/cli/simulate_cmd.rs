@@ -151,7 +151,8 @@ pub fn run(args: SimulateArgs) -> anyhow::Result<ExitCode> {
         bail!("--rts drives the RTS line of a serial port: give --port PATH");
     }
     let result = if let Some(path) = &args.port {
-        let mut t = SerialTransport::open(path, line, LinkKind::Serial)?.with_rts(args.line.rts.control())?;
+        let mut t = SerialTransport::open(path, line, LinkKind::Serial)?
+            .with_rts(args.line.rts.control())?;
         log.message(&format!("{banner} on {}", t.describe()))?;
         run_once(&mut t, &mut drive, mode, &mut log, &stop)
     } else if args.pty {

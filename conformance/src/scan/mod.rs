@@ -163,7 +163,9 @@ pub fn models_with_identification(value: u16) -> Vec<String> {
         if m.identification.value == Some(value) {
             out.push(format!("{id} (the manual's value)"));
         } else if m.identification.value.is_none() && m.identification.simulated == value {
-            out.push(format!("{id} (this suite's simulator; the manual gives no value)"));
+            out.push(format!(
+                "{id} (this suite's simulator; the manual gives no value)"
+            ));
         }
     }
     out

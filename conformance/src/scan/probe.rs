@@ -226,7 +226,12 @@ mod tests {
             line: LineSettings::new(9600, 8, Parity::Even, 1),
             mode: Mode::Rtu,
         };
-        let w = Windows::of(&s, Duration::from_millis(10), Duration::from_millis(5), None);
+        let w = Windows::of(
+            &s,
+            Duration::from_millis(10),
+            Duration::from_millis(5),
+            None,
+        );
         assert_eq!(w.request, Duration::from_micros(8 * 1146));
         assert_eq!(w.t3_5, Duration::from_micros(4011));
         assert_eq!(w.reply, Duration::from_micros(10_000 + 2 * 1146 + 5000));

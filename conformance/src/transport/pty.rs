@@ -230,7 +230,6 @@ impl PtyMaster {
         }
     }
 
-
     fn write_all(&self, mut bytes: &[u8]) -> Result<(), TransportError> {
         while !bytes.is_empty() {
             match nix::unistd::write(&self.master, bytes) {
@@ -318,9 +317,7 @@ impl Transport for PtyMaster {
         }
         .to_string()
             + &self.emulate.map_or(String::new(), |l| {
-                format!(
-                    " (a drive's UART at {l}: a master at other settings gets garbage)"
-                )
+                format!(" (a drive's UART at {l}: a master at other settings gets garbage)")
             })
     }
 

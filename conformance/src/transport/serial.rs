@@ -87,7 +87,11 @@ impl PortControl for Port<'_> {
 
 fn serial_settings(
     line: &LineSettings,
-) -> (serialport::DataBits, serialport::Parity, serialport::StopBits) {
+) -> (
+    serialport::DataBits,
+    serialport::Parity,
+    serialport::StopBits,
+) {
     let data_bits = match line.data_bits {
         5 => serialport::DataBits::Five,
         6 => serialport::DataBits::Six,
@@ -304,7 +308,8 @@ impl Transport for SerialTransport {
             match self.rts {
                 Some(r) => format!(
                     " (RTS direction control, RTS dropped {} us after the last character)",
-                    self.line.char_time_us() + u64::try_from(r.extra.as_micros()).unwrap_or(u64::MAX)
+                    self.line.char_time_us()
+                        + u64::try_from(r.extra.as_micros()).unwrap_or(u64::MAX)
                 ),
                 None => String::new(),
             }
@@ -333,7 +338,8 @@ mod tests {
 
     impl PortControl for Recorder {
         fn set_rts(&mut self, high: bool) -> std::io::Result<()> {
-            self.calls.push(format!("rts {}", if high { "on" } else { "off" }));
+            self.calls
+                .push(format!("rts {}", if high { "on" } else { "off" }));
             Ok(())
         }
         fn write_all(&mut self, bytes: &[u8]) -> std::io::Result<()> {
@@ -357,8 +363,13 @@ mod tests {
         let line = LineSettings::new(9600, 8, Parity::Even, 1);
         let ct = Duration::from_micros(line.char_time_us());
         let mut r = Recorder::default();
-        send_with_rts(&mut r, &[1, 3, 0, 0, 0, 1, 0x84, 0x0A], ct, RtsControl::default())
-            .unwrap();
+        send_with_rts(
+            &mut r,
+            &[1, 3, 0, 0, 0, 1, 0x84, 0x0A],
+            ct,
+            RtsControl::default(),
+        )
+        .unwrap();
         assert_eq!(
             r.calls,
             ["rts on", "write 8", "drain", "sleep 1146 us", "rts off"]
@@ -381,8 +392,13 @@ mod tests {
             fail_write: true,
             ..Recorder::default()
         };
-        let e = send_with_rts(&mut r, &[1], Duration::from_micros(100), RtsControl::default())
-            .unwrap_err();
+        let e = send_with_rts(
+            &mut r,
+            &[1],
+            Duration::from_micros(100),
+            RtsControl::default(),
+        )
+        .unwrap_err();
         assert_eq!(e.to_string(), "unplugged");
         assert_eq!(r.calls, ["rts on", "write 1", "rts off"]);
     }

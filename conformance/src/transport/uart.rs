@@ -61,8 +61,8 @@ fn parity_bit(byte: u8, data_bits: u8, parity: Parity) -> Option<bool> {
     match parity {
         Parity::None => None,
         // The parity bit makes the number of ones even (even parity) or odd (odd parity).
-        Parity::Even => Some(ones % 2 == 1),
-        Parity::Odd => Some(ones % 2 == 0),
+        Parity::Even => Some(!ones.is_multiple_of(2)),
+        Parity::Odd => Some(ones.is_multiple_of(2)),
     }
 }
 
@@ -78,9 +78,10 @@ fn waveform(bytes: &[u8], line: &LineSettings) -> Vec<bool> {
         if let Some(p) = parity_bit(b, data_bits, line.parity) {
             bits.push(p);
         }
-        for _ in 0..line.stop_bits.max(1) {
-            bits.push(true);
-        }
+        bits.extend(std::iter::repeat_n(
+            true,
+            usize::from(line.stop_bits.max(1)),
+        ));
     }
     bits
 }
@@ -203,10 +204,7 @@ mod tests {
             let got = transcode(&REQUEST, &l(baud, Parity::Odd, 1), &device);
             let bytes = deliver(&got, ErrorPolicy::Pass);
             assert_ne!(bytes, REQUEST, "{baud}");
-            assert!(
-                got.iter().any(|c| c.error.is_some()),
-                "{baud}: {got:02X?}"
-            );
+            assert!(got.iter().any(|c| c.error.is_some()), "{baud}: {got:02X?}");
         }
     }
 
@@ -215,7 +213,10 @@ mod tests {
         let device = l(9600, Parity::Even, 1);
         let got = transcode(&REQUEST, &l(9600, Parity::Odd, 1), &device);
         // Every character has the opposite parity bit.
-        assert!(got.iter().all(|c| c.error == Some(CharError::Parity)), "{got:?}");
+        assert!(
+            got.iter().all(|c| c.error == Some(CharError::Parity)),
+            "{got:?}"
+        );
         assert!(deliver(&got, ErrorPolicy::Drop).is_empty());
         assert_eq!(deliver(&got, ErrorPolicy::Zero), vec![0; REQUEST.len()]);
         // No parity into even parity: the parity bit is read where the stop bit was, and
@@ -238,7 +239,11 @@ mod tests {
     fn a_break_is_a_framing_error_and_output_is_bounded() {
         // 00H at 1200 baud read at 115200: long low runs, many characters, all bounded.
         let zeros = [0u8; 600];
-        let got = transcode(&zeros, &l(1200, Parity::Even, 1), &l(115_200, Parity::None, 1));
+        let got = transcode(
+            &zeros,
+            &l(1200, Parity::Even, 1),
+            &l(115_200, Parity::None, 1),
+        );
         assert!(got.len() <= MAX_CHARS);
         assert!(got.iter().any(|c| c.error == Some(CharError::Framing)));
         assert_eq!(
@@ -249,8 +254,17 @@ mod tests {
 
     #[test]
     fn compatibility_ignores_stop_bits_only() {
-        assert!(compatible(&l(9600, Parity::None, 1), &l(9600, Parity::None, 2)));
-        assert!(!compatible(&l(9600, Parity::None, 1), &l(9600, Parity::Even, 1)));
-        assert!(!compatible(&l(9600, Parity::None, 1), &l(19200, Parity::None, 1)));
+        assert!(compatible(
+            &l(9600, Parity::None, 1),
+            &l(9600, Parity::None, 2)
+        ));
+        assert!(!compatible(
+            &l(9600, Parity::None, 1),
+            &l(9600, Parity::Even, 1)
+        ));
+        assert!(!compatible(
+            &l(9600, Parity::None, 1),
+            &l(19200, Parity::None, 1)
+        ));
     }
 }
