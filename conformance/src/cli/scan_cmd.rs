@@ -28,7 +28,7 @@ of the F510, A510, L510 and E510 manuals) and listens after each for a short rep
 window: the response time (10 ms, the manuals'; t3.5 where longer), two character
 times, and the link's slack (20 ms on a serial port for USB adapters' latency timers,
 5 ms on a pseudo-terminal). One try costs at most: the request at the character time
-+ t3.5 + the reply window (9600 8E1 RTU: 9.2 + 4.0 + 37.3 ms).
++ t3.5 + the reply window (9600 8E1 RTU on a serial port: 9.2 + 4.0 + 32.3 ms).
 
 Strategy, most likely first:
   1. every setting with node 01H (the manuals' default address): 48 tries by default;
