@@ -12,6 +12,7 @@
 //! - [`fuzz`]: malformed and hostile traffic, every answer predicted by the model.
 //! - [`gate`]: checks another Modbus codec through an adapter process.
 //! - [`report`]: text, JSON and JUnit XML reports of a run.
+//! - [`scan`]: finds the devices on a line (line settings, mode, node addresses).
 //! - [`session`]: a whole run against a serial port, a TCP gateway or the in-process simulator.
 // `unsafe` is allowed in one module only: codec::crc_clmul (SIMD intrinsics).
 #![deny(unsafe_code)]
@@ -25,6 +26,7 @@ pub mod oracle;
 pub mod report;
 pub mod rng;
 pub mod runner;
+pub mod scan;
 pub mod session;
 pub mod sim;
 pub mod transport;

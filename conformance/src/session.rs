@@ -25,6 +25,8 @@ pub enum Target {
     Serial {
         /// Device path.
         path: String,
+        /// RS-485 direction control by RTS, if asked for.
+        rts: Option<crate::transport::serial::RtsControl>,
     },
     /// A serial gateway at HOST:PORT.
     Tcp {
@@ -181,7 +183,7 @@ impl Progress for Hooks<'_, '_> {
 
 /// A "serial port" that is really a pseudo-terminal (socat's pty pairs, a simulator's
 /// slave path) has no line timing; everything else is taken as a real line.
-fn serial_kind(path: &str) -> LinkKind {
+pub fn serial_kind(path: &str) -> LinkKind {
     match std::fs::canonicalize(path) {
         Ok(p) if p.starts_with("/dev/pts") => LinkKind::Pty,
         _ => LinkKind::Serial,
@@ -195,9 +197,9 @@ pub fn open(
     mode: Mode,
 ) -> Result<(Option<SimThread>, Box<dyn Transport>), SessionError> {
     Ok(match &config.target {
-        Target::Serial { path } => (
+        Target::Serial { path, rts } => (
             None,
-            Box::new(SerialTransport::open(path, config.line, serial_kind(path))?),
+            Box::new(SerialTransport::open(path, config.line, serial_kind(path))?.with_rts(*rts)?),
         ),
         Target::Tcp { addr } => (
             None,

@@ -196,6 +196,33 @@ pub struct LineArgs {
     /// Stop bits (1 or 2).
     #[arg(short = 's', long = "stop-bits", default_value_t = 1, value_parser = clap::value_parser!(u8).range(1..=2))]
     pub stop_bits: u8,
+    #[command(flatten)]
+    pub rts: RtsArgs,
+}
+
+/// RS-485 direction control by RTS, for adapters whose driver enable hangs on RTS.
+#[derive(Debug, Clone, Args)]
+pub struct RtsArgs {
+    /// RS-485 direction control: raise RTS while sending, drop it when the last bit has
+    /// left (tcdrain, then one character time). For adapters with DE/RE on RTS (plain
+    /// MAX485 boards); adapters with automatic direction control (most FTDI and CH340
+    /// RS-485 adapters) do not need it. Serial ports only (a pseudo-terminal has no RTS).
+    #[arg(long)]
+    pub rts: bool,
+    /// With --rts: keep RTS up this many microseconds longer after the last character
+    /// (as libmodbus's RTS delay, which mbpoll's -R/-F use), for slow transceivers.
+    #[arg(long, value_name = "US", requires = "rts")]
+    pub rts_delay: Option<u64>,
+}
+
+impl RtsArgs {
+    /// The direction control asked for, if any.
+    pub fn control(&self) -> Option<conformance::transport::serial::RtsControl> {
+        self.rts
+            .then(|| conformance::transport::serial::RtsControl {
+                extra: std::time::Duration::from_micros(self.rts_delay.unwrap_or(0)),
+            })
+    }
 }
 
 impl LineArgs {

@@ -121,6 +121,9 @@ impl TargetArgs {
     /// The model, target, modes and line; `fallback` gives a target where none is named
     /// (for `--list`).
     pub fn resolve(&self, fallback: bool, sim_delay: Option<Duration>) -> anyhow::Result<Resolved> {
+        if self.line.rts.rts && self.port.is_none() {
+            bail!("--rts drives the RTS line of a serial port: give --port PATH");
+        }
         let (model_id, target) = match (&self.sim, &self.port, &self.tcp) {
             (Some(m), None, None) => {
                 if let Some(other) = &self.model {
@@ -142,7 +145,10 @@ impl TargetArgs {
                 self.model
                     .clone()
                     .context("--port needs --model (f510, a510, l510, e510, l510-legacy)")?,
-                Target::Serial { path: p.clone() },
+                Target::Serial {
+                    path: p.clone(),
+                    rts: self.line.rts.control(),
+                },
             ),
             (None, None, Some(a)) => (
                 self.model

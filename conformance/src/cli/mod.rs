@@ -8,6 +8,7 @@ mod gate_cmd;
 mod link;
 mod model_cmd;
 mod report_cmd;
+mod scan_cmd;
 mod send_cmd;
 mod simulate_cmd;
 mod vectors_cmd;
@@ -48,6 +49,8 @@ enum Command {
     /// Send raw frames (hex) to a device and show what comes back, with timestamps and the
     /// model's prediction.
     Send(send_cmd::SendArgs),
+    /// Find the devices on a line: line settings, mode and node addresses (reads only).
+    Scan(scan_cmd::ScanArgs),
     /// Check another Modbus codec through an adapter (adapters/PROTOCOL.md).
     Gate(gate_cmd::GateArgs),
     /// Render a saved JSON report as HTML, text, JUnit XML, CSV or JSON.
@@ -70,6 +73,7 @@ pub fn run(cli: Cli) -> anyhow::Result<ExitCode> {
         Command::Check(a) => check_cmd::run(a),
         Command::Fuzz(a) => fuzz_cmd::run(a),
         Command::Send(a) => send_cmd::run(a),
+        Command::Scan(a) => scan_cmd::run(a),
         Command::Gate(a) => gate_cmd::run(a),
         Command::Adapter(a) => gate_cmd::adapter(a),
         Command::Report(a) => report_cmd::report(a),

@@ -23,7 +23,7 @@ fn quirk_help() -> String {
     for (q, what) in QUIRK_HELP {
         s.push_str(&format!("  {q:<22} {what}\n"));
     }
-    s.push_str("\nExamples:\n  conformance simulate --model f510 --pty\n  conformance simulate --model l510 --mode ascii --tcp 127.0.0.1:5020 --quirk late-reply=200\n  conformance simulate --model a510 --port /dev/ttyUSB0 -b 19200 -P none\n\nExit codes: 0 stopped by Ctrl-C; 2 the link or the log failed.");
+    s.push_str("\nExamples:\n  conformance simulate --model f510 --pty\n  conformance simulate --model l510 --mode ascii --tcp 127.0.0.1:5020 --quirk late-reply=200\n  conformance simulate --model a510 --port /dev/ttyUSB0 -b 19200 -P none\n  conformance simulate --model e510 --pty --emulate-line -b 19200 -P odd -m ascii -a 17   a drive to find with `conformance scan`\n\nExit codes: 0 stopped by Ctrl-C; 2 the link or the log failed.");
     s
 }
 
@@ -64,6 +64,12 @@ pub struct SimulateArgs {
     /// With --pty: send at the line's character time (-b -P -d -s), so that timing is real.
     #[arg(long, requires = "pty")]
     pace: bool,
+    /// With --pty: behave like a drive whose UART is set to -b -P -s: a master that opens
+    /// the pty at other settings (its tcsetattr is seen on this side) gets garbage, as a
+    /// real line gives it (the parity is inferred from the input flags masters set with
+    /// it: see README, "Finding a drive: scan").
+    #[arg(long, requires = "pty")]
+    emulate_line: bool,
     /// Serve RTU or ASCII frames over TCP (as a serial gateway) at HOST:PORT.
     #[arg(long, value_name = "HOST:PORT", group = "where")]
     tcp: Option<String>,
@@ -141,14 +147,21 @@ pub fn run(args: SimulateArgs) -> anyhow::Result<ExitCode> {
         }
     );
 
+    if args.line.rts.rts && args.port.is_none() {
+        bail!("--rts drives the RTS line of a serial port: give --port PATH");
+    }
     let result = if let Some(path) = &args.port {
-        let mut t = SerialTransport::open(path, line, LinkKind::Serial)?;
+        let mut t = SerialTransport::open(path, line, LinkKind::Serial)?
+            .with_rts(args.line.rts.control())?;
         log.message(&format!("{banner} on {}", t.describe()))?;
         run_once(&mut t, &mut drive, mode, &mut log, &stop)
     } else if args.pty {
         #[cfg(unix)]
         {
             let mut t = conformance::transport::pty::PtyMaster::open(args.pace.then_some(line))?;
+            if args.emulate_line {
+                t = t.with_line_emulation(line)?;
+            }
             let path = t.slave_path().to_path_buf();
             if let Some(link) = &args.link {
                 let _ = std::fs::remove_file(link);

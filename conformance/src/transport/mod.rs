@@ -8,6 +8,8 @@
 //!   character time, so that timing checks have something real to measure.
 //! - [`tcp::TcpTransport`]: RTU or ASCII frames over TCP, as serial gateways carry them.
 //! - [`memory::MemoryEnd`]: an in-memory pair, for tests.
+//! - [`uart`]: what a UART reads from characters sent at other line settings (the
+//!   simulator's pseudo-terminal emulates a drive's line with it).
 //!
 //! Reads wait at most the timeout they are given and return 0 when nothing arrived; a
 //! closed link is [`TransportError::Closed`], never a silent empty read.
@@ -17,6 +19,7 @@ pub mod memory;
 pub mod pty;
 pub mod serial;
 pub mod tcp;
+pub mod uart;
 
 use std::fmt;
 use std::time::Duration;

@@ -1,6 +1,15 @@
 //! A real serial port, by the `serialport` crate (built without libudev), with the line
 //! settings spelled as mbpoll spells them. It also opens the slave side of a
 //! pseudo-terminal, which is how the runner reaches the in-process simulator.
+//!
+//! RS-485 direction control ([`SerialTransport::with_rts`]): adapters whose driver enable
+//! (DE/RE of a MAX485) hangs on RTS need RTS raised while this side transmits and dropped
+//! as soon as the last bit has left, or the drive's reply collides with a transmitter that
+//! is still on. [`send_with_rts`] raises RTS, writes, waits with tcdrain until the port
+//! says the output is sent, waits one more character time (tcdrain of USB adapters
+//! returns when the bytes left the host, not the wire) plus the extra delay asked for,
+//! and drops RTS. Adapters with automatic direction control (most FTDI and CH340 RS-485
+//! adapters) need none of it. A pseudo-terminal has no modem lines (TIOCMBIS is ENOTTY).
 
 use std::io::{Read, Write};
 use std::time::Duration;
@@ -18,6 +27,88 @@ pub struct SerialTransport {
     sent_at: Option<std::time::Instant>,
     broken: bool,
     peer_clock: Option<std::sync::Arc<std::sync::atomic::AtomicU64>>,
+    rts: Option<RtsControl>,
+}
+
+/// RS-485 direction control by the RTS line.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct RtsControl {
+    /// Extra time RTS stays up after the last character has left (mbpoll and libmodbus
+    /// call it the RTS delay).
+    pub extra: Duration,
+}
+
+/// The port calls that direction control makes, so that a test can record their order.
+pub trait PortControl {
+    /// Sets RTS high (`true`: transmitter on) or low.
+    fn set_rts(&mut self, high: bool) -> std::io::Result<()>;
+    /// Writes all of `bytes` to the port's output queue.
+    fn write_all(&mut self, bytes: &[u8]) -> std::io::Result<()>;
+    /// Waits until the output queue has been transmitted (tcdrain).
+    fn drain(&mut self) -> std::io::Result<()>;
+    /// Waits `d`.
+    fn sleep(&mut self, d: Duration);
+}
+
+/// Sends `bytes` with RTS up: RTS on, write, drain, one character time and `rts.extra`,
+/// RTS off. RTS is dropped also when the write fails, so that the bus is not held.
+pub fn send_with_rts(
+    port: &mut dyn PortControl,
+    bytes: &[u8],
+    char_time: Duration,
+    rts: RtsControl,
+) -> std::io::Result<()> {
+    port.set_rts(true)?;
+    let sent = port.write_all(bytes).and_then(|_| port.drain());
+    if sent.is_ok() {
+        port.sleep(char_time + rts.extra);
+    }
+    let off = port.set_rts(false);
+    sent.and(off)
+}
+
+struct Port<'a>(&'a mut dyn serialport::SerialPort);
+
+impl PortControl for Port<'_> {
+    fn set_rts(&mut self, high: bool) -> std::io::Result<()> {
+        self.0.write_request_to_send(high).map_err(Into::into)
+    }
+    fn write_all(&mut self, bytes: &[u8]) -> std::io::Result<()> {
+        self.0.write_all(bytes)
+    }
+    fn drain(&mut self) -> std::io::Result<()> {
+        // serialport's flush is tcdrain on Unix.
+        self.0.flush()
+    }
+    fn sleep(&mut self, d: Duration) {
+        sleep_until(std::time::Instant::now() + d);
+    }
+}
+
+fn serial_settings(
+    line: &LineSettings,
+) -> (
+    serialport::DataBits,
+    serialport::Parity,
+    serialport::StopBits,
+) {
+    let data_bits = match line.data_bits {
+        5 => serialport::DataBits::Five,
+        6 => serialport::DataBits::Six,
+        7 => serialport::DataBits::Seven,
+        _ => serialport::DataBits::Eight,
+    };
+    let parity = match line.parity {
+        Parity::None => serialport::Parity::None,
+        Parity::Even => serialport::Parity::Even,
+        Parity::Odd => serialport::Parity::Odd,
+    };
+    let stop_bits = if line.stop_bits == 2 {
+        serialport::StopBits::Two
+    } else {
+        serialport::StopBits::One
+    };
+    (data_bits, parity, stop_bits)
 }
 
 impl SerialTransport {
@@ -29,22 +120,7 @@ impl SerialTransport {
             what: path.to_string(),
             source: e.into(),
         };
-        let data_bits = match line.data_bits {
-            5 => serialport::DataBits::Five,
-            6 => serialport::DataBits::Six,
-            7 => serialport::DataBits::Seven,
-            _ => serialport::DataBits::Eight,
-        };
-        let parity = match line.parity {
-            Parity::None => serialport::Parity::None,
-            Parity::Even => serialport::Parity::Even,
-            Parity::Odd => serialport::Parity::Odd,
-        };
-        let stop_bits = if line.stop_bits == 2 {
-            serialport::StopBits::Two
-        } else {
-            serialport::StopBits::One
-        };
+        let (data_bits, parity, stop_bits) = serial_settings(&line);
         let port = serialport::new(path, line.baud)
             .data_bits(data_bits)
             .parity(parity)
@@ -62,7 +138,46 @@ impl SerialTransport {
             sent_at: None,
             broken: false,
             peer_clock: None,
+            rts: None,
         })
+    }
+
+    /// Drives RTS for RS-485 direction control (see the module notes); RTS is dropped
+    /// (receive) at once. Fails where the port has no RTS line (a pseudo-terminal).
+    pub fn with_rts(mut self, rts: Option<RtsControl>) -> Result<Self, TransportError> {
+        if rts.is_some() {
+            self.port.write_request_to_send(false).map_err(|e| {
+                let source: std::io::Error = e.into();
+                TransportError::Open {
+                    what: format!(
+                        "{} with RTS direction control (the port has no RTS line it can drive: {source})",
+                        self.path
+                    ),
+                    source,
+                }
+            })?;
+        }
+        self.rts = rts;
+        Ok(self)
+    }
+
+    /// Sets other line settings on the open port (a scan tries one after the other).
+    pub fn set_line(&mut self, line: LineSettings) -> Result<(), TransportError> {
+        let (data_bits, parity, stop_bits) = serial_settings(&line);
+        let r = self
+            .port
+            .set_baud_rate(line.baud)
+            .and_then(|_| self.port.set_data_bits(data_bits))
+            .and_then(|_| self.port.set_parity(parity))
+            .and_then(|_| self.port.set_stop_bits(stop_bits));
+        r.map_err(|e| self.err("set line settings", e.into()))?;
+        self.line = line;
+        Ok(())
+    }
+
+    /// The line settings the port is set to.
+    pub fn line(&self) -> LineSettings {
+        self.line
     }
 
     /// Declares that this pseudo-terminal stands in for a line: the other end sends at the
@@ -98,6 +213,11 @@ impl SerialTransport {
 
 impl Transport for SerialTransport {
     fn send(&mut self, bytes: &[u8]) -> Result<(), TransportError> {
+        if let Some(rts) = self.rts {
+            let char_time = Duration::from_micros(self.line.char_time_us());
+            return send_with_rts(&mut Port(self.port.as_mut()), bytes, char_time, rts)
+                .map_err(|e| self.err("write", e));
+        }
         if !self.paced || self.kind == LinkKind::Serial {
             return self
                 .port
@@ -173,7 +293,7 @@ impl Transport for SerialTransport {
     fn describe(&self) -> String {
         let l = self.line;
         format!(
-            "{} {} {} {}{}{}{}",
+            "{} {} {} {}{}{}{}{}",
             self.kind,
             self.path,
             l.baud,
@@ -184,6 +304,14 @@ impl Transport for SerialTransport {
                 " (both ends send at the line's character time)"
             } else {
                 ""
+            },
+            match self.rts {
+                Some(r) => format!(
+                    " (RTS direction control, RTS dropped {} us after the last character)",
+                    self.line.char_time_us()
+                        + u64::try_from(r.extra.as_micros()).unwrap_or(u64::MAX)
+                ),
+                None => String::new(),
             }
         )
     }
@@ -194,5 +322,84 @@ impl Transport for SerialTransport {
 
     fn line_timing(&self) -> Option<LineSettings> {
         (self.kind == LinkKind::Serial || self.paced).then_some(self.line)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Records the calls direction control makes.
+    #[derive(Default)]
+    struct Recorder {
+        calls: Vec<String>,
+        fail_write: bool,
+    }
+
+    impl PortControl for Recorder {
+        fn set_rts(&mut self, high: bool) -> std::io::Result<()> {
+            self.calls
+                .push(format!("rts {}", if high { "on" } else { "off" }));
+            Ok(())
+        }
+        fn write_all(&mut self, bytes: &[u8]) -> std::io::Result<()> {
+            self.calls.push(format!("write {}", bytes.len()));
+            if self.fail_write {
+                return Err(std::io::Error::other("unplugged"));
+            }
+            Ok(())
+        }
+        fn drain(&mut self) -> std::io::Result<()> {
+            self.calls.push("drain".into());
+            Ok(())
+        }
+        fn sleep(&mut self, d: Duration) {
+            self.calls.push(format!("sleep {} us", d.as_micros()));
+        }
+    }
+
+    #[test]
+    fn rts_is_up_while_sending_and_dropped_a_character_after_the_drain() {
+        let line = LineSettings::new(9600, 8, Parity::Even, 1);
+        let ct = Duration::from_micros(line.char_time_us());
+        let mut r = Recorder::default();
+        send_with_rts(
+            &mut r,
+            &[1, 3, 0, 0, 0, 1, 0x84, 0x0A],
+            ct,
+            RtsControl::default(),
+        )
+        .unwrap();
+        assert_eq!(
+            r.calls,
+            ["rts on", "write 8", "drain", "sleep 1146 us", "rts off"]
+        );
+        // --rts-delay adds its microseconds before RTS drops.
+        let mut r = Recorder::default();
+        let rts = RtsControl {
+            extra: Duration::from_micros(500),
+        };
+        send_with_rts(&mut r, &[1, 2], ct, rts).unwrap();
+        assert_eq!(
+            r.calls,
+            ["rts on", "write 2", "drain", "sleep 1646 us", "rts off"]
+        );
+    }
+
+    #[test]
+    fn rts_is_dropped_when_the_write_fails() {
+        let mut r = Recorder {
+            fail_write: true,
+            ..Recorder::default()
+        };
+        let e = send_with_rts(
+            &mut r,
+            &[1],
+            Duration::from_micros(100),
+            RtsControl::default(),
+        )
+        .unwrap_err();
+        assert_eq!(e.to_string(), "unplugged");
+        assert_eq!(r.calls, ["rts on", "write 1", "rts off"]);
     }
 }

@@ -1,0 +1,365 @@
+//! `conformance scan` against simulators whose pseudo-terminal behaves like a drive's
+//! line (`simulate --pty --emulate-line`), an empty line, and a line whose device talks
+//! at another setting; RS-485 direction control on a pseudo-terminal; mbpoll against the
+//! emulated line.
+#![cfg(unix)]
+
+mod common;
+
+use std::io::{BufRead, BufReader};
+use std::process::{Command, Stdio};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use common::{bin, socat_pair, tool_or_skip, Kill};
+use conformance::codec::timing::{LineSettings, Parity};
+use conformance::codec::{frame_of_body, Mode};
+use conformance::scan::link::SerialLink;
+use conformance::scan::probe::Answer;
+use conformance::scan::settings::Setting;
+use conformance::scan::{scan, ScanConfig, Verdict};
+use conformance::transport::pty::PtyMaster;
+use conformance::transport::serial::SerialTransport;
+use conformance::transport::{LinkKind, Transport};
+
+/// Starts `conformance simulate --pty -q ARGS` and returns it with the slave path.
+fn simulator(args: &[&str]) -> (Kill, String) {
+    let mut child = Command::new(bin())
+        .args(["simulate", "--pty", "-q"])
+        .args(args)
+        .stdout(Stdio::piped())
+        .stderr(Stdio::null())
+        .spawn()
+        .unwrap();
+    let stdout = child.stdout.take().unwrap();
+    let mut line = String::new();
+    BufReader::new(stdout).read_line(&mut line).unwrap();
+    let path = line.trim().to_string();
+    assert!(path.starts_with("/dev/"), "no pty path in {line:?}");
+    (Kill(child), path)
+}
+
+/// Runs `conformance ARGS`, bounded by `limit` (a hang fails the test); exit code,
+/// stdout, stderr.
+fn run(args: &[&str], limit: Duration) -> (Option<i32>, String, String) {
+    let mut child = Kill(
+        Command::new(bin())
+            .args(args)
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped())
+            .spawn()
+            .unwrap(),
+    );
+    let mut out = child.0.stdout.take().unwrap();
+    let mut err = child.0.stderr.take().unwrap();
+    let reader = std::thread::spawn(move || {
+        let mut s = String::new();
+        std::io::Read::read_to_string(&mut out, &mut s).unwrap();
+        s
+    });
+    let err_reader = std::thread::spawn(move || {
+        let mut s = String::new();
+        std::io::Read::read_to_string(&mut err, &mut s).unwrap();
+        s
+    });
+    let t0 = Instant::now();
+    let status = loop {
+        if let Some(s) = child.0.try_wait().unwrap() {
+            break s;
+        }
+        assert!(t0.elapsed() < limit, "conformance {args:?} hangs");
+        std::thread::sleep(Duration::from_millis(50));
+    };
+    let stdout = reader.join().unwrap();
+    let stderr = err_reader.join().unwrap();
+    assert!(!stderr.contains("panicked"), "{stderr}");
+    (status.code(), stdout, stderr)
+}
+
+#[test]
+fn scan_finds_a_simulator_at_an_unusual_setting() {
+    let (_sim, path) = simulator(&[
+        "--model",
+        "e510",
+        "--emulate-line",
+        "--pace",
+        "-b",
+        "19200",
+        "-P",
+        "odd",
+        "-m",
+        "ascii",
+        "-a",
+        "17",
+    ]);
+    // The whole default search: every speed, parity and mode, addresses 1..247.
+    let (code, out, err) = run(
+        &["scan", "--port", &path, "--quiet"],
+        Duration::from_secs(300),
+    );
+    assert_eq!(code, Some(0), "{out}\n{err}");
+    let row = out
+        .lines()
+        .find(|l| l.starts_with("11H (17)"))
+        .unwrap_or_else(|| panic!("no row for node 17:\n{out}"));
+    assert!(row.contains("ascii"), "{row}");
+    assert!(row.contains("19200 8O1"), "{row}");
+    // The e510 simulator's identification value, and the reply's bytes in hex.
+    assert!(row.contains("252FH = 0E51H: e510"), "{row}");
+    assert!(row.contains("3A 31 31 30 33 30 32"), "{row}");
+    assert_eq!(
+        out.lines().filter(|l| l.contains("H (")).count(),
+        1,
+        "one device:\n{out}"
+    );
+
+    // Narrowed, as JSON: the same device.
+    let (code, out, err) = run(
+        &[
+            "scan",
+            "--port",
+            &path,
+            "-b",
+            "19200",
+            "-m",
+            "ascii",
+            "--addresses",
+            "10-20",
+            "--format",
+            "json",
+            "--quiet",
+        ],
+        Duration::from_secs(60),
+    );
+    assert_eq!(code, Some(0), "{out}\n{err}");
+    let v: serde_json::Value = serde_json::from_str(&out).unwrap();
+    let found = v["found"].as_array().unwrap();
+    assert_eq!(found.len(), 1, "{v}");
+    assert_eq!(found[0]["address"], 17);
+    assert_eq!(found[0]["line"]["parity"], "O");
+    assert_eq!(found[0]["line"]["baud"], 19200);
+    assert_eq!(found[0]["identification"], "0E51");
+    // Only 19200 ASCII settings were tried (three parities).
+    assert_eq!(v["settings"].as_array().unwrap().len(), 3);
+}
+
+#[test]
+fn an_empty_line_finds_nothing_with_exit_1() {
+    let dir = tempfile_dir("empty");
+    let (_socat, a, _b) = socat_pair(&dir);
+    let a = a.to_string_lossy().into_owned();
+    let (code, out, err) = run(
+        &[
+            "scan",
+            "--port",
+            &a,
+            "-b",
+            "19200,9600",
+            "-P",
+            "even",
+            "--addresses",
+            "1-20",
+            "--quiet",
+        ],
+        Duration::from_secs(60),
+    );
+    assert_eq!(code, Some(1), "{out}\n{err}");
+    assert!(out.contains("no device found"), "{out}");
+    assert!(out.contains("4 silent"), "{out}");
+
+    // A simulator at the right setting but outside the address range: nothing either.
+    let (_sim, path) = simulator(&["--emulate-line", "-b", "9600", "-P", "even", "-a", "30"]);
+    let (code, out, err) = run(
+        &[
+            "scan",
+            "--port",
+            &path,
+            "-b",
+            "9600",
+            "-P",
+            "even",
+            "-m",
+            "rtu",
+            "--addresses",
+            "1-29",
+            "--format",
+            "json",
+            "--quiet",
+        ],
+        Duration::from_secs(60),
+    );
+    assert_eq!(code, Some(1), "{out}\n{err}");
+    let v: serde_json::Value = serde_json::from_str(&out).unwrap();
+    assert_eq!(v["found"].as_array().unwrap().len(), 0);
+    assert_eq!(v["tries"], 29);
+}
+
+fn tempfile_dir(name: &str) -> std::path::PathBuf {
+    let d = std::env::temp_dir().join(format!("scan-test-{}-{name}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+/// A device on an emulated 19200 8O1 line that talks on its own every 8 ms (a reply
+/// from node 01, as a bus with another master polling carries): at any other setting the
+/// scanner hears garbage. (A device that only answers requests is silent at a wrong
+/// setting, since it cannot read them: garbage needs a talker.)
+#[test]
+fn a_wrong_setting_yields_garbage_and_is_skipped_early() {
+    let device_line = LineSettings::new(19_200, 8, Parity::Odd, 1);
+    let mut device = PtyMaster::open(None)
+        .unwrap()
+        .with_line_emulation(device_line)
+        .unwrap();
+    let path = device.slave_path().to_string_lossy().into_owned();
+    let reply = frame_of_body(Mode::Rtu, &[0x01, 0x03, 0x02, 0x05, 0x10]).unwrap();
+    let stop = Arc::new(AtomicBool::new(false));
+    let s = stop.clone();
+    let r = reply.clone();
+    let talker = std::thread::spawn(move || {
+        let mut buf = [0u8; 256];
+        while !s.load(Ordering::Relaxed) {
+            device.send(&r).unwrap();
+            // Whatever the scanner sends is read (and dropped) meanwhile.
+            let t = Instant::now();
+            while t.elapsed() < Duration::from_millis(8) {
+                device.recv(&mut buf, Duration::from_millis(2)).unwrap();
+            }
+        }
+    });
+    let wrong = Setting {
+        line: LineSettings::new(9600, 8, Parity::Even, 1),
+        mode: Mode::Rtu,
+    };
+    let right = Setting {
+        line: device_line,
+        mode: Mode::Rtu,
+    };
+    let port = SerialTransport::open(&path, wrong.line, LinkKind::Pty).unwrap();
+    let mut link = SerialLink::new(port, &path);
+    let config = ScanConfig {
+        settings: vec![wrong, right],
+        addresses: (1..=10).collect(),
+        first: vec![1],
+        response: Duration::from_millis(10),
+        reply_window: None,
+    };
+    let report = scan(&mut link, &config, &AtomicBool::new(false), &mut |_| {}).unwrap();
+    stop.store(true, Ordering::Relaxed);
+    talker.join().unwrap();
+
+    // The wrong setting was dropped after its first try, on garbage.
+    let w = &report.settings[0];
+    assert_eq!(w.tries, 1, "{:?}", report.settings);
+    match &w.verdict {
+        Verdict::Garbage { address, bytes } => {
+            assert_eq!(*address, 1);
+            assert!(!bytes.is_empty());
+            assert_ne!(bytes[..], reply[..]);
+        }
+        v => panic!("9600 8E1 should be garbage, is {v:?}"),
+    }
+    // The right one answered, and the range was swept there.
+    assert_eq!(report.settings[1].verdict, Verdict::Answered);
+    assert_eq!(report.settings[1].tries, 10);
+    assert_eq!(report.found.len(), 1);
+    assert_eq!(report.found[0].setting, right);
+    assert_eq!(report.found[0].answer, Answer::Value(0x0510));
+    assert_eq!(report.tries, 11);
+}
+
+#[test]
+fn rts_needs_a_port_with_an_rts_line() {
+    let (_sim, path) = simulator(&[]);
+    // A pseudo-terminal has no modem lines: --rts is refused with the reason, exit 2.
+    let (code, out, err) = run(
+        &[
+            "check",
+            "--model",
+            "f510",
+            "--port",
+            &path,
+            "--rts",
+            "--rts-delay",
+            "200",
+            "--quiet",
+            "--only",
+            "identification",
+        ],
+        Duration::from_secs(30),
+    );
+    assert_eq!(code, Some(2), "{out}\n{err}");
+    assert!(err.contains("RTS"), "{err}");
+    let (code, _, err) = run(
+        &[
+            "scan", "--port", &path, "-b", "9600", "-P", "even", "-m", "rtu", "--rts", "--quiet",
+        ],
+        Duration::from_secs(30),
+    );
+    assert_eq!(code, Some(2), "{err}");
+    assert!(err.contains("no RTS line"), "{err}");
+    // --rts without a serial port is an argument error.
+    let (code, _, err) = run(
+        &["check", "--sim", "f510", "--rts", "--quiet"],
+        Duration::from_secs(30),
+    );
+    assert_eq!(code, Some(2), "{err}");
+    assert!(
+        err.contains("--rts drives the RTS line of a serial port"),
+        "{err}"
+    );
+}
+
+/// mbpoll at the simulator's setting reads it; at another baud rate it gets nothing,
+/// as from a real drive.
+#[test]
+fn mbpoll_against_the_emulated_line() {
+    let have = Command::new("mbpoll")
+        .arg("-h")
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .status()
+        .is_ok();
+    if !tool_or_skip(have, "mbpoll is not installed") {
+        return;
+    }
+    let (_sim, path) = simulator(&[
+        "--model",
+        "l510",
+        "--emulate-line",
+        "-b",
+        "19200",
+        "-P",
+        "odd",
+        "-a",
+        "17",
+    ]);
+    let mbpoll = |baud: &str| {
+        Command::new("mbpoll")
+            .args([
+                "-m", "rtu", "-a", "17", "-b", baud, "-P", "odd", "-t", "4:hex", "-r", "9520",
+                "-c", "1", "-1", "-o", "0.5", &path,
+            ])
+            .output()
+            .unwrap()
+    };
+    // 252FH is register 9519 counted from 0; mbpoll counts from 1 (-r 9520).
+    let o = mbpoll("19200");
+    let out = String::from_utf8_lossy(&o.stdout);
+    assert!(
+        o.status.success(),
+        "{out}{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    assert!(out.contains("[9520]: \t0x0110"), "{out}");
+    let o = mbpoll("9600");
+    let text = format!(
+        "{}{}",
+        String::from_utf8_lossy(&o.stdout),
+        String::from_utf8_lossy(&o.stderr)
+    );
+    assert!(!o.status.success(), "{text}");
+    assert!(!text.contains("0x0110"), "{text}");
+}
