@@ -212,6 +212,21 @@ fn decode_hex_fast(frame: &[u8], scratch: &mut Scratch) -> Option<(usize, u8)> {
         return None;
     }
     let hex = &frame[1..len - 2];
+    #[cfg(target_arch = "x86_64")]
+    {
+        super::hex_sse2::decode(hex, &frame[1..], scratch)
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        decode_hex_swar(hex, scratch)
+    }
+}
+
+/// [`decode_hex_fast`]'s hex step without SSE2: eight characters at a time in a 64-bit
+/// word. Used on targets other than x86-64, and tested against the SSE2 path there.
+#[cfg_attr(target_arch = "x86_64", allow(dead_code))]
+#[inline(always)]
+fn decode_hex_swar(hex: &[u8], scratch: &mut Scratch) -> Option<(usize, u8)> {
     let word_at = |at: usize| -> Option<u64> {
         let c: &[u8; 8] = hex.get(at..at + 8)?.try_into().ok()?;
         Some(u64::from_le_bytes(*c))
@@ -366,6 +381,84 @@ mod tests {
 
     /// F510 manual 1.0.3, 03H, ASCII command message: ':' 01 03 0123 0001 LRC CR LF.
     const F510_READ_ASCII: &[u8] = b":010301230001D7\r\n";
+
+    /// The hex step of the fast decode, byte by byte: the bytes and their sum, or None.
+    fn hex_slow(hex: &[u8]) -> Option<(Vec<u8>, u8)> {
+        let bytes: Option<Vec<u8>> = hex
+            .chunks_exact(2)
+            .map(|p| Some(decode_nibble(p[0])? << 4 | decode_nibble(p[1])?))
+            .collect();
+        let bytes = bytes?;
+        let sum = bytes.iter().fold(0u8, |a, &b| a.wrapping_add(b));
+        Some((bytes, sum))
+    }
+
+    /// Every even length 2..=64 and 510, every position given every kind of character
+    /// (each byte value at the first, last and one middle position; a spread of values
+    /// everywhere): the vector path (x86-64), the SWAR path and the byte-by-byte decode
+    /// agree on the bytes, the sum and the rejection.
+    #[test]
+    fn hex_paths_agree() {
+        let mut rng = 0x2545_F491_4F6C_DD1Du64;
+        let mut next = || {
+            rng ^= rng << 13;
+            rng ^= rng >> 7;
+            rng ^= rng << 17;
+            rng
+        };
+        const HEX: &[u8] = b"0123456789ABCDEFabcdef";
+        let mut lens: Vec<usize> = (2..=64).step_by(2).collect();
+        lens.push(510);
+        let mut checked = 0;
+        for &n in &lens {
+            for trial in 0..40 {
+                let mut hex: Vec<u8> = (0..n)
+                    .map(|_| HEX[(next() % HEX.len() as u64) as usize])
+                    .collect();
+                let spots = [0, n / 2, n - 1, (next() % n as u64) as usize];
+                let values: Vec<u8> = if trial < 4 {
+                    (0..=255).collect()
+                } else {
+                    vec![(next() & 0xFF) as u8]
+                };
+                for v in values {
+                    let at = spots[trial % 4];
+                    let keep = hex[at];
+                    if trial > 0 {
+                        hex[at] = v;
+                    }
+                    let want = hex_slow(&hex);
+                    let mut frame = vec![b':'];
+                    frame.extend_from_slice(&hex);
+                    frame.extend_from_slice(b"\r\n");
+                    let mut s1 = [0u8; MAX_RTU_FRAME];
+                    let swar =
+                        decode_hex_swar(&hex, &mut s1).map(|(k, sum)| (s1[..k].to_vec(), sum));
+                    assert_eq!(swar, want, "swar, hex {:?}", String::from_utf8_lossy(&hex));
+                    #[cfg(target_arch = "x86_64")]
+                    {
+                        let mut s2 = [0u8; MAX_RTU_FRAME];
+                        let sse = crate::codec::hex_sse2::decode(&hex, &frame[1..], &mut s2)
+                            .map(|(k, sum)| (s2[..k].to_vec(), sum));
+                        assert_eq!(sse, want, "sse2, hex {:?}", String::from_utf8_lossy(&hex));
+                        // Also from a frame cut right after the hex (the padded copy).
+                        let mut s3 = [0u8; MAX_RTU_FRAME];
+                        let cut = crate::codec::hex_sse2::decode(&hex, &hex, &mut s3)
+                            .map(|(k, sum)| (s3[..k].to_vec(), sum));
+                        assert_eq!(
+                            cut,
+                            want,
+                            "sse2 cut, hex {:?}",
+                            String::from_utf8_lossy(&hex)
+                        );
+                    }
+                    checked += 1;
+                    hex[at] = keep;
+                }
+            }
+        }
+        assert!(checked > 30_000, "{checked}");
+    }
 
     #[test]
     fn deconstruct() {

@@ -13,6 +13,8 @@ pub mod crc_clmul;
 pub mod deframe;
 pub mod error;
 pub mod hex;
+#[cfg(target_arch = "x86_64")]
+mod hex_sse2;
 pub mod lrc;
 pub mod pdu;
 pub mod rtu;
