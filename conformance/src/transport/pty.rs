@@ -15,7 +15,7 @@ use nix::errno::Errno;
 use nix::poll::{poll, PollFd, PollFlags, PollTimeout};
 use nix::sys::termios::{cfmakeraw, tcgetattr, tcsetattr, SetArg};
 
-use super::{sleep_until, LinkKind, Transport, TransportError};
+use super::{sleep_until, LineTags, LinkKind, Transport, TransportError};
 use crate::codec::timing::LineSettings;
 
 /// The master side of a pseudo-terminal pair.
@@ -26,6 +26,7 @@ pub struct PtyMaster {
     slave_path: PathBuf,
     pace: Option<LineSettings>,
     late: PacingClock,
+    tags: LineTags,
 }
 
 /// How late a paced sender's writes came against their schedule, at most, in
@@ -56,12 +57,19 @@ impl PtyMaster {
             slave_path,
             pace,
             late: PacingClock::default(),
+            tags: LineTags::default(),
         })
     }
 
     /// How late this end's paced writes came, at most (shared; see [`PacingClock`]).
     pub fn pacing_clock(&self) -> PacingClock {
         self.late.clone()
+    }
+
+    /// The queue in which a sender on the slave side says what silences it put before
+    /// its characters (see [`LineTags`]); read by this end's receiver when paced.
+    pub fn line_tags(&self) -> LineTags {
+        self.tags.clone()
     }
 
     /// The path another program opens as its serial port.
@@ -162,5 +170,9 @@ impl Transport for PtyMaster {
 
     fn line_timing(&self) -> Option<LineSettings> {
         self.pace
+    }
+
+    fn line_tags(&self) -> Option<LineTags> {
+        self.pace.map(|_| self.tags.clone())
     }
 }
