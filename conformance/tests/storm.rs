@@ -33,8 +33,19 @@ fn frames() -> String {
 fn storm(dir: &std::path::Path, quirks: &[&str]) -> (Option<i32>, Value) {
     let n = frames();
     let mut args = vec![
-        "--sim", "f510", "--mode", "rtu", "-b", "19200", "--storm", "--storm-frames", &n,
-        "--storm-idle", "20", "--seed", "1",
+        "--sim",
+        "f510",
+        "--mode",
+        "rtu",
+        "-b",
+        "19200",
+        "--storm",
+        "--storm-frames",
+        &n,
+        "--storm-idle",
+        "20",
+        "--seed",
+        "1",
     ];
     for q in quirks {
         args.extend(["--quirk", q]);
@@ -65,7 +76,12 @@ fn the_clean_simulator_weathers_the_storm() {
     assert_eq!(s["wrong"], 0, "{s:#}");
     assert_eq!(s["line_timing"], true);
     let sent = &s["sent"];
-    for kind in ["own-request", "other-request", "other-reply", "broadcast-read"] {
+    for kind in [
+        "own-request",
+        "other-request",
+        "other-reply",
+        "broadcast-read",
+    ] {
         assert!(sent[kind].as_u64().unwrap() > 0, "no {kind}: {sent}");
     }
     // With --writes preserving, nothing for other nodes is written.
@@ -73,7 +89,12 @@ fn the_clean_simulator_weathers_the_storm() {
     assert_eq!(s["own_requests"], sent["own-request"]);
     assert_eq!(s["load"]["count"], s["own_requests"]);
     assert_eq!(s["idle"]["count"], 20);
-    let total: u64 = sent.as_object().unwrap().values().map(|x| x.as_u64().unwrap()).sum();
+    let total: u64 = sent
+        .as_object()
+        .unwrap()
+        .values()
+        .map(|x| x.as_u64().unwrap())
+        .sum();
     assert_eq!(total.to_string(), frames());
     // Whether a reply was late is the host's timing as much as the simulator's (timing
     // assertions do not belong in tests): only that the verdict follows the counts.
@@ -95,7 +116,9 @@ fn a_request_lost_after_other_traffic_fails_the_storm() {
     assert_eq!(testcase(&v, "fuzz.rtu.storm")["status"], "deviation");
     let problems = s["problems"].as_array().unwrap();
     assert!(
-        problems.iter().any(|p| p.as_str().unwrap().starts_with("lost: ")),
+        problems
+            .iter()
+            .any(|p| p.as_str().unwrap().starts_with("lost: ")),
         "{problems:#?}"
     );
     // On the idle line the quirk never trips: the reference is clean.
@@ -111,15 +134,18 @@ fn answers_to_other_nodes_fail_the_storm() {
     assert_eq!(code, Some(1));
     let problems = s["problems"].as_array().unwrap();
     assert!(
-        problems
-            .iter()
-            .any(|p| p.as_str().unwrap().contains("answers none of its own requests")),
+        problems.iter().any(|p| p
+            .as_str()
+            .unwrap()
+            .contains("answers none of its own requests")),
         "{problems:#?}"
     );
 }
 
 fn timing_run(dir: &std::path::Path, quirks: &[&str], cases: &str) -> (Option<i32>, Value) {
-    let mut args = vec!["--sim", "f510", "--mode", "rtu", "-b", "19200", "--cases", cases, "--seed", "1"];
+    let mut args = vec![
+        "--sim", "f510", "--mode", "rtu", "-b", "19200", "--cases", cases, "--seed", "1",
+    ];
     for q in quirks {
         args.extend(["--quirk", q]);
     }
@@ -153,7 +179,10 @@ fn a_frame_with_a_gap_over_t15_taken_whole_is_found_and_minimized() {
     let frame: Vec<u8> = conformance::codec::hex::parse_hex(min[0].as_str().unwrap()).unwrap();
     assert_eq!((frame.len(), frame[1]), (8, 0x03), "{g:#}");
     let replay = g["replay"].as_str().unwrap();
-    assert!(replay.contains("--split ") && replay.contains("--gap "), "{replay}");
+    assert!(
+        replay.contains("--split ") && replay.contains("--gap "),
+        "{replay}"
+    );
     // Only the gap inside a frame shows the bug: no other signature.
     assert!(
         f.iter().all(|x| x["field_class"] == "timing.gap-in-frame"),
@@ -161,7 +190,10 @@ fn a_frame_with_a_gap_over_t15_taken_whole_is_found_and_minimized() {
     );
     // The replay command reproduces it (exit 1: the device answered).
     let words: Vec<&str> = replay.split_whitespace().skip(1).collect();
-    let out = std::process::Command::new(bin()).args(&words).output().unwrap();
+    let out = std::process::Command::new(bin())
+        .args(&words)
+        .output()
+        .unwrap();
     let text = String::from_utf8_lossy(&out.stdout);
     assert_eq!(out.status.code(), Some(1), "{text}");
     assert!(text.contains("timing.gap-in-frame"), "{text}");
@@ -183,7 +215,10 @@ fn the_clean_simulator_passes_the_timing_classes() {
         "timing.split-over-t35",
         "timing.no-t35",
     ] {
-        assert!(t["sent"][class].as_u64().unwrap_or(0) > 0, "no {class}: {t}");
+        assert!(
+            t["sent"][class].as_u64().unwrap_or(0) > 0,
+            "no {class}: {t}"
+        );
     }
 }
 
@@ -193,7 +228,17 @@ fn timing_damage_is_not_sent_without_line_timing() {
     let (code, v) = report_of(
         "fuzz",
         &dir,
-        &["--sim", "f510", "--mode", "rtu", "--no-pace", "--cases", "100", "--quirk", "ignore-t15"],
+        &[
+            "--sim",
+            "f510",
+            "--mode",
+            "rtu",
+            "--no-pace",
+            "--cases",
+            "100",
+            "--quirk",
+            "ignore-t15",
+        ],
         Duration::from_secs(300),
     );
     assert_eq!(code, Some(0));
@@ -211,23 +256,57 @@ fn send_splits_a_frame_with_the_silence_asked_for() {
     let run = |gap: &str| {
         let out = std::process::Command::new(bin())
             .args([
-                "send", "--sim", "f510", "--mode", "rtu", "-b", "19200", "--split", "3", "--gap",
-                gap, "010325200001", "8ECC",
+                "send",
+                "--sim",
+                "f510",
+                "--mode",
+                "rtu",
+                "-b",
+                "19200",
+                "--split",
+                "3",
+                "--gap",
+                gap,
+                "010325200001",
+                "8ECC",
             ])
             .output()
             .unwrap();
-        (out.status.code(), String::from_utf8_lossy(&out.stdout).into_owned())
+        (
+            out.status.code(),
+            String::from_utf8_lossy(&out.stdout).into_owned(),
+        )
     };
     let (code, text) = run("300us");
     assert_eq!(code, Some(0), "{text}");
-    assert!(text.contains("timing.split-under-t15") && text.contains("received 01 03 02"), "{text}");
+    assert!(
+        text.contains("timing.split-under-t15")
+            && text.contains("device: node 01 03 read response"),
+        "{text}"
+    );
     // Between t1.5 and t3.5: discarded, silence as predicted.
     let (code, text) = run("1250us");
     assert_eq!(code, Some(0), "{text}");
-    assert!(text.contains("timing.gap-in-frame") && text.contains("no reply"), "{text}");
+    assert!(
+        text.contains("timing.gap-in-frame") && text.contains("no reply"),
+        "{text}"
+    );
     // Without line timing: refused, exit 2.
     let out = std::process::Command::new(bin())
-        .args(["send", "--sim", "f510", "--mode", "rtu", "--no-pace", "--split", "3", "--gap", "1ms", "010325200001", "8ECC"])
+        .args([
+            "send",
+            "--sim",
+            "f510",
+            "--mode",
+            "rtu",
+            "--no-pace",
+            "--split",
+            "3",
+            "--gap",
+            "1ms",
+            "010325200001",
+            "8ECC",
+        ])
         .output()
         .unwrap();
     assert_eq!(out.status.code(), Some(2));

@@ -109,7 +109,15 @@ pub fn run(args: SendArgs) -> anyhow::Result<ExitCode> {
     let mut master =
         Master::new(transport, mode, config.options.timing).with_echo(args.target.echo);
     if let Some(gap) = args.gap {
-        return send_split(&mut out, &mut master, &model, &config, &frames, &args.split, gap.into());
+        return send_split(
+            &mut out,
+            &mut master,
+            &model,
+            &config,
+            &frames,
+            &args.split,
+            gap.into(),
+        );
     }
     let sends: Vec<Vec<u8>> = if args.burst {
         vec![frames.concat()]
@@ -206,7 +214,10 @@ fn send_split(
     let mode = master.mode();
     let whole = frames.concat();
     if let Some(c) = cuts.iter().find(|&&c| c == 0 || c >= whole.len()) {
-        bail!("--split {c}: a cut must fall inside the {} bytes sent", whole.len());
+        bail!(
+            "--split {c}: a cut must fall inside the {} bytes sent",
+            whole.len()
+        );
     }
     let gap_us = u64::try_from(gap.as_micros()).unwrap_or(u64::MAX);
     let t = Timed {
@@ -245,17 +256,27 @@ fn send_split(
         cuts.len() + 1,
         shown.join(", "),
         if master.broken_requests() > 0 {
-            format!(" ({} send(s) repeated: the host moved a silence or stalled)", master.broken_requests())
+            format!(
+                " ({} send(s) repeated: the host moved a silence or stalled)",
+                master.broken_requests()
+            )
         } else {
             String::new()
         }
     )?;
     for c in &ex.chunks {
-        writeln!(out, "  +{:.3} ms received {}", c.at.as_secs_f64() * 1e3, Hex(&c.bytes))?;
+        writeln!(
+            out,
+            "  +{:.3} ms received {}",
+            c.at.as_secs_f64() * 1e3,
+            Hex(&c.bytes)
+        )?;
     }
     let answer = match &ex.reply {
         Some(r) => describe_reply(mode, r),
-        None if ex.after_echo().is_empty() => format!("no reply within {} ms", ex.listened.as_millis()),
+        None if ex.after_echo().is_empty() => {
+            format!("no reply within {} ms", ex.listened.as_millis())
+        }
         None => explain_invalid(mode, ex.after_echo()),
     };
     writeln!(out, "device: {answer}")?;

@@ -568,7 +568,9 @@ pub fn replay_line(prefix: &str, mode: Mode, f: &FuzzFinding) -> String {
         return format!(
             "{prefix} --mode {mode} {} {}",
             t.send_options(),
-            crate::codec::hex::Hex(&t.bytes()).to_string().replace(' ', "")
+            crate::codec::hex::Hex(&t.bytes())
+                .to_string()
+                .replace(' ', "")
         );
     }
     format!(

@@ -425,11 +425,7 @@ impl Storm<'_> {
     fn unexpected(&mut self, mode: Mode, f: &[u8]) {
         self.out.unexpected += 1;
         self.chars += f.len() as u64;
-        let recent: Vec<String> = self
-            .recent
-            .iter()
-            .map(|r| compare::show(mode, r))
-            .collect();
+        let recent: Vec<String> = self.recent.iter().map(|r| compare::show(mode, r)).collect();
         self.out.problem(format!(
             "the device sent {} = {}, which answers none of its own requests (the frames before it: {})",
             compare::show(mode, f),
@@ -532,9 +528,7 @@ fn compare_function(mode: Mode, frame: &[u8]) -> u8 {
 fn own_reads(ctx: &Ctx<'_>) -> Vec<Vec<u8>> {
     let model = ctx.model;
     let mut regs: Vec<u16> = Vec::new();
-    if let Some(r) =
-        crate::runner::liveness::liveness_register(model, ctx.opts.address, ctx.mode)
-    {
+    if let Some(r) = crate::runner::liveness::liveness_register(model, ctx.opts.address, ctx.mode) {
         regs.push(r);
     }
     let readable: Vec<(u16, Access)> = model
@@ -567,7 +561,11 @@ fn own_reads(ctx: &Ctx<'_>) -> Vec<Vec<u8>> {
         test_code: 0,
         data: &[0x12, 0x34],
     });
-    if model.judge(ctx.opts.address, ctx.mode, &lb).expect.replies() {
+    if model
+        .judge(ctx.opts.address, ctx.mode, &lb)
+        .expect
+        .replies()
+    {
         out.push(lb);
     }
     out
@@ -703,19 +701,25 @@ fn storm(
             journal.extend(regs);
             own_frames.push(w.clone());
         }
-        let b = ctx.frame_to(0, Pdu::WriteSingle {
-            register: r,
-            value: v,
-        });
+        let b = ctx.frame_to(
+            0,
+            Pdu::WriteSingle {
+                register: r,
+                value: v,
+            },
+        );
         if cfg.writes == Writes::Any {
             if let Ok(regs) = vet(&b, &known) {
                 journal.extend(regs);
                 broadcast_writes.push(b);
             }
-            let o = ctx.frame_to(other, Pdu::WriteSingle {
-                register: r,
-                value: rng.word(),
-            });
+            let o = ctx.frame_to(
+                other,
+                Pdu::WriteSingle {
+                    register: r,
+                    value: rng.word(),
+                },
+            );
             if vet(&o, &known).is_ok() {
                 other_writes.push(o);
             }
@@ -732,7 +736,10 @@ fn storm(
     for r in journal {
         // `remember` reads through the master: the line is quiet here.
         if let Err(e) = ctx.remember(r)? {
-            storm.out.not_sent.push(format!("{r:04X}H could not be journalled: {e}"));
+            storm
+                .out
+                .not_sent
+                .push(format!("{r:04X}H could not be journalled: {e}"));
         }
     }
     storm.quiet = Instant::now();
@@ -770,7 +777,13 @@ fn storm(
             Slot::OtherRequest => ctx.frame_to(other, Pdu::ReadRequest { start: reg, count }),
             Slot::OtherWrite => pick(&mut rng, &other_writes),
             Slot::OtherReply => other_reply(mode, other, count, &mut rng),
-            Slot::BroadcastRead => ctx.frame_to(0, Pdu::ReadRequest { start: reg, count: 1 }),
+            Slot::BroadcastRead => ctx.frame_to(
+                0,
+                Pdu::ReadRequest {
+                    start: reg,
+                    count: 1,
+                },
+            ),
             Slot::BroadcastWrite => pick(&mut rng, &broadcast_writes),
         };
         if frame.is_empty() {
@@ -857,7 +870,8 @@ fn storm(
     }
     storm.drain_unexpected(mode);
     if let Some(l) = line {
-        let on_line = Duration::from_micros(l.char_time_us()) * u32::try_from(storm.chars).unwrap_or(u32::MAX);
+        let on_line = Duration::from_micros(l.char_time_us())
+            * u32::try_from(storm.chars).unwrap_or(u32::MAX);
         storm.out.busy = Some(on_line.as_secs_f64() / storm.out.elapsed.as_secs_f64().max(1e-9));
     }
     Ok(())
@@ -874,7 +888,9 @@ fn learn(mode: Mode, request: &[u8], reply: &[u8], known: &mut BTreeMap<u16, u16
     }
     let start = u16::from_be_bytes([q[2], q[3]]);
     for (i, w) in r.get(3..).unwrap_or_default().chunks_exact(2).enumerate() {
-        let Some(reg) = start.checked_add(i as u16) else { break };
+        let Some(reg) = start.checked_add(i as u16) else {
+            break;
+        };
         known.insert(reg, u16::from_be_bytes([w[0], w[1]]));
     }
 }

@@ -223,11 +223,13 @@ pub fn predict_for(
         facts: vec![fact],
         detail,
     };
-    let t15_fact = || Fact {
+    let t15_fact = || {
+        Fact {
         basis: Basis::Documented,
         source: Some("Modbus over Serial Line V1.02, 2.5.1.1: \"if a silent interval of more than 1.5 character times occurs between two characters, the message frame is declared incomplete and should be discarded by the receiver\"".into()),
         rule: None,
         why: None,
+    }
     };
     match t.damage {
         Damage::SplitUnderT15 => model.judge(address, mode, &whole),
@@ -397,12 +399,7 @@ pub fn minimize(
     let mut best = t.clone();
     let mut reproduced = false;
     let probe = crate::runner::liveness::liveness_register(ctx.model, ctx.opts.address, ctx.mode)
-        .map(|r| {
-            ctx.frame(crate::codec::pdu::Pdu::ReadRequest {
-                start: r,
-                count: 1,
-            })
-        });
+        .map(|r| ctx.frame(crate::codec::pdu::Pdu::ReadRequest { start: r, count: 1 }));
     let mut candidates = Vec::new();
     if let Some(p) = probe {
         let base = match t.damage {
@@ -512,10 +509,16 @@ mod tests {
         let mut s = Sweep::default();
         let f = vec![1u8, 3, 0x25, 0x20, 0, 1, 0x8E, 0xCC];
         let cuts: Vec<usize> = (0..8)
-            .map(|_| s.make(&line, Damage::GapInFrame, f.clone(), Vec::new(), false).unwrap().cuts[0])
+            .map(|_| {
+                s.make(&line, Damage::GapInFrame, f.clone(), Vec::new(), false)
+                    .unwrap()
+                    .cuts[0]
+            })
             .collect();
         assert_eq!(cuts, vec![1, 2, 3, 4, 5, 6, 7, 1]);
-        let t = s.make(&line, Damage::NoT35, f.clone(), f.clone(), true).unwrap();
+        let t = s
+            .make(&line, Damage::NoT35, f.clone(), f.clone(), true)
+            .unwrap();
         assert_eq!((t.cuts[0], t.gap_us, t.bytes().len()), (8, 0, 16));
     }
 }

@@ -502,9 +502,7 @@ impl<T: Transport + ?Sized> Master<T> {
         }
         pieces.push(&request[from..]);
         let sent = self.transport.send_pieces(&pieces, split.gap)?;
-        split.drifted = sent
-            .iter()
-            .any(|g| g.abs_diff(split.gap) > split.tolerance);
+        split.drifted = sent.iter().any(|g| g.abs_diff(split.gap) > split.tolerance);
         split.sent = sent;
         Ok(())
     }

@@ -424,7 +424,9 @@ impl Drive {
         // Both frames are handled the same time after their ends: the gap between them
         // is the time between, less this frame's own time on the line.
         let on_line = self.char_time * u32::try_from(frame.len()).unwrap_or(u32::MAX);
-        let gap = now.saturating_duration_since(previous).saturating_sub(on_line);
+        let gap = now
+            .saturating_duration_since(previous)
+            .saturating_sub(on_line);
         let window = self.t3_5 + self.line_char_time * u32::try_from(n).unwrap_or(u32::MAX);
         (gap < window).then(|| {
             format!(

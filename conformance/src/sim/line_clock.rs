@@ -152,7 +152,10 @@ mod tests {
         // character: the frame ends only after the slack too.
         let slack = u64::try_from(TOLD_SLACK.as_micros()).unwrap();
         assert_eq!(c.idle(t0 + Duration::from_micros(18_500)) - b, 0);
-        assert_eq!(c.idle(t0 + Duration::from_micros(18_500 + slack)) - b, 3_500);
+        assert_eq!(
+            c.idle(t0 + Duration::from_micros(18_500 + slack)) - b,
+            3_500
+        );
     }
 
     #[test]

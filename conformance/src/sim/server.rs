@@ -16,8 +16,8 @@
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
-use super::drive::{Drive, SendKind};
 use super::drive::Quirk;
+use super::drive::{Drive, SendKind};
 use super::line_clock::LineClock;
 use super::log::{Dir, TrafficLog};
 use crate::codec::deframe::{AsciiDeframer, Event, RtuDeframer, RtuFraming};
@@ -86,7 +86,9 @@ pub fn serve<T: Transport + ?Sized>(
     let line = transport.line_timing();
     // A paced pseudo-terminal: arrival times rebuilt at the line's rate.
     let mut clock = match (transport.kind(), line, mode) {
-        (LinkKind::Pty, Some(l), Mode::Rtu) => Some(LineClock::new(l.char_time_us(), Instant::now())),
+        (LinkKind::Pty, Some(l), Mode::Rtu) => {
+            Some(LineClock::new(l.char_time_us(), Instant::now()))
+        }
         _ => None,
     };
     let ignore_t15 = drive.quirks().contains(&Quirk::IgnoreT15);
@@ -186,7 +188,12 @@ pub fn serve<T: Transport + ?Sized>(
                 Owned::Dropped("incomplete", bytes)
                     if ignore_t15 && bytes.len() >= 4 && crate::codec::crc::crc16(&bytes) == 0 =>
                 {
-                    log.record(Dir::In, "incomplete", &bytes, "quirk ignore-t15: taken whole despite a silence over t1.5 inside it")?;
+                    log.record(
+                        Dir::In,
+                        "incomplete",
+                        &bytes,
+                        "quirk ignore-t15: taken whole despite a silence over t1.5 inside it",
+                    )?;
                     Owned::Frame(bytes)
                 }
                 e => e,
