@@ -20,7 +20,9 @@
 //! can tell from a silence. Where the sender is this suite's paced transport it tells the
 //! silence it put before every character ([`crate::transport::LineTags`]), and those are
 //! used instead; a frame then ends at a told silence of t3.5, or after t3.5 +
-//! [`TOLD_SLACK`] of quiet. Other senders (mbpoll, pymodbus on `simulate --pty --pace`)
+//! [`TOLD_SLACK`] of quiet with no told character still in the kernel (its silence is
+//! queued before it is written, so a queue that is not empty means a character in
+//! flight). Other senders (mbpoll, pymodbus on `simulate --pty --pace`)
 //! get the estimate.
 
 use std::time::{Duration, Instant};

@@ -142,7 +142,16 @@ pub fn serve<T: Transport + ?Sized>(
                             d.push_at(at, std::slice::from_ref(b), |e| events.push(own(e)));
                         }
                     } else {
-                        d.idle(c.idle(now), |e| events.push(own(e)));
+                        // A told silence queued for a character not read yet: the
+                        // sender wrote it and the kernel is still delivering it, so the
+                        // frame is not over, however quiet the line looks from here.
+                        let in_flight = tags
+                            .as_ref()
+                            .and_then(|t| t.lock().ok().map(|q| !q.is_empty()))
+                            .unwrap_or(false);
+                        if !in_flight {
+                            d.idle(c.idle(now), |e| events.push(own(e)));
+                        }
                     }
                 }
             }
