@@ -90,11 +90,8 @@ fn the_clean_simulator_weathers_the_storm() {
     assert_eq!(s["load"]["count"], s["own_requests"]);
     // The idle reference: 20 requests; one not answered in time there is counted in
     // idle_problems (seen once under a load of 7, not explained yet: see the report).
-    assert_eq!(
-        s["idle"]["count"].as_u64().unwrap() + s["idle_problems"].as_u64().unwrap() >= 20,
-        true,
-        "{s:#}"
-    );
+    let idle = s["idle"]["count"].as_u64().unwrap() + s["idle_problems"].as_u64().unwrap();
+    assert!(idle >= 20, "{s:#}");
     let total: u64 = sent
         .as_object()
         .unwrap()
@@ -127,14 +124,6 @@ fn a_request_lost_after_other_traffic_fails_the_storm() {
             .any(|p| p.as_str().unwrap().starts_with("lost: ")),
         "{problems:#?}"
     );
-    // The losses are the storm's: on the idle line the quirk never trips.
-    let lost_idle = s["problems"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .filter(|p| p.as_str().unwrap().starts_with("lost: "))
-        .count() as u64;
-    assert!(lost_idle <= s["lost"].as_u64().unwrap());
 }
 
 #[test]
