@@ -127,6 +127,7 @@ fn start_sim(
     let mut master = PtyMaster::open(pace.then_some(config.line))?;
     let path = master.slave_path().to_string_lossy().into_owned();
     let clock = master.pacing_clock();
+    let tags = master.line_tags();
     let delay = delay.unwrap_or_else(|| config.model.response_delay(&config.line));
     let mut drive = Drive::new(config.model.clone(), config.options.address, delay)
         .with_quirks(quirks)
@@ -152,7 +153,10 @@ fn start_sim(
     });
     let mut client = SerialTransport::open(&path, config.line, LinkKind::Pty)?;
     if pace {
-        client = client.paced_peer().with_peer_clock(clock);
+        client = client
+            .paced_peer()
+            .with_peer_clock(clock)
+            .with_line_tags(tags);
     }
     Ok((
         SimThread {
@@ -298,6 +302,9 @@ pub fn fuzz(
         report
             .results
             .push(crate::fuzz::report::campaign_result(&outcome));
+        if let Some(storm) = &outcome.storm {
+            report.results.push(crate::fuzz::storm::result(mode, storm));
+        }
         for f in &outcome.findings {
             report.results.push(crate::fuzz::report::finding_result(f));
         }

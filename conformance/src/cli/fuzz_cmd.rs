@@ -24,6 +24,8 @@ Examples:
   conformance fuzz --sim f510 --quirk hang-on-byte-count --cases 500 --mode rtu
   conformance fuzz --model f510 --port /dev/ttyUSB0 -b 9600 -P even -a 1 --duration 10m
   conformance fuzz --model l510 --tcp 10.0.0.7:4001 --writes none --format json -o fuzz.json
+  conformance fuzz --sim f510 --storm --mode rtu -b 19200       the storm test
+  conformance fuzz --sim f510 --quirk ignore-t15 --mode rtu     timing damage (paced links)
 
 Every case is judged by the model: a reply other than the predicted one, a reply where
 silence is predicted, silence where a reply is predicted (the device answering the
@@ -33,6 +35,24 @@ with --recover-wait and the time it took to come back is reported) are findings.
 replayed smaller until it is the shortest frame or sequence that still reproduces it,
 grouped by signature (mode.kind.function.field-class) with a count, and printed with the
 `conformance send` command that replays it.
+
+Timing damage (RTU on a line with timing: a real port, or the simulator's paced
+pseudo-terminal; not on --no-pace or TCP, and the report says why): a silence between
+t1.5 and t3.5 inside a frame (must be discarded), a frame split at every position with a
+silence under t1.5 (answered) or over t3.5 (two fragments: silence), and two frames
+without t3.5 between them (one frame with a wrong CRC by the standard: silence; a device
+that answers the first is an observation). Classes timing.gap-in-frame,
+timing.split-under-t15, timing.split-over-t35, timing.no-t35.
+
+Storm test (--storm, instead of the cases): the device's own requests at line rate (t3.5
+between frames, no more) interleaved with reads for another node (--other-address), that
+node's replies, and broadcast reads (which must get no answer); with --writes any also
+writes to the other node and broadcast writes (every drive on the bus executes them: the
+value written is the one this device returned, journalled and restored for this device
+only). Every own request must be answered within the manual's response time (at least
+t3.5, plus one character and 20 ms for the host), none lost, none answered wrongly, and
+nothing else answered. The report gives the response times under load against the idle
+line (min/median/p95/p99/max) and fails the fuzz.<mode>.storm test case otherwise.
 
 Safety on a real drive: --writes preserving (the default) sends a write only to this
 device and only with the value the device just returned for that register; --writes none
@@ -80,6 +100,16 @@ pub struct FuzzArgs {
     /// Write the report here instead of stdout.
     #[arg(short, long, value_name = "FILE")]
     output: Option<PathBuf>,
+    /// Run the storm test instead of the cases: own requests at line rate among other
+    /// nodes' traffic and broadcasts (see below).
+    #[arg(long)]
+    storm: bool,
+    /// Frames in the storm test, per mode.
+    #[arg(long, value_name = "N", default_value_t = 1000, requires = "storm")]
+    storm_frames: u64,
+    /// Own requests sent on the idle line first, the reference response times.
+    #[arg(long, value_name = "N", default_value_t = 50, requires = "storm")]
+    storm_idle: u64,
     /// List every exchange in the text report.
     #[arg(short, long)]
     verbose: bool,
@@ -144,7 +174,17 @@ pub fn run(args: FuzzArgs) -> anyhow::Result<ExitCode> {
         recover_wait: args.recover_wait.into(),
         minimize: !args.no_minimize,
         replay: args.target.replay_prefix("send", &model.id),
+        storm: args.storm.then_some(conformance::fuzz::storm::StormConfig {
+            frames: args.storm_frames,
+            idle: args.storm_idle,
+        }),
     };
+    if args.storm && args.writes == Writes::Any {
+        eprintln!(
+            "WARNING: --storm --writes any sends broadcast writes (node 00H) and writes to node {:02X}: every drive on the bus executes a broadcast write, and only this drive's value is preserved, journalled and restored.",
+            other_address
+        );
+    }
     if !is_sim && (args.writes == Writes::Any || args.safety.allow_motion) {
         eprintln!(
             "WARNING: --writes {}{}: the fuzzer will write values the drive did not hold{} at node {:02X}; every register written is journalled and restored at the end. Starting in 5 s; Ctrl-C to abort.",

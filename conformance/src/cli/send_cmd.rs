@@ -22,10 +22,17 @@ Examples:
   conformance send --sim f510 --mode rtu '01 03 25 20 00 01 8E CC'
   conformance send --model f510 --port /dev/ttyUSB0 -b 9600 -P even --mode ascii ':010325200001B6\\r\\n'
   conformance send --sim f510 --quirk overflow-after=3 --mode rtu --burst F1 F2 F3 F4
+  conformance send --sim f510 --mode rtu --split 3 --gap 2900us 010325200001 8ECC
 
 A frame is hex bytes (RTU, or ASCII characters in hex), or in ASCII mode the text itself
 from ':' with \\r and \\n written as escapes. Frames are sent as given (the checksum is not
-fixed), each after t3.5 of silence; with --burst all in one write, back to back.
+fixed), each after t3.5 of silence; with --burst all in one write, back to back. With
+--split POS[,POS...] --gap TIME the frames go out as one transmission cut after byte POS
+(counted over all the frames) with TIME of silence at each cut: timing damage, on a
+link with line timing only (a real port, or the simulator without --no-pace). The model
+predicts by the silence: under t1.5 one frame; between t1.5 and t3.5 an incomplete frame
+(silence); t3.5 or more, fragments judged one by one; frames cut only where they end, with
+less than t3.5, one frame with a wrong CRC (silence; a decision of the model).
 
 Exit codes: 0 every answer was the model's prediction; 1 an answer differed; 2 the
 frames or the link could not be used.";
@@ -36,8 +43,15 @@ pub struct SendArgs {
     #[command(flatten)]
     target: TargetArgs,
     /// Send all frames in one write, without t3.5 between them.
-    #[arg(long)]
+    #[arg(long, conflicts_with = "split")]
     burst: bool,
+    /// Cut the transmission after these byte positions (counted over all the frames,
+    /// which go out as one transmission), with --gap of silence at each cut.
+    #[arg(long, value_name = "POS,...", value_delimiter = ',', requires = "gap")]
+    split: Vec<usize>,
+    /// The silence at each --split cut (e.g. 2900us, 3ms).
+    #[arg(long, value_name = "TIME", requires = "split")]
+    gap: Option<humantime::Duration>,
     /// The frames.
     #[arg(value_name = "FRAME", required = true)]
     frames: Vec<String>,
@@ -94,6 +108,17 @@ pub fn run(args: SendArgs) -> anyhow::Result<ExitCode> {
     writeln!(out, "link: {}", transport.describe())?;
     let mut master =
         Master::new(transport, mode, config.options.timing).with_echo(args.target.echo);
+    if let Some(gap) = args.gap {
+        return send_split(
+            &mut out,
+            &mut master,
+            &model,
+            &config,
+            &frames,
+            &args.split,
+            gap.into(),
+        );
+    }
     let sends: Vec<Vec<u8>> = if args.burst {
         vec![frames.concat()]
     } else {
@@ -167,4 +192,100 @@ pub fn run(args: SendArgs) -> anyhow::Result<ExitCode> {
         let _ = i;
     }
     Ok(ExitCode::from(if differs { 1 } else { 0 }))
+}
+
+/// `--split --gap`: the frames as one transmission with silences at the cuts.
+fn send_split(
+    out: &mut impl Write,
+    master: &mut Master<dyn conformance::transport::Transport>,
+    model: &conformance::model::DriveModel,
+    config: &SessionConfig,
+    frames: &[Vec<u8>],
+    cuts: &[usize],
+    gap: Duration,
+) -> anyhow::Result<ExitCode> {
+    use conformance::fuzz::timing::{classify, predict_for, Timed};
+    let Some(line) = master.transport().line_timing() else {
+        bail!(
+            "--split needs a link with line timing (a serial port, or the simulator without --no-pace): {} carries no silence the device can measure",
+            master.transport().describe()
+        );
+    };
+    let mode = master.mode();
+    let whole = frames.concat();
+    if let Some(c) = cuts.iter().find(|&&c| c == 0 || c >= whole.len()) {
+        bail!(
+            "--split {c}: a cut must fall inside the {} bytes sent",
+            whole.len()
+        );
+    }
+    let gap_us = u64::try_from(gap.as_micros()).unwrap_or(u64::MAX);
+    let t = Timed {
+        damage: classify(&line, frames, cuts, gap_us),
+        frames: frames.to_vec(),
+        cuts: cuts.to_vec(),
+        gap_us,
+        // The host must keep the silence within a fifth of it (at least 100 us).
+        tolerance_us: (gap_us / 5).max(100),
+    };
+    let j = predict_for(model, config.options.address, mode, &t);
+    writeln!(
+        out,
+        "model: {} cut after {:?} with {} us of silence (t1.5 = {} us, t3.5 = {} us: {}) -> {} ({})",
+        show(mode, &whole),
+        cuts,
+        gap_us,
+        line.t1_5_us(),
+        line.t3_5_us(),
+        t.damage.class(),
+        j.expect.describe(),
+        j.detail
+    )?;
+    let (ex, sent) = master.exchange_split(
+        &whole,
+        cuts,
+        gap,
+        Duration::from_micros(t.tolerance_us),
+        j.expect.replies(),
+    )?;
+    let shown: Vec<String> = sent.iter().map(|g| format!("{}", g.as_micros())).collect();
+    writeln!(
+        out,
+        "sent {} in {} pieces, silences as sent: {} us{}",
+        show(mode, &whole),
+        cuts.len() + 1,
+        shown.join(", "),
+        if master.broken_requests() > 0 {
+            format!(
+                " ({} send(s) repeated: the host moved a silence or stalled)",
+                master.broken_requests()
+            )
+        } else {
+            String::new()
+        }
+    )?;
+    for c in &ex.chunks {
+        writeln!(
+            out,
+            "  +{:.3} ms received {}",
+            c.at.as_secs_f64() * 1e3,
+            Hex(&c.bytes)
+        )?;
+    }
+    let answer = match &ex.reply {
+        Some(r) => describe_reply(mode, r),
+        None if ex.after_echo().is_empty() => {
+            format!("no reply within {} ms", ex.listened.as_millis())
+        }
+        None => explain_invalid(mode, ex.after_echo()),
+    };
+    writeln!(out, "device: {answer}")?;
+    let c = conformance::runner::compare::differences(model, mode, &j, &ex, None);
+    for f in &c.findings {
+        writeln!(out, "differs: {}", f.text)?;
+    }
+    if c.findings.is_empty() {
+        writeln!(out, "as predicted")?;
+    }
+    Ok(ExitCode::from(if c.findings.is_empty() { 0 } else { 1 }))
 }

@@ -21,7 +21,7 @@ use crate::codec::{frame_parts, Mode};
 use crate::model::{Basis, DriveModel, Expectation, Fact, Role};
 use crate::runner::compare::{self, Severity};
 use crate::runner::{Ctx, ExchangeRecord, Options, RunError};
-use crate::transport::{LinkKind, Transport};
+use crate::transport::Transport;
 use crate::vectors::VectorFile;
 
 /// What the device's state is known to be.
@@ -31,6 +31,8 @@ pub struct State {
     pub known: BTreeMap<u16, u16>,
     /// Values the device confirmed writing, for plain parameters: a read must return them.
     pub written: BTreeMap<u16, u16>,
+    /// Timing cases whose difference did not show again on replay (host scheduling).
+    pub timing_unconfirmed: u64,
 }
 
 /// One difference, before grouping.
@@ -122,6 +124,7 @@ pub fn observe(
                 recovery: Some(Some(t0.elapsed())),
             }))
         }
+        Step::Timed(t) => super::timing::observe(ctx, t, state),
         Step::Frame(frame) => {
             let model = ctx.model;
             let mode = ctx.mode;
@@ -259,6 +262,7 @@ fn line_time(ctx: &Ctx<'_>, step: &Step, replied: Option<usize>) -> Duration {
         Step::Burst(fs) => {
             n(fs.iter().map(Vec::len).sum()) + t35 + ctx.silence_window() + probe(ctx)
         }
+        Step::Timed(t) => super::timing::line_time(ctx, t, replied.is_some()),
         Step::Frame(f) => match replied {
             Some(r) => n(f.len() + r) + t35 * 2 + delay,
             None => n(f.len()) + t35 + ctx.silence_window() + probe(ctx),
@@ -300,8 +304,9 @@ pub fn fuzz_mode(
             return out;
         }
     }
-    let timed = ctx.link_kind() == LinkKind::Serial;
-    let mut gen = Generator::new(
+    // A real port, or the simulator's paced pseudo-terminal (which frames RTU by silence).
+    let timed = ctx.line_timing().is_some();
+    let gen = Generator::new(
         model,
         vectors,
         mode,
@@ -311,6 +316,17 @@ pub fn fuzz_mode(
         cfg.seed,
         timed,
     );
+    // Timing damage where the link carries the line's timing (see `timing`).
+    let mut gen = match (super::timing::unavailable(&ctx), ctx.line_timing()) {
+        (None, Some(line)) => gen.with_timing_damage(line),
+        (why, _) => {
+            out.timing.not_sent = why;
+            gen
+        }
+    };
+    if let Some(storm) = &cfg.storm {
+        return super::storm::run(&mut ctx, storm, cfg, out, stop);
+    }
     let mut state = State::default();
     let mut by_signature: BTreeMap<String, usize> = BTreeMap::new();
     let mut bound = Duration::ZERO;
@@ -369,6 +385,9 @@ pub fn fuzz_mode(
             break;
         }
         out.cases += 1;
+        if let Step::Timed(t) = &case.step {
+            *out.timing.sent.entry(t.damage.class()).or_default() += 1;
+        }
         let sent_at = Instant::now();
         let result = match lost {
             Some(w) => Err(RunError::DeviceLost(w)),
@@ -390,6 +409,10 @@ pub fn fuzz_mode(
         let replied = match (&result, &case.step) {
             (Ok(None), Step::Frame(f)) => {
                 let j = model.judge(opts.address, mode, f);
+                j.expect.replies().then(|| predicted_len(mode, &j.expect))
+            }
+            (Ok(None), Step::Timed(t)) => {
+                let j = super::timing::predict(&ctx, t);
                 j.expect.replies().then(|| predicted_len(mode, &j.expect))
             }
             _ => None,
@@ -470,6 +493,8 @@ pub fn fuzz_mode(
     out.elapsed = started.elapsed().saturating_sub(spent_minimizing);
     out.bound = ctx.line_timing().map(|_| bound);
     out.probes = ctx.liveness_probes;
+    out.timing.unconfirmed = state.timing_unconfirmed;
+    out.timing.resent = ctx.broken_requests();
     out.echo = ctx.echoes();
     out.restore = ctx.restore();
     out
@@ -502,6 +527,10 @@ fn finding_of(
         count: 1,
         first_case: case.index,
         burst: matches!(case.step, Step::Burst(_)),
+        timed: match &case.step {
+            Step::Timed(t) => Some(t.clone()),
+            _ => None,
+        },
         frames,
         minimized: Vec::new(),
         reproduced: false,
@@ -534,6 +563,16 @@ pub fn replay_line(prefix: &str, mode: Mode, f: &FuzzFinding) -> String {
             ),
         })
         .collect();
+    if let Some(t) = &f.timed {
+        // Timing damage: the bytes as one transmission, cut where the silences go.
+        return format!(
+            "{prefix} --mode {mode} {} {}",
+            t.send_options(),
+            crate::codec::hex::Hex(&t.bytes())
+                .to_string()
+                .replace(' ', "")
+        );
+    }
     format!(
         "{prefix} --mode {mode}{} {}",
         if f.burst { " --burst" } else { "" },

@@ -33,6 +33,9 @@ pub enum Step {
     /// Frames written back to back in one write, without t3.5 between them (timing
     /// damage); judged by liveness only, as the standard leaves the outcome open.
     Burst(Vec<Vec<u8>>),
+    /// Timing damage: frames sent with exact silences inside them (see
+    /// [`super::timing`]); on links with line timing only.
+    Timed(super::timing::Timed),
 }
 
 impl Step {
@@ -41,6 +44,7 @@ impl Step {
         match self {
             Step::Frame(f) => vec![f.as_slice()],
             Step::Burst(fs) => fs.iter().map(Vec::as_slice).collect(),
+            Step::Timed(t) => t.frames.iter().map(Vec::as_slice).collect(),
         }
     }
 }
@@ -71,7 +75,12 @@ pub struct Generator<'a> {
     /// Whether the link frames RTU by silence; without it, an RTU case is sent only if
     /// its whole burst is one frame by its checksum (see [`needs_line_timing`]).
     timed: bool,
+    /// Timing damage, on a line with timing (see [`Generator::with_timing_damage`]).
+    timing: Option<(crate::codec::timing::LineSettings, super::timing::Sweep)>,
 }
+
+/// Percent of the cases that are timing damage, where the link has line timing.
+pub const TIMING_SHARE: u64 = 8;
 
 /// Register counts worth trying.
 const COUNTS: [u16; 12] = [0, 1, 2, 3, 8, 0x10, 0x7C, 0x7D, 0x7E, 0x7F, 0xFF, 0xFFFF];
@@ -161,17 +170,49 @@ impl<'a> Generator<'a> {
             edges,
             writable,
             timed,
+            timing: None,
         }
+    }
+
+    /// Mixes timing damage into the stream (one case in [`TIMING_SHARE`] percent): the
+    /// link carries `line`'s timing (a real port, or the simulator's paced
+    /// pseudo-terminal), in RTU.
+    pub fn with_timing_damage(mut self, line: crate::codec::timing::LineSettings) -> Self {
+        self.timing = Some((line, super::timing::Sweep::default()));
+        self
+    }
+
+    /// A timing case: the damage applied to requests for this device.
+    fn timing_case(&mut self, known: &BTreeMap<u16, u16>) -> Option<(&'static str, Step)> {
+        use super::timing::Damage;
+        let damage = self.pick(&Damage::ALL);
+        let (_, mut body) = self.structured(known);
+        body[0] = self.address;
+        let (_, mut second) = self.structured(known);
+        second[0] = self.address;
+        let back_to_back = self.rng.below(2) == 0;
+        let (frame, second) = (self.frame(&body), self.frame(&second));
+        let (line, sweep) = self.timing.as_mut()?;
+        let t = sweep.make(line, damage, frame, second, back_to_back)?;
+        Some((damage.class(), Step::Timed(t)))
     }
 
     /// The next case. `known` holds the values the device returned for registers it was
     /// read from (a `preserving` write carries one of these).
     pub fn next_case(&mut self, known: &BTreeMap<u16, u16>) -> Case {
         loop {
-            let (class, step) = self.make(known);
+            let timing = if self.timing.is_some() && self.rng.below(100) < TIMING_SHARE {
+                self.timing_case(known)
+            } else {
+                None
+            };
+            let (class, step) = match timing {
+                Some(t) => t,
+                None => self.make(known),
+            };
             let ok = match &step {
                 Step::Frame(f) => self.timed || self.mode == Mode::Ascii || !needs_line_timing(f),
-                Step::Burst(_) => true,
+                Step::Burst(_) | Step::Timed(_) => true,
             };
             if ok {
                 let index = self.index;

@@ -74,6 +74,18 @@ fn smaller_frames(mode: Mode, frame: &[u8]) -> Vec<Vec<u8>> {
 pub fn minimize(ctx: &mut Ctx<'_>, finding: &mut FuzzFinding, state: &mut State, cfg: &FuzzConfig) {
     let wait = cfg.recover_wait;
     let kind = finding.kind;
+    if let Some(t) = finding.timed.clone() {
+        // Timing damage: the same damage on the shortest request, at the first position
+        // that reproduces it.
+        let (best, reproduced, replays) =
+            super::timing::minimize(ctx, &t, kind, state, MAX_REPLAYS);
+        finding.minimized = vec![best.bytes()];
+        finding.timed = Some(best);
+        finding.reproduced = reproduced;
+        finding.replays = replays;
+        let _ = recover(ctx, wait);
+        return;
+    }
     if kind == Kind::WrongValue {
         minimize_wrong_value(ctx, finding, state, wait);
         return;

@@ -12,13 +12,19 @@
 //!   every K cases, hangs and recovery) and the run of one mode;
 //! - [`minimize`]: shrinking a finding to the shortest frame or sequence that still
 //!   reproduces it, by replaying;
-//! - [`report`](self::report): findings grouped by signature, as the suite's report.
+//! - [`report`](self::report): findings grouped by signature, as the suite's report;
+//! - [`timing`]: timing damage (a silence inside a frame, frames without t3.5, a frame
+//!   split at every position), on links with line timing;
+//! - [`storm`]: the storm test, the device's own requests at line rate among other
+//!   nodes' traffic and broadcasts.
 
 pub mod campaign;
 pub mod cases;
 pub mod minimize;
 pub mod report;
 pub mod safety;
+pub mod storm;
+pub mod timing;
 
 use std::time::Duration;
 
@@ -85,6 +91,8 @@ pub struct FuzzConfig {
     /// The start of the command line that replays a reproducer (`conformance send ...`),
     /// to which the frames in hex are appended.
     pub replay: String,
+    /// Run the storm test instead of the cases (see [`storm`]).
+    pub storm: Option<storm::StormConfig>,
 }
 
 /// What kind of difference a finding is.
@@ -134,6 +142,9 @@ pub struct FuzzFinding {
     pub frames: Vec<Vec<u8>>,
     /// Whether they were sent back to back.
     pub burst: bool,
+    /// For timing damage: how the frames were cut and the silences (after minimizing:
+    /// the reproducer's).
+    pub timed: Option<timing::Timed>,
     /// The shortest frames found that still reproduce it (empty: not minimized).
     pub minimized: Vec<Vec<u8>>,
     /// Whether the minimized frames were replayed and reproduced it.
@@ -195,6 +206,10 @@ pub struct ModeOutcome {
     pub preflight: String,
     /// Whether the line echoes.
     pub echo: Option<bool>,
+    /// The timing damage cases.
+    pub timing: timing::TimingStats,
+    /// The storm test, where it ran instead of the cases.
+    pub storm: Option<storm::StormOutcome>,
 }
 
 impl ModeOutcome {

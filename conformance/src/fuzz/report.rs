@@ -104,6 +104,7 @@ pub fn campaign_result(m: &ModeOutcome) -> CheckResult {
             String::new()
         }
     );
+    let summary = format!("{summary}; {}", m.timing.describe());
     let (status, summary) = match (&m.stopped, m.ran) {
         (Some(why), false) => (Status::Error, why.clone()),
         (Some(why), true) if why != "interrupted" => {
@@ -139,6 +140,8 @@ impl FuzzSummary {
                     "cases_per_s": (m.rate() * 10.0).round() / 10.0,
                     "bound_cases_per_s": m.bound_rate().map(|b| (b * 10.0).round() / 10.0),
                     "liveness_probes": m.probes,
+                    "timing": m.timing.to_json(),
+                    "storm": m.storm.as_ref().map(|s| s.to_json()),
                     "findings": m.findings.iter().map(|f| json!({
                         "signature": f.signature(),
                         "kind": f.kind.name(),

@@ -164,7 +164,23 @@ pub struct Master<T: Transport + ?Sized> {
     echo_seen: Option<bool>,
     budget: LineBudget,
     broken_requests: u64,
+    /// Timing damage: the request goes out in pieces (see [`Master::exchange_split`]).
+    split: Option<Split>,
     transport: Box<T>,
+}
+
+/// How [`Master::exchange_split`] sends its request: cut at `cuts` (byte positions),
+/// with `gap` of silence between the pieces, which must leave this host within
+/// `tolerance` of `gap` (else the request is sent again, as a broken one is).
+#[derive(Debug, Clone, Default)]
+struct Split {
+    cuts: Vec<usize>,
+    gap: Duration,
+    tolerance: Duration,
+    /// The gaps as the last send left this host.
+    sent: Vec<Duration>,
+    /// Whether one of them was off by more than the tolerance.
+    drifted: bool,
 }
 
 impl<T: Transport + ?Sized> Master<T> {
@@ -178,6 +194,7 @@ impl<T: Transport + ?Sized> Master<T> {
             echo_seen: None,
             budget: LineBudget::default(),
             broken_requests: 0,
+            split: None,
             transport,
         }
     }
@@ -231,6 +248,14 @@ impl<T: Transport + ?Sized> Master<T> {
     /// The transport.
     pub fn transport(&self) -> &T {
         &self.transport
+    }
+
+    /// The transport itself, for traffic that is not an exchange of this master (the
+    /// storm test's interleaved frames). The gap before the next exchange counts from
+    /// `quiet_since`, when the caller last left the line.
+    pub fn transport_mut(&mut self, quiet_since: Instant) -> &mut T {
+        self.last_end = Some(quiet_since);
+        self.transport.as_mut()
     }
 
     /// The mode.
@@ -294,7 +319,8 @@ impl<T: Transport + ?Sized> Master<T> {
             // A request that left this host with a gap over t1.5 inside it (the host
             // stalled while pacing it) is not the request on the line: send it again, a
             // few times at most, before judging anything.
-            if self.transport.send_was_broken() && broken < 3 {
+            let drifted = self.split.as_ref().is_some_and(|s| s.drifted);
+            if (self.transport.send_was_broken() || drifted) && broken < 3 {
                 broken += 1;
                 self.broken_requests += 1;
                 continue;
@@ -316,7 +342,7 @@ impl<T: Transport + ?Sized> Master<T> {
         let t0 = Instant::now();
         self.wait_gap();
         self.transport.discard_input()?;
-        self.transport.send(request)?;
+        self.send_request(request)?;
         let sent = self.transport.sent_at().unwrap_or_else(Instant::now);
         let wait = if expect_reply {
             self.timing.timeout
@@ -433,6 +459,52 @@ impl<T: Transport + ?Sized> Master<T> {
             listened: end.duration_since(sent),
             retries,
         })
+    }
+}
+
+// Timing damage (the fuzzer's `timing.*` cases): a request sent in pieces.
+impl<T: Transport + ?Sized> Master<T> {
+    /// [`Master::exchange`] of `request` sent in pieces cut at `cuts` (byte positions,
+    /// ascending) with `gap` of silence between them, on a link with line timing. The
+    /// request is sent again (at most three times) where the host moved a gap by more
+    /// than `tolerance` or stalled inside a piece: such a request is not the one meant.
+    /// Returns the exchange and the gaps as the last send left this host.
+    pub fn exchange_split(
+        &mut self,
+        request: &[u8],
+        cuts: &[usize],
+        gap: Duration,
+        tolerance: Duration,
+        expect_reply: bool,
+    ) -> Result<(Exchange, Vec<Duration>), TransportError> {
+        self.split = Some(Split {
+            cuts: cuts.to_vec(),
+            gap,
+            tolerance,
+            ..Split::default()
+        });
+        let ex = self.exchange_retrying(request, expect_reply, self.timing.retries);
+        let sent = self.split.take().map(|s| s.sent).unwrap_or_default();
+        Ok((ex?, sent))
+    }
+
+    fn send_request(&mut self, request: &[u8]) -> Result<(), TransportError> {
+        let Some(split) = self.split.as_mut() else {
+            return self.transport.send(request);
+        };
+        let mut pieces: Vec<&[u8]> = Vec::new();
+        let mut from = 0;
+        for &c in &split.cuts {
+            if c > from && c < request.len() {
+                pieces.push(&request[from..c]);
+                from = c;
+            }
+        }
+        pieces.push(&request[from..]);
+        let sent = self.transport.send_pieces(&pieces, split.gap)?;
+        split.drifted = sent.iter().any(|g| g.abs_diff(split.gap) > split.tolerance);
+        split.sent = sent;
+        Ok(())
     }
 }
 

@@ -14,6 +14,7 @@ pub mod checks;
 pub mod compare;
 pub mod liveness;
 pub mod master;
+pub mod pieces;
 
 use std::collections::BTreeSet;
 use std::sync::atomic::{AtomicBool, Ordering};

@@ -51,6 +51,16 @@ pub enum Quirk {
     /// the previous one overflows the receiver; nothing is answered until
     /// [`OVERFLOW_RECOVERY`] passes without a frame.
     OverflowAfter(u64),
+    /// A planted firmware bug: an RTU frame with a silence over t1.5 (under t3.5) between
+    /// two of its characters is taken whole instead of being discarded (Modbus over
+    /// Serial Line V1.02, 2.5.1.1). Only a line with timing can show it (a real port, or
+    /// the simulator's paced pseudo-terminal, which frames by silence).
+    IgnoreT15,
+    /// A planted firmware bug: a request for this drive that starts less than t3.5 + N
+    /// characters after the end of a frame for another node (a request or a reply of
+    /// another slave on the bus) is lost, as a receiver still busy with the other
+    /// node's traffic loses it. The storm test (`fuzz --storm`) must catch it.
+    BusyAfter(u64),
 }
 
 /// How long the hang-on-byte-count quirk keeps the drive silent.
@@ -60,7 +70,7 @@ pub const HANG_TIME: Duration = Duration::from_secs(5);
 pub const OVERFLOW_RECOVERY: Duration = Duration::from_secs(1);
 
 /// The quirks, with their spelling and what each does, for help text and docs.
-pub const QUIRK_HELP: [(&str, &str); 15] = [
+pub const QUIRK_HELP: [(&str, &str); 17] = [
     (
         "crc-swap",
         "swap the two CRC bytes of every reply (ASCII: the two LRC characters)",
@@ -115,11 +125,19 @@ pub const QUIRK_HELP: [(&str, &str); 15] = [
         "overflow-after=N",
         "planted bug: the Nth frame in a row less than t3.5 after the previous one stops all answers until 1 s without a frame",
     ),
+    (
+        "ignore-t15",
+        "planted bug: an RTU frame with a silence over t1.5 inside it is taken whole, not discarded (paced links only)",
+    ),
+    (
+        "busy-after=N",
+        "planted bug: a request that starts less than t3.5 + N characters after another node's frame is lost",
+    ),
 ];
 
 /// A quirk that cannot be parsed.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
-#[error("unknown quirk {0:?}; the quirks are crc-swap, reply-to-broadcast, wrong-exception, late-reply=MS, drop-every=N, local-echo, garbage-before-reply, truncated-reply, answer-every-address, dead, freeze-after=N, slow=MS, hang-on-byte-count, wrong-value-at=REG, overflow-after=N")]
+#[error("unknown quirk {0:?}; the quirks are crc-swap, reply-to-broadcast, wrong-exception, late-reply=MS, drop-every=N, local-echo, garbage-before-reply, truncated-reply, answer-every-address, dead, freeze-after=N, slow=MS, hang-on-byte-count, wrong-value-at=REG, overflow-after=N, ignore-t15, busy-after=N")]
 pub struct QuirkError(pub String);
 
 impl std::str::FromStr for Quirk {
@@ -163,6 +181,8 @@ impl std::str::FromStr for Quirk {
                 }
                 Quirk::OverflowAfter(n)
             }
+            ("ignore-t15", None) => Quirk::IgnoreT15,
+            ("busy-after", a) => Quirk::BusyAfter(num(a)?),
             _ => return Err(err()),
         })
     }
@@ -185,6 +205,8 @@ impl fmt::Display for Quirk {
             Quirk::HangOnByteCount => f.write_str("hang-on-byte-count"),
             Quirk::WrongValueAt(r) => write!(f, "wrong-value-at={r:04X}H"),
             Quirk::OverflowAfter(n) => write!(f, "overflow-after={n}"),
+            Quirk::IgnoreT15 => f.write_str("ignore-t15"),
+            Quirk::BusyAfter(n) => write!(f, "busy-after={n}"),
         }
     }
 }
@@ -260,6 +282,10 @@ pub struct Drive {
     close_frames: u64,
     overflowed: bool,
     silent_until: Option<Instant>,
+    /// Time of one character of the line, paced or not (the busy-after quirk's unit).
+    line_char_time: Duration,
+    /// When the last frame for another node was handled (the busy-after quirk).
+    last_foreign: Option<Instant>,
 }
 
 impl Drive {
@@ -299,6 +325,16 @@ impl Drive {
             close_frames: 0,
             overflowed: false,
             silent_until: None,
+            line_char_time: Duration::from_micros(
+                crate::codec::timing::LineSettings::new(
+                    9600,
+                    8,
+                    crate::codec::timing::Parity::Even,
+                    1,
+                )
+                .char_time_us(),
+            ),
+            last_foreign: None,
         }
     }
 
@@ -306,6 +342,7 @@ impl Drive {
     /// `paced`, frames take their characters' time on the line.
     pub fn with_line(mut self, line: crate::codec::timing::LineSettings, paced: bool) -> Self {
         self.t3_5 = Duration::from_micros(line.t3_5_us());
+        self.line_char_time = Duration::from_micros(line.char_time_us());
         self.char_time = if paced {
             Duration::from_micros(line.char_time_us())
         } else {
@@ -369,6 +406,35 @@ impl Drive {
             }
         }
         None
+    }
+
+    /// The busy-after quirk: whether `frame`, handled at `now`, is lost because it
+    /// follows another node's frame too closely, and why.
+    fn busy_after(&mut self, mode: Mode, frame: &[u8], now: Instant) -> Option<String> {
+        let n = self.quirks.iter().find_map(|q| match q {
+            Quirk::BusyAfter(n) => Some(*n),
+            _ => None,
+        })?;
+        let address = frame_address(mode, frame)?;
+        if address != self.address && address != 0 {
+            self.last_foreign = Some(now);
+            return None;
+        }
+        let previous = self.last_foreign?;
+        // Both frames are handled the same time after their ends: the gap between them
+        // is the time between, less this frame's own time on the line.
+        let on_line = self.char_time * u32::try_from(frame.len()).unwrap_or(u32::MAX);
+        let gap = now
+            .saturating_duration_since(previous)
+            .saturating_sub(on_line);
+        let window = self.t3_5 + self.line_char_time * u32::try_from(n).unwrap_or(u32::MAX);
+        (gap < window).then(|| {
+            format!(
+                "quirk busy-after={n}: request lost, {} us after another node's frame (under t3.5 + {n} characters = {} us)",
+                gap.as_micros(),
+                window.as_micros()
+            )
+        })
     }
 
     /// Adds fault-injection quirks.
@@ -515,7 +581,9 @@ impl Drive {
             )),
             _ => None,
         });
-        let frozen = frozen.or_else(|| self.planted_silence(mode, frame, now));
+        let frozen = frozen
+            .or_else(|| self.planted_silence(mode, frame, now))
+            .or_else(|| self.busy_after(mode, frame, now));
         if let Some(note) = frozen {
             // A dead or hung drive neither acts on a request nor answers it.
             // The echo, if any, is the adapter's: it still comes.

@@ -4,9 +4,12 @@
 //!   and the fault-injection [`Quirk`]s.
 //! - [`server`]: the loop that reads a transport, deframes requests, answers after the
 //!   response delay and logs the traffic. Bad input never stops it.
+//! - [`line_clock`]: arrival times on the paced pseudo-terminal, which frames RTU by
+//!   silence as a real line does.
 //! - [`log`]: the traffic log.
 
 pub mod drive;
+pub mod line_clock;
 pub mod log;
 pub mod server;
 

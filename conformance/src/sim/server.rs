@@ -2,7 +2,10 @@
 //! deframers, answer through [`Drive::handle`] after its delay, log everything.
 //!
 //! Framing: on a real serial port RTU frames end at t3.5 of silence (Modbus over Serial
-//! Line 2.5.1.1). Pseudo-terminals and TCP have no line timing, so RTU frames are found
+//! Line 2.5.1.1), and so they do on a pseudo-terminal paced at the line's character time
+//! (an emulated line: the arrival times are rebuilt by [`LineClock`], and a frame with
+//! a silence over t1.5 inside it is discarded, as the standard wants). Unpaced
+//! pseudo-terminals and TCP have no line timing, so RTU frames are found
 //! by the length their function code implies; a burst whose length cannot be known that
 //! way (an unmodelled function) is taken as one frame once the link has been quiet for
 //! [`BURST_GAP`], if its CRC is valid: masters write a whole frame at once, so a burst
@@ -13,7 +16,9 @@
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
+use super::drive::Quirk;
 use super::drive::{Drive, SendKind};
+use super::line_clock::LineClock;
 use super::log::{Dir, TrafficLog};
 use crate::codec::deframe::{AsciiDeframer, Event, RtuDeframer, RtuFraming};
 use crate::codec::pdu::Direction;
@@ -78,11 +83,17 @@ pub fn serve<T: Transport + ?Sized>(
     log: &mut TrafficLog,
     stop: &AtomicBool,
 ) -> Result<ServeStats, SimError> {
-    let line = if transport.kind() == LinkKind::Serial {
-        transport.line_timing()
-    } else {
-        None
+    let line = transport.line_timing();
+    // A paced pseudo-terminal: arrival times rebuilt at the line's rate.
+    let mut clock = match (transport.kind(), line, mode) {
+        (LinkKind::Pty, Some(l), Mode::Rtu) => {
+            Some(LineClock::new(l.char_time_us(), Instant::now()))
+        }
+        _ => None,
     };
+    let ignore_t15 = drive.quirks().contains(&Quirk::IgnoreT15);
+    // What the sender says it put on the line, where it says (this suite's runner).
+    let tags = clock.as_ref().and_then(|_| transport.line_tags());
     let mut deframer = match (mode, line) {
         (Mode::Rtu, Some(l)) => Deframer::Rtu(
             Box::new(RtuDeframer::new(
@@ -119,6 +130,31 @@ pub fn serve<T: Transport + ?Sized>(
         let mut events = Vec::new();
         let mut ended_at: Option<Instant> = None;
         match &mut deframer {
+            Deframer::Rtu(d, _) if clock.is_some() => {
+                // An emulated line: a frame ends with its last character, found t3.5 later.
+                ended_at = last_rx;
+                if let Some(c) = clock.as_mut() {
+                    if n > 0 {
+                        let mut told = tags.as_ref().and_then(|t| t.lock().ok());
+                        for (i, b) in buf[..n].iter().enumerate() {
+                            let silence = told.as_mut().and_then(|q| q.pop_front());
+                            let at = c.arrival(now, n - 1 - i, silence);
+                            d.push_at(at, std::slice::from_ref(b), |e| events.push(own(e)));
+                        }
+                    } else {
+                        // A told silence queued for a character not read yet: the
+                        // sender wrote it and the kernel is still delivering it, so the
+                        // frame is not over, however quiet the line looks from here.
+                        let in_flight = tags
+                            .as_ref()
+                            .and_then(|t| t.lock().ok().map(|q| !q.is_empty()))
+                            .unwrap_or(false);
+                        if !in_flight {
+                            d.idle(c.idle(now), |e| events.push(own(e)));
+                        }
+                    }
+                }
+            }
             Deframer::Rtu(d, by_length) => {
                 if n > 0 {
                     d.push_at(now_us, &buf[..n], |e| events.push(own(e)));
@@ -155,6 +191,22 @@ pub fn serve<T: Transport + ?Sized>(
         }
         drive.tick(now);
         for e in events {
+            let e = match e {
+                // The planted ignore-t15 bug: a frame broken by a silence over t1.5 is
+                // taken whole when its checksum holds.
+                Owned::Dropped("incomplete", bytes)
+                    if ignore_t15 && bytes.len() >= 4 && crate::codec::crc::crc16(&bytes) == 0 =>
+                {
+                    log.record(
+                        Dir::In,
+                        "incomplete",
+                        &bytes,
+                        "quirk ignore-t15: taken whole despite a silence over t1.5 inside it",
+                    )?;
+                    Owned::Frame(bytes)
+                }
+                e => e,
+            };
             match e {
                 Owned::Dropped(kind, bytes) => {
                     stats.dropped_bytes += bytes.len() as u64;
@@ -162,7 +214,13 @@ pub fn serve<T: Transport + ?Sized>(
                 }
                 Owned::Frame(bytes) => {
                     stats.frames += 1;
-                    let outcome = drive.handle(mode, &bytes, now);
+                    // On an emulated line the frame is found t3.5 (or more) after its
+                    // end; the drive's clock is the end.
+                    let at = match clock {
+                        Some(_) => ended_at.unwrap_or(now),
+                        None => now,
+                    };
+                    let outcome = drive.handle(mode, &bytes, at);
                     let mut note = format!(
                         "{}: {}",
                         outcome.judgement.expect.describe(),

@@ -79,6 +79,15 @@ pub enum TransportError {
     },
 }
 
+/// The silences an emulated line's sender put before its characters, in order, in
+/// microseconds (saturated at `u32::MAX` for "the line was idle"), one per character
+/// written. A pseudo-terminal delivers bytes through the kernel with a few milliseconds
+/// of jitter of its own, which no receiver can tell from a silence; where the sender is
+/// this suite's paced transport, it says what it put on the line, and the simulator
+/// frames by that (see [`crate::sim::line_clock`]). A sender pushes the silence before
+/// it writes the character, so a reader always finds it.
+pub type LineTags = std::sync::Arc<std::sync::Mutex<std::collections::VecDeque<u32>>>;
+
 /// A bidirectional byte link to a drive or a master.
 pub trait Transport: Send {
     /// Sends `bytes`; with pacing, returns after the line would have carried them.
@@ -121,6 +130,37 @@ pub trait Transport: Send {
     /// pseudo-terminal paced at the line's character time. `None` where bytes arrive with
     /// the host's timing only.
     fn line_timing(&self) -> Option<LineSettings>;
+
+    /// Where this is the receiving end of an emulated line whose sender says what
+    /// silences it put on it (see [`LineTags`]): the queue to take them from.
+    fn line_tags(&self) -> Option<LineTags> {
+        None
+    }
+
+    /// Sends `pieces` as one transmission with `gap` of silence between consecutive
+    /// pieces (from the end of one piece's last character to the start of the next
+    /// one's first), for timing damage: a gap inside a frame, two frames without t3.5.
+    /// Returns the gaps as they left this host, in order; the caller judges whether they
+    /// stayed near `gap` (a host that stalls moves them) and sends again if not. Only
+    /// links with line timing can carry a gap that means anything; elsewhere the default
+    /// sends the pieces one after the other with a sleep between them.
+    fn send_pieces(
+        &mut self,
+        pieces: &[&[u8]],
+        gap: std::time::Duration,
+    ) -> Result<Vec<std::time::Duration>, TransportError> {
+        let mut gaps = Vec::new();
+        let mut end: Option<std::time::Instant> = None;
+        for p in pieces {
+            if let Some(e) = end {
+                sleep_until(e + gap);
+                gaps.push(std::time::Instant::now().saturating_duration_since(e));
+            }
+            self.send(p)?;
+            end = Some(self.sent_at().unwrap_or_else(std::time::Instant::now));
+        }
+        Ok(gaps)
+    }
 }
 
 impl<T: Transport + ?Sized> Transport for Box<T> {
@@ -150,6 +190,16 @@ impl<T: Transport + ?Sized> Transport for Box<T> {
     }
     fn send_was_broken(&self) -> bool {
         (**self).send_was_broken()
+    }
+    fn send_pieces(
+        &mut self,
+        pieces: &[&[u8]],
+        gap: std::time::Duration,
+    ) -> Result<Vec<std::time::Duration>, TransportError> {
+        (**self).send_pieces(pieces, gap)
+    }
+    fn line_tags(&self) -> Option<LineTags> {
+        (**self).line_tags()
     }
 }
 

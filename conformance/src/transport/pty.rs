@@ -28,7 +28,7 @@ use nix::poll::{poll, PollFd, PollFlags, PollTimeout};
 use nix::sys::termios::{cfmakeraw, tcgetattr, tcsetattr, SetArg};
 
 use super::uart::{self, ErrorPolicy};
-use super::{sleep_until, LinkKind, Transport, TransportError};
+use super::{sleep_until, LineTags, LinkKind, Transport, TransportError};
 use crate::codec::timing::{LineSettings, Parity};
 
 /// The master side of a pseudo-terminal pair.
@@ -39,6 +39,7 @@ pub struct PtyMaster {
     slave_path: PathBuf,
     pace: Option<LineSettings>,
     late: PacingClock,
+    tags: LineTags,
     emulate: Option<LineSettings>,
     // A second handle on the slave, for its baud rate: masters that set any rate
     // (serialport) use BOTHER and termios2, which only TCGETS2 reads back.
@@ -125,6 +126,7 @@ impl PtyMaster {
             emulate: None,
             probe: None,
             pending: std::collections::VecDeque::new(),
+            tags: LineTags::default(),
         })
     }
 
@@ -185,6 +187,12 @@ impl PtyMaster {
     /// How late this end's paced writes came, at most (shared; see [`PacingClock`]).
     pub fn pacing_clock(&self) -> PacingClock {
         self.late.clone()
+    }
+
+    /// The queue in which a sender on the slave side says what silences it put before
+    /// its characters (see [`LineTags`]); read by this end's receiver when paced.
+    pub fn line_tags(&self) -> LineTags {
+        self.tags.clone()
     }
 
     /// The path another program opens as its serial port.
@@ -327,5 +335,9 @@ impl Transport for PtyMaster {
 
     fn line_timing(&self) -> Option<LineSettings> {
         self.pace
+    }
+
+    fn line_tags(&self) -> Option<LineTags> {
+        self.pace.map(|_| self.tags.clone())
     }
 }

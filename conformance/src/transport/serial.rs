@@ -14,7 +14,7 @@
 use std::io::{Read, Write};
 use std::time::Duration;
 
-use super::{sleep_until, LinkKind, Transport, TransportError};
+use super::{sleep_until, LineTags, LinkKind, Transport, TransportError};
 use crate::codec::timing::{LineSettings, Parity};
 
 /// An open serial port.
@@ -28,6 +28,8 @@ pub struct SerialTransport {
     broken: bool,
     peer_clock: Option<std::sync::Arc<std::sync::atomic::AtomicU64>>,
     rts: Option<RtsControl>,
+    tags: Option<LineTags>,
+    last_write: Option<std::time::Instant>,
 }
 
 /// RS-485 direction control by the RTS line.
@@ -139,6 +141,8 @@ impl SerialTransport {
             broken: false,
             peer_clock: None,
             rts: None,
+            tags: None,
+            last_write: None,
         })
     }
 
@@ -195,6 +199,68 @@ impl SerialTransport {
         self
     }
 
+    /// Sends `pieces` at the line's character time with `gap` of silence between
+    /// consecutive pieces; returns the gaps as written. A stall of the host inside a
+    /// piece (a silence over t1.5 between two of its characters) marks the send broken.
+    fn paced_pieces(
+        &mut self,
+        pieces: &[&[u8]],
+        gap: Duration,
+    ) -> Result<Vec<Duration>, TransportError> {
+        let char_time = Duration::from_micros(self.line.char_time_us());
+        let t15 = Duration::from_micros(self.line.t1_5_us());
+        self.broken = false;
+        let mut gaps = Vec::new();
+        let mut due = std::time::Instant::now();
+        let mut previous: Option<std::time::Instant> = None;
+        for (k, piece) in pieces.iter().enumerate() {
+            if k > 0 {
+                due += gap;
+            }
+            for (i, b) in piece.iter().enumerate() {
+                sleep_until(due);
+                let now = std::time::Instant::now();
+                if let Some(p) = previous {
+                    let silence = now.saturating_duration_since(p).saturating_sub(char_time);
+                    if i == 0 {
+                        gaps.push(silence);
+                    } else if silence > t15 {
+                        self.broken = true;
+                    }
+                }
+                previous = Some(now);
+                if let Some(tags) = &self.tags {
+                    let silence = self.last_write.map_or(u32::MAX, |w| {
+                        let us = now.saturating_duration_since(w).saturating_sub(char_time);
+                        u32::try_from(us.as_micros()).unwrap_or(u32::MAX)
+                    });
+                    if let Ok(mut q) = tags.lock() {
+                        q.push_back(silence);
+                    }
+                }
+                self.last_write = Some(now);
+                self.port
+                    .write_all(std::slice::from_ref(b))
+                    .and_then(|_| self.port.flush())
+                    .map_err(|e| self.err("write", e))?;
+                due += char_time;
+            }
+        }
+        // The last character is on the line for one more character time, counted from
+        // when it was written (a busy host may write it late, or wake late from here).
+        let end = due.max(previous.map_or(due, |p| p + char_time));
+        self.sent_at = Some(end);
+        sleep_until(end);
+        Ok(gaps)
+    }
+
+    /// Says, for every character this paced end writes, the silence before it (as it
+    /// left this host) to the simulator at the other end (see [`LineTags`]).
+    pub fn with_line_tags(mut self, tags: LineTags) -> Self {
+        self.tags = Some(tags);
+        self
+    }
+
     fn err(&self, what: &'static str, source: std::io::Error) -> TransportError {
         match source.kind() {
             std::io::ErrorKind::BrokenPipe | std::io::ErrorKind::UnexpectedEof => {
@@ -227,30 +293,34 @@ impl Transport for SerialTransport {
         }
         // A pseudo-terminal standing in for a line: this end sends at the line's
         // character time too, so that a request takes its time on the wire.
-        let char_time = Duration::from_micros(self.line.char_time_us());
-        let t15 = Duration::from_micros(self.line.t1_5_us());
-        let start = std::time::Instant::now();
-        self.broken = false;
-        let mut previous: Option<std::time::Instant> = None;
-        for (i, b) in bytes.iter().enumerate() {
-            sleep_until(start + char_time * u32::try_from(i).unwrap_or(u32::MAX));
-            let now = std::time::Instant::now();
-            if previous.is_some_and(|p| now.duration_since(p) > char_time + t15) {
-                self.broken = true;
+        self.paced_pieces(&[bytes], Duration::ZERO).map(|_| ())
+    }
+
+    fn send_pieces(
+        &mut self,
+        pieces: &[&[u8]],
+        gap: Duration,
+    ) -> Result<Vec<Duration>, TransportError> {
+        if self.paced && self.kind != LinkKind::Serial {
+            return self.paced_pieces(pieces, gap);
+        }
+        // A real port: each piece written and drained (tcdrain: the UART has sent it;
+        // a USB adapter may still hold it for its latency timer, which the gaps
+        // returned cannot see), then the gap slept.
+        let mut gaps = Vec::new();
+        let mut end: Option<std::time::Instant> = None;
+        for p in pieces {
+            if let Some(e) = end {
+                sleep_until(e + gap);
+                gaps.push(std::time::Instant::now().saturating_duration_since(e));
             }
-            previous = Some(now);
             self.port
-                .write_all(std::slice::from_ref(b))
+                .write_all(p)
                 .and_then(|_| self.port.flush())
                 .map_err(|e| self.err("write", e))?;
+            end = Some(std::time::Instant::now());
         }
-        // The last character is on the line for one more character time, counted from
-        // when it was written (a busy host may write it late, or wake late from here).
-        let end = (start + char_time * u32::try_from(bytes.len()).unwrap_or(u32::MAX))
-            .max(std::time::Instant::now() + char_time);
-        self.sent_at = Some(end);
-        sleep_until(end);
-        Ok(())
+        Ok(gaps)
     }
 
     fn sent_at(&self) -> Option<std::time::Instant> {

@@ -1,0 +1,314 @@
+//! The storm test and the timing damage cases, against the simulator on its paced
+//! pseudo-terminal (the only local link with line timing):
+//!
+//! - `fuzz --storm`: the clean simulator answers every own request, loses none, answers
+//!   nothing else; with `busy-after=2` (a request that follows another node's frame
+//!   within t3.5 + 2 characters is lost) the storm reports lost requests and fails its
+//!   test case; with `answer-every-address` it reports answers to other traffic. A few
+//!   hundred frames at 19200 baud; STORM_FRAMES for more (the full storm).
+//! - timing damage: the clean simulator gives no finding over the timing classes; the
+//!   planted `ignore-t15` (a frame with a silence over t1.5 inside it is taken whole) is
+//!   found as an unexpected reply in `timing.gap-in-frame` within 300 cases (seed 1) and
+//!   minimized to the shortest request with its cut and silence; `conformance send
+//!   --split --gap` replays it. On an unpaced link the timing classes are not sent, and
+//!   the report says why.
+
+mod common;
+use common::{bin, report_of};
+
+use std::time::Duration;
+
+use serde_json::Value;
+
+fn tempdir(name: &str) -> std::path::PathBuf {
+    let d = std::env::temp_dir().join(format!("storm-test-{}-{name}", std::process::id()));
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+fn frames() -> String {
+    std::env::var("STORM_FRAMES").unwrap_or_else(|_| "300".into())
+}
+
+fn storm(dir: &std::path::Path, quirks: &[&str]) -> (Option<i32>, Value) {
+    let n = frames();
+    let mut args = vec![
+        "--sim",
+        "f510",
+        "--mode",
+        "rtu",
+        "-b",
+        "19200",
+        "--storm",
+        "--storm-frames",
+        &n,
+        "--storm-idle",
+        "20",
+        "--seed",
+        "1",
+    ];
+    for q in quirks {
+        args.extend(["--quirk", q]);
+    }
+    report_of("fuzz", dir, &args, Duration::from_secs(600))
+}
+
+fn storm_of(v: &Value) -> &Value {
+    &v["fuzz"]["modes"][0]["storm"]
+}
+
+fn testcase<'a>(v: &'a Value, id: &str) -> &'a Value {
+    v["checks"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|c| c["id"] == id)
+        .unwrap_or_else(|| panic!("no {id} in {:#}", v["checks"]))
+}
+
+#[test]
+fn the_clean_simulator_weathers_the_storm() {
+    let dir = tempdir("clean");
+    let (code, v) = storm(&dir, &[]);
+    let s = storm_of(&v);
+    assert_eq!(s["lost"], 0, "{s:#}");
+    assert_eq!(s["unexpected"], 0, "{s:#}");
+    assert_eq!(s["wrong"], 0, "{s:#}");
+    assert_eq!(s["line_timing"], true);
+    let sent = &s["sent"];
+    for kind in [
+        "own-request",
+        "other-request",
+        "other-reply",
+        "broadcast-read",
+    ] {
+        assert!(sent[kind].as_u64().unwrap() > 0, "no {kind}: {sent}");
+    }
+    // With --writes preserving, nothing for other nodes is written.
+    assert!(sent.get("broadcast-write").is_none() && sent.get("other-write").is_none());
+    assert_eq!(s["own_requests"], sent["own-request"]);
+    assert_eq!(s["load"]["count"], s["own_requests"]);
+    // The idle reference: 20 requests; one not answered in time there is counted in
+    // idle_problems (seen once under a load of 7, not explained yet: see the report).
+    let idle = s["idle"]["count"].as_u64().unwrap() + s["idle_problems"].as_u64().unwrap();
+    assert!(idle >= 20, "{s:#}");
+    let total: u64 = sent
+        .as_object()
+        .unwrap()
+        .values()
+        .map(|x| x.as_u64().unwrap())
+        .sum();
+    assert_eq!(total.to_string(), frames());
+    // Whether a reply was late is the host's timing as much as the simulator's (timing
+    // assertions do not belong in tests): only that the verdict follows the counts.
+    let on_time = s["late"] == 0;
+    assert_eq!(s["passed"], on_time);
+    let status = &testcase(&v, "fuzz.rtu.storm")["status"];
+    assert_eq!(*status, if on_time { "pass" } else { "deviation" });
+    assert_eq!(code, Some(if on_time { 0 } else { 1 }), "{s:#}");
+}
+
+#[test]
+fn a_request_lost_after_other_traffic_fails_the_storm() {
+    let dir = tempdir("busy");
+    let (code, v) = storm(&dir, &["busy-after=2"]);
+    let s = storm_of(&v);
+    assert!(s["lost"].as_u64().unwrap() > 0, "{s:#}");
+    assert_eq!(s["passed"], false);
+    assert_eq!(code, Some(1));
+    assert_eq!(testcase(&v, "fuzz.rtu.storm")["status"], "deviation");
+    let problems = s["problems"].as_array().unwrap();
+    assert!(
+        problems
+            .iter()
+            .any(|p| p.as_str().unwrap().starts_with("lost: ")),
+        "{problems:#?}"
+    );
+}
+
+#[test]
+fn answers_to_other_nodes_fail_the_storm() {
+    let dir = tempdir("every");
+    let (code, v) = storm(&dir, &["answer-every-address"]);
+    let s = storm_of(&v);
+    assert!(s["unexpected"].as_u64().unwrap() > 0, "{s:#}");
+    assert_eq!(code, Some(1));
+    let problems = s["problems"].as_array().unwrap();
+    assert!(
+        problems.iter().any(|p| p
+            .as_str()
+            .unwrap()
+            .contains("answers none of its own requests")),
+        "{problems:#?}"
+    );
+}
+
+fn timing_run(dir: &std::path::Path, quirks: &[&str], cases: &str) -> (Option<i32>, Value) {
+    let mut args = vec![
+        "--sim", "f510", "--mode", "rtu", "-b", "19200", "--cases", cases, "--seed", "1",
+    ];
+    for q in quirks {
+        args.extend(["--quirk", q]);
+    }
+    report_of("fuzz", dir, &args, Duration::from_secs(900))
+}
+
+fn findings(v: &Value) -> Vec<Value> {
+    v["fuzz"]["modes"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .flat_map(|m| m["findings"].as_array().unwrap().clone())
+        .collect()
+}
+
+#[test]
+fn a_frame_with_a_gap_over_t15_taken_whole_is_found_and_minimized() {
+    let dir = tempdir("t15");
+    let (code, v) = timing_run(&dir, &["ignore-t15"], "300");
+    assert_eq!(code, Some(1), "{:#}", v["fuzz"]);
+    let f = findings(&v);
+    let g = f
+        .iter()
+        .find(|x| x["field_class"] == "timing.gap-in-frame")
+        .unwrap_or_else(|| panic!("no timing.gap-in-frame finding in {f:#?}"));
+    assert_eq!(g["kind"], "unexpected-reply", "{g:#}");
+    assert_eq!(g["reproduced"], true, "{g:#}");
+    // Minimized to the shortest request (a one-register read), with its cut and silence.
+    let min = g["minimized"].as_array().unwrap();
+    assert_eq!(min.len(), 1);
+    let frame: Vec<u8> = conformance::codec::hex::parse_hex(min[0].as_str().unwrap()).unwrap();
+    assert_eq!((frame.len(), frame[1]), (8, 0x03), "{g:#}");
+    let replay = g["replay"].as_str().unwrap();
+    assert!(
+        replay.contains("--split ") && replay.contains("--gap "),
+        "{replay}"
+    );
+    // Only the gap inside a frame shows the bug: no other signature.
+    assert!(
+        f.iter().all(|x| x["field_class"] == "timing.gap-in-frame"),
+        "{f:#?}"
+    );
+    // The replay command reproduces it (exit 1: the device answered).
+    let words: Vec<&str> = replay.split_whitespace().skip(1).collect();
+    let out = std::process::Command::new(bin())
+        .args(&words)
+        .output()
+        .unwrap();
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert_eq!(out.status.code(), Some(1), "{text}");
+    assert!(text.contains("timing.gap-in-frame"), "{text}");
+}
+
+#[test]
+fn the_clean_simulator_passes_the_timing_classes() {
+    let dir = tempdir("t-clean");
+    let cases = std::env::var("FUZZ_CASES").unwrap_or_else(|_| "300".into());
+    let (code, v) = timing_run(&dir, &[], &cases);
+    let f = findings(&v);
+    assert!(f.is_empty(), "{f:#?}");
+    assert_eq!(code, Some(0));
+    let t = &v["fuzz"]["modes"][0]["timing"];
+    assert!(t["not_sent"].is_null(), "{t}");
+    for class in [
+        "timing.gap-in-frame",
+        "timing.split-under-t15",
+        "timing.split-over-t35",
+        "timing.no-t35",
+    ] {
+        assert!(
+            t["sent"][class].as_u64().unwrap_or(0) > 0,
+            "no {class}: {t}"
+        );
+    }
+}
+
+#[test]
+fn timing_damage_is_not_sent_without_line_timing() {
+    let dir = tempdir("t-unpaced");
+    let (code, v) = report_of(
+        "fuzz",
+        &dir,
+        &[
+            "--sim",
+            "f510",
+            "--mode",
+            "rtu",
+            "--no-pace",
+            "--cases",
+            "100",
+            "--quirk",
+            "ignore-t15",
+        ],
+        Duration::from_secs(300),
+    );
+    assert_eq!(code, Some(0));
+    let t = &v["fuzz"]["modes"][0]["timing"];
+    assert!(
+        t["not_sent"].as_str().unwrap().contains("no line timing"),
+        "{t}"
+    );
+    assert!(t["sent"].as_object().unwrap().is_empty());
+}
+
+#[test]
+fn send_splits_a_frame_with_the_silence_asked_for() {
+    // Under t1.5 (19200 baud 8E1: 860 us; t3.5 2006 us): one frame, answered.
+    let run = |gap: &str| {
+        let out = std::process::Command::new(bin())
+            .args([
+                "send",
+                "--sim",
+                "f510",
+                "--mode",
+                "rtu",
+                "-b",
+                "19200",
+                "--split",
+                "3",
+                "--gap",
+                gap,
+                "010325200001",
+                "8ECC",
+            ])
+            .output()
+            .unwrap();
+        (
+            out.status.code(),
+            String::from_utf8_lossy(&out.stdout).into_owned(),
+        )
+    };
+    let (code, text) = run("300us");
+    assert_eq!(code, Some(0), "{text}");
+    assert!(
+        text.contains("timing.split-under-t15")
+            && text.contains("device: node 01 03 read response"),
+        "{text}"
+    );
+    // Between t1.5 and t3.5: discarded, silence as predicted.
+    let (code, text) = run("1250us");
+    assert_eq!(code, Some(0), "{text}");
+    assert!(
+        text.contains("timing.gap-in-frame") && text.contains("no reply"),
+        "{text}"
+    );
+    // Without line timing: refused, exit 2.
+    let out = std::process::Command::new(bin())
+        .args([
+            "send",
+            "--sim",
+            "f510",
+            "--mode",
+            "rtu",
+            "--no-pace",
+            "--split",
+            "3",
+            "--gap",
+            "1ms",
+            "010325200001",
+            "8ECC",
+        ])
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(2));
+}
