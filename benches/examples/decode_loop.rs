@@ -30,7 +30,10 @@ fn kept(p: &Pdu<'_>) -> usize {
     }
 }
 
-fn cases() -> Vec<(&'static str, Box<dyn FnMut() -> usize>)> {
+/// A named decode, run in a loop.
+type Case = (&'static str, Box<dyn FnMut() -> usize>);
+
+fn cases() -> Vec<Case> {
     let mut scratch = [0u8; MAX_RTU_FRAME];
     let mut scratch2 = [0u8; MAX_RTU_FRAME];
     vec![

@@ -14,6 +14,8 @@
 //! - [`report`]: text, JSON and JUnit XML reports of a run.
 //! - [`scan`]: finds the devices on a line (line settings, mode, node addresses).
 //! - [`session`]: a whole run against a serial port, a TCP gateway or the in-process simulator.
+//! - [`identify`]: which model a device follows, from its answers to reads (beside
+//!   [`session`]: it opens the target as a session does and uses the runner's master).
 // `unsafe` is allowed in one module only: codec::crc_clmul (SIMD intrinsics).
 #![deny(unsafe_code)]
 #![warn(missing_docs)]
@@ -21,6 +23,7 @@
 pub mod codec;
 pub mod fuzz;
 pub mod gate;
+pub mod identify;
 pub mod model;
 pub mod oracle;
 pub mod report;

@@ -4,17 +4,17 @@
 use std::io::{IsTerminal, Write};
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
-use std::sync::atomic::{AtomicBool, Ordering};
-use std::sync::Arc;
 use std::time::Duration;
 
 use anyhow::{bail, Context};
 use clap::{Args, ValueEnum};
 use conformance::codec::Mode;
+use conformance::identify;
 use conformance::report::{csv, html, junit, text, Report};
 use conformance::runner::Options;
 use conformance::session::{self, SessionConfig};
 
+use super::identify_cmd::{self, IdentifyTuning};
 use super::link::{Resolved, SafetyArgs, TargetArgs};
 
 const AFTER_HELP: &str = "\
@@ -24,6 +24,7 @@ Examples:
   conformance check --model l510 --tcp 10.0.0.7:4001 --mode ascii --format junit -o report.xml
   conformance check --sim a510 --quirk wrong-exception --only 'rtu.*'
   conformance check --sim f510 --format html -o report.html   a page for people
+  conformance check --model auto --port /dev/ttyUSB0 -b 9600 -P even   identify, then check
   conformance report report.json --format html -o report.html (a saved JSON report)
 
 Safety on a real drive: the run and external-fault bits are never set without
@@ -36,6 +37,11 @@ check (no answer: exit 2, with what was tried and what to try), and every silenc
 followed by a liveness probe; a device that stops answering mid-run ends the run, and
 every check left is an ERROR. A local echo (--echo) is stripped and shown on the link
 line.
+
+--model auto runs `conformance identify` first (reads only) and then the checks of the
+model it names; the identification heads the report as the check 'identify'. Where it
+names no single model (ambiguous, or none of the five), nothing is checked: exit 2, with
+the evidence on stderr.
 
 Statuses: PASS; DEVIATION (the manual says X, the device did Y); OBSERVATION (the manual
 is silent or contradicts itself: what the device did); SKIP (with the reason); ERROR (the
@@ -83,6 +89,8 @@ pub struct CheckArgs {
     read_only: bool,
     #[command(flatten)]
     safety: SafetyArgs,
+    #[command(flatten)]
+    identify: IdentifyTuning,
     /// Milliseconds over the manual's response time before replies count as late.
     #[arg(long, value_name = "MS", default_value_t = 20)]
     response_allowance: u64,
@@ -127,6 +135,49 @@ pub fn write_atomic(path: &Path, contents: &str) -> std::io::Result<()> {
 }
 
 pub fn run(args: CheckArgs) -> anyhow::Result<ExitCode> {
+    let mut stop = None;
+    let mut identified = None;
+    let resolved = if args.target.model_is_auto() {
+        if args.list {
+            bail!("--list needs a model: --model auto identifies the device, and --list talks to none");
+        }
+        if args.target.model_file.is_some() {
+            bail!("--model auto identifies among the five built-in models; --model-file names a model itself");
+        }
+        let link = args.target.resolve_link(false, None)?;
+        let config = identify_cmd::config(&args.target, link, &args.identify)?;
+        let flag = identify_cmd::stop_flag()?;
+        let t0 = std::time::Instant::now();
+        let id = identify_cmd::identify_device(&config, &flag, args.quiet)?;
+        let took = t0.elapsed();
+        stop = Some(flag);
+        let model = match &id.verdict {
+            identify::Verdict::One(m) => m.clone(),
+            _ => {
+                eprint!("{}", identify::render::text(&id));
+                eprintln!(
+                    "check --model auto: {}; nothing was checked. Give the model with --model, or see the evidence above.",
+                    identify::render::headline(&id)
+                );
+                return Ok(ExitCode::from(2));
+            }
+        };
+        if let Some(sim) = &config.sim_model {
+            if sim.id != model {
+                eprint!("{}", identify::render::text(&id));
+                bail!(
+                    "the simulator runs {} but the device was identified as {model}: the identification is wrong",
+                    sim.id
+                );
+            }
+        }
+        eprintln!("identify: {}", identify::render::headline(&id));
+        identified = Some(identify::render::check_result(&id, took));
+        args.target
+            .resolve_as(args.target.resolve_link(false, None)?, &model)?
+    } else {
+        args.target.resolve(args.list, None)?
+    };
     let Resolved {
         model,
         target,
@@ -134,7 +185,7 @@ pub fn run(args: CheckArgs) -> anyhow::Result<ExitCode> {
         line: _,
         is_sim,
         other_address,
-    } = args.target.resolve(args.list, None)?;
+    } = resolved;
     let options = Options {
         address: args.target.address,
         other_address,
@@ -182,12 +233,10 @@ pub fn run(args: CheckArgs) -> anyhow::Result<ExitCode> {
         std::thread::sleep(Duration::from_secs(5));
     }
 
-    let stop = Arc::new(AtomicBool::new(false));
-    {
-        let stop = stop.clone();
-        ctrlc::set_handler(move || stop.store(true, Ordering::Relaxed))
-            .context("cannot install the Ctrl-C handler")?;
-    }
+    let stop = match stop {
+        Some(s) => s,
+        None => identify_cmd::stop_flag()?,
+    };
     let total = session::list(&config).len() as u64;
     if total == 0 {
         bail!(
@@ -227,7 +276,10 @@ pub fn run(args: CheckArgs) -> anyhow::Result<ExitCode> {
             b.set_message(format!("{mode} {}", c.id));
         }
     };
-    let report = session::run(&config, &stop, &mut on_start, &mut on_result)?;
+    let mut report = session::run(&config, &stop, &mut on_start, &mut on_result)?;
+    if let Some(r) = identified {
+        report.results.insert(0, r);
+    }
     if let Some(b) = &bar {
         b.finish_and_clear();
     }

@@ -6,7 +6,7 @@ use std::path::PathBuf;
 use std::sync::Arc;
 use std::time::Duration;
 
-use anyhow::{bail, Context};
+use anyhow::bail;
 use clap::{Args, ValueEnum};
 use conformance::codec::timing::LineSettings;
 use conformance::codec::Mode;
@@ -35,7 +35,9 @@ pub struct TargetArgs {
     /// pseudo-terminal pair (no hardware needed).
     #[arg(long, value_name = "MODEL", group = "target")]
     pub sim: Option<String>,
-    /// Drive model of the device: f510, a510, l510, e510, l510-legacy.
+    /// Drive model of the device: f510, a510, l510, e510, l510-legacy; with `check`, also
+    /// auto: identify the model from the device's answers to reads first (see
+    /// `conformance identify --help`), then run that model's checks.
     #[arg(long, value_name = "MODEL")]
     pub model: Option<String>,
     /// Read the model from this file instead of the built-in one.
@@ -117,22 +119,48 @@ pub struct Resolved {
     pub other_address: u8,
 }
 
+/// The `--model` value that asks for the model to be found by `identify` first.
+pub const AUTO: &str = "auto";
+
+/// The target resolved without a model: what to open, the modes and the line.
+pub struct Link {
+    /// The model named by `--sim` or `--model`, if any (`auto` included).
+    pub named: Option<String>,
+    /// What to open.
+    pub target: Target,
+    /// Modes, in order.
+    pub modes: Vec<Mode>,
+    /// The line.
+    pub line: LineSettings,
+    /// Whether it is the simulator.
+    pub is_sim: bool,
+}
+
 impl TargetArgs {
-    /// The model, target, modes and line; `fallback` gives a target where none is named
-    /// (for `--list`).
-    pub fn resolve(&self, fallback: bool, sim_delay: Option<Duration>) -> anyhow::Result<Resolved> {
+    /// Whether `--model auto` was given: the model is identified from the device first.
+    pub fn model_is_auto(&self) -> bool {
+        self.model.as_deref() == Some(AUTO)
+    }
+
+    /// What to open, the modes and the line, without loading a model; `fallback` gives a
+    /// target where none is named (for `--list`).
+    pub fn resolve_link(
+        &self,
+        fallback: bool,
+        sim_delay: Option<Duration>,
+    ) -> anyhow::Result<Link> {
         if self.line.rts.rts && self.port.is_none() {
             bail!("--rts drives the RTS line of a serial port: give --port PATH");
         }
-        let (model_id, target) = match (&self.sim, &self.port, &self.tcp) {
+        let (named, target) = match (&self.sim, &self.port, &self.tcp) {
             (Some(m), None, None) => {
                 if let Some(other) = &self.model {
-                    if other != m {
+                    if other != m && other != AUTO {
                         bail!("--sim {m} and --model {other} name different models");
                     }
                 }
                 (
-                    m.clone(),
+                    Some(m.clone()),
                     Target::Sim {
                         quirks: self.quirks.clone(),
                         pace: !self.no_pace,
@@ -142,22 +170,15 @@ impl TargetArgs {
                 )
             }
             (None, Some(p), None) => (
-                self.model
-                    .clone()
-                    .context("--port needs --model (f510, a510, l510, e510, l510-legacy)")?,
+                self.model.clone(),
                 Target::Serial {
                     path: p.clone(),
                     rts: self.line.rts.control(),
                 },
             ),
-            (None, None, Some(a)) => (
-                self.model
-                    .clone()
-                    .context("--tcp needs --model (f510, a510, l510, e510, l510-legacy)")?,
-                Target::Tcp { addr: a.clone() },
-            ),
+            (None, None, Some(a)) => (self.model.clone(), Target::Tcp { addr: a.clone() }),
             _ if fallback => (
-                self.model.clone().unwrap_or_else(|| "f510".into()),
+                Some(self.model.clone().unwrap_or_else(|| "f510".into())),
                 Target::Sim {
                     quirks: vec![],
                     pace: true,
@@ -169,11 +190,6 @@ impl TargetArgs {
                 "say what to talk to: --sim MODEL, or --model MODEL with --port PATH or --tcp HOST:PORT"
             ),
         };
-        let model = Arc::new(load_model(
-            &model_id,
-            self.model_file.as_deref(),
-            self.address,
-        )?);
         let is_sim = matches!(target, Target::Sim { .. });
         let modes = match self.mode.unwrap_or(if is_sim {
             ModesArg::Both
@@ -188,6 +204,46 @@ impl TargetArgs {
         if modes.contains(&Mode::Rtu) && line.data_bits != 8 {
             bail!("RTU needs 8 data bits (-d 8)");
         }
+        Ok(Link {
+            named,
+            target,
+            modes,
+            line,
+            is_sim,
+        })
+    }
+
+    /// The model, target, modes and line; `fallback` gives a target where none is named
+    /// (for `--list`).
+    pub fn resolve(&self, fallback: bool, sim_delay: Option<Duration>) -> anyhow::Result<Resolved> {
+        let link = self.resolve_link(fallback, sim_delay)?;
+        let model_id = match (&link.named, &link.target) {
+            _ if self.model_is_auto() => bail!(
+                "--model auto is for `check` (it runs `identify` first); give the model (f510, a510, l510, e510, l510-legacy)"
+            ),
+            (Some(m), _) => m.clone(),
+            (None, Target::Tcp { .. }) => {
+                bail!("--tcp needs --model (f510, a510, l510, e510, l510-legacy)")
+            }
+            (None, _) => bail!("--port needs --model (f510, a510, l510, e510, l510-legacy)"),
+        };
+        self.resolve_as(link, &model_id)
+    }
+
+    /// [`TargetArgs::resolve`] with the model `model_id` (an identified one) for `link`.
+    pub fn resolve_as(&self, link: Link, model_id: &str) -> anyhow::Result<Resolved> {
+        let Link {
+            target,
+            modes,
+            line,
+            is_sim,
+            ..
+        } = link;
+        let model = Arc::new(load_model(
+            model_id,
+            self.model_file.as_deref(),
+            self.address,
+        )?);
         let other_address = self.other_address.unwrap_or_else(|| {
             let last = *model.addresses.end();
             if self.address != last {

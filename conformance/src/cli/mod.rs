@@ -5,6 +5,7 @@ mod codec_cmd;
 mod common;
 mod fuzz_cmd;
 mod gate_cmd;
+mod identify_cmd;
 mod link;
 mod model_cmd;
 mod report_cmd;
@@ -43,6 +44,9 @@ enum Command {
     Simulate(simulate_cmd::SimulateArgs),
     /// Probe a real or simulated drive and report every deviation from its manual.
     Check(check_cmd::CheckArgs),
+    /// Which of the five models a device follows, from its answers to reads only: the
+    /// evidence for and against each model, and a verdict.
+    Identify(identify_cmd::IdentifyArgs),
     /// Send malformed and hostile traffic to a real or simulated drive, predict every
     /// answer from its model, detect hangs, and minimize what is found.
     Fuzz(fuzz_cmd::FuzzArgs),
@@ -71,6 +75,7 @@ pub fn run(cli: Cli) -> anyhow::Result<ExitCode> {
         Command::Model(a) => model_cmd::run(a),
         Command::Simulate(a) => simulate_cmd::run(a),
         Command::Check(a) => check_cmd::run(a),
+        Command::Identify(a) => identify_cmd::run(a),
         Command::Fuzz(a) => fuzz_cmd::run(a),
         Command::Send(a) => send_cmd::run(a),
         Command::Scan(a) => scan_cmd::run(a),

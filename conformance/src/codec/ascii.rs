@@ -288,7 +288,7 @@ fn hex8(w: u64) -> Option<(u32, u64)> {
     }
     // Setting bit 5 turns 'A'..'F' into 'a'..'f' and leaves digits as they are; no other
     // byte becomes a letter a..f that way (only 41H..46H and 61H..66H end in 61H..66H).
-    let folded = w | 0x20 * ONES;
+    let folded = w | (0x20 * ONES);
     let digit = at_least(w, b'0') & !at_least(w, b'9' + 1);
     let letter = at_least(folded, b'a') & !at_least(folded, b'f' + 1);
     if digit | letter != TOPS {

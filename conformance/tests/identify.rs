@@ -1,0 +1,379 @@
+//! `conformance identify` and `check --model auto`: each simulated model is named as
+//! itself in RTU and in ASCII; a simulator with a planted fault, and a generic Modbus
+//! device that nobody here wrote (pymodbus's serial server), are named as none of the
+//! five; `check --model auto` runs the checks of the model it identified.
+
+mod common;
+use common::{bin, tool_or_skip, Kill};
+
+use std::process::{Command, Stdio};
+use std::time::{Duration, Instant};
+
+/// Runs `conformance identify ARGS --format json -o DIR/identify.json`, bounded in time;
+/// returns the exit code and the report.
+fn identify(dir: &std::path::Path, args: &[&str]) -> (Option<i32>, serde_json::Value) {
+    std::fs::create_dir_all(dir).unwrap();
+    let out = dir.join("identify.json");
+    let _ = std::fs::remove_file(&out);
+    let t0 = Instant::now();
+    let mut run = Kill(
+        Command::new(bin())
+            .arg("identify")
+            .args(args)
+            .args(["--format", "json", "--quiet", "-o"])
+            .arg(&out)
+            .stdout(Stdio::null())
+            .stderr(Stdio::piped())
+            .spawn()
+            .unwrap(),
+    );
+    let exit = loop {
+        if let Some(s) = run.0.try_wait().unwrap() {
+            break s;
+        }
+        assert!(t0.elapsed() < Duration::from_secs(120), "identify hangs");
+        std::thread::sleep(Duration::from_millis(50));
+    };
+    let mut err = Vec::new();
+    std::io::Read::read_to_end(run.0.stderr.as_mut().unwrap(), &mut err).unwrap();
+    let stderr = String::from_utf8_lossy(&err).to_string();
+    assert!(!stderr.contains("panicked"), "{stderr}");
+    let v: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(&out).unwrap_or_else(|e| panic!("{e}: {stderr}")))
+            .unwrap();
+    let schema = jsonschema::validator_for(
+        &serde_json::from_str(include_str!("../../vectors/schema/identify.schema.json")).unwrap(),
+    )
+    .unwrap();
+    if let Err(e) = schema.validate(&v) {
+        panic!("the identify report does not match its schema: {e}");
+    }
+    (exit.code(), v)
+}
+
+fn tmp(name: &str) -> std::path::PathBuf {
+    std::env::temp_dir().join(format!("teco-identify-{name}-{}", std::process::id()))
+}
+
+/// Every probe's predictions hold one entry per model, and the scores count the fits.
+fn consistent(v: &serde_json::Value) {
+    let probes = v["probes"].as_array().unwrap();
+    for s in v["scores"].as_array().unwrap() {
+        let m = s["model"].as_str().unwrap();
+        let fits = probes
+            .iter()
+            .filter(|p| {
+                p["predictions"]
+                    .as_array()
+                    .unwrap()
+                    .iter()
+                    .any(|x| x["model"] == m && x["fits"] == true)
+            })
+            .count();
+        assert_eq!(s["predicted"].as_u64().unwrap() as usize, fits, "{m}");
+        assert_eq!(s["probes"].as_u64().unwrap() as usize, probes.len());
+    }
+}
+
+fn named_as_itself(model: &str) {
+    for mode in ["rtu", "ascii"] {
+        let dir = tmp(&format!("{model}-{mode}"));
+        let (exit, v) = identify(&dir, &["--sim", model, "--mode", mode]);
+        assert_eq!(
+            v["verdict"]["result"], "one",
+            "{model} {mode}: {}",
+            v["verdict"]
+        );
+        assert_eq!(v["verdict"]["models"], serde_json::json!([model]), "{mode}");
+        assert_eq!(exit, Some(0), "{model} {mode}");
+        consistent(&v);
+        let probes = v["probes"].as_array().unwrap();
+        assert!(probes.len() >= 5, "{model} {mode}: {} probes", probes.len());
+        // Reads only, each to the device's node.
+        for p in probes {
+            let req = p["request"].as_str().unwrap();
+            let bytes: Vec<&str> = req.split(' ').collect();
+            let function = if mode == "rtu" {
+                bytes[1].to_string()
+            } else {
+                // ASCII: the characters in hex; the function is characters 3 and 4.
+                let chars: String = bytes
+                    .iter()
+                    .map(|b| u8::from_str_radix(b, 16).unwrap() as char)
+                    .collect();
+                chars[3..5].to_string()
+            };
+            assert_eq!(function, "03", "{model} {mode}: {req}");
+        }
+        // Every other model missed at least one answer.
+        for s in v["scores"].as_array().unwrap() {
+            if s["model"] != model {
+                assert!(!s["misses"].as_array().unwrap().is_empty(), "{}", s);
+            }
+        }
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+}
+
+#[test]
+fn f510_is_named_f510() {
+    named_as_itself("f510");
+}
+
+#[test]
+fn a510_is_named_a510() {
+    named_as_itself("a510");
+}
+
+#[test]
+fn l510_is_named_l510() {
+    named_as_itself("l510");
+}
+
+#[test]
+fn e510_is_named_e510() {
+    named_as_itself("e510");
+}
+
+#[test]
+fn the_legacy_note_is_named_l510_legacy() {
+    named_as_itself("l510-legacy");
+}
+
+#[test]
+fn a_planted_fault_makes_it_none_of_the_five_and_a_tolerance_names_the_nearest() {
+    let dir = tmp("quirk");
+    // Every exception code one too high: no manual numbers exceptions so.
+    let (exit, v) = identify(
+        &dir,
+        &[
+            "--sim",
+            "f510",
+            "--mode",
+            "rtu",
+            "--quirk",
+            "wrong-exception",
+        ],
+    );
+    assert_eq!(v["verdict"]["result"], "none", "{}", v["verdict"]);
+    assert_eq!(
+        v["verdict"]["models"],
+        serde_json::json!(["f510"]),
+        "the nearest"
+    );
+    assert_eq!(exit, Some(1));
+    consistent(&v);
+    // It missed the probes answered with an exception, and only those.
+    let f510 = &v["scores"][0];
+    assert_eq!(f510["model"], "f510");
+    let missed = f510["misses"].as_array().unwrap().len();
+    assert!(missed > 0);
+    let exceptions = v["probes"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter(|p| p["answer"].as_str().unwrap().starts_with("exception"))
+        .count();
+    assert_eq!(missed, exceptions);
+    // A tolerance of that many misses names the nearest model.
+    let (exit, v) = identify(
+        &dir,
+        &[
+            "--sim",
+            "f510",
+            "--mode",
+            "rtu",
+            "--quirk",
+            "wrong-exception",
+            "--tolerance",
+            &missed.to_string(),
+        ],
+    );
+    assert_eq!(
+        v["verdict"]["models"],
+        serde_json::json!(["f510"]),
+        "{}",
+        v["verdict"]
+    );
+    assert_eq!(exit, Some(0));
+    // A local echo is stripped, as in `check`: the drive is still named.
+    let (exit, v) = identify(
+        &dir,
+        &["--sim", "e510", "--mode", "rtu", "--quirk", "local-echo"],
+    );
+    assert_eq!(
+        v["verdict"]["models"],
+        serde_json::json!(["e510"]),
+        "{}",
+        v["verdict"]
+    );
+    assert_eq!(exit, Some(0));
+    assert_eq!(v["links"][0]["echo"], true);
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn a_silent_device_could_not_be_identified() {
+    let dir = tmp("dead");
+    let (exit, v) = identify(
+        &dir,
+        &[
+            "--sim",
+            "f510",
+            "--mode",
+            "rtu",
+            "--quirk",
+            "dead",
+            "--timeout",
+            "200",
+        ],
+    );
+    assert_eq!(v["verdict"]["result"], "not-run", "{}", v["verdict"]);
+    assert_eq!(exit, Some(2));
+    assert!(
+        v["verdict"]["text"].as_str().unwrap().contains("preflight"),
+        "{}",
+        v["verdict"]
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn check_model_auto_runs_the_checks_of_the_identified_model() {
+    let dir = tmp("auto");
+    std::fs::create_dir_all(&dir).unwrap();
+    let (exit, v) = common::check_device(
+        &dir,
+        &[
+            "--sim",
+            "a510",
+            "--model",
+            "auto",
+            "--mode",
+            "rtu",
+            "--only",
+            "rtu.map.*",
+        ],
+        Duration::from_secs(180),
+    );
+    assert_eq!(exit, Some(0), "{}", v["summary"]);
+    assert_eq!(v["device"]["model"], "a510");
+    let checks = v["checks"].as_array().unwrap();
+    assert_eq!(checks[0]["id"], "identify");
+    assert_eq!(checks[0]["status"], "pass", "{}", checks[0]["summary"]);
+    assert!(checks[0]["summary"].as_str().unwrap().starts_with("a510"));
+    assert!(!checks[0]["exchanges"].as_array().unwrap().is_empty());
+    // The a510 map checks ran (group 0 of the A510 ends at 0039H, of the F510 at 0038H).
+    let maps: Vec<&str> = checks
+        .iter()
+        .filter_map(|c| c["id"].as_str())
+        .filter(|id| id.starts_with("rtu.map."))
+        .collect();
+    assert!(maps.len() > 10, "{maps:?}");
+    assert!(
+        checks.iter().any(|c| c["exchanges"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .any(|e| e["request"]
+                .as_str()
+                .unwrap()
+                .starts_with("01 03 00 3A 00 01"))),
+        "no read past the end of the A510's group 0"
+    );
+    // Ambiguous or none: nothing is checked, exit 2.
+    let out = Command::new(bin())
+        .args([
+            "check",
+            "--sim",
+            "f510",
+            "--model",
+            "auto",
+            "--mode",
+            "rtu",
+            "--quirk",
+            "wrong-exception",
+            "--quiet",
+        ])
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(2));
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(stderr.contains("none of the five"), "{stderr}");
+    assert!(stderr.contains("nothing was checked"), "{stderr}");
+    assert!(out.stdout.is_empty());
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+fn generic(mode: &str) {
+    let socat = Command::new("socat")
+        .arg("-V")
+        .stdout(Stdio::null())
+        .status()
+        .is_ok_and(|s| s.success());
+    if !tool_or_skip(socat, "socat not installed (apt-get install socat)") {
+        return;
+    }
+    let pymodbus = Command::new("python3")
+        .args(["-c", "import pymodbus, serial"])
+        .status()
+        .is_ok_and(|s| s.success());
+    if !tool_or_skip(
+        pymodbus,
+        "pymodbus not installed (pip install 'pymodbus[serial]==3.16.1')",
+    ) {
+        return;
+    }
+    let dir = tmp(&format!("pymodbus-{mode}"));
+    std::fs::create_dir_all(&dir).unwrap();
+    let (_socat, a, b) = common::socat_pair(&dir);
+    let server = concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/tests/interop/pymodbus_server.py"
+    );
+    let _server = Kill(
+        Command::new("python3")
+            .args([server, a.to_str().unwrap(), mode])
+            .stderr(Stdio::null())
+            .spawn()
+            .unwrap(),
+    );
+    common::wait_until_answers(&b, mode, &["-P", "none"]);
+    let (exit, v) = identify(
+        &dir,
+        &[
+            "--port",
+            b.to_str().unwrap(),
+            "--mode",
+            mode,
+            "-P",
+            "none",
+            "--timeout",
+            "300",
+        ],
+    );
+    assert_eq!(v["verdict"]["result"], "none", "{}", v["verdict"]);
+    assert_eq!(exit, Some(1));
+    consistent(&v);
+    // It answers reads as any Modbus server does: data where every model predicts an
+    // exception (a register outside every map), so no model comes close.
+    let probes = v["probes"].as_array().unwrap();
+    assert!(probes
+        .iter()
+        .any(|p| p["kind"] == "outside every map"
+            && p["answer"].as_str().unwrap().contains("register")));
+    for s in v["scores"].as_array().unwrap() {
+        assert!(s["misses"].as_array().unwrap().len() >= 2, "{s}");
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn a_generic_pymodbus_device_is_none_of_the_five_rtu() {
+    generic("rtu");
+}
+
+#[test]
+fn a_generic_pymodbus_device_is_none_of_the_five_ascii() {
+    generic("ascii");
+}
