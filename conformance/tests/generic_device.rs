@@ -9,14 +9,16 @@ use common::{tool_or_skip, Kill};
 use std::process::{Command, Stdio};
 use std::time::Duration;
 
-fn run(mode: &str) {
+/// pymodbus's generic server on one end of a socat pair: the guards and the runner's end
+/// (None after SKIPPED when a tool is missing).
+fn start(mode: &str, dir: &std::path::Path) -> Option<(Kill, Kill, std::path::PathBuf)> {
     let socat = Command::new("socat")
         .arg("-V")
         .stdout(Stdio::null())
         .status()
         .is_ok_and(|s| s.success());
     if !tool_or_skip(socat, "socat not installed (apt-get install socat)") {
-        return;
+        return None;
     }
     let pymodbus = Command::new("python3")
         .args(["-c", "import pymodbus, serial"])
@@ -26,16 +28,14 @@ fn run(mode: &str) {
         pymodbus,
         "pymodbus not installed (pip install 'pymodbus[serial]==3.16.1')",
     ) {
-        return;
+        return None;
     }
-    let dir = std::env::temp_dir().join(format!("teco-generic-{mode}-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
-    let (_socat, a, b) = common::socat_pair(&dir);
+    let (socat, a, b) = common::socat_pair(dir);
     let server = concat!(
         env!("CARGO_MANIFEST_DIR"),
         "/tests/interop/pymodbus_server.py"
     );
-    let _server = Kill(
+    let server = Kill(
         Command::new("python3")
             .args([server, a.to_str().unwrap(), mode])
             .stderr(Stdio::null())
@@ -43,6 +43,15 @@ fn run(mode: &str) {
             .unwrap(),
     );
     common::wait_until_answers(&b, mode, &["-P", "none"]);
+    Some((socat, server, b))
+}
+
+fn run(mode: &str) {
+    let dir = std::env::temp_dir().join(format!("teco-generic-{mode}-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let Some((_socat, _server, b)) = start(mode, &dir) else {
+        return;
+    };
     let t0 = std::time::Instant::now();
     let (exit, v) = common::check_device(
         &dir,

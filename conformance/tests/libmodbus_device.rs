@@ -122,14 +122,11 @@ fn status<'a>(v: &'a serde_json::Value, id: &str, want: &str) -> &'a serde_json:
     &c["exchanges"][0]
 }
 
-#[test]
-fn libmodbus_rtu_server_checked_as_f510() {
-    let dir = std::env::temp_dir().join(format!("teco-libmodbus-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
-    let Some(server) = build_server(&dir) else {
-        return;
-    };
-    let (_socat, a, b) = common::socat_pair(&dir);
+/// The server built and started on one end of a socat pair: the guards and the runner's
+/// end (None after SKIPPED when a tool is missing).
+fn start(dir: &Path) -> Option<(Kill, Kill, PathBuf)> {
+    let server = build_server(dir)?;
+    let (socat, a, b) = common::socat_pair(dir);
     let mut server = Kill(
         Command::new(&server)
             .args([a.to_str().unwrap(), "1"])
@@ -152,6 +149,16 @@ fn libmodbus_rtu_server_checked_as_f510() {
         Ok(Some("ready".to_string())),
         "the server did not start"
     );
+    Some((socat, server, b))
+}
+
+#[test]
+fn libmodbus_rtu_server_checked_as_f510() {
+    let dir = std::env::temp_dir().join(format!("teco-libmodbus-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let Some((_socat, mut server, b)) = start(&dir) else {
+        return;
+    };
 
     // Bounded: a hang is a failure, not a stalled CI job (the run takes about 30 s).
     let t0 = std::time::Instant::now();

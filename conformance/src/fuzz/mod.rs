@@ -12,13 +12,18 @@
 //!   every K cases, hangs and recovery) and the run of one mode;
 //! - [`minimize`]: shrinking a finding to the shortest frame or sequence that still
 //!   reproduces it, by replaying;
+//! - [`brisk`]: the fast path on a link without timing, and the guard that repeats with
+//!   full windows whatever late bytes put in doubt;
+//! - [`signature`]: what a finding is about (one bug, one entry);
 //! - [`report`](self::report): findings grouped by signature, as the suite's report.
 
+pub mod brisk;
 pub mod campaign;
 pub mod cases;
 pub mod minimize;
 pub mod report;
 pub mod safety;
+pub mod signature;
 
 use std::time::Duration;
 
@@ -85,6 +90,9 @@ pub struct FuzzConfig {
     /// The start of the command line that replays a reproducer (`conformance send ...`),
     /// to which the frames in hex are appended.
     pub replay: String,
+    /// Full windows on every exchange, also on a link without timing (no brisk path;
+    /// see [`brisk`]).
+    pub full_windows: bool,
 }
 
 /// What kind of difference a finding is.
@@ -124,8 +132,10 @@ pub struct FuzzFinding {
     pub mode: Mode,
     /// The function code of the (first) frame.
     pub function: u8,
-    /// The case class (field class) that found it.
-    pub class: &'static str,
+    /// The field of the difference (see [`signature`]).
+    pub field: String,
+    /// The case classes that found it, with their counts.
+    pub classes: std::collections::BTreeMap<&'static str, u64>,
     /// Cases with this signature.
     pub count: u64,
     /// The number of the first case.
@@ -156,15 +166,24 @@ pub struct FuzzFinding {
 }
 
 impl FuzzFinding {
-    /// The signature that groups cases: mode, kind, function, field class.
+    /// The signature that groups cases: mode, kind, function, field of the difference.
     pub fn signature(&self) -> String {
         format!(
             "{}.{}.{:02X}H.{}",
             self.mode,
             self.kind.name(),
             self.function,
-            self.class
+            self.field
         )
+    }
+
+    /// The case classes that found it, as "class xN, ...".
+    pub fn classes_text(&self) -> String {
+        self.classes
+            .iter()
+            .map(|(c, n)| format!("{c} x{n}"))
+            .collect::<Vec<_>>()
+            .join(", ")
     }
 }
 
@@ -195,6 +214,8 @@ pub struct ModeOutcome {
     pub preflight: String,
     /// Whether the line echoes.
     pub echo: Option<bool>,
+    /// What the brisk path did (None: full windows throughout).
+    pub brisk: Option<brisk::GuardStats>,
 }
 
 impl ModeOutcome {
