@@ -155,8 +155,8 @@ fn start_sim(
             &s,
             prompt.then_some(Duration::ZERO),
         )
-            .map(|_| ())
-            .map_err(|e| e.to_string())
+        .map(|_| ())
+        .map_err(|e| e.to_string())
     });
     let mut client = SerialTransport::open(&path, config.line, LinkKind::Pty)?;
     if pace {

@@ -71,7 +71,10 @@ fn clean(model: &str) {
         assert_eq!(r["restored"], true, "{model}: {r}");
         assert_eq!(r["changed"], false, "{model}: {r}");
         assert!(
-            r["detail"].as_str().unwrap().starts_with("unchanged, verified"),
+            r["detail"]
+                .as_str()
+                .unwrap()
+                .starts_with("unchanged, verified"),
             "{r}"
         );
     }
@@ -378,7 +381,10 @@ fn late_answers_on_the_brisk_path_are_sent_again_with_full_windows() {
     );
     assert_eq!(brisk, full, "brisk and full windows disagree");
     let g = &v["fuzz"]["modes"][0]["brisk"];
-    assert!(g["reruns"].as_u64().unwrap() > 0, "the guard never fired: {g}");
+    assert!(
+        g["reruns"].as_u64().unwrap() > 0,
+        "the guard never fired: {g}"
+    );
     assert!(g["sequenced"].as_u64().unwrap() > 0, "{g}");
     assert!(w["fuzz"]["modes"][0]["brisk"].is_null());
 }

@@ -157,7 +157,11 @@ pub fn observe(
             };
             // A probe whose reply cannot pass for an answer to the frame: where the frame
             // reads one register, the probe reads two, and the other way round.
-            let count = if read_count(mode, frame) == Some(1) { 2 } else { 1 };
+            let count = if read_count(mode, frame) == Some(1) {
+                2
+            } else {
+                1
+            };
             let probe = probe_frame(ctx, count);
             match (judgement.expect.replies(), wait, probe, plain_line) {
                 (false, Some(wait), Some(probe), true) => {
@@ -297,7 +301,10 @@ mod tests {
         assert!(delimited(Mode::Rtu, &read));
         let mut bad = read.clone();
         bad[7] ^= 1;
-        assert!(!delimited(Mode::Rtu, &bad), "a wrong CRC: the receiver slides on");
+        assert!(
+            !delimited(Mode::Rtu, &bad),
+            "a wrong CRC: the receiver slides on"
+        );
         // A byte count over the data: the receiver waits for bytes that never come.
         let short = frame_of_body(Mode::Rtu, &[1, 0x10, 0x25, 0x0C, 0, 1, 2]).unwrap();
         assert!(!delimited(Mode::Rtu, &short));

@@ -329,8 +329,8 @@ pub fn fuzz_mode(
     let started = Instant::now();
     let mut spent_minimizing = Duration::ZERO;
     // The brisk path where the link has no timing (see [`super::brisk`]).
-    let mut guard = (ctx.line_timing().is_none() && !cfg.full_windows)
-        .then(super::brisk::GuardStats::default);
+    let mut guard =
+        (ctx.line_timing().is_none() && !cfg.full_windows).then(super::brisk::GuardStats::default);
     ctx.master_mut().set_brisk(guard.is_some());
     let mut prev: Option<Case> = None;
     let mut prev_careful = false;
@@ -432,12 +432,10 @@ pub fn fuzz_mode(
                     if matches!(o.kind, Kind::Mismatch | Kind::UnexpectedReply | Kind::WrongValue));
                 if doubt || stray > 0 || late_could_make_it {
                     let before = prev.as_ref().filter(|_| !prev_careful);
-                    let steps: Vec<&Step> = before
-                        .iter()
-                        .map(|c| &c.step)
-                        .chain([&case.step])
-                        .collect();
-                    let again = super::brisk::rerun(&mut ctx, &steps, &mut state, g, cfg.recover_wait);
+                    let steps: Vec<&Step> =
+                        before.iter().map(|c| &c.step).chain([&case.step]).collect();
+                    let again =
+                        super::brisk::rerun(&mut ctx, &steps, &mut state, g, cfg.recover_wait);
                     let cases: Vec<&Case> = before.into_iter().chain([&case]).collect();
                     if late_could_make_it && matches!(again.last(), Some(Ok(None))) {
                         g.unconfirmed += 1;
@@ -493,7 +491,8 @@ pub fn fuzz_mode(
         let _ = ctx.master_mut().take_stray();
         if late > 0 && !prev_careful {
             g.stray_bytes += late as u64;
-            let again = super::brisk::rerun(&mut ctx, &[&last.step], &mut state, g, cfg.recover_wait);
+            let again =
+                super::brisk::rerun(&mut ctx, &[&last.step], &mut state, g, cfg.recover_wait);
             for r in again {
                 if conclude(
                     &mut ctx,

@@ -156,11 +156,20 @@ mod tests {
     #[test]
     fn a_byte_count_over_the_data_is_one_class_however_it_was_made() {
         let f = frame_of_body(Mode::Rtu, &[1, 0x10, 0x25, 0x0C, 0, 1, 2]).unwrap();
-        assert_eq!(of_request(Mode::Rtu, &Step::Frame(f)), "byte-count-over-data");
+        assert_eq!(
+            of_request(Mode::Rtu, &Step::Frame(f)),
+            "byte-count-over-data"
+        );
         let f = frame_of_body(Mode::Rtu, &[1, 0x10, 0x25, 0x0C, 0, 1, 9, 0, 0]).unwrap();
-        assert_eq!(of_request(Mode::Rtu, &Step::Frame(f)), "byte-count-over-data");
+        assert_eq!(
+            of_request(Mode::Rtu, &Step::Frame(f)),
+            "byte-count-over-data"
+        );
         let f = frame_of_body(Mode::Rtu, &[1, 0x10, 0x25, 0x0C, 0, 2, 2, 0, 0]).unwrap();
-        assert_eq!(of_request(Mode::Rtu, &Step::Frame(f)), "count-vs-byte-count");
+        assert_eq!(
+            of_request(Mode::Rtu, &Step::Frame(f)),
+            "count-vs-byte-count"
+        );
         assert_eq!(of_request(Mode::Rtu, &Step::Burst(vec![])), "back-to-back");
     }
 

@@ -189,7 +189,11 @@ pub fn text(r: &Report, verbose: bool) -> String {
     }
     if !r.restore.is_empty() {
         let bad = r.unrestored().len();
-        let unchanged = r.restore.iter().filter(|x| x.restored && !x.changed).count();
+        let unchanged = r
+            .restore
+            .iter()
+            .filter(|x| x.restored && !x.changed)
+            .count();
         let _ = writeln!(
             o,
             "\nRESTORE ({} register{} journalled: {} changed by the run, restored and verified; {} unchanged, verified{}){}",
