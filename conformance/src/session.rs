@@ -12,7 +12,7 @@ use crate::codec::Mode;
 use crate::model::DriveModel;
 use crate::report::{Device, Report, RunOptions};
 use crate::runner::{run_mode, Check, CheckResult, Options, Progress};
-use crate::sim::{serve, Drive, LogFormat, Quirk, TrafficLog};
+use crate::sim::{serve_with_gap, Drive, LogFormat, Quirk, TrafficLog};
 use crate::transport::serial::SerialTransport;
 use crate::transport::tcp::TcpTransport;
 use crate::transport::{LinkKind, Transport, TransportError};
@@ -146,10 +146,20 @@ fn start_sim(
     }
     let stop = Arc::new(AtomicBool::new(false));
     let s = stop.clone();
+    // Told to answer at once on an unpaced link (the fuzzer, which writes every frame in
+    // one write): a burst also ends as soon as nothing more is waiting.
+    let prompt = !pace && delay.is_zero();
     let handle = thread::spawn(move || {
-        serve(&mut master, &mut drive, mode, &mut traffic, &s)
-            .map(|_| ())
-            .map_err(|e| e.to_string())
+        serve_with_gap(
+            &mut master,
+            &mut drive,
+            mode,
+            &mut traffic,
+            &s,
+            prompt.then_some(Duration::ZERO),
+        )
+        .map(|_| ())
+        .map_err(|e| e.to_string())
     });
     let mut client = SerialTransport::open(&path, config.line, LinkKind::Pty)?;
     if pace {

@@ -4,9 +4,12 @@
 //! replays; `conformance send` replays frames. Reports match the report schema.
 //!
 //! Case budgets (seed 1, unpaced): hang-on-byte-count within 300 cases, wrong-value-at
-//! within 3000, overflow-after within 50. The clean runs send 300 cases per model and
-//! mode by default (CI's time); set FUZZ_CASES (2000 was run before merging; 20000 for
-//! the full run) for more.
+//! within 3000, overflow-after within 50; each planted bug is one entry (one signature,
+//! with the case classes that found it). The clean runs send 300 cases per model and
+//! mode by default (CI's time); `FUZZ_CASES=20000 cargo test --release --test fuzz clean_`
+//! runs the full 20,000 per model and mode (about 15 minutes on two busy cores).
+//! The restore at the end tells the registers a run changed from those it only wrote
+//! with the value they held.
 
 mod common;
 use common::{bin, report_of};
@@ -61,6 +64,20 @@ fn clean(model: &str) {
         assert!(m["cases_per_s"].as_f64().unwrap() > 0.0);
     }
     assert_eq!(v["fuzz"]["modes"].as_array().unwrap().len(), 2);
+    // Only value-preserving writes: every journalled register is unchanged, verified.
+    let restore = v["restore"].as_array().unwrap();
+    assert!(!restore.is_empty(), "{model}: nothing was written");
+    for r in restore {
+        assert_eq!(r["restored"], true, "{model}: {r}");
+        assert_eq!(r["changed"], false, "{model}: {r}");
+        assert!(
+            r["detail"]
+                .as_str()
+                .unwrap()
+                .starts_with("unchanged, verified"),
+            "{r}"
+        );
+    }
 }
 
 fn tempdir(name: &str) -> std::path::PathBuf {
@@ -114,10 +131,20 @@ fn a_byte_count_over_the_data_is_found_as_a_hang_and_minimized_to_one_frame() {
     );
     assert_eq!(code, Some(1));
     let f = findings(&v);
+    // One bug, one entry, whichever case classes found it.
+    assert_eq!(f.len(), 1, "{f:#?}");
     let hang = f
         .iter()
         .find(|x| x["kind"] == "hang" && x["function"] == "10")
         .unwrap_or_else(|| panic!("no 10H hang in {f:#?}"));
+    assert_eq!(hang["field_class"], "byte-count-over-data", "{hang:#}");
+    let by_class: u64 = hang["classes"]
+        .as_object()
+        .unwrap()
+        .values()
+        .map(|n| n.as_u64().unwrap())
+        .sum();
+    assert_eq!(by_class, hang["count"].as_u64().unwrap(), "{hang:#}");
     let min = hang["minimized"].as_array().unwrap();
     assert_eq!(min.len(), 1, "{hang:#}");
     let frame = hex(&min[0]);
@@ -160,10 +187,12 @@ fn a_flipped_bit_is_found_as_a_wrong_value_by_writing_back_what_was_read() {
     );
     assert!(matches!(code, Some(1 | 2)), "{code:?}");
     let f = findings(&v);
+    assert_eq!(f.len(), 1, "one bug, one entry: {f:#?}");
     let w = f
         .iter()
         .find(|x| x["kind"] == "wrong-value")
         .unwrap_or_else(|| panic!("no wrong value in {f:#?}"));
+    assert_eq!(w["field_class"], "value-of-0000H", "{w:#}");
     // The shortest sequence: write back the value read, read it again.
     let min: Vec<Vec<u8>> = w["minimized"].as_array().unwrap().iter().map(hex).collect();
     assert_eq!(min.len(), 2, "{w:#}");
@@ -196,10 +225,12 @@ fn frames_back_to_back_overflowing_the_receiver_are_found_and_shortened() {
     );
     assert_eq!(code, Some(1));
     let f = findings(&v);
+    assert_eq!(f.len(), 1, "one bug, one entry: {f:#?}");
     let o = f
         .iter()
         .find(|x| x["kind"] == "hang" && x["burst"] == true)
         .unwrap_or_else(|| panic!("no overflow in {f:#?}"));
+    assert_eq!(o["field_class"], "back-to-back", "{o:#}");
     // The 4th frame less than t3.5 after the previous one trips it: 5 frames.
     assert_eq!(o["minimized"].as_array().unwrap().len(), 5, "{o:#}");
     assert_eq!(o["reproduced"], true);
@@ -267,4 +298,93 @@ fn seeds_reproduce_and_safety_holds_with_writes_none() {
         "{}",
         v["restore"]
     );
+}
+
+#[test]
+fn registers_written_with_other_values_are_restored_as_changed() {
+    let dir = tempdir("any");
+    let (code, v) = fuzz(
+        &dir,
+        &[
+            "--sim",
+            "f510",
+            "--mode",
+            "rtu",
+            "--no-pace",
+            "--cases",
+            "300",
+            "--writes",
+            "any",
+        ],
+        Duration::from_secs(600),
+    );
+    assert_eq!(code, Some(0), "{}", v["stopped"]);
+    let restore = v["restore"].as_array().unwrap();
+    // Some registers took other values and were written back; every one is verified.
+    assert!(
+        restore
+            .iter()
+            .any(|r| r["changed"] == true && r["restored"] == true),
+        "{restore:#?}"
+    );
+    for r in restore {
+        assert_eq!(r["restored"], true, "{r}");
+        if r["changed"] == false {
+            assert!(r["detail"]
+                .as_str()
+                .unwrap()
+                .starts_with("unchanged, verified"));
+        }
+    }
+}
+
+/// The guard of the brisk path, with a device that answers what it must not, late (the
+/// simulator's `reply-to-broadcast` and `slow=40`): on an unpaced link the brisk path
+/// sends the liveness probe right after a broadcast, so the late answer to the broadcast
+/// comes before (or instead of) the probe's reply. It must be caught and the case sent
+/// again with full windows, so that the brisk run reports what a run with full windows on
+/// every exchange reports: the same signatures, and no other.
+#[test]
+fn late_answers_on_the_brisk_path_are_sent_again_with_full_windows() {
+    let run = |name: &str, extra: &[&str]| {
+        let dir = tempdir(name);
+        let mut args = vec![
+            "--sim",
+            "f510",
+            "--quirk",
+            "reply-to-broadcast",
+            "--quirk",
+            "slow=40",
+            "--mode",
+            "rtu",
+            "--no-pace",
+            "--cases",
+            "150",
+            "--no-minimize",
+        ];
+        args.extend_from_slice(extra);
+        let (code, v) = fuzz(&dir, &args, Duration::from_secs(600));
+        assert_eq!(code, Some(1), "{}", v["stopped"]);
+        let sigs: std::collections::BTreeSet<String> = findings(&v)
+            .iter()
+            .map(|f| f["signature"].as_str().unwrap().to_string())
+            .collect();
+        (sigs, v)
+    };
+    let (brisk, v) = run("late-brisk", &[]);
+    let (full, w) = run("late-full", &["--full-windows"]);
+    assert!(
+        brisk.contains("rtu.unexpected-reply.03H.reply-to-broadcast")
+            || brisk.contains("rtu.unexpected-reply.06H.reply-to-broadcast")
+            || brisk.contains("rtu.unexpected-reply.10H.reply-to-broadcast"),
+        "{brisk:?}"
+    );
+    assert_eq!(brisk, full, "brisk and full windows disagree");
+    let g = &v["fuzz"]["modes"][0]["brisk"];
+    assert!(
+        g["reruns"].as_u64().unwrap() > 0,
+        "the guard never fired: {g}"
+    );
+    assert!(g["sequenced"].as_u64().unwrap() > 0, "{g}");
+    assert!(w["fuzz"]["modes"][0]["brisk"].is_null());
 }

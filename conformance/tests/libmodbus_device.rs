@@ -122,14 +122,11 @@ fn status<'a>(v: &'a serde_json::Value, id: &str, want: &str) -> &'a serde_json:
     &c["exchanges"][0]
 }
 
-#[test]
-fn libmodbus_rtu_server_checked_as_f510() {
-    let dir = std::env::temp_dir().join(format!("teco-libmodbus-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
-    let Some(server) = build_server(&dir) else {
-        return;
-    };
-    let (_socat, a, b) = common::socat_pair(&dir);
+/// The server built and started on one end of a socat pair: the guards and the runner's
+/// end (None after SKIPPED when a tool is missing).
+fn start(dir: &Path) -> Option<(Kill, Kill, PathBuf)> {
+    let server = build_server(dir)?;
+    let (socat, a, b) = common::socat_pair(dir);
     let mut server = Kill(
         Command::new(&server)
             .args([a.to_str().unwrap(), "1"])
@@ -152,6 +149,16 @@ fn libmodbus_rtu_server_checked_as_f510() {
         Ok(Some("ready".to_string())),
         "the server did not start"
     );
+    Some((socat, server, b))
+}
+
+#[test]
+fn libmodbus_rtu_server_checked_as_f510() {
+    let dir = std::env::temp_dir().join(format!("teco-libmodbus-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let Some((_socat, mut server, b)) = start(&dir) else {
+        return;
+    };
 
     // Bounded: a hang is a failure, not a stalled CI job (the run takes about 30 s).
     let t0 = std::time::Instant::now();
@@ -243,5 +250,80 @@ fn libmodbus_rtu_server_checked_as_f510() {
         std::thread::sleep(Duration::from_millis(20));
     };
     assert_eq!(code, Some(0));
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// `conformance fuzz` against the libmodbus server, a short budget: it completes (exit 0
+/// or 1, never 2, never a panic), and every finding is of a kind libmodbus explains:
+/// it serves 125 registers anywhere (`register-value`, `byte-count`,
+/// `reply-instead-of-exception`), its exception codes differ from the TECO ones
+/// (`exception-code`, `exception-instead-of-reply`), it answers nothing to functions it
+/// does not serve, to 08H and to malformed lengths (`no-reply-*`), and after a frame
+/// whose function implies more bytes than came it waits for them (up to its 500 ms byte
+/// timeout) and takes the next requests as their rest, so it is deaf for a while and
+/// comes back (`hang`, always with a recovery time).
+#[test]
+fn libmodbus_rtu_server_fuzzed_as_f510() {
+    let dir = std::env::temp_dir().join(format!("teco-libmodbus-fuzz-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let Some((_socat, _server, b)) = start(&dir) else {
+        return;
+    };
+    let (exit, v) = common::report_of(
+        "fuzz",
+        &dir,
+        &[
+            "--model",
+            "f510",
+            "--port",
+            b.to_str().unwrap(),
+            "-P",
+            "none",
+            "--mode",
+            "rtu",
+            "--timeout",
+            "1000",
+            "--cases",
+            "150",
+            "--no-minimize",
+        ],
+        Duration::from_secs(400),
+    );
+    assert!(
+        matches!(exit, Some(0 | 1)),
+        "exit {exit:?}: {}",
+        v["stopped"]
+    );
+    let findings = v["fuzz"]["modes"][0]["findings"].as_array().unwrap();
+    for f in findings {
+        let sig = f["signature"].as_str().unwrap();
+        let field = sig.rsplit('.').next().unwrap();
+        let ok = match f["kind"].as_str().unwrap() {
+            "mismatch" => matches!(
+                field,
+                "register-value"
+                    | "byte-count"
+                    | "reply-instead-of-exception"
+                    | "exception-instead-of-reply"
+                    | "exception-code"
+                    | "register-address"
+                    | "register-count"
+                    | "written-value"
+            ),
+            "unexpected-reply" => field.starts_with("reply-to-"),
+            "no-reply" => field.starts_with("no-reply-for-"),
+            "wrong-value" => field.starts_with("value-of-"),
+            "hang" => f["recovery_ms"].is_number(),
+            _ => false,
+        };
+        assert!(ok, "unexplained finding on libmodbus: {f:#}");
+    }
+    eprintln!(
+        "libmodbus fuzz: {:?}",
+        findings
+            .iter()
+            .map(|f| format!("{} x{}", f["signature"], f["count"]))
+            .collect::<Vec<_>>()
+    );
     let _ = std::fs::remove_dir_all(&dir);
 }

@@ -33,8 +33,17 @@ liveness probe right after), a read that does not return a value the device conf
 writing, and a hang (the device does not answer its liveness probes; it is waited for
 with --recover-wait and the time it took to come back is reported) are findings. Each is
 replayed smaller until it is the shortest frame or sequence that still reproduces it,
-grouped by signature (mode.kind.function.field-class) with a count, and printed with the
-`conformance send` command that replays it.
+grouped by signature (mode.kind.function.field: the field of the difference, such as
+exception-code, register-value, reply-to-broadcast, value-of-0000H, or for a hang what was
+odd about the request, such as byte-count-over-data) with a count and the case classes
+that found it, and printed with the `conformance send` command that replays it.
+
+Speed on a link without timing (--no-pace, a pseudo-terminal, TCP): a whole reply ends an
+exchange at once; after a frame the model predicts silence for, the liveness probe goes
+at once, and its reply must be the next bytes back (anything before it is the device
+answering the silent frame). Bytes that come when nothing is awaited are counted, and the
+case they may belong to is sent again with full windows before anything is concluded
+(--full-windows turns this off). The campaign line reports what this path did.
 
 Timing damage (RTU on a line with timing: a real port, or the simulator's paced
 pseudo-terminal; not on --no-pace or TCP, and the report says why): a silence between
@@ -94,6 +103,11 @@ pub struct FuzzArgs {
     /// Do not minimize findings by replaying.
     #[arg(long)]
     no_minimize: bool,
+    /// On a link without timing (a pseudo-terminal, TCP), wait the full windows on every
+    /// exchange as on a timed line, instead of the brisk path (which proves silences by
+    /// sequence and repeats with full windows any case that late bytes put in doubt).
+    #[arg(long)]
+    full_windows: bool,
     /// Report format.
     #[arg(long, value_enum, default_value = "text")]
     format: Format,
@@ -144,10 +158,11 @@ pub fn run(args: FuzzArgs) -> anyhow::Result<ExitCode> {
         timing: {
             let mut t = args.target.timing(is_sim, sim_silence);
             if is_sim && args.target.no_pace {
-                // The unpaced simulator answers at once and in one piece.
-                // Still t3.5 of the line between frames, as the standard wants.
+                // The unpaced simulator answers at once and in one piece. An unpaced
+                // pseudo-terminal has no line, so no t3.5 to keep between frames (the
+                // simulator frames RTU by length there).
                 t.quiet = Duration::from_millis(3);
-                t.gap = Duration::from_micros(line.t3_5_us());
+                t.gap = Duration::ZERO;
             }
             t
         },
@@ -178,6 +193,7 @@ pub fn run(args: FuzzArgs) -> anyhow::Result<ExitCode> {
             frames: args.storm_frames,
             idle: args.storm_idle,
         }),
+        full_windows: args.full_windows,
     };
     if args.storm && args.writes == Writes::Any {
         eprintln!(

@@ -83,7 +83,9 @@ pub struct TargetArgs {
     /// With --sim: inject a fault into the simulator (see `conformance simulate --help`).
     #[arg(long = "quirk", value_name = "QUIRK", requires = "sim")]
     pub quirks: Vec<Quirk>,
-    /// With --sim: do not pace the simulator at the line's character time.
+    /// With --sim: do not pace the simulator at the line's character time (the link then
+    /// has no timing). With `fuzz`, the simulator also answers at once: its response
+    /// delay (max(10 ms, t3.5 + one character)) is a property of a timed line.
     #[arg(long, requires = "sim")]
     pub no_pace: bool,
     /// With --sim: write the simulator's traffic log (JSON lines) to this file.

@@ -50,6 +50,8 @@ pub struct Observed {
     pub register: Option<u16>,
     /// For a hang found without losing the device: how long it was gone.
     pub recovery: Option<Option<Duration>>,
+    /// The field of the difference (see [`super::signature`]).
+    pub field: String,
 }
 
 /// The fact behind a value a read must return: the device confirmed writing it.
@@ -122,6 +124,7 @@ pub fn observe(
                 exchange: None,
                 register: None,
                 recovery: Some(Some(t0.elapsed())),
+                field: super::signature::of_request(ctx.mode, step),
             }))
         }
         Step::Timed(t) => super::timing::observe(ctx, t, state),
@@ -194,6 +197,14 @@ pub fn observe(
                 .map(|f| f.text.as_str())
                 .collect::<Vec<_>>()
                 .join("; ");
+            let field = super::signature::of_difference(
+                kind,
+                mode,
+                &p.judgement.expect,
+                &p.exchange,
+                diff.expected.as_deref(),
+                wrong,
+            );
             Ok(Some(Observed {
                 kind,
                 severity,
@@ -201,6 +212,7 @@ pub fn observe(
                 exchange: Some(p.record()),
                 register: wrong,
                 recovery: None,
+                field,
             }))
         }
     }
@@ -332,6 +344,12 @@ pub fn fuzz_mode(
     let mut bound = Duration::ZERO;
     let started = Instant::now();
     let mut spent_minimizing = Duration::ZERO;
+    // The brisk path where the link has no timing (see [`super::brisk`]).
+    let mut guard =
+        (ctx.line_timing().is_none() && !cfg.full_windows).then(super::brisk::GuardStats::default);
+    ctx.master_mut().set_brisk(guard.is_some());
+    let mut prev: Option<Case> = None;
+    let mut prev_careful = false;
     loop {
         if stop.load(Ordering::Relaxed) {
             out.stopped = Some("interrupted".into());
@@ -389,13 +407,28 @@ pub fn fuzz_mode(
             *out.timing.sent.entry(t.damage.class()).or_default() += 1;
         }
         let sent_at = Instant::now();
-        let result = match lost {
-            Some(w) => Err(RunError::DeviceLost(w)),
-            None => observe(&mut ctx, &case.step, &mut state),
+        let mut doubt = false;
+        let result = match (lost, guard.as_mut()) {
+            (Some(w), _) => Err(RunError::DeviceLost(w)),
+            (None, Some(g)) => {
+                super::brisk::observe(&mut ctx, &case.step, &mut state, g).map(|(o, d)| {
+                    doubt = d;
+                    o
+                })
+            }
+            (None, None) => observe(&mut ctx, &case.step, &mut state),
         };
         let result = match result {
             Ok(None) if (case.index + 1).is_multiple_of(cfg.probe_every.max(1)) => {
-                match ctx.liveness() {
+                let answered = if guard.is_some() {
+                    super::brisk::periodic(&mut ctx).map(|(answered, clean)| {
+                        doubt |= !clean;
+                        answered
+                    })
+                } else {
+                    ctx.liveness()
+                };
+                match answered {
                     Ok(true) => Ok(None),
                     Ok(false) => Err(RunError::DeviceLost(format!(
                         "no answer to the periodic liveness probe after case {}",
@@ -406,90 +439,102 @@ pub fn fuzz_mode(
             }
             r => r,
         };
-        let replied = match (&result, &case.step) {
-            (Ok(None), Step::Frame(f)) => {
-                let j = model.judge(opts.address, mode, f);
-                j.expect.replies().then(|| predicted_len(mode, &j.expect))
-            }
-            (Ok(None), Step::Timed(t)) => {
-                let j = super::timing::predict(&ctx, t);
-                j.expect.replies().then(|| predicted_len(mode, &j.expect))
-            }
-            _ => None,
-        };
-        bound += line_time(&ctx, &case.step, replied);
-        let observed = match result {
-            Ok(o) => o.map(|o| {
-                let r = o.recovery;
-                (o, r)
-            }),
-            Err(RunError::Transport(e)) => {
-                out.stopped = Some(e.to_string());
-                break;
-            }
-            Err(RunError::DeviceLost(why)) => {
-                let t = Instant::now();
-                // How long it was gone: from the case that silenced it.
-                let recovery = match recover(&mut ctx, cfg.recover_wait) {
-                    Ok(r) => r.map(|_| sent_at.elapsed()),
-                    Err(e) => {
-                        out.stopped = Some(e.to_string());
-                        None
+        // The guard of the brisk path: a case in doubt, and the one before it, are sent
+        // again with full windows; only those verdicts count.
+        let mut verdicts = Vec::new();
+        let mut careful = false;
+        match guard.as_mut() {
+            Some(g) => {
+                let stray = ctx.master_mut().take_stray();
+                g.stray_bytes += stray as u64;
+                let late_could_make_it = matches!(&result, Ok(Some(o))
+                    if matches!(o.kind, Kind::Mismatch | Kind::UnexpectedReply | Kind::WrongValue));
+                if doubt || stray > 0 || late_could_make_it {
+                    let before = prev.as_ref().filter(|_| !prev_careful);
+                    let steps: Vec<&Step> =
+                        before.iter().map(|c| &c.step).chain([&case.step]).collect();
+                    let again =
+                        super::brisk::rerun(&mut ctx, &steps, &mut state, g, cfg.recover_wait);
+                    let cases: Vec<&Case> = before.into_iter().chain([&case]).collect();
+                    if late_could_make_it && matches!(again.last(), Some(Ok(None))) {
+                        g.unconfirmed += 1;
                     }
-                };
-                spent_minimizing += t.elapsed();
-                Some((
-                    super::campaign::Observed {
-                        kind: Kind::Hang,
-                        severity: Severity::Deviation,
-                        text: format!(
-                            "{why}; {}",
-                            match recovery {
-                                Some(d) =>
-                                    format!("it answered again after {:.1} s", d.as_secs_f64()),
-                                None => format!(
-                                    "it did not answer again within {:.1} s (--recover-wait)",
-                                    cfg.recover_wait.as_secs_f64()
-                                ),
-                            }
-                        ),
-                        exchange: None,
-                        register: None,
-                        recovery: None,
-                    },
-                    Some(recovery),
-                ))
-            }
-        };
-        if let Some((o, recovery)) = observed {
-            let finding = finding_of(mode, &case, o, recovery, cfg);
-            let sig = finding.signature();
-            match by_signature.get(&sig) {
-                Some(&i) => out.findings[i].count += 1,
-                None => {
-                    let t = Instant::now();
-                    let mut finding = finding;
-                    if cfg.minimize && recovery.is_none_or(|r| r.is_some()) {
-                        super::minimize::minimize(&mut ctx, &mut finding, &mut state, cfg);
+                    for (c, r) in cases.into_iter().zip(again) {
+                        verdicts.push((c.clone(), r));
                     }
-                    spent_minimizing += t.elapsed();
-                    finding.replay = replay_line(&cfg.replay, mode, &finding);
-                    by_signature.insert(sig, out.findings.len());
-                    out.findings.push(finding);
+                    careful = true;
+                } else {
+                    verdicts.push((case.clone(), result));
                 }
             }
-            if matches!(recovery, Some(None)) {
-                out.stopped = Some(format!(
-                    "the device stopped answering in case {} and did not come back",
-                    case.index
-                ));
-                ctx.lost = Some(out.stopped.clone().unwrap_or_default());
+            None => verdicts.push((case.clone(), result)),
+        }
+        if let Some((_, r)) = verdicts.iter().rev().find(|(c, _)| c.index == case.index) {
+            let replied = match (r, &case.step) {
+                (Ok(None), Step::Frame(f)) => {
+                    let j = model.judge(opts.address, mode, f);
+                    j.expect.replies().then(|| predicted_len(mode, &j.expect))
+                }
+                (Ok(None), Step::Timed(t)) => {
+                    let j = super::timing::predict(&ctx, t);
+                    j.expect.replies().then(|| predicted_len(mode, &j.expect))
+                }
+                _ => None,
+            };
+            bound += line_time(&ctx, &case.step, replied);
+        }
+        let mut stop_now = false;
+        for (c, r) in verdicts {
+            if conclude(
+                &mut ctx,
+                &mut out,
+                &mut by_signature,
+                cfg,
+                &mut state,
+                &mut spent_minimizing,
+                &c,
+                r,
+                sent_at,
+            ) {
+                stop_now = true;
                 break;
             }
-            ctx.lost = None;
         }
+        if stop_now {
+            break;
+        }
+        prev = Some(case);
+        prev_careful = careful;
         progress(out.cases, out.findings.len());
     }
+    // Anything still to come from the last brisk exchanges comes within a full window.
+    if let (Some(g), Some(last), true) = (guard.as_mut(), prev.as_ref(), out.stopped.is_none()) {
+        std::thread::sleep(ctx.silence_window());
+        let late = ctx.master_mut().drain_input().unwrap_or(0);
+        let _ = ctx.master_mut().take_stray();
+        if late > 0 && !prev_careful {
+            g.stray_bytes += late as u64;
+            let again =
+                super::brisk::rerun(&mut ctx, &[&last.step], &mut state, g, cfg.recover_wait);
+            for r in again {
+                if conclude(
+                    &mut ctx,
+                    &mut out,
+                    &mut by_signature,
+                    cfg,
+                    &mut state,
+                    &mut spent_minimizing,
+                    last,
+                    r,
+                    Instant::now(),
+                ) {
+                    break;
+                }
+            }
+        }
+    }
+    ctx.master_mut().set_brisk(false);
+    out.brisk = guard;
     out.elapsed = started.elapsed().saturating_sub(spent_minimizing);
     out.bound = ctx.line_timing().map(|_| bound);
     out.probes = ctx.liveness_probes;
@@ -498,6 +543,104 @@ pub fn fuzz_mode(
     out.echo = ctx.echoes();
     out.restore = ctx.restore();
     out
+}
+
+/// Concludes one case's verdict: waits out a hang, groups a finding under its signature
+/// (minimizing a new one with full windows). Whether the campaign must stop.
+#[allow(clippy::too_many_arguments)]
+fn conclude(
+    ctx: &mut Ctx<'_>,
+    out: &mut ModeOutcome,
+    by_signature: &mut BTreeMap<String, usize>,
+    cfg: &FuzzConfig,
+    state: &mut State,
+    spent_minimizing: &mut Duration,
+    case: &Case,
+    result: Result<Option<Observed>, RunError>,
+    sent_at: Instant,
+) -> bool {
+    let mode = ctx.mode;
+    let observed = match result {
+        Ok(o) => o.map(|o| {
+            let r = o.recovery;
+            (o, r)
+        }),
+        Err(RunError::Transport(e)) => {
+            out.stopped = Some(e.to_string());
+            return true;
+        }
+        Err(RunError::DeviceLost(why)) => {
+            let t = Instant::now();
+            // How long it was gone: from the case that silenced it.
+            let recovery = match recover(ctx, cfg.recover_wait) {
+                Ok(r) => r.map(|_| sent_at.elapsed()),
+                Err(e) => {
+                    out.stopped = Some(e.to_string());
+                    None
+                }
+            };
+            let _ = ctx.master_mut().take_stray();
+            *spent_minimizing += t.elapsed();
+            Some((
+                Observed {
+                    kind: Kind::Hang,
+                    severity: Severity::Deviation,
+                    text: format!(
+                        "{why}; {}",
+                        match recovery {
+                            Some(d) => format!("it answered again after {:.1} s", d.as_secs_f64()),
+                            None => format!(
+                                "it did not answer again within {:.1} s (--recover-wait)",
+                                cfg.recover_wait.as_secs_f64()
+                            ),
+                        }
+                    ),
+                    exchange: None,
+                    register: None,
+                    recovery: None,
+                    field: super::signature::of_request(mode, &case.step),
+                },
+                Some(recovery),
+            ))
+        }
+    };
+    let Some((o, recovery)) = observed else {
+        return false;
+    };
+    let finding = finding_of(mode, case, o, recovery, cfg);
+    let sig = finding.signature();
+    match by_signature.get(&sig) {
+        Some(&i) => {
+            out.findings[i].count += 1;
+            *out.findings[i].classes.entry(case.class).or_default() += 1;
+        }
+        None => {
+            let t = Instant::now();
+            let mut finding = finding;
+            if cfg.minimize && recovery.is_none_or(|r| r.is_some()) {
+                // Replays are judged with full windows.
+                let brisk = ctx.master_mut().brisk();
+                ctx.master_mut().set_brisk(false);
+                super::minimize::minimize(ctx, &mut finding, state, cfg);
+                ctx.master_mut().set_brisk(brisk);
+                let _ = ctx.master_mut().take_stray();
+            }
+            *spent_minimizing += t.elapsed();
+            finding.replay = replay_line(&cfg.replay, mode, &finding);
+            by_signature.insert(sig, out.findings.len());
+            out.findings.push(finding);
+        }
+    }
+    if matches!(recovery, Some(None)) {
+        out.stopped = Some(format!(
+            "the device stopped answering in case {} and did not come back",
+            case.index
+        ));
+        ctx.lost = Some(out.stopped.clone().unwrap_or_default());
+        return true;
+    }
+    ctx.lost = None;
+    false
 }
 
 /// The predicted reply's length on the line.
@@ -523,7 +666,8 @@ fn finding_of(
         kind: o.kind,
         mode,
         function: frames.first().map_or(0, |f| function_of(mode, f)),
-        class: case.class,
+        field: o.field,
+        classes: [(case.class, 1)].into_iter().collect(),
         count: 1,
         first_case: case.index,
         burst: matches!(case.step, Step::Burst(_)),

@@ -12,17 +12,22 @@
 //!   every K cases, hangs and recovery) and the run of one mode;
 //! - [`minimize`]: shrinking a finding to the shortest frame or sequence that still
 //!   reproduces it, by replaying;
+//! - [`brisk`]: the fast path on a link without timing, and the guard that repeats with
+//!   full windows whatever late bytes put in doubt;
+//! - [`signature`]: what a finding is about (one bug, one entry);
 //! - [`report`](self::report): findings grouped by signature, as the suite's report;
 //! - [`timing`]: timing damage (a silence inside a frame, frames without t3.5, a frame
 //!   split at every position), on links with line timing;
 //! - [`storm`]: the storm test, the device's own requests at line rate among other
 //!   nodes' traffic and broadcasts.
 
+pub mod brisk;
 pub mod campaign;
 pub mod cases;
 pub mod minimize;
 pub mod report;
 pub mod safety;
+pub mod signature;
 pub mod storm;
 pub mod timing;
 
@@ -93,6 +98,9 @@ pub struct FuzzConfig {
     pub replay: String,
     /// Run the storm test instead of the cases (see [`storm`]).
     pub storm: Option<storm::StormConfig>,
+    /// Full windows on every exchange, also on a link without timing (no brisk path;
+    /// see [`brisk`]).
+    pub full_windows: bool,
 }
 
 /// What kind of difference a finding is.
@@ -132,8 +140,10 @@ pub struct FuzzFinding {
     pub mode: Mode,
     /// The function code of the (first) frame.
     pub function: u8,
-    /// The case class (field class) that found it.
-    pub class: &'static str,
+    /// The field of the difference (see [`signature`]).
+    pub field: String,
+    /// The case classes that found it, with their counts.
+    pub classes: std::collections::BTreeMap<&'static str, u64>,
     /// Cases with this signature.
     pub count: u64,
     /// The number of the first case.
@@ -167,15 +177,24 @@ pub struct FuzzFinding {
 }
 
 impl FuzzFinding {
-    /// The signature that groups cases: mode, kind, function, field class.
+    /// The signature that groups cases: mode, kind, function, field of the difference.
     pub fn signature(&self) -> String {
         format!(
             "{}.{}.{:02X}H.{}",
             self.mode,
             self.kind.name(),
             self.function,
-            self.class
+            self.field
         )
+    }
+
+    /// The case classes that found it, as "class xN, ...".
+    pub fn classes_text(&self) -> String {
+        self.classes
+            .iter()
+            .map(|(c, n)| format!("{c} x{n}"))
+            .collect::<Vec<_>>()
+            .join(", ")
     }
 }
 
@@ -210,6 +229,8 @@ pub struct ModeOutcome {
     pub timing: timing::TimingStats,
     /// The storm test, where it ran instead of the cases.
     pub storm: Option<storm::StormOutcome>,
+    /// What the brisk path did (None: full windows throughout).
+    pub brisk: Option<brisk::GuardStats>,
 }
 
 impl ModeOutcome {

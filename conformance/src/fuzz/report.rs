@@ -42,9 +42,10 @@ pub fn finding_result(f: &FuzzFinding) -> CheckResult {
             .join(", ")
     };
     lines.push(Finding::observation(format!(
-        "first in case {} ({} case(s) with this signature): {}{}",
+        "first in case {} ({} case(s) with this signature, found by {}): {}{}",
         f.first_case,
         f.count,
+        f.classes_text(),
         frames(&f.frames),
         if f.burst { " (back to back)" } else { "" }
     )));
@@ -65,10 +66,11 @@ pub fn finding_result(f: &FuzzFinding) -> CheckResult {
     CheckResult {
         id: format!("fuzz.{}", f.signature()),
         title: format!(
-            "{} on {:02X}H ({} cases)",
+            "{} on {:02X}H: {} (found by {})",
             f.kind.name(),
             f.function,
-            f.class
+            f.field,
+            f.classes_text()
         ),
         mode: Some(f.mode),
         source: "the model's prediction (DriveModel::judge) for every frame; liveness probes after every silence".into(),
@@ -105,6 +107,10 @@ pub fn campaign_result(m: &ModeOutcome) -> CheckResult {
         }
     );
     let summary = format!("{summary}; {}", m.timing.describe());
+    let summary = match &m.brisk {
+        Some(g) => format!("{summary}; {}", g.describe()),
+        None => summary,
+    };
     let (status, summary) = match (&m.stopped, m.ran) {
         (Some(why), false) => (Status::Error, why.clone()),
         (Some(why), true) if why != "interrupted" => {
@@ -142,11 +148,22 @@ impl FuzzSummary {
                     "liveness_probes": m.probes,
                     "timing": m.timing.to_json(),
                     "storm": m.storm.as_ref().map(|s| s.to_json()),
+                    "brisk": m.brisk.map(|g| json!({
+                        "sequenced": g.sequenced,
+                        "waited": g.waited,
+                        "bursts": g.bursts,
+                        "reruns": g.reruns,
+                        "rerun_cases": g.rerun_cases,
+                        "stray_bytes": g.stray_bytes,
+                        "unconfirmed": g.unconfirmed,
+                        "framing_delay_ms": ms(g.framing_delay),
+                    })),
                     "findings": m.findings.iter().map(|f| json!({
                         "signature": f.signature(),
                         "kind": f.kind.name(),
                         "function": format!("{:02X}", f.function),
-                        "field_class": f.class,
+                        "field_class": f.field,
+                        "classes": f.classes,
                         "count": f.count,
                         "first_case": f.first_case,
                         "frames": f.frames.iter().map(|x| Hex(x).to_string()).collect::<Vec<_>>(),

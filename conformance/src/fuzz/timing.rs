@@ -342,6 +342,7 @@ fn once(ctx: &mut Ctx<'_>, t: &Timed) -> Result<Option<Observed>, RunError> {
         exchange: Some(record),
         register: None,
         recovery: None,
+        field: t.damage.class().into(),
     }))
 }
 

@@ -585,7 +585,9 @@ pub fn html(report: &Report) -> String {
                 "<tr><td class=\"id\">{:04X}H</td><td class=\"id\">{:04X}H</td><td>{}</td><td>{}</td></tr>",
                 r.register,
                 r.original,
-                if r.restored {
+                if r.restored && !r.changed {
+                    badge(Status::Pass).replace("PASS", "unchanged")
+                } else if r.restored {
                     badge(Status::Pass).replace("PASS", "yes")
                 } else {
                     badge(Status::Deviation).replace("DEVIATION", "NOT RESTORED")

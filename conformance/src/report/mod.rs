@@ -198,6 +198,7 @@ impl Report {
                     "register": format!("{:04X}", r.register),
                     "original": format!("{:04X}", r.original),
                     "restored": r.restored,
+                    "changed": r.changed,
                     "detail": r.detail,
                 })
             })

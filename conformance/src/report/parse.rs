@@ -311,6 +311,8 @@ impl Report {
                     original: u16::try_from(hex_u(r, "original", &p)?)
                         .map_err(|_| field(&p, "value beyond FFFF"))?,
                     restored: boolean(r, "restored", &p)?,
+                    // Older reports counted every journalled register as changed.
+                    changed: r.get("changed").and_then(Value::as_bool).unwrap_or(true),
                     detail: string(r, "detail", &p)?,
                 })
             })
@@ -390,6 +392,7 @@ mod tests {
                 register: 0x2502,
                 original: 0x04D2,
                 restored: true,
+                changed: true,
                 detail: "read back 04D2".into(),
             }],
             ..Report::default()

@@ -189,12 +189,18 @@ pub fn text(r: &Report, verbose: bool) -> String {
     }
     if !r.restore.is_empty() {
         let bad = r.unrestored().len();
+        let unchanged = r
+            .restore
+            .iter()
+            .filter(|x| x.restored && !x.changed)
+            .count();
         let _ = writeln!(
             o,
-            "\nRESTORE ({} register{} changed by the run, {} restored and verified{}){}",
+            "\nRESTORE ({} register{} journalled: {} changed by the run, restored and verified; {} unchanged, verified{}){}",
             r.restore.len(),
             plural(r.restore.len()),
-            r.restore.len() - bad,
+            r.restore.len() - bad - unchanged,
+            unchanged,
             if bad > 0 {
                 format!(", {bad} NOT RESTORED")
             } else {
@@ -211,7 +217,11 @@ pub fn text(r: &Report, verbose: bool) -> String {
                 o,
                 "  {:04X}H {} {}",
                 x.register,
-                if x.restored { "ok " } else { "NOT" },
+                match (x.restored, x.changed) {
+                    (true, false) => "=  ",
+                    (true, true) => "ok ",
+                    _ => "NOT",
+                },
                 x.detail
             );
         }

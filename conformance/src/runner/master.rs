@@ -166,6 +166,11 @@ pub struct Master<T: Transport + ?Sized> {
     broken_requests: u64,
     /// Timing damage: the request goes out in pieces (see [`Master::exchange_split`]).
     split: Option<Split>,
+    /// Brisk listening (see [`Master::set_brisk`]).
+    brisk: bool,
+    /// Bytes found waiting before a request was sent, since the last
+    /// [`Master::take_stray`]: the late end of an earlier exchange.
+    stray: usize,
     transport: Box<T>,
 }
 
@@ -195,6 +200,8 @@ impl<T: Transport + ?Sized> Master<T> {
             budget: LineBudget::default(),
             broken_requests: 0,
             split: None,
+            brisk: false,
+            stray: 0,
             transport,
         }
     }
@@ -222,6 +229,60 @@ impl<T: Transport + ?Sized> Master<T> {
         (self.budget.max_response * 2 + t35 + Duration::from_millis(20))
             .max(SILENCE_FLOOR)
             .min(cap)
+    }
+
+    /// Brisk listening, for a link without timing whose user catches late bytes: once a
+    /// whole reply is in, stop at once instead of waiting a settle time for trailing
+    /// bytes. Whatever comes later is not lost: it is found waiting before the next
+    /// request and counted by [`Master::take_stray`], so that the exchange it belongs to
+    /// can be repeated with full windows.
+    pub fn set_brisk(&mut self, on: bool) {
+        self.brisk = on;
+    }
+
+    /// Whether listening is brisk.
+    pub fn brisk(&self) -> bool {
+        self.brisk
+    }
+
+    /// Bytes that were found waiting before a request was sent (and dropped), since the
+    /// last call: evidence that an earlier exchange ended before the device did.
+    pub fn take_stray(&mut self) -> usize {
+        std::mem::take(&mut self.stray)
+    }
+
+    /// Reads what is waiting on the link (counted as stray too) and discards the rest:
+    /// how many bytes were waiting.
+    pub fn drain_input(&mut self) -> Result<usize, TransportError> {
+        let before = self.stray;
+        self.drain()?;
+        Ok(self.stray - before)
+    }
+
+    /// Reads and counts what is waiting on the link, then discards the rest.
+    fn drain(&mut self) -> Result<(), TransportError> {
+        let mut buf = [0u8; 256];
+        // Bounded: a device that talks without end is not drained forever here.
+        for _ in 0..64 {
+            let n = self.transport.recv(&mut buf, Duration::ZERO)?;
+            if n == 0 {
+                break;
+            }
+            self.stray += n;
+        }
+        self.transport.discard_input()
+    }
+
+    /// Sends `request`, where no reply is expected, and listens for `window` only (zero:
+    /// not at all). For a caller that proves the silence otherwise: on a link that keeps
+    /// the order of frames, the reply to a request sent right after must be the next
+    /// frame, and anything before it is the answer to this one.
+    pub fn exchange_listening(
+        &mut self,
+        request: &[u8],
+        window: Duration,
+    ) -> Result<Exchange, TransportError> {
+        self.exchange_once(request, false, 0, Some(window))
     }
 
     /// Sets what to do about a local echo.
@@ -315,7 +376,7 @@ impl<T: Transport + ?Sized> Master<T> {
         let mut retries = 0;
         let mut broken = 0;
         loop {
-            let ex = self.exchange_once(request, expect_reply, retries)?;
+            let ex = self.exchange_once(request, expect_reply, retries, None)?;
             // A request that left this host with a gap over t1.5 inside it (the host
             // stalled while pacing it) is not the request on the line: send it again, a
             // few times at most, before judging anything.
@@ -338,16 +399,17 @@ impl<T: Transport + ?Sized> Master<T> {
         request: &[u8],
         expect_reply: bool,
         retries: u32,
+        window: Option<Duration>,
     ) -> Result<Exchange, TransportError> {
         let t0 = Instant::now();
         self.wait_gap();
-        self.transport.discard_input()?;
+        self.drain()?;
         self.send_request(request)?;
         let sent = self.transport.sent_at().unwrap_or_else(Instant::now);
-        let wait = if expect_reply {
-            self.timing.timeout
-        } else {
-            self.silence_window()
+        let wait = match window {
+            Some(w) => w,
+            None if expect_reply => self.timing.timeout,
+            None => self.silence_window(),
         };
         let deadline = sent + wait;
         let mut raw = Vec::new();
@@ -355,6 +417,8 @@ impl<T: Transport + ?Sized> Master<T> {
         let mut last_rx: Option<Instant> = None;
         let mut complete = false;
         let settle = match self.transport.line_timing() {
+            // Brisk: trailing bytes are caught before the next request instead.
+            _ if self.brisk => Duration::ZERO,
             Some(l) => Duration::from_micros(2 * l.t3_5_us()).max(Duration::from_millis(5)),
             // A link without timing: 5 ms, or the quiet window where it is shorter (the
             // fuzzer's unpaced simulator).

@@ -187,6 +187,10 @@ pub struct RestoreRecord {
     pub original: u16,
     /// Whether the read-back after restoring showed the original value.
     pub restored: bool,
+    /// Whether the run left it changed: false for a register found holding its original
+    /// value at the end (only value-preserving writes, or writes the device refused), which
+    /// needed no write back.
+    pub changed: bool,
     /// What happened.
     pub detail: String,
 }
@@ -335,6 +339,12 @@ impl<'a> Ctx<'a> {
             lost: None,
             liveness_probes: 0,
         }
+    }
+
+    /// The master, for a caller that drives the exchanges itself (the fuzzer's brisk
+    /// path).
+    pub fn master_mut(&mut self) -> &mut Master<dyn Transport> {
+        &mut self.master
     }
 
     /// How long the master listens where no reply is expected: fixed, or derived from
@@ -532,6 +542,7 @@ impl<'a> Ctx<'a> {
                         register,
                         original,
                         restored: false,
+                        changed: true,
                         detail: format!(
                             "not restored: the device does not answer ({why}); write {original:04X}H back by hand"
                         ),
@@ -545,16 +556,22 @@ impl<'a> Ctx<'a> {
                 register,
                 original,
                 restored,
+                changed: true,
                 detail,
             };
             // A register that holds its original value needs no write (a rejected
             // write, a value-preserving write): say so, and do not write.
             match self.read(register, 1) {
                 Ok(Ok(v)) if v[0] == original => {
-                    out.push(rec(
-                        true,
-                        format!("holds its original value {original:04X}H; nothing to write"),
-                    ));
+                    out.push(RestoreRecord {
+                        changed: false,
+                        ..rec(
+                            true,
+                            format!(
+                                "unchanged, verified: it holds its original value {original:04X}H (only written with the value it held, or the write was refused); nothing to write"
+                            ),
+                        )
+                    });
                     continue;
                 }
                 Err(e) => {

@@ -49,7 +49,8 @@ pub enum Quirk {
     WrongValueAt(u16),
     /// A planted firmware bug: the Nth frame in a row that arrives less than t3.5 after
     /// the previous one overflows the receiver; nothing is answered until
-    /// [`OVERFLOW_RECOVERY`] passes without a frame.
+    /// [`OVERFLOW_RECOVERY`] passes without a frame. On an unpaced link (no line time, no
+    /// t3.5), frames are back to back when they arrive in one read.
     OverflowAfter(u64),
     /// A planted firmware bug: an RTU frame with a silence over t1.5 (under t3.5) between
     /// two of its characters is taken whole instead of being discarded (Modbus over
@@ -123,7 +124,7 @@ pub const QUIRK_HELP: [(&str, &str); 17] = [
     ),
     (
         "overflow-after=N",
-        "planted bug: the Nth frame in a row less than t3.5 after the previous one stops all answers until 1 s without a frame",
+        "planted bug: the Nth frame in a row less than t3.5 after the previous one (unpaced: in the same read, written together) stops all answers until 1 s without a frame",
     ),
     (
         "ignore-t15",
@@ -367,7 +368,13 @@ impl Drive {
             // The gap before this frame: the time since the previous one ended, less this
             // frame's own time on the line.
             let on_line = self.char_time * u32::try_from(frame.len()).unwrap_or(u32::MAX);
-            let close = since.is_some_and(|s| s.saturating_sub(on_line) < self.t3_5);
+            let close = if self.char_time.is_zero() {
+                // An unpaced link has no line time and no t3.5 to keep: frames are back
+                // to back when they came in one read (written together).
+                since.is_some_and(|s| s.is_zero())
+            } else {
+                since.is_some_and(|s| s.saturating_sub(on_line) < self.t3_5)
+            };
             self.close_frames = if close { self.close_frames + 1 } else { 0 };
             if self.close_frames >= n {
                 self.overflowed = true;

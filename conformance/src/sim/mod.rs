@@ -15,4 +15,4 @@ pub mod server;
 
 pub use drive::{Drive, Outcome, Quirk, SendKind, Transmission, QUIRK_HELP};
 pub use log::{Dir, LogFormat, TrafficLog};
-pub use server::{serve, ServeStats, SimError};
+pub use server::{serve, serve_with_gap, ServeStats, SimError};

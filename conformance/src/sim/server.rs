@@ -83,6 +83,22 @@ pub fn serve<T: Transport + ?Sized>(
     log: &mut TrafficLog,
     stop: &AtomicBool,
 ) -> Result<ServeStats, SimError> {
+    serve_with_gap(transport, drive, mode, log, stop, None)
+}
+
+/// [`serve`], with the quiet time that ends a burst on a link without timing (RTU)
+/// instead of [`BURST_GAP`]. Zero: a burst ends as soon as nothing more is waiting, for
+/// a master known to write every frame in one write (on a pseudo-terminal a write
+/// arrives whole), such as the fuzzer on an unpaced link; a master that writes a frame
+/// in pieces may then have a piece of an unmodelled function taken as garbage.
+pub fn serve_with_gap<T: Transport + ?Sized>(
+    transport: &mut T,
+    drive: &mut Drive,
+    mode: Mode,
+    log: &mut TrafficLog,
+    stop: &AtomicBool,
+    gap: Option<Duration>,
+) -> Result<ServeStats, SimError> {
     let line = transport.line_timing();
     // A paced pseudo-terminal: arrival times rebuilt at the line's rate.
     let mut clock = match (transport.kind(), line, mode) {
@@ -111,9 +127,10 @@ pub fn serve<T: Transport + ?Sized>(
     // On a link that has a line's timing but is framed by length (a paced
     // pseudo-terminal), bytes come a character time apart: a burst of an unmodelled
     // function ends at t3.5 of quiet, not before.
-    let burst_gap = match transport.line_timing() {
-        Some(l) => BURST_GAP.max(Duration::from_micros(l.t3_5_us() + 2_000)),
-        None => BURST_GAP,
+    let burst_gap = match (transport.line_timing(), gap) {
+        (Some(l), _) => BURST_GAP.max(Duration::from_micros(l.t3_5_us() + 2_000)),
+        (None, Some(g)) => g,
+        (None, None) => BURST_GAP,
     };
     let poll = match line {
         Some(_) => Duration::from_millis(1),
@@ -124,7 +141,10 @@ pub fn serve<T: Transport + ?Sized>(
     let mut buf = [0u8; 512];
     let mut last_rx: Option<Instant> = None;
     while !stop.load(Ordering::Relaxed) {
-        let n = transport.recv(&mut buf, poll)?;
+        // Bytes held that a quiet time shorter than the poll will end: look again at once.
+        let held = matches!(&deframer, Deframer::Rtu(d, true)
+            if d.pending() > 0 && (!d.awaiting_rest() || d.holds_checked_burst()));
+        let n = transport.recv(&mut buf, if held { poll.min(burst_gap) } else { poll })?;
         let now = Instant::now();
         let now_us = u64::try_from(now.duration_since(epoch).as_micros()).unwrap_or(u64::MAX);
         let mut events = Vec::new();
