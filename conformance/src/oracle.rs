@@ -874,9 +874,62 @@ pub fn drive(data: &[u8]) {
     }
 }
 
+/// The MBAP codec on a stream of bytes (what a Modbus TCP gateway sends): frame after
+/// frame as [`mbap::frame_status`] finds them, until the stream ends or breaks. For each:
+/// a whole frame is 8..=260 bytes, its checked view and representation agree with the
+/// header's bytes, and emitting the representation gives the same bytes back; a partial
+/// frame never asks for more than the longest frame; an error is a header that a checked
+/// view refuses too; nothing panics.
+pub fn mbap_frame(data: &[u8]) {
+    use crate::codec::mbap::{self, MbapFrame, MbapRepr, Status};
+    let mut rest = data;
+    let mut out = [0u8; mbap::MAX_ADU];
+    loop {
+        match mbap::frame_status(rest) {
+            Ok(Status::Complete(n)) => {
+                assert!((mbap::HEADER_LEN + 1..=mbap::MAX_ADU).contains(&n), "{n}");
+                assert!(n <= rest.len());
+                let view = MbapFrame::new_checked(&rest[..n]).expect("a whole frame's view");
+                let repr = MbapRepr::parse(&view).expect("a whole frame parses");
+                assert_eq!(view.protocol(), 0);
+                assert_eq!(usize::from(view.length()), n - 6);
+                assert_eq!(repr.pdu.len(), n - mbap::HEADER_LEN);
+                assert_eq!(
+                    (repr.transaction, repr.unit),
+                    (view.transaction(), view.unit())
+                );
+                assert_eq!(repr.buffer_len(), n);
+                let m = repr.emit(&mut out).expect("a parsed frame emits");
+                assert_eq!(&out[..m], &rest[..n], "emit gives the bytes back");
+                if let Some(code) = repr.gateway_exception() {
+                    assert!(repr.pdu.len() == 2 && repr.pdu[0] & 0x80 != 0 && repr.pdu[1] == code);
+                }
+                let _ = (view.to_string(), repr.to_string());
+                // A stream of exactly one frame is a checked frame; with more, it is not.
+                assert_eq!(MbapFrame::new_checked(rest).is_ok(), n == rest.len());
+                rest = &rest[n..];
+            }
+            Ok(Status::Partial(k)) => {
+                assert!(
+                    k >= 1 && rest.len() + k <= mbap::MAX_ADU,
+                    "{} + {k}",
+                    rest.len()
+                );
+                assert!(MbapFrame::new_checked(rest).is_err());
+                return;
+            }
+            Err(e) => {
+                assert!(MbapFrame::new_checked(rest).is_err(), "{e}");
+                let _ = e.to_string();
+                return;
+            }
+        }
+    }
+}
+
 /// The fuzz targets by name, each with its oracle: the one list the fuzz crate, the seed
 /// corpus writer and the regression replay share.
-pub const TARGETS: [(&str, Oracle); 8] = [
+pub const TARGETS: [(&str, Oracle); 9] = [
     ("rtu_frame", rtu_frame),
     ("ascii_frame", ascii_frame),
     ("rtu_deframer", rtu_deframer),
@@ -885,6 +938,7 @@ pub const TARGETS: [(&str, Oracle); 8] = [
     ("roundtrip", roundtrip_bytes),
     ("crc_differential", crc_differential),
     ("drive", drive),
+    ("mbap_frame", mbap_frame),
 ];
 
 #[cfg(test)]

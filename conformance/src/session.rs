@@ -13,6 +13,7 @@ use crate::model::DriveModel;
 use crate::report::{Device, Report, RunOptions};
 use crate::runner::{run_mode, Check, CheckResult, Options, Progress};
 use crate::sim::{serve_with_gap, Drive, LogFormat, Quirk, TrafficLog};
+use crate::transport::mbap::{MbapGateway, UnitMap};
 use crate::transport::serial::SerialTransport;
 use crate::transport::tcp::TcpTransport;
 use crate::transport::{LinkKind, Transport, TransportError};
@@ -32,6 +33,13 @@ pub enum Target {
     Tcp {
         /// HOST:PORT.
         addr: String,
+    },
+    /// A Modbus TCP gateway at HOST:PORT (MBAP framing), with the device at `unit`.
+    Mbap {
+        /// HOST:PORT.
+        addr: String,
+        /// The device's unit id (see [`crate::transport::mbap::UnitMap`]).
+        unit: u8,
     },
     /// This suite's simulator, started in-process on a pseudo-terminal pair.
     Sim {
@@ -204,7 +212,8 @@ pub fn serial_kind(path: &str) -> LinkKind {
     }
 }
 
-/// Opens the target for `mode`: the serial port, the TCP gateway, or a simulator started
+/// Opens the target for `mode`: the serial port, the TCP gateway (raw frames or Modbus
+/// TCP), or a simulator started
 /// on a pseudo-terminal pair (stopped when the guard is dropped).
 pub fn open(
     config: &SessionConfig,
@@ -220,6 +229,14 @@ pub fn open(
             Box::new(TcpTransport::connect(
                 addr,
                 config.options.timing.timeout.max(Duration::from_secs(2)),
+            )?),
+        ),
+        Target::Mbap { addr, unit } => (
+            None,
+            Box::new(MbapGateway::connect(
+                addr,
+                config.options.timing.timeout.max(Duration::from_secs(2)),
+                UnitMap::new(config.options.address, *unit),
             )?),
         ),
         #[cfg(unix)]
@@ -246,7 +263,13 @@ fn header(config: &SessionConfig) -> Report {
             model: config.model.id.clone(),
             manual: config.model.manual.clone(),
             address: config.options.address,
-            line: format!("{} baud {}{}{}", l.baud, l.data_bits, l.parity, l.stop_bits),
+            line: match &config.target {
+                // The serial side is the gateway's: its settings are set there.
+                Target::Mbap { unit, .. } => format!(
+                    "behind a Modbus TCP gateway (MBAP, unit {unit}; the serial line's settings are the gateway's)"
+                ),
+                _ => format!("{} baud {}{}{}", l.baud, l.data_bits, l.parity, l.stop_bits),
+            },
             simulated: match &config.target {
                 Target::Sim { quirks, .. } => Some(quirks.iter().map(|q| q.to_string()).collect()),
                 _ => None,

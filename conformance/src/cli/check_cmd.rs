@@ -22,6 +22,9 @@ Examples:
   conformance check --sim f510                          the whole suite against the simulator
   conformance check --model f510 --port /dev/ttyUSB0 -b 9600 -P even --mode rtu -a 1
   conformance check --model l510 --tcp 10.0.0.7:4001 --mode ascii --format junit -o report.xml
+  conformance check --model f510 --tcp 10.0.0.8:502 --framing mbap --unit 3 -a 3
+                                        through a Modbus TCP gateway (checksum, line-timing,
+                                        echo and garbage checks SKIP: a gateway hides them)
   conformance check --sim a510 --quirk wrong-exception --only 'rtu.*'
   conformance check --sim f510 --format html -o report.html   a page for people
   conformance check --model auto --port /dev/ttyUSB0 -b 9600 -P even   identify, then check

@@ -26,6 +26,8 @@ Examples:
   conformance fuzz --model l510 --tcp 10.0.0.7:4001 --writes none --format json -o fuzz.json
   conformance fuzz --sim f510 --storm --mode rtu -b 19200       the storm test
   conformance fuzz --sim f510 --quirk ignore-t15 --mode rtu     timing damage (paced links)
+  conformance fuzz --model f510 --tcp 10.0.0.8:502 --framing mbap --unit 3 -a 3
+                    through a Modbus TCP gateway: damaged and back-to-back cases are not sent
 
 Every case is judged by the model: a reply other than the predicted one, a reply where
 silence is predicted, silence where a reply is predicted (the device answering the

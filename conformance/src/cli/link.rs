@@ -1,6 +1,6 @@
 //! The options `check`, `fuzz` and `send` share: what to talk to (the simulator, a
-//! serial port, a TCP gateway), the model, the serial line, the modes, the node address,
-//! echo and timing; and the safety switches.
+//! serial port, a TCP gateway carrying raw frames or Modbus TCP), the model, the serial
+//! line, the modes, the node address, echo and timing; and the safety switches.
 
 use std::path::PathBuf;
 use std::sync::Arc;
@@ -28,6 +28,21 @@ pub enum ModesArg {
     Both,
 }
 
+/// How frames cross a TCP connection.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum Framing {
+    /// The serial line's own bytes (RTU or ASCII frames with their checksum), as a
+    /// transparent serial server carries them.
+    Rtu,
+    /// Modbus TCP: a 7-byte MBAP header (transaction id, protocol id 0, length, unit id)
+    /// and the PDU, no checksum, as a Modbus TCP gateway to RS-485 speaks it. RTU-
+    /// equivalent PDUs only: there is no ASCII over MBAP.
+    Mbap,
+}
+
+/// Why `--mode ascii` (or both) cannot go through MBAP.
+pub const MBAP_NOT_ASCII: &str = "--framing mbap carries the PDU only (Modbus TCP has no ASCII mode: a gateway speaks RTU or ASCII on its serial side, set in the gateway); use --mode rtu (the default for --tcp)";
+
 /// The device and the link to it.
 #[derive(Debug, Args)]
 pub struct TargetArgs {
@@ -46,9 +61,20 @@ pub struct TargetArgs {
     /// Serial port of the device.
     #[arg(long, value_name = "PATH", group = "target")]
     pub port: Option<String>,
-    /// A serial gateway carrying RTU or ASCII frames over TCP.
+    /// A gateway at HOST:PORT: a serial server carrying RTU or ASCII frames over TCP
+    /// (--framing rtu, the default), or a Modbus TCP gateway (--framing mbap).
     #[arg(long, value_name = "HOST:PORT", group = "target")]
     pub tcp: Option<String>,
+    /// With --tcp: rtu (the serial line's bytes, checksum included) or mbap (Modbus TCP:
+    /// MBAP header and PDU, as a Modbus TCP gateway to RS-485 speaks). Through mbap the
+    /// checksum, line-timing, echo and garbage checks cannot be seen and are SKIP.
+    #[arg(long, value_enum, value_name = "rtu|mbap", requires = "tcp")]
+    pub framing: Option<Framing>,
+    /// With --framing mbap: the unit id the gateway routes to the device (default: the
+    /// node address -a). Decimal, or hex with H suffix or 0x prefix. 1..=255; 0 is the
+    /// broadcast.
+    #[arg(long, value_name = "N", value_parser = Number::<u8>::quiet(), requires = "framing")]
+    pub unit: Option<u8>,
     #[command(flatten)]
     pub line: LineArgs,
     /// Transmission mode (default: rtu for a device, both for --sim).
@@ -178,7 +204,7 @@ impl TargetArgs {
                     rts: self.line.rts.control(),
                 },
             ),
-            (None, None, Some(a)) => (self.model.clone(), Target::Tcp { addr: a.clone() }),
+            (None, None, Some(a)) => (self.model.clone(), self.tcp_target(a)?),
             _ if fallback => (
                 Some(self.model.clone().unwrap_or_else(|| "f510".into())),
                 Target::Sim {
@@ -202,6 +228,9 @@ impl TargetArgs {
             ModesArg::Ascii => vec![Mode::Ascii],
             ModesArg::Both => vec![Mode::Rtu, Mode::Ascii],
         };
+        if matches!(target, Target::Mbap { .. }) && modes.contains(&Mode::Ascii) {
+            bail!("{MBAP_NOT_ASCII}");
+        }
         let line = self.line.settings();
         if modes.contains(&Mode::Rtu) && line.data_bits != 8 {
             bail!("RTU needs 8 data bits (-d 8)");
@@ -267,6 +296,31 @@ impl TargetArgs {
         })
     }
 
+    /// The TCP target: raw frames, or Modbus TCP with its unit id.
+    fn tcp_target(&self, addr: &str) -> anyhow::Result<Target> {
+        match self.framing.unwrap_or(Framing::Rtu) {
+            Framing::Rtu => {
+                if self.unit.is_some() {
+                    bail!("--unit is the unit id of Modbus TCP: it needs --framing mbap");
+                }
+                Ok(Target::Tcp { addr: addr.into() })
+            }
+            Framing::Mbap => {
+                let unit = self.unit.unwrap_or(self.address);
+                if unit == 0 {
+                    bail!("--unit 0 is the broadcast unit id of a Modbus TCP gateway: no device answers it; give the device's unit id (default: the node address -a)");
+                }
+                if self.echo == EchoMode::On {
+                    bail!("--echo on: a Modbus TCP gateway does not echo requests (the echo of a 2-wire line stays behind it); use --echo auto or off");
+                }
+                Ok(Target::Mbap {
+                    addr: addr.into(),
+                    unit,
+                })
+            }
+        }
+    }
+
     /// The master's timing. A `--silence` given is used as it is; otherwise the silence
     /// window is derived from the device's measured response time, at most the timeout
     /// (`is_sim` and `sim_silence` no longer change it: the derived window is shorter).
@@ -297,7 +351,15 @@ impl TargetArgs {
                 }
             }
             (_, Some(p), _) => s.push_str(&format!(" --model {model} --port {p}")),
-            (_, _, Some(t)) => s.push_str(&format!(" --model {model} --tcp {t}")),
+            (_, _, Some(t)) => {
+                s.push_str(&format!(" --model {model} --tcp {t}"));
+                if self.framing == Some(Framing::Mbap) {
+                    s.push_str(&format!(
+                        " --framing mbap --unit {}",
+                        self.unit.unwrap_or(self.address)
+                    ));
+                }
+            }
             _ => {}
         }
         let l = &self.line;

@@ -23,6 +23,8 @@ Examples:
   conformance send --model f510 --port /dev/ttyUSB0 -b 9600 -P even --mode ascii ':010325200001B6\\r\\n'
   conformance send --sim f510 --quirk overflow-after=3 --mode rtu --burst F1 F2 F3 F4
   conformance send --sim f510 --mode rtu --split 3 --gap 2900us 010325200001 8ECC
+  conformance send --model f510 --tcp 10.0.0.8:502 --framing mbap 010325200001 8ECC
+                    (an RTU frame, sent as its PDU in MBAP; its CRC must be valid)
 
 A frame is hex bytes (RTU, or ASCII characters in hex), or in ASCII mode the text itself
 from ':' with \\r and \\n written as escapes. Frames are sent as given (the checksum is not
@@ -75,6 +77,9 @@ pub fn run(args: SendArgs) -> anyhow::Result<ExitCode> {
         other_address,
     } = args.target.resolve(false, None)?;
     let mode = modes[0];
+    if args.burst && matches!(target, session::Target::Mbap { .. }) {
+        bail!("--burst sends frames back to back without t3.5 between them: line timing that a Modbus TCP gateway does not carry (--framing mbap sends one PDU at a time)");
+    }
     let mut frames = Vec::new();
     for f in &args.frames {
         frames.push(parse_frame(mode, f)?);
@@ -161,6 +166,9 @@ pub fn run(args: SendArgs) -> anyhow::Result<ExitCode> {
                 c.at.as_secs_f64() * 1e3,
                 Hex(&c.bytes)
             )?;
+        }
+        for note in &ex.link_notes {
+            writeln!(out, "link: {note}")?;
         }
         let answer = match &ex.reply {
             Some(r) => describe_reply(mode, r),

@@ -11,20 +11,33 @@ use std::time::Duration;
 use anyhow::{bail, Context};
 use clap::{Args, ValueEnum};
 use conformance::codec::Mode;
+use conformance::sim::mbap::{serve_gateway, GatewayConfig, NoReply};
 use conformance::sim::{serve, Drive, LogFormat, Quirk, SimError, TrafficLog, QUIRK_HELP};
 use conformance::transport::serial::SerialTransport;
 use conformance::transport::tcp::TcpTransport;
 use conformance::transport::{LinkKind, Transport, TransportError};
 
 use super::common::{load_model, LineArgs, ModeArg, Number};
+use super::link::{Framing, MBAP_NOT_ASCII};
 
 fn quirk_help() -> String {
     let mut s = String::from("Fault injection (--quirk, repeatable):\n");
     for (q, what) in QUIRK_HELP {
         s.push_str(&format!("  {q:<22} {what}\n"));
     }
-    s.push_str("\nExamples:\n  conformance simulate --model f510 --pty\n  conformance simulate --model l510 --mode ascii --tcp 127.0.0.1:5020 --quirk late-reply=200\n  conformance simulate --model a510 --port /dev/ttyUSB0 -b 19200 -P none\n  conformance simulate --model e510 --pty --emulate-line -b 19200 -P odd -m ascii -a 17   a drive to find with `conformance scan`\n\nExit codes: 0 stopped by Ctrl-C; 2 the link or the log failed.");
+    s.push_str("\nExamples:\n  conformance simulate --model f510 --pty\n  conformance simulate --model l510 --mode ascii --tcp 127.0.0.1:5020 --quirk late-reply=200\n  conformance simulate --model a510 --port /dev/ttyUSB0 -b 19200 -P none\n  conformance simulate --model e510 --pty --emulate-line -b 19200 -P odd -m ascii -a 17   a drive to find with `conformance scan`\n  conformance simulate --model f510 -a 3 --tcp 127.0.0.1:5502 --framing mbap\n");
+    s.push_str("\nModbus TCP (--framing mbap): the drive behind a simulated Modbus TCP gateway. Several\nconnections at once (--connections, default 8) against one drive state, served one\nrequest at a time in arrival order, as a gateway's one serial line is. Unit id = the node\naddress (-a) is the drive; unit 0 is a broadcast (executed, never answered); any other\nunit id is a node nobody has: after --gateway-timeout the gateway answers exception 0BH\n(gateway target device failed to respond), or nothing with --gateway-no-reply silence.\nReplies a gateway's serial receiver would drop (wrong CRC, echo) do not cross.\n");
+    s.push_str("\nExit codes: 0 stopped by Ctrl-C; 2 the link or the log failed.");
     s
+}
+
+/// What the simulated gateway sends when the drive does not answer.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum GatewayNoReply {
+    /// Exception 0BH (gateway target device failed to respond), after --gateway-timeout.
+    Exception,
+    /// Nothing.
+    Silence,
 }
 
 /// Log format on stderr.
@@ -70,9 +83,26 @@ pub struct SimulateArgs {
     /// it: see README, "Finding a drive: scan").
     #[arg(long, requires = "pty")]
     emulate_line: bool,
-    /// Serve RTU or ASCII frames over TCP (as a serial gateway) at HOST:PORT.
+    /// Serve over TCP at HOST:PORT: RTU or ASCII frames (as a serial server), or Modbus
+    /// TCP with --framing mbap (as a Modbus TCP gateway with this drive behind it).
     #[arg(long, value_name = "HOST:PORT", group = "where")]
     tcp: Option<String>,
+    /// With --tcp: rtu (the serial line's frames, the default) or mbap (Modbus TCP: MBAP
+    /// header and PDU; several connections at once, one drive; see below).
+    #[arg(long, value_enum, value_name = "rtu|mbap", requires = "tcp")]
+    framing: Option<Framing>,
+    /// With --framing mbap: what the gateway sends when the drive does not answer a
+    /// unicast request (another unit id, a request the drive ignores): exception (0BH,
+    /// after --gateway-timeout) or silence.
+    #[arg(long, value_enum, default_value = "exception", requires = "framing")]
+    gateway_no_reply: GatewayNoReply,
+    /// With --framing mbap: milliseconds the gateway waits for the drive before it
+    /// gives up (and answers 0BH).
+    #[arg(long, value_name = "MS", default_value_t = 100, requires = "framing")]
+    gateway_timeout: u64,
+    /// With --framing mbap: connections served at once; one more is closed at once.
+    #[arg(long, value_name = "N", default_value_t = 8, requires = "framing")]
+    connections: usize,
     #[command(flatten)]
     line: LineArgs,
     /// Response delay in milliseconds (default: the model's response time, 10 ms, or t3.5
@@ -101,6 +131,10 @@ pub fn run(args: SimulateArgs) -> anyhow::Result<ExitCode> {
         args.address,
     )?);
     let mode: Mode = args.mode.into();
+    let mbap = args.framing == Some(Framing::Mbap);
+    if mbap && mode == Mode::Ascii {
+        bail!("{MBAP_NOT_ASCII}");
+    }
     let line = args.line.settings();
     if mode == Mode::Rtu && line.data_bits != 8 {
         bail!("RTU needs 8 data bits (-d 8)");
@@ -181,6 +215,38 @@ pub fn run(args: SimulateArgs) -> anyhow::Result<ExitCode> {
         }
         #[cfg(not(unix))]
         bail!("pseudo-terminals need a Unix system")
+    } else if let (Some(addr), true) = (&args.tcp, mbap) {
+        let listener = std::net::TcpListener::bind(addr)
+            .with_context(|| format!("cannot listen on {addr}"))?;
+        let config = GatewayConfig {
+            no_reply: match args.gateway_no_reply {
+                GatewayNoReply::Exception => NoReply::Exception,
+                GatewayNoReply::Silence => NoReply::Silence,
+            },
+            target_timeout: Duration::from_millis(args.gateway_timeout),
+            max_connections: args.connections.max(1),
+        };
+        log.message(&format!(
+            "{banner} behind a Modbus TCP gateway (MBAP, unit {}) on tcp {}; up to {} connections; no reply: {}",
+            args.address,
+            listener
+                .local_addr()
+                .map(|a| a.to_string())
+                .unwrap_or_default(),
+            config.max_connections,
+            match config.no_reply {
+                NoReply::Exception => format!("exception 0BH after {} ms", args.gateway_timeout),
+                NoReply::Silence => "silence".to_string(),
+            }
+        ))?;
+        let stats = serve_gateway(&listener, drive, log, &config, &stop)?;
+        if !args.quiet {
+            eprintln!(
+                "# stopped: {} connections ({} refused), {} requests, {} replies, {} gateway exceptions 0BH",
+                stats.connections, stats.refused, stats.requests, stats.replies, stats.gateway_exceptions
+            );
+        }
+        return Ok(ExitCode::SUCCESS);
     } else if let Some(addr) = &args.tcp {
         let listener = std::net::TcpListener::bind(addr)
             .with_context(|| format!("cannot listen on {addr}"))?;

@@ -2,7 +2,8 @@
 //!
 //! Layers, lowest first: [`crc`] and [`lrc`] (checksums), [`hex`] (the one hex codec),
 //! [`pdu`] (typed messages), [`rtu`] and [`ascii`] (frames as views, decode and emit,
-//! conversion), [`deframe`] (streaming), [`timing`] (serial-line intervals).
+//! conversion), [`deframe`] (streaming), [`timing`] (serial-line intervals); [`mbap`] is the
+//! Modbus TCP header a gateway puts in front of a PDU in place of address and checksum.
 //!
 //! Every function here is total: any input gives a value or a typed [`FrameError`], never
 //! a panic, and nothing allocates in proportion to a length field read from the input.
@@ -16,6 +17,7 @@ pub mod hex;
 #[cfg(target_arch = "x86_64")]
 mod hex_sse2;
 pub mod lrc;
+pub mod mbap;
 pub mod pdu;
 pub mod rtu;
 pub mod timing;

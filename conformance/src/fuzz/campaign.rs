@@ -387,6 +387,14 @@ pub fn fuzz_mode(
             *out.skipped.entry(why).or_default() += 1;
             continue;
         }
+        // Through a Modbus TCP gateway only whole frames with a valid checksum cross, one
+        // at a time: damaged and back-to-back cases are not sent.
+        if let Some(why) = ctx.frames_only() {
+            if !super::cases::crosses_a_gateway(mode, &case.step) {
+                *out.skipped.entry(why).or_default() += 1;
+                continue;
+            }
+        }
         ctx.current = format!("{mode}.fuzz.case-{}", case.index);
         let mut lost = None;
         for r in journal {

@@ -463,6 +463,20 @@ impl<'a> Generator<'a> {
     }
 }
 
+/// Whether a Modbus TCP gateway can carry `step`: one RTU frame with a valid CRC (the
+/// gateway sends its PDU; there is no checksum, no line timing and no ASCII on the TCP
+/// side). Damaged frames and frames back to back cannot cross.
+pub fn crosses_a_gateway(mode: Mode, step: &Step) -> bool {
+    match step {
+        Step::Frame(f) => {
+            mode == Mode::Rtu
+                && crate::codec::RtuFrame::new_checked(f.as_slice())
+                    .is_ok_and(|v| v.verify_crc().is_ok())
+        }
+        Step::Burst(_) | Step::Timed(_) => false,
+    }
+}
+
 /// Makes a frame's checksum wrong (RTU: the last CRC byte; ASCII: the last LRC digit).
 pub fn damage_checksum(mode: Mode, frame: &mut [u8]) {
     let n = frame.len();

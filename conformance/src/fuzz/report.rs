@@ -101,7 +101,12 @@ pub fn campaign_result(m: &ModeOutcome) -> CheckResult {
         m.probes,
         m.findings.len(),
         if skipped > 0 {
-            format!(", {skipped} case(s) not sent by the safety rules")
+            let why: Vec<String> = m
+                .skipped
+                .iter()
+                .map(|(why, n)| format!("{n}: {why}"))
+                .collect();
+            format!(", {skipped} case(s) not sent ({})", why.join("; "))
         } else {
             String::new()
         }

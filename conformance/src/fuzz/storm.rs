@@ -846,6 +846,7 @@ fn storm(
                     first_byte: Some(lat),
                     listened: lat,
                     retries: 0,
+                    link_notes: Vec::new(),
                 };
                 let diff = compare::differences(model, mode, &judgement, &ex, None);
                 if !diff.findings.is_empty() {

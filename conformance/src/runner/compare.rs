@@ -212,6 +212,10 @@ fn compare_inner(
     }
     let rx = ex.after_echo();
     let actual = match &ex.reply {
+        // What the link said (a gateway's 0BH) comes first: "no reply" stays the end.
+        None if rx.is_empty() && !ex.link_notes.is_empty() => {
+            format!("{}: no reply", ex.link_notes.join("; "))
+        }
         Some(r) => describe_reply(mode, r),
         None if rx.is_empty() => "no reply".to_string(),
         None => explain_invalid(mode, rx),
@@ -243,9 +247,14 @@ fn compare_inner(
             findings.push(Finding {
                 severity: expect_sev,
                 text: format!(
-                    "manual: {manual} ({}); device: no reply within {} ms",
+                    "manual: {manual} ({}); device: no reply within {} ms{}",
                     judgement.detail,
-                    ex.listened.as_millis()
+                    ex.listened.as_millis(),
+                    if ex.link_notes.is_empty() {
+                        String::new()
+                    } else {
+                        format!(" ({})", ex.link_notes.join("; "))
+                    }
                 ),
             });
             return Comparison {

@@ -136,6 +136,9 @@ impl Ctx<'_> {
             predicted: "a normal 03H reply".into(),
             actual: match &ex.reply {
                 Some(r) => compare::describe_reply(self.mode, r),
+                None if ex.after_echo().is_empty() && !ex.link_notes.is_empty() => {
+                    format!("{}: no reply", ex.link_notes.join("; "))
+                }
                 None if ex.after_echo().is_empty() => "no reply".into(),
                 None => compare::explain_invalid(self.mode, ex.after_echo()),
             },
@@ -208,7 +211,12 @@ impl Ctx<'_> {
             self.opts.timing.timeout.as_millis()
         );
         let rx = ex.after_echo();
-        let got = if ex.raw.is_empty() {
+        let got = if ex.raw.is_empty() && !ex.link_notes.is_empty() {
+            format!(
+                "nothing came back from the device: {}",
+                ex.link_notes.join("; ")
+            )
+        } else if ex.raw.is_empty() {
             "nothing came back".to_string()
         } else if rx.is_empty() {
             "only the echo of the request came back (the adapter echoes; the drive did not answer)"
@@ -224,6 +232,11 @@ impl Ctx<'_> {
             Mode::Rtu => "--mode ascii",
             Mode::Ascii => "--mode rtu",
         };
+        if self.link_kind() == crate::transport::LinkKind::Mbap {
+            return format!(
+                "{tried}; {got}. Check: the unit id (--unit; which unit id the gateway routes to which serial node, and whether it rewrites it), the node address (-a), the gateway's serial settings (baud rate, parity, stop bits, RTU: set in the gateway, not here), a longer --timeout (the gateway's own serial timeout may be longer than this one), the wiring behind the gateway, and that the drive is powered"
+            );
+        }
         format!(
             "{tried}; {got}. Check: the node address (-a; the drive's communication address parameter), the baud rate (-b), parity (-P none|even|odd), data and stop bits (-d, -s), the mode ({other}), a longer --timeout, the wiring (A/B swapped, no common ground, termination), that the drive is powered, and that the adapter drives the RS-485 direction itself"
         )

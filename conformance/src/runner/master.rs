@@ -47,6 +47,10 @@ pub struct Exchange {
     pub listened: Duration,
     /// Resends after a timeout without any byte.
     pub retries: u32,
+    /// What the link itself said meanwhile (a Modbus TCP gateway's exception 0AH/0BH in
+    /// place of the device's reply, which is silence on the serial line; a late reply
+    /// dropped): see [`Transport::take_notes`].
+    pub link_notes: Vec<String>,
 }
 
 impl Exchange {
@@ -375,8 +379,12 @@ impl<T: Transport + ?Sized> Master<T> {
     ) -> Result<Exchange, TransportError> {
         let mut retries = 0;
         let mut broken = 0;
+        let mut notes = Vec::new();
         loop {
-            let ex = self.exchange_once(request, expect_reply, retries, None)?;
+            let mut ex = self.exchange_once(request, expect_reply, retries, None)?;
+            // What the link said about earlier attempts stays with the exchange.
+            notes.append(&mut ex.link_notes);
+            ex.link_notes = notes.clone();
             // A request that left this host with a gap over t1.5 inside it (the host
             // stalled while pacing it) is not the request on the line: send it again, a
             // few times at most, before judging anything.
@@ -522,6 +530,7 @@ impl<T: Transport + ?Sized> Master<T> {
             first_byte,
             listened: end.duration_since(sent),
             retries,
+            link_notes: self.transport.take_notes(),
         })
     }
 }

@@ -369,6 +369,12 @@ impl<'a> Ctx<'a> {
         self.master.transport().peer_lateness()
     }
 
+    /// Where the link carries whole valid frames only (a Modbus TCP gateway): why the
+    /// line itself cannot be seen (see [`Transport::frames_only`]).
+    pub fn frames_only(&self) -> Option<&'static str> {
+        self.master.transport().frames_only()
+    }
+
     /// What kind of link the device is on.
     pub fn link_kind(&self) -> crate::transport::LinkKind {
         self.master.transport().kind()
@@ -660,6 +666,8 @@ pub fn run_mode(
             Ok(Verdict::skip(
                 "restarts or silences the device's communications (08H 0001H/0004H); needs --allow-restart",
             ))
+        } else if let (true, Some(why)) = (check.needs_line, ctx.frames_only()) {
+            Ok(Verdict::skip(why))
         } else {
             (check.run)(&mut ctx)
         };

@@ -7,10 +7,13 @@
 //! - [`line_clock`]: arrival times on the paced pseudo-terminal, which frames RTU by
 //!   silence as a real line does.
 //! - [`log`]: the traffic log.
+//! - [`mbap`]: the drive behind a simulated Modbus TCP gateway (MBAP on TCP, several
+//!   connections against one drive).
 
 pub mod drive;
 pub mod line_clock;
 pub mod log;
+pub mod mbap;
 pub mod server;
 
 pub use drive::{Drive, Outcome, Quirk, SendKind, Transmission, QUIRK_HELP};

@@ -7,6 +7,9 @@
 //!   opens the slave path as if it were a serial port. Optionally paced at the line's
 //!   character time, so that timing checks have something real to measure.
 //! - [`tcp::TcpTransport`]: RTU or ASCII frames over TCP, as serial gateways carry them.
+//! - [`mbap::MbapGateway`]: a Modbus TCP gateway (MBAP framing, unit id): takes RTU frames
+//!   and hands back RTU frames, as if it were the serial line behind the gateway; it can
+//!   carry whole valid frames only ([`Transport::frames_only`]).
 //! - [`memory::MemoryEnd`]: an in-memory pair, for tests.
 //! - [`uart`]: what a UART reads from characters sent at other line settings (the
 //!   simulator's pseudo-terminal emulates a drive's line with it).
@@ -14,6 +17,7 @@
 //! Reads wait at most the timeout they are given and return 0 when nothing arrived; a
 //! closed link is [`TransportError::Closed`], never a silent empty read.
 
+pub mod mbap;
 pub mod memory;
 #[cfg(unix)]
 pub mod pty;
@@ -37,6 +41,8 @@ pub enum LinkKind {
     Tcp,
     /// An in-memory pair.
     Memory,
+    /// A Modbus TCP gateway (MBAP framing): PDUs cross, not the serial line's bytes.
+    Mbap,
 }
 
 impl fmt::Display for LinkKind {
@@ -46,6 +52,7 @@ impl fmt::Display for LinkKind {
             LinkKind::Pty => "pty",
             LinkKind::Tcp => "tcp",
             LinkKind::Memory => "memory",
+            LinkKind::Mbap => "mbap",
         })
     }
 }
@@ -76,6 +83,26 @@ pub enum TransportError {
     Closed {
         /// The link.
         link: String,
+    },
+    /// A Modbus TCP gateway sent what is not Modbus TCP (protocol id, length), or a reply
+    /// that belongs to no request (transaction id) or to another unit.
+    #[error("{link}: {source}")]
+    Mbap {
+        /// The link.
+        link: String,
+        /// What was wrong, with the header in hex.
+        source: crate::codec::mbap::MbapError,
+    },
+    /// Bytes a link that carries whole frames only (a Modbus TCP gateway) cannot send:
+    /// not one RTU frame with a valid CRC.
+    #[error("{link}: cannot send {bytes}: {why}")]
+    NotCarried {
+        /// The link.
+        link: String,
+        /// The bytes, in hex (at most the first 64).
+        bytes: String,
+        /// Why not.
+        why: String,
     },
 }
 
@@ -161,6 +188,21 @@ pub trait Transport: Send {
         }
         Ok(gaps)
     }
+
+    /// Where the link carries whole valid frames only, re-framed (a Modbus TCP gateway:
+    /// the PDU crosses, not the serial line's bytes): why the line itself cannot be seen,
+    /// the reason every check and fuzz case that needs it is skipped with. None: the bytes
+    /// sent are the bytes on the line.
+    fn frames_only(&self) -> Option<&'static str> {
+        None
+    }
+
+    /// What the link itself said since the last call, in place of or beside the device's
+    /// bytes: a gateway's exception 0AH/0BH (handed up as silence: the serial line was
+    /// silent), a late or second reply dropped. Empty for a plain line.
+    fn take_notes(&mut self) -> Vec<String> {
+        Vec::new()
+    }
 }
 
 impl<T: Transport + ?Sized> Transport for Box<T> {
@@ -200,6 +242,12 @@ impl<T: Transport + ?Sized> Transport for Box<T> {
     }
     fn line_tags(&self) -> Option<LineTags> {
         (**self).line_tags()
+    }
+    fn frames_only(&self) -> Option<&'static str> {
+        (**self).frames_only()
+    }
+    fn take_notes(&mut self) -> Vec<String> {
+        (**self).take_notes()
     }
 }
 

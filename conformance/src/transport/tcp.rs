@@ -8,6 +8,25 @@ use std::time::Duration;
 use super::{LinkKind, Transport, TransportError};
 use crate::codec::timing::LineSettings;
 
+/// Connects to `addr` (HOST:PORT), trying each address it resolves to, waiting at most
+/// `timeout` for each.
+pub(crate) fn connect_stream(addr: &str, timeout: Duration) -> Result<TcpStream, TransportError> {
+    let open_err = |source: std::io::Error| TransportError::Open {
+        what: format!("tcp {addr}"),
+        source,
+    };
+    let mut last = None;
+    for a in addr.to_socket_addrs().map_err(open_err)? {
+        match TcpStream::connect_timeout(&a, timeout) {
+            Ok(stream) => return Ok(stream),
+            Err(e) => last = Some(e),
+        }
+    }
+    Err(open_err(last.unwrap_or_else(|| {
+        std::io::Error::new(ErrorKind::NotFound, "the address resolves to nothing")
+    })))
+}
+
 /// A TCP connection carrying serial frames.
 pub struct TcpTransport {
     stream: TcpStream,
@@ -17,20 +36,11 @@ pub struct TcpTransport {
 impl TcpTransport {
     /// Connects to `addr` (HOST:PORT), waiting at most `timeout`.
     pub fn connect(addr: &str, timeout: Duration) -> Result<Self, TransportError> {
-        let open_err = |source: std::io::Error| TransportError::Open {
+        let stream = connect_stream(addr, timeout)?;
+        Self::from_stream(stream).map_err(|source| TransportError::Open {
             what: format!("tcp {addr}"),
             source,
-        };
-        let mut last = None;
-        for a in addr.to_socket_addrs().map_err(open_err)? {
-            match TcpStream::connect_timeout(&a, timeout) {
-                Ok(stream) => return Self::from_stream(stream).map_err(open_err),
-                Err(e) => last = Some(e),
-            }
-        }
-        Err(open_err(last.unwrap_or_else(|| {
-            std::io::Error::new(ErrorKind::NotFound, "the address resolves to nothing")
-        })))
+        })
     }
 
     /// Wraps an accepted or connected stream.

@@ -23,6 +23,7 @@ pub fn seeds(set: &VectorSet, files: &[(String, String)]) -> Vec<Seed> {
     let mut out = Vec::new();
     for file in &set.files {
         let mut rtu_stream = vec![CHUNK_CONTROL];
+        let mut mbap_stream = Vec::new();
         let mut ascii_stream = vec![CHUNK_CONTROL];
         for v in &file.vectors {
             let Body::Frame(fv) = &v.body else { continue };
@@ -53,6 +54,24 @@ pub fn seeds(set: &VectorSet, files: &[(String, String)]) -> Vec<Seed> {
                 match fv.mode {
                     FileMode::Rtu => {
                         rtu_stream.extend_from_slice(&bytes);
+                        // What a Modbus TCP gateway makes of it: the PDU under an MBAP
+                        // header, the node address as the unit id.
+                        if bytes.len() >= 4 {
+                            let mut mbap = [0u8; crate::codec::mbap::MAX_ADU];
+                            let repr = crate::codec::mbap::MbapRepr {
+                                transaction: out.len() as u16,
+                                unit: bytes[0],
+                                pdu: &bytes[1..bytes.len() - 2],
+                            };
+                            if let Ok(n) = repr.emit(&mut mbap) {
+                                mbap_stream.extend_from_slice(&mbap[..n]);
+                                out.push(Seed {
+                                    target: "mbap_frame",
+                                    name: name.clone(),
+                                    bytes: mbap[..n].to_vec(),
+                                });
+                            }
+                        }
                         out.push(Seed {
                             target: "rtu_frame",
                             name: name.clone(),
@@ -95,6 +114,11 @@ pub fn seeds(set: &VectorSet, files: &[(String, String)]) -> Vec<Seed> {
             target: "ascii_deframer",
             name: format!("{}.all-ascii", file.document),
             bytes: ascii_stream,
+        });
+        out.push(Seed {
+            target: "mbap_frame",
+            name: format!("{}.all-mbap", file.document),
+            bytes: mbap_stream,
         });
     }
     for (name, text) in files {

@@ -37,6 +37,11 @@ pub struct Check {
     /// Whether it restarts or silences the device's communications (needs
     /// --allow-restart).
     pub restarts: bool,
+    /// Whether it needs the serial line's own bytes: it sends what is not one whole
+    /// valid frame (garbage, a partial frame, a wrong checksum) or judges the line's
+    /// timing. Skipped, with the link's reason, where the link carries frames only (a
+    /// Modbus TCP gateway: [`crate::transport::Transport::frames_only`]).
+    pub needs_line: bool,
     /// The check.
     pub run: Run,
 }
@@ -56,6 +61,7 @@ fn check(
         writes,
         motion,
         restarts: false,
+        needs_line: false,
         run: Box::new(run),
     }
 }

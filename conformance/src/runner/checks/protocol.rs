@@ -349,7 +349,7 @@ pub(super) fn line(model: &DriveModel, mode: Mode, m: &str, seed: u64, out: &mut
         Mode::Rtu => ("bad-crc", "CRC"),
         Mode::Ascii => ("bad-lrc", "LRC"),
     };
-    out.push(probe_check(
+    let mut bad = probe_check(
         format!("{m}.{name}"),
         format!("Read 2520H with a wrong {what}: no reply"),
         csource,
@@ -367,7 +367,9 @@ pub(super) fn line(model: &DriveModel, mode: Mode, m: &str, seed: u64, out: &mut
             }
             f
         },
-    ));
+    );
+    bad.needs_line = true;
+    out.push(bad);
     let recover = "Modbus over Serial Line V1.02, 2.5.1.1 and 2.5.2.1: a receiver drops what is not a frame and takes the next frame".to_string();
     let mut rng = Rng::new(seed ^ 0x6A);
     let garbage: Vec<u8> = match mode {
@@ -379,7 +381,7 @@ pub(super) fn line(model: &DriveModel, mode: Mode, m: &str, seed: u64, out: &mut
             .map(|_| b"ABCDEFGHIJ0123456789#!"[rng.below(22) as usize])
             .collect(),
     };
-    out.push(check(
+    let mut garbage_check = check(
         format!("{m}.garbage-then-frame"),
         format!(
             "Send 12 garbage bytes ({}), pause, then read 2520H: the device recovers",
@@ -402,8 +404,10 @@ pub(super) fn line(model: &DriveModel, mode: Mode, m: &str, seed: u64, out: &mut
                 "the device answered the frame after the garbage".into(),
             ))
         },
-    ));
-    out.push(check(
+    );
+    garbage_check.needs_line = true;
+    out.push(garbage_check);
+    let mut partial = check(
         format!("{m}.partial-then-frame"),
         "Send the first half of a frame, pause, then a whole frame: the device answers the whole one".to_string(),
         recover,
@@ -418,5 +422,7 @@ pub(super) fn line(model: &DriveModel, mode: Mode, m: &str, seed: u64, out: &mut
             let p = ctx.probe(f, None)?;
             Ok(verdict(&[&p], "the device answered the whole frame".into()))
         },
-    ));
+    );
+    partial.needs_line = true;
+    out.push(partial);
 }
