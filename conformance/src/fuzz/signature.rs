@@ -189,6 +189,7 @@ mod tests {
             first_byte: None,
             listened: std::time::Duration::ZERO,
             retries: 0,
+            link_notes: vec![],
         };
         let field = |e: &Exchange| mismatch_field(Mode::Rtu, e, Some(&expected));
         let value = frame_of_body(Mode::Rtu, &[1, 3, 2, 0, 5]).unwrap();
