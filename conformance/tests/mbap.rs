@@ -491,3 +491,51 @@ fn what_mbap_cannot_do_is_refused_with_a_reason() {
     assert_eq!(o.status.code(), Some(2));
     assert!(String::from_utf8_lossy(&o.stderr).contains("--framing"));
 }
+
+/// `scan --tcp --framing mbap` sweeps unit ids through the simulated gateway and finds the
+/// one drive behind it (unit 17), with the identification value; the gateway's 0BH for
+/// the units nobody has counts as silence, never as a device.
+#[test]
+fn scan_through_mbap_finds_the_unit_behind_the_gateway() {
+    let sim = GatewaySim::start("l510", 17, &["--gateway-timeout", "30"]);
+    let o = Command::new(bin())
+        .args(["scan", "--tcp", &sim.addr, "--framing", "mbap"])
+        .args(["--addresses", "10-20", "--format", "json", "-q"])
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&o.stdout);
+    assert_eq!(
+        o.status.code(),
+        Some(0),
+        "{stdout}\n{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    let v: serde_json::Value = serde_json::from_str(&stdout).expect("scan JSON");
+    let text = v.to_string();
+    assert!(text.contains("\"address\":17"), "{text}");
+    assert!(
+        text.contains("0110"),
+        "the L510's identification value: {text}"
+    );
+    for absent in [10, 16, 18, 20] {
+        assert!(
+            !text.contains(&format!("\"address\":{absent},")),
+            "unit {absent} has no device: {text}"
+        );
+    }
+    // ASCII does not cross MBAP: refused with the reason.
+    let o = Command::new(bin())
+        .args([
+            "scan",
+            "--tcp",
+            &sim.addr,
+            "--framing",
+            "mbap",
+            "-m",
+            "ascii",
+        ])
+        .output()
+        .unwrap();
+    assert_eq!(o.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("no ASCII over Modbus TCP"));
+}

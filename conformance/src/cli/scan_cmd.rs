@@ -16,11 +16,13 @@ use conformance::scan::link::{FixedLink, ScanLink, SerialLink};
 use conformance::scan::settings::{Search, Setting};
 use conformance::scan::{report, scan, ScanConfig};
 use conformance::session::serial_kind;
+use conformance::transport::mbap::{MbapGateway, UnitMap};
 use conformance::transport::serial::SerialTransport;
 use conformance::transport::tcp::TcpTransport;
 use conformance::transport::LinkKind;
 
 use super::common::{parse_number, ModeArg, ParityArg, RtsArgs};
+use super::link::Framing;
 
 const AFTER_HELP: &str = "\
 What it does: sends reads only (03H, one register: 252FH, the identification register
@@ -46,9 +48,11 @@ UART checks only its first stop bit, so a device at 2 stop bits is found at 1 (g
 -s 2 to scan with 2). Any of -b -P -d -s -m narrows the search to the values given
 (repeat an option or separate values with commas: -b 9600,19200).
 
-Through a gateway (--tcp: RTU or ASCII frames over TCP; Modbus TCP gateways once
---framing mbap exists) the serial line is set in the gateway: line settings cannot be
-searched from here, only the node addresses and the mode; -b -P -s set the windows.
+Through a gateway (--tcp: RTU or ASCII frames over TCP; with --framing mbap, a Modbus
+TCP gateway, where the addresses swept are unit ids and the mode is RTU; each window
+waits 250 ms more for the gateway's own 0BH: set --reply-window to its timeout) the serial line
+is set in the gateway: line settings cannot be searched from here, only the node
+addresses and the mode; -b -P -s set the windows.
 
 Without hardware: `conformance simulate --pty --emulate-line -b 19200 -P odd -m ascii
 -a 17` is a drive whose pseudo-terminal behaves like its line (a master at other
@@ -59,9 +63,14 @@ Examples:
   conformance scan --port /dev/ttyUSB0 -b 9600 -m rtu   one speed and mode: parity and addresses
   conformance scan --port /dev/ttyUSB0 -b 19200 -P even -m rtu --addresses 1-32 --format json
   conformance scan --tcp 10.0.0.7:4001 -m rtu --addresses 1-10
+  conformance scan --tcp 10.0.0.8:502 --framing mbap --addresses 1-32
 
 Exit codes: 0 a device was found; 1 nothing was found; 2 the scan could not run (bad
 arguments, the port could not be opened or went away, or it was interrupted).";
+
+/// What a Modbus TCP gateway may add to a reply window: its own wait for a unit that
+/// does not answer before it says 0BH (`--reply-window` sets the whole window instead).
+const MBAP_SLACK: Duration = Duration::from_millis(250);
 
 /// Output format.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
@@ -82,6 +91,10 @@ pub struct ScanArgs {
     /// the gateway: only addresses and modes are searched).
     #[arg(long, value_name = "HOST:PORT", group = "target")]
     tcp: Option<String>,
+    /// How frames cross --tcp: rtu (the line's bytes, a transparent serial server) or
+    /// mbap (Modbus TCP: the addresses swept are the gateway's unit ids; RTU only).
+    #[arg(long, value_enum, requires = "tcp")]
+    framing: Option<Framing>,
     /// Baud rates to try (default: 9600,19200,38400,57600,115200,4800,2400,1200).
     #[arg(short = 'b', long = "baud", value_delimiter = ',')]
     bauds: Vec<u32>,
@@ -203,8 +216,21 @@ pub fn run(args: ScanArgs) -> anyhow::Result<ExitCode> {
                 .into_iter()
                 .map(|mode| Setting { line, mode })
                 .collect();
-            let t = TcpTransport::connect(addr, Duration::from_secs(2))?;
-            Box::new(FixedLink::new(Box::new(t), Duration::from_millis(20)))
+            if args.framing == Some(Framing::Mbap) {
+                if settings.iter().any(|s| s.mode != Mode::Rtu) && !args.modes.is_empty() {
+                    bail!("--framing mbap carries RTU-equivalent PDUs only: there is no ASCII over Modbus TCP (drop -m ascii)");
+                }
+                settings.retain(|s| s.mode == Mode::Rtu);
+                // Node n is unit n: the map of one node to itself is the identity.
+                let t = MbapGateway::connect(addr, Duration::from_secs(2), UnitMap::new(1, 1))?;
+                // A gateway answers a unit with no device with 0BH only after its own
+                // serial timeout (often 100..1000 ms): the window waits for that answer,
+                // so that it is not taken for the reply to the next unit's read.
+                Box::new(FixedLink::new(Box::new(t), MBAP_SLACK))
+            } else {
+                let t = TcpTransport::connect(addr, Duration::from_secs(2))?;
+                Box::new(FixedLink::new(Box::new(t), Duration::from_millis(20)))
+            }
         }
         _ => bail!("say where the line is: --port PATH or --tcp HOST:PORT"),
     };
