@@ -82,18 +82,16 @@ fn high_nibbles() -> __m128i {
 
 /// Decodes `hex` (an even number of characters, 2..=510) into `scratch`, returning the
 /// bytes decoded and their 8-bit sum, or `None` on a character that is not hex.
-/// `with_tail` is the frame from the hex on (the hex, then CR LF): a hex shorter than 16
-/// characters is read with what follows it, where the frame is long enough.
 #[inline(always)]
-pub(super) fn decode(hex: &[u8], with_tail: &[u8], scratch: &mut [u8]) -> Option<(usize, u8)> {
+pub(super) fn decode(hex: &[u8], scratch: &mut [u8]) -> Option<(usize, u8)> {
     // SAFETY: `decode_sse2` needs SSE2 and nothing else; every x86-64 CPU has it (checked
     // at compile time above).
-    unsafe { decode_sse2(hex, with_tail, scratch) }
+    unsafe { decode_sse2(hex, scratch) }
 }
 
 #[inline]
 #[target_feature(enable = "sse2")]
-fn decode_sse2(hex: &[u8], with_tail: &[u8], scratch: &mut [u8]) -> Option<(usize, u8)> {
+fn decode_sse2(hex: &[u8], scratch: &mut [u8]) -> Option<(usize, u8)> {
     let n = hex.len();
     let word = |s: &[u8], at: usize| -> Option<u64> {
         let c: &[u8; 8] = s.get(at..at + 8)?.try_into().ok()?;
@@ -102,13 +100,24 @@ fn decode_sse2(hex: &[u8], with_tail: &[u8], scratch: &mut [u8]) -> Option<(usiz
     if n < 16 {
         // Fewer than 16 characters: read them with what follows in the frame (at least
         // the CR LF), or from a padded copy when the frame is shorter than that.
-        let (lo, hi) = match with_tail.get(..16) {
-            Some(s) => (word(s, 0)?, word(s, 8)?),
-            None => {
-                let mut buf = [b'0'; 16];
-                buf.get_mut(..n)?.copy_from_slice(hex);
-                (word(&buf, 0)?, word(&buf, 8)?)
-            }
+        // Fewer than 16 characters: read in registers, with no copy through memory (a
+        // copy read back as wider words stalls store forwarding); positions past the hex
+        // are zero here and '0' after the mask in `hex16`.
+        let (lo, hi) = if n >= 8 {
+            let last = word(hex, n - 8)?;
+            (
+                word(hex, 0)?,
+                last.checked_shr(8 * (16 - n as u32)).unwrap_or(0),
+            )
+        } else if n >= 4 {
+            let w4 = |at: usize| -> Option<u64> {
+                let c: &[u8; 4] = hex.get(at..at + 4)?.try_into().ok()?;
+                Some(u64::from(u32::from_le_bytes(*c)))
+            };
+            (w4(0)? | w4(n - 4)? << (8 * (n - 4)), 0)
+        } else {
+            let c: &[u8; 2] = hex.get(..2)?.try_into().ok()?;
+            (u64::from(u16::from_le_bytes(*c)), 0)
         };
         let (bytes, sum) = hex16(lo, hi, n as i8, 0)?;
         scratch.get_mut(..8)?.copy_from_slice(&bytes.to_le_bytes());
