@@ -103,7 +103,12 @@ def crc_path(n):
 def main():
     global STAT
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--criterion-dir", default="target/criterion")
+    ap.add_argument(
+        "--criterion-dir",
+        default=None,
+        help="default: target/criterion, else benches/target/criterion (where criterion "
+        "writes when CARGO_TARGET_DIR is a relative path: cargo bench runs in benches/)",
+    )
     ap.add_argument("--baseline", help="name given to --save-baseline")
     ap.add_argument("--threshold", type=float, default=10.0, help="regression threshold in percent")
     ap.add_argument("--filter", default="", help="only benches whose id contains this")
@@ -113,6 +118,10 @@ def main():
     args = ap.parse_args()
     STAT = args.stat
 
+    if args.criterion_dir is None:
+        here = os.path.dirname(os.path.abspath(__file__))
+        candidates = ["target/criterion", os.path.join(here, "target", "criterion")]
+        args.criterion_dir = next((c for c in candidates if os.path.isdir(c)), candidates[0])
     new = load(args.criterion_dir, "new")
     if not new:
         sys.exit(f"no criterion results under {args.criterion_dir}: run cargo bench first")
