@@ -152,19 +152,7 @@ impl MbapGateway {
     }
 
     fn io_err(&self, what: &'static str, source: std::io::Error) -> TransportError {
-        match source.kind() {
-            ErrorKind::BrokenPipe
-            | ErrorKind::ConnectionReset
-            | ErrorKind::ConnectionAborted
-            | ErrorKind::UnexpectedEof => TransportError::Closed {
-                link: self.describe(),
-            },
-            _ => TransportError::Io {
-                what,
-                link: self.describe(),
-                source,
-            },
-        }
+        super::tcp::stream_error(self.describe(), what, source)
     }
 
     fn note(&mut self, text: String) {

@@ -66,19 +66,7 @@ impl TcpTransport {
     }
 
     fn err(&self, what: &'static str, source: std::io::Error) -> TransportError {
-        match source.kind() {
-            ErrorKind::BrokenPipe
-            | ErrorKind::ConnectionReset
-            | ErrorKind::ConnectionAborted
-            | ErrorKind::UnexpectedEof => TransportError::Closed {
-                link: self.describe(),
-            },
-            _ => TransportError::Io {
-                what,
-                link: self.describe(),
-                source,
-            },
-        }
+        stream_error(self.describe(), what, source)
     }
 }
 
@@ -121,5 +109,21 @@ impl Transport for TcpTransport {
 
     fn line_timing(&self) -> Option<LineSettings> {
         None
+    }
+}
+
+/// A TCP stream's error as a transport error: the peer going away is
+/// [`TransportError::Closed`], anything else an I/O error on `link`.
+pub(crate) fn stream_error(
+    link: String,
+    what: &'static str,
+    source: std::io::Error,
+) -> TransportError {
+    match source.kind() {
+        ErrorKind::BrokenPipe
+        | ErrorKind::ConnectionReset
+        | ErrorKind::ConnectionAborted
+        | ErrorKind::UnexpectedEof => TransportError::Closed { link },
+        _ => TransportError::Io { what, link, source },
     }
 }
