@@ -49,6 +49,11 @@ PROTOCOL = 1
 _OUT = sys.stdout
 sys.stdout = sys.stderr
 
+# The helpers and the protocol loop the Python adapters share (adapters/adapter_common.py);
+# appended, so that this folder's neighbours never shadow an installed package.
+sys.path.append(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+from adapter_common import BadRequest, Unsupported, hexnum, hexs, num, parse_hex, serve  # noqa: E402,F401
+
 MODBUS_ENOBASE = 112345678
 EXCEPTION_MAX = 12  # MODBUS_EXCEPTION_MAX in modbus.h (codes 01..0BH; 09H unused)
 MAX_ADU = 256
@@ -60,14 +65,6 @@ RESPONSE_TIMEOUT_US = 900_000
 NO_ANSWER_TIMEOUT_US = 10_000
 BYTE_TIMEOUT_US = 20_000
 INDICATION_TIMEOUT_US = 60_000
-
-
-class Unsupported(Exception):
-    """libmodbus cannot express the operation: the gate skips the case."""
-
-
-class BadRequest(Exception):
-    """The gate's request is malformed."""
 
 
 def log(msg: str) -> None:
@@ -233,36 +230,6 @@ def crc16(data: bytes) -> bytes:
 
 def with_crc(body: bytes) -> bytes:
     return body + crc16(body)
-
-
-def hexs(data: bytes) -> str:
-    return " ".join(f"{b:02X}" for b in data)
-
-
-def parse_hex(text) -> bytes:
-    if not isinstance(text, str):
-        raise BadRequest("expected a hex string")
-    try:
-        return bytes(int(t, 16) for t in text.split())
-    except ValueError:
-        raise BadRequest(f"bad hex {text!r}") from None
-
-
-def hexnum(obj: dict, key: str) -> int:
-    v = obj.get(key)
-    if not isinstance(v, str):
-        raise BadRequest(f"field {key!r} missing or not hex")
-    try:
-        return int(v.rstrip("Hh"), 16)
-    except ValueError:
-        raise BadRequest(f"field {key!r}: bad hex {v!r}") from None
-
-
-def num(obj: dict, key: str) -> int:
-    v = obj.get(key)
-    if isinstance(v, bool) or not isinstance(v, int):
-        raise BadRequest(f"field {key!r} missing or not a number")
-    return v
 
 
 def server_address(address: int) -> int:
@@ -557,26 +524,6 @@ def op_encode(req):
 OPS = {"hello": op_hello, "decode": op_decode, "encode": op_encode}
 
 
-def handle(line: str) -> dict:
-    try:
-        req = json.loads(line)
-    except ValueError as exc:
-        return {"id": None, "ok": False, "error": f"bad request: not JSON ({exc})"}
-    if not isinstance(req, dict):
-        return {"id": None, "ok": False, "error": "bad request: not a JSON object"}
-    fn = OPS.get(req.get("op"))
-    try:
-        answer = fn(req) if fn else {"ok": False, "error": "unsupported", "detail": f"op {req.get('op')!r}"}
-    except Unsupported as exc:
-        answer = {"ok": False, "error": "unsupported", "detail": str(exc)}
-    except BadRequest as exc:
-        answer = {"ok": False, "error": f"bad request: {exc}"}
-    except Exception as exc:  # noqa: BLE001 - the pty or libmodbus failed: an ERROR for this case
-        log(f"id={req.get('id')} {req.get('op')}: {type(exc).__name__}: {exc}")
-        answer = {"ok": False, "error": f"{type(exc).__name__}: {exc}"}
-    return {"id": req.get("id"), **answer}
-
-
 def main() -> int:
     global LIB, VERSION
     try:
@@ -585,16 +532,7 @@ def main() -> int:
     except (OSError, AttributeError) as exc:
         log(f"cannot load libmodbus (Debian: apt-get install libmodbus-dev): {exc}")
         return 1
-    for raw in sys.stdin.buffer:
-        text = raw.decode("utf-8", errors="replace").strip()
-        if not text:
-            continue
-        try:
-            _OUT.write(json.dumps(handle(text), separators=(",", ":")) + "\n")
-            _OUT.flush()
-        except BrokenPipeError:
-            return 0
-    return 0
+    return serve(OPS, log, _OUT)
 
 
 if __name__ == "__main__":

@@ -48,48 +48,15 @@ BREAK = os.environ.get("MINIMALMODBUS_ADAPTER_BREAK", "")
 _OUT = sys.stdout
 sys.stdout = sys.stderr
 
-
-class Unsupported(Exception):
-    """minimalmodbus cannot express the operation."""
-
-
-class BadRequest(Exception):
-    """The gate's request is malformed."""
+# The helpers and the protocol loop the Python adapters share (adapters/adapter_common.py);
+# appended, so that this folder's neighbours never shadow an installed package.
+sys.path.append(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+from adapter_common import BadRequest, Unsupported, hexnum, hexs, num, parse_hex, serve  # noqa: E402,F401
 
 
 def log(msg: str) -> None:
     sys.stderr.write(f"[minimalmodbus-adapter] {msg}\n")
     sys.stderr.flush()
-
-
-def parse_hex(text) -> bytes:
-    if not isinstance(text, str):
-        raise BadRequest("expected a hex string")
-    try:
-        return bytes(int(t, 16) for t in text.split())
-    except ValueError:
-        raise BadRequest(f"bad hex {text!r}") from None
-
-
-def hexs(data: bytes) -> str:
-    return " ".join(f"{b:02X}" for b in data)
-
-
-def hexnum(fields: dict, key: str) -> int:
-    value = fields.get(key)
-    if not isinstance(value, str):
-        raise BadRequest(f"field {key!r} missing or not hex")
-    try:
-        return int(value.rstrip("Hh"), 16)
-    except ValueError:
-        raise BadRequest(f"field {key!r}: bad hex {value!r}") from None
-
-
-def num(fields: dict, key: str) -> int:
-    value = fields.get(key)
-    if isinstance(value, bool) or not isinstance(value, int):
-        raise BadRequest(f"field {key!r} missing or not a number")
-    return value
 
 
 def word(b: bytes) -> int:
@@ -282,37 +249,8 @@ def op_lrc(req):
 OPS = {"hello": op_hello, "decode": op_decode, "encode": op_encode, "crc": op_crc, "lrc": op_lrc}
 
 
-def handle(line: str) -> dict:
-    try:
-        req = json.loads(line)
-    except ValueError as exc:
-        return {"id": None, "ok": False, "error": f"bad request: not JSON ({exc})"}
-    if not isinstance(req, dict):
-        return {"id": None, "ok": False, "error": "bad request: not a JSON object"}
-    fn = OPS.get(req.get("op"))
-    try:
-        answer = fn(req) if fn else {"ok": False, "error": "unsupported"}
-    except Unsupported as exc:
-        answer = {"ok": False, "error": "unsupported", "detail": str(exc)}
-    except BadRequest as exc:
-        answer = {"ok": False, "error": f"bad request: {exc}"}
-    except Exception as exc:  # noqa: BLE001 - minimalmodbus raised outside a decode
-        log(f"id={req.get('id')} {req.get('op')}: {type(exc).__name__}: {exc}")
-        answer = {"ok": False, "error": f"minimalmodbus raised {type(exc).__name__}: {exc}"}
-    return {"id": req.get("id"), **answer}
-
-
 def main() -> int:
-    for raw in sys.stdin.buffer:
-        line = raw.decode("utf-8", errors="replace").strip()
-        if not line:
-            continue
-        try:
-            _OUT.write(json.dumps(handle(line), separators=(",", ":")) + "\n")
-            _OUT.flush()
-        except BrokenPipeError:
-            return 0
-    return 0
+    return serve(OPS, log, _OUT, raised="minimalmodbus raised ")
 
 
 if __name__ == "__main__":
