@@ -23,6 +23,7 @@ fn options(only: &[&str]) -> Options {
     Options {
         address: 1,
         other_address: 0x7F,
+        bus: vec![1],
         read_only: false,
         allow_motion: false,
         only: only.iter().map(|s| s.to_string()).collect(),

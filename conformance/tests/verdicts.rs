@@ -122,6 +122,7 @@ fn run(cell: Cell, quirk: Option<Quirk>) -> Report {
     let options = Options {
         address: 1,
         other_address: 0x7F,
+        bus: vec![1],
         read_only: false,
         allow_motion: false,
         only: families(cell.mode),

@@ -190,7 +190,8 @@ pub fn run(args: CheckArgs) -> anyhow::Result<ExitCode> {
         other_address,
     } = resolved;
     let options = Options {
-        address: args.target.address,
+        address: args.target.address(),
+        bus: args.target.nodes.0.clone(),
         other_address,
         read_only: args.read_only,
         allow_motion: args.safety.allow_motion,
@@ -231,7 +232,7 @@ pub fn run(args: CheckArgs) -> anyhow::Result<ExitCode> {
     if args.safety.allow_motion && !is_sim {
         eprintln!(
             "WARNING: --allow-motion: checks will set the run bit (the motor turns at 10.00 Hz) and the external-fault bit of node {:02X}. Make sure the machine is safe to move. Starting in 5 s; Ctrl-C to abort.",
-            args.target.address
+            args.target.address()
         );
         std::thread::sleep(Duration::from_secs(5));
     }

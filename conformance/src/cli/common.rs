@@ -318,3 +318,69 @@ mod tests {
         assert_eq!(decimal_note("--start", "65535", 65535, 0xFFFF), None);
     }
 }
+
+/// Node addresses of one bus: `-a 1,2,5`, ranges `-a 1-4,9`; each decimal as in mbpoll,
+/// or hex with H suffix or 0x prefix. In order given, no repeats, no 0 (broadcast) in a
+/// list of several.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct NodeList(pub Vec<u8>);
+
+impl NodeList {
+    /// The first node (the only one where a command takes one).
+    pub fn first(&self) -> u8 {
+        self.0.first().copied().unwrap_or(1)
+    }
+}
+
+/// Parses a [`NodeList`].
+pub fn parse_nodes(text: &str) -> Result<NodeList, String> {
+    let mut out: Vec<u8> = Vec::new();
+    let one = |s: &str| -> Result<u8, String> {
+        let n = parse_number(s.trim(), 255).map_err(|e| e.to_string())?;
+        u8::try_from(n).map_err(|_| format!("{s:?} is over 255"))
+    };
+    for part in text.split(',') {
+        if part.trim().is_empty() {
+            return Err(format!("{text:?}: an empty entry (write 1,2,5 or 1-4)"));
+        }
+        let (a, b) = match part.split_once('-') {
+            Some((a, b)) => (one(a)?, one(b)?),
+            None => {
+                let a = one(part)?;
+                (a, a)
+            }
+        };
+        if a > b {
+            return Err(format!("{part:?}: the range runs backwards"));
+        }
+        for n in a..=b {
+            if out.contains(&n) {
+                return Err(format!("node {n} is named twice"));
+            }
+            out.push(n);
+        }
+    }
+    if out.len() > 1 && out.contains(&0) {
+        return Err("0 is the broadcast address, not a node: leave it out of a list".into());
+    }
+    Ok(NodeList(out))
+}
+
+#[cfg(test)]
+mod node_list_tests {
+    use super::*;
+
+    #[test]
+    fn lists_ranges_and_refusals() {
+        assert_eq!(parse_nodes("1").unwrap().0, [1]);
+        assert_eq!(parse_nodes("1,2,5").unwrap().0, [1, 2, 5]);
+        assert_eq!(parse_nodes("3-5,0AH").unwrap().0, [3, 4, 5, 10]);
+        assert_eq!(parse_nodes("0x10").unwrap().0, [16]);
+        assert!(parse_nodes("1,1").unwrap_err().contains("twice"));
+        assert!(parse_nodes("5-3").unwrap_err().contains("backwards"));
+        assert!(parse_nodes("0,1").unwrap_err().contains("broadcast"));
+        assert!(parse_nodes("1,,2").is_err());
+        assert!(parse_nodes("256").is_err());
+        assert!(parse_nodes("x").is_err());
+    }
+}

@@ -152,7 +152,8 @@ pub fn run(args: FuzzArgs) -> anyhow::Result<ExitCode> {
         (model.response_delay(&line).as_millis() as u64 + 40).max(60)
     };
     let options = Options {
-        address: args.target.address,
+        address: args.target.address(),
+        bus: vec![args.target.address()],
         other_address,
         read_only: args.writes == Writes::None,
         allow_motion: args.safety.allow_motion,
@@ -209,7 +210,7 @@ pub fn run(args: FuzzArgs) -> anyhow::Result<ExitCode> {
             args.writes,
             if args.safety.allow_motion { " --allow-motion" } else { "" },
             if args.safety.allow_motion { " and may set the run bit (the motor may turn)" } else { "" },
-            args.target.address
+            args.target.address()
         );
         std::thread::sleep(Duration::from_secs(5));
     }

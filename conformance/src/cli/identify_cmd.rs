@@ -90,7 +90,7 @@ pub fn config(
     link: Link,
     tuning: &IdentifyTuning,
 ) -> anyhow::Result<IdentifyConfig> {
-    let address = target.address;
+    let address = target.address();
     if address == 0 {
         bail!(
             "-a 0 is the broadcast address: no device answers it; give the device's node address"
@@ -106,6 +106,7 @@ pub fn config(
         .collect::<Result<Vec<_>, _>>()?;
     let options = Options {
         address,
+        bus: vec![address],
         // Identify sends reads to the device's own node only.
         other_address: if address == 0xFE { 0xFD } else { 0xFE },
         read_only: true,

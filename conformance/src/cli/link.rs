@@ -15,7 +15,7 @@ use conformance::runner::{EchoMode, MasterTiming};
 use conformance::session::Target;
 use conformance::sim::Quirk;
 
-use super::common::{load_model, LineArgs, Number};
+use super::common::{load_model, parse_nodes, LineArgs, NodeList, Number};
 
 /// Modes to run.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
@@ -81,9 +81,13 @@ pub struct TargetArgs {
     #[arg(short = 'm', long, value_enum)]
     pub mode: Option<ModesArg>,
     /// Node address of the device: decimal as in mbpoll (a bare number is decimal), or hex
-    /// with H suffix or 0x prefix (0AH, 0x0A).
-    #[arg(short = 'a', long, value_parser = Number::<u8>::quiet(), default_value = "1")]
-    pub address: u8,
+    /// with H suffix or 0x prefix (0AH, 0x0A). `check` takes several drives on one bus:
+    /// 1,2,5 or 1-4 (one report, a section per node; the broadcast checks run once).
+    #[arg(short = 'a', long = "address", value_name = "N[,N..]", value_parser = parse_nodes, default_value = "1")]
+    pub nodes: NodeList,
+    /// Set by a command that runs several nodes (`check`); the others refuse a list.
+    #[arg(skip)]
+    pub several_nodes: bool,
     /// A node address no device on the line has, for the other-address cases (default:
     /// the model's highest address, or the one below the device's). A bare number is
     /// decimal; hex with H suffix or 0x prefix (F7H, 0xF7).
@@ -165,6 +169,11 @@ pub struct Link {
 }
 
 impl TargetArgs {
+    /// The node address (the first, where `check` was given several).
+    pub fn address(&self) -> u8 {
+        self.nodes.first()
+    }
+
     /// Whether `--model auto` was given: the model is identified from the device first.
     pub fn model_is_auto(&self) -> bool {
         self.model.as_deref() == Some(AUTO)
@@ -179,6 +188,12 @@ impl TargetArgs {
     ) -> anyhow::Result<Link> {
         if self.line.rts.rts && self.port.is_none() {
             bail!("--rts drives the RTS line of a serial port: give --port PATH");
+        }
+        if self.nodes.0.len() > 1 && !self.several_nodes {
+            bail!(
+                "-a {}: this command talks to one node; several drives on one bus are for `check` (-a 1,2,5)",
+                self.nodes.0.iter().map(|n| n.to_string()).collect::<Vec<_>>().join(",")
+            );
         }
         let (named, target) = match (&self.sim, &self.port, &self.tcp) {
             (Some(m), None, None) => {
@@ -273,17 +288,17 @@ impl TargetArgs {
         let model = Arc::new(load_model(
             model_id,
             self.model_file.as_deref(),
-            self.address,
+            self.address(),
         )?);
         let other_address = self.other_address.unwrap_or_else(|| {
             let last = *model.addresses.end();
-            if self.address != last {
+            if self.address() != last {
                 last
             } else {
-                self.address - 1
+                self.address() - 1
             }
         });
-        if other_address == self.address || other_address == 0 {
+        if other_address == self.address() || other_address == 0 {
             bail!("--other-address must differ from the device's address and from 00 (broadcast)");
         }
         Ok(Resolved {
@@ -306,7 +321,7 @@ impl TargetArgs {
                 Ok(Target::Tcp { addr: addr.into() })
             }
             Framing::Mbap => {
-                let unit = self.unit.unwrap_or(self.address);
+                let unit = self.unit.unwrap_or(self.address());
                 if unit == 0 {
                     bail!("--unit 0 is the broadcast unit id of a Modbus TCP gateway: no device answers it; give the device's unit id (default: the node address -a)");
                 }
@@ -356,7 +371,7 @@ impl TargetArgs {
                 if self.framing == Some(Framing::Mbap) {
                     s.push_str(&format!(
                         " --framing mbap --unit {}",
-                        self.unit.unwrap_or(self.address)
+                        self.unit.unwrap_or(self.address())
                     ));
                 }
             }
@@ -369,7 +384,7 @@ impl TargetArgs {
             format!("{:?}", l.parity).to_lowercase(),
             l.data_bits,
             l.stop_bits,
-            self.address
+            self.address()
         ));
         s
     }

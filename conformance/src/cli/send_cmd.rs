@@ -88,7 +88,8 @@ pub fn run(args: SendArgs) -> anyhow::Result<ExitCode> {
         bail!("no frame to send");
     }
     let options = Options {
-        address: args.target.address,
+        address: args.target.address(),
+        bus: vec![args.target.address()],
         other_address,
         read_only: true,
         allow_motion: false,

@@ -79,6 +79,7 @@ pub fn finding_result(f: &FuzzFinding) -> CheckResult {
         findings: lines,
         exchanges: f.exchange.clone().into_iter().collect(),
         duration: f.recovery.flatten().unwrap_or_default(),
+        node: None,
     }
 }
 
@@ -133,6 +134,7 @@ pub fn campaign_result(m: &ModeOutcome) -> CheckResult {
         findings: Vec::new(),
         exchanges: Vec::new(),
         duration: m.elapsed,
+        node: None,
     }
 }
 

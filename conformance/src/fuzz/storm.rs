@@ -298,6 +298,7 @@ pub fn result(mode: Mode, s: &StormOutcome) -> crate::runner::CheckResult {
         findings,
         exchanges: Vec::new(),
         duration: s.elapsed,
+        node: None,
     }
 }
 

@@ -831,6 +831,7 @@ pub fn run(
                 }]
             },
             duration: t0.elapsed(),
+            node: None,
         };
         progress.finished(&result);
         out.push(result);

@@ -294,5 +294,6 @@ pub fn check_result(id: &Identification, took: Duration) -> CheckResult {
         findings,
         exchanges: id.probes.iter().map(|p| p.exchange.clone()).collect(),
         duration: took,
+        node: None,
     }
 }

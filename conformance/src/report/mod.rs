@@ -47,6 +47,23 @@ pub struct Device {
     pub identification: Option<u16>,
     /// Whether the device is this suite's simulator, and its quirks.
     pub simulated: Option<Vec<String>>,
+    /// In a run of several nodes on one bus (`check --address 1,2,5`): each node, in the
+    /// order checked; empty for a run of one node. [`Device::address`] is then the first.
+    pub nodes: Vec<NodeInfo>,
+}
+
+/// One node of a run of several nodes on one bus.
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
+pub struct NodeInfo {
+    /// Node address.
+    pub address: u8,
+    /// Its identification register's value, if read.
+    pub identification: Option<u16>,
+    /// Why its checks stopped early (it stopped answering), if they did; the other nodes
+    /// were still checked.
+    pub stopped: Option<String>,
+    /// The simulator's quirks planted on this node only (`QUIRK@NODE`).
+    pub quirks: Vec<String>,
 }
 
 /// Options a report records.
@@ -168,6 +185,40 @@ impl Report {
         s
     }
 
+    /// The nodes of a run of several nodes, with their results' counts; the last entry,
+    /// with `None`, counts the checks of the whole bus. Empty for a run of one node.
+    pub fn node_summaries(&self) -> Vec<(Option<u8>, Summary)> {
+        if self.device.nodes.is_empty() {
+            return Vec::new();
+        }
+        let mut out: Vec<(Option<u8>, Summary)> = self
+            .device
+            .nodes
+            .iter()
+            .map(|n| (Some(n.address), Summary::default()))
+            .collect();
+        out.push((None, Summary::default()));
+        for r in &self.results {
+            let at = match out.iter().position(|(n, _)| *n == r.node) {
+                Some(i) => i,
+                None => {
+                    out.push((r.node, Summary::default()));
+                    out.len() - 1
+                }
+            };
+            let s = &mut out[at].1;
+            s.total += 1;
+            match r.status {
+                Status::Pass => s.pass += 1,
+                Status::Deviation => s.deviation += 1,
+                Status::Observation => s.observation += 1,
+                Status::Skip => s.skip += 1,
+                Status::Error => s.error += 1,
+            }
+        }
+        out
+    }
+
     /// Registers that could not be restored.
     pub fn unrestored(&self) -> Vec<&RestoreRecord> {
         self.restore.iter().filter(|r| !r.restored).collect()
@@ -194,16 +245,20 @@ impl Report {
             .restore
             .iter()
             .map(|r| {
-                json!({
+                let mut v = json!({
                     "register": format!("{:04X}", r.register),
                     "original": format!("{:04X}", r.original),
                     "restored": r.restored,
                     "changed": r.changed,
                     "detail": r.detail,
-                })
+                });
+                if let Some(n) = r.node {
+                    v["node"] = json!(format!("{n:02X}"));
+                }
+                v
             })
             .collect();
-        let device = match self.kind {
+        let mut device = match self.kind {
             ReportKind::Gate => Value::Null,
             ReportKind::Drive | ReportKind::Fuzz => json!({
                 "model": self.device.model,
@@ -216,6 +271,21 @@ impl Report {
                 "quirks": self.device.simulated.clone().unwrap_or_default(),
             }),
         };
+        if !self.device.nodes.is_empty() && device.is_object() {
+            device["nodes"] = self
+                .device
+                .nodes
+                .iter()
+                .map(|n| {
+                    json!({
+                        "address": format!("{:02X}", n.address),
+                        "identification": n.identification.map(|v| format!("{v:04X}")),
+                        "stopped": n.stopped,
+                        "quirks": n.quirks,
+                    })
+                })
+                .collect();
+        }
         let codec = match &self.codec {
             None => Value::Null,
             Some(c) => json!({
@@ -311,7 +381,7 @@ fn check_json(r: &CheckResult) -> Value {
             })
         })
         .collect();
-    json!({
+    let mut v = json!({
         "id": r.id,
         "title": r.title,
         "mode": r.mode.map(|m| m.to_string()),
@@ -321,7 +391,11 @@ fn check_json(r: &CheckResult) -> Value {
         "findings": findings,
         "exchanges": exchanges,
         "duration_ms": (r.duration.as_secs_f64() * 1e6).round() / 1e3,
-    })
+    });
+    if let Some(n) = r.node {
+        v["node"] = json!(format!("{n:02X}"));
+    }
+    v
 }
 
 /// Positions where two frames differ, including the bytes one has beyond the other.

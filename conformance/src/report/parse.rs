@@ -6,7 +6,7 @@ use std::time::Duration;
 
 use serde_json::Value;
 
-use super::{Codec, Device, Report, ReportKind, RunOptions};
+use super::{Codec, Device, NodeInfo, Report, ReportKind, RunOptions};
 use crate::codec::hex::parse_hex;
 use crate::codec::Mode;
 use crate::runner::{
@@ -104,6 +104,26 @@ fn hex_u(v: &Value, key: &str, path: &str) -> Result<u64, ReportError> {
         .map_err(|_| field(&format!("{path}.{key}"), format!("{s:?} is not hex")))
 }
 
+/// An optional node address ("05", hex as the report writes it).
+fn opt_node(v: &Value, key: &str, path: &str) -> Result<Option<u8>, ReportError> {
+    match opt_string(v, key, path)? {
+        None => Ok(None),
+        Some(s) => u8::from_str_radix(&s, 16)
+            .map(Some)
+            .map_err(|_| field(&format!("{path}.{key}"), format!("{s:?} is not a node address"))),
+    }
+}
+
+/// A 16-bit value written as hex, or null.
+fn opt_word(v: &Value, key: &str, path: &str) -> Result<Option<u16>, ReportError> {
+    match opt_string(v, key, path)? {
+        None => Ok(None),
+        Some(s) => u16::from_str_radix(&s, 16)
+            .map(Some)
+            .map_err(|_| field(&format!("{path}.{key}"), format!("{s:?} is not hex"))),
+    }
+}
+
 fn bytes(s: &str, path: &str) -> Result<Vec<u8>, ReportError> {
     parse_hex(s).map_err(|e| field(path, format!("not hex bytes: {e}")))
 }
@@ -181,6 +201,7 @@ fn check(c: &Value, path: &str) -> Result<CheckResult, ReportError> {
         findings,
         exchanges,
         duration: millis(c, "duration_ms", path)?,
+        node: opt_node(c, "node", path)?,
     })
 }
 
@@ -250,16 +271,33 @@ impl Report {
                         .map_err(|_| field(".device.address", "not a node address"))?,
                     links,
                     line: string(d, "line", p)?,
-                    identification: match opt_string(d, "identification", p)? {
-                        None => None,
-                        Some(s) => Some(u16::from_str_radix(&s, 16).map_err(|_| {
-                            field(".device.identification", format!("{s:?} is not hex"))
-                        })?),
-                    },
+                    identification: opt_word(d, "identification", p)?,
                     simulated: if boolean(d, "simulated", p)? {
                         Some(strings(d, "quirks", p)?)
                     } else {
                         None
+                    },
+                    // Reports of one node (and reports older than several-node runs)
+                    // have no list.
+                    nodes: match d.get("nodes") {
+                        None | Some(Value::Null) => Vec::new(),
+                        Some(_) => array(d, "nodes", p)?
+                            .iter()
+                            .enumerate()
+                            .map(|(i, n)| {
+                                let p = format!("{p}.nodes[{i}]");
+                                Ok(NodeInfo {
+                                    address: opt_node(n, "address", &p)?
+                                        .ok_or_else(|| field(&format!("{p}.address"), "missing"))?,
+                                    identification: opt_word(n, "identification", &p)?,
+                                    stopped: opt_string(n, "stopped", &p)?,
+                                    quirks: match n.get("quirks") {
+                                        None | Some(Value::Null) => Vec::new(),
+                                        Some(_) => strings(n, "quirks", &p)?,
+                                    },
+                                })
+                            })
+                            .collect::<Result<Vec<_>, ReportError>>()?,
                     },
                 }
             }
@@ -306,6 +344,7 @@ impl Report {
             .map(|(i, r)| {
                 let p = format!(".restore[{i}]");
                 Ok(RestoreRecord {
+                    node: opt_node(r, "node", &p)?,
                     register: u16::try_from(hex_u(r, "register", &p)?)
                         .map_err(|_| field(&p, "register beyond FFFF"))?,
                     original: u16::try_from(hex_u(r, "original", &p)?)

@@ -112,6 +112,20 @@ pub struct CheckResult {
     pub exchanges: Vec<ExchangeRecord>,
     /// How long it took.
     pub duration: Duration,
+    /// The node it is about, in a run of several nodes on one bus (`check --address
+    /// 1,2,5`); None in a run of one node and for checks of the whole bus.
+    pub node: Option<u8>,
+}
+
+impl CheckResult {
+    /// The result's key in a report: its id, and `@N` (decimal node address) in a run of
+    /// several nodes, where the same check runs once per node.
+    pub fn key(&self) -> String {
+        match self.node {
+            Some(n) => format!("{}@{n}", self.id),
+            None => self.id.clone(),
+        }
+    }
 }
 
 /// What a check returns.
@@ -176,11 +190,18 @@ pub struct Options {
     /// Send the 08H sub-functions that restart the device's communications (0001H) or
     /// silence it (0004H, Force Listen Only Mode, undone by 0001H).
     pub allow_restart: bool,
+    /// Every node this run checks on the bus, in order (`[address]` for a run of one
+    /// node). The checks of the whole bus ([`Check::bus`]: broadcasts, another address)
+    /// read back from each of them.
+    pub bus: Vec<u8>,
 }
 
 /// A register the run changed and restored.
 #[derive(Debug, Clone, PartialEq, Eq, Serialize)]
 pub struct RestoreRecord {
+    /// The node it belongs to, in a run of several nodes (None: the run's one node).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub node: Option<u8>,
     /// Register.
     pub register: u16,
     /// Value before the run changed it.
@@ -244,7 +265,8 @@ pub struct Ctx<'a> {
     /// Options.
     pub opts: &'a Options,
     master: Master<dyn Transport>,
-    journal: Vec<(u16, u16)>,
+    /// (node, register, original value), in the order journalled.
+    journal: Vec<(u8, u16, u16)>,
     /// Latencies of replies, for the response-time check.
     pub latencies: Vec<Duration>,
     /// Gaps inside replies over t1.5 (line timing only): (request hex, gap).
@@ -404,7 +426,18 @@ impl<'a> Ctx<'a> {
         frame: Vec<u8>,
         known: Option<(Vec<Option<u16>>, Fact)>,
     ) -> Result<Probed, RunError> {
-        let judgement = self.model.judge(self.opts.address, self.mode, &frame);
+        self.probe_at(self.opts.address, frame, known)
+    }
+
+    /// [`Ctx::probe`], judged as node `node` would judge it (a check of the whole bus
+    /// that reads back from every node).
+    pub fn probe_at(
+        &mut self,
+        node: u8,
+        frame: Vec<u8>,
+        known: Option<(Vec<Option<u16>>, Fact)>,
+    ) -> Result<Probed, RunError> {
+        let judgement = self.model.judge(node, self.mode, &frame);
         let (exchange, proven_alive) = self.exchange(&frame, judgement.expect.replies())?;
         let comparison = compare::compare(
             self.model,
@@ -470,8 +503,18 @@ impl<'a> Ctx<'a> {
 
     /// Reads `count` registers from `start`; the values, or why not.
     pub fn read(&mut self, start: u16, count: u16) -> Result<Result<Vec<u16>, String>, RunError> {
-        let frame = self.frame(Pdu::ReadRequest { start, count });
-        let p = self.probe(frame, None)?;
+        self.read_at(self.opts.address, start, count)
+    }
+
+    /// [`Ctx::read`] from node `node`.
+    pub fn read_at(
+        &mut self,
+        node: u8,
+        start: u16,
+        count: u16,
+    ) -> Result<Result<Vec<u16>, String>, RunError> {
+        let frame = self.frame_to(node, Pdu::ReadRequest { start, count });
+        let p = self.probe_at(node, frame, None)?;
         Ok(match p.read_values() {
             Some(v) if v.len() == usize::from(count) => Ok(v),
             _ => Err(format!(
@@ -484,19 +527,33 @@ impl<'a> Ctx<'a> {
     /// Reads `register`'s value before a check changes it, once per run, so that the
     /// restore can put it back.
     pub fn remember(&mut self, register: u16) -> Result<Result<u16, String>, RunError> {
-        if let Some((_, v)) = self.journal.iter().find(|(r, _)| *r == register) {
+        self.remember_at(self.opts.address, register)
+    }
+
+    /// [`Ctx::remember`] on node `node` (a check of the whole bus, whose broadcast write
+    /// changes every node).
+    pub fn remember_at(
+        &mut self,
+        node: u8,
+        register: u16,
+    ) -> Result<Result<u16, String>, RunError> {
+        if let Some((_, _, v)) = self
+            .journal
+            .iter()
+            .find(|(n, r, _)| *n == node && *r == register)
+        {
             return Ok(Ok(*v));
         }
         // A set-up read is not what a check judges: where no reply came (and the
         // liveness probe showed the device alive), it is sent once more.
-        let first = self.read(register, 1)?;
+        let first = self.read_at(node, register, 1)?;
         let read = match first {
-            Err(e) if e.ends_with("no reply") => self.read(register, 1)?,
+            Err(e) if e.ends_with("no reply") => self.read_at(node, register, 1)?,
             other => other,
         };
         Ok(match read {
             Ok(v) => {
-                self.journal.push((register, v[0]));
+                self.journal.push((node, register, v[0]));
                 Ok(v[0])
             }
             Err(e) => Err(e),
@@ -506,7 +563,8 @@ impl<'a> Ctx<'a> {
     /// The value `register` holds now, journalling it first if no check changed it yet
     /// (so that the restore can put it back).
     pub fn remember_current(&mut self, register: u16) -> Result<Result<u16, String>, RunError> {
-        if self.journal.iter().any(|(r, _)| *r == register) {
+        let node = self.opts.address;
+        if self.journal.iter().any(|(n, r, _)| *n == node && *r == register) {
             return Ok(self.read(register, 1)?.map(|v| v[0]));
         }
         self.remember(register)
@@ -515,7 +573,17 @@ impl<'a> Ctx<'a> {
     /// Writes one register and reports whether the device confirmed it (plain, for
     /// set-up and restore).
     pub fn write(&mut self, register: u16, value: u16) -> Result<Result<(), String>, RunError> {
-        let frame = self.frame(Pdu::WriteSingle { register, value });
+        self.write_at(self.opts.address, register, value)
+    }
+
+    /// [`Ctx::write`] to node `node`.
+    pub fn write_at(
+        &mut self,
+        node: u8,
+        register: u16,
+        value: u16,
+    ) -> Result<Result<(), String>, RunError> {
+        let frame = self.frame_to(node, Pdu::WriteSingle { register, value });
         let (ex, _) = self.exchange(&frame, true)?;
         Ok(match &ex.reply {
             Some(r) if *r == frame => Ok(()),
@@ -537,14 +605,18 @@ impl<'a> Ctx<'a> {
     /// Writes back every journalled register, newest first, and verifies by reading.
     /// After the device stopped answering, one liveness probe decides whether to try.
     pub fn restore(&mut self) -> Vec<RestoreRecord> {
-        let journal: Vec<(u16, u16)> = self.journal.drain(..).rev().collect();
+        let journal: Vec<(u8, u16, u16)> = self.journal.drain(..).rev().collect();
+        // Records name their node in a run of several nodes only.
+        let several = self.opts.bus.len() > 1;
+        let tag = |n: u8| several.then_some(n);
         let mut out = Vec::new();
         if let Some(why) = self.lost.clone() {
             if !journal.is_empty() && matches!(self.liveness(), Ok(true)) {
                 self.lost = None;
             } else {
-                for (register, original) in journal {
+                for (node, register, original) in journal {
                     out.push(RestoreRecord {
+                        node: tag(node),
                         register,
                         original,
                         restored: false,
@@ -557,8 +629,9 @@ impl<'a> Ctx<'a> {
                 return out;
             }
         }
-        for (register, original) in journal {
+        for (node, register, original) in journal {
             let rec = |restored, detail: String| RestoreRecord {
+                node: tag(node),
                 register,
                 original,
                 restored,
@@ -567,7 +640,7 @@ impl<'a> Ctx<'a> {
             };
             // A register that holds its original value needs no write (a rejected
             // write, a value-preserving write): say so, and do not write.
-            match self.read(register, 1) {
+            match self.read_at(node, register, 1) {
                 Ok(Ok(v)) if v[0] == original => {
                     out.push(RestoreRecord {
                         changed: false,
@@ -586,11 +659,11 @@ impl<'a> Ctx<'a> {
                 }
                 _ => {}
             }
-            let written = self.write(register, original);
+            let written = self.write_at(node, register, original);
             let record = match written {
                 Err(e) => rec(false, format!("could not write it back: {e}")),
                 Ok(Err(e)) => rec(false, format!("could not write it back: {e}")),
-                Ok(Ok(())) => match self.read(register, 1) {
+                Ok(Ok(())) => match self.read_at(node, register, 1) {
                     Err(e) => rec(
                         false,
                         format!("written back, but the read-back failed: {e}"),
@@ -772,6 +845,7 @@ pub(crate) fn result_of(
         findings: v.findings,
         exchanges: v.exchanges,
         duration,
+        node: None,
     }
 }
 

@@ -215,6 +215,7 @@ mod tests {
         let opts = Options {
             address: 1,
             other_address: 0x7F,
+            bus: vec![1],
             read_only: true,
             allow_motion: false,
             only: vec![],
