@@ -10,9 +10,12 @@ use std::time::{Duration, SystemTime};
 use crate::codec::timing::LineSettings;
 use crate::codec::Mode;
 use crate::model::DriveModel;
-use crate::report::{Device, Report, RunOptions};
-use crate::runner::{run_mode, Check, CheckResult, Options, Progress};
-use crate::sim::{serve_with_gap, Drive, LogFormat, Quirk, TrafficLog};
+use crate::report::{Device, NodeInfo, Report, RunOptions};
+use crate::runner::{
+    run_mode, run_section, Check, CheckResult, Master, ModeBudget, Options, Progress, Section,
+};
+use crate::sim::bus::{check_planted, quirks_for};
+use crate::sim::{serve_with_gap, Bus, Drive, LogFormat, PlantedQuirk, TrafficLog};
 use crate::transport::mbap::{MbapGateway, UnitMap};
 use crate::transport::serial::SerialTransport;
 use crate::transport::tcp::TcpTransport;
@@ -43,8 +46,8 @@ pub enum Target {
     },
     /// This suite's simulator, started in-process on a pseudo-terminal pair.
     Sim {
-        /// Fault injection.
-        quirks: Vec<Quirk>,
+        /// Fault injection, on every node or on one (`QUIRK@NODE`).
+        quirks: Vec<PlantedQuirk>,
         /// Send at the line's character time, so that timing checks measure something.
         pace: bool,
         /// Response delay (default: the model's response time).
@@ -85,6 +88,9 @@ pub enum SessionError {
     /// Pseudo-terminals are not available.
     #[error("the simulator needs pseudo-terminals (a Unix system)")]
     NoPty,
+    /// The simulated bus cannot be built as asked.
+    #[error(transparent)]
+    Bus(#[from] crate::sim::BusError),
 }
 
 fn now_rfc3339() -> String {
@@ -104,6 +110,20 @@ pub fn list(config: &SessionConfig) -> Vec<(Mode, Check)> {
         }
     }
     out
+}
+
+/// How many results a session gives: its checks, and in a run of several nodes those
+/// of each node plus the checks of the whole bus once (preflights not counted).
+pub fn planned(config: &SessionConfig) -> u64 {
+    let checks = list(config);
+    let nodes = config.options.bus.len().max(1) as u64;
+    if nodes < 2 {
+        return checks.len() as u64;
+    }
+    checks
+        .iter()
+        .map(|(_, c)| if c.bus { 1 } else { nodes })
+        .sum()
 }
 
 /// A simulator running in a thread on the master side of a pseudo-terminal pair; it
@@ -126,7 +146,7 @@ impl Drop for SimThread {
 fn start_sim(
     config: &SessionConfig,
     mode: Mode,
-    quirks: &[Quirk],
+    quirks: &[PlantedQuirk],
     pace: bool,
     delay: Option<Duration>,
     log: Option<&std::path::Path>,
@@ -137,9 +157,19 @@ fn start_sim(
     let clock = master.pacing_clock();
     let tags = master.line_tags();
     let delay = delay.unwrap_or_else(|| config.model.response_delay(&config.line));
-    let mut drive = Drive::new(config.model.clone(), config.options.address, delay)
-        .with_quirks(quirks)
-        .with_line(config.line, pace);
+    // One drive per node of the run, each with its own state, on one line.
+    let nodes = bus_nodes(&config.options);
+    check_planted(quirks, &nodes)?;
+    let mut drive = Bus::new(
+        nodes
+            .iter()
+            .map(|&n| {
+                Drive::new(config.model.clone(), n, delay)
+                    .with_quirks(&quirks_for(quirks, n))
+                    .with_line(config.line, pace)
+            })
+            .collect(),
+    )?;
     let mut traffic = TrafficLog::new();
     if let Some(p) = log {
         let file = std::fs::OpenOptions::new()
@@ -200,6 +230,15 @@ impl Progress for Hooks<'_, '_> {
     fn finished(&mut self, result: &CheckResult) {
         self.report.results.push(result.clone());
         (self.on_result)(self.report);
+    }
+}
+
+/// The nodes of a run: its bus, or its one address.
+fn bus_nodes(options: &Options) -> Vec<u8> {
+    if options.bus.is_empty() {
+        vec![options.address]
+    } else {
+        options.bus.clone()
     }
 }
 
@@ -271,8 +310,37 @@ fn header(config: &SessionConfig) -> Report {
                 _ => format!("{} baud {}{}{}", l.baud, l.data_bits, l.parity, l.stop_bits),
             },
             simulated: match &config.target {
-                Target::Sim { quirks, .. } => Some(quirks.iter().map(|q| q.to_string()).collect()),
+                // In a run of several nodes, a quirk planted on one node is told in its
+                // node's entry.
+                Target::Sim { quirks, .. } => Some(
+                    quirks
+                        .iter()
+                        .filter(|q| q.node.is_none() || config.options.bus.len() < 2)
+                        .map(|q| q.to_string())
+                        .collect(),
+                ),
                 _ => None,
+            },
+            nodes: if config.options.bus.len() > 1 {
+                config
+                    .options
+                    .bus
+                    .iter()
+                    .map(|&n| NodeInfo {
+                        address: n,
+                        quirks: match &config.target {
+                            Target::Sim { quirks, .. } => quirks
+                                .iter()
+                                .filter(|q| q.node == Some(n))
+                                .map(|q| q.quirk.to_string())
+                                .collect(),
+                            _ => Vec::new(),
+                        },
+                        ..NodeInfo::default()
+                    })
+                    .collect()
+            } else {
+                Vec::new()
             },
             ..Device::default()
         },
@@ -378,6 +446,24 @@ pub fn run(
             .device
             .links
             .insert(mode.to_string(), transport.describe());
+        if config.options.bus.len() > 1 {
+            let fatal = run_bus(
+                config,
+                file,
+                mode,
+                transport,
+                stop,
+                &mut report,
+                &mut *on_start,
+                &mut *on_result,
+            );
+            drop(sim);
+            if let Some(why) = fatal {
+                report.stopped = Some(why);
+                break;
+            }
+            continue;
+        }
         let mode_run = {
             let mut hooks = Hooks {
                 mode,
@@ -411,8 +497,181 @@ pub fn run(
             break;
         }
     }
+    if report.stopped.is_none() {
+        // Nodes that stopped answering: their checks left are ERRORs, the other nodes
+        // were checked; the run is not whole.
+        let lost: Vec<String> = report
+            .device
+            .nodes
+            .iter()
+            .filter_map(|n| {
+                n.stopped
+                    .as_ref()
+                    .map(|w| format!("node {:02X}H: {w}", n.address))
+            })
+            .collect();
+        if !lost.is_empty() {
+            report.stopped = Some(format!("{}; the other nodes were checked", lost.join("; ")));
+        }
+    }
     report.complete = report.stopped.is_none();
     report.finished = Some(now_rfc3339());
     on_result(&report);
     Ok(report)
+}
+
+/// One mode of a run of several nodes on one bus: a section per node, then the checks of
+/// the whole bus once, all over one master (the echo and response time it learns are the
+/// bus's). A node that stops answering ends its own section only. Returns why the whole
+/// run must stop (the link failed, or it was interrupted), if it must.
+#[allow(clippy::too_many_arguments)]
+fn run_bus(
+    config: &SessionConfig,
+    file: Option<&crate::vectors::VectorFile>,
+    mode: Mode,
+    transport: Box<dyn Transport>,
+    stop: &AtomicBool,
+    report: &mut Report,
+    on_start: &mut dyn FnMut(Mode, &Check),
+    on_result: &mut dyn FnMut(&Report),
+) -> Option<String> {
+    let mut master =
+        Master::new(transport, mode, config.options.timing).with_echo(config.options.echo);
+    let mut wall = Duration::ZERO;
+    let mut last_budget = ModeBudget::default();
+    let mut answering: Vec<u8> = Vec::new();
+    let sections = config
+        .options
+        .bus
+        .iter()
+        .map(|&n| (Section::Node, n))
+        .chain(std::iter::once((Section::Bus, 0)));
+    for (section, node) in sections {
+        if stop.load(Ordering::Relaxed) {
+            return Some("interrupted".into());
+        }
+        let opts = match section {
+            Section::Bus => {
+                // Broadcasts and the other address go once, with the read-backs and
+                // liveness probes to the nodes that still answer.
+                let Some(&first) = answering.first() else {
+                    bus_not_run(config, file, mode, report, &mut *on_start, &mut *on_result);
+                    break;
+                };
+                Options {
+                    address: first,
+                    bus: answering.clone(),
+                    ..config.options.clone()
+                }
+            }
+            _ => Options {
+                address: node,
+                ..config.options.clone()
+            },
+        };
+        let (mut run, m) = {
+            let mut hooks = Hooks {
+                mode,
+                report: &mut *report,
+                on_start: &mut *on_start,
+                on_result: &mut *on_result,
+            };
+            run_section(
+                &config.model,
+                file,
+                mode,
+                master,
+                &opts,
+                stop,
+                &mut hooks,
+                section,
+            )
+        };
+        master = m;
+        wall += run.budget.wall;
+        last_budget = run.budget;
+        for r in &mut run.restore {
+            r.node.get_or_insert(opts.address);
+        }
+        report.restore.append(&mut run.restore);
+        if run.echo == Some(true) {
+            if let Some(link) = report.device.links.get_mut(&mode.to_string()) {
+                if !link.contains("local echo") {
+                    link.push_str(
+                        " (local echo: every request comes back before the reply; stripped)",
+                    );
+                }
+            }
+        }
+        if section == Section::Node {
+            if let Some(info) = report.device.nodes.iter_mut().find(|n| n.address == node) {
+                if info.identification.is_none() {
+                    info.identification = run.identification;
+                }
+                if run.lost {
+                    let why = run.stopped.clone().unwrap_or_default();
+                    info.stopped = Some(match info.stopped.take() {
+                        Some(before) => format!("{before}; {mode}: {why}"),
+                        None => format!("{mode}: {why}"),
+                    });
+                }
+            }
+            if report.device.identification.is_none() && node == config.options.address {
+                report.device.identification = run.identification;
+            }
+        }
+        match run.stopped {
+            Some(why) if !run.lost => {
+                report.budget.insert(
+                    mode.to_string(),
+                    ModeBudget {
+                        wall,
+                        ..last_budget
+                    },
+                );
+                return Some(why);
+            }
+            Some(_) => {}
+            None if section == Section::Node => answering.push(node),
+            None => {}
+        }
+    }
+    report.budget.insert(
+        mode.to_string(),
+        ModeBudget {
+            wall,
+            ..last_budget
+        },
+    );
+    None
+}
+
+/// The checks of the whole bus where no node answers: each an ERROR.
+fn bus_not_run(
+    config: &SessionConfig,
+    file: Option<&crate::vectors::VectorFile>,
+    mode: Mode,
+    report: &mut Report,
+    on_start: &mut dyn FnMut(Mode, &Check),
+    on_result: &mut dyn FnMut(&Report),
+) {
+    for c in crate::runner::plan(&config.model, file, mode, &config.options) {
+        if !c.bus || !crate::runner::selected(&c.id, &config.options.only) {
+            continue;
+        }
+        on_start(mode, &c);
+        report.results.push(CheckResult {
+            id: c.id.clone(),
+            title: c.title.clone(),
+            mode: Some(mode),
+            source: c.source.clone(),
+            status: crate::runner::Status::Error,
+            summary: "not run: no node of the bus answers (see the nodes' preflights)".into(),
+            findings: Vec::new(),
+            exchanges: Vec::new(),
+            duration: Duration::ZERO,
+            node: None,
+        });
+        on_result(report);
+    }
 }

@@ -58,7 +58,7 @@ fn config(
     SessionConfig {
         model: Arc::new(DriveModel::builtin(model).unwrap()),
         target: Target::Sim {
-            quirks: quirks.to_vec(),
+            quirks: quirks.iter().map(|&q| q.into()).collect(),
             pace,
             delay: None,
             log: None,

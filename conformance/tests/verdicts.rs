@@ -147,7 +147,7 @@ fn run(cell: Cell, quirk: Option<Quirk>) -> Report {
     let config = SessionConfig {
         model: Arc::new(DriveModel::builtin(cell.model).unwrap()),
         target: Target::Sim {
-            quirks: quirk.into_iter().collect(),
+            quirks: quirk.into_iter().map(Into::into).collect(),
             pace: true,
             delay: None,
             log: None,

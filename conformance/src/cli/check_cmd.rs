@@ -137,7 +137,10 @@ pub fn write_atomic(path: &Path, contents: &str) -> std::io::Result<()> {
     std::fs::rename(&tmp, path)
 }
 
-pub fn run(args: CheckArgs) -> anyhow::Result<ExitCode> {
+pub fn run(mut args: CheckArgs) -> anyhow::Result<ExitCode> {
+    // `check` runs several drives on one bus (-a 1,2,5).
+    args.target.several_nodes = true;
+    let several = args.target.nodes.0.len() > 1;
     let mut stop = None;
     let mut identified = None;
     let resolved = if args.target.model_is_auto() {
@@ -146,6 +149,9 @@ pub fn run(args: CheckArgs) -> anyhow::Result<ExitCode> {
         }
         if args.target.model_file.is_some() {
             bail!("--model auto identifies among the five built-in models; --model-file names a model itself");
+        }
+        if several {
+            bail!("--model auto identifies one drive: run `conformance identify -a N` for each node, then `check --model MODEL -a {}` (one model for the bus)", args.target.nodes.0.iter().map(|n| n.to_string()).collect::<Vec<_>>().join(","));
         }
         let link = args.target.resolve_link(false, None)?;
         let config = identify_cmd::config(&args.target, link, &args.identify)?;
@@ -231,8 +237,9 @@ pub fn run(args: CheckArgs) -> anyhow::Result<ExitCode> {
 
     if args.safety.allow_motion && !is_sim {
         eprintln!(
-            "WARNING: --allow-motion: checks will set the run bit (the motor turns at 10.00 Hz) and the external-fault bit of node {:02X}. Make sure the machine is safe to move. Starting in 5 s; Ctrl-C to abort.",
-            args.target.address()
+            "WARNING: --allow-motion: checks will set the run bit (the motor turns at 10.00 Hz) and the external-fault bit of node{} {}. Make sure the machine is safe to move. Starting in 5 s; Ctrl-C to abort.",
+            if several { "s" } else { "" },
+            args.target.nodes.0.iter().map(|n| format!("{n:02X}H")).collect::<Vec<_>>().join(", ")
         );
         std::thread::sleep(Duration::from_secs(5));
     }
@@ -241,7 +248,7 @@ pub fn run(args: CheckArgs) -> anyhow::Result<ExitCode> {
         Some(s) => s,
         None => identify_cmd::stop_flag()?,
     };
-    let total = session::list(&config).len() as u64;
+    let total = session::planned(&config);
     if total == 0 {
         bail!(
             "no check matches --only {}; `--list` shows the check ids",

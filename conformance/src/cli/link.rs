@@ -13,7 +13,7 @@ use conformance::codec::Mode;
 use conformance::model::DriveModel;
 use conformance::runner::{EchoMode, MasterTiming};
 use conformance::session::Target;
-use conformance::sim::Quirk;
+use conformance::sim::PlantedQuirk;
 
 use super::common::{load_model, parse_nodes, LineArgs, NodeList, Number};
 
@@ -110,9 +110,10 @@ pub struct TargetArgs {
     /// Resend a request this many times when no byte comes back.
     #[arg(long, value_name = "N", default_value_t = 0)]
     pub retries: u32,
-    /// With --sim: inject a fault into the simulator (see `conformance simulate --help`).
+    /// With --sim: inject a fault into the simulator (see `conformance simulate --help`);
+    /// QUIRK@NODE plants it on one node of `-a 1,2,5` only (dead@2, slow=40@5).
     #[arg(long = "quirk", value_name = "QUIRK", requires = "sim")]
-    pub quirks: Vec<Quirk>,
+    pub quirks: Vec<PlantedQuirk>,
     /// With --sim: do not pace the simulator at the line's character time (the link then
     /// has no timing). With `fuzz`, the simulator also answers at once: its response
     /// delay (max(10 ms, t3.5 + one character)) is a property of a timed line.
@@ -290,16 +291,17 @@ impl TargetArgs {
             self.model_file.as_deref(),
             self.address(),
         )?);
-        let other_address = self.other_address.unwrap_or_else(|| {
-            let last = *model.addresses.end();
-            if self.address() != last {
-                last
-            } else {
-                self.address() - 1
-            }
-        });
-        if other_address == self.address() || other_address == 0 {
-            bail!("--other-address must differ from the device's address and from 00 (broadcast)");
+        let nodes = &self.nodes.0;
+        // The highest address the model allows that no node of the run has.
+        let other_address = match self.other_address {
+            Some(a) => a,
+            None => (1..=*model.addresses.end())
+                .rev()
+                .find(|a| !nodes.contains(a))
+                .unwrap_or(0),
+        };
+        if nodes.contains(&other_address) || other_address == 0 {
+            bail!("--other-address must differ from the device's address (every node of -a) and from 00 (broadcast)");
         }
         Ok(Resolved {
             model,

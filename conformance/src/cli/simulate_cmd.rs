@@ -11,13 +11,16 @@ use std::time::Duration;
 use anyhow::{bail, Context};
 use clap::{Args, ValueEnum};
 use conformance::codec::Mode;
+use conformance::sim::bus::{check_planted, quirks_for};
 use conformance::sim::mbap::{serve_gateway, GatewayConfig, NoReply};
-use conformance::sim::{serve, Drive, LogFormat, Quirk, SimError, TrafficLog, QUIRK_HELP};
+use conformance::sim::{
+    serve, Bus, Drive, LogFormat, PlantedQuirk, Responder, SimError, TrafficLog, QUIRK_HELP,
+};
 use conformance::transport::serial::SerialTransport;
 use conformance::transport::tcp::TcpTransport;
 use conformance::transport::{LinkKind, Transport, TransportError};
 
-use super::common::{load_model, LineArgs, ModeArg, Number};
+use super::common::{load_model, parse_nodes, LineArgs, ModeArg, NodeList};
 use super::link::{Framing, MBAP_NOT_ASCII};
 
 fn quirk_help() -> String {
@@ -25,7 +28,10 @@ fn quirk_help() -> String {
     for (q, what) in QUIRK_HELP {
         s.push_str(&format!("  {q:<22} {what}\n"));
     }
-    s.push_str("\nExamples:\n  conformance simulate --model f510 --pty\n  conformance simulate --model l510 --mode ascii --tcp 127.0.0.1:5020 --quirk late-reply=200\n  conformance simulate --model a510 --port /dev/ttyUSB0 -b 19200 -P none\n  conformance simulate --model e510 --pty --emulate-line -b 19200 -P odd -m ascii -a 17   a drive to find with `conformance scan`\n  conformance simulate --model f510 -a 3 --tcp 127.0.0.1:5502 --framing mbap\n");
+    s.push_str(
+        "  QUIRK@NODE             the quirk on one node of -a 1,2,5 only (dead@2, slow=40@5)\n",
+    );
+    s.push_str("\nExamples:\n  conformance simulate --model f510 --pty\n  conformance simulate --model f510 --pty -a 1,2,5 --quirk dead@5   three drives on one bus\n  conformance simulate --model l510 --mode ascii --tcp 127.0.0.1:5020 --quirk late-reply=200\n  conformance simulate --model a510 --port /dev/ttyUSB0 -b 19200 -P none\n  conformance simulate --model e510 --pty --emulate-line -b 19200 -P odd -m ascii -a 17   a drive to find with `conformance scan`\n  conformance simulate --model f510 -a 3 --tcp 127.0.0.1:5502 --framing mbap\n");
     s.push_str("\nModbus TCP (--framing mbap): the drive behind a simulated Modbus TCP gateway. Several\nconnections at once (--connections, default 8) against one drive state, served one\nrequest at a time in arrival order, as a gateway's one serial line is. Unit id = the node\naddress (-a) is the drive; unit 0 is a broadcast (executed, never answered); any other\nunit id is a node nobody has: after --gateway-timeout the gateway answers exception 0BH\n(gateway target device failed to respond), or nothing with --gateway-no-reply silence.\nReplies a gateway's serial receiver would drop (wrong CRC, echo) do not cross.\n");
     s.push_str("\nExit codes: 0 stopped by Ctrl-C; 2 the link or the log failed.");
     s
@@ -59,9 +65,11 @@ pub struct SimulateArgs {
     #[arg(long, value_name = "FILE")]
     model_file: Option<PathBuf>,
     /// Node address of the drive: decimal as in mbpoll (a bare number is decimal), or hex
-    /// with H suffix or 0x prefix (0AH, 0x0A).
-    #[arg(short = 'a', long, value_parser = Number::<u8>::quiet(), default_value = "1")]
-    address: u8,
+    /// with H suffix or 0x prefix (0AH, 0x0A). Several (1,2,5 or 1-4): one drive of the
+    /// model at each, with its own registers and state, on one line (not with --framing
+    /// mbap).
+    #[arg(short = 'a', long = "address", value_name = "N[,N..]", value_parser = parse_nodes, default_value = "1")]
+    nodes: NodeList,
     /// Transmission mode.
     #[arg(short = 'm', long, value_enum, default_value = "rtu")]
     mode: ModeArg,
@@ -110,9 +118,9 @@ pub struct SimulateArgs {
     /// here is used as it is, even below t3.5 (to test a master's timing checks).
     #[arg(long, value_name = "MS")]
     delay: Option<u64>,
-    /// Inject a fault; see the list below. Repeatable.
+    /// Inject a fault; see the list below. Repeatable. QUIRK@NODE: on that node only.
     #[arg(long = "quirk", value_name = "QUIRK")]
-    quirks: Vec<Quirk>,
+    quirks: Vec<PlantedQuirk>,
     /// Also write the traffic log as JSON lines to this file.
     #[arg(long, value_name = "FILE")]
     log: Option<PathBuf>,
@@ -125,11 +133,9 @@ pub struct SimulateArgs {
 }
 
 pub fn run(args: SimulateArgs) -> anyhow::Result<ExitCode> {
-    let model = Arc::new(load_model(
-        &args.model,
-        args.model_file.as_deref(),
-        args.address,
-    )?);
+    let nodes = args.nodes.0.clone();
+    let first = args.nodes.first();
+    let model = Arc::new(load_model(&args.model, args.model_file.as_deref(), first)?);
     let mode: Mode = args.mode.into();
     let mbap = args.framing == Some(Framing::Mbap);
     if mbap && mode == Mode::Ascii {
@@ -143,9 +149,21 @@ pub fn run(args: SimulateArgs) -> anyhow::Result<ExitCode> {
         Some(ms) => Duration::from_millis(ms),
         None => model.response_delay(&line),
     };
-    let mut drive = Drive::new(model.clone(), args.address, delay)
-        .with_quirks(&args.quirks)
-        .with_line(line, args.pace || args.port.is_some());
+    check_planted(&args.quirks, &nodes)?;
+    if mbap && nodes.len() > 1 {
+        bail!("--framing mbap serves one drive behind the simulated gateway (its unit id is -a); several nodes are for --pty, --port and --tcp with rtu framing");
+    }
+    let paced = args.pace || args.port.is_some();
+    let mut drive = Bus::new(
+        nodes
+            .iter()
+            .map(|&n| {
+                Drive::new(model.clone(), n, delay)
+                    .with_quirks(&quirks_for(&args.quirks, n))
+                    .with_line(line, paced)
+            })
+            .collect(),
+    )?;
 
     let mut log = TrafficLog::new();
     if !args.quiet {
@@ -169,10 +187,15 @@ pub fn run(args: SimulateArgs) -> anyhow::Result<ExitCode> {
     }
     let quirks: Vec<String> = args.quirks.iter().map(|q| q.to_string()).collect();
     let banner = format!(
-        "simulated {} ({}) at node {:02X}, {mode}, response delay {:.1} ms{}",
+        "simulated {} ({}) at node{} {}, {mode}, response delay {:.1} ms{}",
         model.id,
         model.manual,
-        args.address,
+        if nodes.len() > 1 { "s" } else { "" },
+        nodes
+            .iter()
+            .map(|n| format!("{n:02X}"))
+            .collect::<Vec<_>>()
+            .join(", "),
         delay.as_secs_f64() * 1000.0,
         if quirks.is_empty() {
             String::new()
@@ -228,7 +251,7 @@ pub fn run(args: SimulateArgs) -> anyhow::Result<ExitCode> {
         };
         log.message(&format!(
             "{banner} behind a Modbus TCP gateway (MBAP, unit {}) on tcp {}; up to {} connections; no reply: {}",
-            args.address,
+            first,
             listener
                 .local_addr()
                 .map(|a| a.to_string())
@@ -239,7 +262,10 @@ pub fn run(args: SimulateArgs) -> anyhow::Result<ExitCode> {
                 NoReply::Silence => "silence".to_string(),
             }
         ))?;
-        let stats = serve_gateway(&listener, drive, log, &config, &stop)?;
+        let Some(one) = drive.into_drives().pop() else {
+            bail!("no drive to serve");
+        };
+        let stats = serve_gateway(&listener, one, log, &config, &stop)?;
         if !args.quiet {
             eprintln!(
                 "# stopped: {} connections ({} refused), {} requests, {} replies, {} gateway exceptions 0BH",
@@ -270,7 +296,7 @@ pub fn run(args: SimulateArgs) -> anyhow::Result<ExitCode> {
 
 fn run_once(
     t: &mut dyn Transport,
-    drive: &mut Drive,
+    drive: &mut dyn Responder,
     mode: Mode,
     log: &mut TrafficLog,
     stop: &AtomicBool,
@@ -287,7 +313,7 @@ fn run_once(
 /// logged and the next one is accepted.
 fn serve_tcp(
     listener: &std::net::TcpListener,
-    drive: &mut Drive,
+    drive: &mut dyn Responder,
     mode: Mode,
     log: &mut TrafficLog,
     stop: &AtomicBool,

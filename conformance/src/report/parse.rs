@@ -108,9 +108,12 @@ fn hex_u(v: &Value, key: &str, path: &str) -> Result<u64, ReportError> {
 fn opt_node(v: &Value, key: &str, path: &str) -> Result<Option<u8>, ReportError> {
     match opt_string(v, key, path)? {
         None => Ok(None),
-        Some(s) => u8::from_str_radix(&s, 16)
-            .map(Some)
-            .map_err(|_| field(&format!("{path}.{key}"), format!("{s:?} is not a node address"))),
+        Some(s) => u8::from_str_radix(&s, 16).map(Some).map_err(|_| {
+            field(
+                &format!("{path}.{key}"),
+                format!("{s:?} is not a node address"),
+            )
+        }),
     }
 }
 
@@ -399,6 +402,7 @@ mod tests {
                 line: "9600 baud 8E1".into(),
                 identification: Some(0x0510),
                 simulated: Some(vec!["wrong-exception".into()]),
+                nodes: Vec::new(),
             },
             options: RunOptions {
                 modes: vec![Mode::Rtu, Mode::Ascii],
@@ -426,8 +430,10 @@ mod tests {
                     latency: Some(Duration::from_micros(8_960)),
                 }],
                 duration: Duration::from_micros(21_500),
+                node: None,
             }],
             restore: vec![RestoreRecord {
+                node: None,
                 register: 0x2502,
                 original: 0x04D2,
                 restored: true,

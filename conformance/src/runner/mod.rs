@@ -231,6 +231,34 @@ pub struct ModeRun {
     pub echo: Option<bool>,
     /// Where the time went.
     pub budget: ModeBudget,
+    /// Whether it stopped because the device stopped answering (not the link, not an
+    /// interruption): in a run of several nodes the other nodes are still checked.
+    pub lost: bool,
+}
+
+/// Which checks of a mode a run takes.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Section {
+    /// Every check: a run of one node.
+    All,
+    /// The checks of one node ([`Options::address`]) of several on one bus; the checks
+    /// of the whole bus ([`Check::bus`]) are left to [`Section::Bus`]. Results name the
+    /// node.
+    Node,
+    /// The checks of the whole bus, once, after the nodes' sections (preflight and
+    /// liveness probes go to [`Options::address`]).
+    Bus,
+}
+
+impl Section {
+    /// Whether this section runs `check`.
+    pub fn takes(self, check: &Check) -> bool {
+        match self {
+            Section::All => true,
+            Section::Node => !check.bus,
+            Section::Bus => check.bus,
+        }
+    }
 }
 
 /// A mode's wall time against its lower bound on the line.
@@ -343,12 +371,25 @@ impl<'a> Ctx<'a> {
         opts: &'a Options,
         transport: Box<dyn Transport>,
     ) -> Self {
+        let master = Master::new(transport, mode, opts.timing).with_echo(opts.echo);
+        Self::on_master(model, vectors, mode, opts, master)
+    }
+
+    /// A context over a master that has talked on this bus already (the echo and the
+    /// response time it learnt hold for every node of the bus).
+    pub fn on_master(
+        model: &'a DriveModel,
+        vectors: Option<&'a VectorFile>,
+        mode: Mode,
+        opts: &'a Options,
+        master: Master<dyn Transport>,
+    ) -> Self {
         Ctx {
             model,
             vectors,
             mode,
             opts,
-            master: Master::new(transport, mode, opts.timing).with_echo(opts.echo),
+            master,
             journal: Vec::new(),
             latencies: Vec::new(),
             gaps: Vec::new(),
@@ -564,7 +605,11 @@ impl<'a> Ctx<'a> {
     /// (so that the restore can put it back).
     pub fn remember_current(&mut self, register: u16) -> Result<Result<u16, String>, RunError> {
         let node = self.opts.address;
-        if self.journal.iter().any(|(n, r, _)| *n == node && *r == register) {
+        if self
+            .journal
+            .iter()
+            .any(|(n, r, _)| *n == node && *r == register)
+        {
             return Ok(self.read(register, 1)?.map(|v| v[0]));
         }
         self.remember(register)
@@ -710,12 +755,41 @@ pub fn run_mode(
     stop: &AtomicBool,
     progress: &mut dyn Progress,
 ) -> ModeRun {
+    let master = Master::new(transport, mode, opts.timing).with_echo(opts.echo);
+    run_section(
+        model,
+        vectors,
+        mode,
+        master,
+        opts,
+        stop,
+        progress,
+        Section::All,
+    )
+    .0
+}
+
+/// [`run_mode`] for one section of a run of several nodes on one bus, over a master
+/// that the sections share (it is handed back for the next). The budget's line figures
+/// are the master's so far; its wall time is this section's.
+#[allow(clippy::too_many_arguments)]
+pub fn run_section(
+    model: &DriveModel,
+    vectors: Option<&VectorFile>,
+    mode: Mode,
+    master: Master<dyn Transport>,
+    opts: &Options,
+    stop: &AtomicBool,
+    progress: &mut dyn Progress,
+    section: Section,
+) -> (ModeRun, Master<dyn Transport>) {
     let selected_checks: Vec<Check> = plan(model, vectors, mode, opts)
         .into_iter()
-        .filter(|c| selected(&c.id, &opts.only))
+        .filter(|c| selected(&c.id, &opts.only) && section.takes(c))
         .collect();
+    let node = (section == Section::Node).then_some(opts.address);
     let mode_started = Instant::now();
-    let mut ctx = Ctx::new(model, vectors, mode, opts, transport);
+    let mut ctx = Ctx::on_master(model, vectors, mode, opts, master);
     let mut run = ModeRun::default();
     // The preflight runs first, whatever --only selects: nothing can be judged on a line
     // where the device does not answer.
@@ -752,7 +826,8 @@ pub fn run_mode(
                 (Verdict::error(msg.clone()), Some(msg))
             }
         };
-        let result = result_of(check, mode, verdict, started.elapsed());
+        let mut result = result_of(check, mode, verdict, started.elapsed());
+        result.node = node;
         progress.finished(&result);
         run.results.push(result);
         if let Some(msg) = fatal {
@@ -764,6 +839,7 @@ pub fn run_mode(
         }
     }
     if let Some(why) = ctx.lost.clone() {
+        run.lost = true;
         let lost_in = ctx.current.clone();
         if lost_in == preflight.id {
             run.stopped = Some(format!(
@@ -774,12 +850,13 @@ pub fn run_mode(
             // Every check that did not run is an ERROR: none of them can pass.
             for check in queue {
                 progress.started(check);
-                let result = result_of(
+                let mut result = result_of(
                     check,
                     mode,
                     Verdict::error(liveness::not_run(&lost_in)),
                     Duration::ZERO,
                 );
+                result.node = node;
                 progress.finished(&result);
                 run.results.push(result);
             }
@@ -798,12 +875,16 @@ pub fn run_mode(
     run.budget = ModeBudget {
         wall: mode_started.elapsed(),
         line,
-        bound: ctx
-            .line_timing()
-            .or(opts.line)
-            .map_or(Duration::ZERO, |l| line.bound(&l)),
+        // Behind a gateway the serial side's timing is the gateway's: no bound of ours.
+        bound: match ctx.frames_only() {
+            Some(_) => Duration::ZERO,
+            None => ctx
+                .line_timing()
+                .or(opts.line)
+                .map_or(Duration::ZERO, |l| line.bound(&l)),
+        },
     };
-    run
+    (run, ctx.master)
 }
 
 pub(crate) fn result_of(

@@ -16,8 +16,8 @@
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
-use super::drive::Quirk;
-use super::drive::{Drive, SendKind};
+use super::bus::Responder;
+use super::drive::SendKind;
 use super::line_clock::LineClock;
 use super::log::{Dir, TrafficLog};
 use crate::codec::deframe::{AsciiDeframer, Event, RtuDeframer, RtuFraming};
@@ -75,10 +75,11 @@ fn own(e: Event<'_>) -> Owned {
     }
 }
 
-/// Serves `drive` in `mode` on `transport` until `stop` is set or the link fails.
-pub fn serve<T: Transport + ?Sized>(
+/// Serves `drive` (one [`super::Drive`], or a [`super::Bus`] of them) in `mode` on
+/// `transport` until `stop` is set or the link fails.
+pub fn serve<T: Transport + ?Sized, R: Responder + ?Sized>(
     transport: &mut T,
-    drive: &mut Drive,
+    drive: &mut R,
     mode: Mode,
     log: &mut TrafficLog,
     stop: &AtomicBool,
@@ -91,9 +92,9 @@ pub fn serve<T: Transport + ?Sized>(
 /// a master known to write every frame in one write (on a pseudo-terminal a write
 /// arrives whole), such as the fuzzer on an unpaced link; a master that writes a frame
 /// in pieces may then have a piece of an unmodelled function taken as garbage.
-pub fn serve_with_gap<T: Transport + ?Sized>(
+pub fn serve_with_gap<T: Transport + ?Sized, R: Responder + ?Sized>(
     transport: &mut T,
-    drive: &mut Drive,
+    drive: &mut R,
     mode: Mode,
     log: &mut TrafficLog,
     stop: &AtomicBool,
@@ -107,7 +108,7 @@ pub fn serve_with_gap<T: Transport + ?Sized>(
         }
         _ => None,
     };
-    let ignore_t15 = drive.quirks().contains(&Quirk::IgnoreT15);
+    let ignore_t15 = drive.ignores_t15();
     // What the sender says it put on the line, where it says (this suite's runner).
     let tags = clock.as_ref().and_then(|_| transport.line_tags());
     let mut deframer = match (mode, line) {

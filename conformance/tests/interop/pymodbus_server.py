@@ -6,7 +6,10 @@ The conformance runner checks it as an F510 to show that it completes against a 
 that nobody here wrote, reports that device's deviations from the F510 manual, and
 neither panics nor hangs.
 
-    pymodbus_server.py PORT [rtu|ascii] [--address 1]
+    pymodbus_server.py PORT [rtu|ascii] [--address 1[,2,...]]
+
+With several addresses it serves one node at each, each with its own registers (several
+drives on one bus, for `check -a 1,2`).
 """
 import argparse
 import logging
@@ -25,16 +28,18 @@ def main() -> int:
     p = argparse.ArgumentParser(description=__doc__)
     p.add_argument("port")
     p.add_argument("mode", nargs="?", default="rtu", choices=["rtu", "ascii"])
-    p.add_argument("--address", type=int, default=1)
+    p.add_argument("--address", default="1", help="node address, or several: 1,2")
     a = p.parse_args()
     logging.basicConfig(level=logging.WARNING, stream=sys.stderr)
     # pymodbus 3.16 numbers data blocks from 1 (protocol address 0 is block address 1)
     # and takes at most 65535 registers: protocol addresses 0000H..FFFEH.
-    block = ModbusSequentialDataBlock(1, [0] * 65535)
-    device = ModbusDeviceContext(hr=block)
-    context = ModbusServerContext(devices={a.address: device}, single=False)
+    nodes = [int(n) for n in a.address.split(",")]
+    devices = {
+        n: ModbusDeviceContext(hr=ModbusSequentialDataBlock(1, [0] * 65535)) for n in nodes
+    }
+    context = ModbusServerContext(devices=devices, single=False)
     framer = FramerType.RTU if a.mode == "rtu" else FramerType.ASCII
-    print(f"pymodbus generic server on {a.port} ({a.mode}, node {a.address})", file=sys.stderr, flush=True)
+    print(f"pymodbus generic server on {a.port} ({a.mode}, nodes {a.address})", file=sys.stderr, flush=True)
     # 8N1: pyserial on a Linux pseudo-terminal refuses a parity-only change (EINVAL).
     StartSerialServer(
         context=context,

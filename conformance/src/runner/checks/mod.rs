@@ -42,6 +42,10 @@ pub struct Check {
     /// timing. Skipped, with the link's reason, where the link carries frames only (a
     /// Modbus TCP gateway: [`crate::transport::Transport::frames_only`]).
     pub needs_line: bool,
+    /// Whether it is a check of the whole bus (a broadcast, a request to an address no
+    /// device has): in a run of several nodes it runs once, after the nodes' sections,
+    /// and reads back from every node ([`super::Options::bus`]).
+    pub bus: bool,
     /// The check.
     pub run: Run,
 }
@@ -62,6 +66,7 @@ fn check(
         motion,
         restarts: false,
         needs_line: false,
+        bus: false,
         run: Box::new(run),
     }
 }

@@ -283,6 +283,7 @@ pub(super) fn addressing(model: &DriveModel, m: &str, out: &mut Vec<Check>) {
         model,
         &model.silence[&crate::model::SilenceReason::Broadcast],
     );
+    let first = out.len();
     if let Some(f) = model.register_with_role(Role::FrequencyCommand) {
         out.push(check(
             format!("{m}.broadcast.write"),
@@ -291,17 +292,46 @@ pub(super) fn addressing(model: &DriveModel, m: &str, out: &mut Vec<Check>) {
             true,
             false,
             move |ctx| {
-                let orig = match ctx.remember(f)? {
-                    Ok(v) => v,
-                    Err(e) => return Ok(Verdict::error(format!("cannot read {f:04X}H first: {e}"))),
-                };
-                let value = if orig == 0x0A0A { 0x0B0B } else { 0x0A0A };
+                // Every node of the bus takes a broadcast: each is journalled first (so
+                // each gets its value back) and read back after.
+                // A node whose register cannot be read first is left out of the
+                // read-back (said as an observation); with none left, the run cannot tell.
+                let mut nodes = Vec::new();
+                let mut origs = Vec::new();
+                let mut unread = Vec::new();
+                for &n in &ctx.opts.bus.clone() {
+                    match ctx.remember_at(n, f)? {
+                        Ok(v) => {
+                            nodes.push(n);
+                            origs.push(v);
+                        }
+                        Err(e) if ctx.opts.bus.len() == 1 => return Ok(Verdict::error(format!("cannot read {f:04X}H first: {e}"))),
+                        Err(e) => unread.push(format!("cannot read {f:04X}H of node {n:02X}H first ({e}): the broadcast's effect on it is not judged")),
+                    }
+                }
+                if nodes.is_empty() {
+                    return Ok(Verdict::error(unread.join("; ")));
+                }
+                let value = if origs.contains(&0x0A0A) { 0x0B0B } else { 0x0A0A };
                 let bc = ctx.probe(ctx.frame_to(0, Pdu::WriteSingle { register: f, value }), None)?;
-                let rb = ctx.probe(
-                    ctx.frame(Pdu::ReadRequest { start: f, count: 1 }),
-                    Some((vec![Some(value)], write_fact())),
-                )?;
-                Ok(verdict(&[&bc, &rb], format!("no reply to the broadcast, and {f:04X}H reads {value:04X}H")))
+                let mut probes = vec![bc];
+                for &n in &nodes {
+                    let rb = ctx.probe_at(
+                        n,
+                        ctx.frame_to(n, Pdu::ReadRequest { start: f, count: 1 }),
+                        Some((vec![Some(value)], write_fact())),
+                    )?;
+                    probes.push(rb);
+                }
+                let refs: Vec<&Probed> = probes.iter().collect();
+                let who = if ctx.opts.bus.len() > 1 {
+                    format!("{f:04X}H of nodes {} reads {value:04X}H", node_list(&nodes))
+                } else {
+                    format!("{f:04X}H reads {value:04X}H")
+                };
+                let mut v = verdict(&refs, format!("no reply to the broadcast, and {who}"));
+                v.findings.extend(unread.into_iter().map(Finding::observation));
+                Ok(v)
             },
         ));
     }
@@ -338,6 +368,18 @@ pub(super) fn addressing(model: &DriveModel, m: &str, out: &mut Vec<Check>) {
             )
         },
     ));
+    for c in &mut out[first..] {
+        c.bus = true;
+    }
+}
+
+/// "01H, 02H and 05H".
+fn node_list(nodes: &[u8]) -> String {
+    let names: Vec<String> = nodes.iter().map(|n| format!("{n:02X}H")).collect();
+    match names.split_last() {
+        Some((last, rest)) if !rest.is_empty() => format!("{} and {last}", rest.join(", ")),
+        _ => names.join(""),
+    }
 }
 
 pub(super) fn line(model: &DriveModel, mode: Mode, m: &str, seed: u64, out: &mut Vec<Check>) {

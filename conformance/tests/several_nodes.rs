@@ -1,0 +1,514 @@
+//! Several drives on one bus in one run (`check -a 1,2,5`): one report with a section per
+//! node, the checks of the whole bus (broadcasts, another address) once, a node that stops
+//! answering ends its own section only. Against this suite's simulator serving several
+//! nodes on one pseudo-terminal (per-node state, `QUIRK@NODE`), and against pymodbus's
+//! serial server serving two nodes, a device nobody here wrote; and masters nobody here
+//! wrote (mbpoll, minimalmodbus) against the simulated bus.
+
+mod common;
+use common::{tool_or_skip, Kill};
+
+use std::collections::BTreeMap;
+use std::process::{Command, Stdio};
+use std::time::Duration;
+
+use serde_json::Value;
+
+fn dir(name: &str) -> std::path::PathBuf {
+    let d = std::env::temp_dir().join(format!("teco-nodes-{name}-{}", std::process::id()));
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+fn check(name: &str, args: &[&str]) -> (Option<i32>, Value) {
+    common::check_device(&dir(name), args, Duration::from_secs(240))
+}
+
+fn checks(v: &Value) -> &Vec<Value> {
+    v["checks"].as_array().unwrap()
+}
+
+/// Results per check id: the nodes they name ("-" for a check of the whole bus).
+fn nodes_per_id(v: &Value) -> BTreeMap<String, Vec<String>> {
+    let mut out: BTreeMap<String, Vec<String>> = BTreeMap::new();
+    for c in checks(v) {
+        out.entry(c["id"].as_str().unwrap().to_string())
+            .or_default()
+            .push(c["node"].as_str().unwrap_or("-").to_string());
+    }
+    out
+}
+
+const BUS_CHECKS: [&str; 3] = [
+    "rtu.broadcast.write",
+    "rtu.broadcast.read",
+    "rtu.other-address",
+];
+
+#[test]
+fn the_whole_suite_runs_per_node_and_the_bus_checks_once() {
+    let (exit, v) = check(
+        "whole",
+        &["--sim", "f510", "-a", "1,2", "--mode", "rtu", "--no-pace"],
+    );
+    assert_eq!(exit, Some(0), "{}", v["summary"]);
+    assert_eq!(v["complete"], true, "{}", v["stopped"]);
+    assert_eq!(v["summary"]["deviation"], 0);
+    assert_eq!(v["summary"]["error"], 0);
+    let nodes = v["device"]["nodes"].as_array().unwrap();
+    let addresses: Vec<&str> = nodes
+        .iter()
+        .map(|n| n["address"].as_str().unwrap())
+        .collect();
+    assert_eq!(addresses, ["01", "02"]);
+    for n in nodes {
+        assert_eq!(n["identification"], "0510", "{n}");
+        assert!(n["stopped"].is_null(), "{n}");
+    }
+    let per_id = nodes_per_id(&v);
+    for (id, nodes) in &per_id {
+        if BUS_CHECKS.contains(&id.as_str()) {
+            assert_eq!(nodes, &["-"], "{id} runs once for the bus");
+        } else if id == "rtu.preflight" {
+            // Each node's preflight, and the bus section's.
+            assert_eq!(nodes, &["01", "02", "-"], "{id}");
+        } else {
+            assert_eq!(nodes, &["01", "02"], "{id} runs once per node");
+        }
+    }
+    for id in BUS_CHECKS {
+        assert!(per_id.contains_key(id), "{id} missing");
+    }
+    // The broadcast write changes every node: each is journalled and restored.
+    let restored: Vec<(&str, &str)> = v["restore"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter(|r| r["register"] == "2502")
+        .map(|r| (r["node"].as_str().unwrap(), r["detail"].as_str().unwrap()))
+        .collect();
+    for node in ["01", "02"] {
+        assert!(
+            restored.iter().any(|(n, _)| *n == node),
+            "2502H of node {node} is not in the restore journal: {restored:?}"
+        );
+    }
+    assert!(v["restore"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .all(|r| r["restored"] == true));
+    let bw = checks(&v)
+        .iter()
+        .find(|c| c["id"] == "rtu.broadcast.write")
+        .unwrap();
+    // The broadcast and a read-back from each node.
+    assert_eq!(bw["exchanges"].as_array().unwrap().len(), 3, "{bw}");
+}
+
+#[test]
+fn a_fault_planted_on_one_node_is_reported_on_that_node_only() {
+    let (exit, v) = check(
+        "planted",
+        &[
+            "--sim",
+            "f510",
+            "-a",
+            "1,2,5",
+            "--mode",
+            "rtu",
+            "--no-pace",
+            "--quirk",
+            "wrong-exception@2",
+            "--quirk",
+            "reply-to-broadcast@5",
+            "--only",
+            "rtu.map.group-0*",
+            "--only",
+            "rtu.function.*",
+            "--only",
+            "rtu.broadcast.*",
+            "--only",
+            "rtu.other-address",
+        ],
+    );
+    assert_eq!(exit, Some(1), "{}", v["summary"]);
+    let quirks: Vec<(String, Value)> = v["device"]["nodes"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|n| {
+            (
+                n["address"].as_str().unwrap().to_string(),
+                n["quirks"].clone(),
+            )
+        })
+        .collect();
+    assert_eq!(
+        quirks[1],
+        ("02".into(), serde_json::json!(["wrong-exception"]))
+    );
+    assert_eq!(
+        quirks[2],
+        ("05".into(), serde_json::json!(["reply-to-broadcast"]))
+    );
+    let deviating: Vec<(String, String)> = checks(&v)
+        .iter()
+        .filter(|c| c["status"] == "deviation")
+        .map(|c| {
+            (
+                c["node"].as_str().unwrap_or("-").to_string(),
+                c["id"].as_str().unwrap().to_string(),
+            )
+        })
+        .collect();
+    assert!(!deviating.is_empty());
+    for (node, id) in &deviating {
+        match id.as_str() {
+            // Node 05 answers broadcasts: seen once, in the bus section.
+            "rtu.broadcast.read" | "rtu.broadcast.write" => assert_eq!(node, "-", "{id}"),
+            _ => assert_eq!(
+                node, "02",
+                "{id}: only node 02 has the wrong exception codes"
+            ),
+        }
+    }
+    assert!(
+        deviating.iter().any(|(_, id)| id == "rtu.broadcast.read"),
+        "{deviating:?}"
+    );
+    assert!(
+        deviating
+            .iter()
+            .any(|(n, id)| n == "02" && id.starts_with("rtu.function.")),
+        "{deviating:?}"
+    );
+}
+
+#[test]
+fn a_dead_node_ends_its_own_section_only() {
+    let (exit, v) = check(
+        "dead",
+        &[
+            "--sim",
+            "f510",
+            "-a",
+            "1,2,5",
+            "--mode",
+            "rtu",
+            "--no-pace",
+            "--quirk",
+            "dead@2",
+            "--only",
+            "rtu.map.group-0*",
+            "--only",
+            "rtu.broadcast.*",
+        ],
+    );
+    assert_eq!(
+        exit,
+        Some(2),
+        "a node that does not answer leaves the run incomplete"
+    );
+    assert_eq!(v["complete"], false);
+    let stopped = v["stopped"].as_str().unwrap();
+    assert!(stopped.contains("node 02H"), "{stopped}");
+    let nodes = v["device"]["nodes"].as_array().unwrap();
+    assert!(
+        nodes[1]["stopped"].as_str().unwrap().contains("preflight"),
+        "{}",
+        nodes[1]
+    );
+    assert!(nodes[0]["stopped"].is_null() && nodes[2]["stopped"].is_null());
+    let per_id = nodes_per_id(&v);
+    // Nodes 01 and 05 were checked whole; 02 has its failed preflight only.
+    assert_eq!(per_id["rtu.map.group-0.first"], ["01", "05"]);
+    assert_eq!(per_id["rtu.preflight"], ["01", "02", "05", "-"]);
+    for c in checks(&v) {
+        let node = c["node"].as_str().unwrap_or("-");
+        if node == "02" {
+            assert_eq!(c["status"], "error", "{c}");
+        } else {
+            assert_ne!(c["status"], "error", "{c}");
+            assert_ne!(c["status"], "deviation", "{c}");
+        }
+    }
+    // The broadcast write is read back from the nodes that answer.
+    let bw = checks(&v)
+        .iter()
+        .find(|c| c["id"] == "rtu.broadcast.write")
+        .unwrap();
+    assert_eq!(bw["status"], "pass", "{bw}");
+    let reads: Vec<&str> = bw["exchanges"].as_array().unwrap()[1..]
+        .iter()
+        .map(|e| e["request"].as_str().unwrap())
+        .collect();
+    assert!(
+        reads[0].starts_with("01 ") && reads[1].starts_with("05 "),
+        "{reads:?}"
+    );
+}
+
+#[test]
+fn lists_and_refusals() {
+    let run = |args: &[&str]| Command::new(common::bin()).args(args).output().unwrap();
+    let o = run(&["fuzz", "--sim", "f510", "-a", "1,2", "--cases", "1"]);
+    assert_eq!(o.status.code(), Some(2));
+    assert!(
+        String::from_utf8_lossy(&o.stderr).contains("several drives on one bus are for `check`"),
+        "{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    let o = run(&[
+        "check",
+        "--sim",
+        "f510",
+        "-a",
+        "1,2",
+        "--other-address",
+        "2",
+    ]);
+    assert_eq!(o.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("--other-address"));
+    let o = run(&[
+        "check",
+        "--sim",
+        "f510",
+        "-a",
+        "1,2",
+        "--quirk",
+        "dead@3",
+        "--only",
+        "identification",
+    ]);
+    assert_eq!(o.status.code(), Some(2));
+    assert!(
+        String::from_utf8_lossy(&o.stderr).contains("node 3 is not on the bus"),
+        "{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    let o = run(&["check", "--sim", "f510", "-a", "1,1"]);
+    assert_eq!(o.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("twice"));
+}
+
+fn have(cmd: &str, args: &[&str]) -> bool {
+    Command::new(cmd)
+        .args(args)
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .status()
+        .is_ok_and(|s| s.success())
+}
+
+/// pymodbus's serial server with nodes 1 and 2 (each its own registers), checked as a bus
+/// of F510s with a node 3 it does not serve. Its deviations from the F510 manual are its
+/// own; what is asserted is what it does and the report's shape. pymodbus 3.16.1 answers
+/// every address it does not serve (3, FEH, the broadcast 00H) with exception 04H, so
+/// node 3 is not silent: it is checked, and every read of it deviates.
+#[test]
+fn pymodbus_serving_two_nodes_is_checked_node_by_node() {
+    if !tool_or_skip(have("socat", &["-V"]), "socat not installed")
+        || !tool_or_skip(
+            have("python3", &["-c", "import pymodbus, serial"]),
+            "pymodbus not installed (pip install 'pymodbus[serial]==3.16.1')",
+        )
+    {
+        return;
+    }
+    let d = dir("pymodbus");
+    let (_socat, a, b) = common::socat_pair(&d);
+    let server = concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/tests/interop/pymodbus_server.py"
+    );
+    let _server = Kill(
+        Command::new("python3")
+            .args([server, a.to_str().unwrap(), "rtu", "--address", "1,2"])
+            .stderr(Stdio::null())
+            .spawn()
+            .unwrap(),
+    );
+    common::wait_until_answers(&b, "rtu", &["-P", "none"]);
+    let (exit, v) = common::check_device(
+        &d,
+        &[
+            "--model",
+            "f510",
+            "--port",
+            b.to_str().unwrap(),
+            "-P",
+            "none",
+            "--timeout",
+            "300",
+            "-a",
+            "1,2,3",
+            "--only",
+            "rtu.map.group-0*",
+            "--only",
+            "rtu.write.group-0",
+            "--only",
+            "rtu.broadcast.*",
+            "--only",
+            "rtu.other-address",
+        ],
+        Duration::from_secs(180),
+    );
+    for c in checks(&v) {
+        eprintln!(
+            "pymodbus node {} {} {}: {}",
+            c["node"].as_str().unwrap_or("bus"),
+            c["id"].as_str().unwrap(),
+            c["status"],
+            c["summary"].as_str().unwrap()
+        );
+    }
+    assert_eq!(exit, Some(2), "node 3 cannot be written: {}", v["summary"]);
+    let per_id = nodes_per_id(&v);
+    assert_eq!(per_id["rtu.map.group-0.first"], ["01", "02", "03"]);
+    assert_eq!(per_id["rtu.preflight"], ["01", "02", "03", "-"]);
+    for id in BUS_CHECKS {
+        assert_eq!(per_id[id], ["-"], "{id}");
+    }
+    let find = |id: &str, node: &str| {
+        checks(&v)
+            .iter()
+            .find(|c| c["id"] == id && c["node"].as_str().unwrap_or("-") == node)
+            .unwrap_or_else(|| panic!("{id} of {node}"))
+            .clone()
+    };
+    // Nodes 1 and 2 are one server's: they answer alike, and keep their own registers.
+    for id in [
+        "rtu.map.group-0.first",
+        "rtu.map.group-0.past-end",
+        "rtu.write.group-0",
+    ] {
+        assert_eq!(find(id, "01")["status"], find(id, "02")["status"], "{id}");
+    }
+    assert_eq!(find("rtu.map.group-0.first", "01")["status"], "pass");
+    // Node 3: exception 04H to every read.
+    let first3 = find("rtu.map.group-0.first", "03");
+    assert_eq!(first3["status"], "deviation");
+    let received = first3["exchanges"][0]["received"].as_str().unwrap();
+    assert!(received.starts_with("03 83 04"), "{received}");
+    // The writing check of node 3 cannot read the register it would write: ERROR.
+    assert_eq!(find("rtu.write.group-0", "03")["status"], "error");
+    // The broadcast read is answered (00 83 04 ..): a deviation, once for the bus.
+    let br = find("rtu.broadcast.read", "-");
+    assert_eq!(br["status"], "deviation");
+    assert!(br["exchanges"][0]["received"]
+        .as_str()
+        .unwrap()
+        .starts_with("00 83 04"));
+    // The broadcast write is judged on the nodes whose register could be read first; node 3
+    // is named as not judged.
+    let bw = find("rtu.broadcast.write", "-");
+    let texts: Vec<&str> = bw["findings"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|f| f["text"].as_str().unwrap())
+        .collect();
+    assert!(
+        texts
+            .iter()
+            .any(|t| t.contains("of node 03H first") && t.contains("not judged")),
+        "{texts:?}"
+    );
+}
+
+/// mbpoll and minimalmodbus (masters nobody here wrote) against `simulate -a 1,2,5`: each
+/// node answers with its own address and keeps its own registers; node 3 is silent.
+#[test]
+fn foreign_masters_see_three_drives_on_the_simulated_bus() {
+    let mbpoll = have("sh", &["-c", "command -v mbpoll"]);
+    let minimal = have("python3", &["-c", "import minimalmodbus"]);
+    if !tool_or_skip(mbpoll, "mbpoll not installed (apt-get install mbpoll)")
+        || !tool_or_skip(
+            minimal,
+            "minimalmodbus not installed (pip install minimalmodbus)",
+        )
+    {
+        return;
+    }
+    let d = dir("masters");
+    let link = d.join("bus");
+    let _sim = Kill(
+        Command::new(common::bin())
+            .args([
+                "simulate", "--model", "f510", "--pty", "--quiet", "-a", "1,2,5", "--link",
+            ])
+            .arg(&link)
+            .stdout(Stdio::null())
+            .spawn()
+            .unwrap(),
+    );
+    common::wait_for(&link);
+    let port = link.to_str().unwrap();
+    // mbpoll [options] PORT [values to write]
+    let mbpoll = |args: &[&str], values: &[&str]| {
+        let o = Command::new("mbpoll")
+            .args([
+                "-m", "rtu", "-b", "9600", "-P", "even", "-t", "4:hex", "-1", "-o", "0.5",
+            ])
+            .args(args)
+            .arg(port)
+            .args(values)
+            .output()
+            .unwrap();
+        (
+            o.status.code(),
+            String::from_utf8_lossy(&o.stdout).to_string(),
+        )
+    };
+    // Write 1234H to the frequency command (2502H, mbpoll counts from 1: 9475) of node 2.
+    let (code, out) = mbpoll(&["-a", "2", "-r", "9475"], &["0x1234"]);
+    assert_eq!(code, Some(0), "{out}");
+    let (code, out) = mbpoll(&["-a", "2", "-r", "9475"], &[]);
+    assert_eq!(code, Some(0), "{out}");
+    assert!(
+        out.contains("[9475]: \t0x1234"),
+        "node 2 keeps the value: {out}"
+    );
+    for node in ["1", "5"] {
+        let (code, out) = mbpoll(&["-a", node, "-r", "9475"], &[]);
+        assert_eq!(code, Some(0), "{out}");
+        assert!(
+            out.contains("[9475]: \t0x0000"),
+            "node {node} has its own registers: {out}"
+        );
+    }
+    let (code, out) = mbpoll(&["-a", "3", "-r", "9475"], &[]);
+    assert_ne!(code, Some(0), "no node 3 on the bus: {out}");
+    // minimalmodbus reads the identification register (252FH) of each node.
+    let script = format!(
+        "import minimalmodbus, serial\n\
+         for n in (1, 2, 5):\n\
+         \x20   i = minimalmodbus.Instrument({port:?}, n)\n\
+         \x20   i.serial.baudrate = 9600\n\
+         \x20   i.serial.timeout = 0.5\n\
+         \x20   print(n, hex(i.read_register(0x252F)), hex(i.read_register(0x2502)))\n\
+         i = minimalmodbus.Instrument({port:?}, 3)\n\
+         i.serial.timeout = 0.3\n\
+         try:\n\
+         \x20   i.read_register(0x252F)\n\
+         \x20   print('3 answered')\n\
+         except minimalmodbus.NoResponseError:\n\
+         \x20   print('3 silent')\n"
+    );
+    let o = Command::new("python3")
+        .args(["-c", &script])
+        .output()
+        .unwrap();
+    let out = String::from_utf8_lossy(&o.stdout);
+    assert!(
+        o.status.success(),
+        "{out}{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    assert_eq!(
+        out.lines().collect::<Vec<_>>(),
+        ["1 0x510 0x0", "2 0x510 0x1234", "5 0x510 0x0", "3 silent"],
+        "{out}"
+    );
+}
