@@ -304,6 +304,9 @@ fn header(config: &SessionConfig) -> Report {
             address: config.options.address,
             line: match &config.target {
                 // The serial side is the gateway's: its settings are set there.
+                Target::Mbap { .. } if config.options.bus.len() > 1 => {
+                    "behind a Modbus TCP gateway (MBAP, each node's unit id is its address; the serial line's settings are the gateway's)".to_string()
+                }
                 Target::Mbap { unit, .. } => format!(
                     "behind a Modbus TCP gateway (MBAP, unit {unit}; the serial line's settings are the gateway's)"
                 ),
@@ -447,6 +450,12 @@ pub fn run(
             .links
             .insert(mode.to_string(), transport.describe());
         if config.options.bus.len() > 1 {
+            if let Target::Mbap { addr, .. } = &config.target {
+                report.device.links.insert(
+                    mode.to_string(),
+                    format!("Modbus TCP gateway {addr} (MBAP, unit id = node address)"),
+                );
+            }
             let fatal = run_bus(
                 config,
                 file,

@@ -512,3 +512,201 @@ fn foreign_masters_see_three_drives_on_the_simulated_bus() {
         "{out}"
     );
 }
+
+fn free_port() -> u16 {
+    std::net::TcpListener::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .port()
+}
+
+fn wait_listening(addr: &str) {
+    let t0 = std::time::Instant::now();
+    while std::net::TcpStream::connect(addr).is_err() {
+        assert!(
+            t0.elapsed() < Duration::from_secs(30),
+            "nothing listens on {addr}"
+        );
+        std::thread::sleep(Duration::from_millis(100));
+    }
+}
+
+/// Through a Modbus TCP gateway each node's unit id is its address: against the simulated
+/// gateway serving two drives, and against pymodbus's TCP server with units 1 and 2.
+#[test]
+fn several_nodes_through_a_modbus_tcp_gateway() {
+    let only = [
+        "--only",
+        "rtu.map.group-0*",
+        "--only",
+        "rtu.write.group-0",
+        "--only",
+        "rtu.broadcast.*",
+        "--only",
+        "rtu.other-address",
+        "--only",
+        "rtu.bad-crc",
+    ];
+    let port = free_port().to_string();
+    let addr = format!("127.0.0.1:{port}");
+    let _sim = Kill(
+        Command::new(common::bin())
+            .args([
+                "simulate",
+                "--model",
+                "f510",
+                "--quiet",
+                "-a",
+                "1,2",
+                "--framing",
+                "mbap",
+                "--tcp",
+                &addr,
+            ])
+            .stdout(Stdio::null())
+            .spawn()
+            .unwrap(),
+    );
+    wait_listening(&addr);
+    let mut args = vec![
+        "--model",
+        "f510",
+        "--tcp",
+        &addr,
+        "--framing",
+        "mbap",
+        "-a",
+        "1,2",
+    ];
+    args.extend(only);
+    let (exit, v) = common::check_device(&dir("mbap-sim"), &args, Duration::from_secs(120));
+    assert_eq!(exit, Some(0), "{}", v["summary"]);
+    let per_id = nodes_per_id(&v);
+    assert_eq!(per_id["rtu.map.group-0.first"], ["01", "02"]);
+    assert_eq!(per_id["rtu.broadcast.write"], ["-"]);
+    // The checks a gateway hides SKIP once per node.
+    assert_eq!(per_id["rtu.bad-crc"], ["01", "02"]);
+    assert!(v["device"]["line"]
+        .as_str()
+        .unwrap()
+        .contains("each node's unit id is its address"));
+    // mbpoll through the simulated gateway: units 1 and 2 answer, unit 3 gets the
+    // gateway's exception 0BH.
+    if have("sh", &["-c", "command -v mbpoll"]) {
+        let poll = |unit: &str| {
+            let o = Command::new("mbpoll")
+                .args([
+                    "-m", "tcp", "-p", &port, "-a", unit, "-t", "4:hex", "-r", "9505", "-1", "-o",
+                    "1",
+                ])
+                .arg("127.0.0.1")
+                .output()
+                .unwrap();
+            (
+                o.status.code(),
+                String::from_utf8_lossy(&o.stdout).to_string()
+                    + &String::from_utf8_lossy(&o.stderr),
+            )
+        };
+        for unit in ["1", "2"] {
+            let (code, out) = poll(unit);
+            assert_eq!(code, Some(0), "unit {unit}: {out}");
+            assert!(out.contains("[9505]: \t0x0004"), "unit {unit}: {out}");
+        }
+        let (code, out) = poll("3");
+        assert_ne!(code, Some(0), "{out}");
+        eprintln!(
+            "mbpoll -m tcp -a 3 through the simulated gateway: {}",
+            out.lines().last().unwrap_or("")
+        );
+    } else {
+        tool_or_skip(false, "mbpoll not installed (apt-get install mbpoll)");
+    }
+    let o = Command::new(common::bin())
+        .args([
+            "check",
+            "--model",
+            "f510",
+            "--tcp",
+            &addr,
+            "--framing",
+            "mbap",
+            "-a",
+            "1,2",
+            "--unit",
+            "4",
+        ])
+        .output()
+        .unwrap();
+    assert_eq!(o.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("leave --unit out"));
+
+    if !tool_or_skip(
+        have("python3", &["-c", "import pymodbus.server"]),
+        "pymodbus not installed (pip install pymodbus)",
+    ) {
+        return;
+    }
+    let port = free_port().to_string();
+    let addr = format!("127.0.0.1:{port}");
+    let server = concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/tests/interop/pymodbus_tcp_server.py"
+    );
+    let _server = Kill(
+        Command::new("python3")
+            .args([server, &port, "--unit", "1,2"])
+            .stderr(Stdio::null())
+            .spawn()
+            .unwrap(),
+    );
+    wait_listening(&addr);
+    let mut args = vec![
+        "--model",
+        "f510",
+        "--tcp",
+        &addr,
+        "--framing",
+        "mbap",
+        "-a",
+        "1,2,3",
+        "--timeout",
+        "500",
+    ];
+    args.extend(only);
+    let (_, v) = common::check_device(&dir("mbap-pymodbus"), &args, Duration::from_secs(120));
+    for c in checks(&v) {
+        eprintln!(
+            "pymodbus tcp node {} {} {}: {}",
+            c["node"].as_str().unwrap_or("bus"),
+            c["id"].as_str().unwrap(),
+            c["status"],
+            c["summary"].as_str().unwrap()
+        );
+    }
+    let per_id = nodes_per_id(&v);
+    // Units 1 and 2 are served. pymodbus 3.16.1 with several units answers a unit id it
+    // does not have (3, FEH, 0) with exception 04H, as its serial server does (with one unit
+    // it answers 0BH): node 3 is checked, and its reads deviate.
+    assert_eq!(per_id["rtu.map.group-0.first"], ["01", "02", "03"]);
+    let first3 = checks(&v)
+        .iter()
+        .find(|c| c["id"] == "rtu.map.group-0.first" && c["node"] == "03")
+        .unwrap();
+    assert_eq!(first3["status"], "deviation");
+    assert!(first3["exchanges"][0]["received"]
+        .as_str()
+        .unwrap()
+        .starts_with("03 83 04"));
+    for c in checks(&v) {
+        if c["node"] == "01" || c["node"] == "02" {
+            assert_ne!(c["status"], "error", "{c}");
+        }
+    }
+    assert!(v["device"]["nodes"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .all(|n| n["stopped"].is_null()));
+}

@@ -323,6 +323,9 @@ impl TargetArgs {
                 Ok(Target::Tcp { addr: addr.into() })
             }
             Framing::Mbap => {
+                if self.unit.is_some() && self.nodes.0.len() > 1 {
+                    bail!("--unit maps one node to a unit id; with several nodes (-a 1,2,5) each node's unit id is its address: leave --unit out");
+                }
                 let unit = self.unit.unwrap_or(self.address());
                 if unit == 0 {
                     bail!("--unit 0 is the broadcast unit id of a Modbus TCP gateway: no device answers it; give the device's unit id (default: the node address -a)");

@@ -66,8 +66,8 @@ pub struct SimulateArgs {
     model_file: Option<PathBuf>,
     /// Node address of the drive: decimal as in mbpoll (a bare number is decimal), or hex
     /// with H suffix or 0x prefix (0AH, 0x0A). Several (1,2,5 or 1-4): one drive of the
-    /// model at each, with its own registers and state, on one line (not with --framing
-    /// mbap).
+    /// model at each, with its own registers and state, on one line (behind the simulated
+    /// gateway of --framing mbap, unit id N is node N).
     #[arg(short = 'a', long = "address", value_name = "N[,N..]", value_parser = parse_nodes, default_value = "1")]
     nodes: NodeList,
     /// Transmission mode.
@@ -150,9 +150,6 @@ pub fn run(args: SimulateArgs) -> anyhow::Result<ExitCode> {
         None => model.response_delay(&line),
     };
     check_planted(&args.quirks, &nodes)?;
-    if mbap && nodes.len() > 1 {
-        bail!("--framing mbap serves one drive behind the simulated gateway (its unit id is -a); several nodes are for --pty, --port and --tcp with rtu framing");
-    }
     let paced = args.pace || args.port.is_some();
     let mut drive = Bus::new(
         nodes
@@ -250,8 +247,9 @@ pub fn run(args: SimulateArgs) -> anyhow::Result<ExitCode> {
             max_connections: args.connections.max(1),
         };
         log.message(&format!(
-            "{banner} behind a Modbus TCP gateway (MBAP, unit {}) on tcp {}; up to {} connections; no reply: {}",
-            first,
+            "{banner} behind a Modbus TCP gateway (MBAP, unit{} {}) on tcp {}; up to {} connections; no reply: {}",
+            if nodes.len() > 1 { "s" } else { "" },
+            nodes.iter().map(u8::to_string).collect::<Vec<_>>().join(", "),
             listener
                 .local_addr()
                 .map(|a| a.to_string())
@@ -262,10 +260,7 @@ pub fn run(args: SimulateArgs) -> anyhow::Result<ExitCode> {
                 NoReply::Silence => "silence".to_string(),
             }
         ))?;
-        let Some(one) = drive.into_drives().pop() else {
-            bail!("no drive to serve");
-        };
-        let stats = serve_gateway(&listener, one, log, &config, &stop)?;
+        let stats = serve_gateway(&listener, drive, log, &config, &stop)?;
         if !args.quiet {
             eprintln!(
                 "# stopped: {} connections ({} refused), {} requests, {} replies, {} gateway exceptions 0BH",

@@ -70,14 +70,18 @@ impl Bus {
         &self.drives
     }
 
-    /// The drives, taken out of the bus.
-    pub fn into_drives(self) -> Vec<Drive> {
-        self.drives
-    }
-
     /// The node addresses.
     pub fn addresses(&self) -> Vec<u8> {
         self.drives.iter().map(Drive::address).collect()
+    }
+}
+
+impl From<Drive> for Bus {
+    /// A bus of one drive.
+    fn from(drive: Drive) -> Self {
+        Bus {
+            drives: vec![drive],
+        }
     }
 }
 

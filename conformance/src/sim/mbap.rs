@@ -29,7 +29,8 @@ use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 use std::sync::Mutex;
 use std::time::{Duration, Instant};
 
-use super::drive::{Drive, SendKind};
+use super::bus::{Bus, Responder};
+use super::drive::SendKind;
 use super::log::{Dir, TrafficLog};
 use super::server::SimError;
 use crate::codec::crc::{crc16, CrcBytes};
@@ -86,7 +87,7 @@ pub struct GatewayStats {
 
 /// The line and what is on it: the drive, the log, the counts.
 struct Line {
-    drive: Drive,
+    drive: Bus,
     log: TrafficLog,
     stats: GatewayStats,
 }
@@ -104,18 +105,19 @@ fn lock(line: &Mutex<Line>) -> std::sync::MutexGuard<'_, Line> {
     line.lock().unwrap_or_else(|p| p.into_inner())
 }
 
-/// Serves `drive` behind a gateway on `listener` until `stop` is set; the log goes to
-/// `log`. Returns the counts, or why it stopped (the log could not be written).
+/// Serves `drive` (one [`super::Drive`], or a [`Bus`] of them: each node address is the unit
+/// id of the same number) behind a gateway on `listener` until `stop` is set; the log
+/// goes to `log`. Returns the counts, or why it stopped (the log could not be written).
 pub fn serve_gateway(
     listener: &TcpListener,
-    drive: Drive,
+    drive: impl Into<Bus>,
     log: TrafficLog,
     config: &GatewayConfig,
     stop: &AtomicBool,
 ) -> Result<GatewayStats, SimError> {
     listener.set_nonblocking(true)?;
     let line = Mutex::new(Line {
-        drive,
+        drive: drive.into(),
         log,
         stats: GatewayStats::default(),
     });
