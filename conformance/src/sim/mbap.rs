@@ -338,6 +338,7 @@ fn request(
 mod tests {
     use super::*;
     use crate::model::DriveModel;
+    use crate::sim::Drive;
     use crate::transport::mbap::{MbapGateway, UnitMap};
     use crate::transport::Transport;
     use std::sync::Arc;
