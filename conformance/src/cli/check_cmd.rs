@@ -28,6 +28,9 @@ Examples:
   conformance check --sim a510 --quirk wrong-exception --only 'rtu.*'
   conformance check --sim f510 --format html -o report.html   a page for people
   conformance check --model auto --port /dev/ttyUSB0 -b 9600 -P even   identify, then check
+  conformance check --model f510 --port /dev/ttyUSB0 -a 1,2,5   three drives on one bus: a
+                                        section per node, broadcast checks once
+  conformance check --sim f510 -a 1,2,5 --quirk dead@5          the same, simulated
   conformance report report.json --format html -o report.html (a saved JSON report)
 
 Safety on a real drive: the run and external-fault bits are never set without
@@ -45,6 +48,14 @@ line.
 model it names; the identification heads the report as the check 'identify'. Where it
 names no single model (ambiguous, or none of the five), nothing is checked: exit 2, with
 the evidence on stderr.
+
+Several drives on one bus (-a 1,2,5 or 1-4, one model): each node gets the whole
+suite in its own section (its results carry its address: JSON field node, one JUnit test
+suite per node), then the checks of the whole bus (broadcast write and read, another
+address; `--list` marks them bus) run once: the broadcast write is read back from
+every node that answers, and each is restored. A node that does not answer ends its own
+section (its checks left are ERROR) and the other nodes are still checked; the run is
+then INCOMPLETE (exit 2). The other address (--other-address) must be on none of them.
 
 Statuses: PASS; DEVIATION (the manual says X, the device did Y); OBSERVATION (the manual
 is silent or contradicts itself: what the device did); SKIP (with the reason); ERROR (the
@@ -228,10 +239,26 @@ pub fn run(mut args: CheckArgs) -> anyhow::Result<ExitCode> {
                 (true, false, false) => "writes",
                 _ => "",
             };
-            writeln!(out, "{:<44} {:<7} {}", c.id, flags, c.title)?;
-            writeln!(out, "{:<44} {:<7} source: {}", "", "", c.source)?;
+            // A check of the whole bus runs once however many nodes -a names.
+            let flags = match (c.bus, flags) {
+                (true, "") => "bus".to_string(),
+                (true, f) => format!("{f},bus"),
+                (false, f) => f.to_string(),
+            };
+            writeln!(out, "{:<44} {:<10} {}", c.id, flags, c.title)?;
+            writeln!(out, "{:<44} {:<10} source: {}", "", "", c.source)?;
         }
-        writeln!(out, "{} checks", checks.len())?;
+        let nodes = config.options.bus.len();
+        if nodes > 1 {
+            writeln!(
+                out,
+                "{} checks; with {nodes} nodes: {} results (each node's checks, the bus checks once)",
+                checks.len(),
+                session::planned(&config)
+            )?;
+        } else {
+            writeln!(out, "{} checks", checks.len())?;
+        }
         return Ok(ExitCode::SUCCESS);
     }
 
