@@ -51,6 +51,7 @@ mod tests {
             findings: vec![],
             exchanges: vec![],
             duration: std::time::Duration::ZERO,
+            node: None,
         }
     }
 

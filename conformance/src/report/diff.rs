@@ -562,6 +562,7 @@ mod tests {
                 latency: Some(Duration::from_millis(latency_ms)),
             }],
             duration: Duration::from_millis(20),
+            node: None,
         }
     }
 

@@ -645,6 +645,7 @@ mod tests {
                     latency: Some(std::time::Duration::from_millis(7)),
                 }],
                 duration: std::time::Duration::from_millis(20),
+                node: None,
             }],
             ..Report::default()
         }

@@ -399,6 +399,7 @@ mod tests {
                 line: "9600 baud 8E1".into(),
                 identification: Some(0x0510),
                 simulated: Some(vec!["wrong-exception".into()]),
+                nodes: vec![],
             },
             options: RunOptions {
                 modes: vec![Mode::Rtu, Mode::Ascii],
@@ -426,8 +427,10 @@ mod tests {
                     latency: Some(Duration::from_micros(8_960)),
                 }],
                 duration: Duration::from_micros(21_500),
+                node: None,
             }],
             restore: vec![RestoreRecord {
+                node: None,
                 register: 0x2502,
                 original: 0x04D2,
                 restored: true,
