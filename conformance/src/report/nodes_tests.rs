@@ -33,3 +33,8 @@ fn a_run_of_one_node_renders_exactly_as_before() {
     );
     let _ = several_nodes();
 }
+
+#[test]
+fn show_several() {
+    println!("{}", text(&several_nodes(), false));
+}

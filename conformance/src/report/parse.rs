@@ -108,9 +108,12 @@ fn hex_u(v: &Value, key: &str, path: &str) -> Result<u64, ReportError> {
 fn opt_node(v: &Value, key: &str, path: &str) -> Result<Option<u8>, ReportError> {
     match opt_string(v, key, path)? {
         None => Ok(None),
-        Some(s) => u8::from_str_radix(&s, 16)
-            .map(Some)
-            .map_err(|_| field(&format!("{path}.{key}"), format!("{s:?} is not a node address"))),
+        Some(s) => u8::from_str_radix(&s, 16).map(Some).map_err(|_| {
+            field(
+                &format!("{path}.{key}"),
+                format!("{s:?} is not a node address"),
+            )
+        }),
     }
 }
 
