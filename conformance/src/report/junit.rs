@@ -1,6 +1,8 @@
 //! JUnit XML: one test suite per mode, one test case per check; deviations are failures,
 //! errors are errors, skips are skipped, observations pass with their text in
-//! `system-out`.
+//! `system-out`. A run of several nodes on one bus has one suite per node
+//! (`f510.node-05`) and one for the checks of the whole bus (`f510.bus`), the test cases
+//! named by check id.
 
 use std::fmt::Write as _;
 

@@ -1,5 +1,8 @@
 //! The human report: a summary line, then deviations (with both frames and the differing
-//! bytes marked), observations, errors, skips, and the restore.
+//! bytes marked), observations, errors, skips, and the restore. A run of several nodes on
+//! one bus adds a summary line per node and one for the bus checks, and gives the results
+//! in a section per node and one for the bus (each ordered as a run of one node is); its
+//! restore lines name their node.
 
 use std::fmt::Write as _;
 
