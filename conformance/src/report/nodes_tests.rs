@@ -312,6 +312,9 @@ fn html_of_several_nodes_has_a_node_table_column_and_filter() {
     assert!(page.contains("<table id=\"restore-t\"><thead><tr><th>node</th>"));
     assert!(page.contains("<tr><td class=\"id\">02H</td><td class=\"id\">2502H</td>"));
     assert!(!html(&one_node()).contains("data-node"));
+    // The plots' tooltips name the node of a check.
+    assert!(page.contains("rtu.map.group-0.past-end@5: DEVIATION"));
+    assert!(page.contains("<title>rtu.map.group-0.past-end@2 (ERROR)"));
 }
 
 #[test]
