@@ -418,3 +418,179 @@ fn a_file_that_is_not_a_report_is_refused_by_name() {
     assert_eq!(o.status.code(), Some(2));
     assert!(String::from_utf8_lossy(&o.stderr).contains("cannot read"));
 }
+
+/// A run of several nodes as `check -a 1,5` writes it, made from a real run of one node:
+/// its checks once for node 01H and once for node 05H (which stopped answering after its
+/// first check), the preflight as a check of the whole bus, a restore record per node.
+fn several_nodes_json(one: &Value) -> Value {
+    let mut v = one.clone();
+    let checks = one["checks"].as_array().unwrap();
+    let (bus, per_node): (Vec<&Value>, Vec<&Value>) = checks
+        .iter()
+        .partition(|c| c["id"].as_str().unwrap().ends_with("preflight"));
+    let mut out = Vec::new();
+    for node in ["01", "05"] {
+        for (i, c) in per_node.iter().enumerate() {
+            let mut c = (*c).clone();
+            c["node"] = node.into();
+            if node == "05" && i > 0 {
+                c["status"] = "error".into();
+                c["summary"] = "not run: the device stopped answering".into();
+                c["findings"] = serde_json::json!([]);
+            }
+            out.push(c);
+        }
+    }
+    out.extend(bus.into_iter().cloned());
+    v["checks"] = Value::Array(out);
+    v["restore"] = serde_json::json!([
+        { "node": "01", "register": "2502", "original": "04D2", "restored": true, "changed": true, "detail": "read back 04D2" },
+        { "node": "05", "register": "2502", "original": "04D2", "restored": false, "changed": true, "detail": "no reply to the write back" }
+    ]);
+    v["device"]["nodes"] = serde_json::json!([
+        { "address": "01", "identification": one["device"]["identification"], "stopped": null, "quirks": [] },
+        { "address": "05", "identification": null, "stopped": "no reply to 3 requests in a row", "quirks": ["wrong-exception"] }
+    ]);
+    v
+}
+
+#[test]
+fn a_report_of_several_nodes_renders_per_node_and_diffs_by_node() {
+    let d = dir("nodes");
+    let (code, one) = common::check_device(
+        &d,
+        &[
+            "--sim",
+            "f510",
+            "--mode",
+            "rtu",
+            "--only",
+            "*map.group-0.*",
+            "--quirk",
+            "wrong-exception",
+        ],
+        Duration::from_secs(120),
+    );
+    assert_eq!(code, Some(1));
+    let one_json = d.join("check.json");
+    let bus = several_nodes_json(&one);
+    let schema = jsonschema::validator_for(
+        &serde_json::from_str(include_str!("../../vectors/schema/report.schema.json")).unwrap(),
+    )
+    .unwrap();
+    assert!(
+        schema.is_valid(&bus),
+        "the report of several nodes does not match its schema"
+    );
+    let bus_json = d.join("bus.json");
+    std::fs::write(&bus_json, serde_json::to_string_pretty(&bus).unwrap()).unwrap();
+    let per_node = one["checks"].as_array().unwrap().len() - 1;
+
+    // JSON back as it was (nodes and all); text, JUnit and CSV per node.
+    let again = conformance(&["report", path(&bus_json), "--format", "json"]);
+    let again: Value = serde_json::from_slice(&again.stdout).unwrap();
+    assert_eq!(again["checks"], bus["checks"]);
+    assert_eq!(again["device"]["nodes"], bus["device"]["nodes"]);
+    assert_eq!(again["restore"], bus["restore"]);
+    let text = conformance(&["report", path(&bus_json), "--format", "text"]);
+    let text = String::from_utf8_lossy(&text.stdout);
+    let n1 = text.find("\n=== node 01H: ").expect(&text);
+    let n5 = text.find("\n=== node 05H: ").expect(&text);
+    let b = text.find("\n=== bus (").expect(&text);
+    assert!(n1 < n5 && n5 < b, "{text}");
+    assert!(
+        text[n1..n5].contains("[rtu.map.group-0.past-end]"),
+        "{text}"
+    );
+    assert!(
+        text.contains("stopped: no reply to 3 requests in a row"),
+        "{text}"
+    );
+    assert!(
+        text.contains("  node 05H 2502H NOT no reply to the write back"),
+        "{text}"
+    );
+    let junit = conformance(&["report", path(&bus_json), "--format", "junit"]);
+    let junit = String::from_utf8_lossy(&junit.stdout);
+    let doc = roxmltree::Document::parse(&junit).unwrap();
+    let suites: Vec<(String, String)> = doc
+        .descendants()
+        .filter(|n| n.has_tag_name("testsuite"))
+        .map(|s| {
+            (
+                s.attribute("name").unwrap().to_string(),
+                s.attribute("tests").unwrap().to_string(),
+            )
+        })
+        .collect();
+    assert_eq!(
+        suites,
+        [
+            ("f510.node-01".to_string(), per_node.to_string()),
+            ("f510.node-05".to_string(), per_node.to_string()),
+            ("f510.bus".to_string(), "1".to_string()),
+        ]
+    );
+    let csv = conformance(&["report", path(&bus_json), "--format", "csv"]);
+    let csv = String::from_utf8(csv.stdout).unwrap();
+    assert!(csv.starts_with("node,id,mode,status,title,source,summary\r\n"));
+    assert!(
+        csv.contains("\r\n05,rtu.map.group-0.past-end,rtu,ERROR,"),
+        "{csv}"
+    );
+    assert!(csv.contains("\r\n,rtu.preflight,rtu,PASS,"), "{csv}");
+
+    // diff: a run of one node against the bus needs --node; node 01H's section is the
+    // run of one node again; node 05H's lost checks got worse.
+    let refused = conformance(&["diff", path(&one_json), path(&bus_json)]);
+    assert_eq!(refused.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&refused.stderr).contains("give --node N"));
+    let same = conformance(&["diff", path(&one_json), path(&bus_json), "--node", "1"]);
+    let same_text = String::from_utf8_lossy(&same.stdout);
+    assert_eq!(same.status.code(), Some(0), "{same_text}");
+    assert!(same_text.contains("No differences."), "{same_text}");
+    let lost = conformance(&["diff", path(&one_json), path(&bus_json), "--node", "05H"]);
+    let lost_text = String::from_utf8_lossy(&lost.stdout);
+    assert_eq!(lost.status.code(), Some(1), "{lost_text}");
+    assert!(
+        lost_text.contains("new: node 05H (its checks and the bus checks)"),
+        "{lost_text}"
+    );
+    let both = conformance(&["diff", path(&bus_json), path(&bus_json), "--format", "json"]);
+    assert_eq!(both.status.code(), Some(0));
+
+    // HTML: the node table, and the filter by node (a link preselects it).
+    let page = d.join("bus.html");
+    let o = conformance(&[
+        "report",
+        path(&bus_json),
+        "--format",
+        "html",
+        "-o",
+        path(&page),
+    ]);
+    assert!(o.status.success());
+    let html = std::fs::read_to_string(&page).unwrap();
+    assert!(html.contains("<table id=\"nodes\">"));
+    let Some(chromium) = chromium() else {
+        eprintln!("chromium not installed: the page is not loaded in a browser");
+        return;
+    };
+    let linked = format!("{}#node=05&status=error", page.display());
+    let (dom, log) = browse(chromium, Path::new(&linked), &["--dump-dom"]);
+    no_console_errors(&log, &page);
+    assert!(
+        dom.contains(&format!("<span id=\"shown\">{}</span>", per_node - 1)),
+        "the node filter did not run"
+    );
+    let (_, log) = browse(
+        chromium,
+        &page,
+        &[
+            "--window-size=1300,2000",
+            &format!("--screenshot={}", d.join("bus.png").display()),
+        ],
+    );
+    no_console_errors(&log, &page);
+    assert!(std::fs::metadata(d.join("bus.png")).unwrap().len() > 10_000);
+}

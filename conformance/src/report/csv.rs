@@ -1,4 +1,5 @@
-//! CSV: one row per check (id, mode, status, title, source, summary), quoted as RFC 4180
+//! CSV: one row per check (id, mode, status, title, source, summary; a run of several nodes
+//! has a `node` column first), quoted as RFC 4180
 //! says (CRLF line ends; a field with a comma, a quote or a line break is quoted, its
 //! quotes doubled), for spreadsheets and test records.
 
@@ -13,10 +14,22 @@ fn field(s: &str) -> String {
     }
 }
 
-/// The report as CSV, with a header row.
+/// The report as CSV, with a header row. A run of several nodes has a first column more,
+/// `node`: the node's address in hex ("05"), empty for the checks of the whole bus.
 pub fn csv(report: &Report) -> String {
-    let mut out = String::from("id,mode,status,title,source,summary\r\n");
+    let nodes = !report.device.nodes.is_empty();
+    let mut out = String::from(if nodes {
+        "node,id,mode,status,title,source,summary\r\n"
+    } else {
+        "id,mode,status,title,source,summary\r\n"
+    });
     for r in &report.results {
+        if nodes {
+            if let Some(n) = r.node {
+                out.push_str(&format!("{n:02X}"));
+            }
+            out.push(',');
+        }
         let mode = r.mode.map(|m| m.to_string()).unwrap_or_default();
         let row = [
             r.id.as_str(),

@@ -3,6 +3,12 @@
 //! worse first), deviations whose received bytes changed, response-time shifts beyond
 //! noise, and checks present in one run only.
 //!
+//! Checks are matched by their key ([`CheckResult::key`]): the id, and the node in a run of
+//! several nodes on one bus, so the same check on two nodes is two checks. A run of one
+//! node is compared with a run of several nodes only through one node of it
+//! ([`Diff::for_node`]): that node's checks, and the checks of the whole bus, which a run
+//! of one node has too; [`Diff::new`] refuses the pair.
+//!
 //! Noise: the median latencies of a mode (or of one check) differ by more than
 //! [`NOISE_RATIO`] of the old median or [`NOISE_MS`], whichever is larger. A pseudo
 //! terminal or a USB adapter moves single replies by a few milliseconds; a median that
@@ -48,6 +54,78 @@ pub enum DiffError {
     /// One is a drive report, the other a gate report.
     #[error("one report is of a drive, the other of a codec gate")]
     DifferentKinds,
+    /// One report is of a run of one node, the other of several: their checks are keyed
+    /// differently, and which node to compare is not known.
+    #[error("the {several} report is of a run of several nodes ({nodes}), the other of one node ({one:02X}H): give --node N to compare node N's checks (and the bus checks) of the run of several nodes with the run of one node")]
+    OneAndSeveralNodes {
+        /// "old" or "new": the report of several nodes.
+        several: &'static str,
+        /// Its nodes ("01H 02H 05H").
+        nodes: String,
+        /// The node of the other.
+        one: u8,
+    },
+    /// The node asked for is not one of a run of several nodes.
+    #[error("node {node:02X}H ({node}) is not one of the {which} report's nodes ({nodes})")]
+    NoSuchNode {
+        /// The node asked for.
+        node: u8,
+        /// "old" or "new".
+        which: &'static str,
+        /// Its nodes.
+        nodes: String,
+    },
+}
+
+/// "01H 02H 05H".
+fn node_list(r: &Report) -> String {
+    r.device
+        .nodes
+        .iter()
+        .map(|n| format!("{:02X}H", n.address))
+        .collect::<Vec<_>>()
+        .join(" ")
+}
+
+/// One node's section of a run of several nodes, as the run of that one node would have
+/// reported it: its checks (keyed by id alone) and the checks of the whole bus, its
+/// restored registers, its identification. A run of one node is returned as it is.
+pub fn node_section(r: &Report, node: u8, which: &'static str) -> Result<Report, DiffError> {
+    if r.device.nodes.is_empty() {
+        return Ok(r.clone());
+    }
+    let Some(info) = r.device.nodes.iter().find(|n| n.address == node) else {
+        return Err(DiffError::NoSuchNode {
+            node,
+            which,
+            nodes: node_list(r),
+        });
+    };
+    let mut out = r.clone();
+    out.results = r
+        .results
+        .iter()
+        .filter(|c| c.node.is_none() || c.node == Some(node))
+        .cloned()
+        .map(|mut c| {
+            c.node = None;
+            c
+        })
+        .collect();
+    out.restore = r
+        .restore
+        .iter()
+        .filter(|x| x.node == Some(node))
+        .cloned()
+        .map(|mut x| {
+            x.node = None;
+            x
+        })
+        .collect();
+    out.device.address = node;
+    out.device.identification = info.identification;
+    out.device.nodes.clear();
+    Ok(out)
 }
 
 /// How bad a status is: a check got worse when this grows.
@@ -63,7 +141,7 @@ fn badness(s: Status) -> u8 {
 /// A check whose status changed.
 #[derive(Debug, Clone, PartialEq)]
 pub struct StatusChange {
-    /// Check id.
+    /// Check key: its id, with `@N` for node N of a run of several nodes.
     pub id: String,
     /// What it does.
     pub title: String,
@@ -85,7 +163,7 @@ impl StatusChange {
 /// A deviation whose received bytes changed.
 #[derive(Debug, Clone, PartialEq)]
 pub struct BytesChange {
-    /// Check id.
+    /// Check key (see [`StatusChange::id`]).
     pub id: String,
     /// Which exchange of the check (0-based).
     pub exchange: usize,
@@ -100,7 +178,7 @@ pub struct BytesChange {
 /// A median response time that moved beyond noise.
 #[derive(Debug, Clone, PartialEq)]
 pub struct TimingShift {
-    /// A mode ("rtu") or a check id.
+    /// A mode ("rtu") or a check key.
     pub what: String,
     /// Old median, ms.
     pub old_ms: f64,
@@ -176,7 +254,32 @@ fn check_latencies(r: &CheckResult) -> Vec<f64> {
 }
 
 impl Diff {
-    /// Compares two runs of the same model.
+    /// Compares one node of two runs of the same model: the node's section of a run of
+    /// several nodes (see [`node_section`]); a run of one node is taken as it is, whatever
+    /// its address.
+    pub fn for_node(old: &Report, new: &Report, node: u8) -> Result<Diff, DiffError> {
+        let section = |r: &Report, which| -> Result<(Report, String), DiffError> {
+            let label = if r.device.nodes.is_empty() {
+                label(r)
+            } else {
+                format!(
+                    "node {node:02X}H (its checks and the bus checks) of a run of nodes {}: {}",
+                    node_list(r),
+                    label(&node_section(r, node, which)?)
+                )
+            };
+            Ok((node_section(r, node, which)?, label))
+        };
+        let (o, ol) = section(old, "old")?;
+        let (n, nl) = section(new, "new")?;
+        let mut d = Diff::new(&o, &n)?;
+        d.old_label = ol;
+        d.new_label = nl;
+        Ok(d)
+    }
+
+    /// Compares two runs of the same model, both of one node or both of several (checks
+    /// matched by key: a node's check with the same node's).
     pub fn new(old: &Report, new: &Report) -> Result<Diff, DiffError> {
         if old.kind != new.kind {
             return Err(DiffError::DifferentKinds);
@@ -187,23 +290,41 @@ impl Diff {
                 new: new.device.model.clone(),
             });
         }
-        let olds: BTreeMap<&str, &CheckResult> =
-            old.results.iter().map(|r| (r.id.as_str(), r)).collect();
-        let news: BTreeMap<&str, &CheckResult> =
-            new.results.iter().map(|r| (r.id.as_str(), r)).collect();
+        match (old.device.nodes.is_empty(), new.device.nodes.is_empty()) {
+            (true, false) => {
+                return Err(DiffError::OneAndSeveralNodes {
+                    several: "new",
+                    nodes: node_list(new),
+                    one: old.device.address,
+                })
+            }
+            (false, true) => {
+                return Err(DiffError::OneAndSeveralNodes {
+                    several: "old",
+                    nodes: node_list(old),
+                    one: new.device.address,
+                })
+            }
+            _ => {}
+        }
+        let olds: BTreeMap<String, &CheckResult> =
+            old.results.iter().map(|r| (r.key(), r)).collect();
+        let news: BTreeMap<String, &CheckResult> =
+            new.results.iter().map(|r| (r.key(), r)).collect();
         let mut d = Diff {
             old_label: label(old),
             new_label: label(new),
             ..Diff::default()
         };
         for n in &new.results {
-            let Some(o) = olds.get(n.id.as_str()) else {
-                d.only_new.push((n.id.clone(), n.status));
+            let key = n.key();
+            let Some(o) = olds.get(&key) else {
+                d.only_new.push((key, n.status));
                 continue;
             };
             if o.status != n.status {
                 d.status.push(StatusChange {
-                    id: n.id.clone(),
+                    id: key.clone(),
                     title: n.title.clone(),
                     old: o.status,
                     new: n.status,
@@ -213,7 +334,7 @@ impl Diff {
                 for (i, (eo, en)) in o.exchanges.iter().zip(&n.exchanges).enumerate() {
                     if eo.received != en.received {
                         d.bytes.push(BytesChange {
-                            id: n.id.clone(),
+                            id: key.clone(),
                             exchange: i,
                             request: en.request.clone(),
                             old: eo.received.clone(),
@@ -229,7 +350,7 @@ impl Diff {
             {
                 if beyond_noise(mo, mn) {
                     d.timing.push(TimingShift {
-                        what: n.id.clone(),
+                        what: key.clone(),
                         old_ms: mo,
                         new_ms: mn,
                         old_n: lo.len(),
@@ -239,8 +360,9 @@ impl Diff {
             }
         }
         for o in &old.results {
-            if !news.contains_key(o.id.as_str()) {
-                d.only_old.push((o.id.clone(), o.status));
+            let key = o.key();
+            if !news.contains_key(&key) {
+                d.only_old.push((key, o.status));
             }
         }
         // Worse first, new deviations first among them; then the improvements.

@@ -7,6 +7,7 @@
 //! back with [`Report::from_json`]). Every string that came from a device, a model file
 //! or a report file is escaped.
 
+mod nodes;
 mod svg;
 
 pub(crate) use svg::{latencies, median};
@@ -192,21 +193,32 @@ fn exchange(out: &mut String, e: &ExchangeRecord) {
     out.push_str("</table></div>");
 }
 
-fn finding_block(out: &mut String, r: &CheckResult, folded: bool) {
+fn finding_block(out: &mut String, r: &CheckResult, folded: bool, several: bool) {
     let (open, close) = if folded {
         ("<details><summary>", "</summary>")
     } else {
         ("", "")
     };
+    // In a run of several nodes the same check runs on each: its anchor is its key, and
+    // its node is named.
+    let node = if several {
+        format!(
+            "<span class=\"node\">{}</span>",
+            esc(&nodes::node_label(r.node))
+        )
+    } else {
+        String::new()
+    };
     w!(
         out,
-        "<article class=\"finding {0}\" id=\"f-{1}\">{open}<h3>{2} <code>{1}</code></h3><div>{3}</div>{close}<div class=\"cite\">Manual: {4}</div><p>{5}</p>",
+        "<article class=\"finding {0}\" id=\"f-{1}\">{open}<h3>{2} {node}<code>{6}</code></h3><div>{3}</div>{close}<div class=\"cite\">Manual: {4}</div><p>{5}</p>",
         class(r.status),
-        esc(&r.id),
+        esc(&r.key()),
         badge(r.status),
         esc(&r.title),
         esc(&r.source),
-        esc(&r.summary)
+        esc(&r.summary),
+        esc(&r.id)
     );
     if r.findings.len() > 1 || r.findings.first().is_some_and(|f| f.text != r.summary) {
         out.push_str("<ul>");
@@ -282,9 +294,25 @@ fn header(out: &mut String, report: &Report) {
             let d = &report.device;
             row(out, "model", &esc(&d.model));
             row(out, "manual", &esc(&d.manual));
-            row(out, "node address", &format!("{:02X}H", d.address));
-            if let Some(id) = d.identification {
-                row(out, "identification", &format!("{id:04X}H"));
+            if d.nodes.is_empty() {
+                row(out, "node address", &format!("{:02X}H", d.address));
+                if let Some(id) = d.identification {
+                    row(out, "identification", &format!("{id:04X}H"));
+                }
+            } else {
+                row(
+                    out,
+                    "node addresses",
+                    &format!(
+                        "{} (<a href=\"#nodes-h\">{} nodes on one bus</a>)",
+                        d.nodes
+                            .iter()
+                            .map(|n| format!("{:02X}H", n.address))
+                            .collect::<Vec<_>>()
+                            .join(", "),
+                        d.nodes.len()
+                    ),
+                );
             }
             row(
                 out,
@@ -444,6 +472,7 @@ fn worst_latency(r: &CheckResult) -> String {
 /// The report as one self-contained HTML page.
 pub fn html(report: &Report) -> String {
     let mut out = String::with_capacity(64 * 1024 + report.results.len() * 600);
+    let several = !report.device.nodes.is_empty();
     let title = match report.kind {
         ReportKind::Drive | ReportKind::Fuzz => {
             format!("Conformance report: {}", report.device.model)
@@ -452,11 +481,18 @@ pub fn html(report: &Report) -> String {
     };
     w!(
         out,
-        "<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\"><meta name=\"viewport\" content=\"width=device-width,initial-scale=1\"><title>{}</title><style>{CSS}</style></head><body><main>",
-        esc(&title)
+        "<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\"><meta name=\"viewport\" content=\"width=device-width,initial-scale=1\"><title>{}</title><style>{CSS}{}</style></head><body><main>",
+        esc(&title),
+        if several { nodes::CSS } else { "" }
     );
     let drive = report.kind == ReportKind::Drive;
-    out.push_str("<nav class=\"toc\"><a href=\"#deviations\">Deviations</a> · <a href=\"#observations\">Observations</a> · ");
+    out.push_str("<nav class=\"toc\">");
+    if several {
+        out.push_str("<a href=\"#nodes-h\">Nodes</a> · ");
+    }
+    out.push_str(
+        "<a href=\"#deviations\">Deviations</a> · <a href=\"#observations\">Observations</a> · ",
+    );
     if drive {
         out.push_str("<a href=\"#plots\">Response time</a> · <a href=\"#timeline\">Timeline</a> · <a href=\"#map\">Register map</a> · ");
     }
@@ -464,6 +500,9 @@ pub fn html(report: &Report) -> String {
         "<a href=\"#all\">Every check</a> · <a href=\"#restore\">Restore journal</a></nav>",
     );
     header(&mut out, report);
+    if several {
+        nodes::table(&mut out, report);
+    }
 
     // Deviations first, then what the run could not tell; observations (the manual is
     // silent) after them, folded.
@@ -484,7 +523,7 @@ pub fn html(report: &Report) -> String {
         out.push_str("<p>None: every check that ran agreed with the manual.</p>");
     }
     for r in notable {
-        finding_block(&mut out, r, false);
+        finding_block(&mut out, r, false, several);
     }
     if s.observation > 0 {
         w!(
@@ -497,7 +536,7 @@ pub fn html(report: &Report) -> String {
             .iter()
             .filter(|r| r.status == Status::Observation)
         {
-            finding_block(&mut out, r, true);
+            finding_block(&mut out, r, true, several);
         }
     }
 
@@ -543,12 +582,20 @@ pub fn html(report: &Report) -> String {
     for m in &modes {
         w!(out, "<option value=\"{0}\">{0}</option>", esc(m));
     }
+    out.push_str("</select></label>");
+    if several {
+        nodes::select(&mut out, report);
+    }
     w!(
         out,
-        "</select></label><span class=\"muted\"><span id=\"shown\">{}</span> shown</span></div>",
+        "<span class=\"muted\"><span id=\"shown\">{}</span> shown</span></div>",
         report.results.len()
     );
-    out.push_str("<table id=\"checks\"><thead><tr><th>id</th><th>mode</th><th>status</th><th>title</th><th>summary</th><th class=\"num\">latency (ms)</th></tr></thead><tbody>");
+    if several {
+        out.push_str("<table id=\"checks\" class=\"nodes\"><thead><tr><th>id</th><th>node</th><th>mode</th><th>status</th><th>title</th><th>summary</th><th class=\"num\">latency (ms)</th></tr></thead><tbody>");
+    } else {
+        out.push_str("<table id=\"checks\"><thead><tr><th>id</th><th>mode</th><th>status</th><th>title</th><th>summary</th><th class=\"num\">latency (ms)</th></tr></thead><tbody>");
+    }
     for r in &report.results {
         let mode = r
             .mode
@@ -558,11 +605,17 @@ pub fn html(report: &Report) -> String {
         let link = if matches!(r.status, Status::Pass | Status::Skip) {
             id.clone()
         } else {
-            format!("<a href=\"#f-{id}\">{id}</a>")
+            format!("<a href=\"#f-{}\">{id}</a>", esc(&r.key()))
+        };
+        let node = if several {
+            let v = nodes::node_value(r);
+            format!(" data-node=\"{v}\"><td class=\"id\">{link}</td><td class=\"id\">{v}</td")
+        } else {
+            format!("><td class=\"id\">{link}</td")
         };
         w!(
             out,
-            "<tr class=\"{c}\" data-id=\"{id}\" data-status=\"{c}\" data-mode=\"{m}\"><td class=\"id\">{link}</td><td>{m}</td><td>{b}</td><td>{t}<div class=\"muted\">{src}</div></td><td>{sum}</td><td class=\"num\">{lat}</td></tr>",
+            "<tr class=\"{c}\" data-id=\"{id}\" data-status=\"{c}\" data-mode=\"{m}\"{node}><td>{m}</td><td>{b}</td><td>{t}<div class=\"muted\">{src}</div></td><td>{sum}</td><td class=\"num\">{lat}</td></tr>",
             c = class(r.status),
             m = esc(&mode),
             b = badge(r.status),
@@ -578,11 +631,24 @@ pub fn html(report: &Report) -> String {
     if report.restore.is_empty() {
         out.push_str("<p>No register was changed, so none needed restoring.</p>");
     } else {
-        out.push_str("<table><thead><tr><th>register</th><th>original value</th><th>restored</th><th>detail</th></tr></thead><tbody>");
+        out.push_str(if several {
+            "<table id=\"restore-t\"><thead><tr><th>node</th><th>register</th><th>original value</th><th>restored</th><th>detail</th></tr></thead><tbody>"
+        } else {
+            "<table><thead><tr><th>register</th><th>original value</th><th>restored</th><th>detail</th></tr></thead><tbody>"
+        });
         for r in &report.restore {
+            if several {
+                w!(
+                    out,
+                    "<tr><td class=\"id\">{}</td>",
+                    r.node.map(|n| format!("{n:02X}H")).unwrap_or_default()
+                );
+            } else {
+                out.push_str("<tr>");
+            }
             w!(
                 out,
-                "<tr><td class=\"id\">{:04X}H</td><td class=\"id\">{:04X}H</td><td>{}</td><td>{}</td></tr>",
+                "<td class=\"id\">{:04X}H</td><td class=\"id\">{:04X}H</td><td>{}</td><td>{}</td></tr>",
                 r.register,
                 r.original,
                 if r.restored && !r.changed {
@@ -599,9 +665,10 @@ pub fn html(report: &Report) -> String {
     }
     w!(
         out,
-        "<footer>Generated by {} {} from the run's report data (the same as its JSON report). Offline and self-contained.</footer></main><script>{SCRIPT}</script></body></html>\n",
+        "<footer>Generated by {} {} from the run's report data (the same as its JSON report). Offline and self-contained.</footer></main><script>{}</script></body></html>\n",
         env!("CARGO_PKG_NAME"),
-        env!("CARGO_PKG_VERSION")
+        env!("CARGO_PKG_VERSION"),
+        if several { nodes::SCRIPT } else { SCRIPT }
     );
     out
 }

@@ -1,6 +1,8 @@
 //! JUnit XML: one test suite per mode, one test case per check; deviations are failures,
 //! errors are errors, skips are skipped, observations pass with their text in
-//! `system-out`.
+//! `system-out`. A run of several nodes on one bus has one suite per node
+//! (`f510.node-05`) and one for the checks of the whole bus (`f510.bus`), the test cases
+//! named by check id.
 
 use std::fmt::Write as _;
 
@@ -70,100 +72,92 @@ pub fn junit(r: &Report) -> String {
         Some(c) => c.implementation.clone(),
         None => r.device.model.clone(),
     };
-    for mode in modes {
-        let cases: Vec<&CheckResult> = r.results.iter().filter(|c| prefix(c) == mode).collect();
-        let count = |st: Status| cases.iter().filter(|c| c.status == st).count();
-        let name = format!("{subject}.{mode}");
-        let _ = writeln!(
-            o,
-            "  <testsuite name=\"{}\" tests=\"{}\" failures=\"{}\" errors=\"{}\" skipped=\"{}\" time=\"{:.3}\" timestamp=\"{}\">",
-            esc(&name),
-            cases.len(),
-            count(Status::Deviation),
-            count(Status::Error),
-            count(Status::Skip),
-            cases.iter().map(|c| c.duration.as_secs_f64()).sum::<f64>(),
-            esc(&r.started)
-        );
-        let _ = writeln!(o, "    <properties>");
-        let properties: Vec<(&str, String)> = match &r.codec {
-            Some(c) => vec![
-                ("implementation", c.implementation.clone()),
-                ("version", c.version.clone()),
-                ("adapter", c.adapter.clone()),
-                ("command", c.command.clone()),
-                ("seed", format!("{:#x}", c.seed)),
-                ("count", c.count.to_string()),
-                ("complete", r.complete.to_string()),
-            ],
-            None => vec![
-                ("model", r.device.model.clone()),
-                ("manual", r.device.manual.clone()),
-                ("address", format!("{:02X}", r.device.address)),
-                (
-                    "link",
-                    r.device.links.get(&mode).cloned().unwrap_or_default(),
-                ),
-                ("line", r.device.line.clone()),
-                (
-                    "identification",
-                    r.device
-                        .identification
-                        .map(|v| format!("{v:04X}"))
-                        .unwrap_or_default(),
-                ),
-                ("complete", r.complete.to_string()),
-            ],
-        };
-        for (k, v) in properties {
-            let _ = writeln!(o, "      <property name=\"{k}\" value=\"{}\"/>", esc(&v));
+    let nodes = r.node_summaries();
+    if nodes.is_empty() {
+        for mode in modes {
+            let cases: Vec<&CheckResult> = r.results.iter().filter(|c| prefix(c) == mode).collect();
+            let name = format!("{subject}.{mode}");
+            let properties: Vec<(&str, String)> = match &r.codec {
+                Some(c) => vec![
+                    ("implementation", c.implementation.clone()),
+                    ("version", c.version.clone()),
+                    ("adapter", c.adapter.clone()),
+                    ("command", c.command.clone()),
+                    ("seed", format!("{:#x}", c.seed)),
+                    ("count", c.count.to_string()),
+                    ("complete", r.complete.to_string()),
+                ],
+                None => vec![
+                    ("model", r.device.model.clone()),
+                    ("manual", r.device.manual.clone()),
+                    ("address", format!("{:02X}", r.device.address)),
+                    (
+                        "link",
+                        r.device.links.get(&mode).cloned().unwrap_or_default(),
+                    ),
+                    ("line", r.device.line.clone()),
+                    (
+                        "identification",
+                        r.device
+                            .identification
+                            .map(|v| format!("{v:04X}"))
+                            .unwrap_or_default(),
+                    ),
+                    ("complete", r.complete.to_string()),
+                ],
+            };
+            suite(&mut o, r, &name, &cases, &properties);
         }
-        let _ = writeln!(o, "    </properties>");
-        for c in cases {
-            let _ = write!(
-                o,
-                "    <testcase classname=\"{}\" name=\"{}\" time=\"{:.3}\"",
-                esc(&name),
-                esc(&c.id),
-                c.duration.as_secs_f64()
-            );
-            match c.status {
-                Status::Pass => {
-                    let _ = writeln!(o, "/>");
-                }
-                Status::Deviation => {
-                    let _ = writeln!(
-                        o,
-                        ">\n      <failure type=\"deviation\" message=\"{}\">{}</failure>\n    </testcase>",
-                        esc(&c.summary),
-                        esc(&body(c))
-                    );
-                }
-                Status::Error => {
-                    let _ = writeln!(
-                        o,
-                        ">\n      <error type=\"error\" message=\"{}\">{}</error>\n    </testcase>",
-                        esc(&c.summary),
-                        esc(&body(c))
-                    );
-                }
-                Status::Skip => {
-                    let _ = writeln!(
-                        o,
-                        ">\n      <skipped message=\"{}\"/>\n    </testcase>",
-                        esc(&c.summary)
-                    );
-                }
-                Status::Observation => {
-                    let _ = writeln!(
-                        o,
-                        ">\n      <system-out>OBSERVATION: {}</system-out>\n    </testcase>",
-                        esc(&body(c))
-                    );
-                }
+    }
+    // A run of several nodes: one suite per node, one for the checks of the whole bus.
+    let links = r
+        .device
+        .links
+        .iter()
+        .map(|(m, l)| format!("{m}: {l}"))
+        .collect::<Vec<_>>()
+        .join("; ");
+    for (node, c) in nodes {
+        if node.is_none() && c.total == 0 {
+            continue;
+        }
+        let cases: Vec<&CheckResult> = r.results.iter().filter(|x| x.node == node).collect();
+        let info = node.and_then(|n| r.device.nodes.iter().find(|x| x.address == n));
+        let (name, address) = match node {
+            Some(n) => (format!("{subject}.node-{n:02X}"), format!("{n:02X}")),
+            None => (
+                format!("{subject}.bus"),
+                r.device
+                    .nodes
+                    .iter()
+                    .map(|n| format!("{:02X}", n.address))
+                    .collect::<Vec<_>>()
+                    .join(" "),
+            ),
+        };
+        let mut properties: Vec<(&str, String)> = vec![
+            ("model", r.device.model.clone()),
+            ("manual", r.device.manual.clone()),
+            ("address", address),
+            ("link", links.clone()),
+            ("line", r.device.line.clone()),
+        ];
+        if let Some(i) = info {
+            properties.push((
+                "identification",
+                i.identification
+                    .map(|v| format!("{v:04X}"))
+                    .unwrap_or_default(),
+            ));
+            if !i.quirks.is_empty() {
+                properties.push(("quirks", i.quirks.join(" ")));
+            }
+            if let Some(why) = &i.stopped {
+                properties.push(("stopped", why.clone()));
             }
         }
-        let _ = writeln!(o, "  </testsuite>");
+        properties.push(("complete", r.complete.to_string()));
+        suite(&mut o, r, &name, &cases, &properties);
     }
     if !r.complete {
         let _ = writeln!(
@@ -174,4 +168,76 @@ pub fn junit(r: &Report) -> String {
     }
     o.push_str("</testsuites>\n");
     o
+}
+
+/// One `<testsuite>` of `cases`.
+fn suite(
+    o: &mut String,
+    r: &Report,
+    name: &str,
+    cases: &[&CheckResult],
+    properties: &[(&str, String)],
+) {
+    let count = |st: Status| cases.iter().filter(|c| c.status == st).count();
+    let _ = writeln!(
+        o,
+        "  <testsuite name=\"{}\" tests=\"{}\" failures=\"{}\" errors=\"{}\" skipped=\"{}\" time=\"{:.3}\" timestamp=\"{}\">",
+        esc(name),
+        cases.len(),
+        count(Status::Deviation),
+        count(Status::Error),
+        count(Status::Skip),
+        cases.iter().map(|c| c.duration.as_secs_f64()).sum::<f64>(),
+        esc(&r.started)
+    );
+    let _ = writeln!(o, "    <properties>");
+    for (k, v) in properties {
+        let _ = writeln!(o, "      <property name=\"{k}\" value=\"{}\"/>", esc(v));
+    }
+    let _ = writeln!(o, "    </properties>");
+    for c in cases {
+        let _ = write!(
+            o,
+            "    <testcase classname=\"{}\" name=\"{}\" time=\"{:.3}\"",
+            esc(name),
+            esc(&c.id),
+            c.duration.as_secs_f64()
+        );
+        match c.status {
+            Status::Pass => {
+                let _ = writeln!(o, "/>");
+            }
+            Status::Deviation => {
+                let _ = writeln!(
+                    o,
+                    ">\n      <failure type=\"deviation\" message=\"{}\">{}</failure>\n    </testcase>",
+                    esc(&c.summary),
+                    esc(&body(c))
+                );
+            }
+            Status::Error => {
+                let _ = writeln!(
+                    o,
+                    ">\n      <error type=\"error\" message=\"{}\">{}</error>\n    </testcase>",
+                    esc(&c.summary),
+                    esc(&body(c))
+                );
+            }
+            Status::Skip => {
+                let _ = writeln!(
+                    o,
+                    ">\n      <skipped message=\"{}\"/>\n    </testcase>",
+                    esc(&c.summary)
+                );
+            }
+            Status::Observation => {
+                let _ = writeln!(
+                    o,
+                    ">\n      <system-out>OBSERVATION: {}</system-out>\n    </testcase>",
+                    esc(&body(c))
+                );
+            }
+        }
+    }
+    let _ = writeln!(o, "  </testsuite>");
 }

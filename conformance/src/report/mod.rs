@@ -420,3 +420,8 @@ mod tests {
         assert!(diff_positions(&[1, 2], &[1, 2]).is_empty());
     }
 }
+
+#[cfg(test)]
+mod fixtures;
+#[cfg(test)]
+mod nodes_tests;

@@ -1,9 +1,12 @@
 //! The human report: a summary line, then deviations (with both frames and the differing
-//! bytes marked), observations, errors, skips, and the restore.
+//! bytes marked), observations, errors, skips, and the restore. A run of several nodes on
+//! one bus adds a summary line per node and one for the bus checks, and gives the results
+//! in a section per node and one for the bus (each ordered as a run of one node is); its
+//! restore lines name their node.
 
 use std::fmt::Write as _;
 
-use super::{diff_positions, Report};
+use super::{diff_positions, Report, Summary};
 use crate::codec::hex::Hex;
 use crate::codec::Mode;
 use crate::runner::{CheckResult, ExchangeRecord, Status};
@@ -27,17 +30,8 @@ pub fn text(r: &Report, verbose: bool) -> String {
     );
     let _ = writeln!(
         o,
-        "RESULT: {} {}: {} pass, {} deviation{}, {} observation{}, {} skipped, {} error{}{}",
-        s.total,
-        if gate { "cases" } else { "checks" },
-        s.pass,
-        s.deviation,
-        plural(s.deviation),
-        s.observation,
-        plural(s.observation),
-        s.skip,
-        s.error,
-        plural(s.error),
+        "RESULT: {}{}",
+        counts(&s, if gate { "cases" } else { "checks" }),
         if r.complete { "" } else { "  [INCOMPLETE]" }
     );
     if let Some(c) = &r.codec {
@@ -62,13 +56,25 @@ pub fn text(r: &Report, verbose: bool) -> String {
     if !gate {
         let _ = writeln!(
             o,
-            "device:  {} ({}), node {:02X}{}{}",
+            "device:  {} ({}), {}{}{}",
             d.model,
             d.manual,
-            d.address,
+            if d.nodes.is_empty() {
+                format!("node {:02X}", d.address)
+            } else {
+                format!(
+                    "{} nodes on one bus: {}",
+                    d.nodes.len(),
+                    d.nodes
+                        .iter()
+                        .map(|n| format!("{:02X}", n.address))
+                        .collect::<Vec<_>>()
+                        .join(" ")
+                )
+            },
             match d.identification {
-                Some(v) => format!(", identification {v:04X}H"),
-                None => String::new(),
+                Some(v) if d.nodes.is_empty() => format!(", identification {v:04X}H"),
+                _ => String::new(),
             },
             match &d.simulated {
                 Some(q) if q.is_empty() => ", simulated by this suite".to_string(),
@@ -76,6 +82,7 @@ pub fn text(r: &Report, verbose: bool) -> String {
                 None => String::new(),
             }
         );
+        node_lines(&mut o, r);
         for (mode, link) in &d.links {
             let _ = writeln!(o, "link:    {mode}: {link}");
         }
@@ -117,8 +124,85 @@ pub fn text(r: &Report, verbose: bool) -> String {
             b.line.silences
         );
     }
+    let sections = r.node_summaries();
+    if sections.is_empty() {
+        let all: Vec<&CheckResult> = r.results.iter().collect();
+        results(&mut o, &all, verbose);
+    }
+    for (node, c) in &sections {
+        if node.is_none() && c.total == 0 {
+            continue;
+        }
+        let stopped = node
+            .and_then(|n| r.device.nodes.iter().find(|x| x.address == n))
+            .and_then(|i| i.stopped.as_deref());
+        let _ = writeln!(
+            o,
+            "\n=== {}: {}{} ===",
+            section_name(*node),
+            counts(c, "checks"),
+            stopped
+                .map(|w| format!("; stopped: {w}"))
+                .unwrap_or_default()
+        );
+        let all: Vec<&CheckResult> = r.results.iter().filter(|x| x.node == *node).collect();
+        results(&mut o, &all, verbose);
+    }
+    if !r.restore.is_empty() {
+        let bad = r.unrestored().len();
+        let unchanged = r
+            .restore
+            .iter()
+            .filter(|x| x.restored && !x.changed)
+            .count();
+        let _ = writeln!(
+            o,
+            "\nRESTORE ({} register{} journalled: {} changed by the run, restored and verified; {} unchanged, verified{}){}",
+            r.restore.len(),
+            plural(r.restore.len()),
+            r.restore.len() - bad - unchanged,
+            unchanged,
+            if bad > 0 {
+                format!(", {bad} NOT RESTORED")
+            } else {
+                String::new()
+            },
+            if verbose || bad > 0 {
+                ""
+            } else {
+                ": --verbose lists them"
+            }
+        );
+        for x in r.restore.iter().filter(|x| verbose || !x.restored) {
+            let _ = writeln!(
+                o,
+                "  {}{:04X}H {} {}",
+                x.node
+                    .map(|n| format!("node {n:02X}H "))
+                    .unwrap_or_default(),
+                x.register,
+                match (x.restored, x.changed) {
+                    (true, false) => "=  ",
+                    (true, true) => "ok ",
+                    _ => "NOT",
+                },
+                x.detail
+            );
+        }
+    }
+    o
+}
+
+/// The results of one section (the whole run, or one node, or the bus): deviations (with
+/// their frames), errors, observations, skips, and the passes (`verbose`) or their count.
+fn results(o: &mut String, list: &[&CheckResult], verbose: bool) {
+    let pass = list.iter().filter(|c| c.status == Status::Pass).count();
     let section = |o: &mut String, status: Status, heading: &str, exchanges: bool| {
-        let all: Vec<&CheckResult> = r.results.iter().filter(|c| c.status == status).collect();
+        let all: Vec<&CheckResult> = list
+            .iter()
+            .copied()
+            .filter(|c| c.status == status)
+            .collect();
         if all.is_empty() {
             return;
         }
@@ -168,12 +252,12 @@ pub fn text(r: &Report, verbose: bool) -> String {
             }
         }
     };
-    section(&mut o, Status::Deviation, "DEVIATIONS", true);
-    section(&mut o, Status::Error, "ERRORS", true);
-    section(&mut o, Status::Observation, "OBSERVATIONS", false);
-    let skipped: Vec<&CheckResult> = r
-        .results
+    section(o, Status::Deviation, "DEVIATIONS", true);
+    section(o, Status::Error, "ERRORS", true);
+    section(o, Status::Observation, "OBSERVATIONS", false);
+    let skipped: Vec<&CheckResult> = list
         .iter()
+        .copied()
         .filter(|c| c.status == Status::Skip)
         .collect();
     if !skipped.is_empty() {
@@ -183,50 +267,70 @@ pub fn text(r: &Report, verbose: bool) -> String {
         }
     }
     if verbose {
-        section(&mut o, Status::Pass, "PASSED", false);
-    } else if s.pass > 0 {
-        let _ = writeln!(o, "\nPASSED ({}): --verbose lists them", s.pass);
+        section(o, Status::Pass, "PASSED", false);
+    } else if pass > 0 {
+        let _ = writeln!(o, "\nPASSED ({pass}): --verbose lists them");
     }
-    if !r.restore.is_empty() {
-        let bad = r.unrestored().len();
-        let unchanged = r
-            .restore
-            .iter()
-            .filter(|x| x.restored && !x.changed)
-            .count();
+}
+
+/// "8 checks: 3 pass, 2 deviations, 1 observation, 1 skipped, 1 error".
+fn counts(s: &Summary, noun: &str) -> String {
+    format!(
+        "{} {noun}: {} pass, {} deviation{}, {} observation{}, {} skipped, {} error{}",
+        s.total,
+        s.pass,
+        s.deviation,
+        plural(s.deviation),
+        s.observation,
+        plural(s.observation),
+        s.skip,
+        s.error,
+        plural(s.error),
+    )
+}
+
+/// A section of a run of several nodes: "node 05H", or the checks of the whole bus.
+fn section_name(node: Option<u8>) -> String {
+    match node {
+        Some(n) => format!("node {n:02X}H"),
+        None => "bus (broadcast and other-address checks, run once)".to_string(),
+    }
+}
+
+/// In a run of several nodes: one line per node (identification, counts, why it stopped)
+/// and one for the checks of the whole bus.
+fn node_lines(o: &mut String, r: &Report) {
+    for (node, c) in r.node_summaries() {
+        let info = node.and_then(|n| r.device.nodes.iter().find(|x| x.address == n));
+        let mut facts = Vec::new();
+        if let Some(i) = info {
+            facts.push(match i.identification {
+                Some(v) => format!("identification {v:04X}H"),
+                None => "identification not read".to_string(),
+            });
+            if !i.quirks.is_empty() {
+                facts.push(format!("quirks: {}", i.quirks.join(" ")));
+            }
+        }
         let _ = writeln!(
             o,
-            "\nRESTORE ({} register{} journalled: {} changed by the run, restored and verified; {} unchanged, verified{}){}",
-            r.restore.len(),
-            plural(r.restore.len()),
-            r.restore.len() - bad - unchanged,
-            unchanged,
-            if bad > 0 {
-                format!(", {bad} NOT RESTORED")
-            } else {
-                String::new()
+            "{:<10}{}{}{}",
+            match node {
+                Some(n) => format!("node {n:02X}H:"),
+                None => "bus:".to_string(),
             },
-            if verbose || bad > 0 {
-                ""
+            if facts.is_empty() {
+                String::new()
             } else {
-                ": --verbose lists them"
+                format!("{}; ", facts.join(", "))
+            },
+            counts(&c, "checks"),
+            match info.and_then(|i| i.stopped.as_deref()) {
+                Some(why) => format!("; stopped: {why}"),
+                None => String::new(),
             }
         );
-        for x in r.restore.iter().filter(|x| verbose || !x.restored) {
-            let _ = writeln!(
-                o,
-                "  {:04X}H {} {}",
-                x.register,
-                match (x.restored, x.changed) {
-                    (true, false) => "=  ",
-                    (true, true) => "ok ",
-                    _ => "NOT",
-                },
-                x.detail
-            );
-        }
     }
-    o
 }
 
 fn plural(n: usize) -> &'static str {

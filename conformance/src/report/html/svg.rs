@@ -350,7 +350,7 @@ pub(super) fn timeline_plot(report: &Report) -> String {
                     x(at),
                     y(ms(l)),
                     colour(r.status),
-                    esc(&r.id),
+                    esc(&r.key()),
                     r.status,
                     ms(l)
                 ),
@@ -360,7 +360,7 @@ pub(super) fn timeline_plot(report: &Report) -> String {
                     x(at) - 2.0,
                     top + plot_h - 6.0,
                     colour(r.status),
-                    esc(&r.id),
+                    esc(&r.key()),
                     r.status
                 ),
             }
@@ -443,7 +443,7 @@ pub(super) fn map_grid(report: &Report) -> String {
         if rank(r.status) > rank(cell.0) {
             cell.0 = r.status;
         }
-        cell.1.push(format!("{}: {}", r.id, r.status));
+        cell.1.push(format!("{}: {}", r.key(), r.status));
     }
     if rows.is_empty() {
         return "<p class=\"muted\">No register-map checks ran.</p>".into();
