@@ -4,10 +4,10 @@
 //! five; `check --model auto` runs the checks of the model it identified.
 
 mod common;
-use common::{bin, tool_or_skip, Kill};
+use common::{bin, pymodbus_serial_server, Kill};
 
 use std::process::{Command, Stdio};
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 /// Runs `conformance identify ARGS --format json -o DIR/identify.json`, bounded in time;
 /// returns the exit code and the report.
@@ -15,28 +15,17 @@ fn identify(dir: &std::path::Path, args: &[&str]) -> (Option<i32>, serde_json::V
     std::fs::create_dir_all(dir).unwrap();
     let out = dir.join("identify.json");
     let _ = std::fs::remove_file(&out);
-    let t0 = Instant::now();
-    let mut run = Kill(
+    let mut run = Kill::spawn(
         Command::new(bin())
             .arg("identify")
             .args(args)
             .args(["--format", "json", "--quiet", "-o"])
             .arg(&out)
             .stdout(Stdio::null())
-            .stderr(Stdio::piped())
-            .spawn()
-            .unwrap(),
+            .stderr(Stdio::piped()),
     );
-    let exit = loop {
-        if let Some(s) = run.0.try_wait().unwrap() {
-            break s;
-        }
-        assert!(t0.elapsed() < Duration::from_secs(120), "identify hangs");
-        std::thread::sleep(Duration::from_millis(50));
-    };
-    let mut err = Vec::new();
-    std::io::Read::read_to_end(run.0.stderr.as_mut().unwrap(), &mut err).unwrap();
-    let stderr = String::from_utf8_lossy(&err).to_string();
+    let exit = run.wait_within(Duration::from_secs(120), "identify");
+    let stderr = run.stderr_text();
     assert!(!stderr.contains("panicked"), "{stderr}");
     let v: serde_json::Value =
         serde_json::from_slice(&std::fs::read(&out).unwrap_or_else(|e| panic!("{e}: {stderr}")))
@@ -306,39 +295,12 @@ fn check_model_auto_runs_the_checks_of_the_identified_model() {
 }
 
 fn generic(mode: &str) {
-    let socat = Command::new("socat")
-        .arg("-V")
-        .stdout(Stdio::null())
-        .status()
-        .is_ok_and(|s| s.success());
-    if !tool_or_skip(socat, "socat not installed (apt-get install socat)") {
-        return;
-    }
-    let pymodbus = Command::new("python3")
-        .args(["-c", "import pymodbus, serial"])
-        .status()
-        .is_ok_and(|s| s.success());
-    if !tool_or_skip(
-        pymodbus,
-        "pymodbus not installed (pip install 'pymodbus[serial]==3.16.1')",
-    ) {
-        return;
-    }
     let dir = tmp(&format!("pymodbus-{mode}"));
     std::fs::create_dir_all(&dir).unwrap();
-    let (_socat, a, b) = common::socat_pair(&dir);
-    let server = concat!(
-        env!("CARGO_MANIFEST_DIR"),
-        "/tests/interop/pymodbus_server.py"
-    );
-    let _server = Kill(
-        Command::new("python3")
-            .args([server, a.to_str().unwrap(), mode])
-            .stderr(Stdio::null())
-            .spawn()
-            .unwrap(),
-    );
-    common::wait_until_answers(&b, mode, &["-P", "none"]);
+    let Some(peer) = pymodbus_serial_server(&dir, mode) else {
+        return;
+    };
+    let b = &peer.port;
     let (exit, v) = identify(
         &dir,
         &[
