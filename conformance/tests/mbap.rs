@@ -13,7 +13,7 @@
 //! A missing tool prints `SKIPPED: ...` and returns, except under `CI`, where it fails.
 
 mod common;
-use common::{bin, check_device, have, pymodbus_tcp_server, report_of, GatewaySim};
+use common::{bin, check_device, have, pymodbus_tcp_server, report_of, run_bounded, GatewaySim};
 
 use std::process::{Command, Stdio};
 use std::time::Duration;
@@ -382,7 +382,8 @@ fn what_mbap_cannot_do_is_refused_with_a_reason() {
 
 /// `scan --tcp --framing mbap` sweeps unit ids through the simulated gateway and finds the
 /// one drive behind it (unit 17), with the identification value; the gateway's 0BH for
-/// the units nobody has counts as silence, never as a device.
+/// the units nobody has counts as silence, never as a device. The result's header names
+/// the gateway and the unit ids swept.
 #[test]
 fn scan_through_mbap_finds_the_unit_behind_the_gateway() {
     let sim = GatewaySim::start("l510", 17, &["--gateway-timeout", "30"]);
@@ -411,6 +412,36 @@ fn scan_through_mbap_finds_the_unit_behind_the_gateway() {
             "unit {absent} has no device: {text}"
         );
     }
+    // The sweep is of unit ids: the result names the gateway and every unit id tried,
+    // not the one unit a single request goes to.
+    let swept = format!(
+        "Modbus TCP gateway {} (MBAP, unit ids 10-20 swept, each the node address)",
+        sim.addr
+    );
+    assert_eq!(v["link"], swept.as_str(), "{text}");
+    let (code, out, err) = run_bounded(
+        &[
+            "scan",
+            "--tcp",
+            &sim.addr,
+            "--framing",
+            "mbap",
+            "--addresses",
+            "10-12,17,20",
+            "-q",
+        ],
+        Duration::from_secs(120),
+    );
+    assert_eq!(code, Some(0), "{out}{err}");
+    let header = out.lines().next().unwrap_or_default();
+    assert!(
+        header.starts_with(&format!(
+            "scan of Modbus TCP gateway {} (MBAP, unit ids 10-12,17,20 swept, each the node address): 1 device found",
+            sim.addr
+        )),
+        "{out}"
+    );
+    assert!(!out.contains("unit 1)"), "{out}");
     // ASCII does not cross MBAP: refused with the reason.
     let o = Command::new(bin())
         .args([
