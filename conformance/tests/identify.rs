@@ -1,10 +1,12 @@
 //! `conformance identify` and `check --model auto`: each simulated model is named as
-//! itself in RTU and in ASCII; a simulator with a planted fault, and a generic Modbus
-//! device that nobody here wrote (pymodbus's serial server), are named as none of the
-//! five; `check --model auto` runs the checks of the model it identified.
+//! itself in RTU and in ASCII, and through a Modbus TCP gateway (`--tcp --framing mbap
+//! --unit N` against `simulate --framing mbap`); a simulator with a planted fault, and
+//! generic Modbus devices that nobody here wrote (pymodbus's serial server, and its TCP
+//! server through MBAP), are named as none of the five; `check --model auto` runs the
+//! checks of the model it identified.
 
 mod common;
-use common::{bin, pymodbus_serial_server, Kill};
+use common::{bin, pymodbus_serial_server, pymodbus_tcp_server, GatewaySim, Kill};
 
 use std::process::{Command, Stdio};
 use std::time::Duration;
@@ -338,4 +340,91 @@ fn a_generic_pymodbus_device_is_none_of_the_five_rtu() {
 #[test]
 fn a_generic_pymodbus_device_is_none_of_the_five_ascii() {
     generic("ascii");
+}
+
+/// `identify --tcp --framing mbap --unit N` through the simulated Modbus TCP gateway
+/// names the model behind it, with every probe a read that crossed the gateway.
+fn named_through_a_gateway(model: &str, unit: u8) {
+    let sim = GatewaySim::start(model, unit, &["--gateway-timeout", "50"]);
+    let dir = tmp(&format!("mbap-{model}"));
+    let (exit, v) = identify(
+        &dir,
+        &[
+            "--tcp",
+            &sim.addr,
+            "--framing",
+            "mbap",
+            "--unit",
+            &unit.to_string(),
+        ],
+    );
+    assert_eq!(v["verdict"]["result"], "one", "{model}: {}", v["verdict"]);
+    assert_eq!(v["verdict"]["models"], serde_json::json!([model]));
+    assert_eq!(exit, Some(0), "{model}");
+    consistent(&v);
+    let link = v["links"][0].to_string();
+    assert!(
+        link.contains(&format!(
+            "Modbus TCP gateway {} (MBAP, unit {unit}",
+            sim.addr
+        )),
+        "{link}"
+    );
+    let probes = v["probes"].as_array().unwrap();
+    assert!(probes.len() >= 5, "{model}: {} probes", probes.len());
+    for p in probes {
+        let req = p["request"].as_str().unwrap();
+        assert_eq!(req.split(' ').nth(1), Some("03"), "{model}: {req}");
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn f510_is_named_f510_through_a_modbus_tcp_gateway() {
+    named_through_a_gateway("f510", 5);
+}
+
+#[test]
+fn e510_is_named_e510_through_a_modbus_tcp_gateway() {
+    named_through_a_gateway("e510", 17);
+}
+
+#[test]
+fn l510_legacy_is_named_l510_legacy_through_a_modbus_tcp_gateway() {
+    named_through_a_gateway("l510-legacy", 1);
+}
+
+/// pymodbus's generic Modbus TCP server, identified through MBAP, is none of the five:
+/// it answers reads where every model predicts an exception.
+#[test]
+fn a_generic_pymodbus_tcp_server_is_none_of_the_five() {
+    let Some((_server, addr)) = pymodbus_tcp_server(3) else {
+        return;
+    };
+    let dir = tmp("pymodbus-tcp");
+    let (exit, v) = identify(
+        &dir,
+        &[
+            "--tcp",
+            &addr,
+            "--framing",
+            "mbap",
+            "--unit",
+            "3",
+            "--timeout",
+            "500",
+        ],
+    );
+    assert_eq!(v["verdict"]["result"], "none", "{}", v["verdict"]);
+    assert_eq!(exit, Some(1));
+    consistent(&v);
+    let probes = v["probes"].as_array().unwrap();
+    assert!(probes
+        .iter()
+        .any(|p| p["kind"] == "outside every map"
+            && p["answer"].as_str().unwrap().contains("register")));
+    for s in v["scores"].as_array().unwrap() {
+        assert!(s["misses"].as_array().unwrap().len() >= 2, "{s}");
+    }
+    let _ = std::fs::remove_dir_all(&dir);
 }
