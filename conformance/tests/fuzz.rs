@@ -12,7 +12,7 @@
 //! with the value they held.
 
 mod common;
-use common::{bin, report_of};
+use common::{bin, findings, report_of};
 
 use std::time::Duration;
 
@@ -20,15 +20,6 @@ use serde_json::Value;
 
 fn fuzz(dir: &std::path::Path, args: &[&str], limit: Duration) -> (Option<i32>, Value) {
     report_of("fuzz", dir, args, limit)
-}
-
-fn findings(v: &Value) -> Vec<Value> {
-    v["fuzz"]["modes"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .flat_map(|m| m["findings"].as_array().unwrap().clone())
-        .collect()
 }
 
 fn hex(s: &Value) -> Vec<u8> {

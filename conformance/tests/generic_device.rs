@@ -4,54 +4,17 @@
 //! the deviations a generic device has from the F510 manual, and neither panic nor hang.
 
 mod common;
-use common::{tool_or_skip, Kill};
+use common::pymodbus_serial_server;
 
-use std::process::{Command, Stdio};
 use std::time::Duration;
-
-/// pymodbus's generic server on one end of a socat pair: the guards and the runner's end
-/// (None after SKIPPED when a tool is missing).
-fn start(mode: &str, dir: &std::path::Path) -> Option<(Kill, Kill, std::path::PathBuf)> {
-    let socat = Command::new("socat")
-        .arg("-V")
-        .stdout(Stdio::null())
-        .status()
-        .is_ok_and(|s| s.success());
-    if !tool_or_skip(socat, "socat not installed (apt-get install socat)") {
-        return None;
-    }
-    let pymodbus = Command::new("python3")
-        .args(["-c", "import pymodbus, serial"])
-        .status()
-        .is_ok_and(|s| s.success());
-    if !tool_or_skip(
-        pymodbus,
-        "pymodbus not installed (pip install 'pymodbus[serial]==3.16.1')",
-    ) {
-        return None;
-    }
-    let (socat, a, b) = common::socat_pair(dir);
-    let server = concat!(
-        env!("CARGO_MANIFEST_DIR"),
-        "/tests/interop/pymodbus_server.py"
-    );
-    let server = Kill(
-        Command::new("python3")
-            .args([server, a.to_str().unwrap(), mode])
-            .stderr(Stdio::null())
-            .spawn()
-            .unwrap(),
-    );
-    common::wait_until_answers(&b, mode, &["-P", "none"]);
-    Some((socat, server, b))
-}
 
 fn run(mode: &str) {
     let dir = std::env::temp_dir().join(format!("teco-generic-{mode}-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
-    let Some((_socat, _server, b)) = start(mode, &dir) else {
+    let Some(peer) = pymodbus_serial_server(&dir, mode) else {
         return;
     };
+    let b = &peer.port;
     let t0 = std::time::Instant::now();
     let (exit, v) = common::check_device(
         &dir,
@@ -104,9 +67,10 @@ fn a_generic_pymodbus_device_checked_as_f510_ascii() {
 fn fuzz(mode: &str) {
     let dir = std::env::temp_dir().join(format!("teco-generic-fuzz-{mode}-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
-    let Some((_socat, _server, b)) = start(mode, &dir) else {
+    let Some(peer) = pymodbus_serial_server(&dir, mode) else {
         return;
     };
+    let b = &peer.port;
     let (exit, v) = common::report_of(
         "fuzz",
         &dir,

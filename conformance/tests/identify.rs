@@ -1,13 +1,15 @@
 //! `conformance identify` and `check --model auto`: each simulated model is named as
-//! itself in RTU and in ASCII; a simulator with a planted fault, and a generic Modbus
-//! device that nobody here wrote (pymodbus's serial server), are named as none of the
-//! five; `check --model auto` runs the checks of the model it identified.
+//! itself in RTU and in ASCII, and through a Modbus TCP gateway (`--tcp --framing mbap
+//! --unit N` against `simulate --framing mbap`); a simulator with a planted fault, and
+//! generic Modbus devices that nobody here wrote (pymodbus's serial server, and its TCP
+//! server through MBAP), are named as none of the five; `check --model auto` runs the
+//! checks of the model it identified.
 
 mod common;
-use common::{bin, tool_or_skip, Kill};
+use common::{bin, pymodbus_serial_server, pymodbus_tcp_server, GatewaySim, Kill};
 
 use std::process::{Command, Stdio};
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 /// Runs `conformance identify ARGS --format json -o DIR/identify.json`, bounded in time;
 /// returns the exit code and the report.
@@ -15,28 +17,17 @@ fn identify(dir: &std::path::Path, args: &[&str]) -> (Option<i32>, serde_json::V
     std::fs::create_dir_all(dir).unwrap();
     let out = dir.join("identify.json");
     let _ = std::fs::remove_file(&out);
-    let t0 = Instant::now();
-    let mut run = Kill(
+    let mut run = Kill::spawn(
         Command::new(bin())
             .arg("identify")
             .args(args)
             .args(["--format", "json", "--quiet", "-o"])
             .arg(&out)
             .stdout(Stdio::null())
-            .stderr(Stdio::piped())
-            .spawn()
-            .unwrap(),
+            .stderr(Stdio::piped()),
     );
-    let exit = loop {
-        if let Some(s) = run.0.try_wait().unwrap() {
-            break s;
-        }
-        assert!(t0.elapsed() < Duration::from_secs(120), "identify hangs");
-        std::thread::sleep(Duration::from_millis(50));
-    };
-    let mut err = Vec::new();
-    std::io::Read::read_to_end(run.0.stderr.as_mut().unwrap(), &mut err).unwrap();
-    let stderr = String::from_utf8_lossy(&err).to_string();
+    let exit = run.wait_within(Duration::from_secs(120), "identify");
+    let stderr = run.stderr_text();
     assert!(!stderr.contains("panicked"), "{stderr}");
     let v: serde_json::Value =
         serde_json::from_slice(&std::fs::read(&out).unwrap_or_else(|e| panic!("{e}: {stderr}")))
@@ -305,40 +296,30 @@ fn check_model_auto_runs_the_checks_of_the_identified_model() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
+/// A generic Modbus server is none of the five (exit 1): it answers reads as any Modbus
+/// server does, with data where every model predicts an exception (a register outside
+/// every map), so no model comes close.
+fn generic_is_none_of_the_five(exit: Option<i32>, v: &serde_json::Value) {
+    assert_eq!(v["verdict"]["result"], "none", "{}", v["verdict"]);
+    assert_eq!(exit, Some(1));
+    consistent(v);
+    let probes = v["probes"].as_array().unwrap();
+    assert!(probes
+        .iter()
+        .any(|p| p["kind"] == "outside every map"
+            && p["answer"].as_str().unwrap().contains("register")));
+    for s in v["scores"].as_array().unwrap() {
+        assert!(s["misses"].as_array().unwrap().len() >= 2, "{s}");
+    }
+}
+
 fn generic(mode: &str) {
-    let socat = Command::new("socat")
-        .arg("-V")
-        .stdout(Stdio::null())
-        .status()
-        .is_ok_and(|s| s.success());
-    if !tool_or_skip(socat, "socat not installed (apt-get install socat)") {
-        return;
-    }
-    let pymodbus = Command::new("python3")
-        .args(["-c", "import pymodbus, serial"])
-        .status()
-        .is_ok_and(|s| s.success());
-    if !tool_or_skip(
-        pymodbus,
-        "pymodbus not installed (pip install 'pymodbus[serial]==3.16.1')",
-    ) {
-        return;
-    }
     let dir = tmp(&format!("pymodbus-{mode}"));
     std::fs::create_dir_all(&dir).unwrap();
-    let (_socat, a, b) = common::socat_pair(&dir);
-    let server = concat!(
-        env!("CARGO_MANIFEST_DIR"),
-        "/tests/interop/pymodbus_server.py"
-    );
-    let _server = Kill(
-        Command::new("python3")
-            .args([server, a.to_str().unwrap(), mode])
-            .stderr(Stdio::null())
-            .spawn()
-            .unwrap(),
-    );
-    common::wait_until_answers(&b, mode, &["-P", "none"]);
+    let Some(peer) = pymodbus_serial_server(&dir, mode) else {
+        return;
+    };
+    let b = &peer.port;
     let (exit, v) = identify(
         &dir,
         &[
@@ -352,19 +333,7 @@ fn generic(mode: &str) {
             "300",
         ],
     );
-    assert_eq!(v["verdict"]["result"], "none", "{}", v["verdict"]);
-    assert_eq!(exit, Some(1));
-    consistent(&v);
-    // It answers reads as any Modbus server does: data where every model predicts an
-    // exception (a register outside every map), so no model comes close.
-    let probes = v["probes"].as_array().unwrap();
-    assert!(probes
-        .iter()
-        .any(|p| p["kind"] == "outside every map"
-            && p["answer"].as_str().unwrap().contains("register")));
-    for s in v["scores"].as_array().unwrap() {
-        assert!(s["misses"].as_array().unwrap().len() >= 2, "{s}");
-    }
+    generic_is_none_of_the_five(exit, &v);
     let _ = std::fs::remove_dir_all(&dir);
 }
 
@@ -376,4 +345,81 @@ fn a_generic_pymodbus_device_is_none_of_the_five_rtu() {
 #[test]
 fn a_generic_pymodbus_device_is_none_of_the_five_ascii() {
     generic("ascii");
+}
+
+/// `identify --tcp --framing mbap --unit N` through the simulated Modbus TCP gateway
+/// names the model behind it, with every probe a read that crossed the gateway.
+fn named_through_a_gateway(model: &str, unit: u8) {
+    let sim = GatewaySim::start(model, unit, &["--gateway-timeout", "50"]);
+    let dir = tmp(&format!("mbap-{model}"));
+    let (exit, v) = identify(
+        &dir,
+        &[
+            "--tcp",
+            &sim.addr,
+            "--framing",
+            "mbap",
+            "--unit",
+            &unit.to_string(),
+        ],
+    );
+    assert_eq!(v["verdict"]["result"], "one", "{model}: {}", v["verdict"]);
+    assert_eq!(v["verdict"]["models"], serde_json::json!([model]));
+    assert_eq!(exit, Some(0), "{model}");
+    consistent(&v);
+    let link = v["links"][0].to_string();
+    assert!(
+        link.contains(&format!(
+            "Modbus TCP gateway {} (MBAP, unit {unit}",
+            sim.addr
+        )),
+        "{link}"
+    );
+    let probes = v["probes"].as_array().unwrap();
+    assert!(probes.len() >= 5, "{model}: {} probes", probes.len());
+    for p in probes {
+        let req = p["request"].as_str().unwrap();
+        assert_eq!(req.split(' ').nth(1), Some("03"), "{model}: {req}");
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn f510_is_named_f510_through_a_modbus_tcp_gateway() {
+    named_through_a_gateway("f510", 5);
+}
+
+#[test]
+fn e510_is_named_e510_through_a_modbus_tcp_gateway() {
+    named_through_a_gateway("e510", 17);
+}
+
+#[test]
+fn l510_legacy_is_named_l510_legacy_through_a_modbus_tcp_gateway() {
+    named_through_a_gateway("l510-legacy", 1);
+}
+
+/// pymodbus's generic Modbus TCP server, identified through MBAP, is none of the five:
+/// it answers reads where every model predicts an exception.
+#[test]
+fn a_generic_pymodbus_tcp_server_is_none_of_the_five() {
+    let Some((_server, addr)) = pymodbus_tcp_server(3) else {
+        return;
+    };
+    let dir = tmp("pymodbus-tcp");
+    let (exit, v) = identify(
+        &dir,
+        &[
+            "--tcp",
+            &addr,
+            "--framing",
+            "mbap",
+            "--unit",
+            "3",
+            "--timeout",
+            "500",
+        ],
+    );
+    generic_is_none_of_the_five(exit, &v);
+    let _ = std::fs::remove_dir_all(&dir);
 }

@@ -49,7 +49,7 @@
 //! fails.
 
 mod common;
-use common::{tool_or_skip, Kill};
+use common::{runs, tool_or_skip, Kill, SerialPeer};
 
 use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
@@ -58,15 +58,6 @@ use std::sync::mpsc;
 use std::time::{Duration, Instant};
 
 const SERVER_C: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/libmodbus/server.c");
-
-fn runs(cmd: &str, args: &[&str]) -> bool {
-    Command::new(cmd)
-        .args(args)
-        .stdout(Stdio::null())
-        .stderr(Stdio::null())
-        .status()
-        .is_ok_and(|s| s.success())
-}
 
 /// Builds the server into `dir`; `None` (after SKIPPED) when a tool is missing.
 fn build_server(dir: &Path) -> Option<PathBuf> {
@@ -124,16 +115,14 @@ fn status<'a>(v: &'a serde_json::Value, id: &str, want: &str) -> &'a serde_json:
 
 /// The server built and started on one end of a socat pair: the guards and the runner's
 /// end (None after SKIPPED when a tool is missing).
-fn start(dir: &Path) -> Option<(Kill, Kill, PathBuf)> {
+fn start(dir: &Path) -> Option<SerialPeer> {
     let server = build_server(dir)?;
     let (socat, a, b) = common::socat_pair(dir);
-    let mut server = Kill(
+    let mut server = Kill::spawn(
         Command::new(&server)
             .args([a.to_str().unwrap(), "1"])
             .stdout(Stdio::piped())
-            .stderr(Stdio::null())
-            .spawn()
-            .unwrap(),
+            .stderr(Stdio::null()),
     );
     // The server prints "ready" once the port is open, and nothing else on stdout.
     let stdout = server.0.stdout.take().unwrap();
@@ -149,14 +138,23 @@ fn start(dir: &Path) -> Option<(Kill, Kill, PathBuf)> {
         Ok(Some("ready".to_string())),
         "the server did not start"
     );
-    Some((socat, server, b))
+    Some(SerialPeer {
+        device: server,
+        socat,
+        port: b,
+    })
 }
 
 #[test]
 fn libmodbus_rtu_server_checked_as_f510() {
     let dir = std::env::temp_dir().join(format!("teco-libmodbus-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
-    let Some((_socat, mut server, b)) = start(&dir) else {
+    let Some(SerialPeer {
+        socat: _socat,
+        device: mut server,
+        port: b,
+    }) = start(&dir)
+    else {
         return;
     };
 
@@ -266,9 +264,10 @@ fn libmodbus_rtu_server_checked_as_f510() {
 fn libmodbus_rtu_server_fuzzed_as_f510() {
     let dir = std::env::temp_dir().join(format!("teco-libmodbus-fuzz-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
-    let Some((_socat, _server, b)) = start(&dir) else {
+    let Some(peer) = start(&dir) else {
         return;
     };
+    let b = &peer.port;
     let (exit, v) = common::report_of(
         "fuzz",
         &dir,

@@ -13,88 +13,14 @@
 //! A missing tool prints `SKIPPED: ...` and returns, except under `CI`, where it fails.
 
 mod common;
-use common::{bin, check_device, report_of, tool_or_skip, Kill};
+use common::{bin, check_device, have, pymodbus_tcp_server, report_of, run_bounded, GatewaySim};
 
-use std::io::{BufRead, BufReader};
-use std::net::TcpStream;
 use std::process::{Command, Stdio};
-use std::sync::{mpsc, Arc, Mutex};
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 /// The reason every check a gateway hides is skipped with.
 const HIDDEN: &str =
     "not visible through a Modbus TCP gateway (MBAP carries no CRC/LRC and no line timing)";
-
-/// A running `conformance simulate --tcp 127.0.0.1:0 --framing mbap`, killed on drop; its
-/// log is printed when the test fails.
-struct GatewaySim {
-    _child: Kill,
-    addr: String,
-    log: Arc<Mutex<String>>,
-}
-
-impl GatewaySim {
-    fn start(model: &str, address: u8, extra: &[&str]) -> GatewaySim {
-        let mut child = Command::new(bin())
-            .args(["simulate", "--model", model, "-a", &address.to_string()])
-            .args(["--tcp", "127.0.0.1:0", "--framing", "mbap"])
-            .args(extra)
-            .stdin(Stdio::null())
-            .stdout(Stdio::null())
-            .stderr(Stdio::piped())
-            .spawn()
-            .expect("start the simulator");
-        let stderr = child.stderr.take().unwrap();
-        let child = Kill(child);
-        let log = Arc::new(Mutex::new(String::new()));
-        let (tx, rx) = mpsc::channel();
-        let l = log.clone();
-        std::thread::spawn(move || {
-            for line in BufReader::new(stderr).lines().map_while(Result::ok) {
-                if let Some(at) = line.find(" on tcp ") {
-                    let rest = &line[at + 8..];
-                    let _ = tx.send(rest[..rest.find(';').unwrap_or(rest.len())].to_string());
-                }
-                let mut l = l.lock().unwrap();
-                l.push_str(&line);
-                l.push('\n');
-            }
-        });
-        let addr = rx
-            .recv_timeout(Duration::from_secs(10))
-            .unwrap_or_else(|_| panic!("no banner from the simulator: {}", log.lock().unwrap()));
-        GatewaySim {
-            _child: child,
-            addr,
-            log,
-        }
-    }
-
-    fn port(&self) -> &str {
-        self.addr.rsplit(':').next().unwrap()
-    }
-}
-
-impl Drop for GatewaySim {
-    fn drop(&mut self) {
-        if std::thread::panicking() {
-            common::note(&format!(
-                "--- simulator log ---\n{}--- end ---",
-                self.log.lock().unwrap()
-            ));
-        }
-    }
-}
-
-fn have(cmd: &str, args: &[&str], what: &str) -> bool {
-    let ok = Command::new(cmd)
-        .args(args)
-        .stdout(Stdio::null())
-        .stderr(Stdio::null())
-        .status()
-        .is_ok_and(|s| s.success());
-    tool_or_skip(ok, what)
-}
 
 fn run(cmd: &mut Command) -> (bool, String, String) {
     let o = cmd.stdin(Stdio::null()).output().unwrap();
@@ -191,26 +117,6 @@ fn pymodbus_tcp_client_against_the_simulated_gateway() {
     assert!(ops.iter().all(|o| o["ok"] == true), "{out}");
 }
 
-/// Waits (at most 30 s) until something listens on `addr`.
-fn wait_listening(addr: &str) {
-    let t0 = Instant::now();
-    while TcpStream::connect(addr).is_err() {
-        assert!(
-            t0.elapsed() < Duration::from_secs(30),
-            "nothing listens on {addr}"
-        );
-        std::thread::sleep(Duration::from_millis(100));
-    }
-}
-
-fn free_port() -> u16 {
-    std::net::TcpListener::bind("127.0.0.1:0")
-        .unwrap()
-        .local_addr()
-        .unwrap()
-        .port()
-}
-
 fn statuses<'a>(v: &'a serde_json::Value, status: &str) -> Vec<&'a serde_json::Value> {
     v["checks"]
         .as_array()
@@ -248,27 +154,9 @@ fn assert_hidden_checks_skipped(v: &serde_json::Value) {
 
 #[test]
 fn check_through_mbap_against_pymodbus_tcp_server() {
-    if !have(
-        "python3",
-        &["-c", "import pymodbus.server"],
-        "pymodbus not installed (pip install pymodbus)",
-    ) {
+    let Some((_server, addr)) = pymodbus_tcp_server(1) else {
         return;
-    }
-    let port = free_port().to_string();
-    let server = concat!(
-        env!("CARGO_MANIFEST_DIR"),
-        "/tests/interop/pymodbus_tcp_server.py"
-    );
-    let _server = Kill(
-        Command::new("python3")
-            .args([server, &port, "--unit", "1"])
-            .stderr(Stdio::null())
-            .spawn()
-            .unwrap(),
-    );
-    let addr = format!("127.0.0.1:{port}");
-    wait_listening(&addr);
+    };
     let dir = std::env::temp_dir().join(format!("teco-mbap-pymodbus-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     let (exit, v) = check_device(
@@ -494,7 +382,8 @@ fn what_mbap_cannot_do_is_refused_with_a_reason() {
 
 /// `scan --tcp --framing mbap` sweeps unit ids through the simulated gateway and finds the
 /// one drive behind it (unit 17), with the identification value; the gateway's 0BH for
-/// the units nobody has counts as silence, never as a device.
+/// the units nobody has counts as silence, never as a device. The result's header names
+/// the gateway and the unit ids swept.
 #[test]
 fn scan_through_mbap_finds_the_unit_behind_the_gateway() {
     let sim = GatewaySim::start("l510", 17, &["--gateway-timeout", "30"]);
@@ -523,6 +412,36 @@ fn scan_through_mbap_finds_the_unit_behind_the_gateway() {
             "unit {absent} has no device: {text}"
         );
     }
+    // The sweep is of unit ids: the result names the gateway and every unit id tried,
+    // not the one unit a single request goes to.
+    let swept = format!(
+        "Modbus TCP gateway {} (MBAP, unit ids 10-20 swept, each the node address)",
+        sim.addr
+    );
+    assert_eq!(v["link"], swept.as_str(), "{text}");
+    let (code, out, err) = run_bounded(
+        &[
+            "scan",
+            "--tcp",
+            &sim.addr,
+            "--framing",
+            "mbap",
+            "--addresses",
+            "10-12,17,20",
+            "-q",
+        ],
+        Duration::from_secs(120),
+    );
+    assert_eq!(code, Some(0), "{out}{err}");
+    let header = out.lines().next().unwrap_or_default();
+    assert!(
+        header.starts_with(&format!(
+            "scan of Modbus TCP gateway {} (MBAP, unit ids 10-12,17,20 swept, each the node address): 1 device found",
+            sim.addr
+        )),
+        "{out}"
+    );
+    assert!(!out.contains("unit 1)"), "{out}");
     // ASCII does not cross MBAP: refused with the reason.
     let o = Command::new(bin())
         .args([

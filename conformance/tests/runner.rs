@@ -4,7 +4,7 @@
 //! changed; reports validate against their schema; the command line's exit codes.
 
 mod common;
-use common::{bin, Kill};
+use common::{bin, free_port, wait_listening, Kill};
 
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
@@ -250,27 +250,12 @@ fn an_interrupted_run_is_reported_incomplete_and_restores_what_it_changed() {
 
 #[test]
 fn a_lost_link_ends_the_run_with_an_error_and_a_whole_report() {
-    let port = std::net::TcpListener::bind("127.0.0.1:0")
-        .unwrap()
-        .local_addr()
-        .unwrap()
-        .port();
-    let addr = format!("127.0.0.1:{port}");
-    let child = Arc::new(std::sync::Mutex::new(Kill(
+    let addr = format!("127.0.0.1:{}", free_port());
+    let child = Arc::new(std::sync::Mutex::new(Kill::spawn(
         std::process::Command::new(bin())
-            .args(["simulate", "--model", "l510", "--tcp", &addr, "-q"])
-            .spawn()
-            .unwrap(),
+            .args(["simulate", "--model", "l510", "--tcp", &addr, "-q"]),
     )));
-    // Wait for it to listen.
-    let t0 = Instant::now();
-    while std::net::TcpStream::connect(&addr).is_err() {
-        assert!(
-            t0.elapsed() < Duration::from_secs(10),
-            "the simulator does not listen"
-        );
-        thread::sleep(Duration::from_millis(30));
-    }
+    wait_listening(&addr, Duration::from_secs(10));
     thread::sleep(Duration::from_millis(100));
     let c = SessionConfig {
         model: Arc::new(DriveModel::builtin("l510").unwrap()),

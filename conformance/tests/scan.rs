@@ -6,13 +6,12 @@
 
 mod common;
 
-use std::io::{BufRead, BufReader};
 use std::process::{Command, Stdio};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-use common::{bin, socat_pair, tool_or_skip, Kill};
+use common::{run_bounded, sim_pty, socat_pair, tool_or_skip};
 use conformance::codec::timing::{LineSettings, Parity};
 use conformance::codec::{frame_of_body, Mode};
 use conformance::scan::link::SerialLink;
@@ -23,63 +22,9 @@ use conformance::transport::pty::PtyMaster;
 use conformance::transport::serial::SerialTransport;
 use conformance::transport::{LinkKind, Transport};
 
-/// Starts `conformance simulate --pty -q ARGS` and returns it with the slave path.
-fn simulator(args: &[&str]) -> (Kill, String) {
-    let mut child = Command::new(bin())
-        .args(["simulate", "--pty", "-q"])
-        .args(args)
-        .stdout(Stdio::piped())
-        .stderr(Stdio::null())
-        .spawn()
-        .unwrap();
-    let stdout = child.stdout.take().unwrap();
-    let mut line = String::new();
-    BufReader::new(stdout).read_line(&mut line).unwrap();
-    let path = line.trim().to_string();
-    assert!(path.starts_with("/dev/"), "no pty path in {line:?}");
-    (Kill(child), path)
-}
-
-/// Runs `conformance ARGS`, bounded by `limit` (a hang fails the test); exit code,
-/// stdout, stderr.
-fn run(args: &[&str], limit: Duration) -> (Option<i32>, String, String) {
-    let mut child = Kill(
-        Command::new(bin())
-            .args(args)
-            .stdout(Stdio::piped())
-            .stderr(Stdio::piped())
-            .spawn()
-            .unwrap(),
-    );
-    let mut out = child.0.stdout.take().unwrap();
-    let mut err = child.0.stderr.take().unwrap();
-    let reader = std::thread::spawn(move || {
-        let mut s = String::new();
-        std::io::Read::read_to_string(&mut out, &mut s).unwrap();
-        s
-    });
-    let err_reader = std::thread::spawn(move || {
-        let mut s = String::new();
-        std::io::Read::read_to_string(&mut err, &mut s).unwrap();
-        s
-    });
-    let t0 = Instant::now();
-    let status = loop {
-        if let Some(s) = child.0.try_wait().unwrap() {
-            break s;
-        }
-        assert!(t0.elapsed() < limit, "conformance {args:?} hangs");
-        std::thread::sleep(Duration::from_millis(50));
-    };
-    let stdout = reader.join().unwrap();
-    let stderr = err_reader.join().unwrap();
-    assert!(!stderr.contains("panicked"), "{stderr}");
-    (status.code(), stdout, stderr)
-}
-
 #[test]
 fn scan_finds_a_simulator_at_an_unusual_setting() {
-    let (_sim, path) = simulator(&[
+    let (_sim, path) = sim_pty(&[
         "--model",
         "e510",
         "--emulate-line",
@@ -94,7 +39,7 @@ fn scan_finds_a_simulator_at_an_unusual_setting() {
         "17",
     ]);
     // The whole default search: every speed, parity and mode, addresses 1..247.
-    let (code, out, err) = run(
+    let (code, out, err) = run_bounded(
         &["scan", "--port", &path, "--quiet"],
         Duration::from_secs(300),
     );
@@ -115,7 +60,7 @@ fn scan_finds_a_simulator_at_an_unusual_setting() {
     );
 
     // Narrowed, as JSON: the same device.
-    let (code, out, err) = run(
+    let (code, out, err) = run_bounded(
         &[
             "scan",
             "--port",
@@ -149,7 +94,7 @@ fn an_empty_line_finds_nothing_with_exit_1() {
     let dir = tempfile_dir("empty");
     let (_socat, a, _b) = socat_pair(&dir);
     let a = a.to_string_lossy().into_owned();
-    let (code, out, err) = run(
+    let (code, out, err) = run_bounded(
         &[
             "scan",
             "--port",
@@ -169,8 +114,8 @@ fn an_empty_line_finds_nothing_with_exit_1() {
     assert!(out.contains("4 silent"), "{out}");
 
     // A simulator at the right setting but outside the address range: nothing either.
-    let (_sim, path) = simulator(&["--emulate-line", "-b", "9600", "-P", "even", "-a", "30"]);
-    let (code, out, err) = run(
+    let (_sim, path) = sim_pty(&["--emulate-line", "-b", "9600", "-P", "even", "-a", "30"]);
+    let (code, out, err) = run_bounded(
         &[
             "scan",
             "--port",
@@ -272,9 +217,9 @@ fn a_wrong_setting_yields_garbage_and_is_skipped_early() {
 
 #[test]
 fn rts_needs_a_port_with_an_rts_line() {
-    let (_sim, path) = simulator(&[]);
+    let (_sim, path) = sim_pty(&[]);
     // A pseudo-terminal has no modem lines: --rts is refused with the reason, exit 2.
-    let (code, out, err) = run(
+    let (code, out, err) = run_bounded(
         &[
             "check",
             "--model",
@@ -292,7 +237,7 @@ fn rts_needs_a_port_with_an_rts_line() {
     );
     assert_eq!(code, Some(2), "{out}\n{err}");
     assert!(err.contains("RTS"), "{err}");
-    let (code, _, err) = run(
+    let (code, _, err) = run_bounded(
         &[
             "scan", "--port", &path, "-b", "9600", "-P", "even", "-m", "rtu", "--rts", "--quiet",
         ],
@@ -301,7 +246,7 @@ fn rts_needs_a_port_with_an_rts_line() {
     assert_eq!(code, Some(2), "{err}");
     assert!(err.contains("no RTS line"), "{err}");
     // --rts without a serial port is an argument error.
-    let (code, _, err) = run(
+    let (code, _, err) = run_bounded(
         &["check", "--sim", "f510", "--rts", "--quiet"],
         Duration::from_secs(30),
     );
@@ -325,7 +270,7 @@ fn mbpoll_against_the_emulated_line() {
     if !tool_or_skip(have, "mbpoll is not installed") {
         return;
     }
-    let (_sim, path) = simulator(&[
+    let (_sim, path) = sim_pty(&[
         "--model",
         "l510",
         "--emulate-line",

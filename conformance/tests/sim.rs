@@ -337,11 +337,7 @@ fn a_frame_written_in_pieces_is_answered_on_a_pty() {
 #[test]
 fn the_command_line_serves_over_tcp() {
     use conformance::transport::tcp::TcpTransport;
-    let port = {
-        let l = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
-        l.local_addr().unwrap().port()
-    };
-    let addr = format!("127.0.0.1:{port}");
+    let addr = format!("127.0.0.1:{}", common::free_port());
     let _child = Kill(
         std::process::Command::new(bin())
             .args([

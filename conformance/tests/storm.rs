@@ -14,7 +14,7 @@
 //!   the report says why.
 
 mod common;
-use common::{bin, report_of};
+use common::{bin, findings, report_of};
 
 use std::time::Duration;
 
@@ -151,15 +151,6 @@ fn timing_run(dir: &std::path::Path, quirks: &[&str], cases: &str) -> (Option<i3
         args.extend(["--quirk", q]);
     }
     report_of("fuzz", dir, &args, Duration::from_secs(900))
-}
-
-fn findings(v: &Value) -> Vec<Value> {
-    v["fuzz"]["modes"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .flat_map(|m| m["findings"].as_array().unwrap().clone())
-        .collect()
 }
 
 #[test]

@@ -17,7 +17,7 @@
 //! (SIGSTOP) simulator give exit 2 and no PASS.
 
 mod common;
-use common::{bin, Kill};
+use common::{bin, sim_pty, Kill};
 
 use std::collections::BTreeMap;
 use std::sync::{Arc, Mutex};
@@ -495,27 +495,6 @@ fn parallel<T: Send + 'static>(
     }
 }
 
-/// Starts `conformance simulate --pty` and returns it with the slave path.
-fn simulator(args: &[&str]) -> (Kill, String) {
-    use std::io::{BufRead, BufReader};
-    let mut child = std::process::Command::new(bin())
-        .args(["simulate", "--pty", "-q"])
-        .args(args)
-        .stdout(std::process::Stdio::piped())
-        .stderr(std::process::Stdio::null())
-        .spawn()
-        .unwrap();
-    let stdout = child.stdout.take().unwrap();
-    let mut line = String::new();
-    BufReader::new(stdout).read_line(&mut line).unwrap();
-    let path = line
-        .split_whitespace()
-        .find(|w| w.starts_with("/dev/"))
-        .unwrap_or_else(|| panic!("no pty path in {line:?}"))
-        .to_string();
-    (Kill(child), path)
-}
-
 fn check(args: &[&str]) -> (Option<i32>, serde_json::Value) {
     let o = std::process::Command::new(bin())
         .args(["check", "--format", "json", "-q"])
@@ -540,7 +519,7 @@ fn passes(v: &serde_json::Value) -> usize {
 #[test]
 fn a_silent_device_passes_nothing() {
     // The reproduction: a simulator at node 1, the check aimed at node 2.
-    let (_sim, pty) = simulator(&["--model", "f510", "-P", "none"]);
+    let (_sim, pty) = sim_pty(&["--model", "f510", "-P", "none"]);
     let t0 = Instant::now();
     let (code, v) = check(&[
         "--model",
@@ -576,7 +555,7 @@ fn a_silent_device_passes_nothing() {
 fn a_device_frozen_mid_run_ends_the_run() {
     use nix::sys::signal::{kill, Signal};
     use nix::unistd::Pid;
-    let (sim, pty) = simulator(&["--model", "l510", "-P", "none"]);
+    let (sim, pty) = sim_pty(&["--model", "l510", "-P", "none"]);
     let pid = Pid::from_raw(i32::try_from(sim.0.id()).unwrap());
     let dir = std::env::temp_dir().join(format!("teco-freeze-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();

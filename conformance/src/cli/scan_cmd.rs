@@ -163,6 +163,28 @@ pub fn parse_addresses(text: &str) -> anyhow::Result<Vec<u8>> {
     Ok(out)
 }
 
+/// Writes addresses back as `--addresses` takes them: runs of consecutive ones as
+/// "LO-HI", in the order given, comma-separated ("1-3,7,10-20").
+pub fn address_ranges(addresses: &[u8]) -> String {
+    let mut parts: Vec<String> = Vec::new();
+    let mut i = 0;
+    while i < addresses.len() {
+        let lo = addresses[i];
+        let mut hi = lo;
+        while i + 1 < addresses.len() && hi.checked_add(1) == Some(addresses[i + 1]) {
+            hi = addresses[i + 1];
+            i += 1;
+        }
+        parts.push(if lo == hi {
+            lo.to_string()
+        } else {
+            format!("{lo}-{hi}")
+        });
+        i += 1;
+    }
+    parts.join(",")
+}
+
 pub fn run(args: ScanArgs) -> anyhow::Result<ExitCode> {
     let addresses = parse_addresses(&args.addresses)?;
     let search = Search {
@@ -223,10 +245,17 @@ pub fn run(args: ScanArgs) -> anyhow::Result<ExitCode> {
                 settings.retain(|s| s.mode == Mode::Rtu);
                 // Node n is unit n: the map of one node to itself is the identity.
                 let t = MbapGateway::connect(addr, Duration::from_secs(2), UnitMap::new(1, 1))?;
+                // The gateway's own description names the one unit of a request; the
+                // sweep's header names every unit id it tries.
+                let described = format!(
+                    "Modbus TCP gateway {} (MBAP, unit ids {} swept, each the node address)",
+                    t.peer(),
+                    address_ranges(&addresses)
+                );
                 // A gateway answers a unit with no device with 0BH only after its own
                 // serial timeout (often 100..1000 ms): the window waits for that answer,
                 // so that it is not taken for the reply to the next unit's read.
-                Box::new(FixedLink::new(Box::new(t), MBAP_SLACK))
+                Box::new(FixedLink::new(Box::new(t), MBAP_SLACK).described_as(described))
             } else {
                 let t = TcpTransport::connect(addr, Duration::from_secs(2))?;
                 Box::new(FixedLink::new(Box::new(t), Duration::from_millis(20)))
@@ -321,5 +350,17 @@ mod tests {
         assert!(parse_addresses("9-3").is_err());
         assert!(parse_addresses("300").is_err());
         assert!(parse_addresses(",").is_err());
+    }
+
+    #[test]
+    fn address_lists_written_back() {
+        assert_eq!(address_ranges(&[10, 11, 12, 13]), "10-13");
+        assert_eq!(address_ranges(&[17]), "17");
+        assert_eq!(address_ranges(&[1, 2, 3, 7, 9, 10]), "1-3,7,9-10");
+        assert_eq!(address_ranges(&[5, 1, 2, 255]), "5,1-2,255");
+        for text in ["1-247", "3,1-2,9", "0AH-0x0B,200"] {
+            let a = parse_addresses(text).unwrap();
+            assert_eq!(parse_addresses(&address_ranges(&a)).unwrap(), a, "{text}");
+        }
     }
 }

@@ -79,12 +79,25 @@ impl ScanLink for SerialLink {
 pub struct FixedLink {
     transport: Box<dyn Transport>,
     slack: Duration,
+    description: Option<String>,
 }
 
 impl FixedLink {
     /// Wraps a transport; `slack` is what the network and the gateway may add.
     pub fn new(transport: Box<dyn Transport>, slack: Duration) -> Self {
-        FixedLink { transport, slack }
+        FixedLink {
+            transport,
+            slack,
+            description: None,
+        }
+    }
+
+    /// Names the link `description` in the scan's result, in place of the transport's
+    /// own description (which speaks of one request's target, where a sweep has many:
+    /// the unit ids of a Modbus TCP gateway).
+    pub fn described_as(mut self, description: String) -> Self {
+        self.description = Some(description);
+        self
     }
 }
 
@@ -106,6 +119,9 @@ impl ScanLink for FixedLink {
     }
 
     fn describe(&self) -> String {
-        self.transport.describe()
+        match &self.description {
+            Some(d) => d.clone(),
+            None => self.transport.describe(),
+        }
     }
 }

@@ -126,6 +126,12 @@ impl MbapGateway {
         })
     }
 
+    /// The gateway's address (HOST:PORT as connected), or `?` where the socket did not
+    /// say.
+    pub fn peer(&self) -> &str {
+        &self.peer
+    }
+
     /// Wraps a connected stream.
     pub fn from_stream(stream: TcpStream, units: UnitMap) -> std::io::Result<Self> {
         stream.set_nodelay(true)?;

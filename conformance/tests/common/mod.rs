@@ -2,19 +2,12 @@
 //! programs.
 #![allow(dead_code)]
 
+mod peers;
+pub use peers::*;
+
 /// The `conformance` binary built for these tests.
 pub fn bin() -> &'static str {
     env!("CARGO_BIN_EXE_conformance")
-}
-
-/// A child process that is killed and reaped when the guard goes, also when a test fails.
-pub struct Kill(pub std::process::Child);
-
-impl Drop for Kill {
-    fn drop(&mut self) {
-        let _ = self.0.kill();
-        let _ = self.0.wait();
-    }
 }
 
 /// Writes straight to the process's stderr, past the test harness's output capture, so
@@ -40,36 +33,6 @@ pub fn tool_or_skip(ok: bool, what: &str) -> bool {
     ok || missing(what)
 }
 
-/// Waits (at most 10 s) for a path to appear.
-pub fn wait_for(p: &std::path::Path) {
-    let t0 = std::time::Instant::now();
-    while !p.exists() {
-        assert!(
-            t0.elapsed() < std::time::Duration::from_secs(10),
-            "{} did not appear",
-            p.display()
-        );
-        std::thread::sleep(std::time::Duration::from_millis(20));
-    }
-}
-
-/// A socat pseudo-terminal pair linked at `dir/ttyA` and `dir/ttyB`: a line between a
-/// device under test (on A) and the runner (on B).
-pub fn socat_pair(dir: &std::path::Path) -> (Kill, std::path::PathBuf, std::path::PathBuf) {
-    let (a, b) = (dir.join("ttyA"), dir.join("ttyB"));
-    let socat = Kill(
-        std::process::Command::new("socat")
-            .arg(format!("pty,raw,echo=0,link={}", a.display()))
-            .arg(format!("pty,raw,echo=0,link={}", b.display()))
-            .stderr(std::process::Stdio::null())
-            .spawn()
-            .unwrap(),
-    );
-    wait_for(&a);
-    wait_for(&b);
-    (socat, a, b)
-}
-
 /// Runs `conformance check ARGS --format json -o dir/check.json` with a bound on its
 /// time (a hang is a failure, not a stalled CI job), asserts it did not panic and that
 /// the report matches its schema; returns the exit code and the report.
@@ -91,28 +54,17 @@ pub fn report_of(
     limit: std::time::Duration,
 ) -> (Option<i32>, serde_json::Value) {
     let report = dir.join(format!("{command}.json"));
-    let t0 = std::time::Instant::now();
-    let mut run = Kill(
+    let mut run = Kill::spawn(
         std::process::Command::new(bin())
             .arg(command)
             .args(args)
             .args(["--format", "json", "--quiet", "-o"])
             .arg(&report)
             .stdout(std::process::Stdio::null())
-            .stderr(std::process::Stdio::piped())
-            .spawn()
-            .unwrap(),
+            .stderr(std::process::Stdio::piped()),
     );
-    let exit = loop {
-        if let Some(s) = run.0.try_wait().unwrap() {
-            break s;
-        }
-        assert!(t0.elapsed() < limit, "conformance {command} hangs");
-        std::thread::sleep(std::time::Duration::from_millis(100));
-    };
-    let mut err = Vec::new();
-    std::io::Read::read_to_end(run.0.stderr.as_mut().unwrap(), &mut err).unwrap();
-    let stderr = String::from_utf8_lossy(&err);
+    let exit = run.wait_within(limit, &format!("conformance {command}"));
+    let stderr = run.stderr_text();
     assert!(!stderr.contains("panicked"), "{stderr}");
     let out = std::fs::read(&report).unwrap();
     let v: serde_json::Value =
@@ -148,4 +100,14 @@ pub fn wait_until_answers(port: &std::path::Path, mode: &str, line: &[&str]) {
         );
         std::thread::sleep(std::time::Duration::from_millis(200));
     }
+}
+
+/// The findings of every mode of a fuzz report.
+pub fn findings(v: &serde_json::Value) -> Vec<serde_json::Value> {
+    v["fuzz"]["modes"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .flat_map(|m| m["findings"].as_array().unwrap().clone())
+        .collect()
 }

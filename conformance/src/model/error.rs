@@ -1,0 +1,33 @@
+//! Why a model file is not a valid model.
+
+/// Why a model file is not a valid model.
+#[derive(Debug, thiserror::Error)]
+pub enum ModelError {
+    /// Not JSON, or not of the file format.
+    #[error("{model}: not a valid model file")]
+    Json {
+        /// The model or file.
+        model: String,
+        /// What serde said.
+        source: serde_json::Error,
+    },
+    /// A rule of the format is broken.
+    #[error("{model}: {problem}")]
+    Invalid {
+        /// The model.
+        model: String,
+        /// What is wrong.
+        problem: String,
+    },
+    /// No such model.
+    #[error("unknown model {0:?}; the models are f510, a510, l510, e510, l510-legacy")]
+    Unknown(String),
+    /// The file could not be read.
+    #[error("cannot read {file}")]
+    Io {
+        /// The file.
+        file: String,
+        /// The error.
+        source: std::io::Error,
+    },
+}

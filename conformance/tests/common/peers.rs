@@ -1,0 +1,295 @@
+//! The peers the integration tests start and stop: the simulator (on a pseudo-terminal
+//! or as a Modbus TCP gateway), socat pseudo-terminal pairs, pymodbus's serial and TCP
+//! servers; the guard that kills and reaps each of them when the test ends, also when it
+//! fails; and the waits for a path, a port or a banner to appear.
+
+use std::io::{BufRead, BufReader, Read};
+use std::path::{Path, PathBuf};
+use std::process::{Command, ExitStatus, Stdio};
+use std::sync::{mpsc, Arc, Mutex};
+use std::time::{Duration, Instant};
+
+use super::{bin, note, tool_or_skip};
+
+/// A child process that is killed and reaped when the guard goes, also when a test fails.
+pub struct Kill(pub std::process::Child);
+
+impl Kill {
+    /// Starts `cmd` under the guard (a failure to start fails the test).
+    pub fn spawn(cmd: &mut Command) -> Kill {
+        Kill(
+            cmd.spawn()
+                .unwrap_or_else(|e| panic!("cannot start {cmd:?}: {e}")),
+        )
+    }
+
+    /// Waits for the child to end; still running after `limit`, it fails the test with
+    /// "`what` hangs" (the guard then kills it).
+    pub fn wait_within(&mut self, limit: Duration, what: &str) -> ExitStatus {
+        let t0 = Instant::now();
+        loop {
+            if let Some(s) = self.0.try_wait().unwrap() {
+                return s;
+            }
+            assert!(t0.elapsed() < limit, "{what} hangs");
+            std::thread::sleep(Duration::from_millis(20));
+        }
+    }
+
+    /// What the child wrote on its piped stderr (after it ended).
+    pub fn stderr_text(&mut self) -> String {
+        let mut err = Vec::new();
+        if let Some(s) = self.0.stderr.as_mut() {
+            s.read_to_end(&mut err).unwrap();
+        }
+        String::from_utf8_lossy(&err).into_owned()
+    }
+}
+
+impl Drop for Kill {
+    fn drop(&mut self) {
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
+}
+
+/// Whether `cmd ARGS` runs and succeeds (its output thrown away).
+pub fn runs(cmd: &str, args: &[&str]) -> bool {
+    Command::new(cmd)
+        .args(args)
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .status()
+        .is_ok_and(|s| s.success())
+}
+
+/// Whether `cmd ARGS` runs and succeeds; if not, `SKIPPED: <what>` (a failure under CI).
+pub fn have(cmd: &str, args: &[&str], what: &str) -> bool {
+    tool_or_skip(runs(cmd, args), what)
+}
+
+/// Runs `conformance ARGS`, bounded by `limit` (a hang fails the test), asserts it did
+/// not panic; exit code, stdout, stderr.
+pub fn run_bounded(args: &[&str], limit: Duration) -> (Option<i32>, String, String) {
+    let mut child = Kill::spawn(
+        Command::new(bin())
+            .args(args)
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped()),
+    );
+    let reader = |mut r: Box<dyn Read + Send>| {
+        std::thread::spawn(move || {
+            let mut s = String::new();
+            r.read_to_string(&mut s).unwrap();
+            s
+        })
+    };
+    let out = reader(Box::new(child.0.stdout.take().unwrap()));
+    let err = reader(Box::new(child.0.stderr.take().unwrap()));
+    let status = child.wait_within(limit, &format!("conformance {args:?}"));
+    let (stdout, stderr) = (out.join().unwrap(), err.join().unwrap());
+    assert!(!stderr.contains("panicked"), "{stderr}");
+    (status.code(), stdout, stderr)
+}
+
+/// Waits (at most 10 s) for a path to appear.
+pub fn wait_for(p: &Path) {
+    let t0 = Instant::now();
+    while !p.exists() {
+        assert!(
+            t0.elapsed() < Duration::from_secs(10),
+            "{} did not appear",
+            p.display()
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    }
+}
+
+/// Waits (at most `limit`) until something listens on `addr`.
+pub fn wait_listening(addr: &str, limit: Duration) {
+    let t0 = Instant::now();
+    while std::net::TcpStream::connect(addr).is_err() {
+        assert!(t0.elapsed() < limit, "nothing listens on {addr}");
+        std::thread::sleep(Duration::from_millis(30));
+    }
+}
+
+/// A TCP port on 127.0.0.1 that was free a moment ago.
+pub fn free_port() -> u16 {
+    std::net::TcpListener::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .port()
+}
+
+/// A socat pseudo-terminal pair linked at `dir/ttyA` and `dir/ttyB`: a line between a
+/// device under test (on A) and the runner (on B).
+pub fn socat_pair(dir: &Path) -> (Kill, PathBuf, PathBuf) {
+    let (a, b) = (dir.join("ttyA"), dir.join("ttyB"));
+    let socat = Kill::spawn(
+        Command::new("socat")
+            .arg(format!("pty,raw,echo=0,link={}", a.display()))
+            .arg(format!("pty,raw,echo=0,link={}", b.display()))
+            .stderr(Stdio::null()),
+    );
+    wait_for(&a);
+    wait_for(&b);
+    (socat, a, b)
+}
+
+/// Starts `conformance simulate --pty -q ARGS` and returns it with the pty slave path
+/// (the first word of its first stdout line that starts with /dev/).
+pub fn sim_pty(args: &[&str]) -> (Kill, String) {
+    let mut child = Kill::spawn(
+        Command::new(bin())
+            .args(["simulate", "--pty", "-q"])
+            .args(args)
+            .stdout(Stdio::piped())
+            .stderr(Stdio::null()),
+    );
+    let stdout = child.0.stdout.take().unwrap();
+    let mut line = String::new();
+    BufReader::new(stdout).read_line(&mut line).unwrap();
+    let path = line
+        .split_whitespace()
+        .find(|w| w.starts_with("/dev/"))
+        .unwrap_or_else(|| panic!("no pty path in {line:?}"))
+        .to_string();
+    (child, path)
+}
+
+/// A device on one end of a socat pseudo-terminal pair: the guards (the device goes
+/// first, then the line) and the runner's end of the line.
+pub struct SerialPeer {
+    pub device: Kill,
+    pub socat: Kill,
+    pub port: PathBuf,
+}
+
+/// Whether socat and pymodbus (with pyserial) are here; if not, SKIPPED (a failure
+/// under CI).
+pub fn have_pymodbus_serial() -> bool {
+    have(
+        "socat",
+        &["-V"],
+        "socat not installed (apt-get install socat)",
+    ) && have(
+        "python3",
+        &["-c", "import pymodbus, serial"],
+        "pymodbus not installed (pip install 'pymodbus[serial]==3.16.1')",
+    )
+}
+
+/// pymodbus's generic serial server (tests/interop/pymodbus_server.py) in `mode` on one
+/// end of a socat pair in `dir`, answering; None (after SKIPPED) when a tool is missing.
+pub fn pymodbus_serial_server(dir: &Path, mode: &str) -> Option<SerialPeer> {
+    if !have_pymodbus_serial() {
+        return None;
+    }
+    let (socat, a, b) = socat_pair(dir);
+    let server = concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/tests/interop/pymodbus_server.py"
+    );
+    let device = Kill::spawn(
+        Command::new("python3")
+            .args([server, a.to_str().unwrap(), mode])
+            .stderr(Stdio::null()),
+    );
+    super::wait_until_answers(&b, mode, &["-P", "none"]);
+    Some(SerialPeer {
+        device,
+        socat,
+        port: b,
+    })
+}
+
+/// pymodbus's generic Modbus TCP server (tests/interop/pymodbus_tcp_server.py) with one
+/// unit id, listening on a free port of 127.0.0.1: the guard and its address; None
+/// (after SKIPPED) when pymodbus is missing.
+pub fn pymodbus_tcp_server(unit: u8) -> Option<(Kill, String)> {
+    if !have(
+        "python3",
+        &["-c", "import pymodbus.server"],
+        "pymodbus not installed (pip install pymodbus)",
+    ) {
+        return None;
+    }
+    let port = free_port().to_string();
+    let server = concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/tests/interop/pymodbus_tcp_server.py"
+    );
+    let guard = Kill::spawn(
+        Command::new("python3")
+            .args([server, &port, "--unit", &unit.to_string()])
+            .stderr(Stdio::null()),
+    );
+    let addr = format!("127.0.0.1:{port}");
+    wait_listening(&addr, Duration::from_secs(30));
+    Some((guard, addr))
+}
+
+/// A running `conformance simulate --tcp 127.0.0.1:0 --framing mbap`, killed on drop; its
+/// log is printed when the test fails.
+pub struct GatewaySim {
+    _child: Kill,
+    pub addr: String,
+    log: Arc<Mutex<String>>,
+}
+
+impl GatewaySim {
+    /// The simulated `model` at node `address` behind the gateway, with `extra` options
+    /// of `simulate`; returns once its banner names the address it listens on.
+    pub fn start(model: &str, address: u8, extra: &[&str]) -> GatewaySim {
+        let mut child = Kill::spawn(
+            Command::new(bin())
+                .args(["simulate", "--model", model, "-a", &address.to_string()])
+                .args(["--tcp", "127.0.0.1:0", "--framing", "mbap"])
+                .args(extra)
+                .stdin(Stdio::null())
+                .stdout(Stdio::null())
+                .stderr(Stdio::piped()),
+        );
+        let stderr = child.0.stderr.take().unwrap();
+        let log = Arc::new(Mutex::new(String::new()));
+        let (tx, rx) = mpsc::channel();
+        let l = log.clone();
+        std::thread::spawn(move || {
+            for line in BufReader::new(stderr).lines().map_while(Result::ok) {
+                if let Some(at) = line.find(" on tcp ") {
+                    let rest = &line[at + 8..];
+                    let _ = tx.send(rest[..rest.find(';').unwrap_or(rest.len())].to_string());
+                }
+                let mut l = l.lock().unwrap();
+                l.push_str(&line);
+                l.push('\n');
+            }
+        });
+        let addr = rx
+            .recv_timeout(Duration::from_secs(10))
+            .unwrap_or_else(|_| panic!("no banner from the simulator: {}", log.lock().unwrap()));
+        GatewaySim {
+            _child: child,
+            addr,
+            log,
+        }
+    }
+
+    /// The port it listens on.
+    pub fn port(&self) -> &str {
+        self.addr.rsplit(':').next().unwrap()
+    }
+}
+
+impl Drop for GatewaySim {
+    fn drop(&mut self) {
+        if std::thread::panicking() {
+            note(&format!(
+                "--- simulator log ---\n{}--- end ---",
+                self.log.lock().unwrap()
+            ));
+        }
+    }
+}
