@@ -292,15 +292,6 @@ fn lists_and_refusals() {
     assert!(String::from_utf8_lossy(&o.stderr).contains("twice"));
 }
 
-fn have(cmd: &str, args: &[&str]) -> bool {
-    Command::new(cmd)
-        .args(args)
-        .stdout(Stdio::null())
-        .stderr(Stdio::null())
-        .status()
-        .is_ok_and(|s| s.success())
-}
-
 /// pymodbus's serial server with nodes 1 and 2 (each its own registers), checked as a bus
 /// of F510s with a node 3 it does not serve. Its deviations from the F510 manual are its
 /// own; what is asserted is what it does and the report's shape. pymodbus 3.16.1 answers
@@ -308,28 +299,11 @@ fn have(cmd: &str, args: &[&str]) -> bool {
 /// node 3 is not silent: it is checked, and every read of it deviates.
 #[test]
 fn pymodbus_serving_two_nodes_is_checked_node_by_node() {
-    if !tool_or_skip(have("socat", &["-V"]), "socat not installed")
-        || !tool_or_skip(
-            have("python3", &["-c", "import pymodbus, serial"]),
-            "pymodbus not installed (pip install 'pymodbus[serial]==3.16.1')",
-        )
-    {
-        return;
-    }
     let d = dir("pymodbus");
-    let (_socat, a, b) = common::socat_pair(&d);
-    let server = concat!(
-        env!("CARGO_MANIFEST_DIR"),
-        "/tests/interop/pymodbus_server.py"
-    );
-    let _server = Kill(
-        Command::new("python3")
-            .args([server, a.to_str().unwrap(), "rtu", "--address", "1,2"])
-            .stderr(Stdio::null())
-            .spawn()
-            .unwrap(),
-    );
-    common::wait_until_answers(&b, "rtu", &["-P", "none"]);
+    let Some(peer) = common::pymodbus_serial_nodes(&d, "rtu", "1,2") else {
+        return;
+    };
+    let b = peer.port.clone();
     let (exit, v) = common::check_device(
         &d,
         &[
@@ -421,8 +395,8 @@ fn pymodbus_serving_two_nodes_is_checked_node_by_node() {
 /// node answers with its own address and keeps its own registers; node 3 is silent.
 #[test]
 fn foreign_masters_see_three_drives_on_the_simulated_bus() {
-    let mbpoll = have("sh", &["-c", "command -v mbpoll"]);
-    let minimal = have("python3", &["-c", "import minimalmodbus"]);
+    let mbpoll = common::runs("sh", &["-c", "command -v mbpoll"]);
+    let minimal = common::runs("python3", &["-c", "import minimalmodbus"]);
     if !tool_or_skip(mbpoll, "mbpoll not installed (apt-get install mbpoll)")
         || !tool_or_skip(
             minimal,
@@ -513,25 +487,6 @@ fn foreign_masters_see_three_drives_on_the_simulated_bus() {
     );
 }
 
-fn free_port() -> u16 {
-    std::net::TcpListener::bind("127.0.0.1:0")
-        .unwrap()
-        .local_addr()
-        .unwrap()
-        .port()
-}
-
-fn wait_listening(addr: &str) {
-    let t0 = std::time::Instant::now();
-    while std::net::TcpStream::connect(addr).is_err() {
-        assert!(
-            t0.elapsed() < Duration::from_secs(30),
-            "nothing listens on {addr}"
-        );
-        std::thread::sleep(Duration::from_millis(100));
-    }
-}
-
 /// Through a Modbus TCP gateway each node's unit id is its address: against the simulated
 /// gateway serving two drives, and against pymodbus's TCP server with units 1 and 2.
 #[test]
@@ -548,7 +503,7 @@ fn several_nodes_through_a_modbus_tcp_gateway() {
         "--only",
         "rtu.bad-crc",
     ];
-    let port = free_port().to_string();
+    let port = common::free_port().to_string();
     let addr = format!("127.0.0.1:{port}");
     let _sim = Kill(
         Command::new(common::bin())
@@ -568,7 +523,7 @@ fn several_nodes_through_a_modbus_tcp_gateway() {
             .spawn()
             .unwrap(),
     );
-    wait_listening(&addr);
+    common::wait_listening(&addr, Duration::from_secs(30));
     let mut args = vec![
         "--model",
         "f510",
@@ -593,7 +548,7 @@ fn several_nodes_through_a_modbus_tcp_gateway() {
         .contains("each node's unit id is its address"));
     // mbpoll through the simulated gateway: units 1 and 2 answer, unit 3 gets the
     // gateway's exception 0BH.
-    if have("sh", &["-c", "command -v mbpoll"]) {
+    if common::runs("sh", &["-c", "command -v mbpoll"]) {
         let poll = |unit: &str| {
             let o = Command::new("mbpoll")
                 .args([
@@ -642,26 +597,9 @@ fn several_nodes_through_a_modbus_tcp_gateway() {
     assert_eq!(o.status.code(), Some(2));
     assert!(String::from_utf8_lossy(&o.stderr).contains("leave --unit out"));
 
-    if !tool_or_skip(
-        have("python3", &["-c", "import pymodbus.server"]),
-        "pymodbus not installed (pip install pymodbus)",
-    ) {
+    let Some((_server, addr)) = common::pymodbus_tcp_units("1,2") else {
         return;
-    }
-    let port = free_port().to_string();
-    let addr = format!("127.0.0.1:{port}");
-    let server = concat!(
-        env!("CARGO_MANIFEST_DIR"),
-        "/tests/interop/pymodbus_tcp_server.py"
-    );
-    let _server = Kill(
-        Command::new("python3")
-            .args([server, &port, "--unit", "1,2"])
-            .stderr(Stdio::null())
-            .spawn()
-            .unwrap(),
-    );
-    wait_listening(&addr);
+    };
     let mut args = vec![
         "--model",
         "f510",

@@ -184,6 +184,12 @@ pub fn have_pymodbus_serial() -> bool {
 /// pymodbus's generic serial server (tests/interop/pymodbus_server.py) in `mode` on one
 /// end of a socat pair in `dir`, answering; None (after SKIPPED) when a tool is missing.
 pub fn pymodbus_serial_server(dir: &Path, mode: &str) -> Option<SerialPeer> {
+    pymodbus_serial_nodes(dir, mode, "1")
+}
+
+/// [`pymodbus_serial_server`] serving the node addresses `nodes` ("1,2"), each with its
+/// own registers.
+pub fn pymodbus_serial_nodes(dir: &Path, mode: &str, nodes: &str) -> Option<SerialPeer> {
     if !have_pymodbus_serial() {
         return None;
     }
@@ -194,10 +200,11 @@ pub fn pymodbus_serial_server(dir: &Path, mode: &str) -> Option<SerialPeer> {
     );
     let device = Kill::spawn(
         Command::new("python3")
-            .args([server, a.to_str().unwrap(), mode])
+            .args([server, a.to_str().unwrap(), mode, "--address", nodes])
             .stderr(Stdio::null()),
     );
-    super::wait_until_answers(&b, mode, &["-P", "none"]);
+    let first = nodes.split(',').next().unwrap_or("1");
+    super::wait_until_answers(&b, mode, &["-P", "none", "-a", first]);
     Some(SerialPeer {
         device,
         socat,
@@ -209,6 +216,12 @@ pub fn pymodbus_serial_server(dir: &Path, mode: &str) -> Option<SerialPeer> {
 /// unit id, listening on a free port of 127.0.0.1: the guard and its address; None
 /// (after SKIPPED) when pymodbus is missing.
 pub fn pymodbus_tcp_server(unit: u8) -> Option<(Kill, String)> {
+    pymodbus_tcp_units(&unit.to_string())
+}
+
+/// [`pymodbus_tcp_server`] serving the unit ids `units` ("1,2"), each with its own
+/// registers.
+pub fn pymodbus_tcp_units(units: &str) -> Option<(Kill, String)> {
     if !have(
         "python3",
         &["-c", "import pymodbus.server"],
@@ -223,7 +236,7 @@ pub fn pymodbus_tcp_server(unit: u8) -> Option<(Kill, String)> {
     );
     let guard = Kill::spawn(
         Command::new("python3")
-            .args([server, &port, "--unit", &unit.to_string()])
+            .args([server, &port, "--unit", units])
             .stderr(Stdio::null()),
     );
     let addr = format!("127.0.0.1:{port}");
