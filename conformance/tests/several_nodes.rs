@@ -537,6 +537,19 @@ fn several_nodes_through_a_modbus_tcp_gateway() {
     args.extend(only);
     let (exit, v) = common::check_device(&dir("mbap-sim"), &args, Duration::from_secs(120));
     assert_eq!(exit, Some(0), "{}", v["summary"]);
+    // Behind a gateway the serial line's timing is not ours to bound.
+    assert_eq!(v["budget"]["rtu"]["bound_ms"], 0.0);
+    let text = Command::new(common::bin())
+        .arg("report")
+        .arg(dir("mbap-sim").join("check.json"))
+        .args(["--format", "text"])
+        .output()
+        .unwrap();
+    let text = String::from_utf8_lossy(&text.stdout);
+    assert!(
+        text.contains("no line bound: the serial line is behind a gateway"),
+        "{text}"
+    );
     let per_id = nodes_per_id(&v);
     assert_eq!(per_id["rtu.map.group-0.first"], ["01", "02"]);
     assert_eq!(per_id["rtu.broadcast.write"], ["-"]);

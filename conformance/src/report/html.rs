@@ -425,11 +425,20 @@ fn header(out: &mut String, report: &Report) {
             let replies = b.line.frames.saturating_sub(b.line.silences).max(1);
             w!(
                 out,
-                "<tr><td>{}</td><td class=\"num\">{:.1} s</td><td class=\"num\">{:.1} s</td><td class=\"num\">{:.0} %</td><td class=\"num\">{}</td><td class=\"num\">{} / {}</td><td class=\"num\">{}</td><td class=\"num\">{:.1} ms</td><td class=\"num\">{:.1} ms</td></tr>",
+                "<tr><td>{}</td><td class=\"num\">{:.1} s</td><td class=\"num\">{}</td><td class=\"num\">{}</td><td class=\"num\">{}</td><td class=\"num\">{} / {}</td><td class=\"num\">{}</td><td class=\"num\">{:.1} ms</td><td class=\"num\">{:.1} ms</td></tr>",
                 esc(&mode.to_uppercase()),
                 b.wall.as_secs_f64(),
-                b.bound.as_secs_f64(),
-                b.efficiency() * 100.0,
+                // No bound behind a Modbus TCP gateway: the line's timing is its own.
+                if b.bound.is_zero() {
+                    "none (gateway)".to_string()
+                } else {
+                    format!("{:.1} s", b.bound.as_secs_f64())
+                },
+                if b.bound.is_zero() {
+                    "-".to_string()
+                } else {
+                    format!("{:.0} %", b.efficiency() * 100.0)
+                },
                 b.line.frames,
                 b.line.bytes_sent,
                 b.line.bytes_received,

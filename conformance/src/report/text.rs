@@ -114,6 +114,16 @@ pub fn text(r: &Report, verbose: bool) -> String {
         }
     );
     for (mode, b) in &r.budget {
+        if b.bound.is_zero() && b.line.frames > 0 {
+            // Behind a Modbus TCP gateway the serial line's timing is the gateway's.
+            let _ = writeln!(
+                o,
+                "budget:  {mode}: {:.1} s for {} frames; no line bound: the serial line is behind a gateway, whose timing is not seen from here",
+                b.wall.as_secs_f64(),
+                b.line.frames
+            );
+            continue;
+        }
         let _ = writeln!(
             o,
             "budget:  {mode}: {:.1} s for {} frames; the line and the device need {:.1} s ({:.0}%: bytes at the character time, t3.5 before each frame, the device's response delays, its longest delay for each of {} silences)",
