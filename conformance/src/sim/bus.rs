@@ -124,8 +124,11 @@ impl Responder for Bus {
             if judged.is_none() || to == Some(address) {
                 judged = Some(o.judgement);
             }
+            // A drive's remarks about a frame for another node (its dead quirk, say) are
+            // noise in the log, unless it sent something.
+            let concerned = !several || to == Some(address) || to == Some(0) || !o.sends.is_empty();
             sends.extend(o.sends);
-            notes.extend(o.notes.into_iter().map(|n| {
+            notes.extend(o.notes.into_iter().filter(|_| concerned).map(|n| {
                 if several {
                     format!("node {address:02X}H: {n}")
                 } else {
