@@ -166,6 +166,19 @@ pub struct Summary {
     pub error: usize,
 }
 
+impl Summary {
+    /// Counts one result of `status` (not in `total`, which the caller sets).
+    fn count(&mut self, status: Status) {
+        match status {
+            Status::Pass => self.pass += 1,
+            Status::Deviation => self.deviation += 1,
+            Status::Observation => self.observation += 1,
+            Status::Skip => self.skip += 1,
+            Status::Error => self.error += 1,
+        }
+    }
+}
+
 impl Report {
     /// Counts per status.
     pub fn summary(&self) -> Summary {
@@ -174,13 +187,7 @@ impl Report {
             ..Summary::default()
         };
         for r in &self.results {
-            match r.status {
-                Status::Pass => s.pass += 1,
-                Status::Deviation => s.deviation += 1,
-                Status::Observation => s.observation += 1,
-                Status::Skip => s.skip += 1,
-                Status::Error => s.error += 1,
-            }
+            s.count(r.status);
         }
         s
     }
@@ -206,15 +213,8 @@ impl Report {
                     out.len() - 1
                 }
             };
-            let s = &mut out[at].1;
-            s.total += 1;
-            match r.status {
-                Status::Pass => s.pass += 1,
-                Status::Deviation => s.deviation += 1,
-                Status::Observation => s.observation += 1,
-                Status::Skip => s.skip += 1,
-                Status::Error => s.error += 1,
-            }
+            out[at].1.total += 1;
+            out[at].1.count(r.status);
         }
         out
     }

@@ -246,7 +246,7 @@ mod tests {
         aggregates(&model, "rtu", &mut out);
         let check = out.iter().find(|c| c.id == "rtu.line-timing").unwrap();
         let v = (check.run)(&mut ctx).unwrap();
-        crate::runner::result_of(check, Mode::Rtu, v, Duration::ZERO)
+        crate::runner::run::result_of(check, Mode::Rtu, v, Duration::ZERO)
     }
 
     #[test]

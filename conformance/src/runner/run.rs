@@ -1,0 +1,280 @@
+//! The run of a mode's checks: the section of the suite it takes, the loop that runs each
+//! check (safety skips, the preflight first, liveness, ERRORs for what a lost device left),
+//! and the restore at the end.
+
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::{Duration, Instant};
+
+use super::checks::{self, plan, Check};
+use super::compare::Severity;
+use super::liveness;
+use super::master::Master;
+use super::{CheckResult, Ctx, ModeBudget, ModeRun, Options, RunError, Status, Verdict};
+use crate::codec::Mode;
+use crate::model::DriveModel;
+use crate::transport::Transport;
+use crate::vectors::VectorFile;
+
+/// Which checks of a mode a run takes.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Section {
+    /// Every check: a run of one node.
+    All,
+    /// The checks of one node ([`Options::address`]) of several on one bus; the checks
+    /// of the whole bus ([`Check::bus`]) are left to [`Section::Bus`]. Results name the
+    /// node.
+    Node,
+    /// The checks of the whole bus, once, after the nodes' sections (preflight and
+    /// liveness probes go to [`Options::address`]).
+    Bus,
+}
+
+impl Section {
+    /// Whether this section runs `check`.
+    pub fn takes(self, check: &Check) -> bool {
+        match self {
+            Section::All => true,
+            Section::Node => !check.bus,
+            Section::Bus => check.bus,
+        }
+    }
+}
+
+/// Told about each check as it starts and ends (progress bars, incremental reports).
+pub trait Progress {
+    /// A check starts.
+    fn started(&mut self, check: &Check);
+    /// A check ended.
+    fn finished(&mut self, result: &CheckResult);
+}
+
+/// Runs the checks of `mode` that `opts.only` selects, telling `progress` about each
+/// (for incremental reports and progress bars). Stops early when `stop` is set or the link
+/// fails; registers the run changed are restored either way.
+pub fn run_mode(
+    model: &DriveModel,
+    vectors: Option<&VectorFile>,
+    mode: Mode,
+    transport: Box<dyn Transport>,
+    opts: &Options,
+    stop: &AtomicBool,
+    progress: &mut dyn Progress,
+) -> ModeRun {
+    let master = Master::new(transport, mode, opts.timing).with_echo(opts.echo);
+    run_section(
+        model,
+        vectors,
+        mode,
+        master,
+        opts,
+        stop,
+        progress,
+        Section::All,
+    )
+    .0
+}
+
+/// [`run_mode`] for one section of a run of several nodes on one bus, over a master
+/// that the sections share (it is handed back for the next). The budget's line figures
+/// are the master's so far; its wall time is this section's.
+#[allow(clippy::too_many_arguments)]
+pub fn run_section(
+    model: &DriveModel,
+    vectors: Option<&VectorFile>,
+    mode: Mode,
+    master: Master<dyn Transport>,
+    opts: &Options,
+    stop: &AtomicBool,
+    progress: &mut dyn Progress,
+    section: Section,
+) -> (ModeRun, Master<dyn Transport>) {
+    let selected_checks: Vec<Check> = plan(model, vectors, mode, opts)
+        .into_iter()
+        .filter(|c| selected(&c.id, &opts.only) && section.takes(c))
+        .collect();
+    let node = (section == Section::Node).then_some(opts.address);
+    let mode_started = Instant::now();
+    let mut ctx = Ctx::on_master(model, vectors, mode, opts, master);
+    let mut run = ModeRun::default();
+    // The preflight runs first, whatever --only selects: nothing can be judged on a line
+    // where the device does not answer.
+    let preflight = checks::preflight(model, mode);
+    let mut queue = std::iter::once(&preflight).chain(selected_checks.iter());
+    for check in queue.by_ref() {
+        if stop.load(Ordering::Relaxed) {
+            run.stopped = Some("interrupted".to_string());
+            break;
+        }
+        progress.started(check);
+        ctx.current = check.id.clone();
+        let started = Instant::now();
+        let verdict = if check.motion && !opts.allow_motion {
+            Ok(Verdict::skip(
+                "sets the run or external-fault bit; needs --allow-motion",
+            ))
+        } else if check.writes && opts.read_only {
+            Ok(Verdict::skip("writes registers; --read-only"))
+        } else if check.restarts && !opts.allow_restart {
+            Ok(Verdict::skip(
+                "restarts or silences the device's communications (08H 0001H/0004H); needs --allow-restart",
+            ))
+        } else if let (true, Some(why)) = (check.needs_line, ctx.frames_only()) {
+            Ok(Verdict::skip(why))
+        } else {
+            (check.run)(&mut ctx)
+        };
+        let (verdict, fatal) = match verdict {
+            Ok(v) => (v, None),
+            Err(RunError::DeviceLost(why)) => (Verdict::error(why), None),
+            Err(RunError::Transport(e)) => {
+                let msg = e.to_string();
+                (Verdict::error(msg.clone()), Some(msg))
+            }
+        };
+        let mut result = result_of(check, mode, verdict, started.elapsed());
+        result.node = node;
+        progress.finished(&result);
+        run.results.push(result);
+        if let Some(msg) = fatal {
+            run.stopped = Some(msg);
+            break;
+        }
+        if ctx.lost.is_some() {
+            break;
+        }
+    }
+    if let Some(why) = ctx.lost.clone() {
+        run.lost = true;
+        let lost_in = ctx.current.clone();
+        if lost_in == preflight.id {
+            run.stopped = Some(format!(
+                "no answer to the preflight: nothing was checked (see [{lost_in}])"
+            ));
+            let _ = why;
+        } else {
+            // Every check that did not run is an ERROR: none of them can pass.
+            for check in queue {
+                progress.started(check);
+                let mut result = result_of(
+                    check,
+                    mode,
+                    Verdict::error(liveness::not_run(&lost_in)),
+                    Duration::ZERO,
+                );
+                result.node = node;
+                progress.finished(&result);
+                run.results.push(result);
+            }
+            run.stopped = Some(match &ctx.answered_in {
+                Some(last) => format!(
+                    "the device stopped answering in {lost_in} (the last check it answered was {last})"
+                ),
+                None => format!("the device stopped answering in {lost_in}"),
+            });
+        }
+    }
+    run.identification = ctx.identification;
+    run.echo = ctx.echoes();
+    run.restore = ctx.restore();
+    let line = ctx.master.budget();
+    run.budget = ModeBudget {
+        wall: mode_started.elapsed(),
+        line,
+        // Behind a gateway the serial side's timing is the gateway's: no bound of ours.
+        bound: match ctx.frames_only() {
+            Some(_) => Duration::ZERO,
+            None => ctx
+                .line_timing()
+                .or(opts.line)
+                .map_or(Duration::ZERO, |l| line.bound(&l)),
+        },
+    };
+    (run, ctx.master)
+}
+
+pub(crate) fn result_of(
+    check: &Check,
+    mode: Mode,
+    mut v: Verdict,
+    duration: Duration,
+) -> CheckResult {
+    v.findings.sort_by_key(|f| std::cmp::Reverse(f.severity));
+    // A finding that repeats the model's reason, which the check's source already quotes,
+    // keeps its first part only.
+    for f in &mut v.findings {
+        if let Some(at) = f.text.find(". Model: ") {
+            if check.source.contains(&f.text[at + 9..]) {
+                f.text.truncate(at);
+            }
+        }
+    }
+    let (status, summary) = if let Some(e) = &v.error {
+        (Status::Error, e.clone())
+    } else if let Some(s) = &v.skip {
+        (Status::Skip, s.clone())
+    } else if let Some(f) = v.findings.first() {
+        let status = match f.severity {
+            Severity::Deviation => Status::Deviation,
+            Severity::Observation => Status::Observation,
+        };
+        (status, f.text.clone())
+    } else {
+        (Status::Pass, v.pass_summary.clone())
+    };
+    CheckResult {
+        id: check.id.clone(),
+        title: check.title.clone(),
+        mode: Some(mode),
+        source: check.source.clone(),
+        status,
+        summary,
+        findings: v.findings,
+        exchanges: v.exchanges,
+        duration,
+        node: None,
+    }
+}
+
+/// Whether check `id` is selected by `only` (every check when empty).
+pub fn selected(id: &str, only: &[String]) -> bool {
+    only.is_empty() || only.iter().any(|p| glob(p, id))
+}
+
+fn glob(pattern: &str, text: &str) -> bool {
+    if !pattern.contains('*') {
+        return text.contains(pattern);
+    }
+    let parts: Vec<&str> = pattern.split('*').collect();
+    let mut rest = text;
+    for (i, part) in parts.iter().enumerate() {
+        if i == 0 {
+            match rest.strip_prefix(part) {
+                Some(r) => rest = r,
+                None => return false,
+            }
+        } else if i == parts.len() - 1 {
+            return rest.ends_with(part);
+        } else {
+            match rest.find(part) {
+                Some(at) => rest = &rest[at + part.len()..],
+                None => return false,
+            }
+        }
+    }
+    true
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn only_patterns() {
+        assert!(selected("rtu.map.group-0.first", &[]));
+        assert!(selected("rtu.map.group-0.first", &["group-0".into()]));
+        assert!(selected("rtu.map.group-0.first", &["rtu.*.first".into()]));
+        assert!(!selected("ascii.map.group-0.first", &["rtu.*".into()]));
+        assert!(selected("ascii.map.group-0.first", &["*first".into()]));
+        assert!(!selected("ascii.map.group-0.last", &["*first".into()]));
+    }
+}
