@@ -14,8 +14,7 @@ use crate::report::{Device, NodeInfo, Report, RunOptions};
 use crate::runner::{
     run_mode, run_section, Check, CheckResult, Master, ModeBudget, Options, Progress, Section,
 };
-use crate::sim::bus::{check_planted, quirks_for};
-use crate::sim::{serve_with_gap, Bus, Drive, LogFormat, PlantedQuirk, TrafficLog};
+use crate::sim::{serve_with_gap, Bus, LogFormat, PlantedQuirk, TrafficLog};
 use crate::transport::mbap::{MbapGateway, UnitMap};
 use crate::transport::serial::SerialTransport;
 use crate::transport::tcp::TcpTransport;
@@ -159,17 +158,7 @@ fn start_sim(
     let delay = delay.unwrap_or_else(|| config.model.response_delay(&config.line));
     // One drive per node of the run, each with its own state, on one line.
     let nodes = bus_nodes(&config.options);
-    check_planted(quirks, &nodes)?;
-    let mut drive = Bus::new(
-        nodes
-            .iter()
-            .map(|&n| {
-                Drive::new(config.model.clone(), n, delay)
-                    .with_quirks(&quirks_for(quirks, n))
-                    .with_line(config.line, pace)
-            })
-            .collect(),
-    )?;
+    let mut drive = Bus::of_model(&config.model, &nodes, delay, quirks, config.line, pace)?;
     let mut traffic = TrafficLog::new();
     if let Some(p) = log {
         let file = std::fs::OpenOptions::new()
@@ -492,9 +481,7 @@ pub fn run(
         };
         drop(sim);
         if mode_run.echo == Some(true) {
-            if let Some(link) = report.device.links.get_mut(&mode.to_string()) {
-                link.push_str(" (local echo: every request comes back before the reply; stripped)");
-            }
+            note_echo(&mut report, mode);
         }
         if report.device.identification.is_none() {
             report.device.identification = mode_run.identification;
@@ -604,13 +591,7 @@ fn run_bus(
         }
         report.restore.append(&mut run.restore);
         if run.echo == Some(true) {
-            if let Some(link) = report.device.links.get_mut(&mode.to_string()) {
-                if !link.contains("local echo") {
-                    link.push_str(
-                        " (local echo: every request comes back before the reply; stripped)",
-                    );
-                }
-            }
+            note_echo(report, mode);
         }
         if section == Section::Node {
             if let Some(info) = report.device.nodes.iter_mut().find(|n| n.address == node) {
@@ -655,6 +636,16 @@ fn run_bus(
     None
 }
 
+/// Says on `mode`'s link line that the line echoes every request (once).
+fn note_echo(report: &mut Report, mode: Mode) {
+    const ECHO: &str = " (local echo: every request comes back before the reply; stripped)";
+    if let Some(link) = report.device.links.get_mut(&mode.to_string()) {
+        if !link.ends_with(ECHO) {
+            link.push_str(ECHO);
+        }
+    }
+}
+
 /// The checks of the whole bus where no node answers: each an ERROR.
 fn bus_not_run(
     config: &SessionConfig,
@@ -669,18 +660,14 @@ fn bus_not_run(
             continue;
         }
         on_start(mode, &c);
-        report.results.push(CheckResult {
-            id: c.id.clone(),
-            title: c.title.clone(),
-            mode: Some(mode),
-            source: c.source.clone(),
-            status: crate::runner::Status::Error,
-            summary: "not run: no node of the bus answers (see the nodes' preflights)".into(),
-            findings: Vec::new(),
-            exchanges: Vec::new(),
-            duration: Duration::ZERO,
-            node: None,
-        });
+        report.results.push(crate::runner::run::result_of(
+            &c,
+            mode,
+            crate::runner::Verdict::error(
+                "not run: no node of the bus answers (see the nodes' preflights)",
+            ),
+            Duration::ZERO,
+        ));
         on_result(report);
     }
 }

@@ -661,3 +661,48 @@ fn several_nodes_through_a_modbus_tcp_gateway() {
         .iter()
         .all(|n| n["stopped"].is_null()));
 }
+
+/// No node answers: each node's preflight is its ERROR, and the checks of the whole bus
+/// are ERRORs that say why, not silently left out.
+#[test]
+fn a_bus_where_no_node_answers_reports_the_bus_checks_as_not_run() {
+    let (exit, v) = check(
+        "all-dead",
+        &[
+            "--sim",
+            "f510",
+            "-a",
+            "1,2",
+            "--mode",
+            "rtu",
+            "--no-pace",
+            "--timeout",
+            "200",
+            "--quirk",
+            "dead",
+            "--only",
+            "rtu.map.group-0.first",
+            "--only",
+            "rtu.broadcast.*",
+        ],
+    );
+    assert_eq!(exit, Some(2));
+    let per_id = nodes_per_id(&v);
+    assert_eq!(per_id["rtu.preflight"], ["01", "02"]);
+    for id in ["rtu.broadcast.write", "rtu.broadcast.read"] {
+        let c = checks(&v).iter().find(|c| c["id"] == id).unwrap();
+        assert_eq!(c["status"], "error", "{c}");
+        assert!(
+            c["summary"]
+                .as_str()
+                .unwrap()
+                .contains("no node of the bus answers"),
+            "{c}"
+        );
+        assert!(c["node"].is_null());
+    }
+    let nodes = v["device"]["nodes"].as_array().unwrap();
+    assert!(nodes.iter().all(|n| n["stopped"]
+        .as_str()
+        .is_some_and(|s| s.contains("preflight"))));
+}

@@ -11,10 +11,9 @@ use std::time::Duration;
 use anyhow::{bail, Context};
 use clap::{Args, ValueEnum};
 use conformance::codec::Mode;
-use conformance::sim::bus::{check_planted, quirks_for};
 use conformance::sim::mbap::{serve_gateway, GatewayConfig, NoReply};
 use conformance::sim::{
-    serve, Bus, Drive, LogFormat, PlantedQuirk, Responder, SimError, TrafficLog, QUIRK_HELP,
+    serve, Bus, LogFormat, PlantedQuirk, Responder, SimError, TrafficLog, QUIRK_HELP,
 };
 use conformance::transport::serial::SerialTransport;
 use conformance::transport::tcp::TcpTransport;
@@ -149,18 +148,8 @@ pub fn run(args: SimulateArgs) -> anyhow::Result<ExitCode> {
         Some(ms) => Duration::from_millis(ms),
         None => model.response_delay(&line),
     };
-    check_planted(&args.quirks, &nodes)?;
     let paced = args.pace || args.port.is_some();
-    let mut drive = Bus::new(
-        nodes
-            .iter()
-            .map(|&n| {
-                Drive::new(model.clone(), n, delay)
-                    .with_quirks(&quirks_for(&args.quirks, n))
-                    .with_line(line, paced)
-            })
-            .collect(),
-    )?;
+    let mut drive = Bus::of_model(&model, &nodes, delay, &args.quirks, line, paced)?;
 
     let mut log = TrafficLog::new();
     if !args.quiet {

@@ -65,6 +65,30 @@ impl Bus {
         Ok(Bus { drives })
     }
 
+    /// Drives of `model` at `nodes`, each answering after `delay` on `line` (paced or not,
+    /// see [`Drive::with_line`]), with the quirks of `planted` that apply to it; a quirk
+    /// planted on a node not in `nodes` is refused.
+    pub fn of_model(
+        model: &std::sync::Arc<crate::model::DriveModel>,
+        nodes: &[u8],
+        delay: std::time::Duration,
+        planted: &[PlantedQuirk],
+        line: crate::codec::timing::LineSettings,
+        paced: bool,
+    ) -> Result<Self, BusError> {
+        check_planted(planted, nodes)?;
+        Bus::new(
+            nodes
+                .iter()
+                .map(|&n| {
+                    Drive::new(model.clone(), n, delay)
+                        .with_quirks(&quirks_for(planted, n))
+                        .with_line(line, paced)
+                })
+                .collect(),
+        )
+    }
+
     /// The drives, in the order given.
     pub fn drives(&self) -> &[Drive] {
         &self.drives
