@@ -706,3 +706,41 @@ fn a_bus_where_no_node_answers_reports_the_bus_checks_as_not_run() {
         .as_str()
         .is_some_and(|s| s.contains("preflight"))));
 }
+
+/// `scan` finds every drive of a simulated bus (and nothing at the addresses between).
+#[test]
+fn scan_finds_every_node_of_a_simulated_bus() {
+    let (_sim, pty) = common::sim_pty(&["--model", "f510", "--pace", "-a", "1,2,5"]);
+    let o = Command::new(common::bin())
+        .args([
+            "scan", "--port", &pty, "-b", "9600", "-P", "even", "--mode", "rtu",
+        ])
+        // A wide reply window: tests run side by side on 2 cores, and a simulator
+        // thread scheduled late must not look like a missing drive (the default window's
+        // slack on a pseudo-terminal is 5 ms).
+        .args([
+            "--addresses",
+            "1-6",
+            "--reply-window",
+            "150",
+            "--format",
+            "json",
+            "--quiet",
+        ])
+        .output()
+        .unwrap();
+    assert_eq!(
+        o.status.code(),
+        Some(0),
+        "{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    let v: Value = serde_json::from_slice(&o.stdout).unwrap();
+    let found: Vec<u64> = v["found"]
+        .as_array()
+        .unwrap_or_else(|| panic!("{v}"))
+        .iter()
+        .map(|d| d["address"].as_u64().unwrap())
+        .collect();
+    assert_eq!(found, [1, 2, 5], "{v}");
+}
