@@ -414,9 +414,13 @@ impl<T: Transport + ?Sized> Master<T> {
         self.drain()?;
         self.send_request(request)?;
         let sent = self.transport.sent_at().unwrap_or_else(Instant::now);
+        // A request the host stalled inside (a gap over t1.5 as it left) is not the request
+        // on the line: a receiver that frames by silence drops it, and it is sent again
+        // ([`Master::exchange_retrying`]), so listen only as long as for a silence, not
+        // the whole timeout.
         let wait = match window {
             Some(w) => w,
-            None if expect_reply => self.timing.timeout,
+            None if expect_reply && !self.transport.send_was_broken() => self.timing.timeout,
             None => self.silence_window(),
         };
         let deadline = sent + wait;
