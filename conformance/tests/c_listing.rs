@@ -20,7 +20,7 @@ use std::process::{Command, Output, Stdio};
 use std::thread;
 use std::time::{Duration, Instant};
 
-use common::missing;
+use common::{cc, need, Peer};
 use conformance::codec::crc::{crc16, crc16_reference};
 use conformance::rng::Rng;
 use conformance::vectors::model::{CListing, FileMode};
@@ -125,23 +125,7 @@ fn run(cmd: &mut Command, input: &[u8]) -> std::io::Result<Output> {
 
 /// The C compiler, or `None` (after SKIPPED, or a panic under CI) when there is none.
 fn compiler() -> Option<String> {
-    let cc = std::env::var("CC").unwrap_or_else(|_| "cc".to_string());
-    match run(Command::new(&cc).arg("--version"), b"") {
-        Ok(o) if o.status.success() => Some(cc),
-        Ok(o) => {
-            missing(&format!(
-                "{cc} --version failed ({}): no C compiler to compile the manuals' CRC program (apt-get install gcc)",
-                o.status
-            ));
-            None
-        }
-        Err(e) => {
-            missing(&format!(
-                "no C compiler ({cc}: {e}) to compile the manuals' CRC program (apt-get install gcc)"
-            ));
-            None
-        }
-    }
+    need(Peer::CCompiler).then(cc)
 }
 
 /// One error the compiler reported: the line of the source file and the message.

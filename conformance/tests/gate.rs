@@ -5,7 +5,7 @@
 //! answers no valid request may be refused.
 
 mod common;
-use common::bin;
+use common::{bin, python, Peer};
 
 use std::process::{Command, Output};
 
@@ -173,21 +173,14 @@ fn malformed_and_missing_answers_are_errors_case_by_case() {
 
 #[test]
 fn the_pymodbus_adapter_completes_and_its_deviations_are_reported() {
-    let probe = Command::new("python3")
-        .args(["-c", "import pymodbus"])
-        .output();
-    if !matches!(probe, Ok(ref o) if o.status.success()) {
-        let msg =
-            "SKIPPED: pymodbus not installed (pip install -r adapters/pymodbus/requirements.txt)";
-        assert!(std::env::var_os("CI").is_none(), "{msg}");
-        eprintln!("{msg}");
+    if !common::need(Peer::Pymodbus) {
         return;
     }
     let adapter = concat!(
         env!("CARGO_MANIFEST_DIR"),
         "/../adapters/pymodbus/adapter.py"
     );
-    let (o, v) = gate(&format!("python3 {adapter}"), &["--count", "300"]);
+    let (o, v) = gate(&format!("{} {adapter}", python()), &["--count", "300"]);
     assert_eq!(v["codec"]["implementation"], "pymodbus");
     assert_eq!(v["complete"], true);
     assert_eq!(v["summary"]["error"], 0, "{}", v["summary"]);
@@ -205,23 +198,9 @@ fn the_pymodbus_adapter_completes_and_its_deviations_are_reported() {
     schema_valid(&v);
 }
 
-/// Whether python3 can import `module`; otherwise reports it missing (fails under CI).
-fn python_has(module: &str, install: &str) -> bool {
-    let probe = Command::new("python3")
-        .args(["-c", &format!("import {module}")])
-        .output();
-    if matches!(probe, Ok(ref o) if o.status.success()) {
-        return true;
-    }
-    common::missing(&format!("{module} not installed ({install})"))
-}
-
 #[test]
 fn a_broken_minimalmodbus_adapter_that_accepts_every_checksum_is_caught() {
-    if !python_has(
-        "minimalmodbus",
-        "pip install -r adapters/minimalmodbus/requirements.txt",
-    ) {
+    if !common::need(Peer::Minimalmodbus) {
         return;
     }
     let adapter = concat!(
@@ -230,12 +209,15 @@ fn a_broken_minimalmodbus_adapter_that_accepts_every_checksum_is_caught() {
     );
     // The F510 manual's 03H response as printed has a wrong CRC: minimalmodbus refuses it.
     let erratum = "vector.f510.03.rtu.response.decode";
-    let (o, v) = gate(&format!("python3 {adapter}"), &["--only", erratum]);
+    let (o, v) = gate(&format!("{} {adapter}", python()), &["--only", erratum]);
     assert_eq!(o.status.code(), Some(0), "{}", v["summary"]);
     assert_eq!(status_of(&v, erratum), "pass");
     // The broken variant mends every checksum before minimalmodbus sees it.
     let (o, v) = gate(
-        &format!("MINIMALMODBUS_ADAPTER_BREAK=accept-bad-checksum python3 {adapter}"),
+        &format!(
+            "MINIMALMODBUS_ADAPTER_BREAK=accept-bad-checksum {} {adapter}",
+            python()
+        ),
         &["--count", "200"],
     );
     assert_eq!(o.status.code(), Some(1), "{}", v["summary"]);
@@ -329,9 +311,7 @@ fn an_adapter_that_rejects_every_frame_may_reject_responses_that_answer_no_reque
 
 #[test]
 fn the_libmodbus_adapter_drives_libmodbus_over_a_pty_and_completes() {
-    if !std::path::Path::new("/usr/include/modbus/modbus.h").exists()
-        && !common::missing("libmodbus-dev not installed (apt-get install libmodbus-dev)")
-    {
+    if !common::need(Peer::Libmodbus) {
         return;
     }
     let adapter = concat!(
@@ -339,7 +319,7 @@ fn the_libmodbus_adapter_drives_libmodbus_over_a_pty_and_completes() {
         "/../adapters/libmodbus/adapter.py"
     );
     let (o, v) = gate(
-        &format!("python3 {adapter}"),
+        &format!("{} {adapter}", python()),
         &["--only", "vector.f510.*.rtu.*", "--timeout", "5000"],
     );
     assert_eq!(v["codec"]["implementation"], "libmodbus");

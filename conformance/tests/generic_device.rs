@@ -1,6 +1,6 @@
 //! The runner against a device that nobody here wrote: pymodbus's serial server, set up as
 //! a generic holding-register device (no TECO registers, no TECO exception rules), on a
-//! pseudo-terminal pair made by socat, checked as an F510. The run must complete, report
+//! pseudo-terminal pair (tests/common's `pty_pair`), checked as an F510. The run must complete, report
 //! the deviations a generic device has from the F510 manual, and neither panic nor hang.
 
 mod common;

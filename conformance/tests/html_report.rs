@@ -29,12 +29,9 @@ fn path(p: &Path) -> &str {
 }
 
 fn chromium() -> Option<&'static str> {
-    ["chromium", "chromium-browser"].into_iter().find(|c| {
-        Command::new(c)
-            .arg("--version")
-            .output()
-            .is_ok_and(|o| o.status.success())
-    })
+    common::need(common::Peer::Chromium)
+        .then(common::chromium)
+        .flatten()
 }
 
 /// Headless Chromium on `page`: the DOM after the page's script ran, and the browser's
@@ -237,7 +234,6 @@ fn html_csv_and_diff_of_a_clean_and_a_quirky_run() {
     assert!(!hostile_page.contains("<b onmouseover"));
 
     let Some(chromium) = chromium() else {
-        common::missing("chromium is not installed (apt-get install chromium)");
         return;
     };
     for ((name, page), report) in pages.iter().zip([&clean, &quirk, &hostile]) {
@@ -573,7 +569,6 @@ fn a_report_of_several_nodes_renders_per_node_and_diffs_by_node() {
     let html = std::fs::read_to_string(&page).unwrap();
     assert!(html.contains("<table id=\"nodes\">"));
     let Some(chromium) = chromium() else {
-        eprintln!("chromium not installed: the page is not loaded in a browser");
         return;
     };
     let linked = format!("{}#node=05&status=error", page.display());

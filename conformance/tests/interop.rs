@@ -23,10 +23,11 @@
 //!   and works (its request always changes something else too, since libmodbus restores
 //!   the old settings on close); pymodbus sets the port up twice and so always fails with
 //!   8E1 on a pty, and the script falls back to 8N1 (see tests/interop/pymodbus_master.py).
-//! - The Python interpreter is `python3`, or `$INTEROP_PYTHON` when set.
+//! - The Python interpreter is `common::python()`: `target/peers/venv` where
+//!   `scripts/install-peers` made it, `$PEERS_PYTHON` when set, else `python3`.
 
 mod common;
-use common::{missing, note};
+use common::{need, note, python, Peer};
 
 use std::io::{BufRead, BufReader, Read};
 use std::path::{Path, PathBuf};
@@ -241,38 +242,11 @@ fn run_bounded(cmd: &mut Command) -> std::io::Result<Run> {
 // Missing tools: SKIPPED, or a failure under CI.
 
 fn have_mbpoll() -> bool {
-    match run_bounded(Command::new("mbpoll").arg("-V")) {
-        Ok(r) if r.status.success() => true,
-        Ok(r) => missing(&format!(
-            "mbpoll -V failed ({}) (apt-get install mbpoll)",
-            r.status
-        )),
-        Err(e) => missing(&format!(
-            "mbpoll not installed (apt-get install mbpoll) [cannot run mbpoll: {e}]"
-        )),
-    }
-}
-
-fn python() -> String {
-    std::env::var("INTEROP_PYTHON").unwrap_or_else(|_| "python3".into())
+    need(Peer::Mbpoll)
 }
 
 fn have_pymodbus() -> bool {
-    let py = python();
-    let probe = run_bounded(
-        Command::new(&py).args(["-c", "import pymodbus, serial; print(pymodbus.__version__)"]),
-    );
-    match probe {
-        Ok(r) if r.status.success() => true,
-        Ok(r) => missing(&format!(
-            "pymodbus/pyserial not importable by {py} (pip install pymodbus pyserial): {}",
-            r.stderr.lines().last().unwrap_or_default()
-        )),
-        Err(e) => missing(&format!(
-            "{py} not installed (apt-get install python3; pip install pymodbus pyserial) \
-             [cannot run {py}: {e}]"
-        )),
-    }
+    need(Peer::Pymodbus)
 }
 
 // ---------------------------------------------------------------------------------------

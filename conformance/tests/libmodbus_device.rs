@@ -1,6 +1,6 @@
 //! The runner against a second device that nobody here wrote: libmodbus's RTU server
 //! (Debian libmodbus-dev 3.1.6), a small C program (`tests/libmodbus/server.c`) that this
-//! test builds with `cc` and runs on one end of a socat pseudo-terminal pair, serving
+//! test builds with `cc` and runs on one end of a pseudo-terminal pair (`common::pty_pair`), serving
 //! 65536 holding registers (0000H..FFFFH, all zero) and nothing TECO-specific. It is
 //! checked as an F510 in RTU (libmodbus has no ASCII mode). The run must complete, with
 //! exit code 1, no ERROR, no panic, in bounded time, and report the deviations that are
@@ -44,12 +44,12 @@
 //!   value FFFFH to 2502H are taken: observations (the F510 manual does not say which
 //!   exception they get; the model decides).
 //!
-//! A missing tool (socat, cc, pkg-config, libmodbus-dev) makes the test print
+//! A missing tool (cc, pkg-config, libmodbus-dev) makes the test print
 //! `SKIPPED: ...` and pass, except when the environment variable `CI` is set: then it
 //! fails.
 
 mod common;
-use common::{runs, tool_or_skip, Kill, SerialPeer};
+use common::{cc, need, Kill, Peer, SerialPeer};
 
 use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
@@ -61,17 +61,7 @@ const SERVER_C: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/libmodbus/ser
 
 /// Builds the server into `dir`; `None` (after SKIPPED) when a tool is missing.
 fn build_server(dir: &Path) -> Option<PathBuf> {
-    let install = "apt-get install socat gcc pkg-config libmodbus-dev";
-    if !tool_or_skip(
-        runs("socat", &["-V"]),
-        &format!("socat not installed ({install})"),
-    ) || !tool_or_skip(
-        runs("cc", &["--version"]),
-        &format!("no C compiler `cc` ({install})"),
-    ) || !tool_or_skip(
-        runs("pkg-config", &["--exists", "libmodbus"]),
-        &format!("libmodbus-dev or pkg-config not installed ({install})"),
-    ) {
+    if !need(Peer::Libmodbus) {
         return None;
     }
     let flags = Command::new("pkg-config")
@@ -81,7 +71,7 @@ fn build_server(dir: &Path) -> Option<PathBuf> {
     assert!(flags.status.success());
     let flags = String::from_utf8(flags.stdout).unwrap();
     let exe = dir.join("libmodbus-server");
-    let out = Command::new("cc")
+    let out = Command::new(cc())
         .args(["-Wall", "-Wextra", "-Werror", "-O2", "-o"])
         .arg(&exe)
         .arg(SERVER_C)
@@ -113,11 +103,11 @@ fn status<'a>(v: &'a serde_json::Value, id: &str, want: &str) -> &'a serde_json:
     &c["exchanges"][0]
 }
 
-/// The server built and started on one end of a socat pair: the guards and the runner's
+/// The server built and started on one end of a pseudo-terminal pair: the guards and the runner's
 /// end (None after SKIPPED when a tool is missing).
 fn start(dir: &Path) -> Option<SerialPeer> {
     let server = build_server(dir)?;
-    let (socat, a, b) = common::socat_pair(dir);
+    let (line, a, b) = common::pty_pair(dir);
     let mut server = Kill::spawn(
         Command::new(&server)
             .args([a.to_str().unwrap(), "1"])
@@ -140,7 +130,7 @@ fn start(dir: &Path) -> Option<SerialPeer> {
     );
     Some(SerialPeer {
         device: server,
-        socat,
+        line,
         port: b,
     })
 }
@@ -150,7 +140,7 @@ fn libmodbus_rtu_server_checked_as_f510() {
     let dir = std::env::temp_dir().join(format!("teco-libmodbus-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     let Some(SerialPeer {
-        socat: _socat,
+        line: _line,
         device: mut server,
         port: b,
     }) = start(&dir)

@@ -13,7 +13,9 @@
 //! A missing tool prints `SKIPPED: ...` and returns, except under `CI`, where it fails.
 
 mod common;
-use common::{bin, check_device, have, pymodbus_tcp_server, report_of, run_bounded, GatewaySim};
+use common::{
+    bin, check_device, need, pymodbus_tcp_server, python, report_of, run_bounded, GatewaySim, Peer,
+};
 
 use std::process::{Command, Stdio};
 use std::time::Duration;
@@ -54,11 +56,7 @@ fn mbpoll_values(stdout: &str) -> Vec<String> {
 
 #[test]
 fn mbpoll_reads_and_writes_through_mbap() {
-    if !have(
-        "mbpoll",
-        &["-V"],
-        "mbpoll not installed (apt-get install mbpoll)",
-    ) {
+    if !need(Peer::Mbpoll) {
         return;
     }
     let sim = GatewaySim::start("f510", 3, &["--gateway-timeout", "50"]);
@@ -93,11 +91,7 @@ fn mbpoll_reads_and_writes_through_mbap() {
 
 #[test]
 fn pymodbus_tcp_client_against_the_simulated_gateway() {
-    if !have(
-        "python3",
-        &["-c", "import pymodbus.client"],
-        "pymodbus not installed (pip install pymodbus)",
-    ) {
+    if !need(Peer::Pymodbus) {
         return;
     }
     let sim = GatewaySim::start("f510", 1, &["--gateway-timeout", "50"]);
@@ -106,7 +100,7 @@ fn pymodbus_tcp_client_against_the_simulated_gateway() {
         "/tests/interop/pymodbus_tcp_master.py"
     );
     let (ok, out, err) =
-        run(Command::new("python3").args([script, "127.0.0.1", sim.port(), "1", "--absent", "7"]));
+        run(Command::new(python()).args([script, "127.0.0.1", sim.port(), "1", "--absent", "7"]));
     assert!(ok, "{out}{err}");
     // Every operation ran and passed (the script checks the values).
     let ops: Vec<serde_json::Value> = out

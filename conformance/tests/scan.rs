@@ -6,12 +6,12 @@
 
 mod common;
 
-use std::process::{Command, Stdio};
+use std::process::Command;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-use common::{run_bounded, sim_pty, socat_pair, tool_or_skip};
+use common::{need, pty_pair, run_bounded, sim_pty, Peer};
 use conformance::codec::timing::{LineSettings, Parity};
 use conformance::codec::{frame_of_body, Mode};
 use conformance::scan::link::SerialLink;
@@ -92,7 +92,7 @@ fn scan_finds_a_simulator_at_an_unusual_setting() {
 #[test]
 fn an_empty_line_finds_nothing_with_exit_1() {
     let dir = tempfile_dir("empty");
-    let (_socat, a, _b) = socat_pair(&dir);
+    let (_line, a, _b) = pty_pair(&dir);
     let a = a.to_string_lossy().into_owned();
     let (code, out, err) = run_bounded(
         &[
@@ -261,13 +261,7 @@ fn rts_needs_a_port_with_an_rts_line() {
 /// as from a real drive.
 #[test]
 fn mbpoll_against_the_emulated_line() {
-    let have = Command::new("mbpoll")
-        .arg("-h")
-        .stdout(Stdio::null())
-        .stderr(Stdio::null())
-        .status()
-        .is_ok();
-    if !tool_or_skip(have, "mbpoll is not installed") {
+    if !need(Peer::Mbpoll) {
         return;
     }
     let (_sim, path) = sim_pty(&[

@@ -6,7 +6,7 @@
 //! wrote (mbpoll, minimalmodbus) against the simulated bus.
 
 mod common;
-use common::{tool_or_skip, Kill};
+use common::Kill;
 
 use std::collections::BTreeMap;
 use std::process::{Command, Stdio};
@@ -395,14 +395,7 @@ fn pymodbus_serving_two_nodes_is_checked_node_by_node() {
 /// node answers with its own address and keeps its own registers; node 3 is silent.
 #[test]
 fn foreign_masters_see_three_drives_on_the_simulated_bus() {
-    let mbpoll = common::runs("sh", &["-c", "command -v mbpoll"]);
-    let minimal = common::runs("python3", &["-c", "import minimalmodbus"]);
-    if !tool_or_skip(mbpoll, "mbpoll not installed (apt-get install mbpoll)")
-        || !tool_or_skip(
-            minimal,
-            "minimalmodbus not installed (pip install minimalmodbus)",
-        )
-    {
+    if !common::need_all(&[common::Peer::Mbpoll, common::Peer::Minimalmodbus]) {
         return;
     }
     let d = dir("masters");
@@ -470,7 +463,7 @@ fn foreign_masters_see_three_drives_on_the_simulated_bus() {
          except minimalmodbus.NoResponseError:\n\
          \x20   print('3 silent')\n"
     );
-    let o = Command::new("python3")
+    let o = Command::new(common::python())
         .args(["-c", &script])
         .output()
         .unwrap();
@@ -561,7 +554,7 @@ fn several_nodes_through_a_modbus_tcp_gateway() {
         .contains("each node's unit id is its address"));
     // mbpoll through the simulated gateway: units 1 and 2 answer, unit 3 gets the
     // gateway's exception 0BH.
-    if common::runs("sh", &["-c", "command -v mbpoll"]) {
+    if common::need(common::Peer::Mbpoll) {
         let poll = |unit: &str| {
             let o = Command::new("mbpoll")
                 .args([
@@ -588,8 +581,6 @@ fn several_nodes_through_a_modbus_tcp_gateway() {
             "mbpoll -m tcp -a 3 through the simulated gateway: {}",
             out.lines().last().unwrap_or("")
         );
-    } else {
-        tool_or_skip(false, "mbpoll not installed (apt-get install mbpoll)");
     }
     let o = Command::new(common::bin())
         .args([

@@ -1,5 +1,5 @@
 //! The peers the integration tests start and stop: the simulator (on a pseudo-terminal
-//! or as a Modbus TCP gateway), socat pseudo-terminal pairs, pymodbus's serial and TCP
+//! or as a Modbus TCP gateway), pseudo-terminal pairs, pymodbus's serial and TCP
 //! servers; the guard that kills and reaps each of them when the test ends, also when it
 //! fails; and the waits for a path, a port or a banner to appear.
 
@@ -9,7 +9,7 @@ use std::process::{Command, ExitStatus, Stdio};
 use std::sync::{mpsc, Arc, Mutex};
 use std::time::{Duration, Instant};
 
-use super::{bin, note, tool_or_skip};
+use super::{bin, need, note, python, Peer};
 
 /// A child process that is killed and reaped when the guard goes, also when a test fails.
 pub struct Kill(pub std::process::Child);
@@ -61,11 +61,6 @@ pub fn runs(cmd: &str, args: &[&str]) -> bool {
         .stderr(Stdio::null())
         .status()
         .is_ok_and(|s| s.success())
-}
-
-/// Whether `cmd ARGS` runs and succeeds; if not, `SKIPPED: <what>` (a failure under CI).
-pub fn have(cmd: &str, args: &[&str], what: &str) -> bool {
-    tool_or_skip(runs(cmd, args), what)
 }
 
 /// Runs `conformance ARGS`, bounded by `limit` (a hang fails the test), asserts it did
@@ -123,19 +118,98 @@ pub fn free_port() -> u16 {
         .port()
 }
 
-/// A socat pseudo-terminal pair linked at `dir/ttyA` and `dir/ttyB`: a line between a
-/// device under test (on A) and the runner (on B).
-pub fn socat_pair(dir: &Path) -> (Kill, PathBuf, PathBuf) {
+/// Two pseudo-terminals joined back to back, linked at `dir/ttyA` and `dir/ttyB`: a line
+/// between a device under test (on A) and the runner (on B), as `socat pty pty` makes one,
+/// but with nothing to install. This process holds both masters and copies every byte
+/// from one to the other on a thread, at once (no line timing), until the guard goes.
+pub struct PtyPair {
+    stop: Arc<std::sync::atomic::AtomicBool>,
+    thread: Option<std::thread::JoinHandle<()>>,
+    links: [PathBuf; 2],
+}
+
+impl Drop for PtyPair {
+    fn drop(&mut self) {
+        self.stop.store(true, std::sync::atomic::Ordering::Relaxed);
+        if let Some(t) = self.thread.take() {
+            let _ = t.join();
+        }
+        for l in &self.links {
+            let _ = std::fs::remove_file(l);
+        }
+    }
+}
+
+/// One raw pseudo-terminal: its master, its slave (held open so that the master never
+/// reads a hang-up while no program has the slave open) and the slave's path.
+fn raw_pty() -> (std::os::fd::OwnedFd, std::os::fd::OwnedFd, PathBuf) {
+    use nix::sys::termios::{cfmakeraw, tcgetattr, tcsetattr, SetArg};
+    let pair = nix::pty::openpty(None, None).expect("openpty");
+    let mut t = tcgetattr(&pair.slave).unwrap();
+    cfmakeraw(&mut t);
+    tcsetattr(&pair.slave, SetArg::TCSANOW, &t).unwrap();
+    let path = nix::unistd::ttyname(&pair.slave).unwrap();
+    (pair.master, pair.slave, path)
+}
+
+/// A [`PtyPair`] in `dir`: the guard and the paths of ends A and B.
+pub fn pty_pair(dir: &Path) -> (PtyPair, PathBuf, PathBuf) {
+    use nix::poll::{poll, PollFd, PollFlags, PollTimeout};
+    use std::os::fd::AsFd;
     let (a, b) = (dir.join("ttyA"), dir.join("ttyB"));
-    let socat = Kill::spawn(
-        Command::new("socat")
-            .arg(format!("pty,raw,echo=0,link={}", a.display()))
-            .arg(format!("pty,raw,echo=0,link={}", b.display()))
-            .stderr(Stdio::null()),
-    );
-    wait_for(&a);
-    wait_for(&b);
-    (socat, a, b)
+    let (ma, sa, pa) = raw_pty();
+    let (mb, sb, pb) = raw_pty();
+    for (link, target) in [(&a, &pa), (&b, &pb)] {
+        let _ = std::fs::remove_file(link);
+        std::os::unix::fs::symlink(target, link).unwrap();
+    }
+    let stop = Arc::new(std::sync::atomic::AtomicBool::new(false));
+    let halt = stop.clone();
+    let thread = std::thread::spawn(move || {
+        let _slaves = (sa, sb);
+        let mut buf = [0u8; 4096];
+        while !halt.load(std::sync::atomic::Ordering::Relaxed) {
+            let mut fds = [
+                PollFd::new(ma.as_fd(), PollFlags::POLLIN),
+                PollFd::new(mb.as_fd(), PollFlags::POLLIN),
+            ];
+            match poll(&mut fds, PollTimeout::from(20u8)) {
+                Ok(0) | Err(nix::errno::Errno::EINTR) => continue,
+                Ok(_) => {}
+                Err(e) => panic!("poll on the pty pair: {e}"),
+            }
+            let ready = fds.map(|f| f.revents().is_some_and(|r| r.intersects(PollFlags::POLLIN)));
+            for (from, to, is_ready) in [(&ma, &mb, ready[0]), (&mb, &ma, ready[1])] {
+                if !is_ready {
+                    continue;
+                }
+                match nix::unistd::read(from, &mut buf) {
+                    Ok(n) if n > 0 => {
+                        let mut rest = &buf[..n];
+                        while !rest.is_empty() {
+                            match nix::unistd::write(to, rest) {
+                                Ok(w) => rest = &rest[w..],
+                                Err(nix::errno::Errno::EINTR | nix::errno::Errno::EAGAIN) => {}
+                                Err(e) => panic!("write on the pty pair: {e}"),
+                            }
+                        }
+                    }
+                    // EIO: no program has that end open (the slave this thread holds
+                    // keeps it from happening; tolerated all the same).
+                    _ => std::thread::sleep(Duration::from_millis(5)),
+                }
+            }
+        }
+    });
+    (
+        PtyPair {
+            stop,
+            thread: Some(thread),
+            links: [a.clone(), b.clone()],
+        },
+        a,
+        b,
+    )
 }
 
 /// Starts `conformance simulate --pty -q ARGS` and returns it with the pty slave path
@@ -159,30 +233,16 @@ pub fn sim_pty(args: &[&str]) -> (Kill, String) {
     (child, path)
 }
 
-/// A device on one end of a socat pseudo-terminal pair: the guards (the device goes
-/// first, then the line) and the runner's end of the line.
+/// A device on one end of a [`PtyPair`]: the guards (the device goes first, then the
+/// line) and the runner's end of the line.
 pub struct SerialPeer {
     pub device: Kill,
-    pub socat: Kill,
+    pub line: PtyPair,
     pub port: PathBuf,
 }
 
-/// Whether socat and pymodbus (with pyserial) are here; if not, SKIPPED (a failure
-/// under CI).
-pub fn have_pymodbus_serial() -> bool {
-    have(
-        "socat",
-        &["-V"],
-        "socat not installed (apt-get install socat)",
-    ) && have(
-        "python3",
-        &["-c", "import pymodbus, serial"],
-        "pymodbus not installed (pip install 'pymodbus[serial]==3.16.1')",
-    )
-}
-
 /// pymodbus's generic serial server (tests/interop/pymodbus_server.py) in `mode` on one
-/// end of a socat pair in `dir`, answering; None (after SKIPPED) when a tool is missing.
+/// end of a [`PtyPair`] in `dir`, answering; None (after SKIPPED) when pymodbus is missing.
 pub fn pymodbus_serial_server(dir: &Path, mode: &str) -> Option<SerialPeer> {
     pymodbus_serial_nodes(dir, mode, "1")
 }
@@ -190,16 +250,16 @@ pub fn pymodbus_serial_server(dir: &Path, mode: &str) -> Option<SerialPeer> {
 /// [`pymodbus_serial_server`] serving the node addresses `nodes` ("1,2"), each with its
 /// own registers.
 pub fn pymodbus_serial_nodes(dir: &Path, mode: &str, nodes: &str) -> Option<SerialPeer> {
-    if !have_pymodbus_serial() {
+    if !need(Peer::Pymodbus) {
         return None;
     }
-    let (socat, a, b) = socat_pair(dir);
+    let (line, a, b) = pty_pair(dir);
     let server = concat!(
         env!("CARGO_MANIFEST_DIR"),
         "/tests/interop/pymodbus_server.py"
     );
     let device = Kill::spawn(
-        Command::new("python3")
+        Command::new(python())
             .args([server, a.to_str().unwrap(), mode, "--address", nodes])
             .stderr(Stdio::null()),
     );
@@ -207,7 +267,7 @@ pub fn pymodbus_serial_nodes(dir: &Path, mode: &str, nodes: &str) -> Option<Seri
     super::wait_until_answers(&b, mode, &["-P", "none", "-a", first]);
     Some(SerialPeer {
         device,
-        socat,
+        line,
         port: b,
     })
 }
@@ -222,11 +282,7 @@ pub fn pymodbus_tcp_server(unit: u8) -> Option<(Kill, String)> {
 /// [`pymodbus_tcp_server`] serving the unit ids `units` ("1,2"), each with its own
 /// registers.
 pub fn pymodbus_tcp_units(units: &str) -> Option<(Kill, String)> {
-    if !have(
-        "python3",
-        &["-c", "import pymodbus.server"],
-        "pymodbus not installed (pip install pymodbus)",
-    ) {
+    if !need(Peer::Pymodbus) {
         return None;
     }
     let port = free_port().to_string();
@@ -235,7 +291,7 @@ pub fn pymodbus_tcp_units(units: &str) -> Option<(Kill, String)> {
         "/tests/interop/pymodbus_tcp_server.py"
     );
     let guard = Kill::spawn(
-        Command::new("python3")
+        Command::new(python())
             .args([server, &port, "--unit", units])
             .stderr(Stdio::null()),
     );
