@@ -166,7 +166,7 @@ pub fn run(mut args: CheckArgs) -> anyhow::Result<ExitCode> {
         }
         let link = args.target.resolve_link(false, None)?;
         let config = identify_cmd::config(&args.target, link, &args.identify)?;
-        let flag = identify_cmd::stop_flag()?;
+        let flag = super::interrupt::stop_flag()?;
         let t0 = std::time::Instant::now();
         let id = identify_cmd::identify_device(&config, &flag, args.quiet)?;
         let took = t0.elapsed();
@@ -273,7 +273,7 @@ pub fn run(mut args: CheckArgs) -> anyhow::Result<ExitCode> {
 
     let stop = match stop {
         Some(s) => s,
-        None => identify_cmd::stop_flag()?,
+        None => super::interrupt::stop_flag()?,
     };
     let total = session::planned(&config);
     if total == 0 {

@@ -4,11 +4,9 @@
 use std::io::IsTerminal;
 use std::path::PathBuf;
 use std::process::ExitCode;
-use std::sync::atomic::{AtomicBool, Ordering};
-use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-use anyhow::{bail, Context};
+use anyhow::bail;
 use clap::Args;
 use conformance::codec::Mode;
 use conformance::fuzz::{FuzzConfig, Writes};
@@ -221,12 +219,7 @@ pub fn run(args: FuzzArgs) -> anyhow::Result<ExitCode> {
         line,
         options,
     };
-    let stop = Arc::new(AtomicBool::new(false));
-    {
-        let stop = stop.clone();
-        ctrlc::set_handler(move || stop.store(true, Ordering::Relaxed))
-            .context("cannot install the Ctrl-C handler")?;
-    }
+    let stop = super::interrupt::stop_flag()?;
     let bar = if !args.quiet && std::io::stderr().is_terminal() {
         let b = indicatif::ProgressBar::new(cases.unwrap_or(0));
         b.set_style(

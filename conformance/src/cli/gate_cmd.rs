@@ -129,6 +129,7 @@ pub fn run(args: GateArgs) -> anyhow::Result<ExitCode> {
             args.only.join(" --only ")
         );
     }
+    let stop = super::interrupt::stop_flag()?;
     let mut adapter = Adapter::start(&args.codec, opts.timeout)?;
     let hello = adapter.hello.clone();
     let started = humantime::format_rfc3339_seconds(SystemTime::now()).to_string();
@@ -168,7 +169,7 @@ pub fn run(args: GateArgs) -> anyhow::Result<ExitCode> {
         verbose: args.verbose,
         error: None,
     };
-    gate::run(&mut adapter, &cases, &mut progress);
+    gate::run(&mut adapter, &cases, &stop, &mut progress);
     if let Some(b) = &progress.bar {
         b.finish_and_clear();
     }
@@ -186,6 +187,14 @@ pub fn run(args: GateArgs) -> anyhow::Result<ExitCode> {
     if gone > 0 {
         report.stopped = Some(format!(
             "the adapter exited twice; {gone} cases could not run"
+        ));
+    }
+    if stop.load(std::sync::atomic::Ordering::Relaxed) {
+        report.complete = false;
+        report.stopped = Some(format!(
+            "interrupted after {} of {} cases",
+            report.results.len(),
+            cases.len()
         ));
     }
     report.finished = Some(humantime::format_rfc3339_seconds(SystemTime::now()).to_string());

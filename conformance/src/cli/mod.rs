@@ -6,6 +6,7 @@ mod common;
 mod fuzz_cmd;
 mod gate_cmd;
 mod identify_cmd;
+mod interrupt;
 mod link;
 mod model_cmd;
 mod report_cmd;
