@@ -1,6 +1,9 @@
 //! The command line, run as a user would run it.
 
+mod common;
+
 use std::process::Command;
+use std::time::Duration;
 
 fn conformance(args: &[&str]) -> (i32, String) {
     let (code, stdout, stderr) = conformance_split(args);
@@ -216,4 +219,112 @@ fn vectors_verify_passes_and_export_is_json() {
     let (code, out) = conformance(&["vectors", "list", "--model", "f510", "--verdict", "erratum"]);
     assert_eq!(code, 0, "{out}");
     assert!(out.contains("f510.03.rtu.response"), "{out}");
+}
+
+#[test]
+fn a_bare_duration_is_seconds() {
+    // `--duration 90` was refused ("time unit needed").
+    let (code, out, err) = common::run_bounded(
+        &[
+            "fuzz",
+            "--sim",
+            "f510",
+            "--mode",
+            "rtu",
+            "--no-pace",
+            "--duration",
+            "1",
+            "--format",
+            "json",
+            "--quiet",
+        ],
+        Duration::from_secs(120),
+    );
+    assert!(matches!(code, Some(0 | 1)), "{err}");
+    let v: serde_json::Value = serde_json::from_str(&out).unwrap();
+    let m = &v["fuzz"]["modes"][0];
+    // Cases until one second had passed: not one case limit, not a millisecond.
+    assert!(m["cases"].as_u64().unwrap() > 0, "{m}");
+    assert!(m["elapsed_ms"].as_f64().unwrap() >= 1000.0, "{m}");
+    // A unit still works, and a wrong one names the rule.
+    let (code, _, err) = conformance_split(&["fuzz", "--sim", "f510", "--duration", "5parsecs"]);
+    assert_eq!(code, 2);
+    assert!(
+        err.contains("\"5parsecs\" is not a duration")
+            && err.contains("a bare number is seconds (90, 1.5)"),
+        "{err}"
+    );
+    let (code, _, err) = conformance_split(&["fuzz", "--sim", "f510", "--recover-wait", "1.5.2"]);
+    assert_eq!(code, 2);
+    assert!(err.contains("\"1.5.2\" is not a duration"), "{err}");
+    let (_, help) = conformance(&["fuzz", "--help"]);
+    assert!(help.contains("a bare number is seconds (90)"), "{help}");
+    let (_, help) = conformance(&["send", "--help"]);
+    assert!(help.contains("a bare number is seconds"), "{help}");
+}
+
+#[test]
+fn a_missing_port_is_named_once() {
+    let (code, out, err) =
+        conformance_split(&["check", "--model", "f510", "--port", "/nonexistent/ttyUSB9"]);
+    assert_eq!(code, 2, "{out}{err}");
+    assert_eq!(
+        err,
+        "error: cannot open /nonexistent/ttyUSB9: No such file or directory\n"
+    );
+    assert!(out.is_empty(), "{out}");
+}
+
+#[test]
+fn report_writes_text_unless_html_is_asked_for() {
+    let dir = std::path::Path::new(env!("CARGO_TARGET_TMPDIR")).join("cli-report-format");
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    let json = dir.join("run.json");
+    let (code, _, err) = common::run_bounded(
+        &[
+            "check",
+            "--sim",
+            "f510",
+            "--mode",
+            "rtu",
+            "--only",
+            "identification",
+            "--format",
+            "json",
+            "--quiet",
+            "-o",
+            json.to_str().unwrap(),
+        ],
+        Duration::from_secs(120),
+    );
+    assert!(matches!(code, Some(0 | 1)), "{err}");
+    let json = json.to_str().unwrap();
+    // No --format: text on stdout.
+    let (code, out, _) = conformance_split(&["report", json]);
+    assert_eq!(code, 0);
+    assert!(
+        out.starts_with("TECO Modbus conformance report"),
+        "{}",
+        &out[..out.len().min(200)]
+    );
+    assert!(!out.contains("<html"), "HTML on the terminal");
+    // -o FILE.html: the page; -o with another extension: text; --format wins.
+    let page = dir.join("run.html");
+    let (code, _, _) = conformance_split(&["report", json, "-o", page.to_str().unwrap()]);
+    assert_eq!(code, 0);
+    assert!(std::fs::read_to_string(&page)
+        .unwrap()
+        .starts_with("<!DOCTYPE html>"));
+    let txt = dir.join("run.txt");
+    let (code, _, _) = conformance_split(&["report", json, "-o", txt.to_str().unwrap()]);
+    assert_eq!(code, 0);
+    assert!(std::fs::read_to_string(&txt)
+        .unwrap()
+        .starts_with("TECO Modbus conformance report"));
+    let (code, out, _) = conformance_split(&["report", json, "--format", "html"]);
+    assert_eq!(code, 0);
+    assert!(out.starts_with("<!DOCTYPE html>"));
+    let (_, help) = conformance(&["report", "--help"]);
+    assert!(help.contains("Default: text"), "{help}");
 }

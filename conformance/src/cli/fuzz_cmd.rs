@@ -14,6 +14,7 @@ use conformance::runner::Options;
 use conformance::session::{self, SessionConfig};
 
 use super::check_cmd::{finish, Format};
+use super::common::parse_duration;
 use super::link::{Resolved, SafetyArgs, TargetArgs};
 
 const AFTER_HELP: &str = "\
@@ -91,15 +92,17 @@ pub struct FuzzArgs {
     /// Cases per mode (default 2000 when --duration is not given).
     #[arg(long, value_name = "N")]
     cases: Option<u64>,
-    /// Time per mode (e.g. 30s, 10m); with --cases, whichever comes first.
-    #[arg(long, value_name = "TIME")]
-    duration: Option<humantime::Duration>,
+    /// Time per mode: a bare number is seconds (90), or with a unit (30s, 10m, 1h);
+    /// with --cases, whichever comes first.
+    #[arg(long, value_name = "TIME", value_parser = parse_duration)]
+    duration: Option<Duration>,
     /// A liveness probe at least every K cases (besides the one after every silence).
     #[arg(long, value_name = "K", default_value_t = 50)]
     probe_every: u64,
-    /// How long to wait for a device that stopped answering to come back.
-    #[arg(long, value_name = "TIME", default_value = "10s")]
-    recover_wait: humantime::Duration,
+    /// How long to wait for a device that stopped answering to come back (a bare number
+    /// is seconds; or 500ms, 1m).
+    #[arg(long, value_name = "TIME", default_value = "10s", value_parser = parse_duration)]
+    recover_wait: Duration,
     /// Do not minimize findings by replaying.
     #[arg(long)]
     no_minimize: bool,
@@ -184,10 +187,10 @@ pub fn run(args: FuzzArgs) -> anyhow::Result<ExitCode> {
     let cfg = FuzzConfig {
         seed: args.seed,
         cases,
-        duration: args.duration.map(Into::into),
+        duration: args.duration,
         writes: args.writes,
         probe_every: args.probe_every.max(1),
-        recover_wait: args.recover_wait.into(),
+        recover_wait: args.recover_wait,
         minimize: !args.no_minimize,
         replay: args.target.replay_prefix("send", &model.id),
         storm: args.storm.then_some(conformance::fuzz::storm::StormConfig {

@@ -58,7 +58,7 @@ enum Command {
     Scan(scan_cmd::ScanArgs),
     /// Check another Modbus codec through an adapter (adapters/PROTOCOL.md).
     Gate(gate_cmd::GateArgs),
-    /// Render a saved JSON report as HTML, text, JUnit XML, CSV or JSON.
+    /// Render a saved JSON report as text (the default), HTML, JUnit XML, CSV or JSON.
     Report(report_cmd::ReportArgs),
     /// What changed between two runs of the same model (e.g. two firmware versions).
     Diff(report_cmd::DiffArgs),

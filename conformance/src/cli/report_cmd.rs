@@ -15,9 +15,10 @@ use super::common::Number;
 const REPORT_AFTER_HELP: &str = "\
 Examples:
   conformance check --sim f510 --format json -o run.json
-  conformance report run.json --format html -o run.html
+  conformance report run.json                  text on the terminal (the default)
+  conformance report run.json -o run.html      a page for people (the format from .html)
   conformance report run.json --format csv > run.csv
-  conformance report bus.json --format text       # a run of several nodes (check -a 1,2,5)
+  conformance report bus.json                  a run of several nodes (check -a 1,2,5)
 
 A report of a run of several nodes renders per node: text in one section per node and one
 for the bus checks, JUnit one suite per node and one for the bus, CSV with a node column,
@@ -31,15 +32,32 @@ pub struct ReportArgs {
     /// A JSON report written by `check` or `gate` (--format json).
     #[arg(value_name = "FILE.json")]
     file: PathBuf,
-    /// Output format.
-    #[arg(long, value_enum, default_value = "html")]
-    format: Format,
+    /// Output format. Default: text; with -o, the format the file's extension names
+    /// (.html, .json, .xml for JUnit, .csv; any other extension: text).
+    #[arg(long, value_enum)]
+    format: Option<Format>,
     /// Write here instead of stdout.
     #[arg(short, long, value_name = "FILE")]
     output: Option<PathBuf>,
     /// With --format text: list every passing check and every exchange.
     #[arg(short, long)]
     verbose: bool,
+}
+
+/// The format of `report`: the one asked for, else the one `-o`'s extension names, else
+/// text (a terminal gets text, never a page of HTML it did not ask for).
+fn report_format(asked: Option<Format>, output: Option<&Path>) -> Format {
+    let by_extension = || {
+        let ext = output?.extension()?.to_str()?.to_ascii_lowercase();
+        Some(match ext.as_str() {
+            "html" | "htm" => Format::Html,
+            "json" => Format::Json,
+            "xml" => Format::Junit,
+            "csv" => Format::Csv,
+            _ => return None,
+        })
+    };
+    asked.or_else(by_extension).unwrap_or(Format::Text)
 }
 
 /// Reads a JSON report, naming the file in every error.
@@ -64,8 +82,9 @@ pub fn emit(text: &str, output: Option<&Path>) -> anyhow::Result<()> {
 
 pub fn report(args: ReportArgs) -> anyhow::Result<ExitCode> {
     let report = load(&args.file)?;
+    let format = report_format(args.format, args.output.as_deref());
     emit(
-        &render(&report, args.format, args.verbose)?,
+        &render(&report, format, args.verbose)?,
         args.output.as_deref(),
     )?;
     Ok(ExitCode::SUCCESS)

@@ -51,9 +51,10 @@ pub struct SendArgs {
     /// which go out as one transmission), with --gap of silence at each cut.
     #[arg(long, value_name = "POS,...", value_delimiter = ',', requires = "gap")]
     split: Vec<usize>,
-    /// The silence at each --split cut (e.g. 2900us, 3ms).
-    #[arg(long, value_name = "TIME", requires = "split")]
-    gap: Option<humantime::Duration>,
+    /// The silence at each --split cut, with a unit (2900us, 3ms; a bare number is
+    /// seconds, as in every duration option).
+    #[arg(long, value_name = "TIME", requires = "split", value_parser = super::common::parse_duration)]
+    gap: Option<Duration>,
     /// The frames.
     #[arg(value_name = "FRAME", required = true)]
     frames: Vec<String>,
@@ -122,7 +123,7 @@ pub fn run(args: SendArgs) -> anyhow::Result<ExitCode> {
             &config,
             &frames,
             &args.split,
-            gap.into(),
+            gap,
         );
     }
     let sends: Vec<Vec<u8>> = if args.burst {
