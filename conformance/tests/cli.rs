@@ -328,3 +328,84 @@ fn report_writes_text_unless_html_is_asked_for() {
     let (_, help) = conformance(&["report", "--help"]);
     assert!(help.contains("Default: text"), "{help}");
 }
+
+#[test]
+fn fuzz_prints_plain_progress_when_piped_and_none_when_quiet() {
+    let args = [
+        "fuzz",
+        "--sim",
+        "f510",
+        "--mode",
+        "rtu",
+        "--no-pace",
+        "--duration",
+        "1",
+    ];
+    // stderr is a pipe here: plain lines, no bar.
+    let (code, out, err) = common::run_bounded(&args, Duration::from_secs(120));
+    assert!(matches!(code, Some(0 | 1)), "{err}");
+    assert!(err.contains("fuzz rtu: started\n"), "{err}");
+    let done = err
+        .lines()
+        .find(|l| l.starts_with("fuzz rtu: done: "))
+        .unwrap_or_else(|| panic!("no closing line: {err}"));
+    assert!(
+        done.contains(" cases in ") && done.contains(" cases/s, ") && done.ends_with(" finding(s)"),
+        "{done}"
+    );
+    assert!(
+        !err.contains('\r') && !err.contains('\x1b'),
+        "a bar: {err:?}"
+    );
+    // The text report gives each mode's cases, rate and findings without -v.
+    let campaign = out
+        .lines()
+        .find(|l| l.starts_with("fuzz:    rtu: "))
+        .unwrap_or_else(|| panic!("no campaign line: {out}"));
+    assert!(
+        campaign.contains(" cases in ")
+            && campaign.contains(" cases/s")
+            && campaign.ends_with(" finding signature(s)"),
+        "{campaign}"
+    );
+    let (code, _, err) = common::run_bounded(
+        &[&args[..], &["--quiet"]].concat(),
+        Duration::from_secs(120),
+    );
+    assert!(matches!(code, Some(0 | 1)), "{err}");
+    assert!(
+        !err.contains("fuzz rtu:"),
+        "--quiet printed progress: {err}"
+    );
+}
+
+#[test]
+fn fuzz_by_default_runs_a_short_campaign() {
+    let (_, help) = conformance(&["fuzz", "--help"]);
+    assert!(
+        help.contains("With neither --cases nor --duration a campaign runs 15 s per mode"),
+        "{help}"
+    );
+    // It runs for its 15 s (not a count of cases), and then ends (bounded above by
+    // run_bounded).
+    let (code, out, err) = common::run_bounded(
+        &[
+            "fuzz",
+            "--sim",
+            "f510",
+            "--mode",
+            "rtu",
+            "--no-pace",
+            "--format",
+            "json",
+            "--quiet",
+        ],
+        Duration::from_secs(180),
+    );
+    assert!(matches!(code, Some(0 | 1)), "{err}");
+    let v: serde_json::Value = serde_json::from_str(&out).unwrap();
+    let m = &v["fuzz"]["modes"][0];
+    let ms = m["elapsed_ms"].as_f64().unwrap();
+    assert!(ms >= 15_000.0, "{m}");
+    assert!(m["cases"].as_u64().unwrap() > 0, "{m}");
+}
