@@ -409,3 +409,75 @@ fn fuzz_by_default_runs_a_short_campaign() {
     assert!(ms >= 15_000.0, "{m}");
     assert!(m["cases"].as_u64().unwrap() > 0, "{m}");
 }
+
+#[test]
+fn a_pseudo_terminal_has_no_line_bound() {
+    let dir = std::path::Path::new(env!("CARGO_TARGET_TMPDIR")).join("cli-pty-bound");
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    let (_sim, pty) = common::sim_pty(&["--model", "f510"]);
+    let json = dir.join("pty.json");
+    let (code, _, err) = common::run_bounded(
+        &[
+            "check",
+            "--model",
+            "f510",
+            "--port",
+            &pty,
+            "--mode",
+            "rtu",
+            "--only",
+            "rtu.map.group-0*",
+            "--format",
+            "json",
+            "--quiet",
+            "-o",
+            json.to_str().unwrap(),
+        ],
+        Duration::from_secs(120),
+    );
+    assert_eq!(code, Some(0), "{err}");
+    let v: serde_json::Value = serde_json::from_slice(&std::fs::read(&json).unwrap()).unwrap();
+    let b = &v["budget"]["rtu"];
+    assert_eq!(b["no_bound"], "pty", "{b}");
+    assert_eq!(b["bound_ms"], 0.0, "{b}");
+    assert!(b["frames"].as_u64().unwrap() > 0, "{b}");
+    // Text and HTML say so, as they do for a gateway; no percentage of a bound.
+    let (_, text, _) = conformance_split(&["report", json.to_str().unwrap()]);
+    let line = text
+        .lines()
+        .find(|l| l.starts_with("budget:  rtu: "))
+        .unwrap_or_else(|| panic!("no budget line: {text}"));
+    assert!(
+        line.ends_with("frames; no line bound: a pseudo-terminal has no line timing (bytes cross at once, not at the character time)"),
+        "{line}"
+    );
+    assert!(!line.contains('%'), "{line}");
+    let (_, html, _) = conformance_split(&["report", json.to_str().unwrap(), "--format", "html"]);
+    assert!(
+        html.contains(">none (pseudo-terminal)</span>"),
+        "no bound in the page"
+    );
+
+    // The paced simulator has line timing: a bound, as before.
+    let (code, out, err) = common::run_bounded(
+        &[
+            "check",
+            "--sim",
+            "f510",
+            "--mode",
+            "rtu",
+            "--only",
+            "rtu.map.group-0*",
+            "--format",
+            "json",
+            "--quiet",
+        ],
+        Duration::from_secs(120),
+    );
+    assert_eq!(code, Some(0), "{err}");
+    let v: serde_json::Value = serde_json::from_str(&out).unwrap();
+    let b = &v["budget"]["rtu"];
+    assert!(b.get("no_bound").is_none(), "{b}");
+    assert!(b["bound_ms"].as_f64().unwrap() > 0.0, "{b}");
+}

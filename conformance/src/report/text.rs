@@ -128,13 +128,14 @@ pub fn text(r: &Report, verbose: bool) -> String {
         }
     );
     for (mode, b) in &r.budget {
-        if b.bound.is_zero() && b.line.frames > 0 {
-            // Behind a Modbus TCP gateway the serial line's timing is the gateway's.
+        if let Some(why) = b.no_bound {
+            // Behind a Modbus TCP gateway, or on a pseudo-terminal: no line to bound by.
             let _ = writeln!(
                 o,
-                "budget:  {mode}: {:.1} s for {} frames; no line bound: the serial line is behind a gateway, whose timing is not seen from here",
+                "budget:  {mode}: {:.1} s for {} frames; no line bound: {}",
                 b.wall.as_secs_f64(),
-                b.line.frames
+                b.line.frames,
+                why.reason()
             );
             continue;
         }
