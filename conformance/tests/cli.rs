@@ -481,3 +481,88 @@ fn a_pseudo_terminal_has_no_line_bound() {
     assert!(b.get("no_bound").is_none(), "{b}");
     assert!(b["bound_ms"].as_f64().unwrap() > 0.0, "{b}");
 }
+
+/// The words of a command line as a POSIX shell splits them (single quotes only).
+fn shell_words(line: &str) -> Vec<String> {
+    let mut words = Vec::new();
+    let mut word: Option<String> = None;
+    let mut quoted = false;
+    for c in line.chars() {
+        match c {
+            '\'' => {
+                quoted = !quoted;
+                word.get_or_insert_with(String::new);
+            }
+            c if c.is_whitespace() && !quoted => words.extend(word.take()),
+            c => word.get_or_insert_with(String::new).push(c),
+        }
+    }
+    words.extend(word);
+    words
+}
+
+/// The example of `send --help` that starts with `prefix`: its words (the text after
+/// the command, past a run of spaces, is its comment).
+fn send_example(help: &str, prefix: &str) -> Vec<String> {
+    let line = help
+        .lines()
+        .map(str::trim_start)
+        .find(|l| l.starts_with(prefix))
+        .unwrap_or_else(|| panic!("no example {prefix:?} in: {help}"));
+    let command = line.split("   ").next().unwrap();
+    let words = shell_words(command);
+    assert_eq!(words[0], "conformance");
+    words[1..].to_vec()
+}
+
+#[test]
+fn send_help_examples_send_what_they_say() {
+    let (_, help) = conformance(&["send", "--help"]);
+    // The first example: one frame, spaces inside one argument.
+    let one = send_example(
+        &help,
+        "conformance send --sim f510 --mode rtu '010325200001 8ECC'",
+    );
+    let args: Vec<&str> = one.iter().map(String::as_str).collect();
+    let (code, out, err) = common::run_bounded(&args, Duration::from_secs(60));
+    assert_eq!(code, Some(0), "{out}{err}");
+    let sent: Vec<&str> = out.lines().filter(|l| l.contains("] sent ")).collect();
+    assert_eq!(sent.len(), 1, "{out}");
+    assert!(sent[0].ends_with("sent 01 03 25 20 00 01 8E CC"), "{out}");
+    assert!(out.contains("device: node 01 03 read response"), "{out}");
+    assert!(out.contains("as predicted"), "{out}");
+    assert!(!err.contains("note:"), "{err}");
+    // Two arguments are two frames, each good.
+    let two = send_example(
+        &help,
+        "conformance send --sim f510 --mode rtu 0103252000018ECC 0103",
+    );
+    let args: Vec<&str> = two.iter().map(String::as_str).collect();
+    let (code, out, err) = common::run_bounded(&args, Duration::from_secs(60));
+    assert_eq!(code, Some(0), "{out}{err}");
+    assert_eq!(
+        out.matches("device: node 01 03 read response").count(),
+        2,
+        "{out}"
+    );
+    // One frame left unquoted goes as given, two frames, and the note says how to quote.
+    let (code, out, err) = common::run_bounded(
+        &[
+            "send",
+            "--sim",
+            "f510",
+            "--mode",
+            "rtu",
+            "010325200001",
+            "8ECC",
+        ],
+        Duration::from_secs(60),
+    );
+    assert_eq!(code, Some(0), "{out}{err}");
+    assert_eq!(out.matches("] sent ").count(), 2, "{out}");
+    assert!(
+        err.contains("note: arguments 1 and 2 (010325200001 and 8ECC) are each a frame with a wrong CRC, but one frame with a good CRC together")
+            && err.contains("quote it as one argument ('010325200001 8ECC')"),
+        "{err}"
+    );
+}
