@@ -566,3 +566,68 @@ fn send_help_examples_send_what_they_say() {
         "{err}"
     );
 }
+
+#[test]
+fn gate_runs_conformance_adapter_without_conformance_on_the_path() {
+    let out = Command::new(env!("CARGO_BIN_EXE_conformance"))
+        .args([
+            "gate",
+            "--codec",
+            "conformance adapter",
+            "--no-vectors",
+            "--count",
+            "20",
+        ])
+        // A fresh clone: no `conformance` on the PATH.
+        .env("PATH", "/usr/bin:/bin")
+        .output()
+        .unwrap();
+    let (stdout, stderr) = (
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr),
+    );
+    assert_eq!(out.status.code(), Some(0), "{stdout}{stderr}");
+    assert!(
+        stdout.contains("(adapter conformance-reference-adapter;"),
+        "{stdout}"
+    );
+    // The report names the command as it was given.
+    assert!(
+        stdout.contains("command: conformance adapter\n"),
+        "{stdout}"
+    );
+}
+
+#[test]
+fn an_adapter_that_dies_before_its_hello_is_shown_with_its_stderr_and_a_hint() {
+    let (code, out, err) = conformance_split(&[
+        "gate",
+        "--codec",
+        "sh -c 'echo \"Error: Cannot find module jsmodbus\" >&2; exit 1'",
+    ]);
+    assert_eq!(code, 2, "{out}{err}");
+    assert!(
+        err.starts_with("error: adapter \"sh -c 'echo \\\"Error: Cannot find module jsmodbus\\\" >&2; exit 1'\": handshake failed: the adapter exited (its output closed: exit status: 1); it wrote on stderr:\n  | Error: Cannot find module jsmodbus\nhint: a Node.js module is missing"),
+        "{err}"
+    );
+    assert!(err.contains("npm ci"), "{err}");
+    // Said once, in the error (not also passed through before it).
+    assert_eq!(
+        err.lines()
+            .filter(|l| l.ends_with("Error: Cannot find module jsmodbus"))
+            .count(),
+        1,
+        "{err}"
+    );
+    // A command that is not there, and one that says nothing.
+    let (code, _, err) = conformance_split(&["gate", "--codec", "no-such-adapter-9f3c"]);
+    assert_eq!(code, 2);
+    assert!(err.contains("no-such-adapter-9f3c: not found"), "{err}");
+    assert!(err.contains("hint: the command was not found"), "{err}");
+    let (code, _, err) = conformance_split(&["gate", "--codec", "exit 3"]);
+    assert_eq!(code, 2);
+    assert!(
+        err.contains("exit status: 3); it wrote nothing on stderr\nhint: run the adapter by itself to see why: echo '{\"id\":0,\"op\":\"hello\",\"protocol\":1}' | exit 3"),
+        "{err}"
+    );
+}
