@@ -79,9 +79,10 @@ fn sigterm_ends_a_fuzz_run_with_a_whole_report_marked_incomplete() {
         ],
         &out,
     );
-    // The simulator's log fills once cases are being exchanged.
+    // The simulator's log (a line per frame, flushed) grows past the preflight once
+    // cases are being exchanged.
     wait_until("the fuzz exchanges", || {
-        std::fs::metadata(&log).is_ok_and(|m| m.len() > 0)
+        std::fs::read_to_string(&log).is_ok_and(|t| t.lines().count() >= 20)
     });
     term(&run);
     let status = run.wait_within(Duration::from_secs(120), "fuzz after SIGTERM");
@@ -247,4 +248,71 @@ fn sigterm_ends_a_gate_run_with_a_whole_report_marked_incomplete() {
     assert!(stopped.ends_with(" of 20000 cases"), "{stopped}");
     let n = v["checks"].as_array().unwrap().len();
     assert!(n > 0 && n < 20_000, "{n} cases");
+}
+
+#[test]
+fn sigterm_ends_identify_with_its_report_not_run() {
+    let d = dir("identify");
+    let (log, out) = (d.join("sim.jsonl"), d.join("identify.json"));
+    // Slow replies: the probes take seconds, the signal comes among them.
+    let mut run = spawn(
+        &[
+            "identify",
+            "--sim",
+            "f510",
+            "--mode",
+            "rtu",
+            "--quirk",
+            "late-reply=300",
+            "--sim-log",
+            log.to_str().unwrap(),
+        ],
+        &out,
+    );
+    wait_until("the identify probes", || {
+        std::fs::metadata(&log).is_ok_and(|m| m.len() > 0)
+    });
+    term(&run);
+    let status = run.wait_within(Duration::from_secs(120), "identify after SIGTERM");
+    let stderr = run.stderr_text();
+    assert_eq!(status.code(), Some(2), "{stderr}");
+    let v: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&out).unwrap()).unwrap();
+    assert_eq!(v["verdict"]["result"], "not-run", "{}", v["verdict"]);
+    assert_eq!(v["verdict"]["text"], "could not identify: interrupted");
+}
+
+#[test]
+fn sigterm_ends_a_scan_with_the_tries_made() {
+    let d = dir("scan");
+    // One drive at an address the scan reaches late; its traffic log on stderr shows
+    // when the scan's requests arrive.
+    let mut sim = Kill::spawn(
+        Command::new(bin())
+            .args(["simulate", "--model", "f510", "--pty", "-a", "200"])
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped()),
+    );
+    let mut pty = String::new();
+    BufReader::new(sim.0.stdout.take().unwrap())
+        .read_line(&mut pty)
+        .unwrap();
+    let mut traffic = BufReader::new(sim.0.stderr.take().unwrap()).lines();
+    let out = d.join("scan.json");
+    let mut run = spawn(&["scan", "--port", pty.trim()], &out);
+    // The first request the drive hears.
+    let heard = traffic.any(|l| l.is_ok_and(|l| l.contains("<- ")));
+    assert!(heard, "the simulator heard nothing");
+    term(&run);
+    let status = run.wait_within(Duration::from_secs(120), "scan after SIGTERM");
+    let stderr = run.stderr_text();
+    assert_eq!(status.code(), Some(2), "{stderr}");
+    assert!(
+        stderr.contains("scan interrupted: the result covers the tries made"),
+        "{stderr}"
+    );
+    let v: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&out).unwrap()).unwrap();
+    assert_eq!(v["stopped"], "interrupted");
+    assert!(v["found"].as_array().unwrap().is_empty(), "{}", v["found"]);
 }
