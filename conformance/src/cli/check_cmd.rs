@@ -35,8 +35,12 @@ Examples:
 
 Safety on a real drive: the run and external-fault bits are never set without
 --allow-motion (which warns first). Every register a check writes is read first and
-written back at the end, also after Ctrl-C, and the restore is verified by reading back;
---read-only skips all writes.
+written back at the end, also after Ctrl-C or SIGTERM, and the restore is verified by
+reading back; --read-only skips all writes.
+
+Ctrl-C, SIGTERM (timeout, CI runners) and SIGHUP stop the run after the current check:
+what was written is restored and the report (-o FILE is whole after every check) is
+marked INCOMPLETE, exit 2.
 
 A silent device passes nothing: a preflight read must be answered before the first
 check (no answer: exit 2, with what was tried and what to try), and every silence is

@@ -68,9 +68,13 @@ line (min/median/p95/p99/max) and fails the fuzz.<mode>.storm test case otherwis
 Safety on a real drive: --writes preserving (the default) sends a write only to this
 device and only with the value the device just returned for that register; --writes none
 sends no write; --writes any writes anything (with a warning; every register is
-journalled and restored at the end, also after Ctrl-C). Parameter group 09 (the
+journalled and restored at the end, also after Ctrl-C or SIGTERM). Parameter group 09 (the
 communication parameters) is never written; the run and external-fault register only
 with --allow-motion; 08H sub-functions 0001H and 0004H only with --allow-restart.
+
+Ctrl-C, SIGTERM (timeout, CI runners) and SIGHUP stop the campaign after the current
+case: what was written is restored and the whole report is written, marked INCOMPLETE
+(exit 2).
 
 Exit codes: 0 no finding; 1 findings; 2 the run could not run or complete (no answer to
 the preflight, the link failed, a hung device did not come back, a register could not be

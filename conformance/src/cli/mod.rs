@@ -24,7 +24,7 @@ use clap::{Parser, Subcommand};
 #[derive(Debug, Parser)]
 #[command(name = "conformance", version, about, long_about = None)]
 #[command(
-    after_help = "Exit codes: 0 ok; 1 a problem was found (bad checksum, failing vector); 2 the command could not run."
+    after_help = "Exit codes: 0 ok; 1 a problem was found (bad checksum, failing vector); 2 the command could not run.\n\nCtrl-C, SIGTERM and SIGHUP stop a long command (check, fuzz, scan, identify, simulate, gate) after its current check, case or probe: what it wrote is restored and its report is whole, marked incomplete (exit 2)."
 )]
 pub struct Cli {
     #[command(subcommand)]

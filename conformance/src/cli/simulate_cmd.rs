@@ -32,7 +32,7 @@ fn quirk_help() -> String {
     );
     s.push_str("\nExamples:\n  conformance simulate --model f510 --pty\n  conformance simulate --model f510 --pty -a 1,2,5 --quirk dead@5   three drives on one bus\n  conformance simulate --model l510 --mode ascii --tcp 127.0.0.1:5020 --quirk late-reply=200\n  conformance simulate --model a510 --port /dev/ttyUSB0 -b 19200 -P none\n  conformance simulate --model e510 --pty --emulate-line -b 19200 -P odd -m ascii -a 17   a drive to find with `conformance scan`\n  conformance simulate --model f510 -a 3 --tcp 127.0.0.1:5502 --framing mbap\n");
     s.push_str("\nModbus TCP (--framing mbap): the drive behind a simulated Modbus TCP gateway. Several\nconnections at once (--connections, default 8) against one drive state, served one\nrequest at a time in arrival order, as a gateway's one serial line is. Unit id = the node\naddress (-a) is the drive; unit 0 is a broadcast (executed, never answered); any other\nunit id is a node nobody has: after --gateway-timeout the gateway answers exception 0BH\n(gateway target device failed to respond), or nothing with --gateway-no-reply silence.\nReplies a gateway's serial receiver would drop (wrong CRC, echo) do not cross.\n");
-    s.push_str("\nExit codes: 0 stopped by Ctrl-C; 2 the link or the log failed.");
+    s.push_str("\nExit codes: 0 stopped by Ctrl-C, SIGTERM or SIGHUP (the --link is removed); 2 the link\nor the log failed.");
     s
 }
 
