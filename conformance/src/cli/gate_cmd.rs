@@ -154,6 +154,14 @@ pub fn run(args: GateArgs) -> anyhow::Result<ExitCode> {
         );
     }
     let stop = super::interrupt::stop_flag()?;
+    // An adapter that exits before it reads its hello (a missing module, a command not
+    // found) closes the pipe the gate writes to: that write must fail and be reported,
+    // not kill the gate with SIGPIPE (which main restores for `| head`).
+    #[cfg(unix)]
+    // SAFETY: sets the disposition of one signal to ignore; no handler runs.
+    unsafe {
+        libc::signal(libc::SIGPIPE, libc::SIG_IGN);
+    }
     let mut adapter = Adapter::start(&this_program(&args.codec)?, opts.timeout)?;
     let hello = adapter.hello.clone();
     let started = humantime::format_rfc3339_seconds(SystemTime::now()).to_string();

@@ -237,7 +237,7 @@ impl Process {
     /// the adapter has exited (the reading thread may be behind).
     fn stderr_lines(&mut self) -> Vec<String> {
         let exited = matches!(self.child.try_wait(), Ok(Some(_)));
-        let deadline = Instant::now() + Duration::from_millis(500);
+        let deadline = Instant::now() + Duration::from_secs(2);
         loop {
             match self.stderr.lock() {
                 Ok(s) if s.ended || !exited || Instant::now() >= deadline => return s.lines(),
@@ -486,11 +486,16 @@ impl Adapter {
             .write_all(line.as_bytes())
             .and_then(|_| p.stdin.flush())
         {
-            let status = p.child.try_wait().ok().flatten();
-            return Err(self.exited(format!(
-                "writing to it failed ({e}){}",
-                status.map(|s| format!(", {s}")).unwrap_or_default()
-            )));
+            // At the start, an adapter that could not even read its hello has usually
+            // exited: its end of output and exit status (read below) say so, whichever
+            // of the two pipes the race closed first.
+            if !self.starting {
+                let status = p.child.try_wait().ok().flatten();
+                return Err(self.exited(format!(
+                    "writing to it failed ({e}){}",
+                    status.map(|s| format!(", {s}")).unwrap_or_default()
+                )));
+            }
         }
         let deadline = Instant::now() + self.timeout;
         loop {
