@@ -327,6 +327,35 @@ fn report_writes_text_unless_html_is_asked_for() {
     assert!(out.starts_with("<!DOCTYPE html>"));
     let (_, help) = conformance(&["report", "--help"]);
     assert!(help.contains("Default: text"), "{help}");
+    // The same rule where a run writes its report: -o x.json is JSON, not text.
+    let fuzzed = dir.join("fuzz.json");
+    let (code, _, err) = common::run_bounded(
+        &[
+            "fuzz",
+            "--sim",
+            "f510",
+            "--mode",
+            "rtu",
+            "--no-pace",
+            "--cases",
+            "20",
+            "-q",
+            "-o",
+            fuzzed.to_str().unwrap(),
+        ],
+        Duration::from_secs(120),
+    );
+    assert!(matches!(code, Some(0 | 1)), "{err}");
+    let v: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&fuzzed).unwrap()).unwrap();
+    assert_eq!(v["kind"], "fuzz");
+    for cmd in ["check", "fuzz", "gate"] {
+        let (_, help) = conformance(&[cmd, "--help"]);
+        assert!(
+            help.contains("Default: text; with -o, the format"),
+            "{cmd}: {help}"
+        );
+    }
 }
 
 #[test]

@@ -90,9 +90,8 @@ pub enum Format {
 pub struct CheckArgs {
     #[command(flatten)]
     target: TargetArgs,
-    /// Report format.
-    #[arg(long, value_enum, default_value = "text")]
-    format: Format,
+    #[arg(long, value_enum, help = FORMAT_DEFAULT)]
+    format: Option<Format>,
     /// Write the report here (kept valid after every check) instead of stdout.
     #[arg(short, long, value_name = "FILE")]
     output: Option<PathBuf>,
@@ -126,6 +125,26 @@ pub struct CheckArgs {
     /// No progress bar.
     #[arg(short, long)]
     quiet: bool,
+}
+
+/// What `--format` says where the option is left out.
+pub const FORMAT_DEFAULT: &str = "Report format. Default: text; with -o, the format the file's extension names (.html, .json, .xml for JUnit, .csv; any other: text).";
+
+/// The report's format: the one asked for, else the one `-o`'s extension names, else
+/// text (a terminal gets text, never a page of HTML it did not ask for; `-o run.json`
+/// gets JSON, not text in a file named .json).
+pub fn format_for(asked: Option<Format>, output: Option<&Path>) -> Format {
+    let by_extension = || {
+        let ext = output?.extension()?.to_str()?.to_ascii_lowercase();
+        Some(match ext.as_str() {
+            "html" | "htm" => Format::Html,
+            "json" => Format::Json,
+            "xml" => Format::Junit,
+            "csv" => Format::Csv,
+            _ => return None,
+        })
+    };
+    asked.or_else(by_extension).unwrap_or(Format::Text)
 }
 
 pub fn render(report: &Report, format: Format, verbose: bool) -> anyhow::Result<String> {
@@ -298,7 +317,7 @@ pub fn run(mut args: CheckArgs) -> anyhow::Result<ExitCode> {
     };
     let mut write_error: Option<anyhow::Error> = None;
     let output = args.output.clone();
-    let format = args.format;
+    let format = format_for(args.format, args.output.as_deref());
     let verbose = args.verbose;
     let mut on_result = |r: &Report| {
         if let Some(b) = &bar {
@@ -328,7 +347,7 @@ pub fn run(mut args: CheckArgs) -> anyhow::Result<ExitCode> {
     if let Some(e) = write_error {
         return Err(e);
     }
-    finish(&report, args.format, args.verbose, args.output.as_deref())
+    finish(&report, format, args.verbose, args.output.as_deref())
 }
 
 /// Writes the final report to `output` (a one-line summary on stderr) or stdout, and

@@ -13,7 +13,7 @@ use conformance::fuzz::{FuzzConfig, Writes};
 use conformance::runner::Options;
 use conformance::session::{self, SessionConfig};
 
-use super::check_cmd::{finish, Format};
+use super::check_cmd::{finish, format_for, Format, FORMAT_DEFAULT};
 use super::common::parse_duration;
 use super::link::{Resolved, SafetyArgs, TargetArgs};
 
@@ -119,9 +119,8 @@ pub struct FuzzArgs {
     /// sequence and repeats with full windows any case that late bytes put in doubt).
     #[arg(long)]
     full_windows: bool,
-    /// Report format.
-    #[arg(long, value_enum, default_value = "text")]
-    format: Format,
+    #[arg(long, value_enum, help = FORMAT_DEFAULT)]
+    format: Option<Format>,
     /// Write the report here instead of stdout.
     #[arg(short, long, value_name = "FILE")]
     output: Option<PathBuf>,
@@ -343,5 +342,10 @@ pub fn run(args: FuzzArgs) -> anyhow::Result<ExitCode> {
     if let Some(p) = plain.as_mut() {
         p.end();
     }
-    finish(&report, args.format, args.verbose, args.output.as_deref())
+    finish(
+        &report,
+        format_for(args.format, args.output.as_deref()),
+        args.verbose,
+        args.output.as_deref(),
+    )
 }

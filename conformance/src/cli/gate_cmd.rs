@@ -12,7 +12,7 @@ use conformance::report::{Codec, Report, ReportKind, RunOptions};
 use conformance::runner::CheckResult;
 use conformance::vectors::VectorSet;
 
-use super::check_cmd::{finish, render, write_atomic, Format};
+use super::check_cmd::{finish, format_for, render, write_atomic, Format, FORMAT_DEFAULT};
 
 const AFTER_HELP: &str = "\
 The adapter protocol (line-delimited JSON on the adapter's stdin/stdout) is documented in
@@ -53,9 +53,8 @@ pub struct GateArgs {
     /// Milliseconds to wait for each answer.
     #[arg(long, value_name = "MS", default_value_t = 2000)]
     timeout: u64,
-    /// Report format.
-    #[arg(long, value_enum, default_value = "text")]
-    format: Format,
+    #[arg(long, value_enum, help = FORMAT_DEFAULT)]
+    format: Option<Format>,
     /// Write the report here (kept valid after every case) instead of stdout.
     #[arg(short, long, value_name = "FILE")]
     output: Option<PathBuf>,
@@ -197,7 +196,7 @@ pub fn run(args: GateArgs) -> anyhow::Result<ExitCode> {
         report,
         bar,
         output: args.output.as_ref(),
-        format: args.format,
+        format: format_for(args.format, args.output.as_deref()),
         verbose: args.verbose,
         error: None,
     };
@@ -233,7 +232,12 @@ pub fn run(args: GateArgs) -> anyhow::Result<ExitCode> {
     if let Some(e) = progress.error {
         return Err(e);
     }
-    finish(&report, args.format, args.verbose, args.output.as_deref())
+    finish(
+        &report,
+        format_for(args.format, args.output.as_deref()),
+        args.verbose,
+        args.output.as_deref(),
+    )
 }
 
 #[cfg(test)]

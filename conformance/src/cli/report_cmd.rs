@@ -9,7 +9,7 @@ use anyhow::Context;
 use clap::Args;
 use conformance::report::Report;
 
-use super::check_cmd::{render, write_atomic, Format};
+use super::check_cmd::{format_for, render, write_atomic, Format, FORMAT_DEFAULT};
 use super::common::Number;
 
 const REPORT_AFTER_HELP: &str = "\
@@ -32,9 +32,7 @@ pub struct ReportArgs {
     /// A JSON report written by `check` or `gate` (--format json).
     #[arg(value_name = "FILE.json")]
     file: PathBuf,
-    /// Output format. Default: text; with -o, the format the file's extension names
-    /// (.html, .json, .xml for JUnit, .csv; any other extension: text).
-    #[arg(long, value_enum)]
+    #[arg(long, value_enum, help = FORMAT_DEFAULT)]
     format: Option<Format>,
     /// Write here instead of stdout.
     #[arg(short, long, value_name = "FILE")]
@@ -42,22 +40,6 @@ pub struct ReportArgs {
     /// With --format text: list every passing check and every exchange.
     #[arg(short, long)]
     verbose: bool,
-}
-
-/// The format of `report`: the one asked for, else the one `-o`'s extension names, else
-/// text (a terminal gets text, never a page of HTML it did not ask for).
-fn report_format(asked: Option<Format>, output: Option<&Path>) -> Format {
-    let by_extension = || {
-        let ext = output?.extension()?.to_str()?.to_ascii_lowercase();
-        Some(match ext.as_str() {
-            "html" | "htm" => Format::Html,
-            "json" => Format::Json,
-            "xml" => Format::Junit,
-            "csv" => Format::Csv,
-            _ => return None,
-        })
-    };
-    asked.or_else(by_extension).unwrap_or(Format::Text)
 }
 
 /// Reads a JSON report, naming the file in every error.
@@ -82,7 +64,7 @@ pub fn emit(text: &str, output: Option<&Path>) -> anyhow::Result<()> {
 
 pub fn report(args: ReportArgs) -> anyhow::Result<ExitCode> {
     let report = load(&args.file)?;
-    let format = report_format(args.format, args.output.as_deref());
+    let format = format_for(args.format, args.output.as_deref());
     emit(
         &render(&report, format, args.verbose)?,
         args.output.as_deref(),
