@@ -1,6 +1,9 @@
 //! The command line, run as a user would run it.
 
+mod common;
+
 use std::process::Command;
+use std::time::Duration;
 
 fn conformance(args: &[&str]) -> (i32, String) {
     let (code, stdout, stderr) = conformance_split(args);
@@ -216,4 +219,444 @@ fn vectors_verify_passes_and_export_is_json() {
     let (code, out) = conformance(&["vectors", "list", "--model", "f510", "--verdict", "erratum"]);
     assert_eq!(code, 0, "{out}");
     assert!(out.contains("f510.03.rtu.response"), "{out}");
+}
+
+#[test]
+fn a_bare_duration_is_seconds() {
+    // `--duration 90` was refused ("time unit needed").
+    let (code, out, err) = common::run_bounded(
+        &[
+            "fuzz",
+            "--sim",
+            "f510",
+            "--mode",
+            "rtu",
+            "--no-pace",
+            "--duration",
+            "1",
+            "--format",
+            "json",
+            "--quiet",
+        ],
+        Duration::from_secs(120),
+    );
+    assert!(matches!(code, Some(0 | 1)), "{err}");
+    let v: serde_json::Value = serde_json::from_str(&out).unwrap();
+    let m = &v["fuzz"]["modes"][0];
+    // Cases until one second had passed: not one case limit, not a millisecond.
+    assert!(m["cases"].as_u64().unwrap() > 0, "{m}");
+    assert!(m["elapsed_ms"].as_f64().unwrap() >= 1000.0, "{m}");
+    // A unit still works, and a wrong one names the rule.
+    let (code, _, err) = conformance_split(&["fuzz", "--sim", "f510", "--duration", "5parsecs"]);
+    assert_eq!(code, 2);
+    assert!(
+        err.contains("\"5parsecs\" is not a duration")
+            && err.contains("a bare number is seconds (90, 1.5)"),
+        "{err}"
+    );
+    let (code, _, err) = conformance_split(&["fuzz", "--sim", "f510", "--recover-wait", "1.5.2"]);
+    assert_eq!(code, 2);
+    assert!(err.contains("\"1.5.2\" is not a duration"), "{err}");
+    let (_, help) = conformance(&["fuzz", "--help"]);
+    assert!(help.contains("a bare number is seconds (90)"), "{help}");
+    let (_, help) = conformance(&["send", "--help"]);
+    assert!(help.contains("a bare number is seconds"), "{help}");
+}
+
+#[test]
+fn a_missing_port_is_named_once() {
+    let (code, out, err) =
+        conformance_split(&["check", "--model", "f510", "--port", "/nonexistent/ttyUSB9"]);
+    assert_eq!(code, 2, "{out}{err}");
+    assert_eq!(
+        err,
+        "error: cannot open /nonexistent/ttyUSB9: No such file or directory\n"
+    );
+    assert!(out.is_empty(), "{out}");
+}
+
+#[test]
+fn report_writes_text_unless_html_is_asked_for() {
+    let dir = std::path::Path::new(env!("CARGO_TARGET_TMPDIR")).join("cli-report-format");
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    let json = dir.join("run.json");
+    let (code, _, err) = common::run_bounded(
+        &[
+            "check",
+            "--sim",
+            "f510",
+            "--mode",
+            "rtu",
+            "--only",
+            "identification",
+            "--format",
+            "json",
+            "--quiet",
+            "-o",
+            json.to_str().unwrap(),
+        ],
+        Duration::from_secs(120),
+    );
+    assert!(matches!(code, Some(0 | 1)), "{err}");
+    let json = json.to_str().unwrap();
+    // No --format: text on stdout.
+    let (code, out, _) = conformance_split(&["report", json]);
+    assert_eq!(code, 0);
+    assert!(
+        out.starts_with("TECO Modbus conformance report"),
+        "{}",
+        &out[..out.len().min(200)]
+    );
+    assert!(!out.contains("<html"), "HTML on the terminal");
+    // -o FILE.html: the page; -o with another extension: text; --format wins.
+    let page = dir.join("run.html");
+    let (code, _, _) = conformance_split(&["report", json, "-o", page.to_str().unwrap()]);
+    assert_eq!(code, 0);
+    assert!(std::fs::read_to_string(&page)
+        .unwrap()
+        .starts_with("<!DOCTYPE html>"));
+    let txt = dir.join("run.txt");
+    let (code, _, _) = conformance_split(&["report", json, "-o", txt.to_str().unwrap()]);
+    assert_eq!(code, 0);
+    assert!(std::fs::read_to_string(&txt)
+        .unwrap()
+        .starts_with("TECO Modbus conformance report"));
+    let (code, out, _) = conformance_split(&["report", json, "--format", "html"]);
+    assert_eq!(code, 0);
+    assert!(out.starts_with("<!DOCTYPE html>"));
+    let (_, help) = conformance(&["report", "--help"]);
+    assert!(help.contains("Default: text"), "{help}");
+    // The same rule where a run writes its report: -o x.json is JSON, not text.
+    let fuzzed = dir.join("fuzz.json");
+    let (code, _, err) = common::run_bounded(
+        &[
+            "fuzz",
+            "--sim",
+            "f510",
+            "--mode",
+            "rtu",
+            "--no-pace",
+            "--cases",
+            "20",
+            "-q",
+            "-o",
+            fuzzed.to_str().unwrap(),
+        ],
+        Duration::from_secs(120),
+    );
+    assert!(matches!(code, Some(0 | 1)), "{err}");
+    let v: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&fuzzed).unwrap()).unwrap();
+    assert_eq!(v["kind"], "fuzz");
+    for cmd in ["check", "fuzz", "gate"] {
+        let (_, help) = conformance(&[cmd, "--help"]);
+        assert!(
+            help.contains("Default: text; with -o, the format"),
+            "{cmd}: {help}"
+        );
+    }
+}
+
+#[test]
+fn fuzz_prints_plain_progress_when_piped_and_none_when_quiet() {
+    let args = [
+        "fuzz",
+        "--sim",
+        "f510",
+        "--mode",
+        "rtu",
+        "--no-pace",
+        "--duration",
+        "1",
+    ];
+    // stderr is a pipe here: plain lines, no bar.
+    let (code, out, err) = common::run_bounded(&args, Duration::from_secs(120));
+    assert!(matches!(code, Some(0 | 1)), "{err}");
+    assert!(err.contains("fuzz rtu: started\n"), "{err}");
+    let done = err
+        .lines()
+        .find(|l| l.starts_with("fuzz rtu: done: "))
+        .unwrap_or_else(|| panic!("no closing line: {err}"));
+    assert!(
+        done.contains(" cases in ") && done.contains(" cases/s, ") && done.ends_with(" finding(s)"),
+        "{done}"
+    );
+    assert!(
+        !err.contains('\r') && !err.contains('\x1b'),
+        "a bar: {err:?}"
+    );
+    // The text report gives each mode's cases, rate and findings without -v.
+    let campaign = out
+        .lines()
+        .find(|l| l.starts_with("fuzz:    rtu: "))
+        .unwrap_or_else(|| panic!("no campaign line: {out}"));
+    assert!(
+        campaign.contains(" cases in ")
+            && campaign.contains(" cases/s")
+            && campaign.ends_with(" finding signature(s)"),
+        "{campaign}"
+    );
+    let (code, _, err) = common::run_bounded(
+        &[&args[..], &["--quiet"]].concat(),
+        Duration::from_secs(120),
+    );
+    assert!(matches!(code, Some(0 | 1)), "{err}");
+    assert!(
+        !err.contains("fuzz rtu:"),
+        "--quiet printed progress: {err}"
+    );
+}
+
+#[test]
+fn fuzz_by_default_runs_a_short_campaign() {
+    let (_, help) = conformance(&["fuzz", "--help"]);
+    assert!(
+        help.contains("With neither --cases nor --duration a campaign runs 15 s per mode"),
+        "{help}"
+    );
+    // It runs for its 15 s (not a count of cases), and then ends (bounded above by
+    // run_bounded).
+    let (code, out, err) = common::run_bounded(
+        &[
+            "fuzz",
+            "--sim",
+            "f510",
+            "--mode",
+            "rtu",
+            "--no-pace",
+            "--format",
+            "json",
+            "--quiet",
+        ],
+        Duration::from_secs(180),
+    );
+    assert!(matches!(code, Some(0 | 1)), "{err}");
+    let v: serde_json::Value = serde_json::from_str(&out).unwrap();
+    let m = &v["fuzz"]["modes"][0];
+    let ms = m["elapsed_ms"].as_f64().unwrap();
+    assert!(ms >= 15_000.0, "{m}");
+    assert!(m["cases"].as_u64().unwrap() > 0, "{m}");
+}
+
+#[test]
+fn a_pseudo_terminal_has_no_line_bound() {
+    let dir = std::path::Path::new(env!("CARGO_TARGET_TMPDIR")).join("cli-pty-bound");
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    let (_sim, pty) = common::sim_pty(&["--model", "f510"]);
+    let json = dir.join("pty.json");
+    let (code, _, err) = common::run_bounded(
+        &[
+            "check",
+            "--model",
+            "f510",
+            "--port",
+            &pty,
+            "--mode",
+            "rtu",
+            "--only",
+            "rtu.map.group-0*",
+            "--format",
+            "json",
+            "--quiet",
+            "-o",
+            json.to_str().unwrap(),
+        ],
+        Duration::from_secs(120),
+    );
+    assert_eq!(code, Some(0), "{err}");
+    let v: serde_json::Value = serde_json::from_slice(&std::fs::read(&json).unwrap()).unwrap();
+    let b = &v["budget"]["rtu"];
+    assert_eq!(b["no_bound"], "pty", "{b}");
+    assert_eq!(b["bound_ms"], 0.0, "{b}");
+    assert!(b["frames"].as_u64().unwrap() > 0, "{b}");
+    // Text and HTML say so, as they do for a gateway; no percentage of a bound.
+    let (_, text, _) = conformance_split(&["report", json.to_str().unwrap()]);
+    let line = text
+        .lines()
+        .find(|l| l.starts_with("budget:  rtu: "))
+        .unwrap_or_else(|| panic!("no budget line: {text}"));
+    assert!(
+        line.ends_with("frames; no line bound: a pseudo-terminal has no line timing (bytes cross at once, not at the character time)"),
+        "{line}"
+    );
+    assert!(!line.contains('%'), "{line}");
+    let (_, html, _) = conformance_split(&["report", json.to_str().unwrap(), "--format", "html"]);
+    assert!(
+        html.contains(">none (pseudo-terminal)</span>"),
+        "no bound in the page"
+    );
+
+    // The paced simulator has line timing: a bound, as before.
+    let (code, out, err) = common::run_bounded(
+        &[
+            "check",
+            "--sim",
+            "f510",
+            "--mode",
+            "rtu",
+            "--only",
+            "rtu.map.group-0*",
+            "--format",
+            "json",
+            "--quiet",
+        ],
+        Duration::from_secs(120),
+    );
+    assert_eq!(code, Some(0), "{err}");
+    let v: serde_json::Value = serde_json::from_str(&out).unwrap();
+    let b = &v["budget"]["rtu"];
+    assert!(b.get("no_bound").is_none(), "{b}");
+    assert!(b["bound_ms"].as_f64().unwrap() > 0.0, "{b}");
+}
+
+/// The words of a command line as a POSIX shell splits them (single quotes only).
+fn shell_words(line: &str) -> Vec<String> {
+    let mut words = Vec::new();
+    let mut word: Option<String> = None;
+    let mut quoted = false;
+    for c in line.chars() {
+        match c {
+            '\'' => {
+                quoted = !quoted;
+                word.get_or_insert_with(String::new);
+            }
+            c if c.is_whitespace() && !quoted => words.extend(word.take()),
+            c => word.get_or_insert_with(String::new).push(c),
+        }
+    }
+    words.extend(word);
+    words
+}
+
+/// The example of `send --help` that starts with `prefix`: its words (the text after
+/// the command, past a run of spaces, is its comment).
+fn send_example(help: &str, prefix: &str) -> Vec<String> {
+    let line = help
+        .lines()
+        .map(str::trim_start)
+        .find(|l| l.starts_with(prefix))
+        .unwrap_or_else(|| panic!("no example {prefix:?} in: {help}"));
+    let command = line.split("   ").next().unwrap();
+    let words = shell_words(command);
+    assert_eq!(words[0], "conformance");
+    words[1..].to_vec()
+}
+
+#[test]
+fn send_help_examples_send_what_they_say() {
+    let (_, help) = conformance(&["send", "--help"]);
+    // The first example: one frame, spaces inside one argument.
+    let one = send_example(
+        &help,
+        "conformance send --sim f510 --mode rtu '010325200001 8ECC'",
+    );
+    let args: Vec<&str> = one.iter().map(String::as_str).collect();
+    let (code, out, err) = common::run_bounded(&args, Duration::from_secs(60));
+    assert_eq!(code, Some(0), "{out}{err}");
+    let sent: Vec<&str> = out.lines().filter(|l| l.contains("] sent ")).collect();
+    assert_eq!(sent.len(), 1, "{out}");
+    assert!(sent[0].ends_with("sent 01 03 25 20 00 01 8E CC"), "{out}");
+    assert!(out.contains("device: node 01 03 read response"), "{out}");
+    assert!(out.contains("as predicted"), "{out}");
+    assert!(!err.contains("note:"), "{err}");
+    // Two arguments are two frames, each good.
+    let two = send_example(
+        &help,
+        "conformance send --sim f510 --mode rtu 0103252000018ECC 0103",
+    );
+    let args: Vec<&str> = two.iter().map(String::as_str).collect();
+    let (code, out, err) = common::run_bounded(&args, Duration::from_secs(60));
+    assert_eq!(code, Some(0), "{out}{err}");
+    assert_eq!(
+        out.matches("device: node 01 03 read response").count(),
+        2,
+        "{out}"
+    );
+    // One frame left unquoted goes as given, two frames, and the note says how to quote.
+    let (code, out, err) = common::run_bounded(
+        &[
+            "send",
+            "--sim",
+            "f510",
+            "--mode",
+            "rtu",
+            "010325200001",
+            "8ECC",
+        ],
+        Duration::from_secs(60),
+    );
+    assert_eq!(code, Some(0), "{out}{err}");
+    assert_eq!(out.matches("] sent ").count(), 2, "{out}");
+    assert!(
+        err.contains("note: arguments 1 and 2 (010325200001 and 8ECC) are each a frame with a wrong CRC, but one frame with a good CRC together")
+            && err.contains("quote it as one argument ('010325200001 8ECC')"),
+        "{err}"
+    );
+}
+
+#[test]
+fn gate_runs_conformance_adapter_without_conformance_on_the_path() {
+    let out = Command::new(env!("CARGO_BIN_EXE_conformance"))
+        .args([
+            "gate",
+            "--codec",
+            "conformance adapter",
+            "--no-vectors",
+            "--count",
+            "20",
+        ])
+        // A fresh clone: no `conformance` on the PATH.
+        .env("PATH", "/usr/bin:/bin")
+        .output()
+        .unwrap();
+    let (stdout, stderr) = (
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr),
+    );
+    assert_eq!(out.status.code(), Some(0), "{stdout}{stderr}");
+    assert!(
+        stdout.contains("(adapter conformance-reference-adapter;"),
+        "{stdout}"
+    );
+    // The report names the command as it was given.
+    assert!(
+        stdout.contains("command: conformance adapter\n"),
+        "{stdout}"
+    );
+}
+
+#[test]
+fn an_adapter_that_dies_before_its_hello_is_shown_with_its_stderr_and_a_hint() {
+    let (code, out, err) = conformance_split(&[
+        "gate",
+        "--codec",
+        "sh -c 'echo \"Error: Cannot find module jsmodbus\" >&2; exit 1'",
+    ]);
+    assert_eq!(code, 2, "{out}{err}");
+    assert!(
+        err.starts_with("error: adapter \"sh -c 'echo \\\"Error: Cannot find module jsmodbus\\\" >&2; exit 1'\": handshake failed: the adapter exited (its output closed: exit status: 1); it wrote on stderr:\n  | Error: Cannot find module jsmodbus\nhint: a Node.js module is missing"),
+        "{err}"
+    );
+    assert!(err.contains("npm ci"), "{err}");
+    // Said once, in the error (not also passed through before it).
+    assert_eq!(
+        err.lines()
+            .filter(|l| l.ends_with("Error: Cannot find module jsmodbus"))
+            .count(),
+        1,
+        "{err}"
+    );
+    // A command that is not there, and one that says nothing.
+    let (code, _, err) = conformance_split(&["gate", "--codec", "no-such-adapter-9f3c"]);
+    assert_eq!(code, 2);
+    assert!(err.contains("no-such-adapter-9f3c: not found"), "{err}");
+    assert!(err.contains("hint: the command was not found"), "{err}");
+    let (code, _, err) = conformance_split(&["gate", "--codec", "exit 3"]);
+    assert_eq!(code, 2);
+    assert!(
+        err.contains("exit status: 3); it wrote nothing on stderr\nhint: run the adapter by itself to see why: echo '{\"id\":0,\"op\":\"hello\",\"protocol\":1}' | exit 3"),
+        "{err}"
+    );
 }

@@ -35,8 +35,12 @@ Examples:
 
 Safety on a real drive: the run and external-fault bits are never set without
 --allow-motion (which warns first). Every register a check writes is read first and
-written back at the end, also after Ctrl-C, and the restore is verified by reading back;
---read-only skips all writes.
+written back at the end, also after Ctrl-C or SIGTERM, and the restore is verified by
+reading back; --read-only skips all writes.
+
+Ctrl-C, SIGTERM (timeout, CI runners) and SIGHUP stop the run after the current check:
+what was written is restored and the report (-o FILE is whole after every check) is
+marked INCOMPLETE, exit 2.
 
 A silent device passes nothing: a preflight read must be answered before the first
 check (no answer: exit 2, with what was tried and what to try), and every silence is
@@ -86,9 +90,8 @@ pub enum Format {
 pub struct CheckArgs {
     #[command(flatten)]
     target: TargetArgs,
-    /// Report format.
-    #[arg(long, value_enum, default_value = "text")]
-    format: Format,
+    #[arg(long, value_enum, help = FORMAT_DEFAULT)]
+    format: Option<Format>,
     /// Write the report here (kept valid after every check) instead of stdout.
     #[arg(short, long, value_name = "FILE")]
     output: Option<PathBuf>,
@@ -122,6 +125,26 @@ pub struct CheckArgs {
     /// No progress bar.
     #[arg(short, long)]
     quiet: bool,
+}
+
+/// What `--format` says where the option is left out.
+pub const FORMAT_DEFAULT: &str = "Report format. Default: text; with -o, the format the file's extension names (.html, .json, .xml for JUnit, .csv; any other: text).";
+
+/// The report's format: the one asked for, else the one `-o`'s extension names, else
+/// text (a terminal gets text, never a page of HTML it did not ask for; `-o run.json`
+/// gets JSON, not text in a file named .json).
+pub fn format_for(asked: Option<Format>, output: Option<&Path>) -> Format {
+    let by_extension = || {
+        let ext = output?.extension()?.to_str()?.to_ascii_lowercase();
+        Some(match ext.as_str() {
+            "html" | "htm" => Format::Html,
+            "json" => Format::Json,
+            "xml" => Format::Junit,
+            "csv" => Format::Csv,
+            _ => return None,
+        })
+    };
+    asked.or_else(by_extension).unwrap_or(Format::Text)
 }
 
 pub fn render(report: &Report, format: Format, verbose: bool) -> anyhow::Result<String> {
@@ -166,7 +189,7 @@ pub fn run(mut args: CheckArgs) -> anyhow::Result<ExitCode> {
         }
         let link = args.target.resolve_link(false, None)?;
         let config = identify_cmd::config(&args.target, link, &args.identify)?;
-        let flag = identify_cmd::stop_flag()?;
+        let flag = super::interrupt::stop_flag()?;
         let t0 = std::time::Instant::now();
         let id = identify_cmd::identify_device(&config, &flag, args.quiet)?;
         let took = t0.elapsed();
@@ -273,7 +296,7 @@ pub fn run(mut args: CheckArgs) -> anyhow::Result<ExitCode> {
 
     let stop = match stop {
         Some(s) => s,
-        None => identify_cmd::stop_flag()?,
+        None => super::interrupt::stop_flag()?,
     };
     let total = session::planned(&config);
     if total == 0 {
@@ -294,7 +317,7 @@ pub fn run(mut args: CheckArgs) -> anyhow::Result<ExitCode> {
     };
     let mut write_error: Option<anyhow::Error> = None;
     let output = args.output.clone();
-    let format = args.format;
+    let format = format_for(args.format, args.output.as_deref());
     let verbose = args.verbose;
     let mut on_result = |r: &Report| {
         if let Some(b) = &bar {
@@ -324,7 +347,7 @@ pub fn run(mut args: CheckArgs) -> anyhow::Result<ExitCode> {
     if let Some(e) = write_error {
         return Err(e);
     }
-    finish(&report, args.format, args.verbose, args.output.as_deref())
+    finish(&report, format, args.verbose, args.output.as_deref())
 }
 
 /// Writes the final report to `output` (a one-line summary on stderr) or stdout, and

@@ -152,6 +152,29 @@ impl<T: Width> TypedValueParser for Number<T> {
     }
 }
 
+/// How durations are spelled on the command line; every option that takes one says it.
+pub const DURATION_RULE: &str =
+    "a bare number is seconds (90, 1.5); or with a unit: 90s, 2m, 1h30m, 500ms, 2900us";
+
+/// Reads a duration spelled as [`DURATION_RULE`] says: a bare number (digits, at most one
+/// decimal point) is seconds, anything else is read by humantime (`90s`, `2m`, `1h 30m`).
+pub fn parse_duration(text: &str) -> Result<std::time::Duration, String> {
+    let t = text.trim();
+    let bare = !t.is_empty()
+        && t.bytes().all(|b| b.is_ascii_digit() || b == b'.')
+        && t.bytes().filter(|&b| b == b'.').count() <= 1
+        && t != ".";
+    if bare {
+        return t
+            .parse::<f64>()
+            .ok()
+            .and_then(|s| std::time::Duration::try_from_secs_f64(s).ok())
+            .ok_or_else(|| format!("{text:?} is too long a duration"));
+    }
+    humantime::parse_duration(t)
+        .map_err(|e| format!("{text:?} is not a duration ({e}); {DURATION_RULE}"))
+}
+
 /// Transmission mode.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
 pub enum ModeArg {
@@ -263,6 +286,25 @@ pub fn load_model(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_bare_number_is_seconds_and_units_are_humantime() {
+        use std::time::Duration;
+        assert_eq!(parse_duration("90"), Ok(Duration::from_secs(90)));
+        assert_eq!(parse_duration(" 90 "), Ok(Duration::from_secs(90)));
+        assert_eq!(parse_duration("1.5"), Ok(Duration::from_millis(1500)));
+        assert_eq!(parse_duration("0"), Ok(Duration::ZERO));
+        assert_eq!(parse_duration("90s"), Ok(Duration::from_secs(90)));
+        assert_eq!(parse_duration("2m"), Ok(Duration::from_secs(120)));
+        assert_eq!(parse_duration("1h 30m"), Ok(Duration::from_secs(5400)));
+        assert_eq!(parse_duration("2900us"), Ok(Duration::from_micros(2900)));
+        for bad in ["", ".", "1.2.3", "-5", "5 parsecs", "s"] {
+            let e = parse_duration(bad).unwrap_err();
+            assert!(e.starts_with(&format!("{bad:?} is not a duration")), "{e}");
+            assert!(e.contains("a bare number is seconds"), "{e}");
+        }
+        assert!(parse_duration("1e400").is_err());
+    }
 
     #[test]
     fn hex_with_h_or_0x_and_bare_decimal() {

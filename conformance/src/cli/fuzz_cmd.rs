@@ -4,23 +4,23 @@
 use std::io::IsTerminal;
 use std::path::PathBuf;
 use std::process::ExitCode;
-use std::sync::atomic::{AtomicBool, Ordering};
-use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-use anyhow::{bail, Context};
+use anyhow::bail;
 use clap::Args;
 use conformance::codec::Mode;
 use conformance::fuzz::{FuzzConfig, Writes};
 use conformance::runner::Options;
 use conformance::session::{self, SessionConfig};
 
-use super::check_cmd::{finish, Format};
+use super::check_cmd::{finish, format_for, Format, FORMAT_DEFAULT};
+use super::common::parse_duration;
 use super::link::{Resolved, SafetyArgs, TargetArgs};
 
 const AFTER_HELP: &str = "\
 Examples:
-  conformance fuzz --sim f510                                   2000 cases per mode, simulator
+  conformance fuzz --sim f510                                   15 s per mode (RTU, then ASCII)
+  conformance fuzz --sim f510 --duration 10m --mode rtu         a longer campaign
   conformance fuzz --sim f510 --quirk hang-on-byte-count --cases 500 --mode rtu
   conformance fuzz --model f510 --port /dev/ttyUSB0 -b 9600 -P even -a 1 --duration 10m
   conformance fuzz --model l510 --tcp 10.0.0.7:4001 --writes none --format json -o fuzz.json
@@ -68,9 +68,13 @@ line (min/median/p95/p99/max) and fails the fuzz.<mode>.storm test case otherwis
 Safety on a real drive: --writes preserving (the default) sends a write only to this
 device and only with the value the device just returned for that register; --writes none
 sends no write; --writes any writes anything (with a warning; every register is
-journalled and restored at the end, also after Ctrl-C). Parameter group 09 (the
+journalled and restored at the end, also after Ctrl-C or SIGTERM). Parameter group 09 (the
 communication parameters) is never written; the run and external-fault register only
 with --allow-motion; 08H sub-functions 0001H and 0004H only with --allow-restart.
+
+Ctrl-C, SIGTERM (timeout, CI runners) and SIGHUP stop the campaign after the current
+case: what was written is restored and the whole report is written, marked INCOMPLETE
+(exit 2).
 
 Exit codes: 0 no finding; 1 findings; 2 the run could not run or complete (no answer to
 the preflight, the link failed, a hung device did not come back, a register could not be
@@ -90,18 +94,23 @@ pub struct FuzzArgs {
     /// Seed of the cases: the same seed gives the same cases.
     #[arg(long, default_value_t = 1)]
     seed: u64,
-    /// Cases per mode (default 2000 when --duration is not given).
+    /// Cases per mode. With neither --cases nor --duration a campaign runs 15 s per mode
+    /// (a first look: about 150 cases a mode at 9600 baud); give --duration or --cases for
+    /// a real one.
     #[arg(long, value_name = "N")]
     cases: Option<u64>,
-    /// Time per mode (e.g. 30s, 10m); with --cases, whichever comes first.
-    #[arg(long, value_name = "TIME")]
-    duration: Option<humantime::Duration>,
+    /// Time per mode: a bare number is seconds (90), or with a unit (30s, 10m, 1h);
+    /// with --cases, whichever comes first. Default 15s when --cases is not given (the
+    /// time spent minimizing findings is not counted).
+    #[arg(long, value_name = "TIME", value_parser = parse_duration)]
+    duration: Option<Duration>,
     /// A liveness probe at least every K cases (besides the one after every silence).
     #[arg(long, value_name = "K", default_value_t = 50)]
     probe_every: u64,
-    /// How long to wait for a device that stopped answering to come back.
-    #[arg(long, value_name = "TIME", default_value = "10s")]
-    recover_wait: humantime::Duration,
+    /// How long to wait for a device that stopped answering to come back (a bare number
+    /// is seconds; or 500ms, 1m).
+    #[arg(long, value_name = "TIME", default_value = "10s", value_parser = parse_duration)]
+    recover_wait: Duration,
     /// Do not minimize findings by replaying.
     #[arg(long)]
     no_minimize: bool,
@@ -110,9 +119,8 @@ pub struct FuzzArgs {
     /// sequence and repeats with full windows any case that late bytes put in doubt).
     #[arg(long)]
     full_windows: bool,
-    /// Report format.
-    #[arg(long, value_enum, default_value = "text")]
-    format: Format,
+    #[arg(long, value_enum, help = FORMAT_DEFAULT)]
+    format: Option<Format>,
     /// Write the report here instead of stdout.
     #[arg(short, long, value_name = "FILE")]
     output: Option<PathBuf>,
@@ -129,9 +137,76 @@ pub struct FuzzArgs {
     /// List every exchange in the text report.
     #[arg(short, long)]
     verbose: bool,
-    /// No progress bar.
+    /// No progress: neither the bar on a terminal nor the lines (every 10 s) when stderr
+    /// is not a terminal.
     #[arg(short, long)]
     quiet: bool,
+}
+
+/// Without --cases and --duration: a campaign a user can sit through.
+const DEFAULT_DURATION: Duration = Duration::from_secs(15);
+
+/// How often a progress line is printed when stderr is not a terminal.
+const PLAIN_EVERY: Duration = Duration::from_secs(10);
+
+/// Progress as plain lines, for a stderr that is a pipe or a CI log (no bar to redraw):
+/// one line when a mode's cases start, one every [`PLAIN_EVERY`], and one when they end.
+struct PlainProgress {
+    mode: Option<Mode>,
+    started: Instant,
+    printed: Instant,
+    /// When the last case ended (a mode's closing line is printed later, after its
+    /// findings were minimized and the next mode has begun).
+    last: Instant,
+    cases: u64,
+    findings: usize,
+}
+
+impl PlainProgress {
+    fn new() -> Self {
+        PlainProgress {
+            mode: None,
+            started: Instant::now(),
+            printed: Instant::now(),
+            last: Instant::now(),
+            cases: 0,
+            findings: 0,
+        }
+    }
+
+    fn line(&self, mode: Mode, what: &str) {
+        let secs = self.last.duration_since(self.started).as_secs_f64();
+        eprintln!(
+            "fuzz {mode}: {what}{} cases in {secs:.0} s, {:.1} cases/s, {} finding(s)",
+            self.cases,
+            self.cases as f64 / secs.max(1e-3),
+            self.findings
+        );
+    }
+
+    fn update(&mut self, mode: Mode, cases: u64, findings: usize) {
+        if self.mode != Some(mode) {
+            self.end();
+            self.mode = Some(mode);
+            self.started = Instant::now();
+            self.printed = Instant::now();
+            eprintln!("fuzz {mode}: started");
+        }
+        self.cases = cases;
+        self.findings = findings;
+        self.last = Instant::now();
+        if self.printed.elapsed() >= PLAIN_EVERY {
+            self.printed = Instant::now();
+            self.line(mode, "");
+        }
+    }
+
+    /// The closing line of the mode under way, if any.
+    fn end(&mut self) {
+        if let Some(mode) = self.mode.take() {
+            self.line(mode, "done: ");
+        }
+    }
 }
 
 pub fn run(args: FuzzArgs) -> anyhow::Result<ExitCode> {
@@ -176,9 +251,9 @@ pub fn run(args: FuzzArgs) -> anyhow::Result<ExitCode> {
         line: Some(args.target.line.settings()),
         allow_restart: args.safety.allow_restart,
     };
-    let cases = match (args.cases, args.duration) {
-        (None, None) => Some(2000),
-        (c, _) => c,
+    let (cases, duration) = match (args.cases, args.duration) {
+        (None, None) => (None, Some(DEFAULT_DURATION)),
+        other => other,
     };
     if cases == Some(0) {
         bail!("--cases 0: nothing to send");
@@ -186,10 +261,10 @@ pub fn run(args: FuzzArgs) -> anyhow::Result<ExitCode> {
     let cfg = FuzzConfig {
         seed: args.seed,
         cases,
-        duration: args.duration.map(Into::into),
+        duration,
         writes: args.writes,
         probe_every: args.probe_every.max(1),
-        recover_wait: args.recover_wait.into(),
+        recover_wait: args.recover_wait,
         minimize: !args.no_minimize,
         replay: args.target.replay_prefix("send", &model.id),
         storm: args.storm.then_some(conformance::fuzz::storm::StormConfig {
@@ -221,22 +296,27 @@ pub fn run(args: FuzzArgs) -> anyhow::Result<ExitCode> {
         line,
         options,
     };
-    let stop = Arc::new(AtomicBool::new(false));
-    {
-        let stop = stop.clone();
-        ctrlc::set_handler(move || stop.store(true, Ordering::Relaxed))
-            .context("cannot install the Ctrl-C handler")?;
-    }
-    let bar = if !args.quiet && std::io::stderr().is_terminal() {
-        let b = indicatif::ProgressBar::new(cases.unwrap_or(0));
+    let stop = super::interrupt::stop_flag()?;
+    let terminal = std::io::stderr().is_terminal();
+    let bar = (!args.quiet && terminal).then(|| {
+        let (b, template) = match cases {
+            Some(n) => (
+                indicatif::ProgressBar::new(n),
+                "{bar:30} {pos}/{len} {wide_msg}",
+            ),
+            // A campaign of a duration: the cases count up, the time is the bound.
+            None => (
+                indicatif::ProgressBar::new_spinner(),
+                "{spinner} {pos} cases, {elapsed} {wide_msg}",
+            ),
+        };
         b.set_style(
-            indicatif::ProgressStyle::with_template("{bar:30} {pos}/{len} {wide_msg}")
+            indicatif::ProgressStyle::with_template(template)
                 .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
         );
-        Some(b)
-    } else {
-        None
-    };
+        b
+    });
+    let mut plain = (!args.quiet && !terminal).then(PlainProgress::new);
     let mut started = Instant::now();
     let mut last_mode = None;
     let mut progress = |mode: Mode, n: u64, findings: usize| {
@@ -251,10 +331,21 @@ pub fn run(args: FuzzArgs) -> anyhow::Result<ExitCode> {
                 n as f64 / started.elapsed().as_secs_f64().max(1e-3)
             ));
         }
+        if let Some(p) = plain.as_mut() {
+            p.update(mode, n, findings);
+        }
     };
     let report = session::fuzz(&config, &cfg, &stop, &mut progress)?;
     if let Some(b) = &bar {
         b.finish_and_clear();
     }
-    finish(&report, args.format, args.verbose, args.output.as_deref())
+    if let Some(p) = plain.as_mut() {
+        p.end();
+    }
+    finish(
+        &report,
+        format_for(args.format, args.output.as_deref()),
+        args.verbose,
+        args.output.as_deref(),
+    )
 }

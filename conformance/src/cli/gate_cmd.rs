@@ -12,13 +12,15 @@ use conformance::report::{Codec, Report, ReportKind, RunOptions};
 use conformance::runner::CheckResult;
 use conformance::vectors::VectorSet;
 
-use super::check_cmd::{finish, render, write_atomic, Format};
+use super::check_cmd::{finish, format_for, render, write_atomic, Format, FORMAT_DEFAULT};
 
 const AFTER_HELP: &str = "\
 The adapter protocol (line-delimited JSON on the adapter's stdin/stdout) is documented in
 adapters/PROTOCOL.md; adapters/*/ holds adapters for six implementations in four languages.
 
 Examples:
+  conformance gate --codec \"conformance adapter\"           this suite's own codec (the reference;
+                                                         `conformance` is this program)
   conformance gate --codec \"python3 adapters/pymodbus/adapter.py\"
   conformance gate --codec target/release/rmodbus-adapter --format junit -o gate.xml
   conformance gate --codec \"./my-adapter\" --seed 7 --count 5000 --no-vectors
@@ -29,7 +31,8 @@ adapter could not start, exited twice, or a case could not be decided).";
 #[derive(Debug, Args)]
 #[command(after_help = AFTER_HELP)]
 pub struct GateArgs {
-    /// The adapter command, run through `sh -c`.
+    /// The adapter command, run through `sh -c`. A first word `conformance` is this
+    /// program (its own codec: `conformance adapter`), whatever is on the PATH.
     #[arg(long, value_name = "CMD")]
     codec: String,
     /// Seed of the differential cases.
@@ -50,9 +53,8 @@ pub struct GateArgs {
     /// Milliseconds to wait for each answer.
     #[arg(long, value_name = "MS", default_value_t = 2000)]
     timeout: u64,
-    /// Report format.
-    #[arg(long, value_enum, default_value = "text")]
-    format: Format,
+    #[arg(long, value_enum, help = FORMAT_DEFAULT)]
+    format: Option<Format>,
     /// Write the report here (kept valid after every case) instead of stdout.
     #[arg(short, long, value_name = "FILE")]
     output: Option<PathBuf>,
@@ -62,6 +64,27 @@ pub struct GateArgs {
     /// No progress bar.
     #[arg(short, long)]
     quiet: bool,
+}
+
+/// The adapter command as it is run: a command whose first word is `conformance` runs this
+/// very program (`conformance adapter` works from a fresh clone, where `conformance` is
+/// not on the PATH, and always tests the codec of the version that runs the gate).
+fn this_program(command: &str) -> anyhow::Result<String> {
+    let trimmed = command.trim_start();
+    let Some(rest) = trimmed.strip_prefix("conformance") else {
+        return Ok(command.to_string());
+    };
+    if !(rest.is_empty() || rest.starts_with(char::is_whitespace)) {
+        return Ok(command.to_string());
+    }
+    let exe = std::env::current_exe()
+        .context("--codec \"conformance ...\" runs this program, but its path cannot be found: give the path of the conformance binary (e.g. target/release/conformance adapter)")?;
+    Ok(format!("{}{rest}", shell_quote(&exe.to_string_lossy())))
+}
+
+/// `text` as one word for `sh -c`.
+fn shell_quote(text: &str) -> String {
+    format!("'{}'", text.replace('\'', "'\\''"))
 }
 
 fn parse_seed(s: &str) -> Result<u64, String> {
@@ -129,7 +152,16 @@ pub fn run(args: GateArgs) -> anyhow::Result<ExitCode> {
             args.only.join(" --only ")
         );
     }
-    let mut adapter = Adapter::start(&args.codec, opts.timeout)?;
+    let stop = super::interrupt::stop_flag()?;
+    // An adapter that exits before it reads its hello (a missing module, a command not
+    // found) closes the pipe the gate writes to: that write must fail and be reported,
+    // not kill the gate with SIGPIPE (which main restores for `| head`).
+    #[cfg(unix)]
+    // SAFETY: sets the disposition of one signal to ignore; no handler runs.
+    unsafe {
+        libc::signal(libc::SIGPIPE, libc::SIG_IGN);
+    }
+    let mut adapter = Adapter::start(&this_program(&args.codec)?, opts.timeout)?;
     let hello = adapter.hello.clone();
     let started = humantime::format_rfc3339_seconds(SystemTime::now()).to_string();
     let report = Report {
@@ -164,11 +196,11 @@ pub fn run(args: GateArgs) -> anyhow::Result<ExitCode> {
         report,
         bar,
         output: args.output.as_ref(),
-        format: args.format,
+        format: format_for(args.format, args.output.as_deref()),
         verbose: args.verbose,
         error: None,
     };
-    gate::run(&mut adapter, &cases, &mut progress);
+    gate::run(&mut adapter, &cases, &stop, &mut progress);
     if let Some(b) = &progress.bar {
         b.finish_and_clear();
     }
@@ -188,11 +220,52 @@ pub fn run(args: GateArgs) -> anyhow::Result<ExitCode> {
             "the adapter exited twice; {gone} cases could not run"
         ));
     }
+    if stop.load(std::sync::atomic::Ordering::Relaxed) {
+        report.complete = false;
+        report.stopped = Some(format!(
+            "interrupted after {} of {} cases",
+            report.results.len(),
+            cases.len()
+        ));
+    }
     report.finished = Some(humantime::format_rfc3339_seconds(SystemTime::now()).to_string());
     if let Some(e) = progress.error {
         return Err(e);
     }
-    finish(&report, args.format, args.verbose, args.output.as_deref())
+    finish(
+        &report,
+        format_for(args.format, args.output.as_deref()),
+        args.verbose,
+        args.output.as_deref(),
+    )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn conformance_is_this_program() {
+        let exe = std::env::current_exe().unwrap();
+        let me = shell_quote(&exe.to_string_lossy());
+        assert_eq!(
+            this_program("conformance adapter").unwrap(),
+            format!("{me} adapter")
+        );
+        assert_eq!(this_program("conformance").unwrap(), me);
+        assert_eq!(
+            this_program("  conformance adapter --break accept-bad-checksum").unwrap(),
+            format!("{me} adapter --break accept-bad-checksum")
+        );
+        for other in [
+            "conformance-adapter",
+            "./conformance adapter",
+            "python3 adapters/pymodbus/adapter.py",
+        ] {
+            assert_eq!(this_program(other).unwrap(), other);
+        }
+        assert_eq!(shell_quote("/a b/it's"), "'/a b/it'\\''s'");
+    }
 }
 
 #[derive(Debug, Args)]

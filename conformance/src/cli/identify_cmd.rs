@@ -4,7 +4,7 @@
 use std::io::{IsTerminal, Write};
 use std::path::PathBuf;
 use std::process::ExitCode;
-use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::atomic::AtomicBool;
 use std::sync::Arc;
 use std::time::Duration;
 
@@ -164,22 +164,13 @@ pub fn identify_device(
     Ok(id)
 }
 
-/// Installs the Ctrl-C handler that sets the returned flag.
-pub fn stop_flag() -> anyhow::Result<Arc<AtomicBool>> {
-    let stop = Arc::new(AtomicBool::new(false));
-    let s = stop.clone();
-    ctrlc::set_handler(move || s.store(true, Ordering::Relaxed))
-        .context("cannot install the Ctrl-C handler")?;
-    Ok(stop)
-}
-
 pub fn run(args: IdentifyArgs) -> anyhow::Result<ExitCode> {
     if args.target.model.is_some() || args.target.model_file.is_some() {
         bail!("identify finds the model itself: --model and --model-file are not taken (`check --model auto` identifies and then checks)");
     }
     let link = args.target.resolve_link(false, None)?;
     let config = config(&args.target, link, &args.tuning)?;
-    let stop = stop_flag()?;
+    let stop = super::interrupt::stop_flag()?;
     let id = identify_device(&config, &stop, args.quiet)?;
     let rendered = match args.format {
         Format::Text => render::text(&id),

@@ -6,6 +6,7 @@ mod common;
 mod fuzz_cmd;
 mod gate_cmd;
 mod identify_cmd;
+mod interrupt;
 mod link;
 mod model_cmd;
 mod report_cmd;
@@ -23,7 +24,7 @@ use clap::{Parser, Subcommand};
 #[derive(Debug, Parser)]
 #[command(name = "conformance", version, about, long_about = None)]
 #[command(
-    after_help = "Exit codes: 0 ok; 1 a problem was found (bad checksum, failing vector); 2 the command could not run."
+    after_help = "Exit codes: 0 ok; 1 a problem was found (bad checksum, failing vector); 2 the command could not run.\n\nCtrl-C, SIGTERM and SIGHUP stop a long command (check, fuzz, scan, identify, simulate, gate) after its current check, case or probe: what it wrote is restored and its report is whole, marked incomplete (exit 2)."
 )]
 pub struct Cli {
     #[command(subcommand)]
@@ -57,7 +58,7 @@ enum Command {
     Scan(scan_cmd::ScanArgs),
     /// Check another Modbus codec through an adapter (adapters/PROTOCOL.md).
     Gate(gate_cmd::GateArgs),
-    /// Render a saved JSON report as HTML, text, JUnit XML, CSV or JSON.
+    /// Render a saved JSON report as text (the default), HTML, JUnit XML, CSV or JSON.
     Report(report_cmd::ReportArgs),
     /// What changed between two runs of the same model (e.g. two firmware versions).
     Diff(report_cmd::DiffArgs),

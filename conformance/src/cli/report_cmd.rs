@@ -9,15 +9,16 @@ use anyhow::Context;
 use clap::Args;
 use conformance::report::Report;
 
-use super::check_cmd::{render, write_atomic, Format};
+use super::check_cmd::{format_for, render, write_atomic, Format, FORMAT_DEFAULT};
 use super::common::Number;
 
 const REPORT_AFTER_HELP: &str = "\
 Examples:
   conformance check --sim f510 --format json -o run.json
-  conformance report run.json --format html -o run.html
+  conformance report run.json                  text on the terminal (the default)
+  conformance report run.json -o run.html      a page for people (the format from .html)
   conformance report run.json --format csv > run.csv
-  conformance report bus.json --format text       # a run of several nodes (check -a 1,2,5)
+  conformance report bus.json                  a run of several nodes (check -a 1,2,5)
 
 A report of a run of several nodes renders per node: text in one section per node and one
 for the bus checks, JUnit one suite per node and one for the bus, CSV with a node column,
@@ -31,9 +32,8 @@ pub struct ReportArgs {
     /// A JSON report written by `check` or `gate` (--format json).
     #[arg(value_name = "FILE.json")]
     file: PathBuf,
-    /// Output format.
-    #[arg(long, value_enum, default_value = "html")]
-    format: Format,
+    #[arg(long, value_enum, help = FORMAT_DEFAULT)]
+    format: Option<Format>,
     /// Write here instead of stdout.
     #[arg(short, long, value_name = "FILE")]
     output: Option<PathBuf>,
@@ -64,8 +64,9 @@ pub fn emit(text: &str, output: Option<&Path>) -> anyhow::Result<()> {
 
 pub fn report(args: ReportArgs) -> anyhow::Result<ExitCode> {
     let report = load(&args.file)?;
+    let format = format_for(args.format, args.output.as_deref());
     emit(
-        &render(&report, args.format, args.verbose)?,
+        &render(&report, format, args.verbose)?,
         args.output.as_deref(),
     )?;
     Ok(ExitCode::SUCCESS)

@@ -4,8 +4,6 @@
 use std::io::{IsTerminal, Write};
 use std::path::PathBuf;
 use std::process::ExitCode;
-use std::sync::atomic::{AtomicBool, Ordering};
-use std::sync::Arc;
 use std::time::Duration;
 
 use anyhow::{bail, Context};
@@ -271,12 +269,7 @@ pub fn run(args: ScanArgs) -> anyhow::Result<ExitCode> {
         reply_window: args.reply_window.map(Duration::from_millis),
     };
 
-    let stop = Arc::new(AtomicBool::new(false));
-    {
-        let stop = stop.clone();
-        ctrlc::set_handler(move || stop.store(true, Ordering::Relaxed))
-            .context("cannot install the Ctrl-C handler")?;
-    }
+    let stop = super::interrupt::stop_flag()?;
     // The same progress style as check and gate; the bar counts planned wire time, so
     // that the ETA weighs slow settings right.
     let bar = if !args.quiet && std::io::stderr().is_terminal() {

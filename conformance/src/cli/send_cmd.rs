@@ -8,6 +8,7 @@ use std::time::Duration;
 
 use anyhow::{bail, Context};
 use clap::Args;
+use conformance::codec::crc::crc16_frame_ok;
 use conformance::codec::hex::{parse_hex, Hex};
 use conformance::codec::Mode;
 use conformance::runner::compare::{describe_reply, explain_invalid, show};
@@ -18,20 +19,22 @@ use super::link::{Resolved, TargetArgs};
 
 const AFTER_HELP: &str = "\
 Examples:
-  conformance send --sim f510 --mode rtu 010325200001 8ECC        (spaces are free)
-  conformance send --sim f510 --mode rtu '01 03 25 20 00 01 8E CC'
+  conformance send --sim f510 --mode rtu '010325200001 8ECC'      one frame (spaces are free
+                                                   inside one quoted argument)
+  conformance send --sim f510 --mode rtu 0103252000018ECC 010325210001DF0C   two frames
   conformance send --model f510 --port /dev/ttyUSB0 -b 9600 -P even --mode ascii ':010325200001B6\\r\\n'
   conformance send --sim f510 --quirk overflow-after=3 --mode rtu --burst F1 F2 F3 F4
-  conformance send --sim f510 --mode rtu --split 3 --gap 2900us 010325200001 8ECC
-  conformance send --model f510 --tcp 10.0.0.8:502 --framing mbap 010325200001 8ECC
+  conformance send --sim f510 --mode rtu --split 3 --gap 2900us 0103252000018ECC
+  conformance send --model f510 --tcp 10.0.0.8:502 --framing mbap 0103252000018ECC
                     (an RTU frame, sent as its PDU in MBAP; its CRC must be valid)
 
-A frame is hex bytes (RTU, or ASCII characters in hex), or in ASCII mode the text itself
-from ':' with \\r and \\n written as escapes. Frames are sent as given (the checksum is not
-fixed), each after t3.5 of silence; with --burst all in one write, back to back. With
---split POS[,POS...] --gap TIME the frames go out as one transmission cut after byte POS
-(counted over all the frames) with TIME of silence at each cut: timing damage, on a
-link with line timing only (a real port, or the simulator without --no-pace). The model
+Each argument is one frame: hex bytes (RTU, or ASCII characters in hex), spaces free inside
+it (quote it), or in ASCII mode the text itself from ':' with \\r and \\n written as
+escapes. Frames are sent as given (the checksum is not fixed), each after t3.5 of silence;
+with --burst all in one write, back to back. With --split POS[,POS...] --gap TIME the
+frames go out as one transmission cut after byte POS (counted over all the frames) with
+TIME of silence at each cut: timing damage, on a link with line timing only (a real port,
+or the simulator without --no-pace). The model
 predicts by the silence: under t1.5 one frame; between t1.5 and t3.5 an incomplete frame
 (silence); t3.5 or more, fragments judged one by one; frames cut only where they end, with
 less than t3.5, one frame with a wrong CRC (silence; a decision of the model).
@@ -51,10 +54,11 @@ pub struct SendArgs {
     /// which go out as one transmission), with --gap of silence at each cut.
     #[arg(long, value_name = "POS,...", value_delimiter = ',', requires = "gap")]
     split: Vec<usize>,
-    /// The silence at each --split cut (e.g. 2900us, 3ms).
-    #[arg(long, value_name = "TIME", requires = "split")]
-    gap: Option<humantime::Duration>,
-    /// The frames.
+    /// The silence at each --split cut, with a unit (2900us, 3ms; a bare number is
+    /// seconds, as in every duration option).
+    #[arg(long, value_name = "TIME", requires = "split", value_parser = super::common::parse_duration)]
+    gap: Option<Duration>,
+    /// The frames, one per argument (spaces inside a quoted argument are free).
     #[arg(value_name = "FRAME", required = true)]
     frames: Vec<String>,
 }
@@ -65,6 +69,28 @@ fn parse_frame(mode: Mode, text: &str) -> anyhow::Result<Vec<u8>> {
         return Ok(t.replace("\\r", "\r").replace("\\n", "\n").into_bytes());
     }
     parse_hex(t).with_context(|| format!("{t:?} is not a frame in hex"))
+}
+
+/// A note for each pair of arguments that are two bad RTU frames but one good one
+/// together: most likely one frame written with a space and not quoted. They are still
+/// sent as given (a replayed sequence may mean it).
+fn split_frame_notes(texts: &[String], frames: &[Vec<u8>]) -> Vec<String> {
+    let mut notes = Vec::new();
+    for i in 1..frames.len() {
+        let (a, b) = (&frames[i - 1], &frames[i]);
+        let joined: Vec<u8> = a.iter().chain(b).copied().collect();
+        if !crc16_frame_ok(a) && !crc16_frame_ok(b) && crc16_frame_ok(&joined) {
+            notes.push(format!(
+                "note: arguments {i} and {} ({} and {}) are each a frame with a wrong CRC, but one frame with a good CRC together: each argument is one frame; to send one, quote it as one argument ('{} {}')",
+                i + 1,
+                texts[i - 1].trim(),
+                texts[i].trim(),
+                texts[i - 1].trim(),
+                texts[i].trim()
+            ));
+        }
+    }
+    notes
 }
 
 pub fn run(args: SendArgs) -> anyhow::Result<ExitCode> {
@@ -86,6 +112,11 @@ pub fn run(args: SendArgs) -> anyhow::Result<ExitCode> {
     }
     if frames.is_empty() {
         bail!("no frame to send");
+    }
+    if mode == Mode::Rtu {
+        for note in split_frame_notes(&args.frames, &frames) {
+            eprintln!("{note}");
+        }
     }
     let options = Options {
         address: args.target.address(),
@@ -122,7 +153,7 @@ pub fn run(args: SendArgs) -> anyhow::Result<ExitCode> {
             &config,
             &frames,
             &args.split,
-            gap.into(),
+            gap,
         );
     }
     let sends: Vec<Vec<u8>> = if args.burst {

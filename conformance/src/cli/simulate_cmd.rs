@@ -32,7 +32,7 @@ fn quirk_help() -> String {
     );
     s.push_str("\nExamples:\n  conformance simulate --model f510 --pty\n  conformance simulate --model f510 --pty -a 1,2,5 --quirk dead@5   three drives on one bus\n  conformance simulate --model l510 --mode ascii --tcp 127.0.0.1:5020 --quirk late-reply=200\n  conformance simulate --model a510 --port /dev/ttyUSB0 -b 19200 -P none\n  conformance simulate --model e510 --pty --emulate-line -b 19200 -P odd -m ascii -a 17   a drive to find with `conformance scan`\n  conformance simulate --model f510 -a 3 --tcp 127.0.0.1:5502 --framing mbap\n");
     s.push_str("\nModbus TCP (--framing mbap): the drive behind a simulated Modbus TCP gateway. Several\nconnections at once (--connections, default 8) against one drive state, served one\nrequest at a time in arrival order, as a gateway's one serial line is. Unit id = the node\naddress (-a) is the drive; unit 0 is a broadcast (executed, never answered); any other\nunit id is a node nobody has: after --gateway-timeout the gateway answers exception 0BH\n(gateway target device failed to respond), or nothing with --gateway-no-reply silence.\nReplies a gateway's serial receiver would drop (wrong CRC, echo) do not cross.\n");
-    s.push_str("\nExit codes: 0 stopped by Ctrl-C; 2 the link or the log failed.");
+    s.push_str("\nExit codes: 0 stopped by Ctrl-C, SIGTERM or SIGHUP (the --link is removed); 2 the link\nor the log failed.");
     s
 }
 
@@ -165,12 +165,7 @@ pub fn run(args: SimulateArgs) -> anyhow::Result<ExitCode> {
         log = log.with_sink(LogFormat::Json, Box::new(std::io::BufWriter::new(file)));
     }
 
-    let stop = Arc::new(AtomicBool::new(false));
-    {
-        let stop = stop.clone();
-        ctrlc::set_handler(move || stop.store(true, Ordering::Relaxed))
-            .context("cannot install the Ctrl-C handler")?;
-    }
+    let stop = super::interrupt::stop_flag()?;
     let quirks: Vec<String> = args.quirks.iter().map(|q| q.to_string()).collect();
     let banner = format!(
         "simulated {} ({}) at node{} {}, {mode}, response delay {:.1} ms{}",
@@ -206,21 +201,17 @@ pub fn run(args: SimulateArgs) -> anyhow::Result<ExitCode> {
                 t = t.with_line_emulation(line)?;
             }
             let path = t.slave_path().to_path_buf();
-            if let Some(link) = &args.link {
-                let _ = std::fs::remove_file(link);
-                std::os::unix::fs::symlink(&path, link).with_context(|| {
-                    format!("cannot link {} to {}", link.display(), path.display())
-                })?;
-            }
+            // Removed when this scope ends: the serve loop's end on Ctrl-C, SIGTERM or
+            // SIGHUP, and every error return.
+            let _link = match &args.link {
+                Some(link) => Some(PtyLink::make(link, &path)?),
+                None => None,
+            };
             let mut out = std::io::stdout();
             writeln!(out, "{}", path.display())?;
             out.flush()?;
             log.message(&format!("{banner} on {}", t.describe()))?;
-            let r = run_once(&mut t, &mut drive, mode, &mut log, &stop);
-            if let Some(link) = &args.link {
-                let _ = std::fs::remove_file(link);
-            }
-            r
+            run_once(&mut t, &mut drive, mode, &mut log, &stop)
         }
         #[cfg(not(unix))]
         bail!("pseudo-terminals need a Unix system")
@@ -275,6 +266,47 @@ pub fn run(args: SimulateArgs) -> anyhow::Result<ExitCode> {
     match result {
         Ok(()) => Ok(ExitCode::SUCCESS),
         Err(e) => Err(e.into()),
+    }
+}
+
+/// The symbolic link of `--link` to the pseudo-terminal's slave, removed when dropped
+/// (if it still points there: a link another simulator made since is left alone).
+#[cfg(unix)]
+struct PtyLink {
+    link: PathBuf,
+    target: PathBuf,
+}
+
+#[cfg(unix)]
+impl PtyLink {
+    /// Makes `link` point to `target`. A symbolic link already there (left by a simulator
+    /// that was killed) is replaced; anything else is refused, never deleted.
+    fn make(link: &std::path::Path, target: &std::path::Path) -> anyhow::Result<PtyLink> {
+        if let Ok(meta) = std::fs::symlink_metadata(link) {
+            if !meta.file_type().is_symlink() {
+                bail!(
+                    "--link {}: there is a file there that is not a symbolic link; it is not replaced (give another path)",
+                    link.display()
+                );
+            }
+            std::fs::remove_file(link)
+                .with_context(|| format!("cannot replace the old link {}", link.display()))?;
+        }
+        std::os::unix::fs::symlink(target, link)
+            .with_context(|| format!("cannot link {} to {}", link.display(), target.display()))?;
+        Ok(PtyLink {
+            link: link.to_path_buf(),
+            target: target.to_path_buf(),
+        })
+    }
+}
+
+#[cfg(unix)]
+impl Drop for PtyLink {
+    fn drop(&mut self) {
+        if std::fs::read_link(&self.link).is_ok_and(|t| t == self.target) {
+            let _ = std::fs::remove_file(&self.link);
+        }
     }
 }
 

@@ -107,7 +107,7 @@ pub fn campaign_result(m: &ModeOutcome) -> CheckResult {
                 .iter()
                 .map(|(why, n)| format!("{n}: {why}"))
                 .collect();
-            format!(", {skipped} case(s) not sent ({})", why.join("; "))
+            format!("; {skipped} case(s) not sent ({})", why.join("; "))
         } else {
             String::new()
         }

@@ -9,6 +9,7 @@
 use std::io::{BufRead, BufReader, Read, Write};
 use std::process::{Child, ChildStdin, Command, Stdio};
 use std::sync::mpsc::{channel, Receiver, RecvTimeoutError};
+use std::sync::{Arc, Mutex};
 use std::thread;
 use std::time::{Duration, Instant};
 
@@ -38,13 +39,127 @@ pub enum AdapterError {
         source: std::io::Error,
     },
     /// The handshake failed.
-    #[error("adapter {command:?}: handshake failed: {problem}")]
+    #[error(
+        "adapter {command:?}: handshake failed: {problem}{}\nhint: {hint}",
+        shown(stderr)
+    )]
     Handshake {
         /// The command.
         command: String,
         /// What went wrong.
         problem: String,
+        /// What the adapter wrote on its stderr before it failed (its first and last
+        /// lines), empty if nothing.
+        stderr: Vec<String>,
+        /// What to do about it.
+        hint: String,
     },
+}
+
+/// The adapter's stderr lines under the error, indented.
+fn shown(stderr: &[String]) -> String {
+    if stderr.is_empty() {
+        return "; it wrote nothing on stderr".into();
+    }
+    let mut s = String::from("; it wrote on stderr:");
+    for line in stderr {
+        s.push_str("\n  | ");
+        s.push_str(line);
+    }
+    s
+}
+
+/// What to do about an adapter that failed its handshake, from what it wrote on stderr.
+pub fn handshake_hint(command: &str, stderr: &[String]) -> String {
+    let said = |what: &str| stderr.iter().any(|l| l.contains(what));
+    if said("Cannot find module") || said("MODULE_NOT_FOUND") {
+        "a Node.js module is missing: install the adapter's packages in its folder first \
+         (for jsmodbus: `(cd adapters/jsmodbus && npm ci)`; see its README.md)"
+            .into()
+    } else if said("ModuleNotFoundError") || said("No module named") {
+        "a Python module is missing: install the adapter's requirements (`pip install -r \
+         adapters/<name>/requirements.txt`, see its README.md), or run the adapter with the \
+         Python that has them"
+            .into()
+    } else if said(": not found") || said("No such file or directory") || said("command not found")
+    {
+        "the command was not found: check its path (a Rust adapter is built first, e.g. \
+         `cargo build --release -p rmodbus-adapter`; this suite's own codec is \
+         `--codec \"conformance adapter\"`)"
+            .into()
+    } else {
+        format!(
+            "run the adapter by itself to see why: echo '{{\"id\":0,\"op\":\"hello\",\"protocol\":{PROTOCOL}}}' | {command}"
+        )
+    }
+}
+
+/// Lines kept from the start and from the end of an adapter's stderr before its
+/// handshake: a Node error leads with its message, a Python traceback ends with it.
+const STDERR_HEAD: usize = 12;
+const STDERR_TAIL: usize = 12;
+
+/// An adapter's stderr: held back until its handshake succeeds (so that a failed start
+/// is told once, in the error, with a hint), then passed through to ours.
+#[derive(Default)]
+struct StderrState {
+    head: Vec<String>,
+    tail: std::collections::VecDeque<String>,
+    left_out: usize,
+    pass_through: bool,
+    ended: bool,
+}
+
+impl StderrState {
+    fn keep(&mut self, line: String) {
+        if self.head.len() < STDERR_HEAD {
+            self.head.push(line);
+            return;
+        }
+        self.tail.push_back(line);
+        if self.tail.len() > STDERR_TAIL {
+            self.tail.pop_front();
+            self.left_out += 1;
+        }
+    }
+
+    fn lines(&self) -> Vec<String> {
+        let mut out = self.head.clone();
+        if self.left_out > 0 {
+            out.push(format!("... ({} lines left out)", self.left_out));
+        }
+        out.extend(self.tail.iter().cloned());
+        out
+    }
+}
+
+type Stderr = Arc<Mutex<StderrState>>;
+
+/// Reads the adapter's stderr on a thread into `state` (or straight through, once it
+/// passes through).
+fn watch_stderr(pipe: std::process::ChildStderr, state: Stderr) {
+    thread::spawn(move || {
+        let mut reader = BufReader::new(pipe);
+        let mut buf = Vec::new();
+        loop {
+            buf.clear();
+            match reader.read_until(b'\n', &mut buf) {
+                Ok(0) | Err(_) => break,
+                Ok(_) => {}
+            }
+            let line = String::from_utf8_lossy(&buf).trim_end().to_string();
+            let Ok(mut s) = state.lock() else { break };
+            if s.pass_through {
+                drop(s);
+                eprintln!("{line}");
+            } else {
+                s.keep(line);
+            }
+        }
+        if let Ok(mut s) = state.lock() {
+            s.ended = true;
+        }
+    });
 }
 
 /// Why one call failed.
@@ -101,6 +216,37 @@ struct Process {
     child: Child,
     stdin: ChildStdin,
     lines: Receiver<Line>,
+    stderr: Stderr,
+}
+
+impl Process {
+    /// From now on the adapter's stderr goes straight to ours (what it held back first).
+    fn pass_stderr_through(&self) {
+        if let Ok(mut s) = self.stderr.lock() {
+            for line in s.lines() {
+                eprintln!("{line}");
+            }
+            *s = StderrState {
+                pass_through: true,
+                ..StderrState::default()
+            };
+        }
+    }
+
+    /// What the adapter wrote on stderr so far; waits a moment for the end of it when
+    /// the adapter has exited (the reading thread may be behind).
+    fn stderr_lines(&mut self) -> Vec<String> {
+        let exited = matches!(self.child.try_wait(), Ok(Some(_)));
+        let deadline = Instant::now() + Duration::from_secs(2);
+        loop {
+            match self.stderr.lock() {
+                Ok(s) if s.ended || !exited || Instant::now() >= deadline => return s.lines(),
+                Ok(_) => {}
+                Err(_) => return Vec::new(),
+            }
+            thread::sleep(Duration::from_millis(10));
+        }
+    }
 }
 
 /// Kills the adapter and everything in its process group, and reaps it.
@@ -124,19 +270,24 @@ pub struct Adapter {
     next_id: u64,
     exits: u32,
     timeouts: u32,
+    /// Until the first handshake succeeds: an adapter that fails to start is reported
+    /// (with its stderr), not restarted.
+    starting: bool,
     /// The handshake.
     pub hello: Hello,
     /// Crashes and restarts, for the report.
     pub incidents: Vec<String>,
 }
 
-fn spawn(command: &str) -> Result<Process, std::io::Error> {
+/// Starts `command`; its stderr is held back until [`Process::pass_stderr_through`], or
+/// passes through at once with `pass_through`.
+fn spawn(command: &str, pass_through: bool) -> Result<Process, std::io::Error> {
     let mut cmd = Command::new("sh");
     cmd.arg("-c")
         .arg(command)
         .stdin(Stdio::piped())
         .stdout(Stdio::piped())
-        .stderr(Stdio::inherit());
+        .stderr(Stdio::piped());
     // Its own process group, so that killing it also kills what the shell started.
     #[cfg(unix)]
     std::os::unix::process::CommandExt::process_group(&mut cmd, 0);
@@ -149,6 +300,13 @@ fn spawn(command: &str) -> Result<Process, std::io::Error> {
         .stdout
         .take()
         .ok_or_else(|| std::io::Error::other("no stdout"))?;
+    let stderr: Stderr = Arc::new(Mutex::new(StderrState {
+        pass_through,
+        ..StderrState::default()
+    }));
+    if let Some(pipe) = child.stderr.take() {
+        watch_stderr(pipe, stderr.clone());
+    }
     let (tx, rx) = channel();
     thread::spawn(move || {
         let mut reader = BufReader::new(stdout);
@@ -182,13 +340,14 @@ fn spawn(command: &str) -> Result<Process, std::io::Error> {
         child,
         stdin,
         lines: rx,
+        stderr,
     })
 }
 
 impl Adapter {
     /// Starts `command` (through `sh -c`) and shakes hands.
     pub fn start(command: &str, timeout: Duration) -> Result<Self, AdapterError> {
-        let process = spawn(command).map_err(|source| AdapterError::Spawn {
+        let process = spawn(command, false).map_err(|source| AdapterError::Spawn {
             command: command.to_string(),
             source,
         })?;
@@ -199,13 +358,30 @@ impl Adapter {
             next_id: 1,
             exits: 0,
             timeouts: 0,
+            starting: true,
             hello: Hello::default(),
             incidents: Vec::new(),
         };
-        a.hello = a.handshake().map_err(|problem| AdapterError::Handshake {
-            command: command.to_string(),
-            problem,
-        })?;
+        match a.handshake() {
+            Ok(hello) => a.hello = hello,
+            Err(problem) => {
+                let stderr = a
+                    .process
+                    .as_mut()
+                    .map(Process::stderr_lines)
+                    .unwrap_or_default();
+                return Err(AdapterError::Handshake {
+                    command: command.to_string(),
+                    hint: handshake_hint(command, &stderr),
+                    problem,
+                    stderr,
+                });
+            }
+        }
+        if let Some(p) = &a.process {
+            p.pass_stderr_through();
+        }
+        a.starting = false;
         Ok(a)
     }
 
@@ -249,6 +425,16 @@ impl Adapter {
         &self.command
     }
 
+    /// The adapter exited or its input closed: restarted once (see [`Adapter::restart`]),
+    /// except at the start, where the failure is the error.
+    fn exited(&mut self, why: String) -> CallError {
+        if self.starting {
+            CallError::Crashed(why)
+        } else {
+            self.restart(why)
+        }
+    }
+
     fn restart(&mut self, why: String) -> CallError {
         if let Some(mut p) = self.process.take() {
             kill(&mut p.child);
@@ -259,7 +445,7 @@ impl Adapter {
                 .push(format!("{why}; exited a second time, not restarted"));
             return CallError::Crashed(why);
         }
-        match spawn(&self.command) {
+        match spawn(&self.command, true) {
             Ok(p) => {
                 self.process = Some(p);
                 match self.handshake() {
@@ -300,11 +486,16 @@ impl Adapter {
             .write_all(line.as_bytes())
             .and_then(|_| p.stdin.flush())
         {
-            let status = p.child.try_wait().ok().flatten();
-            return Err(self.restart(format!(
-                "writing to it failed ({e}){}",
-                status.map(|s| format!(", {s}")).unwrap_or_default()
-            )));
+            // At the start, an adapter that could not even read its hello has usually
+            // exited: its end of output and exit status (read below) say so, whichever
+            // of the two pipes the race closed first.
+            if !self.starting {
+                let status = p.child.try_wait().ok().flatten();
+                return Err(self.exited(format!(
+                    "writing to it failed ({e}){}",
+                    status.map(|s| format!(", {s}")).unwrap_or_default()
+                )));
+            }
         }
         let deadline = Instant::now() + self.timeout;
         loop {
@@ -354,7 +545,7 @@ impl Adapter {
                         .wait()
                         .map(|s| s.to_string())
                         .unwrap_or_else(|e| e.to_string());
-                    return Err(self.restart(format!("its output closed: {status}")));
+                    return Err(self.exited(format!("its output closed: {status}")));
                 }
             }
         }

@@ -749,14 +749,19 @@ pub trait GateProgress {
     fn finished(&mut self, result: &CheckResult);
 }
 
-/// Runs `cases` through `adapter`.
+/// Runs `cases` through `adapter`; stops before the next case once `stop` is set (the
+/// results so far are returned).
 pub fn run(
     adapter: &mut Adapter,
     cases: &[Case],
+    stop: &std::sync::atomic::AtomicBool,
     progress: &mut dyn GateProgress,
 ) -> Vec<CheckResult> {
     let mut out = Vec::with_capacity(cases.len());
     for case in cases {
+        if stop.load(std::sync::atomic::Ordering::Relaxed) {
+            break;
+        }
         progress.started(case);
         let t0 = Instant::now();
         let request_bytes = match &case.op {

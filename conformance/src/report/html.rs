@@ -428,13 +428,13 @@ fn header(out: &mut String, report: &Report) {
                 "<tr><td>{}</td><td class=\"num\">{:.1} s</td><td class=\"num\">{}</td><td class=\"num\">{}</td><td class=\"num\">{}</td><td class=\"num\">{} / {}</td><td class=\"num\">{}</td><td class=\"num\">{:.1} ms</td><td class=\"num\">{:.1} ms</td></tr>",
                 esc(&mode.to_uppercase()),
                 b.wall.as_secs_f64(),
-                // No bound behind a Modbus TCP gateway: the line's timing is its own.
-                if b.bound.is_zero() {
-                    "none (gateway)".to_string()
-                } else {
-                    format!("{:.1} s", b.bound.as_secs_f64())
+                // No bound behind a Modbus TCP gateway (the line's timing is its own) or
+                // on a pseudo-terminal (no line timing at all).
+                match b.no_bound {
+                    Some(why) => format!("<span title=\"{}\">{}</span>", esc(why.reason()), why.short()),
+                    None => format!("{:.1} s", b.bound.as_secs_f64()),
                 },
-                if b.bound.is_zero() {
+                if b.no_bound.is_some() || b.bound.is_zero() {
                     "-".to_string()
                 } else {
                     format!("{:.0} %", b.efficiency() * 100.0)

@@ -338,7 +338,7 @@ fn ms(d: std::time::Duration) -> f64 {
 }
 
 fn budget_json(b: &ModeBudget) -> Value {
-    json!({
+    let mut v = json!({
         "wall_ms": ms(b.wall),
         "bound_ms": ms(b.bound),
         "efficiency": (b.efficiency() * 1000.0).round() / 1000.0,
@@ -348,7 +348,11 @@ fn budget_json(b: &ModeBudget) -> Value {
         "response_ms": ms(b.line.response),
         "max_response_ms": ms(b.line.max_response),
         "silences": b.line.silences,
-    })
+    });
+    if let Some(why) = b.no_bound {
+        v["no_bound"] = json!(why.key());
+    }
+    v
 }
 
 fn check_json(r: &CheckResult) -> Value {

@@ -209,9 +209,29 @@ fn check(c: &Value, path: &str) -> Result<CheckResult, ReportError> {
 }
 
 fn budget(b: &Value, path: &str) -> Result<ModeBudget, ReportError> {
+    let bound = millis(b, "bound_ms", path)?;
+    let frames = uint(b, "frames", path)?;
+    let no_bound = match b.get("no_bound") {
+        None | Some(Value::Null) if bound.is_zero() && frames > 0 => {
+            // Older reports: a zero bound was only ever a gateway's.
+            Some(crate::runner::NoBound::Gateway)
+        }
+        None | Some(Value::Null) => None,
+        Some(v) => Some(
+            v.as_str()
+                .and_then(crate::runner::NoBound::from_key)
+                .ok_or_else(|| {
+                    field(
+                        &format!("{path}.no_bound"),
+                        format!("{v} is not \"gateway\" or \"pty\""),
+                    )
+                })?,
+        ),
+    };
     Ok(ModeBudget {
         wall: millis(b, "wall_ms", path)?,
-        bound: millis(b, "bound_ms", path)?,
+        bound,
+        no_bound,
         line: LineBudget {
             frames: uint(b, "frames", path)?,
             bytes_sent: uint(b, "bytes_sent", path)?,

@@ -11,6 +11,20 @@ use crate::codec::hex::Hex;
 use crate::codec::Mode;
 use crate::runner::{CheckResult, ExchangeRecord, Status};
 
+/// `text` up to its first "; " outside parentheses (all of it if there is none).
+fn first_clause(text: &str) -> &str {
+    let mut depth = 0usize;
+    for (i, c) in text.char_indices() {
+        match c {
+            '(' => depth += 1,
+            ')' => depth = depth.saturating_sub(1),
+            ';' if depth == 0 => return &text[..i],
+            _ => {}
+        }
+    }
+    text
+}
+
 /// The report as text; `verbose` also lists every passing check and every exchange.
 pub fn text(r: &Report, verbose: bool) -> String {
     let mut o = String::new();
@@ -114,13 +128,14 @@ pub fn text(r: &Report, verbose: bool) -> String {
         }
     );
     for (mode, b) in &r.budget {
-        if b.bound.is_zero() && b.line.frames > 0 {
-            // Behind a Modbus TCP gateway the serial line's timing is the gateway's.
+        if let Some(why) = b.no_bound {
+            // Behind a Modbus TCP gateway, or on a pseudo-terminal: no line to bound by.
             let _ = writeln!(
                 o,
-                "budget:  {mode}: {:.1} s for {} frames; no line bound: the serial line is behind a gateway, whose timing is not seen from here",
+                "budget:  {mode}: {:.1} s for {} frames; no line bound: {}",
                 b.wall.as_secs_f64(),
-                b.line.frames
+                b.line.frames,
+                why.reason()
             );
             continue;
         }
@@ -133,6 +148,18 @@ pub fn text(r: &Report, verbose: bool) -> String {
             b.efficiency() * 100.0,
             b.line.silences
         );
+    }
+    if r.kind == super::ReportKind::Fuzz {
+        // Each mode's campaign in one line (cases, rate, findings): the first clause of
+        // its result, which is listed in full with the passing checks (--verbose).
+        for c in r
+            .results
+            .iter()
+            .filter(|c| c.id.starts_with("fuzz.") && c.id.ends_with(".campaign"))
+        {
+            let mode = c.mode.map(|m| m.to_string()).unwrap_or_default();
+            let _ = writeln!(o, "fuzz:    {mode}: {}", first_clause(&c.summary));
+        }
     }
     let sections = r.node_summaries();
     if sections.is_empty() {
@@ -405,5 +432,20 @@ fn exchange(o: &mut String, mode: Option<Mode>, e: &ExchangeRecord) {
     }
     if let Some(l) = e.latency {
         let _ = writeln!(o, "      latency  {:.1} ms", l.as_secs_f64() * 1000.0);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::first_clause;
+
+    #[test]
+    fn the_first_clause_skips_semicolons_in_parentheses() {
+        assert_eq!(
+            first_clause("30 cases in 0.1 s (486.4 cases/s; no bound (x)), 0 finding signature(s); timing damage not sent; brisk"),
+            "30 cases in 0.1 s (486.4 cases/s; no bound (x)), 0 finding signature(s)"
+        );
+        assert_eq!(first_clause("no answer"), "no answer");
+        assert_eq!(first_clause("a) b; c"), "a) b");
     }
 }

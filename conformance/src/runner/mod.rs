@@ -246,8 +246,59 @@ pub struct ModeBudget {
     pub wall: Duration,
     /// What the exchanges needed (see [`LineBudget`]).
     pub line: LineBudget,
-    /// The line's lower bound for those exchanges.
+    /// The line's lower bound for those exchanges (zero where there is none).
     pub bound: Duration,
+    /// Why there is no bound, where there is none.
+    pub no_bound: Option<NoBound>,
+}
+
+/// Why a link has no line bound to measure a run against.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum NoBound {
+    /// Behind a Modbus TCP gateway the serial line's timing is the gateway's.
+    Gateway,
+    /// A pseudo-terminal (a simulator's `--link`, a socat pair) carries bytes at once,
+    /// with no character time.
+    Pty,
+}
+
+impl NoBound {
+    /// Its name in the JSON report.
+    pub fn key(self) -> &'static str {
+        match self {
+            NoBound::Gateway => "gateway",
+            NoBound::Pty => "pty",
+        }
+    }
+
+    /// The one read back from the JSON report.
+    pub fn from_key(key: &str) -> Option<NoBound> {
+        match key {
+            "gateway" => Some(NoBound::Gateway),
+            "pty" => Some(NoBound::Pty),
+            _ => None,
+        }
+    }
+
+    /// Why, for people: "no line bound: {reason}".
+    pub fn reason(self) -> &'static str {
+        match self {
+            NoBound::Gateway => {
+                "the serial line is behind a gateway, whose timing is not seen from here"
+            }
+            NoBound::Pty => {
+                "a pseudo-terminal has no line timing (bytes cross at once, not at the character time)"
+            }
+        }
+    }
+
+    /// In a table cell.
+    pub fn short(self) -> &'static str {
+        match self {
+            NoBound::Gateway => "none (gateway)",
+            NoBound::Pty => "none (pseudo-terminal)",
+        }
+    }
 }
 
 impl ModeBudget {

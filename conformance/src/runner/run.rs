@@ -177,17 +177,26 @@ pub fn run_section(
     run.echo = ctx.echoes();
     run.restore = ctx.restore();
     let line = ctx.master.budget();
+    // Behind a gateway the serial side's timing is the gateway's, and a pseudo-terminal
+    // without pacing has none: no bound of ours.
+    let no_bound = if ctx.frames_only().is_some() {
+        Some(super::NoBound::Gateway)
+    } else if ctx.line_timing().is_none() && ctx.link_kind() == crate::transport::LinkKind::Pty {
+        Some(super::NoBound::Pty)
+    } else {
+        None
+    };
     run.budget = ModeBudget {
         wall: mode_started.elapsed(),
         line,
-        // Behind a gateway the serial side's timing is the gateway's: no bound of ours.
-        bound: match ctx.frames_only() {
+        bound: match no_bound {
             Some(_) => Duration::ZERO,
             None => ctx
                 .line_timing()
                 .or(opts.line)
                 .map_or(Duration::ZERO, |l| line.bound(&l)),
         },
+        no_bound,
     };
     (run, ctx.master)
 }

@@ -1,0 +1,318 @@
+//! SIGTERM (what `timeout`, CI runners and systemd send) stops a long command as Ctrl-C
+//! does: after the current exchange, with what it wrote restored and a whole report
+//! marked incomplete (exit 2); the simulator ends and removes its --link.
+#![cfg(unix)]
+
+mod common;
+
+use std::io::{BufRead, BufReader};
+use std::path::{Path, PathBuf};
+use std::process::{Command, Stdio};
+use std::time::{Duration, Instant};
+
+use common::{bin, Kill};
+use nix::sys::signal::{kill, Signal};
+use nix::unistd::Pid;
+
+fn dir(name: &str) -> PathBuf {
+    let d = Path::new(env!("CARGO_TARGET_TMPDIR")).join(format!("signals-{name}"));
+    let _ = std::fs::remove_dir_all(&d);
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+/// Waits (at most 120 s, for a loaded machine) until `ready` holds.
+fn wait_until(what: &str, mut ready: impl FnMut() -> bool) {
+    let t0 = Instant::now();
+    while !ready() {
+        assert!(
+            t0.elapsed() < Duration::from_secs(120),
+            "{what} did not happen"
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    }
+}
+
+fn term(child: &Kill) {
+    kill(Pid::from_raw(child.0.id() as i32), Signal::SIGTERM).unwrap();
+}
+
+/// The report at `path`: whole JSON, valid against the report schema.
+fn whole_report(path: &Path, stderr: &str) -> serde_json::Value {
+    let text = std::fs::read_to_string(path).unwrap_or_else(|e| panic!("{e}: {stderr}"));
+    let v: serde_json::Value =
+        serde_json::from_str(&text).unwrap_or_else(|e| panic!("not whole JSON ({e}): {stderr}"));
+    let schema = jsonschema::validator_for(
+        &serde_json::from_str(include_str!("../../vectors/schema/report.schema.json")).unwrap(),
+    )
+    .unwrap();
+    assert!(schema.is_valid(&v), "the report does not match its schema");
+    v
+}
+
+fn spawn(args: &[&str], out: &Path) -> Kill {
+    Kill::spawn(
+        Command::new(bin())
+            .args(args)
+            .args(["--format", "json", "--quiet", "-o"])
+            .arg(out)
+            .stdout(Stdio::null())
+            .stderr(Stdio::piped()),
+    )
+}
+
+#[test]
+fn sigterm_ends_a_fuzz_run_with_a_whole_report_marked_incomplete() {
+    let d = dir("fuzz");
+    let (log, out) = (d.join("sim.jsonl"), d.join("fuzz.json"));
+    let mut run = spawn(
+        &[
+            "fuzz",
+            "--sim",
+            "f510",
+            "--mode",
+            "rtu",
+            "--cases",
+            "100000",
+            "--sim-log",
+            log.to_str().unwrap(),
+        ],
+        &out,
+    );
+    // The simulator's log (a line per frame, flushed) grows past the preflight once
+    // cases are being exchanged.
+    wait_until("the fuzz exchanges", || {
+        std::fs::read_to_string(&log).is_ok_and(|t| t.lines().count() >= 20)
+    });
+    term(&run);
+    let status = run.wait_within(Duration::from_secs(120), "fuzz after SIGTERM");
+    let stderr = run.stderr_text();
+    assert_eq!(status.code(), Some(2), "{stderr}");
+    assert!(stderr.contains("interrupted"), "{stderr}");
+    let v = whole_report(&out, &stderr);
+    assert_eq!(v["complete"], false);
+    assert_eq!(v["stopped"], "interrupted");
+    assert_eq!(v["exit_code"], 2);
+    let cases = v["fuzz"]["modes"][0]["cases"].as_u64().unwrap();
+    assert!(cases > 0 && cases < 100_000, "{cases} cases");
+    // The journal of the registers it may write is restored and verified.
+    for r in v["restore"].as_array().unwrap() {
+        assert_eq!(r["restored"], true, "{r}");
+    }
+}
+
+#[test]
+fn sigterm_ends_a_check_restoring_what_it_wrote() {
+    let d = dir("check");
+    let out = d.join("check.json");
+    let mut run = spawn(&["check", "--sim", "f510", "--mode", "rtu"], &out);
+    // The report is rewritten after every check: wait until a writing check has run
+    // (the manual's example of 10H writes 0101H and 0102H).
+    let wrote = "rtu.example.f510.10.rtu.request";
+    wait_until("the writing checks", || {
+        std::fs::read_to_string(&out).is_ok_and(|t| t.contains(wrote))
+    });
+    term(&run);
+    let status = run.wait_within(Duration::from_secs(120), "check after SIGTERM");
+    let stderr = run.stderr_text();
+    assert_eq!(status.code(), Some(2), "{stderr}");
+    let v = whole_report(&out, &stderr);
+    assert_eq!(v["complete"], false, "{stderr}");
+    assert_eq!(v["stopped"], "interrupted");
+    assert_eq!(v["exit_code"], 2);
+    let checks = v["checks"].as_array().unwrap().len();
+    assert!(checks < 151, "stopped early: {checks} checks");
+    let restore = v["restore"].as_array().unwrap();
+    assert!(!restore.is_empty(), "no restore record: {stderr}");
+    for r in restore {
+        assert_eq!(r["restored"], true, "{r}");
+        assert!(
+            r["detail"].as_str().unwrap().contains("read back") || r["changed"] == false,
+            "not verified: {r}"
+        );
+    }
+    assert!(
+        restore
+            .iter()
+            .any(|r| r["register"] == "0101" && r["changed"] == true),
+        "the write of 0101H is not restored: {restore:?}"
+    );
+}
+
+#[test]
+fn sigterm_ends_the_simulator_and_removes_its_link() {
+    let d = dir("simulate");
+    let link = d.join("drive");
+    let mut sim = Kill::spawn(
+        Command::new(bin())
+            .args(["simulate", "--model", "f510", "--pty", "--link"])
+            .arg(&link)
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped()),
+    );
+    let mut first = String::new();
+    BufReader::new(sim.0.stdout.take().unwrap())
+        .read_line(&mut first)
+        .unwrap();
+    assert!(first.starts_with("/dev/"), "{first:?}");
+    assert_eq!(
+        std::fs::read_link(&link).unwrap(),
+        PathBuf::from(first.trim())
+    );
+    // It serves through the link.
+    let sent = Command::new(bin())
+        .args(["send", "--model", "f510", "--mode", "rtu", "--port"])
+        .arg(&link)
+        .arg("01 03 25 20 00 01 8E CC")
+        .output()
+        .unwrap();
+    let said = String::from_utf8_lossy(&sent.stdout);
+    assert_eq!(sent.status.code(), Some(0), "{said}");
+    assert!(said.contains("device: node 01 03 read response"), "{said}");
+    term(&sim);
+    let status = sim.wait_within(Duration::from_secs(30), "simulate after SIGTERM");
+    let stderr = sim.stderr_text();
+    assert_eq!(status.code(), Some(0), "{stderr}");
+    assert!(
+        stderr.contains("stopped: ") && stderr.contains("frames received"),
+        "{stderr}"
+    );
+    assert!(
+        std::fs::symlink_metadata(&link).is_err(),
+        "the link {} is left behind",
+        link.display()
+    );
+}
+
+#[test]
+fn the_simulator_replaces_a_stale_link_but_never_a_file() {
+    let d = dir("stale");
+    let link = d.join("drive");
+    std::os::unix::fs::symlink("/dev/pts/nonexistent", &link).unwrap();
+    let mut sim = Kill::spawn(
+        Command::new(bin())
+            .args(["simulate", "--pty", "-q", "--link"])
+            .arg(&link)
+            .stdout(Stdio::piped())
+            .stderr(Stdio::null()),
+    );
+    let mut first = String::new();
+    BufReader::new(sim.0.stdout.take().unwrap())
+        .read_line(&mut first)
+        .unwrap();
+    assert_eq!(
+        std::fs::read_link(&link).unwrap(),
+        PathBuf::from(first.trim())
+    );
+    kill(Pid::from_raw(sim.0.id() as i32), Signal::SIGINT).unwrap();
+    sim.wait_within(Duration::from_secs(30), "simulate after SIGINT");
+    assert!(std::fs::symlink_metadata(&link).is_err());
+
+    let file = d.join("notes.txt");
+    std::fs::write(&file, "keep me").unwrap();
+    let (code, _, stderr) = common::run_bounded(
+        &["simulate", "--pty", "--link", file.to_str().unwrap()],
+        Duration::from_secs(30),
+    );
+    assert_eq!(code, Some(2), "{stderr}");
+    assert!(stderr.contains("is not a symbolic link"), "{stderr}");
+    assert_eq!(std::fs::read_to_string(&file).unwrap(), "keep me");
+}
+
+#[test]
+fn sigterm_ends_a_gate_run_with_a_whole_report_marked_incomplete() {
+    let d = dir("gate");
+    let out = d.join("gate.json");
+    let codec = format!("{} adapter", bin());
+    let mut run = spawn(
+        &[
+            "gate",
+            "--codec",
+            &codec,
+            "--no-vectors",
+            "--count",
+            "20000",
+        ],
+        &out,
+    );
+    // The report is rewritten after every case.
+    wait_until("the gate cases", || out.exists());
+    term(&run);
+    let status = run.wait_within(Duration::from_secs(120), "gate after SIGTERM");
+    let stderr = run.stderr_text();
+    assert_eq!(status.code(), Some(2), "{stderr}");
+    let v = whole_report(&out, &stderr);
+    assert_eq!(v["complete"], false);
+    let stopped = v["stopped"].as_str().unwrap();
+    assert!(stopped.starts_with("interrupted after "), "{stopped}");
+    assert!(stopped.ends_with(" of 20000 cases"), "{stopped}");
+    let n = v["checks"].as_array().unwrap().len();
+    assert!(n > 0 && n < 20_000, "{n} cases");
+}
+
+#[test]
+fn sigterm_ends_identify_with_its_report_not_run() {
+    let d = dir("identify");
+    let (log, out) = (d.join("sim.jsonl"), d.join("identify.json"));
+    // Slow replies: the probes take seconds, the signal comes among them.
+    let mut run = spawn(
+        &[
+            "identify",
+            "--sim",
+            "f510",
+            "--mode",
+            "rtu",
+            "--quirk",
+            "late-reply=300",
+            "--sim-log",
+            log.to_str().unwrap(),
+        ],
+        &out,
+    );
+    wait_until("the identify probes", || {
+        std::fs::metadata(&log).is_ok_and(|m| m.len() > 0)
+    });
+    term(&run);
+    let status = run.wait_within(Duration::from_secs(120), "identify after SIGTERM");
+    let stderr = run.stderr_text();
+    assert_eq!(status.code(), Some(2), "{stderr}");
+    let v: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&out).unwrap()).unwrap();
+    assert_eq!(v["verdict"]["result"], "not-run", "{}", v["verdict"]);
+    assert_eq!(v["verdict"]["text"], "could not identify: interrupted");
+}
+
+#[test]
+fn sigterm_ends_a_scan_with_the_tries_made() {
+    let d = dir("scan");
+    // One drive at an address the scan reaches late; its traffic log on stderr shows
+    // when the scan's requests arrive.
+    let mut sim = Kill::spawn(
+        Command::new(bin())
+            .args(["simulate", "--model", "f510", "--pty", "-a", "200"])
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped()),
+    );
+    let mut pty = String::new();
+    BufReader::new(sim.0.stdout.take().unwrap())
+        .read_line(&mut pty)
+        .unwrap();
+    let mut traffic = BufReader::new(sim.0.stderr.take().unwrap()).lines();
+    let out = d.join("scan.json");
+    let mut run = spawn(&["scan", "--port", pty.trim()], &out);
+    // The first request the drive hears.
+    let heard = traffic.any(|l| l.is_ok_and(|l| l.contains("<- ")));
+    assert!(heard, "the simulator heard nothing");
+    term(&run);
+    let status = run.wait_within(Duration::from_secs(120), "scan after SIGTERM");
+    let stderr = run.stderr_text();
+    assert_eq!(status.code(), Some(2), "{stderr}");
+    assert!(
+        stderr.contains("scan interrupted: the result covers the tries made"),
+        "{stderr}"
+    );
+    let v: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&out).unwrap()).unwrap();
+    assert_eq!(v["stopped"], "interrupted");
+    assert!(v["found"].as_array().unwrap().is_empty(), "{}", v["found"]);
+}
