@@ -552,14 +552,17 @@ fn run_examples(page: &str) -> Vec<String> {
                 continue;
             }
         }
+        // The process id keeps two test runs at once (a loaded CI host) apart.
         let dir = repo().join(format!(
-            "target/tmp/docs-examples/{}-{}",
+            "target/tmp/docs-examples/{}/{}-{}",
+            std::process::id(),
             page.replace('/', "_"),
             block.line
         ));
         let _ = std::fs::remove_dir_all(&dir);
         std::fs::create_dir_all(&dir).unwrap();
         let mut background = Background(Vec::new());
+        let failed_before = failures.len();
         for step in &steps {
             ran += 1;
             let here = format!("{page}:{}: $ {}", step.line, step.command);
@@ -655,6 +658,10 @@ fn run_examples(page: &str) -> Vec<String> {
                 ));
                 break;
             }
+        }
+        drop(background);
+        if failures.len() == failed_before {
+            let _ = std::fs::remove_dir_all(&dir);
         }
     }
     if only.is_none() {
@@ -780,4 +787,34 @@ fn sh_blocks_use_options_that_exist() {
     }
     assert!(seen > 20, "only {seen} conformance lines found");
     assert!(bad.is_empty(), "{}", bad.join("\n"));
+}
+
+#[test]
+fn several_drives_examples() {
+    check_page("docs/src/several-drives.md");
+}
+
+#[test]
+fn identify_and_scan_examples() {
+    check_page("docs/src/identify-and-scan.md");
+}
+
+#[test]
+fn fuzzing_a_drive_examples() {
+    check_page("docs/src/fuzzing-a-drive.md");
+}
+
+#[test]
+fn checking_a_drive_examples() {
+    check_page("docs/src/checking-a-drive.md");
+}
+
+#[test]
+fn reports_examples() {
+    check_page("docs/src/reports.md");
+}
+
+#[test]
+fn gates_examples() {
+    check_page("docs/src/gates.md");
 }
