@@ -316,7 +316,7 @@ fn every_relative_link_and_anchor_resolves() {
 fn every_page_of_the_guide_is_in_its_summary() {
     let src = repo().join("docs/src");
     let summary = std::fs::read_to_string(src.join("SUMMARY.md")).unwrap();
-    let listed: BTreeSet<String> = summary.lines().flat_map(|l| links_of(l)).collect();
+    let listed: BTreeSet<String> = summary.lines().flat_map(links_of).collect();
     for e in std::fs::read_dir(&src).unwrap().flatten() {
         let name = e.file_name().to_string_lossy().to_string();
         if name.ends_with(".md") && name != "SUMMARY.md" {
@@ -543,6 +543,16 @@ fn run_examples(page: &str) -> Vec<String> {
         std::env::var("PATH").unwrap_or_default()
     );
     let only = std::env::var("DOCS_EXAMPLES").ok();
+    // The directories of earlier runs (kept where an example failed) go once their
+    // process is gone.
+    if let Ok(dirs) = std::fs::read_dir(repo().join("target/tmp/docs-examples")) {
+        for d in dirs.flatten() {
+            let pid = d.file_name().to_string_lossy().to_string();
+            if !Path::new("/proc").join(&pid).exists() {
+                let _ = std::fs::remove_dir_all(d.path());
+            }
+        }
+    }
     let mut failures = Vec::new();
     let mut ran = 0;
     for block in blocks.iter().filter(|b| b.lang() == "console") {
@@ -817,4 +827,9 @@ fn reports_examples() {
 #[test]
 fn gates_examples() {
     check_page("docs/src/gates.md");
+}
+
+#[test]
+fn simulator_examples() {
+    check_page("docs/src/simulator.md");
 }
