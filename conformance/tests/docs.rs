@@ -730,73 +730,93 @@ fn readme_examples() {
 /// command has (so a renamed option cannot leave the guide behind).
 #[test]
 fn sh_blocks_use_options_that_exist() {
-    let bin = env!("CARGO_BIN_EXE_conformance");
-    let mut help_of: HashMap<Vec<String>, String> = HashMap::new();
+    let mut help_of = HashMap::new();
     let mut bad = Vec::new();
     let mut seen = 0;
     for file in markdown_files() {
         let text = std::fs::read_to_string(&file).unwrap();
-        let (_, blocks) = split(&text);
-        for b in blocks
-            .iter()
-            .filter(|b| matches!(b.lang(), "sh" | "console"))
-        {
-            for (i, l) in b.lines.iter().enumerate() {
-                let l = l.trim().trim_start_matches("$ ");
-                let l = l.split(" #").next().unwrap().trim().trim_end_matches(" &");
-                let Some(args) = l.strip_prefix("conformance ") else {
-                    continue;
-                };
-                let Ok(w) = words(args) else { continue };
-                seen += 1;
-                // The subcommand path: the leading words that `--help` accepts.
-                let mut path: Vec<String> = Vec::new();
-                for word in w.iter().take_while(|x| !x.starts_with('-')).take(2) {
-                    let mut p = path.clone();
-                    p.push(word.clone());
-                    let help = help_of.entry(p.clone()).or_insert_with(|| {
-                        let o = Command::new(bin).args(&p).arg("--help").output().unwrap();
-                        if o.status.success() {
-                            String::from_utf8_lossy(&o.stdout).to_string()
-                        } else {
-                            String::new()
-                        }
-                    });
-                    if help.is_empty() {
-                        break;
+        let (n, b) = unknown_options(&rel(&file), &text, &mut help_of);
+        seen += n;
+        bad.extend(b);
+    }
+    assert!(seen > 20, "only {seen} conformance lines found");
+    assert!(bad.is_empty(), "{}", bad.join("\n"));
+}
+
+#[test]
+fn the_option_checker_catches_what_it_should() {
+    let page = "```sh\nconformance check --sim f510 --no-such-option   # a comment\n\
+                conformance nosuch --x\nconformance vectors export --format json\n```\n";
+    let (seen, bad) = unknown_options("page.md", page, &mut HashMap::new());
+    assert_eq!(seen, 3);
+    assert_eq!(bad.len(), 2, "{bad:?}");
+    assert!(bad[0].contains("page.md:2:") && bad[0].contains("has no --no-such-option"));
+    assert!(bad[1].contains("page.md:3:") && bad[1].contains("no such command"));
+}
+
+/// The `conformance` lines of the `sh` and `console` blocks of one page, counted, and
+/// those that name a command or an option that does not exist (`label:line: why`).
+/// `help_of` caches `conformance CMD --help` by command path.
+fn unknown_options(
+    label: &str,
+    text: &str,
+    help_of: &mut HashMap<Vec<String>, String>,
+) -> (usize, Vec<String>) {
+    let bin = env!("CARGO_BIN_EXE_conformance");
+    let mut bad = Vec::new();
+    let mut seen = 0;
+    let (_, blocks) = split(text);
+    for b in blocks
+        .iter()
+        .filter(|b| matches!(b.lang(), "sh" | "console"))
+    {
+        for (i, l) in b.lines.iter().enumerate() {
+            let at = format!("{label}:{}", b.line + 1 + i);
+            let l = l.trim().trim_start_matches("$ ");
+            let l = l.split(" #").next().unwrap().trim().trim_end_matches(" &");
+            let Some(args) = l.strip_prefix("conformance ") else {
+                continue;
+            };
+            let Ok(w) = words(args) else { continue };
+            seen += 1;
+            // The command path: the leading words that `--help` accepts.
+            let mut path: Vec<String> = Vec::new();
+            for word in w.iter().take_while(|x| !x.starts_with('-')).take(2) {
+                let mut p = path.clone();
+                p.push(word.clone());
+                let help = help_of.entry(p.clone()).or_insert_with(|| {
+                    let o = Command::new(bin).args(&p).arg("--help").output().unwrap();
+                    if o.status.success() {
+                        String::from_utf8_lossy(&o.stdout).to_string()
+                    } else {
+                        String::new()
                     }
-                    path = p;
+                });
+                if help.is_empty() {
+                    break;
                 }
-                if path.is_empty() {
+                path = p;
+            }
+            if path.is_empty() {
+                bad.push(format!("{at}: {l}: no such command"));
+                continue;
+            }
+            let help = &help_of[&path];
+            for flag in w.iter().filter(|x| x.starts_with("--") && x.len() > 2) {
+                let name = flag.split('=').next().unwrap();
+                let known = [" ", ",", "\n", "=", "]"]
+                    .iter()
+                    .any(|end| help.contains(&format!("{name}{end}")));
+                if !known {
                     bad.push(format!(
-                        "{}:{}: {l}: no such command",
-                        rel(&file),
-                        b.line + 1 + i
+                        "{at}: {l}: `conformance {}` has no {name}",
+                        path.join(" ")
                     ));
-                    continue;
-                }
-                let help = &help_of[&path];
-                for flag in w.iter().filter(|x| x.starts_with("--") && x.len() > 2) {
-                    let name = flag.split('=').next().unwrap();
-                    let known = help.contains(&format!("{name} "))
-                        || help.contains(&format!("{name},"))
-                        || help.contains(&format!("{name}\n"))
-                        || help.contains(&format!("{name}="))
-                        || help.contains(&format!("{name}]"));
-                    if !known {
-                        bad.push(format!(
-                            "{}:{}: {l}: `conformance {}` has no {name}",
-                            rel(&file),
-                            b.line + 1 + i,
-                            path.join(" ")
-                        ));
-                    }
                 }
             }
         }
     }
-    assert!(seen > 20, "only {seen} conformance lines found");
-    assert!(bad.is_empty(), "{}", bad.join("\n"));
+    (seen, bad)
 }
 
 #[test]
