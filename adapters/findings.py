@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Runs the gate over every adapter in adapters/ and writes the findings table.
 
-    python3 adapters/findings.py                 # build, run all six, write adapters/FINDINGS.md and README.md's table
+    python3 adapters/findings.py                 # build, run all six, write adapters/FINDINGS.md and the table in docs/src/gates.md
     python3 adapters/findings.py --count 300     # fewer differential cases (default: the gate's 1000)
     python3 adapters/findings.py --only libmodbus --no-write   # one adapter, print only
     python3 adapters/findings.py --reuse         # rewrite the tables from the last run's reports
@@ -230,16 +230,16 @@ def markdown(results: list, count: int) -> tuple[str, str]:
     return table, "\n".join(lines)
 
 
-def write_readme_table(table: str) -> None:
-    path = os.path.join(ROOT, "README.md")
+def write_guide_table(table: str) -> None:
+    path = os.path.join(ROOT, "docs", "src", "gates.md")
     with open(path, encoding="utf-8") as f:
         text = f.read()
     start, end = "<!-- findings:start -->", "<!-- findings:end -->"
     i, j = text.find(start), text.find(end)
     if i < 0 or j < i:
-        sys.exit(f"README.md has no {start} ... {end} block to fill")
+        sys.exit(f"docs/src/gates.md has no {start} ... {end} block to fill")
     # The rows link to their sections, which are in FINDINGS.md.
-    table = table.replace("](#", "](adapters/FINDINGS.md#")
+    table = table.replace("](#", "](../../adapters/FINDINGS.md#")
     text = text[: i + len(start)] + "\n" + table + "\n" + text[j:]
     with open(path, "w", encoding="utf-8") as f:
         f.write(text)
@@ -289,8 +289,8 @@ def main() -> int:
     else:
         with open(os.path.join(ROOT, "adapters", "FINDINGS.md"), "w", encoding="utf-8") as f:
             f.write(doc)
-        write_readme_table(table)
-        print("wrote adapters/FINDINGS.md and the table in README.md")
+        write_guide_table(table)
+        print("wrote adapters/FINDINGS.md and the table in docs/src/gates.md")
     return 2 if incomplete else 0
 
 

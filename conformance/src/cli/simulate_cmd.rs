@@ -87,7 +87,7 @@ pub struct SimulateArgs {
     /// With --pty: behave like a drive whose UART is set to -b -P -s: a master that opens
     /// the pty at other settings (its tcsetattr is seen on this side) gets garbage, as a
     /// real line gives it (the parity is inferred from the input flags masters set with
-    /// it: see README, "Finding a drive: scan").
+    /// it: see docs/src/identify-and-scan.md).
     #[arg(long, requires = "pty")]
     emulate_line: bool,
     /// Serve over TCP at HOST:PORT: RTU or ASCII frames (as a serial server), or Modbus

@@ -1,0 +1,870 @@
+//! The documentation, checked: every relative link and `#anchor` in the repository's
+//! Markdown files resolves, every `console` example prints what the program prints, and
+//! every `conformance` line of a `sh` block uses options that its command has.
+//!
+//! How an example is written (docs/src/overview.md, "How the examples are written"):
+//!
+//! ````text
+//! ```console
+//! $ conformance decode 0103252000018ECC
+//! ? 0
+//! RTU frame, 8 bytes: 01 03 25 20 00 01 8E CC
+//! ...
+//! ```
+//! ````
+//!
+//! - `$ ` starts a command; it runs in the block's own temporary directory, with the
+//!   binary under test first on the PATH (as after `cargo install --path conformance`),
+//!   and its stdout and stderr are read together, as a terminal shows them. Only
+//!   `conformance` commands are run: a transcript with another program (mbpoll, python3)
+//!   is a `text` block, shown as recorded.
+//! - A command that ends in ` &` runs in the background for the rest of the block; the
+//!   lines under it are its first lines of output (read before the next command starts,
+//!   so a simulator's pty path also says it is ready), and it is ended with the block.
+//! - `? N` right under a command is its exit code (0 when absent).
+//! - The other lines are the output. `[..]` in a line stands for any text within that
+//!   line, and a line of `...` for any number of lines (none included).
+//!
+//! A failure names the file and line of the command and prints the whole output, which
+//! can be pasted back into the page. `DOCS_EXAMPLES=PATTERN` runs only the examples whose
+//! command contains PATTERN.
+
+use std::collections::{BTreeSet, HashMap};
+use std::io::{BufRead, BufReader, Read};
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::sync::mpsc;
+use std::time::{Duration, Instant};
+
+/// The top of the repository.
+fn repo() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .parent()
+        .unwrap()
+        .to_path_buf()
+}
+
+/// Every Markdown file of the repository that people read (not build output, not
+/// installed packages, not fuzz corpora).
+fn markdown_files() -> Vec<PathBuf> {
+    fn walk(dir: &Path, out: &mut Vec<PathBuf>) {
+        let Ok(entries) = std::fs::read_dir(dir) else {
+            return;
+        };
+        for e in entries.flatten() {
+            let p = e.path();
+            let name = e.file_name().to_string_lossy().to_string();
+            if p.is_dir() {
+                if !(name.starts_with('.') && name != ".ci"
+                    || matches!(name.as_str(), "target" | "node_modules" | "book")
+                    || name.starts_with("corpus"))
+                {
+                    walk(&p, out);
+                }
+            } else if name.ends_with(".md") {
+                out.push(p);
+            }
+        }
+    }
+    let mut out = Vec::new();
+    walk(&repo(), &mut out);
+    out.sort();
+    out
+}
+
+fn rel(p: &Path) -> String {
+    p.strip_prefix(repo())
+        .unwrap_or(p)
+        .to_string_lossy()
+        .to_string()
+}
+
+/// A fenced code block: its info string, the line of its opening fence (1-based), the
+/// indent of that fence (a block in a list item) and its lines, less that indent.
+struct Block {
+    info: String,
+    line: usize,
+    indent: usize,
+    lines: Vec<String>,
+}
+
+impl Block {
+    /// The language: the info string's first word.
+    fn lang(&self) -> &str {
+        self.info.split([' ', ',']).next().unwrap_or("")
+    }
+}
+
+/// Splits a Markdown text into the lines outside code blocks (with their line numbers)
+/// and the fenced blocks.
+fn split(text: &str) -> (Vec<(usize, String)>, Vec<Block>) {
+    let mut prose = Vec::new();
+    let mut blocks = Vec::new();
+    let mut open: Option<(String, Block)> = None;
+    for (i, line) in text.lines().enumerate() {
+        let trimmed = line.trim_start();
+        let indent = line.len() - trimmed.len();
+        let fence: String = trimmed
+            .chars()
+            .take_while(|&c| c == '`' || c == '~')
+            .collect();
+        let is_fence = fence.len() >= 3 && fence.chars().all(|c| fence.starts_with(c));
+        if let Some((f, mut b)) = open.take() {
+            if is_fence
+                && fence.len() >= f.len()
+                && fence.starts_with(&f[..1])
+                && trimmed[fence.len()..].trim().is_empty()
+            {
+                blocks.push(b);
+            } else {
+                b.lines.push(line[indent.min(b.indent)..].to_string());
+                open = Some((f, b));
+            }
+        } else if is_fence {
+            open = Some((
+                fence.clone(),
+                Block {
+                    info: trimmed[fence.len()..].trim().to_string(),
+                    line: i + 1,
+                    indent,
+                    lines: Vec::new(),
+                },
+            ));
+        } else {
+            prose.push((i + 1, line.to_string()));
+        }
+    }
+    (prose, blocks)
+}
+
+/// A line with its inline code spans blanked out (links inside code are not links).
+fn without_code_spans(line: &str) -> String {
+    let mut out = String::with_capacity(line.len());
+    let mut in_code = false;
+    for c in line.chars() {
+        if c == '`' {
+            in_code = !in_code;
+            out.push(' ');
+        } else {
+            out.push(if in_code { ' ' } else { c });
+        }
+    }
+    out
+}
+
+/// The destinations of the inline links and images of a line, and of a reference
+/// definition (`[name]: dest`).
+fn links_of(line: &str) -> Vec<String> {
+    let line = without_code_spans(line);
+    let mut out = Vec::new();
+    let mut rest = line.as_str();
+    while let Some(at) = rest.find("](") {
+        let after = &rest[at + 2..];
+        let mut depth = 0;
+        let mut end = after.len();
+        for (i, c) in after.char_indices() {
+            match c {
+                '(' => depth += 1,
+                ')' if depth == 0 => {
+                    end = i;
+                    break;
+                }
+                ')' => depth -= 1,
+                _ => {}
+            }
+        }
+        let dest = after[..end].trim();
+        let dest = dest.split_once(" \"").map(|(d, _)| d).unwrap_or(dest);
+        out.push(dest.trim_matches(['<', '>']).to_string());
+        rest = &after[end.min(after.len())..];
+    }
+    let t = line.trim_start();
+    if t.starts_with('[') {
+        if let Some((_, dest)) = t.split_once("]: ") {
+            out.push(dest.split_whitespace().next().unwrap_or("").to_string());
+        }
+    }
+    out
+}
+
+/// The anchor GitHub gives a heading's text: lower case, markup and punctuation other
+/// than `-` and `_` dropped, spaces as `-`. (mdBook makes the same ids.)
+fn slug(heading: &str) -> String {
+    // Links in a heading count by their text.
+    let mut text = String::new();
+    let mut rest = heading;
+    while let Some(open) = rest.find('[') {
+        let Some(close) = rest[open..].find("](") else {
+            break;
+        };
+        let Some(end) = rest[open + close..].find(')') else {
+            break;
+        };
+        text.push_str(&rest[..open]);
+        text.push_str(&rest[open + 1..open + close]);
+        rest = &rest[open + close + end + 1..];
+    }
+    text.push_str(rest);
+    text.trim()
+        .to_lowercase()
+        .chars()
+        .filter_map(|c| match c {
+            ' ' => Some('-'),
+            c if c.is_alphanumeric() || c == '-' || c == '_' => Some(c),
+            _ => None,
+        })
+        .collect()
+}
+
+/// The anchors of a Markdown file: its headings' slugs (repeats numbered `-1`, `-2`, as
+/// GitHub numbers them) and the `id="..."` / `name="..."` of its HTML.
+fn anchors(text: &str) -> BTreeSet<String> {
+    let (prose, _) = split(text);
+    let mut seen: HashMap<String, usize> = HashMap::new();
+    let mut out = BTreeSet::new();
+    for (_, line) in prose {
+        let t = line.trim_start();
+        let hashes = t.chars().take_while(|&c| c == '#').count();
+        if (1..=6).contains(&hashes) && t[hashes..].starts_with(' ') {
+            let s = slug(t[hashes..].trim().trim_end_matches('#'));
+            let n = seen.entry(s.clone()).or_insert(0);
+            out.insert(if *n == 0 {
+                s.clone()
+            } else {
+                format!("{s}-{n}")
+            });
+            *n += 1;
+        }
+        for attr in ["id=\"", "name=\""] {
+            let mut rest = line.as_str();
+            while let Some(at) = rest.find(attr) {
+                let v = &rest[at + attr.len()..];
+                if let Some(end) = v.find('"') {
+                    out.insert(v[..end].to_string());
+                }
+                rest = &rest[at + attr.len()..];
+            }
+        }
+    }
+    out
+}
+
+/// The broken relative links of one file: `file:line: link: why`.
+fn broken_links(file: &Path) -> Vec<String> {
+    let text = std::fs::read_to_string(file).unwrap();
+    let (prose, _) = split(&text);
+    let mut bad = Vec::new();
+    for (n, line) in prose {
+        for dest in links_of(&line) {
+            if dest.is_empty() || dest.contains("://") || dest.starts_with("mailto:") {
+                continue;
+            }
+            let (path, anchor) = match dest.split_once('#') {
+                Some((p, a)) => (p, Some(a)),
+                None => (dest.as_str(), None),
+            };
+            let target = if path.is_empty() {
+                file.to_path_buf()
+            } else if let Some(abs) = path.strip_prefix('/') {
+                repo().join(abs)
+            } else {
+                file.parent().unwrap().join(path)
+            };
+            let why = if !target.exists() {
+                Some(format!("{} does not exist", rel(&target)))
+            } else if let Some(a) = anchor {
+                if target.extension().is_some_and(|e| e == "md") {
+                    let have = anchors(&std::fs::read_to_string(&target).unwrap());
+                    (!have.contains(a)).then(|| {
+                        format!(
+                            "{} has no heading #{a} (it has: {})",
+                            rel(&target),
+                            have.iter().cloned().collect::<Vec<_>>().join(" ")
+                        )
+                    })
+                } else {
+                    None
+                }
+            } else {
+                None
+            };
+            if let Some(why) = why {
+                bad.push(format!("{}:{n}: ({dest}): {why}", rel(file)));
+            }
+        }
+    }
+    bad
+}
+
+#[test]
+fn every_relative_link_and_anchor_resolves() {
+    let files = markdown_files();
+    assert!(
+        files.iter().any(|f| f.ends_with("docs/src/SUMMARY.md")),
+        "the guide is missing: {files:?}"
+    );
+    let bad: Vec<String> = files.iter().flat_map(|f| broken_links(f)).collect();
+    assert!(
+        bad.is_empty(),
+        "{} broken link(s):\n{}",
+        bad.len(),
+        bad.join("\n")
+    );
+}
+
+#[test]
+fn every_page_of_the_guide_is_in_its_summary() {
+    let src = repo().join("docs/src");
+    let summary = std::fs::read_to_string(src.join("SUMMARY.md")).unwrap();
+    let listed: BTreeSet<String> = summary.lines().flat_map(links_of).collect();
+    for e in std::fs::read_dir(&src).unwrap().flatten() {
+        let name = e.file_name().to_string_lossy().to_string();
+        if name.ends_with(".md") && name != "SUMMARY.md" {
+            assert!(
+                listed.contains(&name),
+                "docs/src/{name} is not in SUMMARY.md"
+            );
+        }
+    }
+}
+
+#[test]
+fn the_link_checker_catches_what_it_should() {
+    // The checker itself: slugs as GitHub makes them, links in code ignored, a heading
+    // repeated gets a number.
+    assert_eq!(
+        slug("Checking a drive: the `--only` option"),
+        "checking-a-drive-the---only-option"
+    );
+    assert_eq!(slug("Gates [(and more)](x.md)"), "gates-and-more");
+    assert_eq!(slug("What is `fuzz_targets/`?"), "what-is-fuzz_targets");
+    assert_eq!(links_of("see [a](b.md#c) and `[x](y)`"), vec!["b.md#c"]);
+    let a = anchors("# A\n## A\n```\n# not a heading\n```\n<a id=\"z\"></a>\n");
+    assert_eq!(
+        a.into_iter().collect::<Vec<_>>(),
+        vec!["a".to_string(), "a-1".to_string(), "z".to_string()]
+    );
+    let dir = repo().join("target/tmp/docs-links");
+    std::fs::create_dir_all(&dir).unwrap();
+    let f = dir.join("page.md");
+    std::fs::write(
+        &f,
+        "# Top\n\n[ok](#top) [bad](#nowhere)\n[gone](missing.md) [self](page.md#top)\n",
+    )
+    .unwrap();
+    let bad = broken_links(&f);
+    assert_eq!(bad.len(), 2, "{bad:?}");
+    assert!(bad[0].contains("page.md:3: (#nowhere)"), "{bad:?}");
+    assert!(bad[1].contains(":4: (missing.md)"), "{bad:?}");
+}
+
+// ---- examples ----------------------------------------------------------------------
+
+/// Splits a command line as a POSIX shell would for the cases the examples use: words,
+/// single quotes (literal), double quotes and backslashes. Pipes, redirections and
+/// command lists are refused, since the example could not be pasted as it is checked.
+fn words(line: &str) -> Result<Vec<String>, String> {
+    let mut out = Vec::new();
+    let mut cur = String::new();
+    let mut have = false;
+    let mut chars = line.chars().peekable();
+    while let Some(c) = chars.next() {
+        match c {
+            '\'' => {
+                have = true;
+                loop {
+                    match chars.next() {
+                        Some('\'') => break,
+                        Some(c) => cur.push(c),
+                        None => return Err("unclosed '".into()),
+                    }
+                }
+            }
+            '"' => {
+                have = true;
+                loop {
+                    match chars.next() {
+                        Some('"') => break,
+                        Some('\\') if matches!(chars.peek(), Some('"' | '\\' | '$')) => {
+                            cur.push(chars.next().unwrap())
+                        }
+                        Some(c) => cur.push(c),
+                        None => return Err("unclosed \"".into()),
+                    }
+                }
+            }
+            '\\' => {
+                have = true;
+                if let Some(c) = chars.next() {
+                    cur.push(c);
+                }
+            }
+            '|' | '>' | '<' | ';' | '&' | '$' | '`' => {
+                return Err(format!("{c} is not supported in a checked example"))
+            }
+            c if c.is_whitespace() => {
+                if have {
+                    out.push(std::mem::take(&mut cur));
+                    have = false;
+                }
+            }
+            c => {
+                have = true;
+                cur.push(c)
+            }
+        }
+    }
+    if have {
+        out.push(cur);
+    }
+    Ok(out)
+}
+
+/// Whether `actual` matches the pattern `expected`, where `[..]` is any text within a
+/// line and a line `...` any number of lines.
+fn lines_match(expected: &[String], actual: &[String]) -> bool {
+    fn line_matches(pattern: &str, line: &str) -> bool {
+        let parts: Vec<&str> = pattern.split("[..]").collect();
+        if parts.len() == 1 {
+            return pattern == line;
+        }
+        let (first, last) = (parts[0], parts[parts.len() - 1]);
+        if !line.starts_with(first) || line.len() < first.len() + last.len() {
+            return false;
+        }
+        let mut at = first.len();
+        for mid in &parts[1..parts.len() - 1] {
+            match line[at..].find(mid) {
+                Some(i) => at += i + mid.len(),
+                None => return false,
+            }
+        }
+        line.len() - last.len() >= at && line.ends_with(last)
+    }
+    fn go(e: &[String], a: &[String], memo: &mut HashMap<(usize, usize), bool>) -> bool {
+        if let Some(&m) = memo.get(&(e.len(), a.len())) {
+            return m;
+        }
+        let r = match e.first() {
+            None => a.is_empty(),
+            Some(p) if p == "..." => (0..=a.len()).any(|k| go(&e[1..], &a[k..], memo)),
+            Some(p) => !a.is_empty() && line_matches(p, &a[0]) && go(&e[1..], &a[1..], memo),
+        };
+        memo.insert((e.len(), a.len()), r);
+        r
+    }
+    go(expected, actual, &mut HashMap::new())
+}
+
+/// One command of an example.
+struct Step {
+    line: usize,
+    command: String,
+    background: bool,
+    exit: i32,
+    output: Vec<String>,
+}
+
+fn steps_of(file: &str, block: &Block) -> Vec<Step> {
+    let mut steps: Vec<Step> = Vec::new();
+    for (i, l) in block.lines.iter().enumerate() {
+        let line = block.line + 1 + i;
+        let l = l.trim_end();
+        if let Some(cmd) = l.strip_prefix("$ ") {
+            let (cmd, background) = match cmd.strip_suffix(" &") {
+                Some(c) => (c, true),
+                None => (cmd, false),
+            };
+            steps.push(Step {
+                line,
+                command: cmd.to_string(),
+                background,
+                exit: 0,
+                output: Vec::new(),
+            });
+        } else {
+            let step = steps.last_mut().unwrap_or_else(|| {
+                panic!("{file}:{line}: a console block must start with a `$ ` command")
+            });
+            match l.strip_prefix("? ") {
+                Some(code) if step.output.is_empty() => {
+                    step.exit = code
+                        .parse()
+                        .unwrap_or_else(|_| panic!("{file}:{line}: `? {code}` is no exit code"))
+                }
+                _ => step.output.push(l.to_string()),
+            }
+        }
+    }
+    steps
+}
+
+/// Children of one block, ended when the block is done (or its test failed).
+struct Background(Vec<Child>);
+
+impl Drop for Background {
+    fn drop(&mut self) {
+        for c in &mut self.0 {
+            // SIGTERM first (a simulator removes its link then), then a kill.
+            terminate(c);
+        }
+    }
+}
+
+fn terminate(c: &mut Child) {
+    let _ = Command::new("kill")
+        .arg("-TERM")
+        .arg(c.id().to_string())
+        .status();
+    let t0 = Instant::now();
+    while t0.elapsed() < Duration::from_secs(3) {
+        if let Ok(Some(_)) = c.try_wait() {
+            return;
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    let _ = c.kill();
+    let _ = c.wait();
+}
+
+/// How long one example command may take before it counts as hung.
+const LIMIT: Duration = Duration::from_secs(180);
+
+/// Runs the `console` blocks of one Markdown file (relative to the repository) and
+/// returns the failures.
+fn run_examples(page: &str) -> Vec<String> {
+    let path = repo().join(page);
+    let text = std::fs::read_to_string(&path).unwrap();
+    let (_, blocks) = split(&text);
+    let bin = PathBuf::from(env!("CARGO_BIN_EXE_conformance"));
+    let path_var = format!(
+        "{}:{}",
+        bin.parent().unwrap().display(),
+        std::env::var("PATH").unwrap_or_default()
+    );
+    let only = std::env::var("DOCS_EXAMPLES").ok();
+    // The directories of earlier runs (kept where an example failed) go once their
+    // process is gone.
+    if let Ok(dirs) = std::fs::read_dir(repo().join("target/tmp/docs-examples")) {
+        for d in dirs.flatten() {
+            let pid = d.file_name().to_string_lossy().to_string();
+            if !Path::new("/proc").join(&pid).exists() {
+                let _ = std::fs::remove_dir_all(d.path());
+            }
+        }
+    }
+    let mut failures = Vec::new();
+    let mut ran = 0;
+    for block in blocks.iter().filter(|b| b.lang() == "console") {
+        let steps = steps_of(page, block);
+        if let Some(pat) = &only {
+            if !steps.iter().any(|s| s.command.contains(pat.as_str())) {
+                continue;
+            }
+        }
+        // The process id keeps two test runs at once (a loaded CI host) apart.
+        let dir = repo().join(format!(
+            "target/tmp/docs-examples/{}/{}-{}",
+            std::process::id(),
+            page.replace('/', "_"),
+            block.line
+        ));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).unwrap();
+        let mut background = Background(Vec::new());
+        let failed_before = failures.len();
+        for step in &steps {
+            ran += 1;
+            let here = format!("{page}:{}: $ {}", step.line, step.command);
+            let argv = match words(&step.command) {
+                Ok(w) => w,
+                Err(e) => {
+                    failures.push(format!("{here}\n  {e}"));
+                    break;
+                }
+            };
+            if argv.first().map(String::as_str) != Some("conformance") {
+                failures.push(format!(
+                    "{here}\n  only `conformance` commands are run in a console block; \
+                     write a transcript of another program as a text block"
+                ));
+                break;
+            }
+            let (reader, writer) = std::io::pipe().unwrap();
+            let mut child = Command::new(&bin)
+                .args(&argv[1..])
+                .current_dir(&dir)
+                .env("PATH", &path_var)
+                .env_remove("CI")
+                .stdin(Stdio::null())
+                .stdout(writer.try_clone().unwrap())
+                .stderr(writer)
+                .spawn()
+                .unwrap();
+            let t0 = Instant::now();
+            let (actual, exit) = if step.background {
+                // Read as many lines as the page shows, then leave it running.
+                let (tx, rx) = mpsc::channel();
+                let want = step.output.len();
+                std::thread::spawn(move || {
+                    let mut lines = BufReader::new(reader).lines();
+                    for _ in 0..want {
+                        match lines.next() {
+                            Some(Ok(l)) => {
+                                if tx.send(l).is_err() {
+                                    return;
+                                }
+                            }
+                            _ => return,
+                        }
+                    }
+                    // Keep draining, so the child never blocks on a full pipe.
+                    for _ in lines {}
+                });
+                let mut got = Vec::new();
+                while got.len() < want {
+                    match rx.recv_timeout(Duration::from_secs(30)) {
+                        Ok(l) => got.push(l),
+                        Err(_) => break,
+                    }
+                }
+                background.0.push(child);
+                (got, step.exit)
+            } else {
+                let (tx, rx) = mpsc::channel();
+                std::thread::spawn(move || {
+                    let mut s = Vec::new();
+                    let mut r = reader;
+                    let _ = r.read_to_end(&mut s);
+                    let _ = tx.send(s);
+                });
+                let out = match rx.recv_timeout(LIMIT) {
+                    Ok(o) => o,
+                    Err(_) => {
+                        let _ = child.kill();
+                        failures.push(format!("{here}\n  still running after {LIMIT:?}"));
+                        break;
+                    }
+                };
+                let status = child.wait().unwrap();
+                let text = String::from_utf8_lossy(&out).to_string();
+                (
+                    text.lines().map(|l| l.trim_end().to_string()).collect(),
+                    status.code().unwrap_or(-1),
+                )
+            };
+            let expected: Vec<String> = step
+                .output
+                .iter()
+                .map(|l| l.trim_end().to_string())
+                .collect();
+            eprintln!("  {:5.1} s  {here}", t0.elapsed().as_secs_f64());
+            if exit != step.exit || !lines_match(&expected, &actual) {
+                failures.push(format!(
+                    "{here}\n  expected exit {} and:\n{}\n  got exit {exit} and:\n{}\n",
+                    step.exit,
+                    expected.join("\n"),
+                    actual.join("\n")
+                ));
+                break;
+            }
+        }
+        drop(background);
+        if failures.len() == failed_before {
+            let _ = std::fs::remove_dir_all(&dir);
+        }
+    }
+    if only.is_none() {
+        assert!(ran > 0, "{page} has no console example");
+    }
+    failures
+}
+
+/// One page's examples at a time: the pages' tests run on the harness's threads, and the
+/// paced simulator of one example should not share two cores with another's.
+static ONE_AT_A_TIME: std::sync::Mutex<()> = std::sync::Mutex::new(());
+
+fn check_page(page: &str) {
+    let failures = {
+        let _turn = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
+        run_examples(page)
+    };
+    assert!(
+        failures.is_empty(),
+        "{} example(s) of {page} do not print what the page shows:\n{}",
+        failures.len(),
+        failures.join("\n")
+    );
+}
+
+#[test]
+fn the_matcher_takes_wildcards_and_nothing_else() {
+    let s = |v: &[&str]| v.iter().map(|x| x.to_string()).collect::<Vec<_>>();
+    assert!(lines_match(&s(&["a [..] c"]), &s(&["a b c"])));
+    assert!(!lines_match(&s(&["a [..] c"]), &s(&["a b d"])));
+    assert!(lines_match(
+        &s(&["x", "...", "z"]),
+        &s(&["x", "1", "2", "z"])
+    ));
+    assert!(lines_match(&s(&["x", "...", "z"]), &s(&["x", "z"])));
+    assert!(!lines_match(&s(&["x", "z"]), &s(&["x", "y", "z"])));
+    assert!(!lines_match(&s(&["x"]), &s(&["x", "more"])));
+    assert!(lines_match(&s(&["[..]ab[..]ab"]), &s(&["abab"])));
+    assert!(!lines_match(&s(&["ab[..]ba"]), &s(&["aba"])));
+    assert_eq!(
+        words(r#"conformance gate --codec "conformance adapter" --only 'rtu.*' a\ b"#).unwrap(),
+        vec![
+            "conformance",
+            "gate",
+            "--codec",
+            "conformance adapter",
+            "--only",
+            "rtu.*",
+            "a b"
+        ]
+    );
+    assert!(words("conformance report r.json > r.txt").is_err());
+    assert!(words("conformance decode ':01\\r\\n'").unwrap()[2] == ":01\\r\\n");
+}
+
+#[test]
+fn readme_examples() {
+    check_page("README.md");
+}
+
+/// The `sh` blocks list commands for a real drive, a gateway or a long campaign, which
+/// cannot run here; each of their `conformance` lines must at least use options its
+/// command has (so a renamed option cannot leave the guide behind).
+#[test]
+fn sh_blocks_use_options_that_exist() {
+    let mut help_of = HashMap::new();
+    let mut bad = Vec::new();
+    let mut seen = 0;
+    for file in markdown_files() {
+        let text = std::fs::read_to_string(&file).unwrap();
+        let (n, b) = unknown_options(&rel(&file), &text, &mut help_of);
+        seen += n;
+        bad.extend(b);
+    }
+    assert!(seen > 20, "only {seen} conformance lines found");
+    assert!(bad.is_empty(), "{}", bad.join("\n"));
+}
+
+#[test]
+fn the_option_checker_catches_what_it_should() {
+    let page = "```sh\nconformance check --sim f510 --no-such-option   # a comment\n\
+                conformance nosuch --x\nconformance vectors export --format json\n```\n\
+                ```text\nconformance check --not-a-command-here\n$ conformance scan --bad\n```\n";
+    let (seen, bad) = unknown_options("page.md", page, &mut HashMap::new());
+    assert_eq!(seen, 4);
+    assert_eq!(bad.len(), 3, "{bad:?}");
+    assert!(bad[0].contains("page.md:2:") && bad[0].contains("has no --no-such-option"));
+    assert!(bad[1].contains("page.md:3:") && bad[1].contains("no such command"));
+    assert!(bad[2].contains("page.md:8:") && bad[2].contains("`conformance scan` has no --bad"));
+}
+
+/// The `conformance` lines of the `sh` and `console` blocks of one page (and the
+/// `$ conformance` lines of its `text` transcripts), counted, and
+/// those that name a command or an option that does not exist (`label:line: why`).
+/// `help_of` caches `conformance CMD --help` by command path.
+fn unknown_options(
+    label: &str,
+    text: &str,
+    help_of: &mut HashMap<Vec<String>, String>,
+) -> (usize, Vec<String>) {
+    let bin = env!("CARGO_BIN_EXE_conformance");
+    let mut bad = Vec::new();
+    let mut seen = 0;
+    let (_, blocks) = split(text);
+    for b in blocks
+        .iter()
+        .filter(|b| matches!(b.lang(), "sh" | "console" | "text"))
+    {
+        for (i, l) in b.lines.iter().enumerate() {
+            let at = format!("{label}:{}", b.line + 1 + i);
+            // A text block is output, but a `$ conformance` line in it is a recorded
+            // command (a transcript with mbpoll).
+            if b.lang() == "text" && !l.trim_start().starts_with("$ conformance ") {
+                continue;
+            }
+            let l = l.trim().trim_start_matches("$ ");
+            let l = l.split(" #").next().unwrap().trim().trim_end_matches(" &");
+            let Some(args) = l.strip_prefix("conformance ") else {
+                continue;
+            };
+            let Ok(w) = words(args) else { continue };
+            seen += 1;
+            // The command path: the leading words that `--help` accepts.
+            let mut path: Vec<String> = Vec::new();
+            for word in w.iter().take_while(|x| !x.starts_with('-')).take(2) {
+                let mut p = path.clone();
+                p.push(word.clone());
+                let help = help_of.entry(p.clone()).or_insert_with(|| {
+                    let o = Command::new(bin).args(&p).arg("--help").output().unwrap();
+                    if o.status.success() {
+                        String::from_utf8_lossy(&o.stdout).to_string()
+                    } else {
+                        String::new()
+                    }
+                });
+                if help.is_empty() {
+                    break;
+                }
+                path = p;
+            }
+            if path.is_empty() {
+                bad.push(format!("{at}: {l}: no such command"));
+                continue;
+            }
+            let help = &help_of[&path];
+            for flag in w.iter().filter(|x| x.starts_with("--") && x.len() > 2) {
+                let name = flag.split('=').next().unwrap();
+                let known = [" ", ",", "\n", "=", "]"]
+                    .iter()
+                    .any(|end| help.contains(&format!("{name}{end}")));
+                if !known {
+                    bad.push(format!(
+                        "{at}: {l}: `conformance {}` has no {name}",
+                        path.join(" ")
+                    ));
+                }
+            }
+        }
+    }
+    (seen, bad)
+}
+
+#[test]
+fn several_drives_examples() {
+    check_page("docs/src/several-drives.md");
+}
+
+#[test]
+fn identify_and_scan_examples() {
+    check_page("docs/src/identify-and-scan.md");
+}
+
+#[test]
+fn fuzzing_a_drive_examples() {
+    check_page("docs/src/fuzzing-a-drive.md");
+}
+
+#[test]
+fn checking_a_drive_examples() {
+    check_page("docs/src/checking-a-drive.md");
+}
+
+#[test]
+fn reports_examples() {
+    check_page("docs/src/reports.md");
+}
+
+#[test]
+fn gates_examples() {
+    check_page("docs/src/gates.md");
+}
+
+#[test]
+fn simulator_examples() {
+    check_page("docs/src/simulator.md");
+}
