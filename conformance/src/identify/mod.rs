@@ -358,7 +358,9 @@ fn probe_mode(
                 outcome.stopped = Some(why);
                 break;
             }
-            Err(RunError::Transport(e)) => {
+            // A probe this host could not send whole tells nothing: the identification
+            // stops there, saying why, rather than score a silence the device never had.
+            Err(e @ (RunError::Transport(_) | RunError::HostStalled(_))) => {
                 outcome.stopped = Some(e.to_string());
                 break;
             }

@@ -93,6 +93,20 @@ pub enum TransportError {
         /// What was wrong, with the header in hex.
         source: crate::codec::mbap::MbapError,
     },
+    /// A request this host paces onto an emulated line (the simulator's pseudo-terminal)
+    /// that it could not put there whole: every send of it had a silence over t1.5
+    /// inside it as it left (the host stalled while pacing it), so the receiver, which
+    /// frames by silence, never saw the request. Nothing the other end did can be judged
+    /// from that exchange; the run goes on.
+    #[error("{link}: could not send the request {request} whole: the host stalled {sends} times while pacing it (a silence over t1.5 inside it as it left this host, each time); nothing about the device can be judged from it")]
+    Stalled {
+        /// The link.
+        link: String,
+        /// The request, in hex (at most the first 64 bytes).
+        request: String,
+        /// How many times it was sent, each broken.
+        sends: u32,
+    },
     /// Bytes a link that carries whole frames only (a Modbus TCP gateway) cannot send:
     /// not one RTU frame with a valid CRC.
     #[error("{link}: cannot send {bytes}: {why}")]
