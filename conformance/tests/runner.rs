@@ -629,3 +629,111 @@ fn a_clean_paced_simulator_on_a_loaded_machine_has_no_deviations() {
     assert!(r.unrestored().is_empty());
     assert_valid(&r);
 }
+
+/// A memory link that calls itself a pseudo-terminal (the other end is a program on this
+/// host).
+struct OnAPty(conformance::transport::memory::MemoryEnd);
+
+impl conformance::transport::Transport for OnAPty {
+    fn send(&mut self, b: &[u8]) -> Result<(), conformance::transport::TransportError> {
+        self.0.send(b)
+    }
+    fn recv(
+        &mut self,
+        b: &mut [u8],
+        t: Duration,
+    ) -> Result<usize, conformance::transport::TransportError> {
+        self.0.recv(b, t)
+    }
+    fn discard_input(&mut self) -> Result<(), conformance::transport::TransportError> {
+        self.0.discard_input()
+    }
+    fn describe(&self) -> String {
+        "pty (a test)".into()
+    }
+    fn kind(&self) -> conformance::transport::LinkKind {
+        conformance::transport::LinkKind::Pty
+    }
+    fn line_timing(&self) -> Option<LineSettings> {
+        None
+    }
+}
+
+/// Issue 24: with every core busy the simulator's answer came after the 500 ms timeout
+/// and was judged "no reply within 500 ms" (a DEVIATION) once the liveness probe that
+/// followed was answered. On a pseudo-terminal an answer that turns up late, every time,
+/// is an ERROR of this host; one that is on time when sent again is judged as usual.
+#[test]
+fn an_answer_a_busy_host_delays_past_the_timeout_on_a_pty_is_never_a_deviation() {
+    use conformance::codec::pdu::{Message, Pdu};
+    use conformance::runner::Ctx;
+    use conformance::transport::Transport;
+    let read = |start| {
+        Message {
+            address: 1,
+            pdu: Pdu::ReadRequest { start, count: 1 },
+        }
+        .to_rtu_vec()
+        .unwrap()
+    };
+    // A peer that answers the liveness probe (2520H) at once and 0400H `late` times
+    // after the timeout, then at once.
+    let peer = |late: u32| {
+        let (a, mut b) = conformance::transport::memory::pair();
+        let h = thread::spawn(move || {
+            let mut buf = [0u8; 64];
+            let mut late = late;
+            let t0 = Instant::now();
+            while t0.elapsed() < Duration::from_secs(20) {
+                let n = match b.recv(&mut buf, Duration::from_millis(20)) {
+                    Ok(n) => n,
+                    Err(_) => return,
+                };
+                if n == 0 {
+                    continue;
+                }
+                let req = buf[..n].to_vec();
+                let mut reply = vec![1, 3, 2, 0, 4];
+                let c = conformance::codec::crc::crc16(&reply);
+                reply.extend_from_slice(&c.to_le_bytes());
+                if req[2..4] == [0x04, 0x00] && late > 0 {
+                    late -= 1;
+                    thread::sleep(Duration::from_millis(250));
+                }
+                if b.send(&reply).is_err() {
+                    return;
+                }
+            }
+        });
+        (OnAPty(a), h)
+    };
+    let model = DriveModel::builtin("f510").unwrap();
+    let mut opts = options(&[]);
+    opts.timing.timeout = Duration::from_millis(150);
+    opts.timing.silence = Duration::from_millis(100);
+    // Late twice, then on time: the answer is judged as any other.
+    let (link, h) = peer(2);
+    let mut ctx = Ctx::new(&model, None, Mode::Rtu, &opts, Box::new(link));
+    let p = ctx.probe(read(0x0400), None).unwrap();
+    assert!(p.exchange.reply.is_some(), "{:?}", p.exchange);
+    assert!(p.comparison.findings.is_empty(), "{:?}", p.comparison);
+    drop(ctx);
+    h.join().unwrap();
+    // Late every time: an ERROR of this host, naming the request.
+    let (link, h) = peer(u32::MAX);
+    let mut ctx = Ctx::new(&model, None, Mode::Rtu, &opts, Box::new(link));
+    let e = match ctx.probe(read(0x0400), None) {
+        Err(e @ conformance::runner::RunError::HostStalled(_)) => e,
+        Err(e) => panic!("not a host stall: {e}"),
+        Ok(p) => panic!("judged: {:?}", p.comparison),
+    };
+    assert!(
+        e.to_string().contains(
+            "the answer to 01 03 04 00 00 01 85 3A came only after the 150 ms timeout, 3 times"
+        ),
+        "{e}"
+    );
+    assert!(ctx.lost.is_none());
+    drop(ctx);
+    h.join().unwrap();
+}

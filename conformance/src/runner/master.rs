@@ -263,6 +263,12 @@ impl<T: Transport + ?Sized> Master<T> {
         std::mem::take(&mut self.stray)
     }
 
+    /// Bytes found waiting before a request was sent since the last
+    /// [`Master::take_stray`], without taking them.
+    pub fn stray(&self) -> usize {
+        self.stray
+    }
+
     /// Reads what is waiting on the link (counted as stray too) and discards the rest:
     /// how many bytes were waiting.
     pub fn drain_input(&mut self) -> Result<usize, TransportError> {

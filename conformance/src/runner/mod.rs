@@ -46,8 +46,10 @@ pub enum RunError {
     #[error("{0}")]
     DeviceLost(String),
     /// This host could not put a request on the emulated line whole (it stalled while
-    /// pacing every send of it: [`TransportError::Stalled`]). The check that sent it
-    /// cannot tell anything about the device and ends as ERROR; the run goes on.
+    /// pacing every send of it: [`TransportError::Stalled`]), or delayed the answer of
+    /// the program at the other end of a pseudo-terminal past the timeout every time
+    /// ([`TransportError::LateOnHost`]). The check that sent it cannot tell anything
+    /// about the device and ends as ERROR; the run goes on.
     #[error(transparent)]
     HostStalled(TransportError),
 }
@@ -55,7 +57,9 @@ pub enum RunError {
 impl From<TransportError> for RunError {
     fn from(e: TransportError) -> Self {
         match e {
-            TransportError::Stalled { .. } => RunError::HostStalled(e),
+            TransportError::Stalled { .. } | TransportError::LateOnHost { .. } => {
+                RunError::HostStalled(e)
+            }
             e => RunError::Transport(e),
         }
     }

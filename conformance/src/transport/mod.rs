@@ -107,6 +107,21 @@ pub enum TransportError {
         /// How many times it was sent, each broken.
         sends: u32,
     },
+    /// On a pseudo-terminal (the other end is a program on this host): the answer to a
+    /// request came only after the timeout, every time it was sent, and the other end
+    /// answered at once when probed. A busy host delays the program, not the device's
+    /// line: nothing about the device can be judged from it.
+    #[error("{link}: the answer to {request} came only after the {timeout_ms} ms timeout, {times} times, while the other end answered its liveness probe: on a pseudo-terminal the other end is a program on this host, which a busy host delays; nothing about the device can be judged from it")]
+    LateOnHost {
+        /// The link.
+        link: String,
+        /// The request, in hex (at most the first 64 bytes).
+        request: String,
+        /// How many times it was sent.
+        times: u32,
+        /// The timeout.
+        timeout_ms: u64,
+    },
     /// Bytes a link that carries whole frames only (a Modbus TCP gateway) cannot send:
     /// not one RTU frame with a valid CRC.
     #[error("{link}: cannot send {bytes}: {why}")]
