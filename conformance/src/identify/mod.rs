@@ -358,9 +358,11 @@ fn probe_mode(
                 outcome.stopped = Some(why);
                 break;
             }
-            // A probe this host could not send whole tells nothing: the identification
-            // stops there, saying why, rather than score a silence the device never had.
-            Err(e @ (RunError::Transport(_) | RunError::HostStalled(_))) => {
+            // A probe this host could not send whole (or whose answer it delayed past
+            // the timeout) tells nothing: it is left out, rather than scored as a silence
+            // the device never had; the other probes decide.
+            Err(RunError::HostStalled(_)) => continue,
+            Err(RunError::Transport(e)) => {
                 outcome.stopped = Some(e.to_string());
                 break;
             }
