@@ -112,9 +112,16 @@ fn a_clean_simulator_of_every_model_has_no_deviations() {
     assert!(r.complete, "{:?}", r.stopped);
     assert_eq!(deviations(&r), Vec::<String>::new());
     let s = r.summary();
-    assert_eq!(s.error, 0);
+    // On a loaded machine (the tests run at once) this host may fail to pace a request
+    // whole: that, and only that, is an ERROR (issue 24).
+    let stalls = r
+        .results
+        .iter()
+        .filter(|c| c.status == Status::Error && c.summary.contains("could not send the request"))
+        .count();
+    assert_eq!(s.error, stalls, "{s:?}");
     assert!(s.pass > 200, "{s:?}");
-    assert_eq!(r.exit_code(), 0);
+    assert_eq!(r.exit_code(), if stalls == 0 { 0 } else { 2 });
     assert!(r.unrestored().is_empty());
     let timing = r
         .results
@@ -411,4 +418,322 @@ fn the_command_line_gives_exit_codes_and_every_format() {
     assert_eq!(o.status.code(), Some(0));
     assert!(String::from_utf8_lossy(&o.stdout).contains("rtu.identification"));
     let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// A link on which this host stalls while pacing some requests (issue 24): a request it
+/// breaks never reaches the simulator whole (here: not at all, as a receiver that frames
+/// by silence drops it) and the link says so. `breaks(len, nth_send_of_it)` decides.
+struct Stalling<F: Fn(usize, u32) -> bool + Send> {
+    inner: conformance::transport::memory::MemoryEnd,
+    breaks: F,
+    last: Vec<u8>,
+    nth: u32,
+    broken: bool,
+}
+
+impl<F: Fn(usize, u32) -> bool + Send> conformance::transport::Transport for Stalling<F> {
+    fn send(&mut self, bytes: &[u8]) -> Result<(), conformance::transport::TransportError> {
+        self.nth = if self.last == bytes { self.nth + 1 } else { 1 };
+        self.last = bytes.to_vec();
+        self.broken = (self.breaks)(bytes.len(), self.nth);
+        if self.broken {
+            return Ok(());
+        }
+        self.inner.send(bytes)
+    }
+    fn recv(
+        &mut self,
+        buf: &mut [u8],
+        timeout: Duration,
+    ) -> Result<usize, conformance::transport::TransportError> {
+        self.inner.recv(buf, timeout)
+    }
+    fn discard_input(&mut self) -> Result<(), conformance::transport::TransportError> {
+        self.inner.discard_input()
+    }
+    fn describe(&self) -> String {
+        "a link whose host stalls".into()
+    }
+    fn kind(&self) -> conformance::transport::LinkKind {
+        conformance::transport::LinkKind::Memory
+    }
+    fn send_was_broken(&self) -> bool {
+        self.broken
+    }
+    fn line_timing(&self) -> Option<LineSettings> {
+        None
+    }
+}
+
+/// Runs F510's RTU checks against the simulator over a [`Stalling`] link.
+fn run_stalling(
+    breaks: impl Fn(usize, u32) -> bool + Send + 'static,
+) -> Vec<conformance::runner::CheckResult> {
+    use conformance::runner::{run_mode, CheckResult, Progress};
+    use conformance::sim::{serve, Drive, TrafficLog};
+    struct Quiet;
+    impl Progress for Quiet {
+        fn started(&mut self, _: &conformance::runner::Check) {}
+        fn finished(&mut self, _: &CheckResult) {}
+    }
+    let model = Arc::new(DriveModel::builtin("f510").unwrap());
+    let (a, mut b) = conformance::transport::memory::pair();
+    let stop = Arc::new(AtomicBool::new(false));
+    let s = stop.clone();
+    let m = model.clone();
+    let sim = thread::spawn(move || {
+        let mut drive = Drive::new(m, 1, Duration::from_millis(1));
+        let _ = serve(&mut b, &mut drive, Mode::Rtu, &mut TrafficLog::new(), &s);
+    });
+    let link = Stalling {
+        inner: a,
+        breaks,
+        last: Vec::new(),
+        nth: 0,
+        broken: false,
+    };
+    let mut opts = options(&[]);
+    // The simulator answers within a millisecond or two over memory: short windows keep
+    // the three runs quick (a broken send is listened to for a silence window).
+    opts.timing.silence = Duration::from_millis(30);
+    let run = run_mode(
+        &model,
+        None,
+        Mode::Rtu,
+        Box::new(link),
+        &opts,
+        &AtomicBool::new(false),
+        &mut Quiet,
+    );
+    stop.store(true, Ordering::Relaxed);
+    sim.join().unwrap();
+    assert!(run.stopped.is_none(), "{:?}", run.stopped);
+    run.results
+}
+
+/// Issue 24: a request this host could not put on the line whole is never the device's
+/// silence. Deterministic: the link breaks sends on purpose, no load needed.
+#[test]
+fn a_request_the_host_could_not_send_whole_is_an_error_never_a_deviation() {
+    let clean = run_stalling(|_, _| false);
+    assert!(clean.iter().all(|c| c.status != Status::Deviation));
+    // Every long request (10H with many registers) broken every time it is sent.
+    let stalled = run_stalling(|len, _| len >= 40);
+    let errors: Vec<&conformance::runner::CheckResult> = stalled
+        .iter()
+        .filter(|c| c.status == Status::Error)
+        .collect();
+    assert!(
+        errors.iter().any(|c| c.id == "rtu.write-count.limit"),
+        "{:?}",
+        errors.iter().map(|c| &c.id).collect::<Vec<_>>()
+    );
+    for c in &stalled {
+        assert_ne!(c.status, Status::Deviation, "{}: {}", c.id, c.summary);
+        if c.status == Status::Error {
+            assert!(
+                c.summary.contains("could not send the request")
+                    && c.summary.contains("whole: the host stalled 8 times"),
+                "{}: {}",
+                c.id,
+                c.summary
+            );
+        }
+    }
+    // The checks whose requests went out are judged as on a clean link.
+    for (s, c) in stalled.iter().zip(&clean) {
+        assert_eq!(s.id, c.id);
+        if s.status != Status::Error {
+            assert_eq!(s.status, c.status, "{}: {}", s.id, s.summary);
+        }
+    }
+    // Every request broken twice before it goes out whole: the same verdicts as on a
+    // clean link, no error.
+    let resent = run_stalling(|_, nth| nth <= 2);
+    let statuses = |r: &[conformance::runner::CheckResult]| -> Vec<(String, Status)> {
+        r.iter().map(|c| (c.id.clone(), c.status)).collect()
+    };
+    assert_eq!(statuses(&resent), statuses(&clean));
+}
+
+/// Busy threads on every core (two per core) until dropped: a loaded machine.
+struct Hog {
+    stop: Arc<AtomicBool>,
+    threads: Vec<thread::JoinHandle<()>>,
+}
+
+impl Hog {
+    fn start() -> Hog {
+        let stop = Arc::new(AtomicBool::new(false));
+        let cores = thread::available_parallelism().map_or(2, |n| n.get());
+        let threads = (0..2 * cores)
+            .map(|_| {
+                let s = stop.clone();
+                thread::spawn(move || {
+                    let mut x = 0u64;
+                    while !s.load(Ordering::Relaxed) {
+                        x = std::hint::black_box(
+                            x.wrapping_mul(6364136223846793005).wrapping_add(1),
+                        );
+                    }
+                })
+            })
+            .collect();
+        Hog { stop, threads }
+    }
+}
+
+impl Drop for Hog {
+    fn drop(&mut self) {
+        self.stop.store(true, Ordering::Relaxed);
+        for t in self.threads.drain(..) {
+            let _ = t.join();
+        }
+    }
+}
+
+/// Issue 24: `check --sim f510 --mode rtu` reported a DEVIATION ("no reply within
+/// 50 ms") on the clean simulator while a build ran alongside. With every core kept busy
+/// the paced simulator still has no deviation; an ERROR is allowed only where this host
+/// could not put a request on the line whole.
+#[test]
+fn a_clean_paced_simulator_on_a_loaded_machine_has_no_deviations() {
+    let mut opts = options(&[]);
+    // The command line's timing: 1 s timeout, silence window derived from the replies.
+    opts.timing = MasterTiming {
+        timeout: Duration::from_millis(1000),
+        silence: Duration::from_millis(1000),
+        derive_silence: true,
+        quiet: Duration::from_millis(30),
+        gap: Duration::from_millis(5),
+        retries: 0,
+    };
+    opts.response_allowance = Duration::from_millis(20);
+    let c = config("f510", &[Mode::Rtu], &[], true, opts);
+    let r = {
+        let _hog = Hog::start();
+        run(&c)
+    };
+    assert!(r.complete, "{:?}", r.stopped);
+    assert_eq!(deviations(&r), Vec::<String>::new());
+    for c in &r.results {
+        if c.status == Status::Error {
+            assert!(
+                c.summary.contains("could not send the request"),
+                "{}: {}",
+                c.id,
+                c.summary
+            );
+        }
+    }
+    assert!(r.unrestored().is_empty());
+    assert_valid(&r);
+}
+
+/// A memory link that calls itself a pseudo-terminal (the other end is a program on this
+/// host).
+struct OnAPty(conformance::transport::memory::MemoryEnd);
+
+impl conformance::transport::Transport for OnAPty {
+    fn send(&mut self, b: &[u8]) -> Result<(), conformance::transport::TransportError> {
+        self.0.send(b)
+    }
+    fn recv(
+        &mut self,
+        b: &mut [u8],
+        t: Duration,
+    ) -> Result<usize, conformance::transport::TransportError> {
+        self.0.recv(b, t)
+    }
+    fn discard_input(&mut self) -> Result<(), conformance::transport::TransportError> {
+        self.0.discard_input()
+    }
+    fn describe(&self) -> String {
+        "pty (a test)".into()
+    }
+    fn kind(&self) -> conformance::transport::LinkKind {
+        conformance::transport::LinkKind::Pty
+    }
+    fn line_timing(&self) -> Option<LineSettings> {
+        None
+    }
+}
+
+/// Issue 24: with every core busy the simulator's answer came after the 500 ms timeout
+/// and was judged "no reply within 500 ms" (a DEVIATION) once the liveness probe that
+/// followed was answered. On a pseudo-terminal an answer that turns up late, every time,
+/// is an ERROR of this host; one that is on time when sent again is judged as usual.
+#[test]
+fn an_answer_a_busy_host_delays_past_the_timeout_on_a_pty_is_never_a_deviation() {
+    use conformance::codec::pdu::{Message, Pdu};
+    use conformance::runner::Ctx;
+    use conformance::transport::Transport;
+    let read = |start| {
+        Message {
+            address: 1,
+            pdu: Pdu::ReadRequest { start, count: 1 },
+        }
+        .to_rtu_vec()
+        .unwrap()
+    };
+    // A peer that answers the liveness probe (2520H) at once and 0400H `late` times
+    // after the timeout, then at once.
+    let peer = |late: u32| {
+        let (a, mut b) = conformance::transport::memory::pair();
+        let h = thread::spawn(move || {
+            let mut buf = [0u8; 64];
+            let mut late = late;
+            let t0 = Instant::now();
+            while t0.elapsed() < Duration::from_secs(20) {
+                let n = match b.recv(&mut buf, Duration::from_millis(20)) {
+                    Ok(n) => n,
+                    Err(_) => return,
+                };
+                if n == 0 {
+                    continue;
+                }
+                let req = buf[..n].to_vec();
+                let mut reply = vec![1, 3, 2, 0, 4];
+                let c = conformance::codec::crc::crc16(&reply);
+                reply.extend_from_slice(&c.to_le_bytes());
+                if req[2..4] == [0x04, 0x00] && late > 0 {
+                    late -= 1;
+                    thread::sleep(Duration::from_millis(250));
+                }
+                if b.send(&reply).is_err() {
+                    return;
+                }
+            }
+        });
+        (OnAPty(a), h)
+    };
+    let model = DriveModel::builtin("f510").unwrap();
+    let mut opts = options(&[]);
+    opts.timing.timeout = Duration::from_millis(150);
+    opts.timing.silence = Duration::from_millis(100);
+    // Late twice, then on time: the answer is judged as any other.
+    let (link, h) = peer(2);
+    let mut ctx = Ctx::new(&model, None, Mode::Rtu, &opts, Box::new(link));
+    let p = ctx.probe(read(0x0400), None).unwrap();
+    assert!(p.exchange.reply.is_some(), "{:?}", p.exchange);
+    assert!(p.comparison.findings.is_empty(), "{:?}", p.comparison);
+    drop(ctx);
+    h.join().unwrap();
+    // Late every time: an ERROR of this host, naming the request.
+    let (link, h) = peer(u32::MAX);
+    let mut ctx = Ctx::new(&model, None, Mode::Rtu, &opts, Box::new(link));
+    let e = match ctx.probe(read(0x0400), None) {
+        Err(e @ conformance::runner::RunError::HostStalled(_)) => e,
+        Err(e) => panic!("not a host stall: {e}"),
+        Ok(p) => panic!("judged: {:?}", p.comparison),
+    };
+    assert!(
+        e.to_string().contains(
+            "the answer to 01 03 04 00 00 01 85 3A came only after the 150 ms timeout, 3 times"
+        ),
+        "{e}"
+    );
+    assert!(ctx.lost.is_none());
+    drop(ctx);
+    h.join().unwrap();
 }

@@ -76,6 +76,11 @@ fn plain(model: &DriveModel, register: u16) -> bool {
             .is_some_and(|i| i.access == crate::model::Access::ReadWrite && i.register == register)
 }
 
+/// Why a case counts as not sent where this host could not put its request on the
+/// emulated line whole ([`RunError::HostStalled`]).
+pub const HOST_STALLED: &str =
+    "this host stalled while pacing every send of the request (an emulated line on a busy host): nothing to judge";
+
 /// Sends one step and judges it. `Ok(None)`: the device did what the model predicts.
 /// `Err(DeviceLost)`: it stopped answering (a hang).
 pub fn observe(
@@ -225,8 +230,11 @@ pub fn recover(ctx: &mut Ctx<'_>, wait: Duration) -> Result<Option<Duration>, Ru
     let mut pause = Duration::from_millis(250);
     loop {
         ctx.lost = None;
-        if ctx.liveness()? {
-            return Ok(Some(t0.elapsed()));
+        match ctx.liveness() {
+            Ok(true) => return Ok(Some(t0.elapsed())),
+            // A probe this host could not send whole says nothing: probe again.
+            Ok(false) | Err(RunError::HostStalled(_)) => {}
+            Err(e) => return Err(e),
         }
         if t0.elapsed() >= wait {
             return Ok(None);
@@ -397,10 +405,15 @@ pub fn fuzz_mode(
         }
         ctx.current = format!("{mode}.fuzz.case-{}", case.index);
         let mut lost = None;
+        let mut stalled = false;
         for r in journal {
             match ctx.remember(r) {
                 Ok(_) => {}
                 Err(RunError::DeviceLost(w)) => lost = Some(w),
+                Err(RunError::HostStalled(_)) => {
+                    stalled = true;
+                    break;
+                }
                 Err(RunError::Transport(e)) => {
                     out.stopped = Some(e.to_string());
                     break;
@@ -409,6 +422,10 @@ pub fn fuzz_mode(
         }
         if out.stopped.is_some() {
             break;
+        }
+        if stalled {
+            *out.skipped.entry(HOST_STALLED).or_default() += 1;
+            continue;
         }
         out.cases += 1;
         if let Step::Timed(t) = &case.step {
@@ -576,6 +593,12 @@ fn conclude(
         Err(RunError::Transport(e)) => {
             out.stopped = Some(e.to_string());
             return true;
+        }
+        // The request never reached the device whole: no verdict, and not a case sent.
+        Err(RunError::HostStalled(_)) => {
+            out.cases = out.cases.saturating_sub(1);
+            *out.skipped.entry(HOST_STALLED).or_default() += 1;
+            return false;
         }
         Err(RunError::DeviceLost(why)) => {
             let t = Instant::now();

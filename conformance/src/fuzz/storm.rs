@@ -435,9 +435,10 @@ impl Storm<'_> {
         ));
     }
 
-    /// Sends `frame` after t3.5, again (at most three times) where the host stalled
-    /// inside it while pacing it: such a frame is not the one meant (the device sees a
-    /// broken frame and must drop it), so nothing of it is judged.
+    /// Sends `frame` after t3.5, again where the host stalled inside it while pacing it:
+    /// such a frame is not the one meant (the device sees a broken frame and must drop
+    /// it), so nothing of it is judged. [`TransportError::Stalled`] after
+    /// [`crate::runner::master::MAX_BROKEN_SENDS`] broken sends.
     fn send(&mut self, ctx: &mut Ctx<'_>, frame: &[u8]) -> Result<Instant, TransportError> {
         let mut tries = 0;
         loop {
@@ -448,10 +449,19 @@ impl Storm<'_> {
             self.rx.sent(frame);
             let sent = t.sent_at().unwrap_or_else(Instant::now);
             self.quiet = sent;
-            if !t.send_was_broken() || tries >= 3 {
+            if !t.send_was_broken() {
                 return Ok(sent);
             }
             tries += 1;
+            // Every send broken: the device never saw the frame (issue 24). Not its
+            // silence to judge: the caller leaves the frame out.
+            if tries >= crate::runner::master::MAX_BROKEN_SENDS {
+                return Err(TransportError::Stalled {
+                    link: t.describe(),
+                    request: crate::codec::hex::Hex(&frame[..frame.len().min(64)]).to_string(),
+                    sends: tries,
+                });
+            }
             self.out.resent += 1;
         }
     }
@@ -585,7 +595,9 @@ pub fn run(
     let started = Instant::now();
     match storm(ctx, scfg, cfg, &mut s, stop) {
         Ok(()) => {}
-        Err(RunError::Transport(e)) => out.stopped = Some(e.to_string()),
+        Err(e @ (RunError::Transport(_) | RunError::HostStalled(_))) => {
+            out.stopped = Some(e.to_string())
+        }
         Err(RunError::DeviceLost(why)) => out.stopped = Some(why),
     }
     // Let the line go quiet, then the device must still answer.
@@ -660,7 +672,12 @@ fn storm(
         }
         let f = &reads[(i as usize) % reads.len()];
         std::thread::sleep(idle_gap);
-        match storm.own(ctx, f)? {
+        let answer = match storm.own(ctx, f) {
+            // Not sent whole (this host stalled while pacing it): nothing to measure.
+            Err(TransportError::Stalled { .. }) => continue,
+            r => r?,
+        };
+        match answer {
             Some((lat, reply)) => {
                 if lat > storm.limit {
                     storm.out.idle_problems += 1;
@@ -801,19 +818,33 @@ fn storm(
         n += 1;
         *storm.out.sent.entry(slot.name()).or_default() += 1;
         if slot != Slot::Own {
-            storm.other(ctx, &frame)?;
+            match storm.other(ctx, &frame) {
+                // A frame for others this host could not send whole: garbage on the line,
+                // which the device must drop anyway.
+                Err(TransportError::Stalled { .. }) => continue,
+                r => r?,
+            }
             // A real bus carries the other node's reply after its request.
             if slot == Slot::OtherRequest && rng.below(10) < 6 && n < scfg.frames {
                 let r = other_reply(mode, other, count, &mut rng);
                 n += 1;
                 *storm.out.sent.entry(Slot::OtherReply.name()).or_default() += 1;
-                storm.other(ctx, &r)?;
+                match storm.other(ctx, &r) {
+                    Err(TransportError::Stalled { .. }) => {}
+                    r => r?,
+                }
             }
             continue;
         }
-        storm.out.own += 1;
         let judgement = model.judge(own, mode, &frame);
-        match storm.own(ctx, &frame)? {
+        let answer = match storm.own(ctx, &frame) {
+            // An own request this host could not send whole is not one of the device's:
+            // neither lost nor answered (the resends are counted).
+            Err(TransportError::Stalled { .. }) => continue,
+            r => r?,
+        };
+        storm.out.own += 1;
+        match answer {
             None => {
                 storm.out.lost += 1;
                 storm.out.problem(format!(

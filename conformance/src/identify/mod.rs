@@ -358,6 +358,10 @@ fn probe_mode(
                 outcome.stopped = Some(why);
                 break;
             }
+            // A probe this host could not send whole (or whose answer it delayed past
+            // the timeout) tells nothing: it is left out, rather than scored as a silence
+            // the device never had; the other probes decide.
+            Err(RunError::HostStalled(_)) => continue,
             Err(RunError::Transport(e)) => {
                 outcome.stopped = Some(e.to_string());
                 break;

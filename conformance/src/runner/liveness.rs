@@ -62,13 +62,51 @@ impl Ctx<'_> {
         if let Some(why) = &self.lost {
             return Err(RunError::DeviceLost(why.clone()));
         }
-        let ex = self.master.exchange(frame, expect_reply)?;
-        if !ex.after_echo().is_empty() {
-            self.answered_in = Some(self.current.clone());
-            return Ok((ex, false));
-        }
-        if self.liveness()? {
-            return Ok((ex, true));
+        let mut late = 0;
+        loop {
+            let ex = self.master.exchange(frame, expect_reply)?;
+            if !ex.after_echo().is_empty() {
+                self.answered_in = Some(self.current.clone());
+                return Ok((ex, false));
+            }
+            let stray = self.master.stray();
+            let (alive, extra) = match self.liveness_probe()? {
+                None => (true, false),
+                Some(p) => (
+                    !p.after_echo().is_empty(),
+                    !p.leading.is_empty() || !p.trailing.is_empty(),
+                ),
+            };
+            // On a pseudo-terminal the other end is a program on this host, and a reply
+            // the host delayed past the timeout is not the device's silence (issue 24: "no
+            // reply within 500 ms" with every core busy, once the liveness probe was
+            // answered). The late reply turns up before the probe goes, or is taken for
+            // the probe's answer, whose own then follows: bytes found waiting either way.
+            // Sent again; where it is late every time, the check is an ERROR.
+            let on_pty = self.link_kind() == crate::transport::LinkKind::Pty;
+            let came_late = alive && expect_reply && on_pty && {
+                std::thread::sleep(self.master.silence_window());
+                extra || self.master.drain_input()? > 0 || self.master.stray() > stray
+            };
+            if came_late {
+                late += 1;
+                if late < LATE_ON_A_PTY {
+                    continue;
+                }
+                return Err(RunError::HostStalled(
+                    crate::transport::TransportError::LateOnHost {
+                        link: self.link(),
+                        request: Hex(&frame[..frame.len().min(64)]).to_string(),
+                        times: late,
+                        timeout_ms: u64::try_from(self.opts.timing.timeout.as_millis())
+                            .unwrap_or(u64::MAX),
+                    },
+                ));
+            }
+            if alive {
+                return Ok((ex, true));
+            }
+            break;
         }
         let why = format!(
             "the device stopped answering in {}: no byte came back to {} ({}) nor to {} liveness probe(s) (a read of {}); {}",
@@ -106,14 +144,21 @@ impl Ctx<'_> {
     /// back. A model without any readable register has no probe: the device counts as
     /// alive (the preflight says so).
     pub fn liveness(&mut self) -> Result<bool, RunError> {
+        Ok(self
+            .liveness_probe()?
+            .is_none_or(|ex| !ex.after_echo().is_empty()))
+    }
+
+    /// [`Ctx::liveness`], with the probe's exchange (None: the model has no probe).
+    fn liveness_probe(&mut self) -> Result<Option<Exchange>, RunError> {
         let Some(frame) = self.liveness_frame() else {
-            return Ok(true);
+            return Ok(None);
         };
         self.liveness_probes += 1;
         let ex = self
             .master
             .exchange_retrying(&frame, true, self.liveness_attempts())?;
-        Ok(!ex.after_echo().is_empty())
+        Ok(Some(ex))
     }
 
     /// The preflight: a read the model says must be answered. Its verdict is PASS, or
@@ -263,6 +308,10 @@ fn starts_an_answer(mode: Mode, request: &[u8], rx: &[u8]) -> bool {
         .iter()
         .any(|h| rx.windows(h.len()).any(|w| w.eq_ignore_ascii_case(h)))
 }
+
+/// How many times a request whose answer came only after the timeout on a
+/// pseudo-terminal is sent before the check is an ERROR ([`Ctx::exchange`]).
+pub const LATE_ON_A_PTY: u32 = 3;
 
 /// Statuses that a lost device leaves to the checks that did not run.
 pub fn not_run(lost_in: &str) -> String {

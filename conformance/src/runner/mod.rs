@@ -40,11 +40,29 @@ use crate::vectors::VectorFile;
 pub enum RunError {
     /// The link failed.
     #[error(transparent)]
-    Transport(#[from] TransportError),
+    Transport(TransportError),
     /// The device stopped answering: neither the check's request nor a liveness probe
     /// got a byte back. The run ends; nothing after this can be judged.
     #[error("{0}")]
     DeviceLost(String),
+    /// This host could not put a request on the emulated line whole (it stalled while
+    /// pacing every send of it: [`TransportError::Stalled`]), or delayed the answer of
+    /// the program at the other end of a pseudo-terminal past the timeout every time
+    /// ([`TransportError::LateOnHost`]). The check that sent it cannot tell anything
+    /// about the device and ends as ERROR; the run goes on.
+    #[error(transparent)]
+    HostStalled(TransportError),
+}
+
+impl From<TransportError> for RunError {
+    fn from(e: TransportError) -> Self {
+        match e {
+            TransportError::Stalled { .. } | TransportError::LateOnHost { .. } => {
+                RunError::HostStalled(e)
+            }
+            e => RunError::Transport(e),
+        }
+    }
 }
 
 /// How a check ended.
@@ -543,23 +561,32 @@ impl<'a> Ctx<'a> {
         self.gap_replies += 1;
         let limit = Duration::from_micros(line.t1_5_us()) + self.opts.gap_allowance;
         let skip = if ex.echo { ex.request.len() } else { 0 };
+        let ct = Duration::from_micros(line.char_time_us());
         let mut seen = 0;
         let mut prev: Option<Duration> = None;
         for c in &ex.chunks {
-            for _ in &c.bytes {
+            let m = c.bytes.len();
+            for i in 0..m {
                 if seen >= skip {
+                    // A byte read with k more after it came at least k character times
+                    // before the read (the line carries one per character time), and
+                    // not sooner than one after the byte before it: a reader that woke
+                    // late (a busy host) does not make the gap before its chunk longer
+                    // than the line allows.
+                    let behind = ct * u32::try_from(m - 1 - i).unwrap_or(u32::MAX);
+                    let mut at = c.at.saturating_sub(behind);
                     if let Some(p) = prev {
-                        let gap = c.at.saturating_sub(p);
-                        // A chunk's bytes arrived together; the gap is between chunks,
-                        // less the time of the character itself.
-                        let gap = gap.saturating_sub(Duration::from_micros(line.char_time_us()));
+                        at = at.max(p + ct);
+                        // The silence between two characters: their arrivals apart, less
+                        // the time of the character itself.
+                        let gap = at.saturating_sub(p).saturating_sub(ct);
                         self.max_gap = self.max_gap.max(gap);
                         if gap > limit {
                             self.gaps
                                 .push((crate::codec::hex::Hex(&ex.request).to_string(), gap));
                         }
                     }
-                    prev = Some(c.at);
+                    prev = Some(at);
                 }
                 seen += 1;
             }

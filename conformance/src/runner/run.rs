@@ -126,6 +126,7 @@ pub fn run_section(
         let (verdict, fatal) = match verdict {
             Ok(v) => (v, None),
             Err(RunError::DeviceLost(why)) => (Verdict::error(why), None),
+            Err(e @ RunError::HostStalled(_)) => (Verdict::error(e.to_string()), None),
             Err(RunError::Transport(e)) => {
                 let msg = e.to_string();
                 (Verdict::error(msg.clone()), Some(msg))

@@ -93,6 +93,35 @@ pub enum TransportError {
         /// What was wrong, with the header in hex.
         source: crate::codec::mbap::MbapError,
     },
+    /// A request this host paces onto an emulated line (the simulator's pseudo-terminal)
+    /// that it could not put there whole: every send of it had a silence over t1.5
+    /// inside it as it left (the host stalled while pacing it), so the receiver, which
+    /// frames by silence, never saw the request. Nothing the other end did can be judged
+    /// from that exchange; the run goes on.
+    #[error("{link}: could not send the request {request} whole: the host stalled {sends} times while pacing it (a silence over t1.5 inside it as it left this host, each time); nothing about the device can be judged from it")]
+    Stalled {
+        /// The link.
+        link: String,
+        /// The request, in hex (at most the first 64 bytes).
+        request: String,
+        /// How many times it was sent, each broken.
+        sends: u32,
+    },
+    /// On a pseudo-terminal (the other end is a program on this host): the answer to a
+    /// request came only after the timeout, every time it was sent, and the other end
+    /// answered at once when probed. A busy host delays the program, not the device's
+    /// line: nothing about the device can be judged from it.
+    #[error("{link}: the answer to {request} came only after the {timeout_ms} ms timeout, {times} times, while the other end answered its liveness probe: on a pseudo-terminal the other end is a program on this host, which a busy host delays; nothing about the device can be judged from it")]
+    LateOnHost {
+        /// The link.
+        link: String,
+        /// The request, in hex (at most the first 64 bytes).
+        request: String,
+        /// How many times it was sent.
+        times: u32,
+        /// The timeout.
+        timeout_ms: u64,
+    },
     /// Bytes a link that carries whole frames only (a Modbus TCP gateway) cannot send:
     /// not one RTU frame with a valid CRC.
     #[error("{link}: cannot send {bytes}: {why}")]

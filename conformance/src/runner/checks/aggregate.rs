@@ -49,10 +49,19 @@ pub(super) fn aggregates(model: &DriveModel, m: &str, out: &mut Vec<Check>) {
                 )));
             }
             let mut v = Verdict { pass_summary: stats.clone(), ..Verdict::default() };
+            let late = l.iter().filter(|d| **d > limit).count();
             if median > limit {
                 v.findings.push(Finding::deviation(format!("replies are late: {stats}")));
+            } else if max > limit && ctx.link_kind() == crate::transport::LinkKind::Pty {
+                // On a pseudo-terminal the other end is a program on this host (the
+                // simulator): a few late replies are as likely this host's scheduling
+                // as the device's (issue 24: 1 to 8 of 221 on a loaded machine). The
+                // median, which a stall does not move, is judged; the tail is not.
+                v.pass_summary = format!(
+                    "{stats}; {late} replies over {:.0} ms not judged: on a pseudo-terminal the other end is a program on this host, and a few late replies may be its scheduling (the median is judged)",
+                    ms(limit)
+                );
             } else if max > limit {
-                let late = l.iter().filter(|d| **d > limit).count();
                 v.findings.push(Finding::observation(format!("{late} replies took longer than {:.0} ms: {stats}", ms(limit))));
             }
             Ok(v)
@@ -73,12 +82,12 @@ pub(super) fn aggregates(model: &DriveModel, m: &str, out: &mut Vec<Check>) {
             if ctx.gap_replies == 0 {
                 return Ok(Verdict::skip("no replies were measured"));
             }
-            // On an emulated line (the simulator's paced pseudo-terminal) the host paces
-            // the characters: where its writes came later than the allowance, gaps inside
-            // replies are the host's, and only the silence before replies is judged.
-            let host_late = ctx
-                .peer_lateness()
-                .filter(|late| *late > ctx.opts.gap_allowance);
+            // On an emulated line (the simulator's paced pseudo-terminal) this host paces
+            // the characters and reads them: a sender that wrote late, or a reader that
+            // woke late after a reply's last byte (274 ms seen with every core busy),
+            // makes a gap inside a reply that no device made. There only the silence
+            // before replies is judged (a stall can delay a reply, never hasten it).
+            let on_pty = ctx.link_kind() == crate::transport::LinkKind::Pty;
             let t15 = Duration::from_micros(line.t1_5_us());
             let t35 = Duration::from_micros(line.t3_5_us());
             let mut v = Verdict {
@@ -91,13 +100,19 @@ pub(super) fn aggregates(model: &DriveModel, m: &str, out: &mut Vec<Check>) {
                 ),
                 ..Verdict::default()
             };
-            if let Some(late) = host_late {
+            if on_pty {
                 v.pass_summary = format!(
-                    "{} replies, none sooner than t3.5 = {} us; gaps inside replies not judged: the simulator's paced writes came up to {:.1} ms late (a busy host), over the {} ms allowance, so gaps on this emulated line are the host's",
+                    "{} replies, none sooner than t3.5 = {} us; gaps inside replies not judged: on a pseudo-terminal this host paces and reads the characters, so they are its scheduling (largest {} us{})",
                     ctx.gap_replies,
                     t35.as_micros(),
-                    late.as_secs_f64() * 1000.0,
-                    ctx.opts.gap_allowance.as_millis()
+                    ctx.max_gap.as_micros(),
+                    match ctx.peer_lateness() {
+                        Some(late) => format!(
+                            "; the simulator's paced writes came up to {:.1} ms late",
+                            late.as_secs_f64() * 1000.0
+                        ),
+                        None => String::new(),
+                    }
                 );
             } else if let Some((req, gap)) = ctx.gaps.first() {
                 v.findings.push(Finding::deviation(format!(
@@ -182,9 +197,10 @@ mod tests {
     use crate::runner::{EchoMode, MasterTiming, Options, Status};
     use crate::transport::{memory, LinkKind, Transport, TransportError};
 
-    /// A memory link that says it carries a line's timing, with a peer whose paced
-    /// writes came `late`.
-    struct Emulated(memory::MemoryEnd, Duration);
+    /// A memory link that says it carries a line's timing, of `kind` (a pseudo-terminal
+    /// to this host's simulator, or a serial port), with a peer whose paced writes came
+    /// `late` (on a pseudo-terminal).
+    struct Emulated(memory::MemoryEnd, LinkKind, Duration);
 
     impl Transport for Emulated {
         fn send(&mut self, b: &[u8]) -> Result<(), TransportError> {
@@ -200,17 +216,19 @@ mod tests {
             "emulated".into()
         }
         fn kind(&self) -> LinkKind {
-            LinkKind::Pty
+            self.1
         }
         fn line_timing(&self) -> Option<LineSettings> {
             Some(LineSettings::new(9600, 8, Parity::Even, 1))
         }
         fn peer_lateness(&self) -> Option<Duration> {
-            Some(self.1)
+            (self.1 == LinkKind::Pty).then_some(self.2)
         }
     }
 
-    fn line_timing_with(late: Duration) -> crate::runner::CheckResult {
+    /// Runs aggregate `id` over a context on a `kind` link whose replies had one gap of
+    /// 60 ms inside them and the given latencies.
+    fn aggregate_with(id: &str, kind: LinkKind, latencies: &[u64]) -> crate::runner::CheckResult {
         let model = DriveModel::builtin("f510").unwrap();
         let opts = Options {
             address: 1,
@@ -235,30 +253,59 @@ mod tests {
             allow_restart: false,
         };
         let (a, _b) = memory::pair();
-        let mut ctx = Ctx::new(&model, None, Mode::Rtu, &opts, Box::new(Emulated(a, late)));
-        // One reply with a 60 ms gap inside, and replies that began 10 ms after requests.
-        ctx.gap_replies = 3;
+        let link = Emulated(a, kind, Duration::from_millis(2));
+        let mut ctx = Ctx::new(&model, None, Mode::Rtu, &opts, Box::new(link));
+        ctx.gap_replies = latencies.len();
         ctx.gaps
             .push(("01 03 25 20 00 01 8E CC".into(), Duration::from_millis(60)));
         ctx.max_gap = Duration::from_millis(60);
-        ctx.latencies = vec![Duration::from_millis(10); 3];
+        ctx.latencies = latencies
+            .iter()
+            .map(|&ms| Duration::from_millis(ms))
+            .collect();
         let mut out = Vec::new();
         aggregates(&model, "rtu", &mut out);
-        let check = out.iter().find(|c| c.id == "rtu.line-timing").unwrap();
+        let check = out.iter().find(|c| c.id == id).unwrap();
         let v = (check.run)(&mut ctx).unwrap();
         crate::runner::run::result_of(check, Mode::Rtu, v, Duration::ZERO)
     }
 
     #[test]
-    fn gaps_the_host_made_are_not_the_devices() {
-        // The simulator's writes were on time: a 60 ms gap is the device's deviation.
-        let r = line_timing_with(Duration::from_millis(2));
+    fn gaps_inside_replies_on_a_pseudo_terminal_are_the_hosts() {
+        // On a serial port a 60 ms gap inside a reply is the device's deviation.
+        let r = aggregate_with("rtu.line-timing", LinkKind::Serial, &[10, 10, 10]);
         assert_eq!(r.status, Status::Deviation, "{}", r.summary);
         assert!(r.summary.contains("silence over t1.5"), "{}", r.summary);
-        // Its writes came 80 ms late: the gap is the host's; the check says so and passes
-        // what it can still judge (no reply before t3.5).
-        let r = line_timing_with(Duration::from_millis(80));
+        // On a pseudo-terminal this host paced and read the characters, even where the
+        // simulator's writes were on time (a reader that woke late: issue 24); the check
+        // says so and passes what it can still judge (no reply before t3.5).
+        let r = aggregate_with("rtu.line-timing", LinkKind::Pty, &[10, 10, 10]);
         assert_eq!(r.status, Status::Pass, "{}", r.summary);
         assert!(r.summary.contains("not judged"), "{}", r.summary);
+        // A reply before t3.5 is judged everywhere: a stall delays, it never hastens.
+        let r = aggregate_with("rtu.line-timing", LinkKind::Pty, &[1, 10, 10]);
+        assert_eq!(r.status, Status::Deviation, "{}", r.summary);
+        assert!(r.summary.contains("less than t3.5"), "{}", r.summary);
+    }
+
+    #[test]
+    fn a_few_late_replies_on_a_pseudo_terminal_are_not_judged() {
+        // Limit: 10 ms + one character + 20 ms allowance. One reply of five late.
+        let tail = [9, 9, 9, 9, 60];
+        let r = aggregate_with("rtu.response-time", LinkKind::Serial, &tail);
+        assert_eq!(r.status, Status::Observation, "{}", r.summary);
+        let r = aggregate_with("rtu.response-time", LinkKind::Pty, &tail);
+        assert_eq!(r.status, Status::Pass, "{}", r.summary);
+        assert!(
+            r.summary.contains("1 replies over 31 ms not judged"),
+            "{}",
+            r.summary
+        );
+        // Replies late as a rule (the late-reply quirk) are a deviation everywhere.
+        let late = [60, 60, 60, 9, 60];
+        for kind in [LinkKind::Serial, LinkKind::Pty] {
+            let r = aggregate_with("rtu.response-time", kind, &late);
+            assert_eq!(r.status, Status::Deviation, "{kind}: {}", r.summary);
+        }
     }
 }
