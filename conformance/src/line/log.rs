@@ -234,7 +234,10 @@ impl LineLog {
 
     /// Flushes every sink.
     pub fn flush(&mut self) -> Result<(), LineError> {
-        for w in [self.json.as_mut(), self.text.as_mut()].into_iter().flatten() {
+        for w in [self.json.as_mut(), self.text.as_mut()]
+            .into_iter()
+            .flatten()
+        {
             w.flush().map_err(LineError::Log)?;
         }
         Ok(())

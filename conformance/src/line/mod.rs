@@ -46,7 +46,7 @@ pub mod station;
 pub mod wire;
 
 pub use log::LineLog;
-pub use run::{Endpoint, EmulatedLine, LineConfig, LineStats};
+pub use run::{EmulatedLine, Endpoint, LineConfig, LineStats};
 pub use station::Station;
 pub use wire::{Collision, Event, Flip, LineChar, Wire};
 

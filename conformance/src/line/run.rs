@@ -249,10 +249,19 @@ impl EmulatedLine {
         u64::try_from(u128::from(bits) * 1_000_000 / baud).unwrap_or(u64::MAX)
     }
 
+    /// A log time for bit `bit`: the line's schedule when paced; unpaced the wire's bits
+    /// are virtual, and the time is now.
+    fn t_us(&self, bit: u64) -> u64 {
+        if self.config.paced {
+            self.us_of(bit)
+        } else {
+            u64::try_from(self.epoch.elapsed().as_micros()).unwrap_or(u64::MAX)
+        }
+    }
+
     fn bit_at(&self, at: Instant) -> u64 {
         let us = at.saturating_duration_since(self.epoch).as_micros();
-        u64::try_from(us * u128::from(self.config.line.baud.max(1)) / 1_000_000)
-            .unwrap_or(u64::MAX)
+        u64::try_from(us * u128::from(self.config.line.baud.max(1)) / 1_000_000).unwrap_or(u64::MAX)
     }
 
     fn instant_of(&self, bit: u64) -> Instant {
@@ -422,15 +431,14 @@ impl EmulatedLine {
                         let silence = self.last_end[i].map_or(u32::MAX, |end| {
                             let bits = c.start.saturating_sub(end);
                             let baud = u64::from(self.config.line.baud.max(1));
-                            u32::try_from(bits.saturating_mul(1_000_000) / baud)
-                                .unwrap_or(u32::MAX)
+                            u32::try_from(bits.saturating_mul(1_000_000) / baud).unwrap_or(u32::MAX)
                         });
                         self.last_end[i] = Some(c.start + bpc);
                         self.out[i].0.push(c.byte);
                         self.out[i].1.push(silence);
                     }
                     if c.damaged && !c.collided {
-                        let t_us = self.us_of(c.start);
+                        let t_us = self.t_us(c.start);
                         log.record(&Record::Damaged {
                             t_us,
                             hex: hex(&[c.byte]),
@@ -454,11 +462,7 @@ impl EmulatedLine {
                 Event::Flip(f) => {
                     self.stats.flips += 1;
                     log.record(&Record::Noise {
-                        t_us: if self.config.paced {
-                            self.us_of(f.at)
-                        } else {
-                            u64::try_from(self.epoch.elapsed().as_micros()).unwrap_or(u64::MAX)
-                        },
+                        t_us: self.t_us(f.at),
                         from: names(f.drivers, &self.endpoints),
                         byte: hex(&[f.byte]),
                         bit: f.bit,

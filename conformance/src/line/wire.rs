@@ -450,7 +450,10 @@ mod tests {
                 .map(|b| if line.data_bits == 7 { b & 0x7F } else { *b })
                 .collect();
             assert_eq!(got.iter().map(|c| c.byte).collect::<Vec<_>>(), want);
-            assert!(got.iter().all(|c| !c.damaged && c.drivers == 0b10), "{got:?}");
+            assert!(
+                got.iter().all(|c| !c.damaged && c.drivers == 0b10),
+                "{got:?}"
+            );
             assert_eq!(
                 got.iter().map(|c| c.start).collect::<Vec<_>>(),
                 starts,
@@ -467,7 +470,11 @@ mod tests {
         let b = w.transmit(0, 5, &[3]).unwrap();
         assert_eq!((a, b), (vec![0, 11], vec![22]));
         run(&mut w, 100);
-        assert_eq!(w.transmit(0, 50, &[4]).unwrap(), vec![100], "not in the past");
+        assert_eq!(
+            w.transmit(0, 50, &[4]).unwrap(),
+            vec![100],
+            "not in the past"
+        );
     }
 
     #[test]
@@ -511,7 +518,8 @@ mod tests {
         let mut w = Wire::new(l8e1(), 3).unwrap();
         w.transmit(0, 0, &REQUEST).unwrap();
         // Endpoint 2 starts in the middle of the fifth character, off its bit grid.
-        w.transmit(2, 4 * 11 + 3, &[0x01, 0x06, 0x25, 0x02]).unwrap();
+        w.transmit(2, 4 * 11 + 3, &[0x01, 0x06, 0x25, 0x02])
+            .unwrap();
         let ev = run(&mut w, 400);
         let got = chars(&ev);
         assert_eq!(
