@@ -47,7 +47,11 @@ pub struct LineConfig {
 
 enum Port {
     Pty(PtyMaster),
-    Station { sock: UnixStream, tags: LineTags },
+    Station {
+        sock: UnixStream,
+        tags: LineTags,
+        busy: super::station::Busy,
+    },
 }
 
 /// One endpoint of the line.
@@ -93,15 +97,17 @@ impl Endpoint {
         device: &str,
         line: Option<LineSettings>,
     ) -> Result<(Endpoint, Station), LineError> {
-        let (station, sock, tags) = Station::pair(name, line).map_err(|e| LineError::Io {
-            name: name.to_string(),
-            what: "making a socket pair",
-            source: e,
-        })?;
+        let busy = super::station::Busy::default();
+        let (station, sock, tags) =
+            Station::pair(name, line, busy.clone()).map_err(|e| LineError::Io {
+                name: name.to_string(),
+                what: "making a socket pair",
+                source: e,
+            })?;
         Ok((
             Endpoint {
                 name: name.to_string(),
-                port: Port::Station { sock, tags },
+                port: Port::Station { sock, tags, busy },
                 echo: false,
                 device: Some(device.to_string()),
             },
@@ -166,17 +172,14 @@ impl Endpoint {
         };
         match &self.port {
             Port::Pty(p) => Ok(bytes.len() - put(p.as_fd())?),
-            Port::Station { sock, tags } => {
+            Port::Station { sock, tags, .. } => {
                 // The silences go first, under the lock the station drains under.
                 let mut told = tags.lock().ok();
                 if let Some(t) = told.as_mut() {
                     t.extend(silences);
                 }
-                let done = match put(sock.as_fd()) {
-                    Ok(d) => d,
-                    // The drive went away: nobody to tell.
-                    Err(_) => 0,
-                };
+                // A drive that went away takes nothing: nobody to tell.
+                let done: usize = put(sock.as_fd()).unwrap_or_default();
                 if let Some(t) = told.as_mut() {
                     for _ in done..silences.len() {
                         t.pop_back();
@@ -321,7 +324,13 @@ impl EmulatedLine {
                 self.wire.advance(to, &mut events);
             }
             self.deliver(&mut events, log)?;
-            if !self.wire.busy() {
+            let busy = self.wire.busy();
+            for e in &self.endpoints {
+                if let Port::Station { busy: b, .. } = &e.port {
+                    b.store(busy, Ordering::Release);
+                }
+            }
+            if !busy {
                 log.flush()?;
             }
         }

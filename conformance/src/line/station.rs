@@ -3,10 +3,18 @@
 //! pseudo-terminal; the line knows when each character it hands over started, so it
 //! tells the silence before each one ([`crate::transport::LineTags`]) and the drive
 //! frames RTU by the line's own schedule, not by when its thread woke.
+//!
+//! The line's own thread can be late too (a busy host stalls it for milliseconds): a
+//! drive that read three characters of a request, then nothing for longer than t3.5,
+//! would end the frame there, although the rest is on the line and only waits for that
+//! thread. So while the line is carrying characters, a read that found nothing waits
+//! on (at most [`BUSY_WAIT`]) for them, and the drive sees quiet only when the line is.
 
 use std::io::{Read, Write};
 use std::os::fd::AsFd;
 use std::os::unix::net::UnixStream;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use nix::errno::Errno;
@@ -15,12 +23,20 @@ use nix::poll::{poll, PollFd, PollFlags, PollTimeout};
 use crate::codec::timing::LineSettings;
 use crate::transport::{sleep_until, LineTags, LinkKind, Transport, TransportError};
 
+/// Longest a read waits past its timeout while the line is busy (so that a stop is
+/// still seen on a line that never goes quiet).
+pub const BUSY_WAIT: Duration = Duration::from_secs(1);
+
+/// Whether the line is carrying characters (set by the line's thread).
+pub(crate) type Busy = Arc<AtomicBool>;
+
 /// The drive's side of an endpoint inside this process.
 pub struct Station {
     name: String,
     sock: UnixStream,
     line: Option<LineSettings>,
     tags: LineTags,
+    busy: Busy,
 }
 
 impl Station {
@@ -28,6 +44,7 @@ impl Station {
     pub(crate) fn pair(
         name: &str,
         line: Option<LineSettings>,
+        busy: Busy,
     ) -> std::io::Result<(Station, UnixStream, LineTags)> {
         let (a, b) = UnixStream::pair()?;
         b.set_nonblocking(true)?;
@@ -38,6 +55,7 @@ impl Station {
                 sock: a,
                 line,
                 tags: tags.clone(),
+                busy,
             },
             b,
             tags,
@@ -75,12 +93,24 @@ impl Transport for Station {
     }
 
     fn recv(&mut self, buf: &mut [u8], timeout: Duration) -> Result<usize, TransportError> {
-        let ms = u16::try_from(timeout.as_millis()).unwrap_or(u16::MAX);
-        let mut fds = [PollFd::new(self.sock.as_fd(), PollFlags::POLLIN)];
-        match poll(&mut fds, PollTimeout::from(ms)) {
-            Ok(0) | Err(Errno::EINTR) => return Ok(0),
-            Ok(_) => {}
-            Err(e) => return Err(self.io("poll", std::io::Error::from_raw_os_error(e as i32))),
+        let t0 = Instant::now();
+        let mut wait = timeout;
+        loop {
+            let ms = u16::try_from(wait.as_millis()).unwrap_or(u16::MAX);
+            let mut fds = [PollFd::new(self.sock.as_fd(), PollFlags::POLLIN)];
+            match poll(&mut fds, PollTimeout::from(ms)) {
+                Ok(0) | Err(Errno::EINTR) => {}
+                Ok(_) => break,
+                Err(e) => return Err(self.io("poll", std::io::Error::from_raw_os_error(e as i32))),
+            }
+            // Nothing yet: quiet only if the line is (see the module notes).
+            if self.line.is_none()
+                || !self.busy.load(Ordering::Acquire)
+                || t0.elapsed() >= timeout + BUSY_WAIT
+            {
+                return Ok(0);
+            }
+            wait = Duration::from_millis(1);
         }
         match self.sock.read(buf) {
             Ok(0) => Err(TransportError::Closed {
