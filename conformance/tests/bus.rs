@@ -193,8 +193,8 @@ fn an_endpoint_with_echo_hears_itself_and_the_others_do_not() {
     let (_bus, ends) = start(&["-n", "3", "--no-pace", "--echo", "1"], 3);
     let mut f: Vec<File> = ends.iter().map(|(_, p)| open(p)).collect();
     f[1].write_all(&READ_252F).unwrap();
-    for r in 0..3 {
-        let got = read_n(&mut f[r], READ_252F.len(), Duration::from_secs(10));
+    for (r, file) in f.iter_mut().enumerate() {
+        let got = read_n(file, READ_252F.len(), Duration::from_secs(10));
         assert_eq!(got, READ_252F, "1 -> {r}");
     }
     f[0].write_all(&REPLY_0510).unwrap();
