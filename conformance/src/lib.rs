@@ -8,6 +8,8 @@
 //! - [`model`]: the drive models (data under `vectors/models/`) and their rules.
 //! - [`transport`]: serial port, pseudo-terminal, TCP, in-memory links behind one trait.
 //! - [`sim`]: the simulated drive, with fault injection.
+//! - [`line`] (Unix): the emulated multi-drop RS-485 line that programs and simulated
+//!   drives share (pseudo-terminals around one pair, collisions, noise).
 //! - [`runner`]: the conformance checks, run as a Modbus master against a device.
 //! - [`fuzz`]: malformed and hostile traffic, every answer predicted by the model.
 //! - [`gate`]: checks another Modbus codec through an adapter process.
@@ -24,6 +26,8 @@ pub mod codec;
 pub mod fuzz;
 pub mod gate;
 pub mod identify;
+#[cfg(unix)]
+pub mod line;
 pub mod model;
 pub mod oracle;
 pub mod report;

@@ -1,5 +1,7 @@
 //! Argument parsing and dispatch. Each subcommand lives in its own module.
 
+#[cfg(unix)]
+mod bus_cmd;
 mod check_cmd;
 mod codec_cmd;
 mod common;
@@ -43,6 +45,10 @@ enum Command {
     Model(model_cmd::ModelArgs),
     /// Run a simulated drive on a serial port, a pseudo-terminal or TCP.
     Simulate(simulate_cmd::SimulateArgs),
+    /// An emulated multi-drop RS-485 line: pseudo-terminals for masters, listeners and
+    /// devices, simulated drives on it, collisions and noise, and its log.
+    #[cfg(unix)]
+    Bus(bus_cmd::BusArgs),
     /// Probe a real or simulated drive and report every deviation from its manual.
     Check(check_cmd::CheckArgs),
     /// Which of the five models a device follows, from its answers to reads only: the
@@ -75,6 +81,8 @@ pub fn run(cli: Cli) -> anyhow::Result<ExitCode> {
         Command::Vectors(a) => vectors_cmd::run(a),
         Command::Model(a) => model_cmd::run(a),
         Command::Simulate(a) => simulate_cmd::run(a),
+        #[cfg(unix)]
+        Command::Bus(a) => bus_cmd::run(a),
         Command::Check(a) => check_cmd::run(a),
         Command::Identify(a) => identify_cmd::run(a),
         Command::Fuzz(a) => fuzz_cmd::run(a),

@@ -101,11 +101,11 @@ pub fn serve_with_gap<T: Transport + ?Sized, R: Responder + ?Sized>(
     gap: Option<Duration>,
 ) -> Result<ServeStats, SimError> {
     let line = transport.line_timing();
-    // A paced pseudo-terminal: arrival times rebuilt at the line's rate.
-    let mut clock = match (transport.kind(), line, mode) {
-        (LinkKind::Pty, Some(l), Mode::Rtu) => {
-            Some(LineClock::new(l.char_time_us(), Instant::now()))
-        }
+    // A paced pseudo-terminal, or an endpoint of the emulated line (which tells its
+    // silences): arrival times rebuilt at the line's rate.
+    let emulated = transport.kind() == LinkKind::Pty || transport.line_tags().is_some();
+    let mut clock = match (emulated, line, mode) {
+        (true, Some(l), Mode::Rtu) => Some(LineClock::new(l.char_time_us(), Instant::now())),
         _ => None,
     };
     let ignore_t15 = drive.ignores_t15();

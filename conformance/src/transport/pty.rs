@@ -251,6 +251,14 @@ impl PtyMaster {
     }
 }
 
+impl AsFd for PtyMaster {
+    /// The master side, for a caller that waits on several pairs at once (the emulated
+    /// line).
+    fn as_fd(&self) -> std::os::fd::BorrowedFd<'_> {
+        self.master.as_fd()
+    }
+}
+
 impl Transport for PtyMaster {
     fn send(&mut self, bytes: &[u8]) -> Result<(), TransportError> {
         if let Some((peer, own)) = self.mismatch() {

@@ -51,7 +51,8 @@ pub enum ErrorPolicy {
     Pass,
 }
 
-fn parity_bit(byte: u8, data_bits: u8, parity: Parity) -> Option<bool> {
+/// The parity bit of `byte`'s low `data_bits` bits, if the line has one.
+pub(crate) fn parity_bit(byte: u8, data_bits: u8, parity: Parity) -> Option<bool> {
     let mask = if data_bits >= 8 {
         0xFF
     } else {
@@ -67,7 +68,7 @@ fn parity_bit(byte: u8, data_bits: u8, parity: Parity) -> Option<bool> {
 }
 
 /// The bits of `bytes` on a line with `line` settings, one entry a bit time.
-fn waveform(bytes: &[u8], line: &LineSettings) -> Vec<bool> {
+pub(crate) fn waveform(bytes: &[u8], line: &LineSettings) -> Vec<bool> {
     let data_bits = line.data_bits.clamp(5, 8);
     let mut bits = Vec::with_capacity(bytes.len() * 12);
     for &b in bytes {

@@ -1,0 +1,581 @@
+//! `conformance bus`, the emulated multi-drop RS-485 line: bytes reach every other
+//! endpoint and never the writer; a paced frame arrives whole on the line's schedule;
+//! two writers at once collide; the noise is reproducible by its seed; a simulated F510
+//! on the line answers the suite's own `check`, mbpoll, pymodbus and minimalmodbus while
+//! a listener hears both sides; links go on SIGTERM.
+//!
+//! Timing is asserted on the log's computed schedule, never on wall-clock time measured
+//! here (a busy host moves that; timing assertions belong in benches).
+#![cfg(unix)]
+
+mod common;
+
+use std::fs::File;
+use std::io::{BufRead, BufReader, Read, Write};
+use std::os::fd::AsFd;
+use std::os::unix::fs::OpenOptionsExt;
+use std::path::{Path, PathBuf};
+use std::process::{Command, Stdio};
+use std::sync::mpsc;
+use std::time::{Duration, Instant};
+
+use common::{bin, tool_or_skip, Kill};
+use serde_json::Value;
+
+/// The request that reads 252FH (identification) of node 1, and the start of its reply.
+const READ_252F: [u8; 8] = [0x01, 0x03, 0x25, 0x2F, 0x00, 0x01, 0xBE, 0xCF];
+const REPLY_0510: [u8; 5] = [0x01, 0x03, 0x02, 0x05, 0x10];
+
+fn dir(name: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("conformance-bus-{}-{name}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+/// A running `conformance bus -q ARGS` and its pseudo-terminals (name, path), from the
+/// first `ptys` lines of its stdout.
+fn start(args: &[&str], ptys: usize) -> (Kill, Vec<(String, PathBuf)>) {
+    let mut child = Kill::spawn(
+        Command::new(bin())
+            .args(["bus", "-q"])
+            .args(args)
+            .stdin(Stdio::null())
+            .stdout(Stdio::piped())
+            .stderr(Stdio::inherit()),
+    );
+    let stdout = child.0.stdout.take().unwrap();
+    let (tx, rx) = mpsc::channel();
+    std::thread::spawn(move || {
+        for line in BufReader::new(stdout).lines().map_while(Result::ok) {
+            if tx.send(line).is_err() {
+                break;
+            }
+        }
+    });
+    let ends = (0..ptys)
+        .map(|_| {
+            let line = rx
+                .recv_timeout(Duration::from_secs(20))
+                .expect("the bus printed no endpoint");
+            let mut w = line.split_whitespace();
+            let name = w.next().unwrap().to_string();
+            let path = PathBuf::from(w.next().unwrap_or_else(|| panic!("{line:?}")));
+            (name, path)
+        })
+        .collect();
+    (child, ends)
+}
+
+/// Stops the bus with SIGTERM; it must exit 0 within 10 s.
+fn terminate(bus: &mut Kill) {
+    let pid = nix::unistd::Pid::from_raw(i32::try_from(bus.0.id()).unwrap());
+    nix::sys::signal::kill(pid, nix::sys::signal::Signal::SIGTERM).unwrap();
+    let status = bus.wait_within(Duration::from_secs(10), "conformance bus after SIGTERM");
+    assert_eq!(status.code(), Some(0), "{status:?}");
+}
+
+/// Opens an endpoint as a program would (it is raw already: the bus set it so).
+fn open(path: &Path) -> File {
+    std::fs::OpenOptions::new()
+        .read(true)
+        .write(true)
+        .custom_flags(libc::O_NOCTTY | libc::O_NONBLOCK)
+        .open(path)
+        .unwrap_or_else(|e| panic!("{}: {e}", path.display()))
+}
+
+/// Reads until `n` bytes came or `limit` passed.
+fn read_n(f: &mut File, n: usize, limit: Duration) -> Vec<u8> {
+    let t0 = Instant::now();
+    let mut got = Vec::new();
+    while got.len() < n && t0.elapsed() < limit {
+        got.extend(read_some(f, Duration::from_millis(50)));
+    }
+    got
+}
+
+/// Reads until nothing came for `quiet` after the first byte (which may take 20 s: a bus
+/// just started on a busy host is slow to its first read), or 30 s passed.
+fn read_quiet(f: &mut File, quiet: Duration) -> Vec<u8> {
+    let t0 = Instant::now();
+    let mut got = read_n(f, 1, Duration::from_secs(20));
+    if got.is_empty() {
+        return got;
+    }
+    loop {
+        let more = read_some(f, quiet);
+        if more.is_empty() || t0.elapsed() > Duration::from_secs(30) {
+            return got;
+        }
+        got.extend(more);
+    }
+}
+
+fn read_some(f: &mut File, wait: Duration) -> Vec<u8> {
+    use nix::poll::{poll, PollFd, PollFlags, PollTimeout};
+    let ms = u16::try_from(wait.as_millis()).unwrap_or(u16::MAX);
+    let mut fds = [PollFd::new(f.as_fd(), PollFlags::POLLIN)];
+    if poll(&mut fds, PollTimeout::from(ms)).unwrap_or(0) == 0 {
+        return Vec::new();
+    }
+    let mut buf = [0u8; 4096];
+    match f.read(&mut buf) {
+        Ok(n) => buf[..n].to_vec(),
+        Err(e) if e.kind() == std::io::ErrorKind::WouldBlock => Vec::new(),
+        Err(e) => panic!("read: {e}"),
+    }
+}
+
+fn log_of(path: &Path) -> Vec<Value> {
+    std::fs::read_to_string(path)
+        .unwrap()
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap_or_else(|e| panic!("{e}: {l}")))
+        .collect()
+}
+
+/// Waits (at most 20 s) until the log, as flushed so far, has a record of `kind` (the
+/// bus flushes its log whenever the line is idle).
+fn wait_for_record(path: &Path, kind: &str) {
+    let t0 = Instant::now();
+    loop {
+        let text = std::fs::read_to_string(path).unwrap_or_default();
+        if text
+            .lines()
+            .any(|l| serde_json::from_str::<Value>(l).is_ok_and(|r| r["event"] == kind))
+        {
+            return;
+        }
+        assert!(
+            t0.elapsed() < Duration::from_secs(20),
+            "no {kind} record in {}: {text}",
+            path.display()
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    }
+}
+
+fn events<'a>(log: &'a [Value], kind: &str) -> Vec<&'a Value> {
+    log.iter().filter(|r| r["event"] == kind).collect()
+}
+
+fn contains(hay: &[u8], needle: &[u8]) -> bool {
+    hay.windows(needle.len()).any(|w| w == needle)
+}
+
+#[test]
+fn unpaced_bytes_reach_every_other_endpoint_and_never_the_writer() {
+    let (_bus, ends) = start(&["-n", "3", "--no-pace"], 3);
+    assert_eq!(
+        ends.iter().map(|(n, _)| n.as_str()).collect::<Vec<_>>(),
+        ["0", "1", "2"]
+    );
+    let mut f: Vec<File> = ends.iter().map(|(_, p)| open(p)).collect();
+    for w in 0..3usize {
+        // Every byte value, starting at a different one for each writer.
+        let payload: Vec<u8> = (0..=255u8).map(|i| i.wrapping_add(w as u8 * 85)).collect();
+        f[w].write_all(&payload).unwrap();
+        for r in (0..3).filter(|&r| r != w) {
+            let got = read_n(&mut f[r], payload.len(), Duration::from_secs(10));
+            assert_eq!(got, payload, "{w} -> {r}");
+        }
+        // Delivered to both listeners in one go: the writer's copy, if any, is there now.
+        for (r, file) in f.iter_mut().enumerate() {
+            let more = read_some(file, Duration::from_millis(100));
+            assert!(more.is_empty(), "{w} -> {r}: {more:02X?} more");
+        }
+    }
+}
+
+#[test]
+fn an_endpoint_with_echo_hears_itself_and_the_others_do_not() {
+    let (_bus, ends) = start(&["-n", "3", "--no-pace", "--echo", "1"], 3);
+    let mut f: Vec<File> = ends.iter().map(|(_, p)| open(p)).collect();
+    f[1].write_all(&READ_252F).unwrap();
+    for (r, file) in f.iter_mut().enumerate() {
+        let got = read_n(file, READ_252F.len(), Duration::from_secs(10));
+        assert_eq!(got, READ_252F, "1 -> {r}");
+    }
+    f[0].write_all(&REPLY_0510).unwrap();
+    assert_eq!(read_n(&mut f[1], 5, Duration::from_secs(10)), REPLY_0510);
+    assert_eq!(read_n(&mut f[2], 5, Duration::from_secs(10)), REPLY_0510);
+    assert!(read_some(&mut f[0], Duration::from_millis(100)).is_empty());
+}
+
+#[test]
+fn a_paced_frame_arrives_whole_on_the_lines_character_schedule() {
+    let d = dir("paced");
+    let log = d.join("line.jsonl");
+    let (mut bus, ends) = start(
+        &[
+            "-n",
+            "2",
+            "-b",
+            "9600",
+            "-P",
+            "even",
+            "--log",
+            log.to_str().unwrap(),
+        ],
+        2,
+    );
+    let (mut a, mut b) = (open(&ends[0].1), open(&ends[1].1));
+    a.write_all(&READ_252F).unwrap();
+    let got = read_n(&mut b, READ_252F.len(), Duration::from_secs(10));
+    assert_eq!(got, READ_252F);
+    assert!(read_some(&mut a, Duration::from_millis(50)).is_empty());
+    terminate(&mut bus);
+    let records = log_of(&log);
+    let start = &records[0];
+    assert_eq!(start["event"], "start");
+    assert_eq!(start["line"], "9600 8E1");
+    assert_eq!(start["char_us"], 1146);
+    // The write may come in more than one read; together they are the frame, each
+    // character one character time (11 bits at 9600 baud) after the one before.
+    let tx = events(&records, "tx");
+    assert!(tx.iter().all(|r| r["from"] == "0"), "{tx:?}");
+    let hex: Vec<&str> = tx.iter().map(|r| r["hex"].as_str().unwrap()).collect();
+    assert_eq!(hex.join(" "), "01 03 25 2F 00 01 BE CF");
+    let at: Vec<u64> = tx
+        .iter()
+        .flat_map(|r| r["at_us"].as_array().unwrap().clone())
+        .map(|v| v.as_u64().unwrap())
+        .collect();
+    assert_eq!(at.len(), 8);
+    for w in at.windows(2) {
+        assert!(
+            (1145..=1146).contains(&(w[1] - w[0])),
+            "{at:?}: 11 bits at 9600 baud are 1145.8 us"
+        );
+    }
+    // 77 bits at 9600 baud are 8020.8 us; each time is rounded down to the microsecond.
+    assert!((8020..=8021).contains(&(at[7] - at[0])), "{at:?}");
+    assert!(events(&records, "collision").is_empty());
+    let stop = records.last().unwrap();
+    assert_eq!(stop["event"], "stop");
+    assert_eq!(stop["chars"], 8);
+}
+
+#[test]
+fn two_writers_at_once_collide_and_the_listener_gets_damage() {
+    let d = dir("collision");
+    let log = d.join("line.jsonl");
+    // 24 characters at 1200 baud are 220 ms on the line: the second write lands inside
+    // the first however the host schedules this test.
+    let (mut bus, ends) = start(
+        &[
+            "-n",
+            "3",
+            "-b",
+            "1200",
+            "-P",
+            "even",
+            "--log",
+            log.to_str().unwrap(),
+        ],
+        3,
+    );
+    let mut f: Vec<File> = ends.iter().map(|(_, p)| open(p)).collect();
+    let a: Vec<u8> = (0..24u8).map(|i| 0x30 + i).collect();
+    let b: Vec<u8> = (0..24u8).map(|i| 0xC5 ^ i).collect();
+    f[0].write_all(&a).unwrap();
+    f[1].write_all(&b).unwrap();
+    // Logged once the overlap is over: the listener has its damage by then.
+    wait_for_record(&log, "collision");
+    let heard = read_quiet(&mut f[2], Duration::from_millis(600));
+    assert!(!heard.is_empty());
+    assert_ne!(heard, a, "the listener got damage, not the first frame");
+    assert_ne!(heard, b, "the listener got damage, not the second frame");
+    assert!(
+        !contains(&heard, &a) && !contains(&heard, &b),
+        "{heard:02X?}"
+    );
+    terminate(&mut bus);
+    let records = log_of(&log);
+    let col = events(&records, "collision");
+    assert_eq!(col.len(), 1, "{records:?}");
+    assert_eq!(col[0]["endpoints"], serde_json::json!(["0", "1"]));
+    let chars = col[0]["chars"].as_u64().unwrap();
+    assert!(chars > 0);
+    assert!(col[0]["end_us"].as_u64() > col[0]["t_us"].as_u64());
+    // The writers' own transmissions are logged as sent.
+    let tx = events(&records, "tx");
+    assert!(tx.iter().any(|r| r["from"] == "0") && tx.iter().any(|r| r["from"] == "1"));
+}
+
+/// The noise records (without their times) and what the listener heard, for ten frames
+/// through a noisy line with `seed`.
+fn noisy(seed: &str) -> (Vec<Value>, Vec<u8>) {
+    let d = dir(&format!("noise-{seed}"));
+    let log = d.join("line.jsonl");
+    let (mut bus, ends) = start(
+        &[
+            "-n",
+            "2",
+            "-b",
+            "38400",
+            "-P",
+            "none",
+            "--noise",
+            "0.01",
+            "--seed",
+            seed,
+            "--log",
+            log.to_str().unwrap(),
+        ],
+        2,
+    );
+    let (mut a, mut b) = (open(&ends[0].1), open(&ends[1].1));
+    // Ten frames in one write: back to back on the line, whenever the host runs the bus.
+    let frames: Vec<u8> = (0..10u8)
+        .flat_map(|k| (0..16u8).map(move |i| i.wrapping_mul(29).wrapping_add(k)))
+        .collect();
+    a.write_all(&frames).unwrap();
+    let mut heard = read_n(&mut b, 140, Duration::from_secs(20));
+    heard.extend(read_quiet(&mut b, Duration::from_secs(1)));
+    terminate(&mut bus);
+    let records = log_of(&log);
+    let flips = records
+        .iter()
+        .filter(|r| r["event"] == "noise" || r["event"] == "damaged")
+        .map(|r| {
+            let mut r = r.clone();
+            r.as_object_mut().unwrap().remove("t_us");
+            r
+        })
+        .collect();
+    (flips, heard)
+}
+
+#[test]
+fn noise_flips_bits_reproducibly_by_seed() {
+    let (one, heard_one) = noisy("42");
+    let (two, heard_two) = noisy("42");
+    let (other, _) = noisy("43");
+    let n = one.iter().filter(|r| r["event"] == "noise").count();
+    // 1600 bits at 1 %: about 16.
+    assert!((3..60).contains(&n), "{n} flips: {one:?}");
+    assert_eq!(one, two, "same seed, same flips");
+    assert_eq!(heard_one, heard_two, "same seed, same bytes heard");
+    assert_ne!(one, other, "another seed, other flips");
+}
+
+/// A bus with a master, a listener (tap) and a simulated F510 at node 1 in `d`: the
+/// guard, the master's path, the listener opened, and the log's path.
+fn f510_bus(d: &Path, extra: &[&str]) -> (Kill, PathBuf, File, PathBuf) {
+    let (m, t, log) = (d.join("master"), d.join("tap"), d.join("line.jsonl"));
+    let mut args = vec![
+        "--link".to_string(),
+        format!("master={}", m.display()),
+        "--link".to_string(),
+        format!("tap={}", t.display()),
+        "--model".to_string(),
+        "f510".to_string(),
+        "--log".to_string(),
+        log.display().to_string(),
+    ];
+    args.extend(extra.iter().map(|s| s.to_string()));
+    let args: Vec<&str> = args.iter().map(String::as_str).collect();
+    let (bus, ends) = start(&args, 2);
+    assert_eq!(ends[0].0, "master");
+    assert_eq!(ends[1].0, "tap");
+    common::wait_for(&m);
+    common::wait_for(&t);
+    let tap = open(&t);
+    (bus, m, tap, log)
+}
+
+#[test]
+fn the_suites_check_passes_against_a_simulated_f510_on_the_line_and_a_listener_hears_both() {
+    let d = dir("check");
+    let (mut bus, master, mut tap, log) = f510_bus(&d, &["-a", "1"]);
+    let port = master.to_str().unwrap();
+    let (code, v) = common::check_device(
+        &d,
+        &[
+            "--model",
+            "f510",
+            "--port",
+            port,
+            "--mode",
+            "rtu",
+            "--only",
+            "rtu.identification",
+            "--only",
+            "rtu.map.monitor.*",
+            "--only",
+            "rtu.map.group-0.*",
+            // A busy host can stall the line's thread for long: not what is tested here.
+            "--timeout",
+            "5000",
+        ],
+        Duration::from_secs(120),
+    );
+    assert_eq!(code, Some(0), "{v}");
+    let s = &v["summary"];
+    assert_eq!(s["deviation"], 0, "{s}");
+    assert_eq!(s["error"], 0, "{s}");
+    assert!(s["pass"].as_u64().unwrap() >= 6, "{s}");
+    let heard = read_quiet(&mut tap, Duration::from_millis(300));
+    assert!(contains(&heard, &READ_252F), "the request: {heard:02X?}");
+    assert!(contains(&heard, &REPLY_0510), "the reply: {heard:02X?}");
+    terminate(&mut bus);
+    let records = log_of(&log);
+    assert_eq!(records[0]["endpoints"][2]["name"], "drive1");
+    let tx = events(&records, "tx");
+    assert!(tx.iter().any(|r| r["from"] == "master"));
+    assert!(tx.iter().any(|r| r["from"] == "drive1"));
+    assert!(events(&records, "collision").is_empty(), "{records:?}");
+}
+
+#[test]
+fn two_drives_answering_at_once_collide_on_the_line() {
+    let d = dir("drives-collide");
+    // Node 2 answers every address: a request to node 1 gets two replies at once.
+    // 2400 baud: a 7-byte reply is 32 ms on the line, longer than the drives' threads
+    // differ by.
+    let (mut bus, master, mut tap, log) = f510_bus(
+        &d,
+        &[
+            "-a",
+            "1,2",
+            "-b",
+            "2400",
+            "--quirk",
+            "answer-every-address@2",
+        ],
+    );
+    let mut m = open(&master);
+    m.write_all(&READ_252F).unwrap();
+    wait_for_record(&log, "collision");
+    let heard = read_quiet(&mut tap, Duration::from_millis(300));
+    assert!(contains(&heard, &READ_252F), "{heard:02X?}");
+    // The master hears the damage (what it makes of it is its own business).
+    let got = read_quiet(&mut m, Duration::from_millis(100));
+    assert!(!got.is_empty());
+    terminate(&mut bus);
+    let records = log_of(&log);
+    let col = events(&records, "collision");
+    assert_eq!(col.len(), 1, "{records:?}");
+    assert_eq!(col[0]["endpoints"], serde_json::json!(["drive1", "drive2"]));
+}
+
+/// mbpoll is here (`common::need(common::Peer::Mbpoll)` once the lead's merge has it).
+fn have_mbpoll() -> bool {
+    tool_or_skip(
+        common::runs("sh", &["-c", "command -v mbpoll"]),
+        "mbpoll not installed (apt-get install mbpoll)",
+    )
+}
+
+#[test]
+fn mbpoll_reads_the_simulated_f510_through_the_line_and_the_listener_hears_both() {
+    if !have_mbpoll() {
+        return;
+    }
+    let d = dir("mbpoll");
+    let (mut bus, master, mut tap, _log) = f510_bus(&d, &["-a", "1"]);
+    // mbpoll counts registers from 1: 9520 is 252FH.
+    let o = Command::new("mbpoll")
+        .args(["-m", "rtu", "-b", "9600", "-P", "even", "-a", "1"])
+        .args(["-t", "4:hex", "-r", "9520", "-1", "-o", "5"])
+        .arg(&master)
+        .output()
+        .unwrap();
+    let out = String::from_utf8_lossy(&o.stdout);
+    assert_eq!(o.status.code(), Some(0), "{out}");
+    assert!(out.contains("[9520]: \t0x0510"), "{out}");
+    let heard = read_quiet(&mut tap, Duration::from_millis(300));
+    assert!(contains(&heard, &READ_252F), "{heard:02X?}");
+    assert!(contains(&heard, &REPLY_0510), "{heard:02X?}");
+    terminate(&mut bus);
+}
+
+/// The Python with pymodbus and minimalmodbus: `$INTEROP_PYTHON` or python3
+/// (`common::python()` once the lead's merge has it).
+fn python() -> String {
+    std::env::var("INTEROP_PYTHON").unwrap_or_else(|_| "python3".into())
+}
+
+#[test]
+fn pymodbus_and_minimalmodbus_read_and_write_the_simulated_f510_through_the_line() {
+    let py = python();
+    // Parity E on a pseudo-terminal: pymodbus's connect() refuses it (EINVAL, as in
+    // tests/interop/pymodbus_master.py) and falls back to N here, and pyserial refuses a
+    // parity set on an open port, so minimalmodbus keeps its default N; the line carries
+    // bytes, whatever the program's termios says.
+    if !tool_or_skip(
+        common::runs(&py, &["-c", "import pymodbus, minimalmodbus, serial"]),
+        &format!("{py} has no pymodbus or minimalmodbus (pip install 'pymodbus[serial]==3.16.1' minimalmodbus; INTEROP_PYTHON=...)"),
+    ) {
+        return;
+    }
+    let d = dir("python");
+    let (mut bus, master, mut tap, _log) = f510_bus(&d, &["-a", "1"]);
+    let script = format!(
+        "import minimalmodbus\n\
+         from pymodbus.client import ModbusSerialClient\n\
+         for parity in ('E', 'N'):\n\
+         \x20   c = ModbusSerialClient(port={port:?}, baudrate=9600, parity=parity, stopbits=1, bytesize=8, timeout=5, retries=0)\n\
+         \x20   if c.connect():\n\
+         \x20       break\n\
+         else:\n\
+         \x20   raise SystemExit('pymodbus cannot open the endpoint')\n\
+         r = c.read_holding_registers(0x252F, count=1, device_id=1)\n\
+         print('pymodbus', hex(r.registers[0]))\n\
+         assert not c.write_register(0x2502, 0x1234, device_id=1).isError()\n\
+         c.close()\n\
+         i = minimalmodbus.Instrument({port:?}, 1)\n\
+         i.serial.baudrate = 9600\n\
+         i.serial.timeout = 5\n\
+         print('minimalmodbus', hex(i.read_register(0x2502)))\n",
+        port = master.to_str().unwrap()
+    );
+    let o = Command::new(&py).args(["-c", &script]).output().unwrap();
+    let out = String::from_utf8_lossy(&o.stdout);
+    assert!(
+        o.status.success(),
+        "{out}{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    assert_eq!(
+        out.lines().collect::<Vec<_>>(),
+        ["pymodbus 0x510", "minimalmodbus 0x1234"],
+        "{out}"
+    );
+    let heard = read_quiet(&mut tap, Duration::from_millis(300));
+    assert!(contains(&heard, &READ_252F), "{heard:02X?}");
+    assert!(contains(&heard, &REPLY_0510), "{heard:02X?}");
+    terminate(&mut bus);
+}
+
+#[test]
+fn links_are_removed_on_sigterm() {
+    let d = dir("links");
+    let (a, b) = (d.join("a"), d.join("b"));
+    let (mut bus, ends) = start(
+        &[
+            "--link",
+            &format!("a={}", a.display()),
+            "--link",
+            &format!("b={}", b.display()),
+        ],
+        2,
+    );
+    common::wait_for(&a);
+    common::wait_for(&b);
+    assert_eq!(std::fs::read_link(&a).unwrap(), ends[0].1);
+    assert_eq!(std::fs::read_link(&b).unwrap(), ends[1].1);
+    terminate(&mut bus);
+    assert!(
+        std::fs::symlink_metadata(&a).is_err(),
+        "{} is left",
+        a.display()
+    );
+    assert!(
+        std::fs::symlink_metadata(&b).is_err(),
+        "{} is left",
+        b.display()
+    );
+}
