@@ -19,7 +19,7 @@ use std::process::{Command, Stdio};
 use std::sync::mpsc;
 use std::time::{Duration, Instant};
 
-use common::{bin, tool_or_skip, Kill};
+use common::{bin, need, need_all, python, Kill, Peer};
 use serde_json::Value;
 
 /// The request that reads 252FH (identification) of node 1, and the start of its reply.
@@ -461,17 +461,9 @@ fn two_drives_answering_at_once_collide_on_the_line() {
     assert_eq!(col[0]["endpoints"], serde_json::json!(["drive1", "drive2"]));
 }
 
-/// mbpoll is here (`common::need(common::Peer::Mbpoll)` once the lead's merge has it).
-fn have_mbpoll() -> bool {
-    tool_or_skip(
-        common::runs("sh", &["-c", "command -v mbpoll"]),
-        "mbpoll not installed (apt-get install mbpoll)",
-    )
-}
-
 #[test]
 fn mbpoll_reads_the_simulated_f510_through_the_line_and_the_listener_hears_both() {
-    if !have_mbpoll() {
+    if !need(Peer::Mbpoll) {
         return;
     }
     let d = dir("mbpoll");
@@ -492,12 +484,6 @@ fn mbpoll_reads_the_simulated_f510_through_the_line_and_the_listener_hears_both(
     terminate(&mut bus);
 }
 
-/// The Python with pymodbus and minimalmodbus: `$INTEROP_PYTHON` or python3
-/// (`common::python()` once the lead's merge has it).
-fn python() -> String {
-    std::env::var("INTEROP_PYTHON").unwrap_or_else(|_| "python3".into())
-}
-
 #[test]
 fn pymodbus_and_minimalmodbus_read_and_write_the_simulated_f510_through_the_line() {
     let py = python();
@@ -505,10 +491,7 @@ fn pymodbus_and_minimalmodbus_read_and_write_the_simulated_f510_through_the_line
     // tests/interop/pymodbus_master.py) and falls back to N here, and pyserial refuses a
     // parity set on an open port, so minimalmodbus keeps its default N; the line carries
     // bytes, whatever the program's termios says.
-    if !tool_or_skip(
-        common::runs(&py, &["-c", "import pymodbus, minimalmodbus, serial"]),
-        &format!("{py} has no pymodbus or minimalmodbus (pip install 'pymodbus[serial]==3.16.1' minimalmodbus; INTEROP_PYTHON=...)"),
-    ) {
+    if !need_all(&[Peer::Pymodbus, Peer::Minimalmodbus]) {
         return;
     }
     let d = dir("python");
