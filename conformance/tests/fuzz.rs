@@ -12,7 +12,7 @@
 //! with the value they held.
 
 mod common;
-use common::{bin, findings, report_of};
+use common::{bin, confirmed_findings, findings, report_of};
 
 use std::time::Duration;
 
@@ -43,7 +43,7 @@ fn clean(model: &str) {
         ],
         Duration::from_secs(1800),
     );
-    let f = findings(&v);
+    let f = confirmed_findings(&v);
     assert!(
         f.is_empty(),
         "{model}: findings on the clean simulator: {f:#?}"
@@ -121,7 +121,7 @@ fn a_byte_count_over_the_data_is_found_as_a_hang_and_minimized_to_one_frame() {
         Duration::from_secs(600),
     );
     assert_eq!(code, Some(1));
-    let f = findings(&v);
+    let f = confirmed_findings(&v);
     // One bug, one entry, whichever case classes found it.
     assert_eq!(f.len(), 1, "{f:#?}");
     let hang = f
@@ -177,7 +177,7 @@ fn a_flipped_bit_is_found_as_a_wrong_value_by_writing_back_what_was_read() {
         Duration::from_secs(900),
     );
     assert!(matches!(code, Some(1 | 2)), "{code:?}");
-    let f = findings(&v);
+    let f = confirmed_findings(&v);
     assert_eq!(f.len(), 1, "one bug, one entry: {f:#?}");
     let w = f
         .iter()
@@ -215,7 +215,7 @@ fn frames_back_to_back_overflowing_the_receiver_are_found_and_shortened() {
         Duration::from_secs(600),
     );
     assert_eq!(code, Some(1));
-    let f = findings(&v);
+    let f = confirmed_findings(&v);
     assert_eq!(f.len(), 1, "one bug, one entry: {f:#?}");
     let o = f
         .iter()

@@ -14,7 +14,7 @@
 //!   the report says why.
 
 mod common;
-use common::{bin, findings, report_of};
+use common::{bin, confirmed_findings, report_of};
 
 use std::time::Duration;
 
@@ -158,7 +158,7 @@ fn a_frame_with_a_gap_over_t15_taken_whole_is_found_and_minimized() {
     let dir = tempdir("t15");
     let (code, v) = timing_run(&dir, &["ignore-t15"], "300");
     assert_eq!(code, Some(1), "{:#}", v["fuzz"]);
-    let f = findings(&v);
+    let f = confirmed_findings(&v);
     let g = f
         .iter()
         .find(|x| x["field_class"] == "timing.gap-in-frame")
@@ -196,7 +196,7 @@ fn the_clean_simulator_passes_the_timing_classes() {
     let dir = tempdir("t-clean");
     let cases = std::env::var("FUZZ_CASES").unwrap_or_else(|_| "300".into());
     let (code, v) = timing_run(&dir, &[], &cases);
-    let f = findings(&v);
+    let f = confirmed_findings(&v);
     assert!(f.is_empty(), "{f:#?}");
     assert_eq!(code, Some(0));
     let t = &v["fuzz"]["modes"][0]["timing"];

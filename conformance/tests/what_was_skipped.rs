@@ -36,9 +36,10 @@ fn summary(skips: &BTreeMap<String, String>) -> String {
     // The peer each skip names, for the count per peer.
     let mut per_need: BTreeMap<&str, usize> = BTreeMap::new();
     for why in skips.values() {
+        // "needs mbpoll (Debian package mbpoll) [...]": the peer is what comes before " (".
         let need = why
             .strip_prefix("needs ")
-            .and_then(|w| w.split([' ', ',']).next())
+            .map(|w| w.split(" (").next().unwrap_or(w))
             .unwrap_or(why.as_str());
         *per_need.entry(need).or_default() += 1;
     }
@@ -103,7 +104,8 @@ fn a_recorded_skip_is_read_back_and_counted_per_peer() {
     std::fs::write(
         dir.join("1.tsv"),
         "interop::mbpoll_rtu_f510\tneeds mbpoll (Debian package mbpoll)\n\
-         gate::pymodbus\tneeds pymodbus==3.16.1 and pyserial==3.5 (PyPI)\n",
+         gate::pymodbus\tneeds pymodbus==3.16.1 and pyserial==3.5 (PyPI)\n\
+         c_listing::c\tneeds a C compiler ($CC, else cc; Debian package gcc)\n",
     )
     .unwrap();
     std::fs::write(
@@ -113,10 +115,14 @@ fn a_recorded_skip_is_read_back_and_counted_per_peer() {
     .unwrap();
     let skips = read_skips(&dir);
     std::fs::remove_dir_all(&dir).unwrap();
-    assert_eq!(skips.len(), 3);
+    assert_eq!(skips.len(), 4);
     let text = summary(&skips);
-    assert!(text.contains("SKIPPED: 3 tests"), "{text}");
-    assert!(text.contains("mbpoll: 2, pymodbus==3.16.1: 1"), "{text}");
+    assert!(text.contains("SKIPPED: 4 tests"), "{text}");
+    assert!(text.contains("a C compiler: 1"), "{text}");
+    assert!(
+        text.contains("(a C compiler: 1, mbpoll: 2, pymodbus==3.16.1 and pyserial==3.5: 1)"),
+        "{text}"
+    );
     assert!(
         text.contains("  interop::mbpoll_ascii_f510: needs mbpoll"),
         "{text}"

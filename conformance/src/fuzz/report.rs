@@ -27,7 +27,12 @@ fn ms(d: Duration) -> f64 {
 
 /// The result of one finding signature.
 pub fn finding_result(f: &FuzzFinding) -> CheckResult {
+    // Replayed and not seen again: one event this host may have made (a stall that
+    // delayed a reply into the next case) or an intermittent fault; reported, with its
+    // frames and the command that replays it, but not as a deviation.
+    let unconfirmed = f.replays > 0 && !f.reproduced;
     let status = match (f.kind, f.severity) {
+        _ if unconfirmed => Status::Observation,
         (Kind::Hang, _) | (_, Severity::Deviation) => Status::Deviation,
         (_, Severity::Observation) => Status::Observation,
     };
@@ -60,6 +65,12 @@ pub fn finding_result(f: &FuzzFinding) -> CheckResult {
                 ", NOT reproduced on replay"
             },
             frames(&f.minimized)
+        )));
+    }
+    if unconfirmed {
+        lines.push(Finding::observation(format!(
+            "not a deviation: {} replay(s) did not show it again, so it may be this host's timing (a stall that delays a reply into the next case) or an intermittent fault; run the replay below to look again",
+            f.replays
         )));
     }
     lines.push(Finding::observation(format!("replay: {}", f.replay)));
@@ -177,6 +188,7 @@ impl FuzzSummary {
                         "burst": f.burst,
                         "minimized": f.minimized.iter().map(|x| Hex(x).to_string()).collect::<Vec<_>>(),
                         "reproduced": f.reproduced,
+                        "replays": f.replays,
                         "recovery_ms": f.recovery.map(|r| r.map(ms)),
                         "replay": f.replay,
                     })).collect::<Vec<_>>(),
@@ -188,5 +200,59 @@ impl FuzzSummary {
             "writes": self.writes,
             "modes": modes,
         })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::codec::Mode;
+
+    fn finding(kind: Kind, severity: Severity, replays: u32, reproduced: bool) -> FuzzFinding {
+        FuzzFinding {
+            kind,
+            mode: Mode::Rtu,
+            function: 0x03,
+            field: "reply-to-other-address".into(),
+            classes: [("read", 1)].into_iter().collect(),
+            count: 1,
+            first_case: 7,
+            frames: vec![vec![0xF3, 0x03, 0x00, 0x2C, 0x00, 0x7C, 0x90, 0xF0]],
+            burst: false,
+            timed: None,
+            minimized: vec![vec![0xF3, 0x03, 0x00, 0x2C, 0x00, 0x7C, 0x90, 0xF0]],
+            reproduced,
+            replays,
+            text: "a reply to another node's request".into(),
+            severity,
+            exchange: None,
+            recovery: None,
+            register: None,
+            replay: "conformance send ...".into(),
+        }
+    }
+
+    #[test]
+    fn a_finding_replayed_and_not_seen_again_is_an_observation() {
+        for kind in [Kind::Hang, Kind::UnexpectedReply] {
+            let r = finding_result(&finding(kind, Severity::Deviation, 2, false));
+            assert_eq!(r.status, Status::Observation, "{kind:?}");
+            assert!(
+                r.findings.iter().any(|f| f
+                    .text
+                    .starts_with("not a deviation: 2 replay(s) did not show it again")),
+                "{:?}",
+                r.findings
+            );
+            // Reproduced, or never replayed (--no-minimize): as its kind and severity say.
+            assert_eq!(
+                finding_result(&finding(kind, Severity::Deviation, 2, true)).status,
+                Status::Deviation
+            );
+            assert_eq!(
+                finding_result(&finding(kind, Severity::Deviation, 0, false)).status,
+                Status::Deviation
+            );
+        }
     }
 }

@@ -94,6 +94,16 @@ pub fn wait_until_answers(port: &std::path::Path, mode: &str, line: &[&str]) {
     }
 }
 
+/// The findings of every mode of a fuzz report that are not unconfirmed: a finding that
+/// was replayed and not seen again is an observation (a host stall under load can make
+/// one), not one of the device's bugs.
+pub fn confirmed_findings(v: &serde_json::Value) -> Vec<serde_json::Value> {
+    findings(v)
+        .into_iter()
+        .filter(|f| f["reproduced"] == true || f["replays"].as_u64().unwrap_or(0) == 0)
+        .collect()
+}
+
 /// The findings of every mode of a fuzz report.
 pub fn findings(v: &serde_json::Value) -> Vec<serde_json::Value> {
     v["fuzz"]["modes"]
