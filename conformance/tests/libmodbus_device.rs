@@ -213,8 +213,16 @@ fn libmodbus_rtu_server_checked_as_f510() {
         assert_eq!(x["received"], reply, "{id}");
         assert!(x["latency_ms"].as_f64().unwrap() > 400.0, "{id}: {x}");
     }
+    // On a pseudo-terminal the other end is a program on this host: only the median is
+    // judged, and the few replies libmodbus delays by 500 ms (count 0) are listed as not
+    // judged rather than made an observation (a busy host delays replies as much).
     let c = check(&v, "rtu.response-time");
-    assert_eq!(c["status"], "observation", "{}", c["summary"]);
+    assert_eq!(c["status"], "pass", "{}", c["summary"]);
+    let summary = c["summary"].as_str().unwrap();
+    assert!(
+        summary.contains("not judged: on a pseudo-terminal"),
+        "{summary}"
+    );
     // What libmodbus gets right: silence for broadcast, another node and a bad CRC; a
     // broadcast write is taken.
     for id in [
