@@ -9,6 +9,8 @@
 //! - [`transport`]: serial port, pseudo-terminal, TCP, in-memory links behind one trait.
 //! - [`sim`]: the simulated drive, with fault injection.
 //! - [`runner`]: the conformance checks, run as a Modbus master against a device.
+//! - [`judge`]: one conversation (request, reply, timing) against the model: a verdict
+//!   with the manual's citations; `check`, the fuzzer and `monitor` share it.
 //! - [`fuzz`]: malformed and hostile traffic, every answer predicted by the model.
 //! - [`gate`]: checks another Modbus codec through an adapter process.
 //! - [`report`]: text, JSON and JUnit XML reports of a run.
@@ -24,6 +26,7 @@ pub mod codec;
 pub mod fuzz;
 pub mod gate;
 pub mod identify;
+pub mod judge;
 pub mod model;
 pub mod oracle;
 pub mod report;

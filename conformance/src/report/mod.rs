@@ -23,6 +23,9 @@ pub use junit::junit;
 pub use parse::ReportError;
 pub use text::text;
 
+/// Positions where two frames differ (the judge's rule, one place).
+pub use crate::judge::diff_positions;
+
 use crate::codec::hex::Hex;
 use crate::codec::Mode;
 use crate::runner::{CheckResult, ModeBudget, RestoreRecord, Status};
@@ -396,14 +399,6 @@ fn check_json(r: &CheckResult) -> Value {
         v["node"] = json!(format!("{n:02X}"));
     }
     v
-}
-
-/// Positions where two frames differ, including the bytes one has beyond the other.
-pub fn diff_positions(expected: &[u8], actual: &[u8]) -> Vec<usize> {
-    let n = expected.len().max(actual.len());
-    (0..n)
-        .filter(|&i| expected.get(i) != actual.get(i))
-        .collect()
 }
 
 #[cfg(test)]
