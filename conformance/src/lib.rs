@@ -13,6 +13,8 @@
 //!   with the manual's citations; `check`, the fuzzer and `monitor` share it.
 //! - [`fuzz`]: malformed and hostile traffic, every answer predicted by the model.
 //! - [`gate`]: checks another Modbus codec through an adapter process.
+//! - [`monitor`]: listens to a bus it never writes to and judges both sides of every
+//!   conversation through the [`judge`] (beside the runner, below the reports).
 //! - [`report`]: text, JSON and JUnit XML reports of a run.
 //! - [`scan`]: finds the devices on a line (line settings, mode, node addresses).
 //! - [`session`]: a whole run against a serial port, a TCP gateway or the in-process simulator.
@@ -28,6 +30,7 @@ pub mod gate;
 pub mod identify;
 pub mod judge;
 pub mod model;
+pub mod monitor;
 pub mod oracle;
 pub mod report;
 pub mod rng;

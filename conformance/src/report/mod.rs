@@ -100,6 +100,8 @@ pub enum ReportKind {
     Gate,
     /// A drive (real or simulated), fuzzed by `conformance fuzz`.
     Fuzz,
+    /// A bus listened to by `conformance monitor`: its drives and its master.
+    Monitor,
 }
 
 /// The codec a gate report is about.
@@ -150,6 +152,8 @@ pub struct Report {
     pub budget: BTreeMap<String, ModeBudget>,
     /// For a fuzz report: the campaign.
     pub fuzz: Option<crate::fuzz::report::FuzzSummary>,
+    /// For a monitor report: what was heard, per node.
+    pub monitor: Option<crate::monitor::MonitorSummary>,
 }
 
 /// Counts per status.
@@ -263,7 +267,7 @@ impl Report {
             .collect();
         let mut device = match self.kind {
             ReportKind::Gate => Value::Null,
-            ReportKind::Drive | ReportKind::Fuzz => json!({
+            ReportKind::Drive | ReportKind::Fuzz | ReportKind::Monitor => json!({
                 "model": self.device.model,
                 "manual": self.device.manual,
                 "address": format!("{:02X}", self.device.address),
@@ -305,7 +309,7 @@ impl Report {
         json!({
             "schema": "teco-modbus-conformance/report",
             "schema_version": SCHEMA_VERSION,
-            "kind": match self.kind { ReportKind::Drive => "drive", ReportKind::Gate => "gate", ReportKind::Fuzz => "fuzz" },
+            "kind": match self.kind { ReportKind::Drive => "drive", ReportKind::Gate => "gate", ReportKind::Fuzz => "fuzz", ReportKind::Monitor => "monitor" },
             "suite": { "name": env!("CARGO_PKG_NAME"), "version": env!("CARGO_PKG_VERSION") },
             "started": self.started,
             "finished": self.finished,
@@ -332,6 +336,7 @@ impl Report {
             "restore": restore,
             "budget": self.budget.iter().map(|(mode, b)| (mode.clone(), budget_json(b))).collect::<serde_json::Map<String, Value>>(),
             "fuzz": self.fuzz.as_ref().map(|f| f.to_json()),
+            "monitor": self.monitor.as_ref().map(|m| m.to_json()),
         })
     }
 }

@@ -113,6 +113,11 @@ pub fn text(r: &Report, verbose: bool) -> String {
             format!(", only {}", r.options.only.join(" "))
         }
     );
+    if let Some(m) = &r.monitor {
+        for l in m.text_lines() {
+            let _ = writeln!(o, "heard:   {l}");
+        }
+    }
     for (mode, b) in &r.budget {
         if b.bound.is_zero() && b.line.frames > 0 {
             // Behind a Modbus TCP gateway the serial line's timing is the gateway's.
