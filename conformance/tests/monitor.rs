@@ -73,7 +73,11 @@ struct Heard {
 /// checking after each that nothing came back, then closes the line (the end of the
 /// input) and returns what the monitor reported.
 fn listen(args: &[&str], steps: &[Step]) -> Heard {
-    let dir = std::env::temp_dir().join(format!("monitor-test-{}-{}", std::process::id(), rand_suffix()));
+    let dir = std::env::temp_dir().join(format!(
+        "monitor-test-{}-{}",
+        std::process::id(),
+        rand_suffix()
+    ));
     std::fs::create_dir_all(&dir).unwrap();
     let out = dir.join("monitor.json");
     let mut bus = PtyMaster::open(None).unwrap();
@@ -90,7 +94,9 @@ fn listen(args: &[&str], steps: &[Step]) -> Heard {
     let before = cflag();
     let set_up = || cflag() != before;
     let mut child = Command::new(common::bin())
-        .args(["monitor", "--port", &port, "--model", "f510", "--format", "json", "-o"])
+        .args([
+            "monitor", "--port", &port, "--model", "f510", "--format", "json", "-o",
+        ])
         .arg(&out)
         .args(args)
         .stdin(Stdio::null())
@@ -108,7 +114,10 @@ fn listen(args: &[&str], steps: &[Step]) -> Heard {
     // The port is open and set when its termios changed.
     let deadline = Instant::now() + Duration::from_secs(30);
     while !set_up() {
-        assert!(Instant::now() < deadline, "the monitor never set the port up");
+        assert!(
+            Instant::now() < deadline,
+            "the monitor never set the port up"
+        );
         std::thread::sleep(Duration::from_millis(10));
     }
     // serialport sets the line before it returns the port; give the monitor the moment
@@ -141,7 +150,8 @@ fn listen(args: &[&str], steps: &[Step]) -> Heard {
     };
     let stderr = reader.join().unwrap();
     let report: Value = serde_json::from_str(
-        &std::fs::read_to_string(&out).unwrap_or_else(|e| panic!("no report ({e}); stderr: {stderr:#?}")),
+        &std::fs::read_to_string(&out)
+            .unwrap_or_else(|e| panic!("no report ({e}); stderr: {stderr:#?}")),
     )
     .unwrap();
     let _ = std::fs::remove_dir_all(&dir);
@@ -149,8 +159,14 @@ fn listen(args: &[&str], steps: &[Step]) -> Heard {
         &serde_json::from_str(include_str!("../../vectors/schema/report.schema.json")).unwrap(),
     )
     .unwrap();
-    let errors: Vec<String> = schema.iter_errors(&report).map(|e| format!("{e} at {}", e.instance_path)).collect();
-    assert!(errors.is_empty(), "the report does not match its schema: {errors:#?}");
+    let errors: Vec<String> = schema
+        .iter_errors(&report)
+        .map(|e| format!("{e} at {}", e.instance_path))
+        .collect();
+    assert!(
+        errors.is_empty(),
+        "the report does not match its schema: {errors:#?}"
+    );
     Heard {
         code: status.code().unwrap_or(-1),
         report,
@@ -201,7 +217,11 @@ fn the_drive_answering_as_the_manual_says_passes_and_nothing_is_written() {
             step(100, &[&values(1, &[3])]),
         ],
     );
-    assert!(heard.written.is_empty(), "the monitor wrote {:02X?}", heard.written);
+    assert!(
+        heard.written.is_empty(),
+        "the monitor wrote {:02X?}",
+        heard.written
+    );
     let r = &heard.report;
     assert_eq!(r["kind"], "monitor");
     // The read past the end of the map is the master's finding (a deviation of the
@@ -220,31 +240,61 @@ fn the_drive_answering_as_the_manual_says_passes_and_nothing_is_written() {
     assert_eq!(node(r, "00")["exchanges"], 1);
     // The drive's side passes on node 01.
     let checks = r["checks"].as_array().unwrap();
-    let drive = checks.iter().find(|c| c["id"] == "rtu.node01.drive").expect("rtu.node01.drive");
+    let drive = checks
+        .iter()
+        .find(|c| c["id"] == "rtu.node01.drive")
+        .expect("rtu.node01.drive");
     assert_eq!(drive["status"], "pass");
-    assert_eq!(heard.code, 1, "the master's read past the map is a deviation");
+    assert_eq!(
+        heard.code, 1,
+        "the master's read past the map is a deviation"
+    );
     // Live lines: one per exchange, with the register's name from the model.
-    let live: Vec<&String> = heard.stderr.iter().filter(|l| l.contains("node 01")).collect();
+    let live: Vec<&String> = heard
+        .stderr
+        .iter()
+        .filter(|l| l.contains("node 01"))
+        .collect();
     assert_eq!(live.len(), 4, "{:#?}", heard.stderr);
-    assert!(live.iter().any(|l| l.contains("45.00 Hz") && l.contains("copy of the request")), "{live:#?}");
+    assert!(
+        live.iter()
+            .any(|l| l.contains("45.00 Hz") && l.contains("copy of the request")),
+        "{live:#?}"
+    );
     assert!(live.iter().all(|l| l.contains("CRC ok")), "{live:#?}");
 }
 
 #[test]
 fn an_installation_that_only_polls_gives_exit_0() {
     let heard = listen(
-        &["-a", "1", "--window", "3000", "--allowance", "1000", "--quiet"],
+        &[
+            "-a",
+            "1",
+            "--window",
+            "3000",
+            "--allowance",
+            "1000",
+            "--quiet",
+        ],
         &[
             step(100, &[&read(1, 0x2520, 2), &values(1, &[0, 1])]),
             step(100, &[&read(1, 0x2521, 1)]),
             step(100, &[&values(1, &[7])]),
         ],
     );
-    assert!(heard.written.is_empty(), "the monitor wrote {:02X?}", heard.written);
+    assert!(
+        heard.written.is_empty(),
+        "the monitor wrote {:02X?}",
+        heard.written
+    );
     assert_eq!(heard.code, 0, "{:#}", heard.report["checks"]);
     assert_eq!(heard.report["summary"]["deviation"], 0);
     assert_eq!(node(&heard.report, "01")["exchanges"], 2);
-    assert!(heard.stderr.iter().all(|l| !l.contains("node 01")), "--quiet: {:#?}", heard.stderr);
+    assert!(
+        heard.stderr.iter().all(|l| !l.contains("node 01")),
+        "--quiet: {:#?}",
+        heard.stderr
+    );
 }
 
 #[test]
@@ -270,16 +320,36 @@ fn each_fault_is_found_as_its_kind_on_its_node() {
             step(200, &[&read(2, 0x2520, 1), &values(1, &[7])]),
         ],
     );
-    assert!(heard.written.is_empty(), "the monitor wrote {:02X?}", heard.written);
+    assert!(
+        heard.written.is_empty(),
+        "the monitor wrote {:02X?}",
+        heard.written
+    );
     assert_eq!(heard.code, 1);
     let r = &heard.report;
     let n1 = errors(r, "01");
-    for want in ["drive.wrong-exception", "drive.bad-checksum", "drive.late-reply", "master.register-not-in-map"] {
-        assert!(n1.contains(&want.to_string()), "{want} not on node 01: {n1:?}");
+    for want in [
+        "drive.wrong-exception",
+        "drive.bad-checksum",
+        "drive.late-reply",
+        "master.register-not-in-map",
+    ] {
+        assert!(
+            n1.contains(&want.to_string()),
+            "{want} not on node 01: {n1:?}"
+        );
     }
     assert_eq!(node(r, "01")["crc_errors"], 1);
-    assert!(errors(r, "00").contains(&"drive.unexpected-reply".to_string()), "{:?}", errors(r, "00"));
-    assert!(errors(r, "02").contains(&"drive.wrong-address".to_string()), "{:?}", errors(r, "02"));
+    assert!(
+        errors(r, "00").contains(&"drive.unexpected-reply".to_string()),
+        "{:?}",
+        errors(r, "00")
+    );
+    assert!(
+        errors(r, "02").contains(&"drive.wrong-address".to_string()),
+        "{:?}",
+        errors(r, "02")
+    );
     // Each finding is a result of its own, with the frames and the manual's citation.
     let checks = r["checks"].as_array().unwrap();
     let c = checks
@@ -290,6 +360,93 @@ fn each_fault_is_found_as_its_kind_on_its_node() {
     assert_eq!(c["node"], "01");
     assert_eq!(c["exchanges"][0]["expected"], "01 83 02 C0 F1");
     assert_eq!(c["exchanges"][0]["reply"], "01 83 03 01 31");
-    assert_eq!(c["exchanges"][0]["differs_at"], serde_json::json!([2, 3, 4]));
-    assert!(c["source"].as_str().unwrap().contains("exception code"), "{}", c["source"]);
+    assert_eq!(
+        c["exchanges"][0]["differs_at"],
+        serde_json::json!([2, 3, 4])
+    );
+    assert!(
+        c["source"].as_str().unwrap().contains("exception code"),
+        "{}",
+        c["source"]
+    );
+}
+
+/// The simulator's drive, quirk by quirk, heard by the monitor: each planted fault is
+/// found as its kind on its node, and the drive without a quirk gives none. The drive's
+/// transmissions are played into the monitor at the times the drive gives them (after
+/// the end of each request), so the times are exact.
+#[test]
+fn each_simulator_quirk_is_found_as_its_kind_on_its_node() {
+    use std::sync::Arc;
+
+    use conformance::codec::timing::{LineSettings, Parity};
+    use conformance::model::DriveModel;
+    use conformance::monitor::{Monitor, MonitorConfig};
+    use conformance::sim::{Drive, Quirk};
+
+    let line = LineSettings::new(9600, 8, Parity::Even, 1);
+    let model = Arc::new(DriveModel::builtin("f510").unwrap());
+    let script = [
+        read(1, 0x2520, 1),
+        read(1, 0x2530, 1),
+        write(0, 0x2502, 1000),
+        read(2, 0x2520, 1),
+        read(1, 0x2521, 1),
+    ];
+    let heard = |quirks: &[Quirk]| {
+        let mut drive =
+            Drive::new(model.clone(), 1, model.response_delay(&line)).with_quirks(quirks);
+        let mut m = Monitor::new(
+            (*model).clone(),
+            MonitorConfig {
+                mode: Mode::Rtu,
+                line,
+                nodes: vec![1],
+                window: Duration::from_millis(1000),
+                response_allowance: Duration::from_millis(20),
+                gap_allowance: Duration::from_millis(5),
+            },
+        )
+        .unwrap();
+        let base = Instant::now();
+        for (i, req) in script.iter().enumerate() {
+            let t = Duration::from_millis(300 * i as u64 + 100);
+            m.idle(t);
+            m.feed(t, req);
+            let outcome = drive.handle(Mode::Rtu, req, base + t);
+            for tx in outcome.sends {
+                m.idle(t + tx.after);
+                m.feed(t + tx.after, &tx.bytes);
+            }
+        }
+        m.idle(Duration::from_secs(10));
+        m.finish();
+        let mut found: Vec<(u8, String)> = m
+            .nodes()
+            .iter()
+            .flat_map(|(n, s)| s.errors.keys().map(move |k| (*n, k.clone())))
+            .filter(|(_, k)| k.starts_with("drive."))
+            .collect();
+        found.sort();
+        found
+    };
+    assert_eq!(
+        heard(&[]),
+        Vec::<(u8, String)>::new(),
+        "the drive without a quirk"
+    );
+    let cases: [(Quirk, u8, &str); 8] = [
+        (Quirk::WrongException, 1, "drive.wrong-exception"),
+        (Quirk::LateReply(40), 1, "drive.late-reply"),
+        (Quirk::ReplyToBroadcast, 0, "drive.unexpected-reply"),
+        (Quirk::CrcSwap, 1, "drive.bad-checksum"),
+        (Quirk::GarbageBeforeReply, 1, "drive.extra-bytes"),
+        (Quirk::AnswerEveryAddress, 2, "drive.unexpected-reply"),
+        (Quirk::TruncatedReply, 1, "drive.truncated"),
+        (Quirk::DropEvery(2), 1, "drive.no-reply"),
+    ];
+    for (quirk, node, kind) in cases {
+        // That kind on that node, and nothing else on the drive's side.
+        assert_eq!(heard(&[quirk]), [(node, kind.to_string())], "{quirk:?}");
+    }
 }

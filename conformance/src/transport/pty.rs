@@ -117,8 +117,11 @@ impl PtyMaster {
         // path): an inherited master keeps the line up after this end is dropped, and
         // the program never sees the end of its input.
         for fd in [&pair.master, &pair.slave] {
-            nix::fcntl::fcntl(fd, nix::fcntl::FcntlArg::F_SETFD(nix::fcntl::FdFlag::FD_CLOEXEC))
-                .map_err(open_err)?;
+            nix::fcntl::fcntl(
+                fd,
+                nix::fcntl::FcntlArg::F_SETFD(nix::fcntl::FdFlag::FD_CLOEXEC),
+            )
+            .map_err(open_err)?;
         }
         let mut t = tcgetattr(&pair.slave).map_err(open_err)?;
         cfmakeraw(&mut t);
