@@ -529,14 +529,13 @@ impl Monitor {
         };
         let known = self.known_values(&p);
         let judge = Judge::new(&self.model).with_timing(self.timing_rule());
-        let verdict = match (&known, p.valid) {
-            // The master's frame was bad: the drive's part is to stay silent, which the
-            // model's judgement (silence: bad checksum) covers.
-            (Some((values, fact)), true) => {
-                judge.differences(&p.judgement, &conv, Some((values, fact)))
-            }
-            _ => judge.differences(&p.judgement, &conv, None),
-        };
+        // As `check` judges: where the drive did what a decision of the model says (the
+        // manual is silent), that is an observation.
+        let verdict = judge.verdict_on(
+            &p.judgement,
+            &conv,
+            known.as_ref().map(|(v, f)| (v.as_slice(), f)),
+        );
         let mut issues = p.issues.clone();
         for (kind, f) in verdict.found().filter(|_| judge_drive) {
             issues.push(Issue {

@@ -391,3 +391,21 @@ fn state_stays_bounded_over_a_long_stream() {
     assert!(m.examples().is_empty());
     assert!(m.written.is_empty() && m.last_request.len() == 1);
 }
+
+#[test]
+fn where_the_manual_is_silent_the_drive_gets_an_observation_as_in_check() {
+    let mut m = monitor(Mode::Rtu, &[1]);
+    // 251FH..2520H crosses the command and monitor blocks: the F510 manual is silent,
+    // the model decides exception 02H.
+    let req = read(1, 0x251F, 2);
+    let j = m.model().judge(1, Mode::Rtu, &req);
+    assert_eq!(j.basis(), crate::model::Basis::Decision, "{}", j.detail);
+    let Expectation::Exception { code, .. } = j.expect else {
+        panic!("{:?}", j.expect)
+    };
+    run(&mut m, &[(0, &req), (15, &exception(1, 3, code))]);
+    let e = &m.examples()[&(1, Side::Drive, "decision")];
+    assert_eq!(e.severity, Severity::Observation);
+    assert_eq!(m.deviations(), 0, "{:?}", kinds(&m, 1));
+    assert_eq!(m.nodes()[&1].observations, 1);
+}
