@@ -131,7 +131,28 @@ fn listen(args: &[&str], steps: &[Step]) -> Heard {
         let n = bus.recv(&mut buf, Duration::from_millis(1)).unwrap();
         written.extend_from_slice(&buf[..n]);
     }
-    // Past every response window, then a last look for anything written.
+    // The monitor has read every byte (a busy host may make it late: wait for it, as
+    // the end of the input drops what is still queued), then a last look for anything
+    // written.
+    let unread = || {
+        use std::os::fd::AsRawFd;
+        let mut n: libc::c_int = 0;
+        // SAFETY: FIONREAD writes one int through the pointer it is given.
+        let rc = unsafe { libc::ioctl(probe.as_raw_fd(), libc::FIONREAD, &mut n) };
+        if rc == 0 {
+            n
+        } else {
+            0
+        }
+    };
+    let deadline = Instant::now() + Duration::from_secs(30);
+    while unread() > 0 {
+        assert!(
+            Instant::now() < deadline,
+            "the monitor never read what was sent"
+        );
+        std::thread::sleep(Duration::from_millis(10));
+    }
     std::thread::sleep(Duration::from_millis(300));
     let n = bus.recv(&mut buf, Duration::from_millis(300)).unwrap();
     written.extend_from_slice(&buf[..n]);

@@ -84,6 +84,21 @@ struct Piece {
     at: Duration,
 }
 
+/// How long the start of a frame cut short waits for its rest.
+pub const CARRY_HOLD: Duration = Duration::from_millis(50);
+
+/// The start of a frame cut short, with its pieces' times.
+#[derive(Debug, Clone)]
+struct Carry {
+    bytes: Vec<u8>,
+    pieces: Vec<Piece>,
+    /// When the last byte before it came.
+    before: Option<Duration>,
+    /// Whether its first byte began a piece.
+    begins: bool,
+    last: Duration,
+}
+
 /// Splits the tap's stream into frames.
 pub struct TapFramer {
     mode: Mode,
@@ -97,6 +112,10 @@ pub struct TapFramer {
     /// When the last byte before the held block came.
     before_block: Option<Duration>,
     last_at: Option<Duration>,
+    /// RTU: the start of a frame cut short by a silence (its length says more bytes are
+    /// due), held for [`CARRY_HOLD`] in case the rest follows: a listener that was late to
+    /// read the rest sees a silence the line did not have.
+    carry: Option<Carry>,
     /// ASCII: when the ':' of the frame under way came, whether it began its piece, and
     /// the silence before that piece.
     colon: Option<(Duration, bool, Option<Duration>)>,
@@ -114,6 +133,7 @@ impl TapFramer {
             held: 0,
             before_block: None,
             last_at: None,
+            carry: None,
             colon: None,
         }
     }
@@ -137,8 +157,21 @@ impl TapFramer {
             let mut blocks = Vec::new();
             self.rtu.idle(us(now), |e| blocks.push(block_of(e)));
             for b in blocks {
-                self.close_block(b, EndedBy::Silence, out);
+                self.close_held(b, EndedBy::Silence, out);
             }
+            if self.rtu.pending() == 0 {
+                self.expire_carry(now, out);
+            }
+        }
+    }
+
+    fn expire_carry(&mut self, now: Duration, out: &mut Vec<TapFrame>) {
+        if self
+            .carry
+            .as_ref()
+            .is_some_and(|c| now.saturating_sub(c.last) > CARRY_HOLD)
+        {
+            self.close_block(Vec::new(), Vec::new(), None, EndedBy::Silence, false, out);
         }
     }
 
@@ -148,8 +181,21 @@ impl TapFramer {
             Mode::Rtu => {
                 let mut blocks = Vec::new();
                 self.rtu.flush(|e| blocks.push(block_of(e)));
-                for b in blocks {
-                    self.close_block(b, EndedBy::EndOfInput, out);
+                for (b, _) in blocks {
+                    let pieces = std::mem::take(&mut self.pieces);
+                    let before = self.before_block.take();
+                    self.held = 0;
+                    self.close_block(b, pieces, before, EndedBy::EndOfInput, false, out);
+                }
+                if self.carry.is_some() {
+                    self.close_block(
+                        Vec::new(),
+                        Vec::new(),
+                        None,
+                        EndedBy::EndOfInput,
+                        false,
+                        out,
+                    );
                 }
             }
             Mode::Ascii => {
@@ -164,6 +210,9 @@ impl TapFramer {
     }
 
     fn push_rtu(&mut self, at: Duration, bytes: &[u8], out: &mut Vec<TapFrame>) {
+        if self.rtu.pending() == 0 {
+            self.expire_carry(at, out);
+        }
         let mut blocks = Vec::new();
         self.rtu
             .push_at(us(at), bytes, |e| blocks.push(block_of(e)));
@@ -171,7 +220,7 @@ impl TapFramer {
         // (or, past any frame's length, the block with these bytes: then nothing of it
         // is left held).
         for b in blocks {
-            self.close_block(b, EndedBy::Silence, out);
+            self.close_held(b, EndedBy::Silence, out);
         }
         if self.held == 0 {
             self.before_block = self.last_at;
@@ -186,15 +235,45 @@ impl TapFramer {
         }
     }
 
-    fn close_block(
+    /// Closes the block the deframer held, with the pieces recorded for it.
+    fn close_held(
         &mut self,
         (block, _): (Vec<u8>, FrameStatus),
         by: EndedBy,
         out: &mut Vec<TapFrame>,
     ) {
         let pieces = std::mem::take(&mut self.pieces);
-        self.held = 0;
         let before = self.before_block.take();
+        self.held = 0;
+        self.close_block(block, pieces, before, by, true, out);
+    }
+
+    /// Splits a silence-delimited block into frames (after the start of a frame cut short
+    /// before it, if one is held); with `may_carry`, a last part that only starts a frame
+    /// is held for its rest.
+    fn close_block(
+        &mut self,
+        block: Vec<u8>,
+        pieces: Vec<Piece>,
+        before: Option<Duration>,
+        by: EndedBy,
+        may_carry: bool,
+        out: &mut Vec<TapFrame>,
+    ) {
+        let (block, pieces, before, shared0) = match self.carry.take() {
+            None => (block, pieces, before, false),
+            Some(c) => {
+                let n = c.bytes.len();
+                let mut joined = c.bytes;
+                joined.extend_from_slice(&block);
+                let mut ps = c.pieces;
+                ps.extend(pieces.iter().map(|p| Piece {
+                    end: p.end + n,
+                    at: p.at,
+                }));
+                (joined, ps, c.before, !c.begins)
+            }
+        };
         let char_us = self.line.char_time_us();
         // The arrival time of the piece holding byte `i`, and whether byte `i` begins it.
         let piece_of = |i: usize| -> (usize, bool) {
@@ -203,7 +282,7 @@ impl TapFramer {
                 .position(|p| p.end > i)
                 .unwrap_or(pieces.len().saturating_sub(1));
             let begin = if k == 0 { 0 } else { pieces[k - 1].end };
-            (k, begin == i)
+            (k, begin == i && !(i == 0 && shared0))
         };
         let at = |k: usize| {
             pieces
@@ -232,6 +311,28 @@ impl TapFramer {
                 }
                 let to = from + len;
                 let (k0, begins) = piece_of(from);
+                if may_carry
+                    && to == block.len()
+                    && status != FrameStatus::Valid
+                    && starts_frame(&block[from..])
+                {
+                    let prev = if k0 == 0 { before } else { Some(at(k0 - 1)) };
+                    self.carry = Some(Carry {
+                        bytes: block[from..].to_vec(),
+                        pieces: pieces
+                            .iter()
+                            .filter(|p| p.end > from)
+                            .map(|p| Piece {
+                                end: p.end - from,
+                                at: p.at,
+                            })
+                            .collect(),
+                        before: prev,
+                        begins,
+                        last: at(piece_of(to - 1).0),
+                    });
+                    continue;
+                }
                 let (k1, _) = piece_of(to - 1);
                 let prev = if k0 == 0 { before } else { Some(at(k0 - 1)) };
                 let silence_before = if begins { silence_into(k0, prev) } else { None };
@@ -330,6 +431,17 @@ fn block_of(e: Event<'_>) -> (Vec<u8>, FrameStatus) {
         Event::Incomplete(_) => FrameStatus::Incomplete,
     };
     (e.bytes().to_vec(), status)
+}
+
+/// Whether `bytes` are the start of a frame whose length (by either direction's rule)
+/// says more bytes are due.
+fn starts_frame(bytes: &[u8]) -> bool {
+    if bytes.len() < 3 {
+        return !bytes.is_empty() && bytes[0] <= 247;
+    }
+    [Direction::Request, Direction::Response]
+        .into_iter()
+        .any(|d| rtu_frame_len(d, bytes).is_some_and(|n| n > bytes.len() && n <= MAX_RTU_FRAME))
 }
 
 /// The next frame in `rest` of a silence-delimited block: (bytes before it that are
@@ -432,9 +544,30 @@ mod tests {
         // 3.5 ms after: under t3.5 (4.0 ms), and less one character over t1.5 (1.7 ms).
         f.push(Duration::from_micros(3500), &r[3..4], &mut out);
         f.idle(ms(50), &mut out);
+        // Its length says 4 more bytes are due: held a while for them, then given up.
+        assert!(out.is_empty(), "{out:?}");
+        f.idle(ms(100), &mut out);
         assert_eq!(out.len(), 1);
         assert_eq!(out[0].status, FrameStatus::Incomplete);
         assert_eq!(out[0].bytes, r[..4]);
+    }
+
+    #[test]
+    fn a_frame_whose_rest_a_late_reader_got_later_is_joined_by_its_length() {
+        let mut f = framer();
+        let mut out = Vec::new();
+        let r = reply_frame();
+        f.push(ms(0), &read_frame(), &mut out);
+        f.push(ms(100), &r[..3], &mut out);
+        // 20 ms later (over t3.5): the deframer ends a block, the length joins it.
+        f.push(ms(120), &r[3..], &mut out);
+        f.idle(ms(300), &mut out);
+        assert_eq!(out.len(), 2, "{out:?}");
+        assert_eq!(out[1].bytes, r);
+        assert_eq!(out[1].status, FrameStatus::Valid);
+        assert_eq!(out[1].start, Some(ms(100)));
+        let gap = out[1].max_gap.unwrap();
+        assert!(gap > ms(15) && gap <= ms(20), "{gap:?}");
     }
 
     #[test]
