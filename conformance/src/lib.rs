@@ -11,8 +11,12 @@
 //! - [`line`] (Unix): the emulated multi-drop RS-485 line that programs and simulated
 //!   drives share (pseudo-terminals around one pair, collisions, noise).
 //! - [`runner`]: the conformance checks, run as a Modbus master against a device.
+//! - [`judge`]: one conversation (request, reply, timing) against the model: a verdict
+//!   with the manual's citations; `check`, the fuzzer and `monitor` share it.
 //! - [`fuzz`]: malformed and hostile traffic, every answer predicted by the model.
 //! - [`gate`]: checks another Modbus codec through an adapter process.
+//! - [`monitor`]: listens to a bus it never writes to and judges both sides of every
+//!   conversation through the [`judge`] (beside the runner, below the reports).
 //! - [`report`]: text, JSON and JUnit XML reports of a run.
 //! - [`scan`]: finds the devices on a line (line settings, mode, node addresses).
 //! - [`session`]: a whole run against a serial port, a TCP gateway or the in-process simulator.
@@ -26,9 +30,11 @@ pub mod codec;
 pub mod fuzz;
 pub mod gate;
 pub mod identify;
+pub mod judge;
 #[cfg(unix)]
 pub mod line;
 pub mod model;
+pub mod monitor;
 pub mod oracle;
 pub mod report;
 pub mod rng;

@@ -11,6 +11,7 @@ mod identify_cmd;
 mod interrupt;
 mod link;
 mod model_cmd;
+mod monitor_cmd;
 mod report_cmd;
 mod scan_cmd;
 mod send_cmd;
@@ -60,6 +61,9 @@ enum Command {
     /// Send raw frames (hex) to a device and show what comes back, with timestamps and the
     /// model's prediction.
     Send(send_cmd::SendArgs),
+    /// Listen to a bus others drive, never send a byte, and judge both the drives and the
+    /// master against the manual (passive conformance).
+    Monitor(monitor_cmd::MonitorArgs),
     /// Find the devices on a line: line settings, mode and node addresses (reads only).
     Scan(scan_cmd::ScanArgs),
     /// Check another Modbus codec through an adapter (adapters/PROTOCOL.md).
@@ -88,6 +92,7 @@ pub fn run(cli: Cli) -> anyhow::Result<ExitCode> {
         Command::Fuzz(a) => fuzz_cmd::run(a),
         Command::Send(a) => send_cmd::run(a),
         Command::Scan(a) => scan_cmd::run(a),
+        Command::Monitor(a) => monitor_cmd::run(a),
         Command::Gate(a) => gate_cmd::run(a),
         Command::Adapter(a) => gate_cmd::adapter(a),
         Command::Report(a) => report_cmd::report(a),

@@ -11,7 +11,7 @@ use clap::Args;
 use conformance::codec::crc::crc16_frame_ok;
 use conformance::codec::hex::{parse_hex, Hex};
 use conformance::codec::Mode;
-use conformance::runner::compare::{describe_reply, explain_invalid, show};
+use conformance::judge::{describe_reply, explain_invalid, show};
 use conformance::runner::{Master, Options};
 use conformance::session::{self, SessionConfig};
 
@@ -220,7 +220,11 @@ pub fn run(args: SendArgs) -> anyhow::Result<ExitCode> {
         )?;
         if !args.burst {
             let j = model.judge(config.options.address, mode, frame);
-            let c = conformance::runner::compare::differences(&model, mode, &j, &ex, None);
+            let c = conformance::judge::Judge::new(&model).differences(
+                &j,
+                &ex.conversation(mode, config.options.address),
+                None,
+            );
             for f in &c.findings {
                 differs = true;
                 writeln!(out, "differs: {}", f.text)?;
@@ -320,7 +324,11 @@ fn send_split(
         None => explain_invalid(mode, ex.after_echo()),
     };
     writeln!(out, "device: {answer}")?;
-    let c = conformance::runner::compare::differences(model, mode, &j, &ex, None);
+    let c = conformance::judge::Judge::new(model).differences(
+        &j,
+        &ex.conversation(mode, config.options.address),
+        None,
+    );
     for f in &c.findings {
         writeln!(out, "differs: {}", f.text)?;
     }

@@ -3,7 +3,7 @@
 //! Every case goes through the runner's [`Ctx`]: the model judges the frame, the master
 //! sends it and collects the answer (stripping a local echo), and every exchange that
 //! brought nothing back is followed by a liveness probe. The comparison is the runner's
-//! ([`compare::differences`]): any difference is a finding. Frames sent back to back are
+//! ([`Judge::differences`]): any difference is a finding. Frames sent back to back are
 //! judged by a liveness probe only (the standard leaves open whether a receiver takes them
 //! as one frame or two). A liveness probe also follows every `probe_every` cases.
 //!
@@ -18,8 +18,8 @@ use std::time::{Duration, Instant};
 use super::cases::{Case, Generator, Step};
 use super::{FuzzConfig, FuzzFinding, Kind, ModeOutcome};
 use crate::codec::{frame_parts, Mode};
+use crate::judge::{self, Judge, Severity};
 use crate::model::{Basis, DriveModel, Expectation, Fact, Role};
-use crate::runner::compare::{self, Severity};
 use crate::runner::{Ctx, ExchangeRecord, Options, RunError};
 use crate::transport::Transport;
 use crate::vectors::VectorFile;
@@ -123,7 +123,7 @@ pub fn observe(
                 text: format!(
                     "after {} frames sent back to back (less than t3.5 apart), the next request {} got no reply; the device answered again {:.1} s later",
                     frames.len(),
-                    compare::show(ctx.mode, &probe),
+                    judge::show(ctx.mode, &probe),
                     t0.elapsed().as_secs_f64()
                 ),
                 exchange: None,
@@ -152,11 +152,9 @@ pub fn observe(
                 _ => None,
             };
             let p = ctx.probe(frame.clone(), known.clone().map(|k| (k, fact.clone())))?;
-            let diff = compare::differences(
-                model,
-                mode,
+            let diff = Judge::new(model).differences(
                 &p.judgement,
-                &p.exchange,
+                &p.exchange.conversation(mode, ctx.opts.address),
                 known.as_deref().map(|k| (k, &fact)),
             );
             let values = p.read_values();

@@ -42,7 +42,7 @@ pub fn finding_result(f: &FuzzFinding) -> CheckResult {
     }];
     let frames = |fs: &[Vec<u8>]| {
         fs.iter()
-            .map(|x| crate::runner::compare::show(f.mode, x))
+            .map(|x| crate::judge::show(f.mode, x))
             .collect::<Vec<_>>()
             .join(", ")
     };

@@ -36,10 +36,11 @@ use super::{FuzzConfig, ModeOutcome, Writes};
 use crate::codec::deframe::{AsciiDeframer, Event, RtuDeframer, RtuFraming};
 use crate::codec::pdu::{Direction, Pdu};
 use crate::codec::{frame_of_body, frame_parts, Mode};
+use crate::judge::{self, Judge};
 use crate::model::{Access, Expectation};
 use crate::rng::Rng;
 use crate::runner::master::Chunk;
-use crate::runner::{compare, Ctx, Exchange, RunError};
+use crate::runner::{Ctx, Exchange, RunError};
 use crate::transport::{sleep_until, Transport, TransportError};
 
 /// The settings of a storm.
@@ -426,11 +427,11 @@ impl Storm<'_> {
     fn unexpected(&mut self, mode: Mode, f: &[u8]) {
         self.out.unexpected += 1;
         self.chars += f.len() as u64;
-        let recent: Vec<String> = self.recent.iter().map(|r| compare::show(mode, r)).collect();
+        let recent: Vec<String> = self.recent.iter().map(|r| judge::show(mode, r)).collect();
         self.out.problem(format!(
             "the device sent {} = {}, which answers none of its own requests (the frames before it: {})",
-            compare::show(mode, f),
-            compare::describe_reply(mode, f),
+            judge::show(mode, f),
+            judge::describe_reply(mode, f),
             recent.join(", ")
         ));
     }
@@ -849,7 +850,7 @@ fn storm(
                 storm.out.lost += 1;
                 storm.out.problem(format!(
                     "lost: {} got no reply within {} ms",
-                    compare::show(mode, &frame),
+                    judge::show(mode, &frame),
                     ctx.opts.timing.timeout.as_millis()
                 ));
             }
@@ -859,7 +860,7 @@ fn storm(
                     storm.out.late += 1;
                     storm.out.problem(format!(
                         "late: {} answered after {:.2} ms (limit {:.2} ms)",
-                        compare::show(mode, &frame),
+                        judge::show(mode, &frame),
                         lat.as_secs_f64() * 1e3,
                         storm.limit.as_secs_f64() * 1e3
                     ));
@@ -880,13 +881,14 @@ fn storm(
                     retries: 0,
                     link_notes: Vec::new(),
                 };
-                let diff = compare::differences(model, mode, &judgement, &ex, None);
+                let diff =
+                    Judge::new(model).differences(&judgement, &ex.conversation(mode, own), None);
                 if !diff.findings.is_empty() {
                     storm.out.wrong += 1;
                     let text: Vec<&str> = diff.findings.iter().map(|f| f.text.as_str()).collect();
                     storm.out.problem(format!(
                         "wrong answer to {}: {}",
-                        compare::show(mode, &frame),
+                        judge::show(mode, &frame),
                         text.join("; ")
                     ));
                 }

@@ -35,8 +35,8 @@ use super::campaign::{Observed, State};
 use super::Kind;
 use crate::codec::timing::LineSettings;
 use crate::codec::Mode;
+use crate::judge::{self, Judge, Severity};
 use crate::model::{Basis, Expectation, Fact, Judgement, SilenceReason};
-use crate::runner::compare::{self, Severity};
 use crate::runner::{Ctx, RunError};
 use crate::transport::LinkKind;
 
@@ -296,7 +296,11 @@ fn once(ctx: &mut Ctx<'_>, t: &Timed) -> Result<Option<Observed>, RunError> {
         Duration::from_micros(t.tolerance_us),
         judgement.expect.replies(),
     )?;
-    let diff = compare::differences(ctx.model, ctx.mode, &judgement, &ex, None);
+    let diff = Judge::new(ctx.model).differences(
+        &judgement,
+        &ex.conversation(ctx.mode, ctx.opts.address),
+        None,
+    );
     if diff.findings.is_empty() {
         return Ok(None);
     }
@@ -314,7 +318,7 @@ fn once(ctx: &mut Ctx<'_>, t: &Timed) -> Result<Option<Observed>, RunError> {
         .unwrap_or(Severity::Deviation);
     let mut text = format!(
         "{} sent with {} us of silence after byte(s) {:?}: ",
-        compare::show(ctx.mode, &whole),
+        judge::show(ctx.mode, &whole),
         t.gap_us,
         t.cuts
     );

@@ -12,8 +12,8 @@ use std::fmt;
 
 use crate::codec::pdu::{Direction, Message, Pdu};
 use crate::codec::Mode;
+use crate::judge::{body_of, explain_invalid};
 use crate::model::{Basis, DriveModel, Expectation, Judgement};
-use crate::runner::compare::{body_of, explain_invalid};
 use crate::runner::Exchange;
 
 /// What a model predicts a device of it answers.

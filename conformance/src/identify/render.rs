@@ -10,7 +10,7 @@ use serde_json::{json, Value};
 
 use super::{Identification, ProbeResult, Verdict};
 use crate::codec::hex::Hex;
-use crate::runner::compare::show;
+use crate::judge::show;
 use crate::runner::{CheckResult, Finding, Status};
 
 /// The verdict in one line.

@@ -224,7 +224,7 @@ pub struct Diff {
 fn label(r: &Report) -> String {
     let s = r.summary();
     let what = match r.kind {
-        ReportKind::Drive | ReportKind::Fuzz => {
+        ReportKind::Drive | ReportKind::Fuzz | ReportKind::Monitor => {
             let mut w = r.device.model.clone();
             if let Some(q) = r.device.simulated.as_ref().filter(|q| !q.is_empty()) {
                 w.push_str(&format!(" (simulator, quirks: {})", q.join(", ")));

@@ -7,6 +7,7 @@
 //! back with [`Report::from_json`]). Every string that came from a device, a model file
 //! or a report file is escaped.
 
+mod heard;
 mod nodes;
 mod svg;
 
@@ -239,7 +240,9 @@ fn finding_block(out: &mut String, r: &CheckResult, folded: bool, several: bool)
 fn header(out: &mut String, report: &Report) {
     let s = report.summary();
     let what = match report.kind {
-        ReportKind::Drive | ReportKind::Fuzz => format!("TECO {} drive", report.device.model),
+        ReportKind::Drive | ReportKind::Fuzz | ReportKind::Monitor => {
+            format!("TECO {} drive", report.device.model)
+        }
         ReportKind::Gate => match &report.codec {
             Some(c) => format!("codec {} {}", c.implementation, c.version),
             None => "codec".into(),
@@ -290,7 +293,7 @@ fn header(out: &mut String, report: &Report) {
     }
     out.push_str("</div><div class=\"facts\"><table>");
     match report.kind {
-        ReportKind::Drive | ReportKind::Fuzz => {
+        ReportKind::Drive | ReportKind::Fuzz | ReportKind::Monitor => {
             let d = &report.device;
             row(out, "model", &esc(&d.model));
             row(out, "manual", &esc(&d.manual));
@@ -483,7 +486,7 @@ pub fn html(report: &Report) -> String {
     let mut out = String::with_capacity(64 * 1024 + report.results.len() * 600);
     let several = !report.device.nodes.is_empty();
     let title = match report.kind {
-        ReportKind::Drive | ReportKind::Fuzz => {
+        ReportKind::Drive | ReportKind::Fuzz | ReportKind::Monitor => {
             format!("Conformance report: {}", report.device.model)
         }
         ReportKind::Gate => "Conformance report: codec gate".to_string(),
@@ -547,6 +550,10 @@ pub fn html(report: &Report) -> String {
         {
             finding_block(&mut out, r, true, several);
         }
+    }
+
+    if let Some(m) = &report.monitor {
+        out.push_str(&heard::section(m));
     }
 
     // A gate's cases are not timed exchanges with a device: no plots.

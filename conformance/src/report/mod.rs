@@ -23,6 +23,9 @@ pub use junit::junit;
 pub use parse::ReportError;
 pub use text::text;
 
+/// Positions where two frames differ (the judge's rule, one place).
+pub use crate::judge::diff_positions;
+
 use crate::codec::hex::Hex;
 use crate::codec::Mode;
 use crate::runner::{CheckResult, ModeBudget, RestoreRecord, Status};
@@ -97,6 +100,8 @@ pub enum ReportKind {
     Gate,
     /// A drive (real or simulated), fuzzed by `conformance fuzz`.
     Fuzz,
+    /// A bus listened to by `conformance monitor`: its drives and its master.
+    Monitor,
 }
 
 /// The codec a gate report is about.
@@ -147,6 +152,8 @@ pub struct Report {
     pub budget: BTreeMap<String, ModeBudget>,
     /// For a fuzz report: the campaign.
     pub fuzz: Option<crate::fuzz::report::FuzzSummary>,
+    /// For a monitor report: what was heard, per node.
+    pub monitor: Option<crate::monitor::MonitorSummary>,
 }
 
 /// Counts per status.
@@ -274,7 +281,7 @@ impl Report {
             .collect();
         let mut device = match self.kind {
             ReportKind::Gate => Value::Null,
-            ReportKind::Drive | ReportKind::Fuzz => json!({
+            ReportKind::Drive | ReportKind::Fuzz | ReportKind::Monitor => json!({
                 "model": self.device.model,
                 "manual": self.device.manual,
                 "address": format!("{:02X}", self.device.address),
@@ -316,7 +323,7 @@ impl Report {
         json!({
             "schema": "teco-modbus-conformance/report",
             "schema_version": SCHEMA_VERSION,
-            "kind": match self.kind { ReportKind::Drive => "drive", ReportKind::Gate => "gate", ReportKind::Fuzz => "fuzz" },
+            "kind": match self.kind { ReportKind::Drive => "drive", ReportKind::Gate => "gate", ReportKind::Fuzz => "fuzz", ReportKind::Monitor => "monitor" },
             "suite": { "name": env!("CARGO_PKG_NAME"), "version": env!("CARGO_PKG_VERSION") },
             "started": self.started,
             "finished": self.finished,
@@ -343,6 +350,7 @@ impl Report {
             "restore": restore,
             "budget": self.budget.iter().map(|(mode, b)| (mode.clone(), budget_json(b))).collect::<serde_json::Map<String, Value>>(),
             "fuzz": self.fuzz.as_ref().map(|f| f.to_json()),
+            "monitor": self.monitor.as_ref().map(|m| m.to_json()),
         })
     }
 }
@@ -414,14 +422,6 @@ fn check_json(r: &CheckResult) -> Value {
         v["node"] = json!(format!("{n:02X}"));
     }
     v
-}
-
-/// Positions where two frames differ, including the bytes one has beyond the other.
-pub fn diff_positions(expected: &[u8], actual: &[u8]) -> Vec<usize> {
-    let n = expected.len().max(actual.len());
-    (0..n)
-        .filter(|&i| expected.get(i) != actual.get(i))
-        .collect()
 }
 
 #[cfg(test)]

@@ -270,7 +270,13 @@ impl Report {
             "drive" => ReportKind::Drive,
             "gate" => ReportKind::Gate,
             "fuzz" => ReportKind::Fuzz,
-            k => return Err(field(".kind", format!("{k:?} is not drive, gate or fuzz"))),
+            "monitor" => ReportKind::Monitor,
+            k => {
+                return Err(field(
+                    ".kind",
+                    format!("{k:?} is not drive, gate, fuzz or monitor"),
+                ))
+            }
         };
         let device = match get(v, "device", "")? {
             Value::Null => Device::default(),
@@ -400,6 +406,8 @@ impl Report {
             budget,
             // The campaign summary of a fuzz report is not read back: its checks are.
             fuzz: None,
+            // Nor the monitor's statistics: its results are.
+            monitor: None,
         })
     }
 }

@@ -127,6 +127,11 @@ pub fn text(r: &Report, verbose: bool) -> String {
             format!(", only {}", r.options.only.join(" "))
         }
     );
+    if let Some(m) = &r.monitor {
+        for l in m.text_lines() {
+            let _ = writeln!(o, "heard:   {l}");
+        }
+    }
     for (mode, b) in &r.budget {
         if let Some(why) = b.no_bound {
             // Behind a Modbus TCP gateway, or on a pseudo-terminal: no line to bound by.

@@ -16,10 +16,11 @@
 use std::time::Duration;
 
 use super::master::{EchoMode, Exchange};
-use super::{compare, Ctx, ExchangeRecord, RunError, Verdict};
+use super::{Ctx, ExchangeRecord, RunError, Verdict};
 use crate::codec::hex::Hex;
 use crate::codec::pdu::Pdu;
 use crate::codec::Mode;
+use crate::judge;
 use crate::model::{DriveModel, Expectation, Role};
 
 /// The register a liveness probe reads: the status register, or the identification
@@ -111,7 +112,7 @@ impl Ctx<'_> {
         let why = format!(
             "the device stopped answering in {}: no byte came back to {} ({}) nor to {} liveness probe(s) (a read of {}); {}",
             self.current,
-            compare::show(self.mode, frame),
+            judge::show(self.mode, frame),
             if expect_reply { "a reply was due" } else { "silence was due, so it had to be proven" },
             self.liveness_attempts() + 1,
             self.liveness_what(),
@@ -180,12 +181,12 @@ impl Ctx<'_> {
             reply: ex.reply.clone(),
             predicted: "a normal 03H reply".into(),
             actual: match &ex.reply {
-                Some(r) => compare::describe_reply(self.mode, r),
+                Some(r) => judge::describe_reply(self.mode, r),
                 None if ex.after_echo().is_empty() && !ex.link_notes.is_empty() => {
                     format!("{}: no reply", ex.link_notes.join("; "))
                 }
                 None if ex.after_echo().is_empty() => "no reply".into(),
-                None => compare::explain_invalid(self.mode, ex.after_echo()),
+                None => judge::explain_invalid(self.mode, ex.after_echo()),
             },
             latency: ex.first_byte,
         };
@@ -193,7 +194,7 @@ impl Ctx<'_> {
             (EchoMode::On, false) if ex.reply.is_some() => {
                 let why = format!(
                     "--echo on, but the preflight request {} did not come back before the reply: this adapter does not echo; use --echo auto or --echo off",
-                    compare::show(self.mode, &frame)
+                    judge::show(self.mode, &frame)
                 );
                 self.lost = Some(why.clone());
                 return Ok(Verdict {
@@ -209,13 +210,13 @@ impl Ctx<'_> {
             .map(|t| format!(" in {:.1} ms", t.as_secs_f64() * 1000.0))
             .unwrap_or_default();
         let answer = match &ex.reply {
-            Some(reply) => Some(compare::describe_reply(self.mode, reply)),
+            Some(reply) => Some(judge::describe_reply(self.mode, reply)),
             // Not a valid reply, but the device's own start of one (its address and the
             // function or its exception): a device that answers badly is alive, and the
             // checks will say what is wrong with its answers.
             None if starts_an_answer(self.mode, &frame, ex.after_echo()) => Some(format!(
                 "an invalid answer: {}",
-                compare::explain_invalid(self.mode, ex.after_echo())
+                judge::explain_invalid(self.mode, ex.after_echo())
             )),
             None => None,
         };
@@ -247,7 +248,7 @@ impl Ctx<'_> {
         let tried = format!(
             "no answer from node {:02X}: sent {} (read {}) {} time(s) in {} over {}{}, waiting {} ms each",
             self.opts.address,
-            compare::show(self.mode, frame),
+            judge::show(self.mode, frame),
             self.liveness_what(),
             1 + self.opts.timing.retries,
             self.mode.to_string().to_uppercase(),

@@ -13,6 +13,7 @@ use crate::codec::deframe::rtu_frame_len;
 use crate::codec::pdu::function;
 use crate::codec::pdu::Direction;
 use crate::codec::{ascii, Mode, MAX_ASCII_FRAME};
+use crate::judge::{Conversation, Timing};
 use crate::transport::{sleep_until, Transport, TransportError};
 
 /// Bytes that arrived together, with their arrival time after the end of the request.
@@ -54,6 +55,32 @@ pub struct Exchange {
 }
 
 impl Exchange {
+    /// The exchange as the judge takes it: node `node`'s conversation in `mode`, with
+    /// times since the end of the request (a local echo stripped).
+    pub fn conversation(&self, mode: Mode, node: u8) -> Conversation<'_> {
+        Conversation {
+            mode,
+            node,
+            request: &self.request,
+            received: self.after_echo(),
+            leading: &self.leading,
+            reply: self.reply.as_deref(),
+            trailing: &self.trailing,
+            timing: Timing {
+                request_end: Some(Duration::ZERO),
+                first_byte: self.first_byte,
+                last_byte: self.chunks.last().map(|c| c.at),
+                // The runner measures gaps inside replies over the whole mode (its
+                // line-timing check), where it knows whether the host made them.
+                max_gap: None,
+                silence_before: None,
+                listened: self.listened,
+            },
+            retries: self.retries,
+            link_notes: &self.link_notes,
+        }
+    }
+
     /// Received bytes other than an exact echo of the request.
     pub fn after_echo(&self) -> &[u8] {
         if self.echo {

@@ -2,7 +2,8 @@
 //! with its model.
 //!
 //! - [`master`]: sends requests, collects the raw answer, finds the reply.
-//! - [`compare`]: what the device did against what the model predicts.
+//! - the comparison of what the device did with what the model predicts is the
+//!   [`judge`](crate::judge)'s, which `monitor` shares.
 //! - [`checks`]: the checks, derived from the model, each citing its manual section.
 //! - `run`: the loop that runs a mode's checks (or one node's section of them) and
 //!   restores at the end ([`run_mode`], [`run_section`]).
@@ -13,7 +14,6 @@
 //! interruption), and the restore is verified by reading back.
 
 pub mod checks;
-pub mod compare;
 pub mod liveness;
 pub mod master;
 pub mod pieces;
@@ -24,8 +24,9 @@ use std::time::Duration;
 
 use serde::Serialize;
 
+use crate::judge::{self, Judge};
+pub use crate::judge::{Finding, Severity};
 pub use checks::{plan, Check};
-pub use compare::{Finding, Severity};
 pub use master::{EchoMode, Exchange, LineBudget, Master, MasterTiming};
 pub use run::{run_mode, run_section, selected, Progress, Section};
 
@@ -371,7 +372,7 @@ pub struct Probed {
     /// What happened on the line.
     pub exchange: Exchange,
     /// The comparison.
-    pub comparison: compare::Comparison,
+    pub comparison: judge::Verdict,
     /// The mode of the exchange.
     pub mode: Mode,
     /// Where nothing came back: whether a liveness probe right after was answered
@@ -401,7 +402,7 @@ impl Probed {
     /// Values of a normal 03H reply, if that is what came.
     pub fn read_values(&self) -> Option<Vec<u16>> {
         let reply = self.exchange.reply.as_ref()?;
-        let body = compare::body_of(self.mode, reply)?;
+        let body = judge::body_of(self.mode, reply)?;
         match Message::parse_body(&body, Direction::Response).ok()?.pdu {
             Pdu::ReadResponse { values } => Some(values.iter().collect()),
             _ => None,
@@ -527,18 +528,16 @@ impl<'a> Ctx<'a> {
     ) -> Result<Probed, RunError> {
         let judgement = self.model.judge(node, self.mode, &frame);
         let (exchange, proven_alive) = self.exchange(&frame, judgement.expect.replies())?;
-        let comparison = compare::compare(
-            self.model,
-            self.mode,
+        let comparison = Judge::new(self.model).verdict_on(
             &judgement,
-            &exchange,
+            &exchange.conversation(self.mode, node),
             known.as_ref().map(|(v, f)| (v.as_slice(), f)),
         );
         if let Some(reply) = &exchange.reply {
             if let Some(t) = exchange.first_byte {
                 self.latencies.push(t);
             }
-            if let Some(body) = compare::body_of(self.mode, reply) {
+            if let Some(body) = judge::body_of(self.mode, reply) {
                 if body.len() == 3 && body[1] & 0x80 != 0 {
                     self.codes_seen.insert(body[2]);
                 }
@@ -690,14 +689,14 @@ impl<'a> Ctx<'a> {
             Some(r) if *r == frame => Ok(()),
             Some(r) => Err(format!(
                 "writing {value:04X} to {register:04X}H: {}",
-                compare::describe_reply(self.mode, r)
+                judge::describe_reply(self.mode, r)
             )),
             None => Err(format!(
                 "writing {value:04X} to {register:04X}H: {}",
                 if ex.raw.is_empty() {
                     "no reply".to_string()
                 } else {
-                    compare::explain_invalid(self.mode, ex.after_echo())
+                    judge::explain_invalid(self.mode, ex.after_echo())
                 }
             )),
         })

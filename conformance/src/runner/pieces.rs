@@ -6,7 +6,7 @@
 use std::time::{Duration, Instant};
 
 use super::{Ctx, Exchange, RunError};
-use crate::runner::compare;
+use crate::judge;
 use crate::transport::Transport;
 
 impl Ctx<'_> {
@@ -40,7 +40,7 @@ impl Ctx<'_> {
         let why = format!(
             "the device stopped answering in {}: no byte came back to {} sent in pieces with {} us between them, nor to the liveness probes",
             self.current,
-            compare::show(self.mode, frame),
+            judge::show(self.mode, frame),
             gap.as_micros()
         );
         self.lost = Some(why.clone());

@@ -6,11 +6,11 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
 use super::checks::{self, plan, Check};
-use super::compare::Severity;
 use super::liveness;
 use super::master::Master;
 use super::{CheckResult, Ctx, ModeBudget, ModeRun, Options, RunError, Status, Verdict};
 use crate::codec::Mode;
+use crate::judge::Severity;
 use crate::model::DriveModel;
 use crate::transport::Transport;
 use crate::vectors::VectorFile;

@@ -113,6 +113,16 @@ impl PtyMaster {
             source: io(e),
         };
         let pair = nix::pty::openpty(None, None).map_err(open_err)?;
+        // Not inherited by a program this process starts (a monitor given the slave's
+        // path): an inherited master keeps the line up after this end is dropped, and
+        // the program never sees the end of its input.
+        for fd in [&pair.master, &pair.slave] {
+            nix::fcntl::fcntl(
+                fd,
+                nix::fcntl::FcntlArg::F_SETFD(nix::fcntl::FdFlag::FD_CLOEXEC),
+            )
+            .map_err(open_err)?;
+        }
         let mut t = tcgetattr(&pair.slave).map_err(open_err)?;
         cfmakeraw(&mut t);
         tcsetattr(&pair.slave, SetArg::TCSANOW, &t).map_err(open_err)?;

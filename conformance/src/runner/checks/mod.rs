@@ -10,11 +10,11 @@ mod protocol;
 mod reads;
 mod writes;
 
-use super::compare::{show, Finding};
 use super::{Ctx, Probed, RunError, Verdict};
 use crate::codec::hex::Hex;
 use crate::codec::pdu::{Pdu, Registers};
 use crate::codec::Mode;
+use crate::judge::{show, Finding};
 use crate::model::{Access, Basis, DriveModel, Fact, Role};
 use crate::rng::Rng;
 use crate::vectors::model::FileDirection;

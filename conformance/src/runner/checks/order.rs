@@ -82,7 +82,7 @@ pub(super) fn order(model: &DriveModel, mode: Mode, m: &str, out: &mut Vec<Check
                     .exchange
                     .reply
                     .as_ref()
-                    .and_then(|r| super::super::compare::body_of(ctx.mode, r))
+                    .and_then(|r| crate::judge::body_of(ctx.mode, r))
                     .and_then(|body| (body.len() == 3 && body[1] & 0x80 != 0).then_some(body[2]));
                 match code {
                     Some(c) if a == b && c == a => {

@@ -35,7 +35,7 @@ pub(super) fn functions(model: &DriveModel, m: &str, out: &mut Vec<Check>) {
         false,
         move |ctx| {
             let p = ctx.probe(ctx.frame(Pdu::Other { function: 0x04, data: &[0x25, 0x20, 0x00, 0x01] }), None)?;
-            let code = p.exchange.reply.as_ref().and_then(|r| super::super::compare::body_of(ctx.mode, r)).and_then(|b| (b.len() == 3 && b[1] & 0x80 != 0).then_some(b[2]));
+            let code = p.exchange.reply.as_ref().and_then(|r| crate::judge::body_of(ctx.mode, r)).and_then(|b| (b.len() == 3 && b[1] & 0x80 != 0).then_some(b[2]));
             let want51 = ctx.model.numbers_exceptions_from_51();
             let mut v = verdict(&[&p], String::new());
             v.findings.retain(|_| false);
@@ -231,7 +231,7 @@ pub(super) fn diagnostics(model: &DriveModel, m: &str, out: &mut Vec<Check>) {
             } else {
                 format!(
                     "the device kept answering after 0004H ({}): it does not implement Listen Only Mode",
-                    if answered_04 { format!("answered {}", super::super::compare::describe_reply(ctx.mode, ex.after_echo())) } else { "unanswered".to_string() }
+                    if answered_04 { format!("answered {}", crate::judge::describe_reply(ctx.mode, ex.after_echo())) } else { "unanswered".to_string() }
                 )
             };
             Ok(Verdict {
@@ -272,7 +272,7 @@ fn short_answer(mode: Mode, p: &Probed) -> String {
     if *reply == p.exchange.request {
         return "same frame back".into();
     }
-    match super::super::compare::body_of(mode, reply) {
+    match crate::judge::body_of(mode, reply) {
         Some(b) if b.len() == 3 && b[1] & 0x80 != 0 => format!("exception {:02X}H", b[2]),
         _ => format!("answered {}", show(mode, reply)),
     }

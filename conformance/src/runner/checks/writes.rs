@@ -325,13 +325,13 @@ fn is_exception(ctx: &Ctx<'_>, p: &Probed) -> bool {
     p.exchange
         .reply
         .as_ref()
-        .and_then(|r| super::super::compare::body_of(ctx.mode, r))
+        .and_then(|r| crate::judge::body_of(ctx.mode, r))
         .is_some_and(|b| b.len() == 3 && b[1] & 0x80 != 0)
 }
 
 /// The value a 06H (or one-register 10H) frame writes.
 fn written_value(ctx: &Ctx<'_>, frame: &[u8]) -> Option<u16> {
-    let body = super::super::compare::body_of(ctx.mode, frame)?;
+    let body = crate::judge::body_of(ctx.mode, frame)?;
     match crate::codec::pdu::Message::parse_body(&body, crate::codec::pdu::Direction::Request)
         .ok()?
         .pdu

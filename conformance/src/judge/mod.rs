@@ -1,0 +1,450 @@
+//! The judge of one conversation: a request, what came back and when, against what the
+//! drive's model says. `check` (the runner), the fuzzer's oracle and `monitor` (which
+//! listens to a bus it does not drive) all judge through here, so that one exchange gets
+//! one verdict whoever saw it.
+//!
+//! The input, a [`Conversation`], does not depend on who sent the request: the mode, the
+//! node, the request's bytes, the bytes that came back (split into what came before the
+//! reply, the reply, and what came after), and the timing as far as the listener could
+//! see it. The output, a [`Verdict`], is a status, the findings (each with its
+//! [`Kind`] and severity), the manual's citations, the frame the model predicts, the
+//! frame received and the positions where they differ.
+//!
+//! Findings are DEVIATIONs where the prediction rests only on documented or derived facts
+//! (or on the frame format, which every manual documents), and OBSERVATIONs where it rests
+//! on a decision of the model.
+
+mod compare;
+mod show;
+
+use std::time::Duration;
+
+pub use compare::{diff_positions, Known};
+pub use show::{body_of, describe_reply, explain_invalid, show};
+
+use crate::codec::timing::LineSettings;
+use crate::codec::Mode;
+use crate::model::{Basis, DriveModel, Judgement};
+
+/// How serious a finding is.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord)]
+pub enum Severity {
+    /// The manual is silent or contradicts itself; this is what the device did.
+    Observation,
+    /// The device does not do what the manual says.
+    Deviation,
+}
+
+impl Severity {
+    /// Deviation for binding facts, observation for decisions.
+    pub fn of(basis: Basis) -> Self {
+        if basis.binding() {
+            Severity::Deviation
+        } else {
+            Severity::Observation
+        }
+    }
+}
+
+/// One thing a check found.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Finding {
+    /// Deviation or observation.
+    pub severity: Severity,
+    /// What, in words, with bytes in hex.
+    pub text: String,
+}
+
+impl Finding {
+    /// A deviation.
+    pub fn deviation(text: impl Into<String>) -> Self {
+        Finding {
+            severity: Severity::Deviation,
+            text: text.into(),
+        }
+    }
+
+    /// An observation.
+    pub fn observation(text: impl Into<String>) -> Self {
+        Finding {
+            severity: Severity::Observation,
+            text: text.into(),
+        }
+    }
+}
+
+/// What kind of thing a finding is about: the key a listener counts errors by.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash)]
+pub enum Kind {
+    /// The reply is a valid frame but not the one the model predicts (function, length,
+    /// count).
+    WrongReply,
+    /// An exception where the model predicts another code, or a normal reply.
+    WrongException,
+    /// The register values of a read differ from values known to be right.
+    WrongValue,
+    /// The reply carries another node's address.
+    WrongAddress,
+    /// No reply where one is due.
+    NoReply,
+    /// Bytes that hold no valid reply: a wrong CRC or LRC.
+    BadChecksum,
+    /// A reply cut short.
+    Truncated,
+    /// Bytes that are no frame.
+    Malformed,
+    /// Bytes before or after the reply.
+    ExtraBytes,
+    /// A reply where the model predicts silence (a broadcast, another node's request,
+    /// a bad checksum).
+    UnexpectedReply,
+    /// The reply began later than the manual's response time (and the allowance).
+    LateReply,
+    /// The reply began sooner than t3.5 after the request.
+    EarlyReply,
+    /// A silence over t1.5 inside the reply.
+    GapInReply,
+    /// Answered only after a resend.
+    Retried,
+    /// The device did what a decision of the model says (the manual is silent).
+    Decision,
+}
+
+impl Kind {
+    /// The kind as reports spell it.
+    pub fn key(self) -> &'static str {
+        match self {
+            Kind::WrongReply => "wrong-reply",
+            Kind::WrongException => "wrong-exception",
+            Kind::WrongValue => "wrong-value",
+            Kind::WrongAddress => "wrong-address",
+            Kind::NoReply => "no-reply",
+            Kind::BadChecksum => "bad-checksum",
+            Kind::Truncated => "truncated",
+            Kind::Malformed => "malformed",
+            Kind::ExtraBytes => "extra-bytes",
+            Kind::UnexpectedReply => "unexpected-reply",
+            Kind::LateReply => "late-reply",
+            Kind::EarlyReply => "early-reply",
+            Kind::GapInReply => "gap-in-reply",
+            Kind::Retried => "retried",
+            Kind::Decision => "decision",
+        }
+    }
+}
+
+impl std::fmt::Display for Kind {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.key())
+    }
+}
+
+/// When things happened, as far as the listener could see. Every instant is a time since
+/// one origin of the listener's choosing (the runner's is the end of its request);
+/// `None` where the listener could not see it (a tap adapter that delivered request and
+/// reply in one piece blurs the silence between them).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct Timing {
+    /// When the request's last byte was on the line.
+    pub request_end: Option<Duration>,
+    /// When the first byte after the request came.
+    pub first_byte: Option<Duration>,
+    /// When the last byte of the reply came.
+    pub last_byte: Option<Duration>,
+    /// The largest silence between two bytes of the reply.
+    pub max_gap: Option<Duration>,
+    /// The silence on the line before the request began.
+    pub silence_before: Option<Duration>,
+    /// How long the listener waited for a reply.
+    pub listened: Duration,
+}
+
+impl Timing {
+    /// Time from the end of the request to the first byte after it.
+    pub fn response_time(&self) -> Option<Duration> {
+        Some(self.first_byte?.saturating_sub(self.request_end?))
+    }
+}
+
+/// One request and what came back, whoever sent the request.
+#[derive(Debug, Clone, Copy)]
+pub struct Conversation<'a> {
+    /// RTU or ASCII.
+    pub mode: Mode,
+    /// The node whose model judges the request (the drive the listener is about).
+    pub node: u8,
+    /// The request frame as it was on the line.
+    pub request: &'a [u8],
+    /// Every byte that came back after the request (a local echo of it removed).
+    pub received: &'a [u8],
+    /// Bytes of `received` before the reply frame.
+    pub leading: &'a [u8],
+    /// The reply frame (valid checksum), if one was found in `received`.
+    pub reply: Option<&'a [u8]>,
+    /// Bytes of `received` after the reply frame.
+    pub trailing: &'a [u8],
+    /// When.
+    pub timing: Timing,
+    /// Resends of the request before anything came back.
+    pub retries: u32,
+    /// What the link itself said meanwhile (a Modbus TCP gateway's exception in place of
+    /// the device's reply).
+    pub link_notes: &'a [String],
+}
+
+impl<'a> Conversation<'a> {
+    /// A conversation with no reply and nothing known of its timing.
+    pub fn new(mode: Mode, node: u8, request: &'a [u8]) -> Self {
+        Conversation {
+            mode,
+            node,
+            request,
+            received: &[],
+            leading: &[],
+            reply: None,
+            trailing: &[],
+            timing: Timing::default(),
+            retries: 0,
+            link_notes: &[],
+        }
+    }
+
+    /// The same conversation with `reply` as everything that came back.
+    pub fn with_reply(mut self, reply: &'a [u8]) -> Self {
+        self.received = reply;
+        self.reply = Some(reply);
+        self
+    }
+
+    /// The same conversation with `bytes` as everything that came back, but no valid
+    /// reply among them (a wrong checksum, a frame cut short, noise).
+    pub fn with_invalid(mut self, bytes: &'a [u8]) -> Self {
+        self.received = bytes;
+        self.reply = None;
+        self
+    }
+
+    /// The same conversation with `timing`.
+    pub fn with_timing(mut self, timing: Timing) -> Self {
+        self.timing = timing;
+        self
+    }
+}
+
+/// The status of a verdict.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash)]
+pub enum VerdictStatus {
+    /// The device did what the manual says.
+    Pass,
+    /// The manual is silent; this is what the device did.
+    Observation,
+    /// The manual says X, the device did Y.
+    Deviation,
+}
+
+/// What the judge found in one conversation.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Verdict {
+    /// What was found; empty when the device did what the model says.
+    pub findings: Vec<Finding>,
+    /// The kind of each finding the judge made, in the order of `findings` (a caller may
+    /// add findings of its own after them, without a kind).
+    pub kinds: Vec<Kind>,
+    /// The frame the model predicts, where it can be built (values the judge does not
+    /// know are taken from the reply).
+    pub expected: Option<Vec<u8>>,
+    /// The reply frame received, if a valid one came.
+    pub received: Option<Vec<u8>>,
+    /// Positions where `received` differs from `expected` (bytes one has beyond the
+    /// other included).
+    pub differing: Vec<usize>,
+    /// The reply decoded, one line.
+    pub actual: String,
+    /// What the model predicts, with the basis: one line.
+    pub predicted: String,
+    /// The manual's citations for the prediction.
+    pub citations: Vec<String>,
+}
+
+impl Verdict {
+    /// Pass, observation or deviation: the most serious finding.
+    pub fn status(&self) -> VerdictStatus {
+        match self.findings.iter().map(|f| f.severity).max() {
+            None => VerdictStatus::Pass,
+            Some(Severity::Observation) => VerdictStatus::Observation,
+            Some(Severity::Deviation) => VerdictStatus::Deviation,
+        }
+    }
+
+    /// The judge's findings with their kinds.
+    pub fn found(&self) -> impl Iterator<Item = (Kind, &Finding)> {
+        self.kinds.iter().copied().zip(&self.findings)
+    }
+
+    fn push(&mut self, kind: Kind, finding: Finding) {
+        debug_assert_eq!(self.kinds.len(), self.findings.len());
+        self.kinds.push(kind);
+        self.findings.push(finding);
+    }
+}
+
+/// How a listener that sees the line's timing judges it: the runner judges response
+/// times over a whole mode (its `response-time` check), a monitor exchange by exchange.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct TimingRule {
+    /// The line, where its timing is known (t1.5, t3.5, the character time).
+    pub line: Option<LineSettings>,
+    /// Allowance over the manual's response time before a reply counts as late (the
+    /// host's and the adapter's delays).
+    pub response_allowance: Duration,
+    /// Allowance over t1.5 before a gap inside a reply counts.
+    pub gap_allowance: Duration,
+}
+
+impl TimingRule {
+    /// The latest a reply may begin after its request: the manual's response time (or
+    /// t3.5 where that is longer), one character time (a UART hands over a byte after its
+    /// stop bit) and the allowance; the rule of `check`'s response-time check.
+    pub fn response_limit(&self, model: &DriveModel) -> Duration {
+        let manual = model.response_time_on(self.line.as_ref());
+        let first_char = self
+            .line
+            .map_or(Duration::ZERO, |l| Duration::from_micros(l.char_time_us()));
+        manual + first_char + self.response_allowance
+    }
+}
+
+/// The judge: a drive model, and how to judge timing.
+#[derive(Debug, Clone, Copy)]
+pub struct Judge<'m> {
+    model: &'m DriveModel,
+    timing: Option<TimingRule>,
+}
+
+impl<'m> Judge<'m> {
+    /// A judge of conversations with drives of `model`; timing is not judged.
+    pub fn new(model: &'m DriveModel) -> Self {
+        Judge {
+            model,
+            timing: None,
+        }
+    }
+
+    /// The same judge, also judging each conversation's timing by `rule`.
+    pub fn with_timing(mut self, rule: TimingRule) -> Self {
+        self.timing = Some(rule);
+        self
+    }
+
+    /// The model.
+    pub fn model(&self) -> &'m DriveModel {
+        self.model
+    }
+
+    /// What the model says node `conv.node` does with the request.
+    pub fn predict(&self, conv: &Conversation<'_>) -> Judgement {
+        self.model.judge(conv.node, conv.mode, conv.request)
+    }
+
+    /// The verdict on `conv`. `known` gives, for a read, the values known to be right
+    /// (None where any value is right) and the fact that says so. Where the device did
+    /// what a decision of the model says, that is an observation (the manual does not
+    /// settle it).
+    pub fn verdict(&self, conv: &Conversation<'_>, known: Option<Known<'_>>) -> Verdict {
+        let judgement = self.predict(conv);
+        self.verdict_on(&judgement, conv, known)
+    }
+
+    /// [`Judge::verdict`] with the model's judgement already made (the runner makes it
+    /// before sending, to know whether to wait for a reply).
+    pub fn verdict_on(
+        &self,
+        judgement: &Judgement,
+        conv: &Conversation<'_>,
+        known: Option<Known<'_>>,
+    ) -> Verdict {
+        let mut v = compare::compare(self.model, judgement, conv, known, true);
+        self.judge_timing(judgement, conv, &mut v);
+        v
+    }
+
+    /// Only the differences between `conv` and the judgement: [`Judge::verdict_on`]
+    /// without the observation that the device did what a decision of the model says
+    /// (the fuzzer's oracle, for which agreeing is no finding).
+    pub fn differences(
+        &self,
+        judgement: &Judgement,
+        conv: &Conversation<'_>,
+        known: Option<Known<'_>>,
+    ) -> Verdict {
+        let mut v = compare::compare(self.model, judgement, conv, known, false);
+        self.judge_timing(judgement, conv, &mut v);
+        v
+    }
+
+    fn judge_timing(&self, judgement: &Judgement, conv: &Conversation<'_>, v: &mut Verdict) {
+        let Some(rule) = self.timing else {
+            return;
+        };
+        if !judgement.expect.replies() || conv.received.is_empty() {
+            return;
+        }
+        let ms = |d: Duration| d.as_secs_f64() * 1000.0;
+        let source = &self.model.limits.response_time_fact;
+        if let Some(rt) = conv.timing.response_time() {
+            let limit = rule.response_limit(self.model);
+            if rt > limit {
+                v.push(
+                    Kind::LateReply,
+                    Finding {
+                        severity: Severity::of(source.basis),
+                        text: format!(
+                            "late reply: it began {:.1} ms after the request; manual: {} ms{} (limit with one character and the allowance {:.1} ms). Source: {}",
+                            ms(rt),
+                            self.model.limits.response_time_ms,
+                            rule.line.map_or(String::new(), |l| format!(
+                                ", t3.5 on this line {:.1} ms",
+                                l.t3_5_us() as f64 / 1000.0
+                            )),
+                            ms(limit),
+                            source.citation()
+                        ),
+                    },
+                );
+            }
+            if let Some(line) = rule.line {
+                // The listener reads the end of the request a little late: one character
+                // of tolerance, as `check`'s line-timing check.
+                let t35 = Duration::from_micros(line.t3_5_us());
+                let tolerance = Duration::from_micros(line.char_time_us());
+                if rt + tolerance < t35 {
+                    v.push(
+                        Kind::EarlyReply,
+                        Finding::deviation(format!(
+                            "the reply began {} us after the request, sooner than t3.5 ({} us, less one character of tolerance); Modbus over Serial Line V1.02, 2.5.1.1",
+                            rt.as_micros(),
+                            t35.as_micros()
+                        )),
+                    );
+                }
+            }
+        }
+        if let (Some(gap), Some(line)) = (conv.timing.max_gap, rule.line) {
+            let t15 = Duration::from_micros(line.t1_5_us());
+            if gap > t15 + rule.gap_allowance {
+                v.push(
+                    Kind::GapInReply,
+                    Finding::deviation(format!(
+                        "a silence of {} us inside the reply, over t1.5 ({} us + allowance {} us); Modbus over Serial Line V1.02, 2.5.1.1",
+                        gap.as_micros(),
+                        t15.as_micros(),
+                        rule.gap_allowance.as_micros()
+                    )),
+                );
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests;

@@ -1,0 +1,106 @@
+//! The judge on conversations built by hand: no master, no link.
+
+use std::time::Duration;
+
+use super::*;
+use crate::codec::timing::{LineSettings, Parity};
+
+fn f510() -> DriveModel {
+    DriveModel::builtin("f510").unwrap()
+}
+
+/// 01 03 25 30 00 01: one register past the end of the monitor block (exception 02H).
+const PAST_END: [u8; 8] = [0x01, 0x03, 0x25, 0x30, 0x00, 0x01, 0x8F, 0x09];
+
+#[test]
+fn the_right_exception_passes_and_cites_the_manual() {
+    let model = f510();
+    let reply = [0x01, 0x83, 0x02, 0xC0, 0xF1];
+    let conv = Conversation::new(Mode::Rtu, 1, &PAST_END).with_reply(&reply);
+    let v = Judge::new(&model).verdict(&conv, None);
+    assert_eq!(v.status(), VerdictStatus::Pass, "{:?}", v.findings);
+    assert_eq!(v.expected.as_deref(), Some(&reply[..]));
+    assert!(v.differing.is_empty());
+    assert!(!v.citations.is_empty());
+    assert!(
+        v.citations.iter().any(|c| c.contains("exception code")),
+        "{:?}",
+        v.citations
+    );
+}
+
+#[test]
+fn a_wrong_exception_is_a_deviation_of_its_kind_with_the_differing_bytes() {
+    let model = f510();
+    let reply = [0x01, 0x83, 0x03, 0x01, 0x31];
+    let conv = Conversation::new(Mode::Rtu, 1, &PAST_END).with_reply(&reply);
+    let v = Judge::new(&model).verdict(&conv, None);
+    assert_eq!(v.status(), VerdictStatus::Deviation);
+    assert_eq!(v.kinds, [Kind::WrongException]);
+    assert_eq!(v.differing, [2, 3, 4]);
+    assert_eq!(v.received.as_deref(), Some(&reply[..]));
+    assert!(
+        v.findings[0].text.contains("code 02H"),
+        "{}",
+        v.findings[0].text
+    );
+}
+
+#[test]
+fn a_bad_crc_and_a_reply_to_a_broadcast_are_told_apart() {
+    let model = f510();
+    let bad = [0x01, 0x83, 0x02, 0xF1, 0xC0];
+    let conv = Conversation::new(Mode::Rtu, 1, &PAST_END).with_invalid(&bad);
+    let v = Judge::new(&model).verdict(&conv, None);
+    assert_eq!(v.kinds, [Kind::BadChecksum]);
+
+    // 06H to node 0 (broadcast): frequency command 2502H <- 1234H.
+    let req = crate::codec::pdu::Message {
+        address: 0,
+        pdu: crate::codec::pdu::Pdu::WriteSingle {
+            register: 0x2502,
+            value: 0x1234,
+        },
+    }
+    .to_frame_vec(Mode::Rtu)
+    .unwrap();
+    let conv = Conversation::new(Mode::Rtu, 1, &req).with_reply(&req);
+    let v = Judge::new(&model).verdict(&conv, None);
+    assert_eq!(v.status(), VerdictStatus::Deviation);
+    assert_eq!(v.kinds, [Kind::UnexpectedReply]);
+}
+
+#[test]
+fn timing_is_judged_only_when_asked_and_only_where_seen() {
+    let model = f510();
+    let reply = [0x01, 0x83, 0x02, 0xC0, 0xF1];
+    let line = LineSettings::new(9600, 8, Parity::Even, 1);
+    let rule = TimingRule {
+        line: Some(line),
+        response_allowance: Duration::from_millis(20),
+        gap_allowance: Duration::from_millis(5),
+    };
+    let at = |first: u64, gap: u64| Timing {
+        request_end: Some(Duration::from_millis(100)),
+        first_byte: Some(Duration::from_millis(100 + first)),
+        last_byte: None,
+        max_gap: Some(Duration::from_millis(gap)),
+        silence_before: None,
+        listened: Duration::from_millis(1000),
+    };
+    let late = Conversation::new(Mode::Rtu, 1, &PAST_END)
+        .with_reply(&reply)
+        .with_timing(at(300, 0));
+    // The runner judges response times over a mode, not here.
+    assert!(Judge::new(&model).verdict(&late, None).findings.is_empty());
+    let judge = Judge::new(&model).with_timing(rule);
+    assert_eq!(judge.verdict(&late, None).kinds, [Kind::LateReply]);
+    let on_time = late.with_timing(at(15, 0));
+    assert_eq!(judge.verdict(&on_time, None).status(), VerdictStatus::Pass);
+    let gappy = late.with_timing(at(15, 50));
+    assert_eq!(judge.verdict(&gappy, None).kinds, [Kind::GapInReply]);
+    let early = late.with_timing(at(0, 0));
+    assert_eq!(judge.verdict(&early, None).kinds, [Kind::EarlyReply]);
+    let unseen = late.with_timing(Timing::default());
+    assert_eq!(judge.verdict(&unseen, None).status(), VerdictStatus::Pass);
+}

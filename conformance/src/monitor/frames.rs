@@ -1,0 +1,601 @@
+//! Frames from a tap: bytes as a listening adapter delivers them, with their arrival
+//! times, in; frames of either direction out, each saying which rule ended it.
+//!
+//! RTU: the codec's deframer ([`RtuDeframer`] with [`RtuFraming::BySilence`]) cuts the
+//! stream at t3.5 of silence; inside such a block the length rule of the codec
+//! ([`rtu_frame_len`]: a request's length follows from its function and byte count, a
+//! reply's from its function and byte count too) splits frames that came without t3.5
+//! between them, or that a tap adapter delivered together. ASCII: the codec's
+//! [`AsciiDeframer`], ':' to CR LF.
+//!
+//! Times: the tap sees when a piece of bytes arrived, not when each byte was on the line.
+//! A silence is measured between two pieces only (less the character times of the bytes
+//! of the later piece); between two frames delivered in one piece it is unknown.
+
+use std::time::Duration;
+
+use crate::codec::crc::crc16;
+use crate::codec::deframe::{rtu_frame_len, AsciiDeframer, Event, RtuDeframer, RtuFraming};
+use crate::codec::pdu::Direction;
+use crate::codec::timing::LineSettings;
+use crate::codec::{Mode, MAX_RTU_FRAME};
+
+/// The rule that ended a frame.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum EndedBy {
+    /// t3.5 of silence after it (RTU).
+    Silence,
+    /// Its length, from its function code and byte count (RTU); bytes followed it
+    /// without t3.5 of silence, or in the same piece from the tap.
+    Length,
+    /// CR LF (ASCII).
+    CrLf,
+    /// The end of the input.
+    EndOfInput,
+}
+
+impl EndedBy {
+    /// The rule, as the live lines and reports spell it.
+    pub fn key(self) -> &'static str {
+        match self {
+            EndedBy::Silence => "t3.5",
+            EndedBy::Length => "length",
+            EndedBy::CrLf => "CR LF",
+            EndedBy::EndOfInput => "end of input",
+        }
+    }
+}
+
+/// What the bytes are.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum FrameStatus {
+    /// A frame with a valid CRC or LRC.
+    Valid,
+    /// Delimited bytes that are no valid frame (a wrong checksum, bad hex, too short).
+    Corrupt,
+    /// A frame with a silence over t1.5 inside it (RTU), or abandoned (ASCII).
+    Incomplete,
+}
+
+/// One frame (or block of bytes that is none) seen on the line.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct TapFrame {
+    /// The bytes.
+    pub bytes: Vec<u8>,
+    /// Valid, corrupt or incomplete.
+    pub status: FrameStatus,
+    /// The rule that ended it.
+    pub ended_by: EndedBy,
+    /// When its first byte arrived, where it began a piece from the tap.
+    pub start: Option<Duration>,
+    /// When its last byte arrived.
+    pub end: Duration,
+    /// The silence before it, where it began a piece from the tap that followed the
+    /// previous bytes (less the character times of that piece).
+    pub silence_before: Option<Duration>,
+    /// The largest silence between two of its bytes that came in different pieces.
+    pub max_gap: Option<Duration>,
+}
+
+/// A piece of bytes from the tap: where it ends in the block, and when it came.
+#[derive(Debug, Clone, Copy)]
+struct Piece {
+    end: usize,
+    at: Duration,
+}
+
+/// How long the start of a frame cut short waits for its rest.
+pub const CARRY_HOLD: Duration = Duration::from_millis(50);
+
+/// The start of a frame cut short, with its pieces' times.
+#[derive(Debug, Clone)]
+struct Carry {
+    bytes: Vec<u8>,
+    pieces: Vec<Piece>,
+    /// When the last byte before it came.
+    before: Option<Duration>,
+    /// Whether its first byte began a piece.
+    begins: bool,
+    last: Duration,
+}
+
+/// Splits the tap's stream into frames.
+pub struct TapFramer {
+    mode: Mode,
+    line: LineSettings,
+    rtu: RtuDeframer,
+    ascii: AsciiDeframer,
+    /// Pieces of the RTU block the deframer holds (at most one per byte of a frame).
+    pieces: Vec<Piece>,
+    /// Bytes of the block held (mirrors the deframer's buffer).
+    held: usize,
+    /// When the last byte before the held block came.
+    before_block: Option<Duration>,
+    last_at: Option<Duration>,
+    /// RTU: the start of a frame cut short by a silence (its length says more bytes are
+    /// due), held for [`CARRY_HOLD`] in case the rest follows: a listener that was late to
+    /// read the rest sees a silence the line did not have.
+    carry: Option<Carry>,
+    /// ASCII: when the ':' of the frame under way came, whether it began its piece, and
+    /// the silence before that piece.
+    colon: Option<(Duration, bool, Option<Duration>)>,
+}
+
+impl TapFramer {
+    /// A framer for `mode` on `line`.
+    pub fn new(mode: Mode, line: LineSettings) -> Self {
+        TapFramer {
+            mode,
+            line,
+            rtu: RtuDeframer::new(Direction::Request, RtuFraming::BySilence(line)),
+            ascii: AsciiDeframer::default(),
+            pieces: Vec::new(),
+            held: 0,
+            before_block: None,
+            last_at: None,
+            carry: None,
+            colon: None,
+        }
+    }
+
+    /// Feeds a piece of bytes that arrived at `at` (since the listener's origin).
+    pub fn push(&mut self, at: Duration, bytes: &[u8], out: &mut Vec<TapFrame>) {
+        if bytes.is_empty() {
+            return;
+        }
+        match self.mode {
+            Mode::Rtu => self.push_rtu(at, bytes, out),
+            Mode::Ascii => self.push_ascii(at, bytes, out),
+        }
+        self.last_at = Some(at);
+    }
+
+    /// Tells the framer that nothing came up to `now`: an RTU block followed by t3.5 of
+    /// silence ends.
+    pub fn idle(&mut self, now: Duration, out: &mut Vec<TapFrame>) {
+        if self.mode == Mode::Rtu {
+            let mut blocks = Vec::new();
+            self.rtu.idle(us(now), |e| blocks.push(block_of(e)));
+            for b in blocks {
+                self.close_held(b, EndedBy::Silence, out);
+            }
+            if self.rtu.pending() == 0 {
+                self.expire_carry(now, out);
+            }
+        }
+    }
+
+    fn expire_carry(&mut self, now: Duration, out: &mut Vec<TapFrame>) {
+        if self
+            .carry
+            .as_ref()
+            .is_some_and(|c| now.saturating_sub(c.last) > CARRY_HOLD)
+        {
+            self.close_block(Vec::new(), Vec::new(), None, EndedBy::Silence, false, out);
+        }
+    }
+
+    /// Ends the stream: everything held comes out.
+    pub fn finish(&mut self, out: &mut Vec<TapFrame>) {
+        match self.mode {
+            Mode::Rtu => {
+                let mut blocks = Vec::new();
+                self.rtu.flush(|e| blocks.push(block_of(e)));
+                for (b, _) in blocks {
+                    let pieces = std::mem::take(&mut self.pieces);
+                    let before = self.before_block.take();
+                    self.held = 0;
+                    self.close_block(b, pieces, before, EndedBy::EndOfInput, false, out);
+                }
+                if self.carry.is_some() {
+                    self.close_block(
+                        Vec::new(),
+                        Vec::new(),
+                        None,
+                        EndedBy::EndOfInput,
+                        false,
+                        out,
+                    );
+                }
+            }
+            Mode::Ascii => {
+                let at = self.last_at.unwrap_or_default();
+                let mut events = Vec::new();
+                self.ascii.flush(|e| events.push(block_of(e)));
+                for (bytes, status) in events {
+                    self.ascii_frame(at, bytes, status, EndedBy::EndOfInput, out);
+                }
+            }
+        }
+    }
+
+    fn push_rtu(&mut self, at: Duration, bytes: &[u8], out: &mut Vec<TapFrame>) {
+        if self.rtu.pending() == 0 {
+            self.expire_carry(at, out);
+        }
+        let mut blocks = Vec::new();
+        self.rtu
+            .push_at(us(at), bytes, |e| blocks.push(block_of(e)));
+        // Events during a push are the block the silence before these bytes closed
+        // (or, past any frame's length, the block with these bytes: then nothing of it
+        // is left held).
+        for b in blocks {
+            self.close_held(b, EndedBy::Silence, out);
+        }
+        if self.held == 0 {
+            self.before_block = self.last_at;
+        }
+        self.held = (self.held + bytes.len()).min(MAX_RTU_FRAME * 4);
+        if self.pieces.len() < MAX_RTU_FRAME * 4 {
+            self.pieces.push(Piece { end: self.held, at });
+        }
+        if self.rtu.pending() == 0 {
+            self.pieces.clear();
+            self.held = 0;
+        }
+    }
+
+    /// Closes the block the deframer held, with the pieces recorded for it.
+    fn close_held(
+        &mut self,
+        (block, _): (Vec<u8>, FrameStatus),
+        by: EndedBy,
+        out: &mut Vec<TapFrame>,
+    ) {
+        let pieces = std::mem::take(&mut self.pieces);
+        let before = self.before_block.take();
+        self.held = 0;
+        self.close_block(block, pieces, before, by, true, out);
+    }
+
+    /// Splits a silence-delimited block into frames (after the start of a frame cut short
+    /// before it, if one is held); with `may_carry`, a last part that only starts a frame
+    /// is held for its rest.
+    fn close_block(
+        &mut self,
+        block: Vec<u8>,
+        pieces: Vec<Piece>,
+        before: Option<Duration>,
+        by: EndedBy,
+        may_carry: bool,
+        out: &mut Vec<TapFrame>,
+    ) {
+        let (block, pieces, before, shared0) = match self.carry.take() {
+            None => (block, pieces, before, false),
+            Some(c) => {
+                let n = c.bytes.len();
+                let mut joined = c.bytes;
+                joined.extend_from_slice(&block);
+                let mut ps = c.pieces;
+                ps.extend(pieces.iter().map(|p| Piece {
+                    end: p.end + n,
+                    at: p.at,
+                }));
+                (joined, ps, c.before, !c.begins)
+            }
+        };
+        let char_us = self.line.char_time_us();
+        // The arrival time of the piece holding byte `i`, and whether byte `i` begins it.
+        let piece_of = |i: usize| -> (usize, bool) {
+            let k = pieces
+                .iter()
+                .position(|p| p.end > i)
+                .unwrap_or(pieces.len().saturating_sub(1));
+            let begin = if k == 0 { 0 } else { pieces[k - 1].end };
+            (k, begin == i && !(i == 0 && shared0))
+        };
+        let at = |k: usize| {
+            pieces
+                .get(k)
+                .map_or(self.last_at.unwrap_or_default(), |p| p.at)
+        };
+        let len_of = |k: usize| {
+            pieces
+                .get(k)
+                .map_or(0, |p| p.end - if k == 0 { 0 } else { pieces[k - 1].end })
+        };
+        let silence_into = |k: usize, prev: Option<Duration>| -> Option<Duration> {
+            let prev = prev?;
+            let chars = Duration::from_micros(char_us * len_of(k) as u64);
+            Some(at(k).saturating_sub(prev).saturating_sub(chars))
+        };
+        let mut pos = 0;
+        while pos < block.len() {
+            let (s, n, status) = split_next(&block[pos..]);
+            // Bytes before a frame that are none: a block of their own.
+            let parts: [(usize, usize, FrameStatus); 2] =
+                [(pos, s, FrameStatus::Corrupt), (pos + s, n, status)];
+            for (from, len, status) in parts {
+                if len == 0 {
+                    continue;
+                }
+                let to = from + len;
+                let (k0, begins) = piece_of(from);
+                if may_carry
+                    && to == block.len()
+                    && status != FrameStatus::Valid
+                    && starts_frame(&block[from..])
+                {
+                    let prev = if k0 == 0 { before } else { Some(at(k0 - 1)) };
+                    self.carry = Some(Carry {
+                        bytes: block[from..].to_vec(),
+                        pieces: pieces
+                            .iter()
+                            .filter(|p| p.end > from)
+                            .map(|p| Piece {
+                                end: p.end - from,
+                                at: p.at,
+                            })
+                            .collect(),
+                        before: prev,
+                        begins,
+                        last: at(piece_of(to - 1).0),
+                    });
+                    continue;
+                }
+                let (k1, _) = piece_of(to - 1);
+                let prev = if k0 == 0 { before } else { Some(at(k0 - 1)) };
+                let silence_before = if begins { silence_into(k0, prev) } else { None };
+                let max_gap = (k0 + 1..=k1)
+                    .filter_map(|k| silence_into(k, Some(at(k - 1))))
+                    .max();
+                let gap_broken =
+                    max_gap.is_some_and(|g| g.as_micros() > u128::from(self.line.t1_5_us()));
+                let status = if status == FrameStatus::Valid || !gap_broken {
+                    status
+                } else {
+                    FrameStatus::Incomplete
+                };
+                out.push(TapFrame {
+                    bytes: block[from..to].to_vec(),
+                    status,
+                    ended_by: if to == block.len() {
+                        by
+                    } else {
+                        EndedBy::Length
+                    },
+                    start: begins.then(|| at(k0)),
+                    end: at(k1),
+                    silence_before,
+                    max_gap,
+                });
+            }
+            pos += s + n;
+        }
+    }
+
+    fn push_ascii(&mut self, at: Duration, bytes: &[u8], out: &mut Vec<TapFrame>) {
+        let chars = Duration::from_micros(self.line.char_time_us() * bytes.len() as u64);
+        let mut first = true;
+        let mut rest = bytes;
+        while !rest.is_empty() {
+            // At most one frame's end per push, so that each frame gets this piece's time.
+            let cut = rest
+                .iter()
+                .position(|&b| b == b'\n')
+                .map_or(rest.len(), |i| i + 1);
+            let (seg, tail) = rest.split_at(cut);
+            // The last ':' starts the frame under way (an earlier one is abandoned).
+            if let Some(c) = seg.iter().rposition(|&b| b == b':') {
+                let begins_piece = first && c == 0;
+                let silence = if begins_piece {
+                    self.last_at
+                        .map(|p| at.saturating_sub(p).saturating_sub(chars))
+                } else {
+                    None
+                };
+                self.colon = Some((at, begins_piece, silence));
+            }
+            first = false;
+            let mut events = Vec::new();
+            self.ascii.push(seg, |e| events.push(block_of(e)));
+            for (b, status) in events {
+                self.ascii_frame(at, b, status, EndedBy::CrLf, out);
+            }
+            rest = tail;
+        }
+    }
+
+    fn ascii_frame(
+        &mut self,
+        at: Duration,
+        bytes: Vec<u8>,
+        status: FrameStatus,
+        by: EndedBy,
+        out: &mut Vec<TapFrame>,
+    ) {
+        let (start, begins_piece, silence) = match self.colon.take() {
+            Some((t, begins, silence)) => (Some(t), begins, silence),
+            None => (None, false, None),
+        };
+        out.push(TapFrame {
+            bytes,
+            status,
+            ended_by: by,
+            start: if begins_piece { start } else { None },
+            end: at,
+            silence_before: silence,
+            max_gap: None,
+        });
+    }
+}
+
+fn us(d: Duration) -> u64 {
+    u64::try_from(d.as_micros()).unwrap_or(u64::MAX)
+}
+
+fn block_of(e: Event<'_>) -> (Vec<u8>, FrameStatus) {
+    let status = match e {
+        Event::Frame(_) => FrameStatus::Valid,
+        Event::Corrupt(_) | Event::Garbage(_) => FrameStatus::Corrupt,
+        Event::Incomplete(_) => FrameStatus::Incomplete,
+    };
+    (e.bytes().to_vec(), status)
+}
+
+/// Whether `bytes` are the start of a frame whose length (by either direction's rule)
+/// says more bytes are due.
+fn starts_frame(bytes: &[u8]) -> bool {
+    if bytes.len() < 3 {
+        return !bytes.is_empty() && bytes[0] <= 247;
+    }
+    [Direction::Request, Direction::Response]
+        .into_iter()
+        .any(|d| rtu_frame_len(d, bytes).is_some_and(|n| n > bytes.len() && n <= MAX_RTU_FRAME))
+}
+
+/// The next frame in `rest` of a silence-delimited block: (bytes before it that are
+/// none, its length, its status). A frame is found by the length rule of either
+/// direction with a valid CRC, or is the whole rest with a valid CRC; bytes where no
+/// frame starts are skipped one at a time, as the codec's by-length deframer does.
+fn split_next(rest: &[u8]) -> (usize, usize, FrameStatus) {
+    let whole_ok = rest.len() >= 4 && crc16(rest) == 0;
+    for skip in 0..rest.len() {
+        let head = &rest[skip..];
+        for dir in [Direction::Response, Direction::Request] {
+            if let Some(n) = rtu_frame_len(dir, head) {
+                if n <= head.len() && n >= 4 && crc16(&head[..n]) == 0 {
+                    return (skip, n, FrameStatus::Valid);
+                }
+            }
+        }
+        if skip == 0 && whole_ok {
+            return (0, rest.len(), FrameStatus::Valid);
+        }
+        if head.len() >= 4 && crc16(head) == 0 {
+            return (skip, head.len(), FrameStatus::Valid);
+        }
+    }
+    (0, rest.len(), FrameStatus::Corrupt)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::codec::timing::Parity;
+
+    fn ms(n: u64) -> Duration {
+        Duration::from_millis(n)
+    }
+
+    fn framer() -> TapFramer {
+        TapFramer::new(Mode::Rtu, LineSettings::new(9600, 8, Parity::Even, 1))
+    }
+
+    fn read_frame() -> Vec<u8> {
+        crate::codec::pdu::Message {
+            address: 1,
+            pdu: crate::codec::pdu::Pdu::ReadRequest {
+                start: 0x2520,
+                count: 1,
+            },
+        }
+        .to_frame_vec(Mode::Rtu)
+        .unwrap()
+    }
+
+    fn reply_frame() -> Vec<u8> {
+        crate::codec::pdu::Message {
+            address: 1,
+            pdu: crate::codec::pdu::Pdu::ReadResponse {
+                values: crate::codec::pdu::Registers::new(&[0x12, 0x34]).unwrap(),
+            },
+        }
+        .to_frame_vec(Mode::Rtu)
+        .unwrap()
+    }
+
+    #[test]
+    fn silence_ends_frames_and_is_measured_between_pieces() {
+        let mut f = framer();
+        let mut out = Vec::new();
+        f.push(ms(0), &read_frame(), &mut out);
+        f.push(ms(100), &reply_frame(), &mut out);
+        f.idle(ms(200), &mut out);
+        assert_eq!(out.len(), 2, "{out:?}");
+        assert!(out
+            .iter()
+            .all(|t| t.status == FrameStatus::Valid && t.ended_by == EndedBy::Silence));
+        assert_eq!(out[1].start, Some(ms(100)));
+        let s = out[1].silence_before.unwrap();
+        assert!(s > ms(90) && s < ms(100), "{s:?}");
+    }
+
+    #[test]
+    fn length_splits_frames_delivered_together_and_their_silence_is_unknown() {
+        let mut f = framer();
+        let mut out = Vec::new();
+        f.push(ms(0), &[read_frame(), reply_frame()].concat(), &mut out);
+        f.idle(ms(100), &mut out);
+        assert_eq!(out.len(), 2, "{out:?}");
+        assert_eq!(out[0].ended_by, EndedBy::Length);
+        assert_eq!(out[1].ended_by, EndedBy::Silence);
+        assert_eq!(out[1].bytes, reply_frame());
+        assert_eq!(out[1].silence_before, None);
+        assert_eq!(out[1].start, None);
+    }
+
+    #[test]
+    fn a_gap_over_t15_inside_makes_a_corrupt_block_incomplete() {
+        let mut f = framer();
+        let mut out = Vec::new();
+        let r = read_frame();
+        f.push(ms(0), &r[..3], &mut out);
+        // 3.5 ms after: under t3.5 (4.0 ms), and less one character over t1.5 (1.7 ms).
+        f.push(Duration::from_micros(3500), &r[3..4], &mut out);
+        f.idle(ms(50), &mut out);
+        // Its length says 4 more bytes are due: held a while for them, then given up.
+        assert!(out.is_empty(), "{out:?}");
+        f.idle(ms(100), &mut out);
+        assert_eq!(out.len(), 1);
+        assert_eq!(out[0].status, FrameStatus::Incomplete);
+        assert_eq!(out[0].bytes, r[..4]);
+    }
+
+    #[test]
+    fn a_frame_whose_rest_a_late_reader_got_later_is_joined_by_its_length() {
+        let mut f = framer();
+        let mut out = Vec::new();
+        let r = reply_frame();
+        f.push(ms(0), &read_frame(), &mut out);
+        f.push(ms(100), &r[..3], &mut out);
+        // 20 ms later (over t3.5): the deframer ends a block, the length joins it.
+        f.push(ms(120), &r[3..], &mut out);
+        f.idle(ms(300), &mut out);
+        assert_eq!(out.len(), 2, "{out:?}");
+        assert_eq!(out[1].bytes, r);
+        assert_eq!(out[1].status, FrameStatus::Valid);
+        assert_eq!(out[1].start, Some(ms(100)));
+        let gap = out[1].max_gap.unwrap();
+        assert!(gap > ms(15) && gap <= ms(20), "{gap:?}");
+    }
+
+    #[test]
+    fn garbage_before_a_frame_comes_out_on_its_own() {
+        let mut f = framer();
+        let mut out = Vec::new();
+        f.push(
+            ms(0),
+            &[&[0xFF, 0x00][..], &reply_frame()].concat(),
+            &mut out,
+        );
+        f.idle(ms(50), &mut out);
+        assert_eq!(out.len(), 2, "{out:?}");
+        assert_eq!(out[0].status, FrameStatus::Corrupt);
+        assert_eq!(out[0].bytes, [0xFF, 0x00]);
+        assert_eq!(out[1].bytes, reply_frame());
+    }
+
+    #[test]
+    fn ascii_frames_run_from_colon_to_crlf() {
+        let mut f = TapFramer::new(Mode::Ascii, LineSettings::new(9600, 7, Parity::Even, 1));
+        let mut out = Vec::new();
+        f.push(ms(0), b":010325200001B6\r\n", &mut out);
+        f.push(ms(100), b":0103021234B4\r", &mut out);
+        f.push(ms(101), b"\n", &mut out);
+        assert_eq!(out.len(), 2, "{out:?}");
+        assert_eq!(out[1].ended_by, EndedBy::CrLf);
+        assert_eq!(out[1].start, Some(ms(100)));
+        assert_eq!(out[1].end, ms(101));
+    }
+}

@@ -1,0 +1,795 @@
+//! Passive conformance: listens to a bus that a master (a PLC, an HMI) and drives already
+//! run, and judges both sides of every conversation against the drive's model, without
+//! ever sending a byte.
+//!
+//! - [`frames`]: frames from a tap, RTU by silence and by length, ASCII ':' to CR LF.
+//! - [`Monitor`]: pairs each request with at most one reply from the addressed node within
+//!   the response window, judges the drive's side through the shared
+//!   [`judge`](crate::judge) (as `check` does), and the master's side against the manual
+//!   (function served, registers in the map, counts, broadcasts, checksums, t3.5 before
+//!   each request, no request while a reply is due).
+//! - [`tap`]: the read-only port: a [`Tap`] has no way to write.
+//! - [`stats`]: per-node counters and response-time histograms, in fixed memory.
+//!
+//! State is bounded: the request under way, per node its statistics, one example of each
+//! kind of finding, and the register values the traffic has set (at most the model's
+//! map per node).
+
+pub mod frames;
+mod judge_master;
+mod live;
+mod report;
+pub mod stats;
+pub mod tap;
+
+use std::collections::{BTreeMap, HashMap};
+use std::time::Duration;
+
+pub use frames::{EndedBy, FrameStatus, TapFrame};
+pub use live::Line;
+pub use report::MonitorSummary;
+pub use stats::NodeStats;
+pub use tap::{run, Ended, ReadOnlyPort, Tap};
+
+use crate::codec::pdu::{function, Direction, Message};
+use crate::codec::timing::LineSettings;
+use crate::codec::Mode;
+use crate::judge::{self, Conversation, Judge, Severity, Timing, TimingRule, VerdictStatus};
+use crate::model::{DriveModel, Expectation, Fact, Judgement};
+use crate::runner::ExchangeRecord;
+use crate::transport::TransportError;
+
+/// Why a listening session could not run.
+#[derive(Debug, thiserror::Error)]
+pub enum MonitorError {
+    /// The port could not be opened or read.
+    #[error(transparent)]
+    Transport(#[from] TransportError),
+    /// The settings make no sense.
+    #[error("{0}")]
+    Config(String),
+}
+
+/// What the monitor listens to and how it judges.
+#[derive(Debug, Clone)]
+pub struct MonitorConfig {
+    /// RTU or ASCII.
+    pub mode: Mode,
+    /// The line's settings (its timing: t1.5, t3.5, the character time).
+    pub line: LineSettings,
+    /// The nodes on the bus; empty: every node the master addresses.
+    pub nodes: Vec<u8>,
+    /// How long after a request its reply may come.
+    pub window: Duration,
+    /// Allowance over the manual's response time before a reply counts as late.
+    pub response_allowance: Duration,
+    /// Allowance over t1.5 before a gap inside a reply counts.
+    pub gap_allowance: Duration,
+}
+
+/// Which side of the conversation a finding is about.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash)]
+pub enum Side {
+    /// The drive (its replies and silences).
+    Drive,
+    /// The master (its requests and its timing).
+    Master,
+}
+
+impl Side {
+    /// "drive" or "master".
+    pub fn key(self) -> &'static str {
+        match self {
+            Side::Drive => "drive",
+            Side::Master => "master",
+        }
+    }
+}
+
+/// One finding of the monitor.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Issue {
+    /// Drive or master.
+    pub side: Side,
+    /// The kind ("wrong-exception", "no-t3.5", ...).
+    pub kind: &'static str,
+    /// Deviation or observation.
+    pub severity: Severity,
+    /// What, in words, with bytes in hex.
+    pub text: String,
+}
+
+/// The first example of one kind of finding on one node, and how often it came.
+#[derive(Debug, Clone)]
+pub struct Example {
+    /// The most serious severity seen.
+    pub severity: Severity,
+    /// How many exchanges had it.
+    pub count: u64,
+    /// The first one's text.
+    pub text: String,
+    /// The manual's citations for the first one.
+    pub citations: Vec<String>,
+    /// The first one's exchange.
+    pub exchange: ExchangeRecord,
+}
+
+/// The request under way.
+#[derive(Debug, Clone)]
+struct Pending {
+    /// The address the request carries.
+    address: u8,
+    /// The node whose model judges it (a node of the bus for broadcasts and requests to
+    /// other nodes).
+    judged_as: u8,
+    bytes: Vec<u8>,
+    valid: bool,
+    start: Option<Duration>,
+    end: Duration,
+    silence_before: Option<Duration>,
+    judgement: Judgement,
+    /// Bytes that came after it and are no frame (garbage before a reply).
+    leading: Vec<u8>,
+    leading_start: Option<Duration>,
+    issues: Vec<Issue>,
+    retry_after: Option<Duration>,
+}
+
+/// The listener: frames in, judged exchanges and live lines out.
+pub struct Monitor {
+    cfg: MonitorConfig,
+    model: DriveModel,
+    framer: frames::TapFramer,
+    pending: Option<Pending>,
+    last_frame_end: Option<Duration>,
+    /// Per node: the last request's bytes and whether it was answered (retries).
+    last_request: HashMap<u8, (Vec<u8>, Duration, bool)>,
+    /// Register values that writes seen on the bus set, per node.
+    written: HashMap<(u8, u16), u16>,
+    nodes: BTreeMap<u8, NodeStats>,
+    examples: BTreeMap<(u8, Side, &'static str), Example>,
+    frames: u64,
+    bytes: u64,
+    first_at: Option<Duration>,
+    last_at: Option<Duration>,
+    lines: Vec<Line>,
+}
+
+impl Monitor {
+    /// A monitor of a bus of drives of `model`.
+    pub fn new(model: DriveModel, cfg: MonitorConfig) -> Result<Self, MonitorError> {
+        if cfg.nodes.iter().any(|n| *n == 0 || *n > 247) {
+            return Err(MonitorError::Config(format!(
+                "node addresses are 1..247 (0 is the broadcast address): {:?}",
+                cfg.nodes
+            )));
+        }
+        Ok(Monitor {
+            framer: frames::TapFramer::new(cfg.mode, cfg.line),
+            cfg,
+            model,
+            pending: None,
+            last_frame_end: None,
+            last_request: HashMap::new(),
+            written: HashMap::new(),
+            nodes: BTreeMap::new(),
+            examples: BTreeMap::new(),
+            frames: 0,
+            bytes: 0,
+            first_at: None,
+            last_at: None,
+            lines: Vec::new(),
+        })
+    }
+
+    /// The configuration.
+    pub fn config(&self) -> &MonitorConfig {
+        &self.cfg
+    }
+
+    /// The model.
+    pub fn model(&self) -> &DriveModel {
+        &self.model
+    }
+
+    /// Bytes that arrived at `at` (since the listener's origin).
+    pub fn feed(&mut self, at: Duration, bytes: &[u8]) {
+        if bytes.is_empty() {
+            return;
+        }
+        self.first_at.get_or_insert(at);
+        self.last_at = Some(at);
+        self.bytes += bytes.len() as u64;
+        let mut out = Vec::new();
+        self.framer.push(at, bytes, &mut out);
+        for f in out {
+            self.on_frame(f);
+        }
+    }
+
+    /// Nothing came up to `now`: frames followed by t3.5 end, and a request whose window
+    /// has passed is judged.
+    pub fn idle(&mut self, now: Duration) {
+        let mut out = Vec::new();
+        self.framer.idle(now, &mut out);
+        for f in out {
+            self.on_frame(f);
+        }
+        if let Some(p) = &self.pending {
+            if now.saturating_sub(p.end) > self.cfg.window {
+                self.close_unanswered(None);
+            }
+        }
+    }
+
+    /// The end of the input: everything held is framed and judged.
+    pub fn finish(&mut self) {
+        let mut out = Vec::new();
+        self.framer.finish(&mut out);
+        for f in out {
+            self.on_frame(f);
+        }
+        if self.pending.is_some() {
+            self.close_unanswered(None);
+        }
+    }
+
+    /// The live lines made since the last call.
+    pub fn take_lines(&mut self) -> Vec<Line> {
+        std::mem::take(&mut self.lines)
+    }
+
+    /// Per-node statistics.
+    pub fn nodes(&self) -> &BTreeMap<u8, NodeStats> {
+        &self.nodes
+    }
+
+    /// The first example of each kind of finding, per node and side.
+    pub fn examples(&self) -> &BTreeMap<(u8, Side, &'static str), Example> {
+        &self.examples
+    }
+
+    /// Deviations found, over every node.
+    pub fn deviations(&self) -> u64 {
+        self.nodes.values().map(|n| n.deviations).sum()
+    }
+
+    fn timing_rule(&self) -> TimingRule {
+        TimingRule {
+            line: Some(self.cfg.line),
+            response_allowance: self.cfg.response_allowance,
+            gap_allowance: self.cfg.gap_allowance,
+        }
+    }
+
+    /// The node whose model judges a request to `address`: itself, or for a broadcast or
+    /// a node not on the bus, a node that is (whose model says: silence).
+    fn judged_as(&self, address: u8) -> u8 {
+        let on_bus = self.cfg.nodes.is_empty() || self.cfg.nodes.contains(&address);
+        if address != 0 && on_bus {
+            address
+        } else {
+            match self.cfg.nodes.first() {
+                Some(&n) => n,
+                // Any node but `address` (and not the broadcast address).
+                None => {
+                    if address == 1 {
+                        2
+                    } else {
+                        1
+                    }
+                }
+            }
+        }
+    }
+
+    fn on_frame(&mut self, f: TapFrame) {
+        self.frames += 1;
+        let since_previous = self
+            .last_frame_end
+            .map(|e| f.start.unwrap_or(f.end).saturating_sub(e));
+        self.last_frame_end = Some(f.end);
+        if let Some(p) = &self.pending {
+            let at = f.start.unwrap_or(f.end);
+            if at.saturating_sub(p.end) > self.cfg.window {
+                self.close_unanswered(None);
+            }
+        }
+        if let Some(p) = self.pending.as_mut() {
+            match f.status {
+                FrameStatus::Valid if is_reply_to(self.cfg.mode, &p.bytes, &f.bytes) => {
+                    self.close_with_reply(f, since_previous);
+                    return;
+                }
+                FrameStatus::Corrupt | FrameStatus::Incomplete
+                    if p.leading.len() + f.bytes.len() <= 2 * crate::codec::MAX_ASCII_FRAME =>
+                {
+                    // Bytes that are no frame after a request: the reply, damaged, or
+                    // garbage before it; the next frame or the window tells.
+                    if p.leading.is_empty() {
+                        p.leading_start = f.start;
+                    }
+                    p.leading.extend_from_slice(&f.bytes);
+                    return;
+                }
+                _ => {
+                    // A new request while the previous one is still due a reply.
+                    let early = f.start.unwrap_or(f.end).saturating_sub(p.end);
+                    self.close_unanswered(Some(early));
+                }
+            }
+        }
+        self.on_request(f, since_previous);
+    }
+
+    fn on_request(&mut self, f: TapFrame, since_previous: Option<Duration>) {
+        let mode = self.cfg.mode;
+        let body = judge::body_of(mode, &f.bytes);
+        let address = body.as_ref().map_or(0, |b| b[0]);
+        if f.status == FrameStatus::Valid {
+            if let Some(b) = &body {
+                if Message::parse_body(b, Direction::Request).is_err()
+                    && Message::parse_body(b, Direction::Response).is_ok()
+                {
+                    self.unsolicited(f, since_previous, address);
+                    return;
+                }
+            }
+        }
+        let judged_as = self.judged_as(address);
+        let judgement = self.model.judge(judged_as, mode, &f.bytes);
+        let mut issues = judge_master::judge_request(self, &f, &judgement);
+        let stats = self.nodes.entry(address).or_default();
+        stats.requests += 1;
+        if f.status != FrameStatus::Valid && body.is_some() {
+            stats.crc_errors += 1;
+        }
+        let mut retry_after = None;
+        if let Some((last, at, answered)) = self.last_request.get(&address) {
+            if *last == f.bytes && !answered {
+                stats.retries += 1;
+                retry_after = Some(f.start.unwrap_or(f.end).saturating_sub(*at));
+                issues.push(Issue {
+                    side: Side::Master,
+                    kind: "retry",
+                    severity: Severity::Observation,
+                    text: format!(
+                        "sent again {:.1} ms after the first try, which got no reply",
+                        ms(retry_after.unwrap_or_default())
+                    ),
+                });
+            }
+        }
+        if f.bytes.len() <= crate::codec::MAX_ASCII_FRAME {
+            self.last_request
+                .insert(address, (f.bytes.clone(), f.end, false));
+        }
+        self.pending = Some(Pending {
+            address,
+            judged_as,
+            valid: f.status == FrameStatus::Valid,
+            bytes: f.bytes,
+            start: f.start,
+            end: f.end,
+            silence_before: f.silence_before,
+            judgement,
+            leading: Vec::new(),
+            leading_start: None,
+            issues,
+            retry_after,
+        });
+    }
+
+    /// A reply with no request under way: after the window, a second reply, or a reply
+    /// where none was asked for.
+    fn unsolicited(&mut self, f: TapFrame, since_previous: Option<Duration>, address: u8) {
+        let text = format!(
+            "a reply from node {address:02X} with no request under way ({}): {} = {}",
+            match since_previous {
+                Some(d) => format!("{:.1} ms after the previous frame", ms(d)),
+                None => "the first frame heard".to_string(),
+            },
+            judge::show(self.cfg.mode, &f.bytes),
+            judge::describe_reply(self.cfg.mode, &f.bytes)
+        );
+        let issue = Issue {
+            side: Side::Drive,
+            kind: judge::Kind::UnexpectedReply.key(),
+            severity: Severity::Deviation,
+            text,
+        };
+        let record = ExchangeRecord {
+            request: Vec::new(),
+            expected: None,
+            received: f.bytes.clone(),
+            reply: Some(f.bytes.clone()),
+            predicted: "no reply (no request under way)".to_string(),
+            actual: judge::describe_reply(self.cfg.mode, &f.bytes),
+            latency: None,
+        };
+        let line = self.line_for(
+            &f,
+            since_previous,
+            address,
+            None,
+            "-",
+            VerdictStatus::Deviation,
+            std::slice::from_ref(&issue),
+        );
+        self.account(address, &[issue], &record, &[], VerdictStatus::Deviation);
+        self.lines.push(line);
+    }
+
+    fn close_with_reply(&mut self, f: TapFrame, _since: Option<Duration>) {
+        let Some(p) = self.pending.take() else {
+            return;
+        };
+        let mut received = p.leading.clone();
+        received.extend_from_slice(&f.bytes);
+        let first_byte = if p.leading.is_empty() {
+            f.start
+        } else {
+            p.leading_start
+        };
+        let timing = Timing {
+            request_end: Some(p.end),
+            first_byte,
+            last_byte: Some(f.end),
+            max_gap: f.max_gap,
+            silence_before: p.silence_before,
+            listened: f.end.saturating_sub(p.end),
+        };
+        let mut extra = Vec::new();
+        if is_copy(&p.bytes, &f.bytes) {
+            extra.push(format!(
+                "a copy of the request, taken as its reply by order and time ({} after it, within the {} ms window)",
+                first_byte.map_or("in the same piece from the tap".to_string(), |t| format!("{:.1} ms", ms(t.saturating_sub(p.end)))),
+                self.cfg.window.as_millis()
+            ));
+        }
+        let reply = &received[received.len() - f.bytes.len()..];
+        self.judge_exchange(p, &received, Some(reply), timing, f.status, extra, true);
+    }
+
+    /// Closes the request under way with nothing (valid) after it: `early` is set where
+    /// the master's next request cut the window short.
+    fn close_unanswered(&mut self, early: Option<Duration>) {
+        let Some(mut p) = self.pending.take() else {
+            return;
+        };
+        let limit = self.timing_rule().response_limit(&self.model);
+        let mut cut_short = false;
+        if let Some(after) = early {
+            if p.judgement.expect.replies() && after < limit && p.leading.is_empty() {
+                cut_short = true;
+                p.issues.push(Issue {
+                    side: Side::Master,
+                    kind: "request-before-reply",
+                    severity: Severity::Deviation,
+                    text: format!(
+                        "the next request began {:.1} ms after this one, before the drive's reply was due (manual: {} ms; limit {:.1} ms): the master did not wait for the reply",
+                        ms(after),
+                        self.model.limits.response_time_ms,
+                        ms(limit)
+                    ),
+                });
+            }
+        }
+        let listened = early.unwrap_or(self.cfg.window);
+        let timing = Timing {
+            request_end: Some(p.end),
+            first_byte: if p.leading.is_empty() {
+                None
+            } else {
+                p.leading_start
+            },
+            last_byte: None,
+            max_gap: None,
+            silence_before: p.silence_before,
+            listened,
+        };
+        let leading = std::mem::take(&mut p.leading);
+        let status = if leading.is_empty() {
+            FrameStatus::Valid
+        } else {
+            FrameStatus::Corrupt
+        };
+        let notes = if cut_short {
+            vec!["the drive's reply not judged: the master did not leave it time".to_string()]
+        } else {
+            Vec::new()
+        };
+        self.judge_exchange(p, &leading, None, timing, status, notes, !cut_short);
+    }
+
+    #[allow(clippy::too_many_arguments)]
+    fn judge_exchange(
+        &mut self,
+        p: Pending,
+        received: &[u8],
+        reply: Option<&[u8]>,
+        timing: Timing,
+        reply_status: FrameStatus,
+        notes: Vec<String>,
+        judge_drive: bool,
+    ) {
+        let mode = self.cfg.mode;
+        let leading_len = reply.map_or(received.len(), |r| received.len() - r.len());
+        let conv = Conversation {
+            mode,
+            node: p.judged_as,
+            request: &p.bytes,
+            received,
+            leading: &received[..leading_len.min(received.len())],
+            reply,
+            trailing: &[],
+            timing,
+            retries: 0,
+            link_notes: &[],
+        };
+        let known = self.known_values(&p);
+        let judge = Judge::new(&self.model).with_timing(self.timing_rule());
+        // As `check` judges: where the drive did what a decision of the model says (the
+        // manual is silent), that is an observation.
+        let verdict = judge.verdict_on(
+            &p.judgement,
+            &conv,
+            known.as_ref().map(|(v, f)| (v.as_slice(), f)),
+        );
+        let mut issues = p.issues.clone();
+        for (kind, f) in verdict.found().filter(|_| judge_drive) {
+            issues.push(Issue {
+                side: Side::Drive,
+                kind: kind.key(),
+                severity: f.severity,
+                text: f.text.clone(),
+            });
+        }
+        let (node, status) = {
+            let status = worst(&issues);
+            (p.address, status)
+        };
+        {
+            let stats = self.nodes.entry(node).or_default();
+            stats.exchanges += 1;
+            if !received.is_empty() {
+                stats.replies += u64::from(reply.is_some());
+            }
+            if received.is_empty() && p.judgement.expect.replies() && judge_drive {
+                stats.timeouts += 1;
+            }
+            if reply_status != FrameStatus::Valid
+                || verdict.kinds.contains(&judge::Kind::BadChecksum)
+            {
+                stats.crc_errors += u64::from(verdict.kinds.contains(&judge::Kind::BadChecksum));
+            }
+            if let (Some(rt), true) = (timing.response_time(), reply.is_some()) {
+                stats.response.record(rt);
+            }
+        }
+        if reply.is_some() || received.is_empty() {
+            if let Some(e) = self.last_request.get_mut(&p.address) {
+                e.2 = reply.is_some() || !p.judgement.expect.replies();
+            }
+        }
+        self.learn(&p, reply, status);
+        let record = ExchangeRecord {
+            request: p.bytes.clone(),
+            expected: verdict.expected.clone(),
+            received: received.to_vec(),
+            reply: reply.map(<[u8]>::to_vec),
+            predicted: verdict.predicted.clone(),
+            actual: verdict.actual.clone(),
+            latency: timing.response_time().filter(|_| !received.is_empty()),
+        };
+        let rt = timing.response_time().filter(|_| !received.is_empty());
+        let checksum = match (p.valid, reply_status, received.is_empty()) {
+            (false, _, _) => "CRC bad (request)",
+            (true, FrameStatus::Valid, _) => "CRC ok",
+            (true, _, _) => "CRC bad (reply)",
+        };
+        let checksum = if mode == Mode::Ascii {
+            checksum.replace("CRC", "LRC")
+        } else {
+            checksum.to_string()
+        };
+        let req_frame = TapFrame {
+            bytes: p.bytes.clone(),
+            status: if p.valid {
+                FrameStatus::Valid
+            } else {
+                FrameStatus::Corrupt
+            },
+            ended_by: EndedBy::Silence,
+            start: p.start,
+            end: p.end,
+            silence_before: p.silence_before,
+            max_gap: None,
+        };
+        let mut line = self.line_for(
+            &req_frame,
+            p.silence_before,
+            p.address,
+            rt,
+            &checksum,
+            status,
+            &issues,
+        );
+        if let Some(r) = reply {
+            line.reply = Some(live::meaning(&self.model, mode, r, Direction::Response));
+        } else if !received.is_empty() {
+            line.reply = Some(judge::explain_invalid(mode, received));
+        }
+        line.notes.extend(notes);
+        if let Some(after) = p.retry_after {
+            line.notes
+                .push(format!("resend, {:.1} ms after the first try", ms(after)));
+        }
+        self.account(node, &issues, &record, &verdict.citations, status);
+        self.lines.push(line);
+    }
+
+    #[allow(clippy::too_many_arguments)]
+    fn line_for(
+        &self,
+        f: &TapFrame,
+        since_previous: Option<Duration>,
+        node: u8,
+        response: Option<Duration>,
+        checksum: &str,
+        status: VerdictStatus,
+        issues: &[Issue],
+    ) -> Line {
+        let mode = self.cfg.mode;
+        let function = judge::body_of(mode, &f.bytes).map_or(0, |b| b[1]);
+        Line {
+            at: f.start.unwrap_or(f.end),
+            since_previous,
+            node,
+            function,
+            meaning: live::meaning(&self.model, mode, &f.bytes, Direction::Request),
+            reply: None,
+            checksum: checksum.to_string(),
+            response,
+            status,
+            issues: issues
+                .iter()
+                .map(|i| format!("{}.{}", i.side.key(), i.kind))
+                .collect(),
+            notes: Vec::new(),
+        }
+    }
+
+    /// Counts an exchange's findings on `node`, keeping the first example of each kind.
+    fn account(
+        &mut self,
+        node: u8,
+        issues: &[Issue],
+        record: &ExchangeRecord,
+        citations: &[String],
+        status: VerdictStatus,
+    ) {
+        let stats = self.nodes.entry(node).or_default();
+        match status {
+            VerdictStatus::Deviation => stats.deviations += 1,
+            VerdictStatus::Observation => stats.observations += 1,
+            VerdictStatus::Pass => {}
+        }
+        for i in issues {
+            *stats
+                .errors
+                .entry(format!("{}.{}", i.side.key(), i.kind))
+                .or_default() += 1;
+            let e = self
+                .examples
+                .entry((node, i.side, i.kind))
+                .or_insert_with(|| Example {
+                    severity: i.severity,
+                    count: 0,
+                    text: i.text.clone(),
+                    citations: citations.to_vec(),
+                    exchange: record.clone(),
+                });
+            e.count += 1;
+            e.severity = e.severity.max(i.severity);
+        }
+    }
+
+    /// Values a read must return because a write seen on the bus set them (and nothing
+    /// else is known): never assumed, learnt from the traffic.
+    fn known_values(&self, p: &Pending) -> Option<(Vec<Option<u16>>, Fact)> {
+        let Expectation::Read(plan) = &p.judgement.expect else {
+            return None;
+        };
+        let values: Vec<Option<u16>> = plan
+            .registers
+            .iter()
+            .map(|r| self.written.get(&(p.address, *r)).copied())
+            .collect();
+        values.iter().any(Option::is_some).then(|| {
+            (
+                values,
+                Fact::documented(
+                    "a write seen on the bus set it, and a parameter holds what was written (the manual's 06H/10H)",
+                ),
+            )
+        })
+    }
+
+    /// Learns register values from writes the drive confirmed (or broadcast writes).
+    fn learn(&mut self, p: &Pending, reply: Option<&[u8]>, status: VerdictStatus) {
+        let Some(plan) = &p.judgement.write else {
+            return;
+        };
+        let confirmed = reply.is_some() && status != VerdictStatus::Deviation;
+        let broadcast = p.address == 0;
+        if !(confirmed || broadcast) {
+            return;
+        }
+        // Values the drive changes itself (status, monitor registers) are not learnt:
+        // only writable parameters and commands keep what was written.
+        let targets: Vec<u8> = if broadcast {
+            self.nodes.keys().copied().filter(|n| *n != 0).collect()
+        } else {
+            vec![p.address]
+        };
+        for (r, v) in &plan.writes {
+            if self
+                .model
+                .lookup(*r)
+                .is_some_and(|i| i.access == crate::model::Access::ReadWrite)
+            {
+                for n in &targets {
+                    self.written.insert((*n, *r), *v);
+                }
+            }
+        }
+    }
+}
+
+/// Whether `frame` answers `request`: the same address or not, the request's function
+/// (or its exception), and a reply's shape.
+fn is_reply_to(mode: Mode, request: &[u8], frame: &[u8]) -> bool {
+    let (Some(req), Some(rep)) = (judge::body_of(mode, request), judge::body_of(mode, frame))
+    else {
+        return false;
+    };
+    if rep[1] & !function::EXCEPTION_BIT != req[1] {
+        return false;
+    }
+    if is_copy(request, frame) {
+        // 06H/08H: a copy of the request is its normal reply.
+        return matches!(
+            req[1],
+            function::WRITE_SINGLE_REGISTER | function::LOOP_BACK
+        );
+    }
+    Message::parse_body(&rep, Direction::Response).is_ok()
+}
+
+fn is_copy(request: &[u8], frame: &[u8]) -> bool {
+    request == frame
+}
+
+fn worst(issues: &[Issue]) -> VerdictStatus {
+    match issues.iter().map(|i| i.severity).max() {
+        None => VerdictStatus::Pass,
+        Some(Severity::Observation) => VerdictStatus::Observation,
+        Some(Severity::Deviation) => VerdictStatus::Deviation,
+    }
+}
+
+fn ms(d: Duration) -> f64 {
+    d.as_secs_f64() * 1000.0
+}
+
+/// Whether `fc` writes (06H, 10H): the only functions a broadcast may carry.
+pub(crate) fn is_write(fc: u8) -> bool {
+    matches!(
+        fc,
+        function::WRITE_SINGLE_REGISTER | function::WRITE_MULTIPLE_REGISTERS
+    )
+}
+
+#[cfg(test)]
+mod tests;

@@ -1,0 +1,196 @@
+//! A listening session as a report: one result per node, side and kind of finding (its
+//! first example and how often it came), a passing result per node and side where
+//! nothing was found, and the per-node statistics.
+
+use std::time::Duration;
+
+use serde_json::{json, Value};
+
+use super::{Monitor, NodeStats, Side};
+use crate::judge::{Finding, Severity};
+use crate::runner::{CheckResult, Status};
+
+/// The monitor section of a report.
+#[derive(Debug, Clone, Default)]
+pub struct MonitorSummary {
+    /// RTU or ASCII.
+    pub mode: String,
+    /// The port listened to.
+    pub port: String,
+    /// The line ("9600 8E1").
+    pub line: String,
+    /// The response window, ms.
+    pub window_ms: u64,
+    /// Frames seen.
+    pub frames: u64,
+    /// Bytes seen.
+    pub bytes: u64,
+    /// How long the bus was listened to.
+    pub listened: Duration,
+    /// Why listening ended.
+    pub ended: String,
+    /// Per node (address 00 is the broadcast address), its statistics.
+    pub nodes: Vec<(u8, NodeStats)>,
+}
+
+impl MonitorSummary {
+    /// The section as the JSON report carries it.
+    pub fn to_json(&self) -> Value {
+        json!({
+            "mode": self.mode,
+            "port": self.port,
+            "line": self.line,
+            "window_ms": self.window_ms,
+            "frames": self.frames,
+            "bytes": self.bytes,
+            "listened_s": (self.listened.as_secs_f64() * 1000.0).round() / 1000.0,
+            "ended": self.ended,
+            "nodes": self.nodes.iter().map(|(a, s)| s.to_json(*a)).collect::<Vec<_>>(),
+        })
+    }
+
+    /// The per-node statistics as text lines.
+    pub fn text_lines(&self) -> Vec<String> {
+        let ms = |d: Option<Duration>| {
+            d.map_or("-".to_string(), |d| {
+                format!("{:.1}", d.as_secs_f64() * 1000.0)
+            })
+        };
+        let mut out = vec![format!(
+            "listened {:.1} s on {} ({}, {}): {} frames, {} bytes; {}",
+            self.listened.as_secs_f64(),
+            self.port,
+            self.mode,
+            self.line,
+            self.frames,
+            self.bytes,
+            self.ended
+        )];
+        for (a, s) in &self.nodes {
+            let h = &s.response;
+            out.push(format!(
+                "node {a:02X}: {} requests, {} exchanges, {} replies, {} timeouts, {} CRC errors, {} retries; response ms p50 {} p95 {} p99 {} max {}",
+                s.requests,
+                s.exchanges,
+                s.replies,
+                s.timeouts,
+                s.crc_errors,
+                s.retries,
+                ms(h.percentile(50)),
+                ms(h.percentile(95)),
+                ms(h.percentile(99)),
+                ms(h.max())
+            ));
+            if !s.errors.is_empty() {
+                let e: Vec<String> = s.errors.iter().map(|(k, n)| format!("{k} {n}")).collect();
+                out.push(format!("         findings: {}", e.join(", ")));
+            }
+        }
+        out
+    }
+}
+
+impl Monitor {
+    /// The session's summary: `port` listened to, `ended` why it stopped.
+    pub fn summary(&self, port: &str, ended: &str) -> MonitorSummary {
+        MonitorSummary {
+            mode: self.cfg.mode.to_string(),
+            port: port.to_string(),
+            line: self.cfg.line.to_string(),
+            window_ms: u64::try_from(self.cfg.window.as_millis()).unwrap_or(u64::MAX),
+            frames: self.frames,
+            bytes: self.bytes,
+            listened: self
+                .last_at
+                .zip(self.first_at)
+                .map_or(Duration::ZERO, |(l, f)| l.saturating_sub(f)),
+            ended: ended.to_string(),
+            nodes: self.nodes.iter().map(|(a, s)| (*a, s.clone())).collect(),
+        }
+    }
+
+    /// One result per node, side and kind of finding; a pass per node and side where
+    /// nothing was found.
+    pub fn results(&self) -> Vec<CheckResult> {
+        let mode = self.cfg.mode;
+        let m = mode.to_string();
+        let mut out = Vec::new();
+        for (&node, stats) in &self.nodes {
+            for side in [Side::Drive, Side::Master] {
+                let mut any = false;
+                for ((_, _, kind), e) in self
+                    .examples
+                    .range((node, side, "")..)
+                    .take_while(|((n, s, _), _)| *n == node && *s == side)
+                {
+                    any = true;
+                    out.push(CheckResult {
+                        id: format!("{m}.node{node:02X}.{}.{kind}", side.key()),
+                        title: format!("{} of node {node:02X}: {kind}", title(side)),
+                        mode: Some(mode),
+                        source: source(self, side, &e.citations),
+                        status: match e.severity {
+                            Severity::Deviation => Status::Deviation,
+                            Severity::Observation => Status::Observation,
+                        },
+                        summary: format!("{} exchange(s); the first: {}", e.count, e.text),
+                        findings: vec![Finding {
+                            severity: e.severity,
+                            text: format!("{} (seen {} time(s))", e.text, e.count),
+                        }],
+                        exchanges: vec![e.exchange.clone()],
+                        duration: Duration::ZERO,
+                        node: Some(node),
+                    });
+                }
+                let judged = match side {
+                    Side::Drive => stats.exchanges,
+                    Side::Master => stats.requests,
+                };
+                if !any && judged > 0 {
+                    out.push(CheckResult {
+                        id: format!("{m}.node{node:02X}.{}", side.key()),
+                        title: format!("{} of node {node:02X}", title(side)),
+                        mode: Some(mode),
+                        source: source(self, side, &[]),
+                        status: Status::Pass,
+                        summary: format!(
+                            "{judged} {} judged; nothing found",
+                            match side {
+                                Side::Drive => "exchanges",
+                                Side::Master => "requests",
+                            }
+                        ),
+                        findings: Vec::new(),
+                        exchanges: Vec::new(),
+                        duration: Duration::ZERO,
+                        node: Some(node),
+                    });
+                }
+            }
+        }
+        out
+    }
+}
+
+fn title(side: Side) -> &'static str {
+    match side {
+        Side::Drive => "What the drive answered, heard on the bus",
+        Side::Master => "What the master asked, heard on the bus",
+    }
+}
+
+fn source(m: &Monitor, side: Side, citations: &[String]) -> String {
+    let base = match side {
+        Side::Drive => format!("{} (the model's prediction, as check)", m.model.manual),
+        Side::Master => format!(
+            "{}; Modbus over Serial Line V1.02, 2.1 and 2.5.1",
+            m.model.manual
+        ),
+    };
+    if citations.is_empty() {
+        base
+    } else {
+        format!("{base}: {}", citations.join("; "))
+    }
+}
