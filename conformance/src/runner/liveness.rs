@@ -85,8 +85,8 @@ impl Ctx<'_> {
             // Sent again; where it is late every time, the check is an ERROR.
             let on_pty = self.link_kind() == crate::transport::LinkKind::Pty;
             let came_late = alive && expect_reply && on_pty && {
-                std::thread::sleep(self.master.silence_window());
-                extra || self.master.drain_input()? > 0 || self.master.stray() > stray
+                let settled = self.settle_late_answers()?;
+                extra || settled > 0 || self.master.stray() > stray
             };
             if came_late {
                 late += 1;
@@ -122,6 +122,16 @@ impl Ctx<'_> {
         );
         self.lost = Some(why.clone());
         Err(RunError::DeviceLost(why))
+    }
+
+    /// On a pseudo-terminal, after an answer came late: waits until the line has been
+    /// quiet for a silence window, dropping what comes (the answers to earlier sends of
+    /// the request or of a probe, which a busy host delayed), so that none is taken for
+    /// the next exchange's reply or found after it ([`super::master::Master::settle`]).
+    /// How many bytes were dropped.
+    fn settle_late_answers(&mut self) -> Result<usize, RunError> {
+        let quiet = self.master.silence_window();
+        Ok(self.master.settle(quiet, self.opts.timing.timeout)?)
     }
 
     fn liveness_attempts(&self) -> u32 {
@@ -172,7 +182,26 @@ impl Ctx<'_> {
                 ..Verdict::default()
             });
         };
-        let ex = self.master.exchange(&frame, true)?;
+        let mut ex = self.master.exchange(&frame, true)?;
+        let mut sends = 1 + self.opts.timing.retries;
+        // On a pseudo-terminal the other end is a program on this host (the simulator,
+        // in this process or another), which a busy host can delay past the timeout: it
+        // is not dead for that (issue 24: "no answer to the preflight" from the
+        // in-process simulator with every core busy). Sent again, as a check's request
+        // is, before the run is stopped; an answer late for an earlier send is an answer
+        // all the same, and the one that may still be on its way is waited for and
+        // dropped, so that it is not taken for the next check's reply.
+        if self.link_kind() == crate::transport::LinkKind::Pty {
+            let mut late = 1;
+            while ex.after_echo().is_empty() && late < LATE_ON_A_PTY {
+                late += 1;
+                ex = self.master.exchange(&frame, true)?;
+                sends += 1 + self.opts.timing.retries;
+            }
+            if late > 1 && !ex.after_echo().is_empty() {
+                self.settle_late_answers()?;
+            }
+        }
         let record = ExchangeRecord {
             request: ex.request.clone(),
             expected: None,
@@ -230,7 +259,7 @@ impl Ctx<'_> {
                 ..Verdict::default()
             });
         }
-        let why = self.no_answer_advice(&frame, &ex);
+        let why = self.no_answer_advice(&frame, &ex, sends);
         self.lost = Some(why.clone());
         Ok(Verdict {
             exchanges: vec![record],
@@ -239,7 +268,7 @@ impl Ctx<'_> {
     }
 
     /// What the preflight tried, what came back, and what to try.
-    fn no_answer_advice(&self, frame: &[u8], ex: &Exchange) -> String {
+    fn no_answer_advice(&self, frame: &[u8], ex: &Exchange, sends: u32) -> String {
         let line = match self.line_timing() {
             Some(l) => l.to_string(),
             None => String::new(),
@@ -249,7 +278,7 @@ impl Ctx<'_> {
             self.opts.address,
             compare::show(self.mode, frame),
             self.liveness_what(),
-            1 + self.opts.timing.retries,
+            sends,
             self.mode.to_string().to_uppercase(),
             self.link(),
             if line.is_empty() { String::new() } else { format!(" ({line})") },
