@@ -203,7 +203,12 @@ fn each_quirk_is_named_by_a_deviation() {
         assert!(
             r.results.iter().any(|c| c.status == Status::Deviation
                 && c.findings.iter().any(|f| f.text.contains(phrase))),
-            "quirk {q}: no deviation says {phrase:?}; deviations: {devs:#?}"
+            "quirk {q}: no deviation says {phrase:?}; deviations: {devs:#?}; the rest: {:#?}",
+            r.results
+                .iter()
+                .filter(|c| c.status != Status::Pass)
+                .map(|c| format!("{} {}: {}", c.status, c.id, c.summary))
+                .collect::<Vec<_>>()
         );
         assert_ne!(r.exit_code(), 0, "quirk {q}");
         assert_valid(&r);
@@ -816,6 +821,70 @@ fn a_preflight_answered_late_on_a_pty_is_sent_again_not_a_dead_device() {
     let e = v.error.expect("a silent peer passed the preflight");
     assert!(e.contains("3 time(s)"), "{e}");
     assert!(ctx.lost.is_some());
+    drop(ctx);
+    h.join().unwrap();
+}
+
+/// Issue 24: with every core busy the answer-every-address quirk went unseen: the
+/// simulator's answer to another address came after the silence window, so the
+/// silence was judged (a PASS) and the answer found later. On a pseudo-terminal an answer
+/// found waiting before the liveness probe makes the request go once more, listened to
+/// for the whole timeout: the answer is judged.
+#[test]
+fn an_answer_to_another_address_a_busy_host_delays_is_still_judged_on_a_pty() {
+    use conformance::codec::pdu::{Message, Pdu};
+    use conformance::runner::Ctx;
+    use conformance::transport::Transport;
+    // A peer that answers every read with its address and 0004H: those to address 1 at
+    // once, the others 180 ms later (over the 100 ms silence window, under the 400 ms
+    // timeout).
+    let (a, mut b) = conformance::transport::memory::pair();
+    let h = thread::spawn(move || {
+        let mut buf = [0u8; 64];
+        let t0 = Instant::now();
+        while t0.elapsed() < Duration::from_secs(20) {
+            let n = match b.recv(&mut buf, Duration::from_millis(20)) {
+                Ok(n) => n,
+                Err(_) => return,
+            };
+            if n == 0 {
+                continue;
+            }
+            let mut reply = vec![buf[0], 3, 2, 0, 4];
+            let c = conformance::codec::crc::crc16(&reply);
+            reply.extend_from_slice(&c.to_le_bytes());
+            if buf[0] != 1 {
+                thread::sleep(Duration::from_millis(180));
+            }
+            if b.send(&reply).is_err() {
+                return;
+            }
+        }
+    });
+    let model = DriveModel::builtin("f510").unwrap();
+    let mut opts = options(&[]);
+    opts.timing.timeout = Duration::from_millis(400);
+    opts.timing.silence = Duration::from_millis(100);
+    let mut ctx = Ctx::new(&model, None, Mode::Rtu, &opts, Box::new(OnAPty(a)));
+    let frame = Message {
+        address: 0x7F,
+        pdu: Pdu::ReadRequest {
+            start: 0x2520,
+            count: 1,
+        },
+    }
+    .to_rtu_vec()
+    .unwrap();
+    let p = ctx.probe(frame, None).unwrap();
+    assert!(p.exchange.reply.is_some(), "{:?}", p.exchange);
+    assert!(
+        p.comparison
+            .findings
+            .iter()
+            .any(|f| f.text.contains("manual: no reply")),
+        "{:?}",
+        p.comparison
+    );
     drop(ctx);
     h.join().unwrap();
 }

@@ -70,11 +70,16 @@ impl Ctx<'_> {
                 return Ok((ex, false));
             }
             let stray = self.master.stray();
-            let (alive, extra) = match self.liveness_probe()? {
-                None => (true, false),
+            let (alive, extra, answer_before) = match self.liveness_probe()? {
+                None => (true, false, false),
                 Some(p) => (
                     !p.after_echo().is_empty(),
                     !p.leading.is_empty() || !p.trailing.is_empty(),
+                    // The answer to a frame for another node cannot be the probe's,
+                    // wherever it is; one like the probe's only before it.
+                    starts_an_answer(self.mode, frame, &p.leading)
+                        || (address_of(self.mode, frame) != Some(self.opts.address)
+                            && starts_an_answer(self.mode, frame, p.after_echo())),
                 ),
             };
             // On a pseudo-terminal the other end is a program on this host, and a reply
@@ -102,6 +107,26 @@ impl Ctx<'_> {
                             .unwrap_or(u64::MAX),
                     },
                 ));
+            }
+            // Where silence was due, an answer that turns up only after the silence
+            // window (found waiting before the probe, or the start of an answer to this
+            // request before the probe's own) is the other end's answer all the same,
+            // which a busy host delayed (issue 24: answer-every-address missed with every
+            // core busy). On a pseudo-terminal the request is sent once more and listened
+            // to for the whole timeout; what comes then is judged.
+            if alive && !expect_reply && on_pty && (answer_before || self.master.stray() > stray) {
+                self.settle_late_answers()?;
+                let ex = self
+                    .master
+                    .exchange_listening(frame, self.opts.timing.timeout)?;
+                if !ex.after_echo().is_empty() {
+                    self.answered_in = Some(self.current.clone());
+                    return Ok((ex, false));
+                }
+                if self.liveness()? {
+                    return Ok((ex, true));
+                }
+                break;
             }
             if alive {
                 return Ok((ex, true));
@@ -315,6 +340,13 @@ impl Ctx<'_> {
             "{tried}; {got}. Check: the node address (-a; the drive's communication address parameter), the baud rate (-b), parity (-P none|even|odd), data and stop bits (-d, -s), the mode ({other}), a longer --timeout, the wiring (A/B swapped, no common ground, termination), that the drive is powered, and that the adapter drives the RS-485 direction itself"
         )
     }
+}
+
+/// The address `frame` is for.
+fn address_of(mode: Mode, frame: &[u8]) -> Option<u8> {
+    crate::codec::frame_parts(mode, frame)
+        .ok()
+        .and_then(|p| p.body.first().copied())
 }
 
 /// Whether `rx` holds the start of an answer to `request`: its address and function (or
