@@ -247,7 +247,20 @@ fn check_model_auto_runs_the_checks_of_the_identified_model() {
         ],
         Duration::from_secs(180),
     );
-    assert_eq!(exit, Some(0), "{}", v["summary"]);
+    assert_eq!(
+        exit,
+        Some(0),
+        "{}: {:#}",
+        v["summary"],
+        v["checks"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .filter(|c| c["status"] != "pass")
+            .map(|c| format!("{} {}: {}", c["status"], c["id"], c["summary"]))
+            .collect::<Vec<_>>()
+            .join("\n")
+    );
     assert_eq!(v["device"]["model"], "a510");
     let checks = v["checks"].as_array().unwrap();
     assert_eq!(checks[0]["id"], "identify");
