@@ -504,8 +504,31 @@ fn a_pseudo_terminal_has_no_line_bound() {
         ],
         Duration::from_secs(120),
     );
-    assert_eq!(code, Some(0), "{err}");
-    let v: serde_json::Value = serde_json::from_str(&out).unwrap();
+    let v: serde_json::Value =
+        serde_json::from_str(&out).unwrap_or_else(|e| panic!("{e}: exit {code:?}: {err}"));
+    // On a loaded host a paced request can stall on its way out every time: that check is
+    // an ERROR of this host (exit 2), and only that (issue 24); the bound is what is
+    // asserted here.
+    let errors: Vec<String> = v["checks"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter(|c| c["status"] == "error" || c["status"] == "deviation")
+        .map(|c| format!("{} {}: {}", c["status"], c["id"], c["summary"]))
+        .collect();
+    let host = errors
+        .iter()
+        .filter(|e| {
+            e.starts_with("\"error\"") && e.contains("nothing about the device can be judged")
+        })
+        .count();
+    assert_eq!(host, errors.len(), "{errors:#?}");
+    assert_eq!(
+        code,
+        Some(if host == 0 { 0 } else { 2 }),
+        "{errors:#?}\n{err}"
+    );
+    assert_eq!(v["complete"], true, "{}", v["stopped"]);
     let b = &v["budget"]["rtu"];
     assert!(b.get("no_bound").is_none(), "{b}");
     assert!(b["bound_ms"].as_f64().unwrap() > 0.0, "{b}");

@@ -247,7 +247,20 @@ fn check_model_auto_runs_the_checks_of_the_identified_model() {
         ],
         Duration::from_secs(180),
     );
-    assert_eq!(exit, Some(0), "{}", v["summary"]);
+    assert_eq!(
+        exit,
+        Some(0),
+        "{}: {:#}",
+        v["summary"],
+        v["checks"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .filter(|c| c["status"] != "pass")
+            .map(|c| format!("{} {}: {}", c["status"], c["id"], c["summary"]))
+            .collect::<Vec<_>>()
+            .join("\n")
+    );
     assert_eq!(v["device"]["model"], "a510");
     let checks = v["checks"].as_array().unwrap();
     assert_eq!(checks[0]["id"], "identify");
@@ -422,4 +435,35 @@ fn a_generic_pymodbus_tcp_server_is_none_of_the_five() {
     );
     generic_is_none_of_the_five(exit, &v);
     let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// A `check --model auto` whose identification names no model still leaves its report
+/// (issue 24: a loaded run left none, and the test could only say NotFound): the
+/// identify check as ERROR, the run incomplete, saying why nothing was checked.
+#[test]
+fn check_model_auto_that_identifies_nothing_leaves_its_report() {
+    let dir = tmp("auto-dead");
+    std::fs::create_dir_all(&dir).unwrap();
+    let (exit, v) = common::check_device(
+        &dir,
+        &[
+            "--sim", "a510", "--model", "auto", "--mode", "rtu", "--quirk", "dead",
+        ],
+        Duration::from_secs(120),
+    );
+    assert_eq!(exit, Some(2), "{}", v["summary"]);
+    assert_eq!(v["complete"], false);
+    assert_eq!(v["device"]["model"], "auto");
+    let checks = v["checks"].as_array().unwrap();
+    assert_eq!(checks.len(), 1, "{checks:?}");
+    assert_eq!(checks[0]["id"], "identify");
+    assert_eq!(checks[0]["status"], "error");
+    assert!(
+        v["stopped"]
+            .as_str()
+            .unwrap()
+            .contains("no answer to the preflight"),
+        "{}",
+        v["stopped"]
+    );
 }

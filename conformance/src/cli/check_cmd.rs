@@ -191,6 +191,7 @@ pub fn run(mut args: CheckArgs) -> anyhow::Result<ExitCode> {
         let config = identify_cmd::config(&args.target, link, &args.identify)?;
         let flag = super::interrupt::stop_flag()?;
         let t0 = std::time::Instant::now();
+        let t0_wall = std::time::SystemTime::now();
         let id = identify_cmd::identify_device(&config, &flag, args.quiet)?;
         let took = t0.elapsed();
         stop = Some(flag);
@@ -198,10 +199,36 @@ pub fn run(mut args: CheckArgs) -> anyhow::Result<ExitCode> {
             identify::Verdict::One(m) => m.clone(),
             _ => {
                 eprint!("{}", identify::render::text(&id));
-                eprintln!(
+                let why = format!(
                     "check --model auto: {}; nothing was checked. Give the model with --model, or see the evidence above.",
                     identify::render::headline(&id)
                 );
+                eprintln!("{why}");
+                // A run with -o always leaves its report (issue 24: a test found none
+                // after an identification a loaded host made fail): the identification,
+                // as ERROR, and why nothing else ran.
+                let l = args.target.line.settings();
+                let report = Report {
+                    started: humantime::format_rfc3339_seconds(t0_wall).to_string(),
+                    finished: Some(
+                        humantime::format_rfc3339_seconds(std::time::SystemTime::now()).to_string(),
+                    ),
+                    complete: false,
+                    stopped: Some(why),
+                    device: conformance::report::Device {
+                        model: "auto".into(),
+                        address: args.target.address(),
+                        line: format!("{} baud {}{}{}", l.baud, l.data_bits, l.parity, l.stop_bits),
+                        ..Default::default()
+                    },
+                    results: vec![identify::render::check_result(&id, took)],
+                    ..Report::default()
+                };
+                // Without -o the evidence above is the whole answer (stdout stays empty).
+                if let Some(path) = args.output.as_deref() {
+                    let format = format_for(args.format, Some(path));
+                    finish(&report, format, args.verbose, Some(path))?;
+                }
                 return Ok(ExitCode::from(2));
             }
         };

@@ -442,6 +442,7 @@ impl Storm<'_> {
     /// [`crate::runner::master::MAX_BROKEN_SENDS`] broken sends.
     fn send(&mut self, ctx: &mut Ctx<'_>, frame: &[u8]) -> Result<Instant, TransportError> {
         let mut tries = 0;
+        let ascii = ctx.mode == crate::codec::Mode::Ascii;
         loop {
             sleep_until(self.quiet + self.gap);
             let t = ctx.transport_mut(self.quiet);
@@ -450,7 +451,8 @@ impl Storm<'_> {
             self.rx.sent(frame);
             let sent = t.sent_at().unwrap_or_else(Instant::now);
             self.quiet = sent;
-            if !t.send_was_broken() {
+            // An ASCII frame is not broken by a silence (see Master::send_broken).
+            if !t.send_was_broken() || ascii {
                 return Ok(sent);
             }
             tries += 1;

@@ -71,11 +71,16 @@ impl Ctx<'_> {
                 return Ok((ex, false));
             }
             let stray = self.master.stray();
-            let (alive, extra) = match self.liveness_probe()? {
-                None => (true, false),
+            let (alive, extra, answer_before) = match self.liveness_probe()? {
+                None => (true, false, false),
                 Some(p) => (
                     !p.after_echo().is_empty(),
                     !p.leading.is_empty() || !p.trailing.is_empty(),
+                    // The answer to a frame for another node cannot be the probe's,
+                    // wherever it is; one like the probe's only before it.
+                    starts_an_answer(self.mode, frame, &p.leading)
+                        || (address_of(self.mode, frame) != Some(self.opts.address)
+                            && starts_an_answer(self.mode, frame, p.after_echo())),
                 ),
             };
             // On a pseudo-terminal the other end is a program on this host, and a reply
@@ -86,8 +91,8 @@ impl Ctx<'_> {
             // Sent again; where it is late every time, the check is an ERROR.
             let on_pty = self.link_kind() == crate::transport::LinkKind::Pty;
             let came_late = alive && expect_reply && on_pty && {
-                std::thread::sleep(self.master.silence_window());
-                extra || self.master.drain_input()? > 0 || self.master.stray() > stray
+                let settled = self.settle_late_answers()?;
+                extra || settled > 0 || self.master.stray() > stray
             };
             if came_late {
                 late += 1;
@@ -103,6 +108,26 @@ impl Ctx<'_> {
                             .unwrap_or(u64::MAX),
                     },
                 ));
+            }
+            // Where silence was due, an answer that turns up only after the silence
+            // window (found waiting before the probe, or the start of an answer to this
+            // request before the probe's own) is the other end's answer all the same,
+            // which a busy host delayed (issue 24: answer-every-address missed with every
+            // core busy). On a pseudo-terminal the request is sent once more and listened
+            // to for the whole timeout; what comes then is judged.
+            if alive && !expect_reply && on_pty && (answer_before || self.master.stray() > stray) {
+                self.settle_late_answers()?;
+                let ex = self
+                    .master
+                    .exchange_listening(frame, self.opts.timing.timeout)?;
+                if !ex.after_echo().is_empty() {
+                    self.answered_in = Some(self.current.clone());
+                    return Ok((ex, false));
+                }
+                if self.liveness()? {
+                    return Ok((ex, true));
+                }
+                break;
             }
             if alive {
                 return Ok((ex, true));
@@ -123,6 +148,16 @@ impl Ctx<'_> {
         );
         self.lost = Some(why.clone());
         Err(RunError::DeviceLost(why))
+    }
+
+    /// On a pseudo-terminal, after an answer came late: waits until the line has been
+    /// quiet for a silence window, dropping what comes (the answers to earlier sends of
+    /// the request or of a probe, which a busy host delayed), so that none is taken for
+    /// the next exchange's reply or found after it ([`super::master::Master::settle`]).
+    /// How many bytes were dropped.
+    fn settle_late_answers(&mut self) -> Result<usize, RunError> {
+        let quiet = self.master.silence_window();
+        Ok(self.master.settle(quiet, self.opts.timing.timeout)?)
     }
 
     fn liveness_attempts(&self) -> u32 {
@@ -173,7 +208,26 @@ impl Ctx<'_> {
                 ..Verdict::default()
             });
         };
-        let ex = self.master.exchange(&frame, true)?;
+        let mut ex = self.master.exchange(&frame, true)?;
+        let mut sends = 1 + self.opts.timing.retries;
+        // On a pseudo-terminal the other end is a program on this host (the simulator,
+        // in this process or another), which a busy host can delay past the timeout: it
+        // is not dead for that (issue 24: "no answer to the preflight" from the
+        // in-process simulator with every core busy). Sent again, as a check's request
+        // is, before the run is stopped; an answer late for an earlier send is an answer
+        // all the same, and the one that may still be on its way is waited for and
+        // dropped, so that it is not taken for the next check's reply.
+        if self.link_kind() == crate::transport::LinkKind::Pty {
+            let mut late = 1;
+            while ex.after_echo().is_empty() && late < LATE_ON_A_PTY {
+                late += 1;
+                ex = self.master.exchange(&frame, true)?;
+                sends += 1 + self.opts.timing.retries;
+            }
+            if late > 1 && !ex.after_echo().is_empty() {
+                self.settle_late_answers()?;
+            }
+        }
         let record = ExchangeRecord {
             request: ex.request.clone(),
             expected: None,
@@ -231,7 +285,7 @@ impl Ctx<'_> {
                 ..Verdict::default()
             });
         }
-        let why = self.no_answer_advice(&frame, &ex);
+        let why = self.no_answer_advice(&frame, &ex, sends);
         self.lost = Some(why.clone());
         Ok(Verdict {
             exchanges: vec![record],
@@ -240,7 +294,7 @@ impl Ctx<'_> {
     }
 
     /// What the preflight tried, what came back, and what to try.
-    fn no_answer_advice(&self, frame: &[u8], ex: &Exchange) -> String {
+    fn no_answer_advice(&self, frame: &[u8], ex: &Exchange, sends: u32) -> String {
         let line = match self.line_timing() {
             Some(l) => l.to_string(),
             None => String::new(),
@@ -250,7 +304,7 @@ impl Ctx<'_> {
             self.opts.address,
             judge::show(self.mode, frame),
             self.liveness_what(),
-            1 + self.opts.timing.retries,
+            sends,
             self.mode.to_string().to_uppercase(),
             self.link(),
             if line.is_empty() { String::new() } else { format!(" ({line})") },
@@ -287,6 +341,13 @@ impl Ctx<'_> {
             "{tried}; {got}. Check: the node address (-a; the drive's communication address parameter), the baud rate (-b), parity (-P none|even|odd), data and stop bits (-d, -s), the mode ({other}), a longer --timeout, the wiring (A/B swapped, no common ground, termination), that the drive is powered, and that the adapter drives the RS-485 direction itself"
         )
     }
+}
+
+/// The address `frame` is for.
+fn address_of(mode: Mode, frame: &[u8]) -> Option<u8> {
+    crate::codec::frame_parts(mode, frame)
+        .ok()
+        .and_then(|p| p.body.first().copied())
 }
 
 /// Whether `rx` holds the start of an answer to `request`: its address and function (or

@@ -14,7 +14,7 @@ use crate::codec::pdu::function;
 use crate::codec::pdu::Direction;
 use crate::codec::{ascii, Mode, MAX_ASCII_FRAME};
 use crate::judge::{Conversation, Timing};
-use crate::transport::{sleep_until, Transport, TransportError};
+use crate::transport::{sleep_until, LinkKind, Transport, TransportError};
 
 /// Bytes that arrived together, with their arrival time after the end of the request.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -210,6 +210,10 @@ pub struct Master<T: Transport + ?Sized> {
     /// Bytes found waiting before a request was sent, since the last
     /// [`Master::take_stray`]: the late end of an earlier exchange.
     stray: usize,
+    /// On a pseudo-terminal: answers due to requests sent whose exchange ended without
+    /// them (late ones, on a busy host), awaited before the next request
+    /// ([`Master::settle`]).
+    owed: usize,
     transport: Box<T>,
 }
 
@@ -241,6 +245,7 @@ impl<T: Transport + ?Sized> Master<T> {
             split: None,
             brisk: false,
             stray: 0,
+            owed: 0,
             transport,
         }
     }
@@ -307,6 +312,7 @@ impl<T: Transport + ?Sized> Master<T> {
     /// Reads and counts what is waiting on the link, then discards the rest.
     fn drain(&mut self) -> Result<(), TransportError> {
         let mut buf = [0u8; 256];
+        let mut got = Vec::new();
         // Bounded: a device that talks without end is not drained forever here.
         for _ in 0..64 {
             let n = self.transport.recv(&mut buf, Duration::ZERO)?;
@@ -314,8 +320,59 @@ impl<T: Transport + ?Sized> Master<T> {
                 break;
             }
             self.stray += n;
+            got.extend_from_slice(&buf[..n]);
         }
+        self.owed = self.owed.saturating_sub(count_frames(self.mode, &got));
         self.transport.discard_input()
+    }
+
+    /// Whether the last send was broken on the line: an RTU request the host stalled
+    /// inside (a silence over t1.5 as it left: [`Transport::send_was_broken`]), which a
+    /// receiver that frames by silence drops. An ASCII frame runs from ':' to CR LF and
+    /// is not broken by a silence under its 1 s inter-character timeout (Modbus over
+    /// Serial Line V1.02, 2.5.2.1): the receiver takes it and answers, so sending it
+    /// again would leave an answer nobody waits for (issue 24: ASCII requests were
+    /// reported as "could not send ... whole", and the answers to the extra sends were
+    /// found before and after later replies, as deviations).
+    fn send_broken(&self) -> bool {
+        self.mode == Mode::Rtu && self.transport.send_was_broken()
+    }
+
+    /// Answers due that did not come in their exchange (see [`Master::settle`]).
+    pub fn owed(&self) -> usize {
+        self.owed
+    }
+
+    /// Waits for the answers still owed ([`Master::owed`]) as long as bytes keep coming
+    /// within `wait` of each other, then until `quiet` passes without a byte, and drops
+    /// what came (counted as stray): the late end of earlier exchanges. Nothing is owed
+    /// afterwards. How many bytes were dropped.
+    pub fn settle(&mut self, quiet: Duration, wait: Duration) -> Result<usize, TransportError> {
+        let owed = self.owed;
+        let mut got = Vec::new();
+        let mut last = Instant::now();
+        let mut buf = [0u8; 256];
+        loop {
+            let left = owed.saturating_sub(count_frames(self.mode, &got));
+            let limit = if left > 0 { wait.max(quiet) } else { quiet };
+            let waited = last.elapsed();
+            // Bounded: a device that talks without end is not listened to forever here.
+            if waited >= limit || got.len() > 64 * MAX_ASCII_FRAME {
+                break;
+            }
+            let n = self
+                .transport
+                .recv(&mut buf, (limit - waited).min(Duration::from_millis(50)))?;
+            if n > 0 {
+                got.extend_from_slice(&buf[..n]);
+                last = Instant::now();
+            }
+        }
+        self.stray += got.len();
+        self.owed = 0;
+        self.last_end = Some(last.max(self.last_end.unwrap_or(last)));
+        self.transport.discard_input()?;
+        Ok(got.len())
     }
 
     /// Sends `request`, where no reply is expected, and listens for `window` only (zero:
@@ -432,7 +489,7 @@ impl<T: Transport + ?Sized> Master<T> {
             // error of this host, never the device's silence to judge (the exchange was
             // listened to for a silence window only, so its "no reply" means nothing).
             let drifted = self.split.as_ref().is_some_and(|s| s.drifted);
-            if self.transport.send_was_broken() || drifted {
+            if self.send_broken() || drifted {
                 broken += 1;
                 if broken >= MAX_BROKEN_SENDS {
                     return Err(TransportError::Stalled {
@@ -461,6 +518,14 @@ impl<T: Transport + ?Sized> Master<T> {
         window: Option<Duration>,
     ) -> Result<Exchange, TransportError> {
         let t0 = Instant::now();
+        // On a pseudo-terminal the other end is a program on this host, which a busy
+        // host delays: an answer an earlier exchange waited for in vain may still come.
+        // It is awaited (and dropped) before this request goes, so that it is not taken
+        // for this request's reply or found after it (issue 24). The fuzzer's brisk
+        // listening catches late bytes its own way.
+        if self.owed > 0 && !self.brisk && self.transport.kind() == LinkKind::Pty {
+            self.settle(self.silence_window(), self.timing.timeout)?;
+        }
         self.wait_gap();
         self.drain()?;
         self.send_request(request)?;
@@ -471,7 +536,7 @@ impl<T: Transport + ?Sized> Master<T> {
         // the whole timeout.
         let wait = match window {
             Some(w) => w,
-            None if expect_reply && !self.transport.send_was_broken() => self.timing.timeout,
+            None if expect_reply && !self.send_broken() => self.timing.timeout,
             None => self.silence_window(),
         };
         let deadline = sent + wait;
@@ -573,6 +638,12 @@ impl<T: Transport + ?Sized> Master<T> {
         let echo = skip > 0;
         let first_byte = first_arrival_after(&chunks, skip);
         let (leading, reply, trailing) = find_reply(self.mode, request, &raw[skip..]);
+        if expect_reply && !self.send_broken() {
+            self.owed += 1;
+        }
+        self.owed = self
+            .owed
+            .saturating_sub(count_frames(self.mode, &raw[skip..]));
         self.account(request, &raw[skip..], first_byte, reply.is_some(), end - t0);
         Ok(Exchange {
             request: request.to_vec(),
@@ -838,6 +909,33 @@ pub fn find_reply(mode: Mode, request: &[u8], rx: &[u8]) -> (Vec<u8>, Option<Vec
             (rx.to_vec(), None, Vec::new())
         }
     }
+}
+
+/// How many whole frames (replies: RTU by length, ASCII ':' to CR LF) `bytes` hold.
+fn count_frames(mode: Mode, bytes: &[u8]) -> usize {
+    use crate::codec::deframe::{AsciiDeframer, Event, RtuDeframer, RtuFraming};
+    use crate::codec::pdu::Direction;
+    if bytes.is_empty() {
+        return 0;
+    }
+    let mut n = 0;
+    let mut count = |e: Event<'_>| {
+        if matches!(e, Event::Frame(_)) {
+            n += 1;
+        }
+    };
+    match mode {
+        Mode::Rtu => {
+            let mut d = RtuDeframer::new(Direction::Response, RtuFraming::ByLength);
+            d.push(bytes, &mut count);
+            d.end_burst(&mut count);
+        }
+        Mode::Ascii => {
+            let mut d = AsciiDeframer::new(u64::MAX);
+            d.push(bytes, &mut count);
+        }
+    }
+    n
 }
 
 #[cfg(test)]
