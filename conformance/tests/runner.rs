@@ -122,7 +122,7 @@ fn a_clean_simulator_of_every_model_has_no_deviations() {
     assert_eq!(s.error, stalls, "{s:?}");
     assert!(s.pass > 200, "{s:?}");
     assert_eq!(r.exit_code(), if stalls == 0 { 0 } else { 2 });
-    assert!(r.unrestored().is_empty());
+    assert!(r.unrestored().is_empty(), "{:?}", r.unrestored());
     let timing = r
         .results
         .iter()
@@ -631,7 +631,7 @@ fn a_clean_paced_simulator_on_a_loaded_machine_has_no_deviations() {
             );
         }
     }
-    assert!(r.unrestored().is_empty());
+    assert!(r.unrestored().is_empty(), "{:?}", r.unrestored());
     assert_valid(&r);
 }
 

@@ -36,6 +36,9 @@ use crate::model::{DriveModel, Fact, Judgement};
 use crate::transport::{Transport, TransportError};
 use crate::vectors::VectorFile;
 
+/// How many times the restore tries one register before it gives up on it.
+pub const RESTORE_ATTEMPTS: u32 = 3;
+
 /// Why a check could not go on.
 #[derive(Debug, thiserror::Error)]
 pub enum RunError {
@@ -730,62 +733,114 @@ impl<'a> Ctx<'a> {
             }
         }
         for (node, register, original) in journal {
-            let rec = |restored, detail: String| RestoreRecord {
+            let record = self.restore_one(node, register, original);
+            out.push(RestoreRecord {
                 node: tag(node),
-                register,
-                original,
-                restored,
-                changed: true,
-                detail,
+                ..record
+            });
+        }
+        out
+    }
+
+    /// Puts one register back: reads it, writes `original` where it differs, and reads it
+    /// back. A step that got no reply, a damaged one, or that this host could not carry
+    /// out (it stalled sending, or delayed the answer past the timeout) is tried again, up
+    /// to [`RESTORE_ATTEMPTS`] times in all: writing the original value twice is
+    /// harmless, and a register left changed is worse than a second request. A link that
+    /// failed ends the attempts at once.
+    fn restore_one(&mut self, node: u8, register: u16, original: u16) -> RestoreRecord {
+        let rec = |restored, changed, detail: String| RestoreRecord {
+            node: None,
+            register,
+            original,
+            restored,
+            changed,
+            detail,
+        };
+        let mut written = false;
+        let mut last = String::new();
+        for attempt in 1..=RESTORE_ATTEMPTS {
+            let again = if attempt > 1 {
+                format!(" (attempt {attempt} of {RESTORE_ATTEMPTS}; before: {last})")
+            } else {
+                String::new()
             };
             // A register that holds its original value needs no write (a rejected
             // write, a value-preserving write): say so, and do not write.
-            match self.read_at(node, register, 1) {
-                Ok(Ok(v)) if v[0] == original => {
-                    out.push(RestoreRecord {
-                        changed: false,
-                        ..rec(
-                            true,
-                            format!(
-                                "unchanged, verified: it holds its original value {original:04X}H (only written with the value it held, or the write was refused); nothing to write"
-                            ),
-                        )
-                    });
+            let now = match self.read_at(node, register, 1) {
+                Ok(Ok(v)) => v[0],
+                Ok(Err(e)) => {
+                    last = format!("could not read it to restore it: {e}");
+                    continue;
+                }
+                Err(RunError::HostStalled(e)) => {
+                    last = format!("could not read it to restore it: {e}");
                     continue;
                 }
                 Err(e) => {
-                    out.push(rec(false, format!("could not read it to restore it: {e}")));
-                    continue;
+                    return rec(false, true, format!("could not read it to restore it: {e}"));
                 }
-                _ => {}
-            }
-            let written = self.write_at(node, register, original);
-            let record = match written {
-                Err(e) => rec(false, format!("could not write it back: {e}")),
-                Ok(Err(e)) => rec(false, format!("could not write it back: {e}")),
-                Ok(Ok(())) => match self.read_at(node, register, 1) {
-                    Err(e) => rec(
-                        false,
-                        format!("written back, but the read-back failed: {e}"),
-                    ),
-                    Ok(Err(e)) => rec(
-                        false,
-                        format!("written back, but the read-back failed: {e}"),
-                    ),
-                    Ok(Ok(v)) if v[0] == original => {
-                        rec(true, format!("restored to {original:04X}H and read back"))
-                    }
-                    Ok(Ok(v)) => rec(
+            };
+            if now == original {
+                return if written {
+                    rec(
+                        true,
+                        true,
+                        format!("restored to {original:04X}H and read back{again}"),
+                    )
+                } else {
+                    rec(
+                        true,
                         false,
                         format!(
-                            "written back, but it reads {:04X}H, not {original:04X}H",
-                            v[0]
+                            "unchanged, verified: it holds its original value {original:04X}H (only written with the value it held, or the write was refused); nothing to write{again}"
                         ),
-                    ),
-                },
-            };
-            out.push(record);
+                    )
+                };
+            }
+            match self.write_at(node, register, original) {
+                Ok(Ok(())) => written = true,
+                Ok(Err(e)) => {
+                    last = format!("could not write it back: {e}");
+                    continue;
+                }
+                Err(RunError::HostStalled(e)) => {
+                    last = format!("could not write it back: {e}");
+                    continue;
+                }
+                Err(e) => return rec(false, true, format!("could not write it back: {e}")),
+            }
+            match self.read_at(node, register, 1) {
+                Ok(Ok(v)) if v[0] == original => {
+                    return rec(
+                        true,
+                        true,
+                        format!("restored to {original:04X}H and read back{again}"),
+                    );
+                }
+                Ok(Ok(v)) => {
+                    last = format!(
+                        "written back, but it reads {:04X}H, not {original:04X}H",
+                        v[0]
+                    );
+                }
+                Ok(Err(e)) => last = format!("written back, but the read-back failed: {e}"),
+                Err(RunError::HostStalled(e)) => {
+                    last = format!("written back, but the read-back failed: {e}")
+                }
+                Err(e) => {
+                    return rec(
+                        false,
+                        true,
+                        format!("written back, but the read-back failed: {e}"),
+                    )
+                }
+            }
         }
-        out
+        rec(
+            false,
+            true,
+            format!("{last} ({RESTORE_ATTEMPTS} attempts; write {original:04X}H back by hand)"),
+        )
     }
 }
