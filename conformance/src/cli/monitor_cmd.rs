@@ -16,7 +16,7 @@ use conformance::report::{Device, NodeInfo, Report, ReportKind, RunOptions};
 use conformance::session::serial_kind;
 use conformance::transport::serial::SerialTransport;
 
-use super::check_cmd::{finish, Format};
+use super::check_cmd::{finish, format_for, Format, FORMAT_DEFAULT};
 use super::common::{load_model, parse_nodes, NodeList, ParityArg};
 
 const AFTER_HELP: &str = "\
@@ -102,9 +102,8 @@ pub struct MonitorArgs {
     /// tap adapter's latency is in it).
     #[arg(long, value_name = "MS", default_value_t = 20)]
     allowance: u64,
-    /// Report format.
-    #[arg(long, value_enum, default_value = "text")]
-    format: Format,
+    #[arg(long, value_enum, help = FORMAT_DEFAULT)]
+    format: Option<Format>,
     /// Write the report here instead of stdout.
     #[arg(short, long, value_name = "FILE")]
     output: Option<PathBuf>,
@@ -223,5 +222,10 @@ pub fn run(args: MonitorArgs) -> anyhow::Result<ExitCode> {
         fuzz: None,
         monitor: Some(summary),
     };
-    finish(&report, args.format, args.verbose, args.output.as_deref())
+    finish(
+        &report,
+        format_for(args.format, args.output.as_deref()),
+        args.verbose,
+        args.output.as_deref(),
+    )
 }

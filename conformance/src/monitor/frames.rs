@@ -77,11 +77,21 @@ pub struct TapFrame {
     pub max_gap: Option<Duration>,
 }
 
-/// A piece of bytes from the tap: where it ends in the block, and when it came.
+/// A piece of bytes from the tap: where it ends in the block, when it was read, and the
+/// earliest its last byte can have arrived.
+///
+/// A read returns what came since the read before it; a busy host reads late, and then
+/// the bytes look later than they were. None of a piece's bytes was there when the read
+/// before it returned (`since`), and the line carries them one character time each, so
+/// its last byte came no sooner than `since` + its characters (and no later than `at`).
+/// A silence measured from that earliest end is the longest the reads allow: a finding
+/// on it (t3.5 missed, a gap inside a frame) is one the reads prove, not one a late read
+/// made up.
 #[derive(Debug, Clone, Copy)]
 struct Piece {
     end: usize,
     at: Duration,
+    low: Duration,
 }
 
 /// How long the start of a frame cut short waits for its rest.
@@ -109,9 +119,13 @@ pub struct TapFramer {
     pieces: Vec<Piece>,
     /// Bytes of the block held (mirrors the deframer's buffer).
     held: usize,
-    /// When the last byte before the held block came.
+    /// The earliest the last byte before the held block can have come (see [`Piece`]).
     before_block: Option<Duration>,
     last_at: Option<Duration>,
+    /// The earliest the last byte read so far can have come.
+    last_low: Option<Duration>,
+    /// When the last read returned, with bytes or without.
+    last_poll: Option<Duration>,
     /// RTU: the start of a frame cut short by a silence (its length says more bytes are
     /// due), held for [`CARRY_HOLD`] in case the rest follows: a listener that was late to
     /// read the rest sees a silence the line did not have.
@@ -133,6 +147,8 @@ impl TapFramer {
             held: 0,
             before_block: None,
             last_at: None,
+            last_low: None,
+            last_poll: None,
             carry: None,
             colon: None,
         }
@@ -143,16 +159,21 @@ impl TapFramer {
         if bytes.is_empty() {
             return;
         }
+        let chars = Duration::from_micros(self.line.char_time_us() * bytes.len() as u64);
+        let low = self.last_poll.map_or(at, |p| (p + chars).min(at));
         match self.mode {
-            Mode::Rtu => self.push_rtu(at, bytes, out),
+            Mode::Rtu => self.push_rtu(at, low, bytes, out),
             Mode::Ascii => self.push_ascii(at, bytes, out),
         }
         self.last_at = Some(at);
+        self.last_low = Some(low);
+        self.last_poll = Some(self.last_poll.map_or(at, |p| p.max(at)));
     }
 
     /// Tells the framer that nothing came up to `now`: an RTU block followed by t3.5 of
     /// silence ends.
     pub fn idle(&mut self, now: Duration, out: &mut Vec<TapFrame>) {
+        self.last_poll = Some(self.last_poll.map_or(now, |p| p.max(now)));
         if self.mode == Mode::Rtu {
             let mut blocks = Vec::new();
             self.rtu.idle(us(now), |e| blocks.push(block_of(e)));
@@ -209,7 +230,7 @@ impl TapFramer {
         }
     }
 
-    fn push_rtu(&mut self, at: Duration, bytes: &[u8], out: &mut Vec<TapFrame>) {
+    fn push_rtu(&mut self, at: Duration, low: Duration, bytes: &[u8], out: &mut Vec<TapFrame>) {
         if self.rtu.pending() == 0 {
             self.expire_carry(at, out);
         }
@@ -223,11 +244,15 @@ impl TapFramer {
             self.close_held(b, EndedBy::Silence, out);
         }
         if self.held == 0 {
-            self.before_block = self.last_at;
+            self.before_block = self.last_low;
         }
         self.held = (self.held + bytes.len()).min(MAX_RTU_FRAME * 4);
         if self.pieces.len() < MAX_RTU_FRAME * 4 {
-            self.pieces.push(Piece { end: self.held, at });
+            self.pieces.push(Piece {
+                end: self.held,
+                at,
+                low,
+            });
         }
         if self.rtu.pending() == 0 {
             self.pieces.clear();
@@ -269,7 +294,7 @@ impl TapFramer {
                 let mut ps = c.pieces;
                 ps.extend(pieces.iter().map(|p| Piece {
                     end: p.end + n,
-                    at: p.at,
+                    ..*p
                 }));
                 (joined, ps, c.before, !c.begins)
             }
@@ -289,6 +314,8 @@ impl TapFramer {
                 .get(k)
                 .map_or(self.last_at.unwrap_or_default(), |p| p.at)
         };
+        // The earliest the last byte of piece `k` can have come.
+        let low = |k: usize| pieces.get(k).map_or(at(k), |p| p.low);
         let len_of = |k: usize| {
             pieces
                 .get(k)
@@ -316,7 +343,7 @@ impl TapFramer {
                     && status != FrameStatus::Valid
                     && starts_frame(&block[from..])
                 {
-                    let prev = if k0 == 0 { before } else { Some(at(k0 - 1)) };
+                    let prev = if k0 == 0 { before } else { Some(low(k0 - 1)) };
                     self.carry = Some(Carry {
                         bytes: block[from..].to_vec(),
                         pieces: pieces
@@ -324,7 +351,7 @@ impl TapFramer {
                             .filter(|p| p.end > from)
                             .map(|p| Piece {
                                 end: p.end - from,
-                                at: p.at,
+                                ..*p
                             })
                             .collect(),
                         before: prev,
@@ -334,10 +361,10 @@ impl TapFramer {
                     continue;
                 }
                 let (k1, _) = piece_of(to - 1);
-                let prev = if k0 == 0 { before } else { Some(at(k0 - 1)) };
+                let prev = if k0 == 0 { before } else { Some(low(k0 - 1)) };
                 let silence_before = if begins { silence_into(k0, prev) } else { None };
                 let max_gap = (k0 + 1..=k1)
-                    .filter_map(|k| silence_into(k, Some(at(k - 1))))
+                    .filter_map(|k| silence_into(k, Some(low(k - 1))))
                     .max();
                 let gap_broken =
                     max_gap.is_some_and(|g| g.as_micros() > u128::from(self.line.t1_5_us()));
@@ -558,8 +585,11 @@ mod tests {
         let mut out = Vec::new();
         let r = reply_frame();
         f.push(ms(0), &read_frame(), &mut out);
+        // The listener polls: nothing a millisecond before each piece.
+        f.idle(ms(99), &mut out);
         f.push(ms(100), &r[..3], &mut out);
         // 20 ms later (over t3.5): the deframer ends a block, the length joins it.
+        f.idle(ms(119), &mut out);
         f.push(ms(120), &r[3..], &mut out);
         f.idle(ms(300), &mut out);
         assert_eq!(out.len(), 2, "{out:?}");

@@ -150,6 +150,8 @@ pub struct Monitor {
     examples: BTreeMap<(u8, Side, &'static str), Example>,
     frames: u64,
     bytes: u64,
+    /// The first and the latest time the listener reported (bytes or silence): how long
+    /// the bus was listened to, traffic or not.
     first_at: Option<Duration>,
     last_at: Option<Duration>,
     lines: Vec<Line>,
@@ -197,8 +199,7 @@ impl Monitor {
         if bytes.is_empty() {
             return;
         }
-        self.first_at.get_or_insert(at);
-        self.last_at = Some(at);
+        self.tick(at);
         self.bytes += bytes.len() as u64;
         let mut out = Vec::new();
         self.framer.push(at, bytes, &mut out);
@@ -210,6 +211,7 @@ impl Monitor {
     /// Nothing came up to `now`: frames followed by t3.5 end, and a request whose window
     /// has passed is judged.
     pub fn idle(&mut self, now: Duration) {
+        self.tick(now);
         let mut out = Vec::new();
         self.framer.idle(now, &mut out);
         for f in out {
@@ -220,6 +222,12 @@ impl Monitor {
                 self.close_unanswered(None);
             }
         }
+    }
+
+    /// The listener's clock reached `at`.
+    fn tick(&mut self, at: Duration) {
+        self.first_at.get_or_insert(at);
+        self.last_at = Some(self.last_at.map_or(at, |l| l.max(at)));
     }
 
     /// The end of the input: everything held is framed and judged.

@@ -409,3 +409,36 @@ fn where_the_manual_is_silent_the_drive_gets_an_observation_as_in_check() {
     assert_eq!(m.deviations(), 0, "{:?}", kinds(&m, 1));
     assert_eq!(m.nodes()[&1].observations, 1);
 }
+
+/// A listener that the host let sleep reads the rest of a reply late, after the next
+/// request already began on the line. Measured between the reads, the request seems to
+/// follow the reply at once; measured from the earliest the reply can have ended (the
+/// read before it plus its characters), it left 20 ms of silence. Only a silence the
+/// reads prove too short is the master's missing t3.5.
+#[test]
+fn a_reply_read_late_does_not_make_the_next_request_miss_t35() {
+    let req = read(1, 0x2520, 1);
+    let rep = values(1, &[7]);
+    let us = Duration::from_micros;
+    let heard = |rest_read_at: Duration, next_at: Duration| {
+        let mut m = monitor(Mode::Rtu, &[1]);
+        m.idle(ms(0));
+        m.feed(ms(10), &req);
+        m.idle(ms(30));
+        // The reply's first byte read at once, then nothing read until `rest_read_at`.
+        m.feed(us(31_200), &rep[..1]);
+        m.feed(rest_read_at, &rep[1..]);
+        // The next request, read whole at `next_at`, a poll just before it.
+        m.idle(next_at - us(9_500));
+        m.feed(next_at, &req);
+        m.idle(next_at + ms(2000));
+        m.finish();
+        kinds(&m, 1)
+    };
+    // The rest (6 characters, 6.9 ms) read 22 ms late; the request read 10 ms later.
+    let k = heard(ms(60), ms(70));
+    assert!(!k.contains(&"master.no-t3.5".to_string()), "{k:?}");
+    // The same request right behind a reply read on time: t3.5 missed, proved.
+    let k = heard(us(38_200), us(48_400));
+    assert!(k.contains(&"master.no-t3.5".to_string()), "{k:?}");
+}

@@ -1,0 +1,514 @@
+//! `conformance monitor` judging masters nobody here wrote: mbpoll, pymodbus's serial
+//! client, minimalmodbus and a libmodbus client (`tests/libmodbus/client.c`, built here)
+//! each poll and write a simulated F510 on `conformance bus`, while the monitor listens
+//! on a third endpoint. For each: the monitor hears every request and its reply, finds
+//! nothing wrong on the drive's side, never writes a byte (the bus's log names every
+//! writer), and says what the master did on the wire (printed as NOTE lines: which
+//! masters keep t3.5, which retry and how soon). With a drive that drops every second
+//! reply, the monitor finds the missing replies on the drive's side and the retries of
+//! the master that makes them.
+//!
+//! What the masters did when this was written (pymodbus 3.16.1, minimalmodbus 2.1.1,
+//! Debian mbpoll 1.5 and libmodbus 3.1.6) is in docs/src/monitor.md.
+#![cfg(unix)]
+
+mod common;
+
+use std::io::{BufRead, BufReader};
+use std::path::{Path, PathBuf};
+use std::process::{Command, Stdio};
+use std::sync::mpsc;
+use std::time::Duration;
+
+use common::{bin, cc, need, note, python, Kill, Peer};
+use serde_json::Value;
+
+fn dir(name: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!(
+        "conformance-monitor-peers-{}-{name}",
+        std::process::id()
+    ));
+    let _ = std::fs::remove_dir_all(&d);
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+/// A bus with a simulated F510 at node 1 (9600 8E1), an endpoint `master` for the
+/// program under test, and the monitor listening on the endpoint `tap`.
+struct Listening {
+    bus: Kill,
+    master: PathBuf,
+    monitor: Kill,
+    report: PathBuf,
+    log: PathBuf,
+    live: mpsc::Receiver<String>,
+}
+
+impl Listening {
+    fn start(d: &Path, drive: &[&str]) -> Listening {
+        Listening::start_on(d, "1", &[], drive)
+    }
+
+    /// [`Listening::start`] with the drives `nodes` ("1,2") and the line settings `line`
+    /// (`-b 2400`), which the bus and the monitor share.
+    fn start_on(d: &Path, nodes: &str, line: &[&str], drive: &[&str]) -> Listening {
+        let (master, tap, log) = (d.join("master"), d.join("tap"), d.join("line.jsonl"));
+        let mut bus = Kill::spawn(
+            Command::new(bin())
+                .args(["bus", "-q", "--model", "f510", "-a", nodes])
+                .args(line)
+                .arg("--link")
+                .arg(format!("master={}", master.display()))
+                .arg("--link")
+                .arg(format!("tap={}", tap.display()))
+                .arg("--log")
+                .arg(&log)
+                .args(drive)
+                .stdin(Stdio::null())
+                .stdout(Stdio::null())
+                .stderr(Stdio::inherit()),
+        );
+        common::wait_for(&master);
+        common::wait_for(&tap);
+        assert!(bus.0.try_wait().unwrap().is_none(), "the bus ended");
+        let report = d.join("monitor.json");
+        let mut monitor = Kill::spawn(
+            Command::new(bin())
+                .args(["monitor", "--model", "f510", "-a", nodes])
+                .args(line)
+                .arg("--port")
+                .arg(&tap)
+                .arg("-o")
+                .arg(&report)
+                .stdin(Stdio::null())
+                .stdout(Stdio::null())
+                .stderr(Stdio::piped()),
+        );
+        let stderr = monitor.0.stderr.take().unwrap();
+        let (tx, live) = mpsc::channel();
+        std::thread::spawn(move || {
+            for line in BufReader::new(stderr).lines().map_while(Result::ok) {
+                if tx.send(line).is_err() {
+                    break;
+                }
+            }
+        });
+        // The monitor says so once its port is open and read.
+        loop {
+            let line = live
+                .recv_timeout(Duration::from_secs(30))
+                .expect("the monitor never started listening");
+            if line.starts_with("listening on ") {
+                break;
+            }
+        }
+        Listening {
+            bus,
+            master,
+            monitor,
+            report,
+            log,
+            live,
+        }
+    }
+
+    /// Waits until the monitor printed `n` live lines (one per exchange or lone frame),
+    /// then stops it with SIGINT and the bus with SIGTERM: the monitor's exit code, its
+    /// report, its live lines and the bus's log.
+    fn stop(mut self, n: usize) -> (i32, Value, Vec<String>, Vec<Value>) {
+        let mut lines = Vec::new();
+        while lines.len() < n {
+            match self.live.recv_timeout(Duration::from_secs(20)) {
+                Ok(l) => lines.push(l),
+                Err(_) => break,
+            }
+        }
+        let signal = |k: &Kill, s| {
+            let pid = nix::unistd::Pid::from_raw(i32::try_from(k.0.id()).unwrap());
+            nix::sys::signal::kill(pid, s).unwrap();
+        };
+        signal(&self.monitor, nix::sys::signal::Signal::SIGINT);
+        let status = self
+            .monitor
+            .wait_within(Duration::from_secs(20), "the monitor after SIGINT");
+        lines.extend(self.live.try_iter());
+        signal(&self.bus, nix::sys::signal::Signal::SIGTERM);
+        self.bus
+            .wait_within(Duration::from_secs(10), "the bus after SIGTERM");
+        let text = std::fs::read_to_string(&self.report)
+            .unwrap_or_else(|e| panic!("no report ({e}); monitor said {lines:#?}"));
+        let report: Value = serde_json::from_str(&text)
+            .unwrap_or_else(|e| panic!("-o monitor.json is not JSON ({e}): {text}"));
+        let log = std::fs::read_to_string(&self.log)
+            .unwrap()
+            .lines()
+            .map(|l| serde_json::from_str(l).unwrap())
+            .collect();
+        (status.code().unwrap_or(-1), report, lines, log)
+    }
+}
+
+/// Node 01's statistics in the monitor's report.
+fn node01(r: &Value) -> &Value {
+    r["monitor"]["nodes"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|n| n["address"] == "01")
+        .unwrap_or_else(|| panic!("node 01 not in {:#}", r["monitor"]))
+}
+
+/// The kinds of finding on node 01 of one side ("drive" or "master"), with their counts.
+fn findings(r: &Value, side: &str) -> Vec<(String, u64)> {
+    node01(r)["errors"]
+        .as_object()
+        .unwrap()
+        .iter()
+        .filter(|(k, _)| k.starts_with(&format!("{side}.")))
+        .map(|(k, v)| (k.clone(), v.as_u64().unwrap()))
+        .collect()
+}
+
+/// What every clean session shows: `requests` requests to node 01 at least, each
+/// answered, nothing wrong on the drive's side, and not one byte from the monitor's
+/// endpoint on the line. Prints what the monitor found on the master's side.
+fn assert_heard_clean(who: &str, heard: &(i32, Value, Vec<String>, Vec<Value>), requests: u64) {
+    let (code, r, lines, log) = heard;
+    let n = node01(r);
+    assert!(
+        n["requests"].as_u64().unwrap() >= requests,
+        "{who}: {n:#}\n{lines:#?}"
+    );
+    assert_eq!(n["replies"], n["requests"], "{who}: {n:#}\n{lines:#?}");
+    assert_eq!(n["timeouts"], 0, "{who}: {n:#}");
+    assert_eq!(n["crc_errors"], 0, "{who}: {n:#}");
+    assert_eq!(findings(r, "drive"), [], "{who}: {n:#}\n{lines:#?}");
+    let master = findings(r, "master");
+    // Exit 1 exactly when the master did something the manual does not allow.
+    let deviations = r["summary"]["deviation"].as_u64().unwrap();
+    assert_eq!(
+        *code,
+        i32::from(deviations > 0),
+        "{who}: {:#}",
+        r["summary"]
+    );
+    assert!(
+        log.iter()
+            .filter(|e| e["event"] == "tx")
+            .all(|e| e["from"] != "tap"),
+        "{who}: the monitor's endpoint wrote to the line"
+    );
+    note(&format!(
+        "{who}: {} requests, all answered; on the master's side: {}; response p50 {} ms",
+        n["requests"],
+        if master.is_empty() {
+            "nothing".to_string()
+        } else {
+            format!("{master:?}")
+        },
+        n["response_ms"]["p50"]
+    ));
+    for l in lines
+        .iter()
+        .filter(|l| l.contains("DEVIATION") || l.contains("OBSERVATION"))
+    {
+        note(&format!("{who}: {}", l.trim()));
+    }
+}
+
+/// The libmodbus client, built into `d`; `None` (after SKIPPED) without libmodbus.
+fn libmodbus_client(d: &Path) -> Option<PathBuf> {
+    if !need(Peer::Libmodbus) {
+        return None;
+    }
+    let flags = Command::new("pkg-config")
+        .args(["--cflags", "--libs", "libmodbus"])
+        .output()
+        .unwrap();
+    assert!(flags.status.success());
+    let flags = String::from_utf8(flags.stdout).unwrap();
+    let exe = d.join("client");
+    let out = Command::new(cc())
+        .args(["-Wall", "-Wextra", "-Werror", "-O2", "-o"])
+        .arg(&exe)
+        .arg(concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/tests/libmodbus/client.c"
+        ))
+        .args(flags.split_whitespace())
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "cc client.c failed:\n{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    Some(exe)
+}
+
+/// Runs `cmd` to its end (60 s at most): its stdout, which must come with exit 0 when
+/// `must_succeed`.
+fn run(cmd: &mut Command, must_succeed: bool) -> String {
+    let o = cmd.stdin(Stdio::null()).output().unwrap();
+    let out = String::from_utf8_lossy(&o.stdout).into_owned();
+    if must_succeed {
+        assert!(
+            o.status.success(),
+            "{cmd:?}: {:?}\n{out}{}",
+            o.status,
+            String::from_utf8_lossy(&o.stderr)
+        );
+    }
+    out
+}
+
+#[test]
+fn mbpoll_polling_and_writing_is_heard_and_the_drive_passes() {
+    if !need(Peer::Mbpoll) {
+        return;
+    }
+    let d = dir("mbpoll");
+    let l = Listening::start(&d, &[]);
+    let mbpoll = |args: &[&str]| {
+        let mut c = Command::new("mbpoll");
+        c.args([
+            "-m", "rtu", "-b", "9600", "-P", "even", "-a", "1", "-o", "2",
+        ])
+        .args(args);
+        c
+    };
+    // mbpoll counts registers from 1: 9520 is 252FH, 9475 is 2502H.
+    for _ in 0..3 {
+        let out = run(
+            mbpoll(&["-t", "4:hex", "-r", "9520", "-1"]).arg(&l.master),
+            true,
+        );
+        assert!(out.contains("[9520]: \t0x0510"), "{out}");
+    }
+    run(mbpoll(&["-r", "9475"]).arg(&l.master).arg("1234"), true);
+    let heard = l.stop(4);
+    assert_heard_clean("mbpoll", &heard, 4);
+}
+
+#[test]
+fn pymodbus_polling_and_writing_is_heard_and_the_drive_passes() {
+    if !need(Peer::Pymodbus) {
+        return;
+    }
+    let d = dir("pymodbus");
+    let l = Listening::start(&d, &[]);
+    // Parity E on a pseudo-terminal: pymodbus's connect() refuses it (EINVAL) and falls
+    // back to N here; the line carries bytes, whatever the program's termios says.
+    let script = format!(
+        "from pymodbus.client import ModbusSerialClient\n\
+         for parity in ('E', 'N'):\n\
+         \x20   c = ModbusSerialClient(port={port:?}, baudrate=9600, parity=parity, stopbits=1, bytesize=8, timeout=2, retries=0)\n\
+         \x20   if c.connect():\n\
+         \x20       break\n\
+         else:\n\
+         \x20   raise SystemExit('pymodbus cannot open the endpoint')\n\
+         for _ in range(3):\n\
+         \x20   print(hex(c.read_holding_registers(0x252F, count=1, device_id=1).registers[0]))\n\
+         assert not c.write_register(0x2502, 0x04D2, device_id=1).isError()\n\
+         print(hex(c.read_holding_registers(0x2502, count=1, device_id=1).registers[0]))\n\
+         c.close()\n",
+        port = l.master.to_str().unwrap()
+    );
+    let out = run(Command::new(python()).args(["-c", &script]), true);
+    assert_eq!(
+        out.lines().collect::<Vec<_>>(),
+        ["0x510", "0x510", "0x510", "0x4d2"]
+    );
+    let heard = l.stop(5);
+    assert_heard_clean("pymodbus", &heard, 5);
+}
+
+#[test]
+fn minimalmodbus_polling_and_writing_is_heard_and_the_drive_passes() {
+    if !need(Peer::Minimalmodbus) {
+        return;
+    }
+    let d = dir("minimalmodbus");
+    let l = Listening::start(&d, &[]);
+    let script = format!(
+        "import minimalmodbus\n\
+         i = minimalmodbus.Instrument({port:?}, 1)\n\
+         i.serial.baudrate = 9600\n\
+         i.serial.timeout = 2\n\
+         for _ in range(3):\n\
+         \x20   print(hex(i.read_register(0x252F)))\n\
+         i.write_register(0x2502, 0x04D2, functioncode=6)\n\
+         print(hex(i.read_register(0x2502)))\n",
+        port = l.master.to_str().unwrap()
+    );
+    let out = run(Command::new(python()).args(["-c", &script]), true);
+    assert_eq!(
+        out.lines().collect::<Vec<_>>(),
+        ["0x510", "0x510", "0x510", "0x4d2"]
+    );
+    let heard = l.stop(5);
+    assert_heard_clean("minimalmodbus", &heard, 5);
+}
+
+#[test]
+fn a_libmodbus_client_polling_and_writing_is_heard_and_the_drive_passes() {
+    let d = dir("libmodbus");
+    let Some(client) = libmodbus_client(&d) else {
+        return;
+    };
+    let l = Listening::start(&d, &[]);
+    let out = run(Command::new(&client).arg(&l.master).args(["1", "3"]), true);
+    assert_eq!(
+        out.lines().collect::<Vec<_>>(),
+        [
+            "read 252F 0510",
+            "read 252F 0510",
+            "read 252F 0510",
+            "write 2502 ok",
+            "read 2502 04D2"
+        ]
+    );
+    let heard = l.stop(5);
+    assert_heard_clean("libmodbus", &heard, 5);
+}
+
+/// A drive that drops every second reply: the monitor finds the missing replies on the
+/// drive's side, and counts the retries of pymodbus (retries=2), which sends the same
+/// request again after its timeout. The libmodbus client does not retry: its missing
+/// replies are timeouts and nothing more.
+#[test]
+fn replies_a_drive_drops_are_found_and_the_retries_of_the_master_counted() {
+    if !need(Peer::Pymodbus) {
+        return;
+    }
+    let d = dir("retries");
+    let l = Listening::start(&d, &["--quirk", "drop-every=2"]);
+    let script = format!(
+        "from pymodbus.client import ModbusSerialClient\n\
+         for parity in ('E', 'N'):\n\
+         \x20   c = ModbusSerialClient(port={port:?}, baudrate=9600, parity=parity, stopbits=1, bytesize=8, timeout=0.3, retries=2)\n\
+         \x20   if c.connect():\n\
+         \x20       break\n\
+         else:\n\
+         \x20   raise SystemExit('pymodbus cannot open the endpoint')\n\
+         for _ in range(4):\n\
+         \x20   r = c.read_holding_registers(0x252F, count=1, device_id=1)\n\
+         \x20   print('error' if r.isError() else hex(r.registers[0]))\n\
+         c.close()\n",
+        port = l.master.to_str().unwrap()
+    );
+    let out = run(Command::new(python()).args(["-c", &script]), false);
+    // Every read gets its answer, at the first try or at a retry.
+    assert_eq!(
+        out.lines().collect::<Vec<_>>(),
+        ["0x510", "0x510", "0x510", "0x510"],
+        "{out}"
+    );
+    let (code, r, lines, log) = l.stop(8);
+    let n = node01(&r);
+    assert_eq!(code, 1, "{:#}", r["summary"]);
+    let drive = findings(&r, "drive");
+    let master = findings(&r, "master");
+    assert!(
+        drive.iter().any(|(k, _)| k == "drive.no-reply"),
+        "{drive:?}\n{lines:#?}"
+    );
+    assert!(n["timeouts"].as_u64().unwrap() >= 2, "{n:#}");
+    assert!(n["retries"].as_u64().unwrap() >= 2, "{n:#}\n{lines:#?}");
+    assert!(
+        master.iter().any(|(k, _)| k == "master.retry"),
+        "{master:?}\n{lines:#?}"
+    );
+    assert!(log
+        .iter()
+        .filter(|e| e["event"] == "tx")
+        .all(|e| e["from"] != "tap"));
+    for l in lines.iter().filter(|l| l.contains("retry")) {
+        note(&format!("pymodbus retries: {}", l.trim()));
+    }
+}
+
+/// The suite's own `send --burst` puts two requests on the line in one write, with no
+/// t3.5 between them: the monitor finds the master's missing silence. (The drive frames
+/// the two as one frame with a wrong CRC and stays silent, as the model says; what the
+/// monitor makes of that silence is not asserted here.)
+#[test]
+fn a_master_sending_two_requests_without_t35_is_found() {
+    let d = dir("burst");
+    let l = Listening::start(&d, &[]);
+    let out = Command::new(bin())
+        .args([
+            "send", "--model", "f510", "--mode", "rtu", "--burst", "--port",
+        ])
+        .arg(&l.master)
+        .args(["--timeout", "300", "0103252F0001BECF", "0103252F0001BECF"])
+        .stdin(Stdio::null())
+        .output()
+        .unwrap();
+    assert!(
+        out.status.code().is_some_and(|c| c < 2),
+        "send: {:?}\n{}",
+        out.status,
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let (code, r, lines, log) = l.stop(2);
+    assert_eq!(code, 1, "{:#}\n{lines:#?}", r["summary"]);
+    let master = findings(&r, "master");
+    assert!(
+        master.iter().any(|(k, _)| k == "master.no-t3.5"),
+        "{master:?}\n{lines:#?}"
+    );
+    assert!(log
+        .iter()
+        .filter(|e| e["event"] == "tx")
+        .all(|e| e["from"] != "tap"));
+}
+
+/// Two drives answer one request at once (node 2 answers every address), 2400 baud so
+/// that the replies overlap on the line: the bus logs a collision, and the monitor hears
+/// its damage as a reply that is not one (a bad checksum, or bytes that are no frame).
+#[test]
+fn a_collision_on_the_line_is_heard_as_damage() {
+    let d = dir("collision");
+    let l = Listening::start_on(
+        &d,
+        "1,2",
+        &["-b", "2400"],
+        &["--quirk", "answer-every-address@2"],
+    );
+    let out = Command::new(bin())
+        .args([
+            "send", "--model", "f510", "--mode", "rtu", "-b", "2400", "--port",
+        ])
+        .arg(&l.master)
+        .args(["--timeout", "500", "0103252F0001BECF"])
+        .stdin(Stdio::null())
+        .output()
+        .unwrap();
+    assert!(
+        out.status.code().is_some_and(|c| c < 3),
+        "send: {:?}\n{}",
+        out.status,
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let (code, r, lines, log) = l.stop(1);
+    assert!(
+        log.iter().any(|e| e["event"] == "collision"),
+        "the bus logged no collision"
+    );
+    assert_eq!(code, 1, "{:#}\n{lines:#?}", r["summary"]);
+    let drive = findings(&r, "drive");
+    assert!(
+        drive.iter().any(|(k, _)| [
+            "drive.bad-checksum",
+            "drive.malformed",
+            "drive.truncated",
+            "drive.extra-bytes",
+            "drive.gap-in-reply",
+            "drive.wrong-reply"
+        ]
+        .contains(&k.as_str())),
+        "{drive:?}\n{lines:#?}"
+    );
+    note(&format!("collision heard as: {drive:?}"));
+}
