@@ -107,6 +107,11 @@ pub struct MonitorArgs {
     /// Write the report here instead of stdout.
     #[arg(short, long, value_name = "FILE")]
     output: Option<PathBuf>,
+    /// Also write every exchange heard to FILE as JSON lines (time, silence before, node,
+    /// function, the request and what came back in hex, the meaning, the response time,
+    /// the verdict and its findings), flushed line by line.
+    #[arg(long, value_name = "FILE")]
+    log: Option<PathBuf>,
     /// No live lines.
     #[arg(short, long)]
     quiet: bool,
@@ -159,9 +164,27 @@ pub fn run(args: MonitorArgs) -> anyhow::Result<ExitCode> {
             tap.describe()
         );
     }
+    let mut log = match &args.log {
+        Some(p) => Some((
+            std::io::LineWriter::new(
+                std::fs::File::create(p)
+                    .with_context(|| format!("cannot write the log {}", p.display()))?,
+            ),
+            p,
+        )),
+        None => None,
+    };
+    let mut log_failed: Option<anyhow::Error> = None;
     let mut err = std::io::stderr();
     let color = err.is_terminal();
     let ended = monitor::run(&mut tap, &mut mon, &stop, args.duration, |l| {
+        if let (Some((w, p)), None) = (log.as_mut(), log_failed.as_ref()) {
+            if let Err(e) = writeln!(w, "{}", l.to_json()) {
+                log_failed = Some(
+                    anyhow::Error::new(e).context(format!("cannot write the log {}", p.display())),
+                );
+            }
+        }
         if !args.quiet {
             let _ = if color && l.status == conformance::judge::VerdictStatus::Deviation {
                 writeln!(err, "\x1b[31m{l}\x1b[0m")
@@ -222,10 +245,16 @@ pub fn run(args: MonitorArgs) -> anyhow::Result<ExitCode> {
         fuzz: None,
         monitor: Some(summary),
     };
-    finish(
+    let code = finish(
         &report,
         format_for(args.format, args.output.as_deref()),
         args.verbose,
         args.output.as_deref(),
-    )
+    )?;
+    // The report is written first: a log that failed loses no verdict.
+    if let Some(e) = log_failed {
+        eprintln!("error: {e:#}");
+        return Ok(ExitCode::from(2));
+    }
+    Ok(code)
 }

@@ -147,6 +147,11 @@ impl std::fmt::Display for Kind {
 pub struct Timing {
     /// When the request's last byte was on the line.
     pub request_end: Option<Duration>,
+    /// The earliest the request's last byte can have been on the line, where the
+    /// listener reads late and knows it (a tap: the read before it returned without
+    /// it); `None`: `request_end` is exact. An early reply is judged from it, so that a
+    /// request read late does not make its reply look early.
+    pub request_end_earliest: Option<Duration>,
     /// When the first byte after the request came.
     pub first_byte: Option<Duration>,
     /// When the last byte of the reply came.
@@ -417,12 +422,18 @@ impl<'m> Judge<'m> {
                 // of tolerance, as `check`'s line-timing check.
                 let t35 = Duration::from_micros(line.t3_5_us());
                 let tolerance = Duration::from_micros(line.char_time_us());
-                if rt + tolerance < t35 {
+                // The longest the silence can have been, from what the listener read.
+                let longest = conv
+                    .timing
+                    .first_byte
+                    .zip(conv.timing.request_end_earliest)
+                    .map_or(rt, |(first, end)| first.saturating_sub(end).max(rt));
+                if longest + tolerance < t35 {
                     v.push(
                         Kind::EarlyReply,
                         Finding::deviation(format!(
                             "the reply began {} us after the request, sooner than t3.5 ({} us, less one character of tolerance); Modbus over Serial Line V1.02, 2.5.1.1",
-                            rt.as_micros(),
+                            longest.as_micros(),
                             t35.as_micros()
                         )),
                     );

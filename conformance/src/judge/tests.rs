@@ -82,6 +82,7 @@ fn timing_is_judged_only_when_asked_and_only_where_seen() {
     };
     let at = |first: u64, gap: u64| Timing {
         request_end: Some(Duration::from_millis(100)),
+        request_end_earliest: None,
         first_byte: Some(Duration::from_millis(100 + first)),
         last_byte: None,
         max_gap: Some(Duration::from_millis(gap)),
@@ -101,6 +102,22 @@ fn timing_is_judged_only_when_asked_and_only_where_seen() {
     assert_eq!(judge.verdict(&gappy, None).kinds, [Kind::GapInReply]);
     let early = late.with_timing(at(0, 0));
     assert_eq!(judge.verdict(&early, None).kinds, [Kind::EarlyReply]);
+    // A listener that read the request late: it may have ended 10 ms before it was
+    // read, so a reply 0 ms after the read is not proved early.
+    let read_late = late.with_timing(Timing {
+        request_end_earliest: Some(Duration::from_millis(90)),
+        ..at(0, 0)
+    });
+    assert_eq!(
+        judge.verdict(&read_late, None).status(),
+        VerdictStatus::Pass
+    );
+    // Read on time (it ended no sooner than 1 ms before the read): early, proved.
+    let read_on_time = late.with_timing(Timing {
+        request_end_earliest: Some(Duration::from_millis(99)),
+        ..at(0, 0)
+    });
+    assert_eq!(judge.verdict(&read_on_time, None).kinds, [Kind::EarlyReply]);
     let unseen = late.with_timing(Timing::default());
     assert_eq!(judge.verdict(&unseen, None).status(), VerdictStatus::Pass);
 }

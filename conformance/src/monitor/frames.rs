@@ -68,8 +68,10 @@ pub struct TapFrame {
     pub ended_by: EndedBy,
     /// When its first byte arrived, where it began a piece from the tap.
     pub start: Option<Duration>,
-    /// When its last byte arrived.
+    /// When its last byte arrived (was read).
     pub end: Duration,
+    /// The earliest its last byte can have arrived (see `Piece`).
+    pub end_low: Duration,
     /// The silence before it, where it began a piece from the tap that followed the
     /// previous bytes (less the character times of that piece).
     pub silence_before: Option<Duration>,
@@ -329,9 +331,17 @@ impl TapFramer {
         let mut pos = 0;
         while pos < block.len() {
             let (s, n, status) = split_next(&block[pos..]);
-            // Bytes before a frame that are none: a block of their own.
+            // Bytes before a frame: a block of their own, and a frame of their own where
+            // their CRC holds (a function the length rule does not know, 04H or 41H,
+            // followed at once by a reply: the reply is found by its length first).
+            let head = &block[pos..pos + s];
+            let before_status = if head.len() >= 4 && crc16(head) == 0 {
+                FrameStatus::Valid
+            } else {
+                FrameStatus::Corrupt
+            };
             let parts: [(usize, usize, FrameStatus); 2] =
-                [(pos, s, FrameStatus::Corrupt), (pos + s, n, status)];
+                [(pos, s, before_status), (pos + s, n, status)];
             for (from, len, status) in parts {
                 if len == 0 {
                     continue;
@@ -383,6 +393,7 @@ impl TapFramer {
                     },
                     start: begins.then(|| at(k0)),
                     end: at(k1),
+                    end_low: low(k1),
                     silence_before,
                     max_gap,
                 });
@@ -441,6 +452,7 @@ impl TapFramer {
             ended_by: by,
             start: if begins_piece { start } else { None },
             end: at,
+            end_low: at,
             silence_before: silence,
             max_gap: None,
         });
@@ -598,6 +610,24 @@ mod tests {
         assert_eq!(out[1].start, Some(ms(100)));
         let gap = out[1].max_gap.unwrap();
         assert!(gap > ms(15) && gap <= ms(20), "{gap:?}");
+    }
+
+    /// libmodbus's server answers 0.5 ms after a request: a 04H request (a function
+    /// whose length the length rule does not know) and its exception reply come as one
+    /// block. The reply is found by its length; the request before it keeps its valid CRC.
+    #[test]
+    fn a_frame_of_a_function_of_unknown_length_glued_to_its_reply_is_a_frame() {
+        let mut f = framer();
+        let mut out = Vec::new();
+        let request = [0x01, 0x04, 0x25, 0x20, 0x00, 0x01, 0x3B, 0x0C];
+        let reply = [0x01, 0x84, 0x02, 0xC2, 0xC1];
+        f.push(ms(0), &[&request[..], &reply[..]].concat(), &mut out);
+        f.idle(ms(50), &mut out);
+        assert_eq!(out.len(), 2, "{out:?}");
+        assert_eq!(out[0].bytes, request);
+        assert_eq!(out[0].status, FrameStatus::Valid);
+        assert_eq!(out[1].bytes, reply);
+        assert_eq!(out[1].status, FrameStatus::Valid);
     }
 
     #[test]

@@ -5,6 +5,7 @@
 use std::fmt;
 use std::time::Duration;
 
+use crate::codec::hex::Hex;
 use crate::codec::pdu::{Direction, Message, Pdu};
 use crate::codec::Mode;
 use crate::judge::{self, VerdictStatus};
@@ -35,6 +36,36 @@ pub struct Line {
     pub issues: Vec<String>,
     /// Remarks (a copy of a 06H request taken as its reply, a resend).
     pub notes: Vec<String>,
+    /// The request's bytes as heard (empty for a frame nobody asked for).
+    pub request: Vec<u8>,
+    /// What came back (the reply, damaged or not; a frame nobody asked for), as heard.
+    pub received: Vec<u8>,
+}
+
+impl Line {
+    /// The line as one JSON object (`monitor --log`): every field, the frames in hex.
+    pub fn to_json(&self) -> serde_json::Value {
+        let ms = |d: Duration| (d.as_secs_f64() * 1_000_000.0).round() / 1000.0;
+        serde_json::json!({
+            "at_s": (self.at.as_secs_f64() * 1_000_000.0).round() / 1_000_000.0,
+            "since_previous_ms": self.since_previous.map(ms),
+            "node": format!("{:02X}", self.node),
+            "function": format!("{:02X}", self.function),
+            "request": Hex(&self.request).to_string(),
+            "received": Hex(&self.received).to_string(),
+            "meaning": self.meaning,
+            "reply": self.reply,
+            "checksum": self.checksum,
+            "response_ms": self.response.map(ms),
+            "status": match self.status {
+                VerdictStatus::Pass => "pass",
+                VerdictStatus::Observation => "observation",
+                VerdictStatus::Deviation => "deviation",
+            },
+            "issues": self.issues,
+            "notes": self.notes,
+        })
+    }
 }
 
 impl fmt::Display for Line {

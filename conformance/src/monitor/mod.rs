@@ -126,6 +126,8 @@ struct Pending {
     valid: bool,
     start: Option<Duration>,
     end: Duration,
+    /// The earliest its last byte can have come.
+    end_low: Duration,
     silence_before: Option<Duration>,
     judgement: Judgement,
     /// Bytes that came after it and are no frame (garbage before a reply).
@@ -379,6 +381,7 @@ impl Monitor {
             bytes: f.bytes,
             start: f.start,
             end: f.end,
+            end_low: f.end_low,
             silence_before: f.silence_before,
             judgement,
             leading: Vec::new(),
@@ -424,6 +427,11 @@ impl Monitor {
             VerdictStatus::Deviation,
             std::slice::from_ref(&issue),
         );
+        let line = Line {
+            received: line.request.clone(),
+            request: Vec::new(),
+            ..line
+        };
         self.account(address, &[issue], &record, &[], VerdictStatus::Deviation);
         self.lines.push(line);
     }
@@ -441,6 +449,7 @@ impl Monitor {
         };
         let timing = Timing {
             request_end: Some(p.end),
+            request_end_earliest: Some(p.end_low),
             first_byte,
             last_byte: Some(f.end),
             max_gap: f.max_gap,
@@ -486,6 +495,7 @@ impl Monitor {
         let listened = early.unwrap_or(self.cfg.window);
         let timing = Timing {
             request_end: Some(p.end),
+            request_end_earliest: Some(p.end_low),
             first_byte: if p.leading.is_empty() {
                 None
             } else {
@@ -611,6 +621,7 @@ impl Monitor {
             ended_by: EndedBy::Silence,
             start: p.start,
             end: p.end,
+            end_low: p.end_low,
             silence_before: p.silence_before,
             max_gap: None,
         };
@@ -623,6 +634,7 @@ impl Monitor {
             status,
             &issues,
         );
+        line.received = received.to_vec();
         if let Some(r) = reply {
             line.reply = Some(live::meaning(&self.model, mode, r, Direction::Response));
         } else if !received.is_empty() {
@@ -665,6 +677,8 @@ impl Monitor {
                 .map(|i| format!("{}.{}", i.side.key(), i.kind))
                 .collect(),
             notes: Vec::new(),
+            request: f.bytes.clone(),
+            received: Vec::new(),
         }
     }
 
@@ -762,6 +776,12 @@ fn is_reply_to(mode: Mode, request: &[u8], frame: &[u8]) -> bool {
     else {
         return false;
     };
+    // Functions 80H..FFH are exceptions, which no master sends: an exception frame from
+    // the node a request went to is its reply, however wrong (pymodbus 3.16 answers a
+    // read of 0 registers with 01 80 01, function 80H).
+    if rep[1] & function::EXCEPTION_BIT != 0 && rep[0] == req[0] {
+        return true;
+    }
     if rep[1] & !function::EXCEPTION_BIT != req[1] {
         return false;
     }

@@ -442,3 +442,27 @@ fn a_reply_read_late_does_not_make_the_next_request_miss_t35() {
     let k = heard(us(38_200), us(48_400));
     assert!(k.contains(&"master.no-t3.5".to_string()), "{k:?}");
 }
+
+/// pymodbus's server answers a read of 0 registers with `01 80 01`: an exception for
+/// function 00H. No master sends a function of 80H or more, so the frame is the reply
+/// (a wrong one), not a new request.
+#[test]
+fn an_exception_for_another_function_is_a_wrong_reply_not_a_request() {
+    let mut m = monitor(Mode::Rtu, &[1]);
+    let lines = run(
+        &mut m,
+        &[(0, &read(1, 0x0000, 0)), (20, &exception(1, 0x00, 0x01))],
+    );
+    assert_eq!(lines.len(), 1, "{lines:#?}");
+    let k = kinds(&m, 1);
+    assert!(
+        !k.iter().any(|k| k == "master.function-not-served"),
+        "{k:?}"
+    );
+    assert!(!k.iter().any(|k| k == "drive.no-reply"), "{k:?}");
+    assert!(
+        k.iter()
+            .any(|k| k == "drive.wrong-exception" || k == "drive.wrong-reply"),
+        "{k:?}"
+    );
+}

@@ -68,6 +68,7 @@ impl Exchange {
             trailing: &self.trailing,
             timing: Timing {
                 request_end: Some(Duration::ZERO),
+                request_end_earliest: None,
                 first_byte: self.first_byte,
                 last_byte: self.chunks.last().map(|c| c.at),
                 // The runner measures gaps inside replies over the whole mode (its
