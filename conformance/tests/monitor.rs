@@ -471,3 +471,58 @@ fn each_simulator_quirk_is_found_as_its_kind_on_its_node() {
         assert_eq!(heard(&[quirk]), [(node, kind.to_string())], "{quirk:?}");
     }
 }
+
+/// `--mode auto` tells the mode from two valid frames, says which, and judges the
+/// exchanges it heard while telling (they are replayed, not lost).
+#[test]
+fn mode_auto_tells_rtu_from_ascii_and_judges_what_it_heard_meanwhile() {
+    for mode in [Mode::Rtu, Mode::Ascii] {
+        let frame =
+            |address: u8, pdu: Pdu<'_>| Message { address, pdu }.to_frame_vec(mode).unwrap();
+        let req = frame(
+            1,
+            Pdu::ReadRequest {
+                start: 0x2520,
+                count: 1,
+            },
+        );
+        let rep = frame(
+            1,
+            Pdu::ReadResponse {
+                values: Registers::new(&[0, 7]).unwrap(),
+            },
+        );
+        let heard = listen(
+            &[
+                "-a",
+                "1",
+                "--mode",
+                "auto",
+                "--window",
+                "3000",
+                "--allowance",
+                "1000",
+            ],
+            &[
+                step(100, &[&req]),
+                step(30, &[&rep]),
+                step(100, &[&req]),
+                step(30, &[&rep]),
+            ],
+        );
+        let r = &heard.report;
+        assert_eq!(r["monitor"]["mode"], mode.to_string(), "{:#}", r["monitor"]);
+        assert_eq!(node(r, "01")["exchanges"], 2, "{:#}", r["monitor"]);
+        assert!(errors(r, "01").is_empty(), "{:#}", r["monitor"]);
+        assert_eq!(heard.code, 0);
+        assert!(
+            heard
+                .stderr
+                .iter()
+                .any(|l| l.starts_with(&format!("--mode auto: {mode}"))),
+            "{:#?}",
+            heard.stderr
+        );
+        assert!(heard.written.is_empty());
+    }
+}

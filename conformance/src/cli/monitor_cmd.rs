@@ -5,7 +5,7 @@ use std::io::{IsTerminal, Write};
 use std::path::PathBuf;
 use std::process::ExitCode;
 
-use std::time::{Duration, SystemTime};
+use std::time::{Duration, Instant, SystemTime};
 
 use anyhow::Context;
 use clap::{Args, ValueEnum};
@@ -24,6 +24,7 @@ Examples:
   conformance monitor --port /dev/ttyUSB1 --model f510 -a 1,2 -b 9600 -P even
   conformance monitor --port /dev/ttyUSB1 --model a510 --mode ascii -d 7 --duration 1h --format html -o bus.html
   conformance monitor --port /dev/pts/7 --model f510 --quiet --format json -o bus.json   (a bus's third end)
+  conformance monitor --port /dev/ttyUSB1 --model e510 --mode auto   RTU or ASCII, told from the traffic
 
 Nothing is ever written to the port: it is read, and only read. Put a third adapter on the
 RS-485 pair (or a third end of `conformance bus`) and leave the master and the drives as
@@ -58,6 +59,8 @@ pub enum ModeArg {
     Rtu,
     /// ASCII.
     Ascii,
+    /// Told from the traffic: two valid frames of one mode (nothing is sent).
+    Auto,
 }
 
 #[derive(Debug, Args)]
@@ -120,12 +123,22 @@ pub struct MonitorArgs {
     verbose: bool,
 }
 
+/// Why listening ended, in the report's words.
+fn describe_end(ended: &Ended) -> String {
+    match ended {
+        Ended::Duration => "--duration passed".to_string(),
+        Ended::Interrupted => "interrupted (Ctrl-C or SIGTERM)".to_string(),
+        Ended::EndOfInput(why) => format!("end of input ({why})"),
+    }
+}
+
 pub fn run(args: MonitorArgs) -> anyhow::Result<ExitCode> {
-    let mode = match args.mode {
-        ModeArg::Rtu => Mode::Rtu,
-        ModeArg::Ascii => Mode::Ascii,
+    let asked = match args.mode {
+        ModeArg::Rtu => Some(Mode::Rtu),
+        ModeArg::Ascii => Some(Mode::Ascii),
+        ModeArg::Auto => None,
     };
-    if mode == Mode::Rtu && args.data_bits != 8 {
+    if asked == Some(Mode::Rtu) && args.data_bits != 8 {
         anyhow::bail!("RTU needs 8 data bits (-d 8)");
     }
     let nodes = args.nodes.as_ref().map(|n| n.0.clone()).unwrap_or_default();
@@ -140,6 +153,41 @@ pub fn run(args: MonitorArgs) -> anyhow::Result<ExitCode> {
         ParityArg::Odd => Parity::Odd,
     };
     let line = LineSettings::new(args.baud, args.data_bits, parity, args.stop_bits);
+    let port = SerialTransport::open(&args.port, line, serial_kind(&args.port))
+        .with_context(|| format!("cannot listen on {}", args.port))?;
+    let mut tap = ReadOnlyPort::new(Box::new(port));
+    // The one handler of every long command: Ctrl-C, SIGTERM and SIGHUP end the listening
+    // and write the report.
+    let stop = super::interrupt::stop_flag()?;
+    let started = humantime::format_rfc3339_seconds(SystemTime::now()).to_string();
+    let origin = Instant::now();
+    let (mode, before) = match asked {
+        Some(m) => (m, Vec::new()),
+        None => {
+            if !args.quiet {
+                eprintln!(
+                    "listening on {} ({line}) to tell RTU from ASCII; nothing is sent.",
+                    tap.describe()
+                );
+            }
+            match monitor::listen_for_mode(&mut tap, &stop, args.duration, origin, line)? {
+                Ok((m, heard)) => {
+                    if !args.quiet {
+                        let n: usize = heard.iter().map(|(_, b)| b.len()).sum();
+                        eprintln!("--mode auto: {m} (two valid {m} frames in the first {n} bytes)");
+                    }
+                    (m, heard)
+                }
+                Err(ended) => anyhow::bail!(
+                    "--mode auto: listening ended ({}) before two valid frames told RTU from ASCII; nothing was judged",
+                    describe_end(&ended)
+                ),
+            }
+        }
+    };
+    if mode == Mode::Rtu && args.data_bits != 8 {
+        anyhow::bail!("RTU needs 8 data bits (-d 8)");
+    }
     let mut mon = Monitor::new(
         model,
         MonitorConfig {
@@ -151,13 +199,6 @@ pub fn run(args: MonitorArgs) -> anyhow::Result<ExitCode> {
             gap_allowance: Duration::from_millis(args.allowance),
         },
     )?;
-    let port = SerialTransport::open(&args.port, line, serial_kind(&args.port))
-        .with_context(|| format!("cannot listen on {}", args.port))?;
-    let mut tap = ReadOnlyPort::new(Box::new(port));
-    // The one handler of every long command: Ctrl-C, SIGTERM and SIGHUP end the listening
-    // and write the report.
-    let stop = super::interrupt::stop_flag()?;
-    let started = humantime::format_rfc3339_seconds(SystemTime::now()).to_string();
     if !args.quiet {
         eprintln!(
             "listening on {} ({mode}, {line}); nothing is sent. Ctrl-C ends and reports.",
@@ -177,27 +218,32 @@ pub fn run(args: MonitorArgs) -> anyhow::Result<ExitCode> {
     let mut log_failed: Option<anyhow::Error> = None;
     let mut err = std::io::stderr();
     let color = err.is_terminal();
-    let ended = monitor::run(&mut tap, &mut mon, &stop, args.duration, |l| {
-        if let (Some((w, p)), None) = (log.as_mut(), log_failed.as_ref()) {
-            if let Err(e) = writeln!(w, "{}", l.to_json()) {
-                log_failed = Some(
-                    anyhow::Error::new(e).context(format!("cannot write the log {}", p.display())),
-                );
+    let ended = monitor::run_from(
+        &mut tap,
+        &mut mon,
+        &stop,
+        args.duration,
+        origin,
+        before,
+        |l| {
+            if let (Some((w, p)), None) = (log.as_mut(), log_failed.as_ref()) {
+                if let Err(e) = writeln!(w, "{}", l.to_json()) {
+                    log_failed = Some(
+                        anyhow::Error::new(e)
+                            .context(format!("cannot write the log {}", p.display())),
+                    );
+                }
             }
-        }
-        if !args.quiet {
-            let _ = if color && l.status == conformance::judge::VerdictStatus::Deviation {
-                writeln!(err, "\x1b[31m{l}\x1b[0m")
-            } else {
-                writeln!(err, "{l}")
-            };
-        }
-    })?;
-    let ended = match ended {
-        Ended::Duration => "--duration passed".to_string(),
-        Ended::Interrupted => "interrupted (Ctrl-C or SIGTERM)".to_string(),
-        Ended::EndOfInput(why) => format!("end of input ({why})"),
-    };
+            if !args.quiet {
+                let _ = if color && l.status == conformance::judge::VerdictStatus::Deviation {
+                    writeln!(err, "\x1b[31m{l}\x1b[0m")
+                } else {
+                    writeln!(err, "{l}")
+                };
+            }
+        },
+    )?;
+    let ended = describe_end(&ended);
     let summary = mon.summary(&tap.describe(), &ended);
     let heard: Vec<u8> = mon.nodes().keys().copied().filter(|n| *n != 0).collect();
     let report = Report {

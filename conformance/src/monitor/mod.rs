@@ -16,6 +16,7 @@
 //! map per node).
 
 pub mod frames;
+pub mod guess;
 mod judge_master;
 mod live;
 mod report;
@@ -29,7 +30,7 @@ pub use frames::{EndedBy, FrameStatus, TapFrame};
 pub use live::Line;
 pub use report::MonitorSummary;
 pub use stats::NodeStats;
-pub use tap::{run, Ended, ReadOnlyPort, Tap};
+pub use tap::{listen_for_mode, run, run_from, Ended, ReadOnlyPort, Tap};
 
 use crate::codec::pdu::{function, Direction, Message};
 use crate::codec::timing::LineSettings;
@@ -48,6 +49,9 @@ pub enum MonitorError {
     /// The settings make no sense.
     #[error("{0}")]
     Config(String),
+    /// `--mode auto` heard no frame of either mode (what it heard, and what to try).
+    #[error("{0}")]
+    NoMode(String),
 }
 
 /// What the monitor listens to and how it judges.

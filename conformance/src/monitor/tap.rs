@@ -58,13 +58,107 @@ pub fn run(
     monitor: &mut Monitor,
     stop: &AtomicBool,
     duration: Option<Duration>,
+    on_line: impl FnMut(&Line),
+) -> Result<Ended, MonitorError> {
+    run_from(
+        tap,
+        monitor,
+        stop,
+        duration,
+        Instant::now(),
+        Vec::new(),
+        on_line,
+    )
+}
+
+/// How often the listener reads: about t1.5, so that t3.5 of silence is seen soon after
+/// it passes (arrival times are taken when a read returns, as soon as bytes are there).
+pub fn poll_interval(line: crate::codec::timing::LineSettings) -> Duration {
+    Duration::from_micros(line.t1_5_us().clamp(500, 20_000))
+}
+
+/// What the listener read, with its time since the origin: bytes, or none (a read that
+/// came back empty at that time).
+pub type Heard = Vec<(Duration, Vec<u8>)>;
+
+/// Listens on `tap` (since `origin`) until the traffic tells RTU from ASCII
+/// ([`guess::guess`](super::guess::guess)): the mode and everything read so far, to be
+/// replayed to the monitor; or why listening ended first.
+pub fn listen_for_mode(
+    tap: &mut dyn Tap,
+    stop: &AtomicBool,
+    duration: Option<Duration>,
+    origin: Instant,
+    line: crate::codec::timing::LineSettings,
+) -> Result<Result<(crate::codec::Mode, Heard), Ended>, MonitorError> {
+    use super::guess::{guess, Guess, GIVE_UP_AFTER};
+    let poll = poll_interval(line);
+    let mut buf = [0u8; 512];
+    let mut heard: Heard = Vec::new();
+    let mut bytes: Vec<u8> = Vec::new();
+    loop {
+        if stop.load(Ordering::Relaxed) {
+            return Ok(Err(Ended::Interrupted));
+        }
+        if duration.is_some_and(|d| origin.elapsed() >= d) {
+            return Ok(Err(Ended::Duration));
+        }
+        let n = match tap.listen(&mut buf, poll) {
+            Ok(n) => n,
+            Err(e) => return Ok(Err(Ended::EndOfInput(e.to_string()))),
+        };
+        let at = origin.elapsed();
+        if n == 0 {
+            // Only the last empty read before bytes matters (the earliest they came).
+            match heard.last_mut() {
+                Some((t, b)) if b.is_empty() => *t = at,
+                _ => heard.push((at, Vec::new())),
+            }
+            continue;
+        }
+        heard.push((at, buf[..n].to_vec()));
+        bytes.extend_from_slice(&buf[..n]);
+        match guess(&bytes) {
+            Guess::Undecided => {}
+            Guess::Mode(mode, _) => return Ok(Ok((mode, heard))),
+            Guess::AsciiSevenBits(n) => {
+                return Err(MonitorError::NoMode(format!(
+                    "{n} Modbus ASCII frames, but only with bit 7 of every byte cleared: the line has 7 data bits and this port reads {}; listen with --mode ascii -d 7 -P even (or -P odd)",
+                    line
+                )))
+            }
+            Guess::Neither(first) => {
+                return Err(MonitorError::NoMode(format!(
+                    "no Modbus RTU or ASCII frame in the first {GIVE_UP_AFTER} bytes heard at {line}: {} ...; the line settings (-b, -P, -d, -s) may not be the line's",
+                    crate::codec::hex::Hex(&first)
+                )))
+            }
+        }
+    }
+}
+
+/// [`run`] with the clock started at `origin`, and what was read before (by
+/// [`listen_for_mode`]) fed first.
+pub fn run_from(
+    tap: &mut dyn Tap,
+    monitor: &mut Monitor,
+    stop: &AtomicBool,
+    duration: Option<Duration>,
+    origin: Instant,
+    before: Heard,
     mut on_line: impl FnMut(&Line),
 ) -> Result<Ended, MonitorError> {
-    let origin = Instant::now();
-    let line = monitor.config().line;
-    // Poll at about t1.5 so that t3.5 of silence is seen soon after it passes; arrival
-    // times are taken when a read returns, which is as soon as bytes are there.
-    let poll = Duration::from_micros(line.t1_5_us().clamp(500, 20_000));
+    for (at, bytes) in before {
+        if bytes.is_empty() {
+            monitor.idle(at);
+        } else {
+            monitor.feed(at, &bytes);
+        }
+        for l in monitor.take_lines() {
+            on_line(&l);
+        }
+    }
+    let poll = poll_interval(monitor.config().line);
     let mut buf = [0u8; 512];
     let ended = loop {
         if stop.load(Ordering::Relaxed) {
