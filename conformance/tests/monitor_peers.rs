@@ -514,7 +514,8 @@ fn a_master_sending_two_requests_without_t35_is_found() {
 
 /// Two drives answer one request at once (node 2 answers every address), 2400 baud so
 /// that the replies overlap on the line: the bus logs a collision, and the monitor hears
-/// its damage as a reply that is not one (a bad checksum, or bytes that are no frame).
+/// its damage as a reply that is not one (a bad checksum, or bytes that are no frame);
+/// or, where the two sent the same bytes in step, nothing wrong, as on a real line.
 #[test]
 fn a_collision_on_the_line_is_heard_as_damage() {
     let d = dir("collision");
@@ -540,11 +541,30 @@ fn a_collision_on_the_line_is_heard_as_damage() {
         String::from_utf8_lossy(&out.stderr)
     );
     let (code, r, lines, log) = l.stop(1);
-    assert!(
-        log.iter().any(|e| e["event"] == "collision"),
-        "the bus logged no collision"
+    let collision = log
+        .iter()
+        .find(|e| e["event"] == "collision")
+        .expect("the bus logged no collision");
+    // Two drives that start the same bytes within one bit of each other drive the pair
+    // alike: the wired-AND of two equal waveforms is that waveform, and the listeners
+    // read it clean, as on a real line. Then nothing is heard wrong.
+    let read = collision["line_hex"].as_str().unwrap();
+    let in_step = log
+        .iter()
+        .filter(|e| e["event"] == "tx" && e["from"] != "master")
+        .any(|e| e["hex"].as_str().unwrap().contains(read));
+    if in_step {
+        assert_eq!(findings(&r, "drive"), [], "{read}\n{lines:#?}");
+        note(&format!(
+            "collision in step ({read}): heard clean, as on a real line"
+        ));
+        return;
+    }
+    assert_eq!(
+        code, 1,
+        "{:#}\n{:#}\n{lines:#?}",
+        r["summary"], r["monitor"]
     );
-    assert_eq!(code, 1, "{:#}\n{lines:#?}", r["summary"]);
     let drive = findings(&r, "drive");
     assert!(
         drive.iter().any(|(k, _)| [
@@ -645,8 +665,13 @@ fn check_and_monitor_agree(who: &str, d: &Path, device: Command, left_out: &[&st
                 .iter()
                 .position(|h| h["request"] == request && h["received"] == received)
             else {
+                let same: Vec<String> = heard[next..]
+                    .iter()
+                    .filter(|h| h["request"] == request)
+                    .map(|h| format!("{} -> {} {}", h["request"], h["received"], h["issues"]))
+                    .collect();
                 panic!(
-                    "{who}: {id}'s request {request} is not in the monitor's log after line {next}\n{lines:#?}"
+                    "{who}: {id}'s request {request} -> {received} is not in the monitor's log after line {next}; the same request there: {same:#?}"
                 );
             };
             let h = &heard[next + k];

@@ -123,6 +123,13 @@ pub struct MonitorArgs {
     verbose: bool,
 }
 
+/// `ttyUSB3` for /dev/ttyUSB3 (a USB serial adapter, whose latency timer sysfs holds).
+fn usb_name(port: &str) -> Option<String> {
+    let name = std::path::Path::new(port).file_name()?.to_str()?;
+    (name.starts_with("ttyUSB") && name.len() > 6 && name[6..].bytes().all(|b| b.is_ascii_digit()))
+        .then(|| name.to_string())
+}
+
 /// Why listening ended, in the report's words.
 fn describe_end(ended: &Ended) -> String {
     match ended {
@@ -218,6 +225,7 @@ pub fn run(args: MonitorArgs) -> anyhow::Result<ExitCode> {
     let mut log_failed: Option<anyhow::Error> = None;
     let mut err = std::io::stderr();
     let color = err.is_terminal();
+    let usb = usb_name(&args.port);
     let ended = monitor::run_from(
         &mut tap,
         &mut mon,
@@ -225,21 +233,41 @@ pub fn run(args: MonitorArgs) -> anyhow::Result<ExitCode> {
         args.duration,
         origin,
         before,
-        |l| {
-            if let (Some((w, p)), None) = (log.as_mut(), log_failed.as_ref()) {
-                if let Err(e) = writeln!(w, "{}", l.to_json()) {
-                    log_failed = Some(
-                        anyhow::Error::new(e)
-                            .context(format!("cannot write the log {}", p.display())),
-                    );
+        |said| match said {
+            monitor::Said::Line(l) => {
+                if let (Some((w, p)), None) = (log.as_mut(), log_failed.as_ref()) {
+                    if let Err(e) = writeln!(w, "{}", l.to_json()) {
+                        log_failed = Some(
+                            anyhow::Error::new(e)
+                                .context(format!("cannot write the log {}", p.display())),
+                        );
+                    }
+                }
+                if !args.quiet {
+                    let _ = if color && l.status == conformance::judge::VerdictStatus::Deviation {
+                        writeln!(err, "\x1b[31m{l}\x1b[0m")
+                    } else {
+                        writeln!(err, "{l}")
+                    };
                 }
             }
-            if !args.quiet {
-                let _ = if color && l.status == conformance::judge::VerdictStatus::Deviation {
-                    writeln!(err, "\x1b[31m{l}\x1b[0m")
-                } else {
-                    writeln!(err, "{l}")
+            // On a terminal only: a pipe or a file gets the lines and the report.
+            monitor::Said::Summary(lines) => {
+                if color && !args.quiet {
+                    let _ = writeln!(err, "\x1b[2m-- so far:");
+                    for l in lines {
+                        let _ = writeln!(err, "   {l}");
+                    }
+                    let _ = write!(err, "\x1b[0m");
+                }
+            }
+            // Said even with --quiet: it changes what the report can be trusted for.
+            monitor::Said::Notice(n) => {
+                let n = match &usb {
+                    Some(name) => n.replace("ttyUSBn", name),
+                    None => n.to_string(),
                 };
+                let _ = writeln!(err, "notice: {n}");
             }
         },
     )?;

@@ -89,11 +89,16 @@ pub struct TapFrame {
 /// A silence measured from that earliest end is the longest the reads allow: a finding
 /// on it (t3.5 missed, a gap inside a frame) is one the reads prove, not one a late read
 /// made up.
+///
+/// A gap inside a frame is the other way round: the line was silent at least from the
+/// read that returned the bytes before it to the read before the bytes after it, which
+/// came back without them (`since`). A gap judged on that is one the reads prove long.
 #[derive(Debug, Clone, Copy)]
 struct Piece {
     end: usize,
     at: Duration,
     low: Duration,
+    since: Duration,
 }
 
 /// How long the start of a frame cut short waits for its rest.
@@ -163,8 +168,9 @@ impl TapFramer {
         }
         let chars = Duration::from_micros(self.line.char_time_us() * bytes.len() as u64);
         let low = self.last_poll.map_or(at, |p| (p + chars).min(at));
+        let since = self.last_poll.map_or(at, |p| p.min(at));
         match self.mode {
-            Mode::Rtu => self.push_rtu(at, low, bytes, out),
+            Mode::Rtu => self.push_rtu(at, low, since, bytes, out),
             Mode::Ascii => self.push_ascii(at, bytes, out),
         }
         self.last_at = Some(at);
@@ -232,7 +238,14 @@ impl TapFramer {
         }
     }
 
-    fn push_rtu(&mut self, at: Duration, low: Duration, bytes: &[u8], out: &mut Vec<TapFrame>) {
+    fn push_rtu(
+        &mut self,
+        at: Duration,
+        low: Duration,
+        since: Duration,
+        bytes: &[u8],
+        out: &mut Vec<TapFrame>,
+    ) {
         if self.rtu.pending() == 0 {
             self.expire_carry(at, out);
         }
@@ -254,6 +267,7 @@ impl TapFramer {
                 end: self.held,
                 at,
                 low,
+                since,
             });
         }
         if self.rtu.pending() == 0 {
@@ -373,8 +387,16 @@ impl TapFramer {
                 let (k1, _) = piece_of(to - 1);
                 let prev = if k0 == 0 { before } else { Some(low(k0 - 1)) };
                 let silence_before = if begins { silence_into(k0, prev) } else { None };
+                // The silence the reads prove between two pieces: from the read that
+                // returned the one to the read before the other, less one character
+                // (the first byte after may have begun just before that read).
                 let max_gap = (k0 + 1..=k1)
-                    .filter_map(|k| silence_into(k, Some(low(k - 1))))
+                    .map(|k| {
+                        let since = pieces.get(k).map_or(at(k), |p| p.since);
+                        since
+                            .saturating_sub(at(k - 1))
+                            .saturating_sub(Duration::from_micros(char_us))
+                    })
                     .max();
                 let gap_broken =
                     max_gap.is_some_and(|g| g.as_micros() > u128::from(self.line.t1_5_us()));
@@ -580,7 +602,10 @@ mod tests {
         let mut out = Vec::new();
         let r = read_frame();
         f.push(ms(0), &r[..3], &mut out);
-        // 3.5 ms after: under t3.5 (4.0 ms), and less one character over t1.5 (1.7 ms).
+        // Nothing at 3.4 ms (the listener polls), the next byte read at 3.5 ms: a
+        // silence of at least 3.4 ms less one character (2.3 ms), over t1.5 (1.7 ms) and
+        // under t3.5 (4.0 ms).
+        f.idle(Duration::from_micros(3400), &mut out);
         f.push(Duration::from_micros(3500), &r[3..4], &mut out);
         f.idle(ms(50), &mut out);
         // Its length says 4 more bytes are due: held a while for them, then given up.
@@ -628,6 +653,23 @@ mod tests {
         assert_eq!(out[0].status, FrameStatus::Valid);
         assert_eq!(out[1].bytes, reply);
         assert_eq!(out[1].status, FrameStatus::Valid);
+    }
+
+    /// A listener that read the rest of a frame late, with no read between: the reads
+    /// prove no silence inside it, and it is not cut (nor its reply called gappy).
+    #[test]
+    fn a_late_read_inside_a_frame_proves_no_gap() {
+        let mut f = framer();
+        let mut out = Vec::new();
+        let r = reply_frame();
+        f.idle(ms(99), &mut out);
+        f.push(ms(100), &r[..2], &mut out);
+        // Read 30 ms later, no read in between (the host was busy).
+        f.push(ms(130), &r[2..], &mut out);
+        f.idle(ms(300), &mut out);
+        assert_eq!(out.len(), 1, "{out:?}");
+        assert_eq!(out[0].status, FrameStatus::Valid);
+        assert_eq!(out[0].max_gap, Some(Duration::ZERO));
     }
 
     #[test]

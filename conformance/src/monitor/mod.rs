@@ -30,7 +30,7 @@ pub use frames::{EndedBy, FrameStatus, TapFrame};
 pub use live::Line;
 pub use report::MonitorSummary;
 pub use stats::NodeStats;
-pub use tap::{listen_for_mode, run, run_from, Ended, ReadOnlyPort, Tap};
+pub use tap::{listen_for_mode, run, run_from, Ended, ReadOnlyPort, Said, Tap};
 
 use crate::codec::pdu::{function, Direction, Message};
 use crate::codec::timing::LineSettings;
@@ -141,6 +141,10 @@ struct Pending {
     retry_after: Option<Duration>,
 }
 
+/// The least silence after a broadcast before the master's next request: the low end of
+/// Modbus over Serial Line's "typically 100 ms to 200 ms" turnaround delay.
+pub const BROADCAST_TURNAROUND: Duration = Duration::from_millis(100);
+
 /// The listener: frames in, judged exchanges and live lines out.
 pub struct Monitor {
     cfg: MonitorConfig,
@@ -148,6 +152,8 @@ pub struct Monitor {
     framer: frames::TapFramer,
     pending: Option<Pending>,
     last_frame_end: Option<Duration>,
+    /// The earliest the last broadcast heard can have ended, until the next request.
+    last_broadcast_end: Option<Duration>,
     /// Per node: the last request's bytes and whether it was answered (retries).
     last_request: HashMap<u8, (Vec<u8>, Duration, bool)>,
     /// Register values that writes seen on the bus set, per node.
@@ -161,7 +167,18 @@ pub struct Monitor {
     first_at: Option<Duration>,
     last_at: Option<Duration>,
     lines: Vec<Line>,
+    /// Replies that came in one read with the end of their request (the silence between
+    /// them unseen), and replies that began a read of their own.
+    blurred: u64,
+    timed: u64,
+    /// Said once each, live and in the report (the tap's latency timer).
+    notices: Vec<String>,
+    notices_taken: usize,
 }
+
+/// Replies read together with their request, at least, before the monitor says the tap
+/// delivers bytes in slices (a USB adapter's latency timer), when half or more are.
+pub const BLURRED_BEFORE_NOTICE: u64 = 4;
 
 impl Monitor {
     /// A monitor of a bus of drives of `model`.
@@ -178,6 +195,7 @@ impl Monitor {
             model,
             pending: None,
             last_frame_end: None,
+            last_broadcast_end: None,
             last_request: HashMap::new(),
             written: HashMap::new(),
             nodes: BTreeMap::new(),
@@ -187,6 +205,10 @@ impl Monitor {
             first_at: None,
             last_at: None,
             lines: Vec::new(),
+            blurred: 0,
+            timed: 0,
+            notices: Vec::new(),
+            notices_taken: 0,
         })
     }
 
@@ -246,6 +268,38 @@ impl Monitor {
         if self.pending.is_some() {
             self.close_unanswered(None);
         }
+    }
+
+    /// Counts a reply read together with its request (`blurred`) or on its own, and says
+    /// once when the tap delivers bytes in slices longer than a drive takes to answer:
+    /// what a USB adapter's latency timer does (an FTDI waits 16 ms by default before it
+    /// hands over a short read). Response times, t3.5 and gaps cannot be measured then.
+    fn watch_slices(&mut self, blurred: bool) {
+        if blurred {
+            self.blurred += 1;
+        } else {
+            self.timed += 1;
+        }
+        let said = self.notices.iter().any(|n| n.starts_with("latency timer"));
+        if !said && self.blurred >= BLURRED_BEFORE_NOTICE && self.blurred >= self.timed {
+            self.notices.push(format!(
+                "latency timer: {} of {} replies came in one read with their request, so the adapter hands over bytes in slices longer than a drive takes to answer (a USB adapter's latency timer; an FTDI waits 16 ms by default). Response times, t3.5 and gaps inside frames are not measured where that happens. On Linux: echo 1 > /sys/bus/usb-serial/devices/ttyUSBn/latency_timer (n: the tap's port), or setserial /dev/ttyUSBn low_latency",
+                self.blurred,
+                self.blurred + self.timed
+            ));
+        }
+    }
+
+    /// Notices made since the last call (each is made once).
+    pub fn take_notices(&mut self) -> Vec<String> {
+        let new = self.notices[self.notices_taken..].to_vec();
+        self.notices_taken = self.notices.len();
+        new
+    }
+
+    /// Every notice made so far.
+    pub fn notices(&self) -> &[String] {
+        &self.notices
     }
 
     /// The live lines made since the last call.
@@ -355,9 +409,33 @@ impl Monitor {
         let mut issues = judge_master::judge_request(self, &f, &judgement);
         let stats = self.nodes.entry(address).or_default();
         stats.requests += 1;
-        if f.status != FrameStatus::Valid && body.is_some() {
+        let crc_error = f.status != FrameStatus::Valid && body.is_some();
+        if crc_error {
             stats.crc_errors += 1;
         }
+        // After a broadcast the master waits the turnaround delay before its next
+        // request: the drives are still acting on it, and none answers to say so. The
+        // silence is the longest the reads allow (from the earliest the broadcast can
+        // have ended).
+        if let Some(broadcast_end) = self.last_broadcast_end.take() {
+            let gap = f.start.unwrap_or(f.end).saturating_sub(broadcast_end);
+            if gap < BROADCAST_TURNAROUND {
+                issues.push(Issue {
+                    side: Side::Master,
+                    kind: "broadcast-turnaround",
+                    severity: Severity::Observation,
+                    text: format!(
+                        "the next request began {:.1} ms after a broadcast, under the turnaround delay of {} ms; Modbus over Serial Line V1.02, 2.4.1 (the master waits a turnaround delay after a broadcast, typically 100 to 200 ms; the TECO manuals give none)",
+                        ms(gap),
+                        BROADCAST_TURNAROUND.as_millis()
+                    ),
+                });
+            }
+        }
+        if address == 0 && f.status == FrameStatus::Valid {
+            self.last_broadcast_end = Some(f.end_low);
+        }
+        let stats = self.nodes.entry(address).or_default();
         let mut retry_after = None;
         if let Some((last, at, answered)) = self.last_request.get(&address) {
             if *last == f.bytes && !answered {
@@ -444,6 +522,7 @@ impl Monitor {
         let Some(p) = self.pending.take() else {
             return;
         };
+        self.watch_slices(f.start.is_none());
         let mut received = p.leading.clone();
         received.extend_from_slice(&f.bytes);
         let first_byte = if p.leading.is_empty() {

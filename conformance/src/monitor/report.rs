@@ -31,6 +31,8 @@ pub struct MonitorSummary {
     pub ended: String,
     /// Per node (address 00 is the broadcast address), its statistics.
     pub nodes: Vec<(u8, NodeStats)>,
+    /// What the monitor said once about the tap (its latency timer).
+    pub notices: Vec<String>,
 }
 
 impl MonitorSummary {
@@ -46,7 +48,16 @@ impl MonitorSummary {
             "listened_s": (self.listened.as_secs_f64() * 1000.0).round() / 1000.0,
             "ended": self.ended,
             "nodes": self.nodes.iter().map(|(a, s)| s.to_json(*a)).collect::<Vec<_>>(),
+            "notices": self.notices,
         })
+    }
+
+    /// One line per node: its counts, response times and findings so far.
+    pub fn node_lines(&self) -> Vec<String> {
+        self.text_lines()
+            .into_iter()
+            .skip(1 + self.notices.len())
+            .collect()
     }
 
     /// The per-node statistics as text lines.
@@ -66,6 +77,9 @@ impl MonitorSummary {
             self.bytes,
             self.ended
         )];
+        for n in &self.notices {
+            out.push(format!("notice: {n}"));
+        }
         for (a, s) in &self.nodes {
             let h = &s.response;
             out.push(format!(
@@ -106,6 +120,7 @@ impl Monitor {
                 .map_or(Duration::ZERO, |(l, f)| l.saturating_sub(f)),
             ended: ended.to_string(),
             nodes: self.nodes.iter().map(|(a, s)| (*a, s.clone())).collect(),
+            notices: self.notices.clone(),
         }
     }
 

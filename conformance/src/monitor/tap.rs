@@ -58,7 +58,7 @@ pub fn run(
     monitor: &mut Monitor,
     stop: &AtomicBool,
     duration: Option<Duration>,
-    on_line: impl FnMut(&Line),
+    mut on_line: impl FnMut(&Line),
 ) -> Result<Ended, MonitorError> {
     run_from(
         tap,
@@ -67,8 +67,38 @@ pub fn run(
         duration,
         Instant::now(),
         Vec::new(),
-        on_line,
+        |said| {
+            if let Said::Line(l) = said {
+                on_line(l)
+            }
+        },
     )
+}
+
+/// What the listener says as it goes: a line per exchange, or a notice about the tap
+/// (made once).
+#[derive(Debug, Clone, Copy)]
+pub enum Said<'a> {
+    /// An exchange, or a frame nobody asked for.
+    Line(&'a Line),
+    /// About the tap (its latency timer).
+    Notice(&'a str),
+    /// Every [`SUMMARY_EVERY`] of listening: per node, the counts and response times so
+    /// far (for a terminal).
+    Summary(&'a [String]),
+}
+
+/// How often [`Said::Summary`] comes.
+pub const SUMMARY_EVERY: Duration = Duration::from_secs(10);
+
+/// Hands what the monitor made since the last call to `say`.
+fn say_new(monitor: &mut Monitor, say: &mut impl FnMut(Said<'_>)) {
+    for l in monitor.take_lines() {
+        say(Said::Line(&l));
+    }
+    for n in monitor.take_notices() {
+        say(Said::Notice(&n));
+    }
 }
 
 /// How often the listener reads: about t1.5, so that t3.5 of silence is seen soon after
@@ -146,7 +176,7 @@ pub fn run_from(
     duration: Option<Duration>,
     origin: Instant,
     before: Heard,
-    mut on_line: impl FnMut(&Line),
+    mut say: impl FnMut(Said<'_>),
 ) -> Result<Ended, MonitorError> {
     for (at, bytes) in before {
         if bytes.is_empty() {
@@ -154,12 +184,11 @@ pub fn run_from(
         } else {
             monitor.feed(at, &bytes);
         }
-        for l in monitor.take_lines() {
-            on_line(&l);
-        }
+        say_new(monitor, &mut say);
     }
     let poll = poll_interval(monitor.config().line);
     let mut buf = [0u8; 512];
+    let mut next_summary = origin.elapsed() + SUMMARY_EVERY;
     let ended = loop {
         if stop.load(Ordering::Relaxed) {
             break Ended::Interrupted;
@@ -173,13 +202,16 @@ pub fn run_from(
             Ok(n) => monitor.feed(origin.elapsed(), &buf[..n]),
             Err(e) => break Ended::EndOfInput(e.to_string()),
         }
-        for l in monitor.take_lines() {
-            on_line(&l);
+        say_new(monitor, &mut say);
+        if origin.elapsed() >= next_summary {
+            next_summary += SUMMARY_EVERY;
+            let lines = monitor.summary("", "").node_lines();
+            if !lines.is_empty() {
+                say(Said::Summary(&lines));
+            }
         }
     };
     monitor.finish();
-    for l in monitor.take_lines() {
-        on_line(&l);
-    }
+    say_new(monitor, &mut say);
     Ok(ended)
 }

@@ -466,3 +466,67 @@ fn an_exception_for_another_function_is_a_wrong_reply_not_a_request() {
         "{k:?}"
     );
 }
+
+/// A master that sends its next request 20 ms after a broadcast write does not give the
+/// drives the turnaround delay (an observation: the TECO manuals give none); 150 ms
+/// later is enough.
+#[test]
+fn a_request_too_soon_after_a_broadcast_is_an_observation_on_the_master() {
+    let b = write(0, 0x2502, 1000);
+    let soon = |after: u64| {
+        let mut m = monitor(Mode::Rtu, &[1]);
+        run(
+            &mut m,
+            &[
+                (0, &b),
+                (after, &read(1, 0x2520, 1)),
+                (after + 15, &values(1, &[1])),
+            ],
+        );
+        m
+    };
+    let m = soon(20);
+    assert!(
+        kinds(&m, 1).contains(&"master.broadcast-turnaround".to_string()),
+        "{:?}",
+        kinds(&m, 1)
+    );
+    assert_eq!(
+        m.examples()[&(1, Side::Master, "broadcast-turnaround")].severity,
+        Severity::Observation
+    );
+    let m = soon(150);
+    assert!(
+        !kinds(&m, 1).contains(&"master.broadcast-turnaround".to_string()),
+        "{:?}",
+        kinds(&m, 1)
+    );
+}
+
+/// A tap that hands over request and reply in one read (a USB adapter's 16 ms latency
+/// timer) is named once, with what to do; a tap that reads them apart is not.
+#[test]
+fn a_tap_that_reads_request_and_reply_together_is_named_once() {
+    let mut m = monitor(Mode::Rtu, &[1]);
+    let both = [read(1, 0x2520, 1), values(1, &[1])].concat();
+    let slices: Vec<(u64, &[u8])> = (0..6).map(|i| (i * 100, &both[..])).collect();
+    run(&mut m, &slices);
+    let said = m.take_notices();
+    assert_eq!(said.len(), 1, "{said:?}");
+    assert!(said[0].contains("latency_timer"), "{}", said[0]);
+    assert!(
+        said[0].starts_with("latency timer: 4 of 4 replies"),
+        "{}",
+        said[0]
+    );
+    assert!(m.take_notices().is_empty());
+    assert_eq!(m.notices().len(), 1);
+    assert_eq!(m.nodes()[&1].exchanges, 6);
+    let mut m = monitor(Mode::Rtu, &[1]);
+    let (r, v) = (read(1, 0x2520, 1), values(1, &[1]));
+    let apart: Vec<(u64, &[u8])> = (0..6)
+        .flat_map(|i| [(i * 100, &r[..]), (i * 100 + 15, &v[..])])
+        .collect();
+    run(&mut m, &apart);
+    assert!(m.notices().is_empty(), "{:?}", m.notices());
+}
