@@ -175,6 +175,11 @@ pub fn run(mut args: CheckArgs) -> anyhow::Result<ExitCode> {
     // `check` runs several drives on one bus (-a 1,2,5).
     args.target.several_nodes = true;
     let several = args.target.nodes.0.len() > 1;
+    let capture = if args.list {
+        None
+    } else {
+        args.target.open_capture()?
+    };
     let mut stop = None;
     let mut identified = None;
     let resolved = if args.target.model_is_auto() {
@@ -188,7 +193,7 @@ pub fn run(mut args: CheckArgs) -> anyhow::Result<ExitCode> {
             bail!("--model auto identifies one drive: run `conformance identify -a N` for each node, then `check --model MODEL -a {}` (one model for the bus)", args.target.nodes.0.iter().map(|n| n.to_string()).collect::<Vec<_>>().join(","));
         }
         let link = args.target.resolve_link(false, None)?;
-        let config = identify_cmd::config(&args.target, link, &args.identify)?;
+        let config = identify_cmd::config(&args.target, link, &args.identify, capture.clone())?;
         let flag = super::interrupt::stop_flag()?;
         let t0 = std::time::Instant::now();
         let t0_wall = std::time::SystemTime::now();
@@ -277,6 +282,7 @@ pub fn run(mut args: CheckArgs) -> anyhow::Result<ExitCode> {
         modes,
         line: args.target.line.settings(),
         options,
+        capture: capture.clone(),
     };
 
     if args.list {
@@ -363,8 +369,15 @@ pub fn run(mut args: CheckArgs) -> anyhow::Result<ExitCode> {
         if let Some(b) = &bar {
             b.set_message(format!("{mode} {}", c.id));
         }
+        // Frames the check damages on purpose are commented with its id.
+        if let Some(rec) = &capture {
+            if let Ok(mut r) = rec.lock() {
+                r.set_label(Some(format!("check {}", c.id)));
+            }
+        }
     };
     let mut report = session::run(&config, &stop, &mut on_start, &mut on_result)?;
+    args.target.close_capture(capture.as_ref());
     if let Some(r) = identified {
         report.results.insert(0, r);
     }

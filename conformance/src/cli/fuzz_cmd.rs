@@ -295,6 +295,7 @@ pub fn run(args: FuzzArgs) -> anyhow::Result<ExitCode> {
         modes,
         line,
         options,
+        capture: args.target.open_capture()?,
     };
     let stop = super::interrupt::stop_flag()?;
     let terminal = std::io::stderr().is_terminal();
@@ -336,6 +337,7 @@ pub fn run(args: FuzzArgs) -> anyhow::Result<ExitCode> {
         }
     };
     let report = session::fuzz(&config, &cfg, &stop, &mut progress)?;
+    args.target.close_capture(config.capture.as_ref());
     if let Some(b) = &bar {
         b.finish_and_clear();
     }

@@ -1,0 +1,317 @@
+//! Recording a link as a pcapng capture (`--capture FILE.pcapng`).
+//!
+//! [`Recorder`] owns the file: one interface per link opened (a run in both modes opens
+//! two), and the label of what is running now (a check id), for the comments on frames
+//! damaged on purpose. [`Captured`] wraps any [`Transport`] and records, on the
+//! recorder it shares:
+//!
+//! - each `send` as one outbound packet, stamped with the time it started; each piece of a
+//!   `send_pieces` as its own packet (the pieces after the first flagged "wrong
+//!   inter-frame gap", bit 27): a receiver that frames by silence sees them so;
+//! - received bytes grouped into inbound packets: a packet ends where the line was silent
+//!   for the frame gap (t3.5, at least 5 ms, as the master frames) or where this side
+//!   sends. Its time is that of the read that brought its first bytes, less their
+//!   transmission time where the line's timing is known.
+//!
+//! Each packet whose checksum is wrong (RTU CRC, ASCII LRC or delimiters) carries the
+//! CRC-error bit (24); an outbound one also a comment naming the label (the check) that
+//! damaged it. Bytes dropped by `discard_input` were never handed up and are not recorded.
+//! A write to the file that fails stops the recording and is reported once, at the end
+//! ([`Recorder::error`]): the run itself goes on.
+
+use std::io::Write;
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant, SystemTime};
+
+use super::{LineTags, LinkKind, Transport, TransportError};
+use crate::capture::{self, Interface, PacketMeta, PcapngWriter};
+use crate::codec::timing::LineSettings;
+use crate::codec::Mode;
+
+/// The capture file of a run, shared by the links it opens.
+pub struct Recorder {
+    writer: Option<PcapngWriter<Box<dyn Write + Send>>>,
+    origin: Instant,
+    origin_us: u64,
+    label: Option<String>,
+    error: Option<String>,
+    packets: u64,
+}
+
+/// A recorder shared by the transports of a run and the command that labels the checks.
+pub type SharedRecorder = Arc<Mutex<Recorder>>;
+
+impl Recorder {
+    /// Starts a capture on `sink` (a section header naming `application`).
+    pub fn new(
+        sink: Box<dyn Write + Send>,
+        application: &str,
+    ) -> Result<Self, capture::WriteError> {
+        let origin_us = SystemTime::now()
+            .duration_since(SystemTime::UNIX_EPOCH)
+            .map(|d| d.as_micros() as u64)
+            .unwrap_or(0);
+        Ok(Recorder {
+            writer: Some(PcapngWriter::new(sink, application)?),
+            origin: Instant::now(),
+            origin_us,
+            label: None,
+            error: None,
+            packets: 0,
+        })
+    }
+
+    /// Shares it.
+    pub fn shared(self) -> SharedRecorder {
+        Arc::new(Mutex::new(self))
+    }
+
+    /// What runs now (a check id, a fuzz case), named in the comment of frames it damages
+    /// on purpose; None between checks.
+    pub fn set_label(&mut self, label: Option<String>) {
+        self.label = label;
+    }
+
+    /// The first write that failed, if one did (the recording stopped there).
+    pub fn error(&self) -> Option<&str> {
+        self.error.as_deref()
+    }
+
+    /// Packets written.
+    pub fn packets(&self) -> u64 {
+        self.packets
+    }
+
+    /// Describes a link; None once the recording failed.
+    fn interface(&mut self, iface: &Interface) -> Option<u32> {
+        let w = self.writer.as_mut()?;
+        match w.add_interface(iface) {
+            Ok(i) => Some(i),
+            Err(e) => {
+                self.fail(e);
+                None
+            }
+        }
+    }
+
+    fn fail(&mut self, e: capture::WriteError) {
+        self.error.get_or_insert_with(|| e.to_string());
+        self.writer = None;
+    }
+
+    /// Writes one packet that started at `at`.
+    fn record(&mut self, interface: u32, at: Instant, bytes: &[u8], flags: u32, why: Option<&str>) {
+        let comment = match (why, &self.label) {
+            (Some(why), Some(label)) => Some(format!("{label}: {why}")),
+            (Some(why), None) => Some(why.to_string()),
+            _ => None,
+        };
+        let since = at.saturating_duration_since(self.origin).as_micros() as u64;
+        let meta = PacketMeta {
+            interface,
+            timestamp_us: self.origin_us + since,
+            flags,
+            comment,
+        };
+        let Some(w) = self.writer.as_mut() else {
+            return;
+        };
+        match w.write_packet(&meta, bytes) {
+            Ok(()) => self.packets += 1,
+            Err(e) => self.fail(e),
+        }
+    }
+}
+
+/// Whether `frame` carries a right checksum for `mode`.
+fn checksum_ok(mode: Mode, frame: &[u8]) -> bool {
+    match mode {
+        Mode::Rtu => frame.len() >= 4 && crate::codec::crc::crc16_frame_ok(frame),
+        Mode::Ascii => crate::codec::ascii::is_valid_frame(frame),
+    }
+}
+
+/// A transport whose traffic is recorded (see the module's documentation).
+pub struct Captured<T: Transport> {
+    inner: T,
+    recorder: SharedRecorder,
+    interface: Option<u32>,
+    mode: Mode,
+    char_time: Option<Duration>,
+    gap: Duration,
+    inbound: Vec<u8>,
+    inbound_at: Option<Instant>,
+    last_read: Option<Instant>,
+}
+
+impl<T: Transport> Captured<T> {
+    /// Records `inner`, a link carrying `mode` frames at `line`, on `recorder`, as a new
+    /// interface described by the link, the mode and the line.
+    pub fn new(inner: T, recorder: SharedRecorder, mode: Mode, line: LineSettings) -> Self {
+        let name = inner.describe();
+        let description = format!("{mode} {line}, {name}");
+        let iface = Interface {
+            link_type: capture::link_type_of(mode),
+            name,
+            description,
+        };
+        let interface = recorder.lock().ok().and_then(|mut r| r.interface(&iface));
+        let char_time = inner
+            .line_timing()
+            .map(|l| Duration::from_micros(l.char_time_us()));
+        Captured {
+            inner,
+            recorder,
+            interface,
+            mode,
+            char_time,
+            gap: Duration::from_millis(5).max(Duration::from_micros(line.t3_5_us())),
+            inbound: Vec::new(),
+            inbound_at: None,
+            last_read: None,
+        }
+    }
+
+    fn record(&mut self, at: Instant, bytes: &[u8], mut flags: u32, why: Option<&str>) {
+        let Some(interface) = self.interface else {
+            return;
+        };
+        if !checksum_ok(self.mode, bytes) {
+            flags |= capture::FLAG_CRC_ERROR;
+        }
+        if let Ok(mut r) = self.recorder.lock() {
+            r.record(interface, at, bytes, flags, why);
+        }
+    }
+
+    /// Records one outbound frame; a wrong checksum is named as damage on purpose.
+    fn record_sent(&mut self, at: Instant, bytes: &[u8], flags: u32, why: Option<String>) {
+        let damaged = (!checksum_ok(self.mode, bytes)).then_some(match self.mode {
+            Mode::Rtu => "sent with a wrong CRC on purpose",
+            Mode::Ascii => "sent with a wrong LRC or framing on purpose",
+        });
+        let why = match (why, damaged) {
+            (Some(w), Some(d)) => Some(format!("{d}; {w}")),
+            (Some(w), None) => Some(w),
+            (None, d) => d.map(str::to_string),
+        };
+        self.record(at, bytes, capture::FLAG_OUTBOUND | flags, why.as_deref());
+    }
+
+    /// Writes the inbound packet held, if any.
+    fn flush_inbound(&mut self) {
+        if let Some(at) = self.inbound_at.take() {
+            let bytes = std::mem::take(&mut self.inbound);
+            self.record(at, &bytes, capture::FLAG_INBOUND, None);
+            self.inbound = bytes;
+            self.inbound.clear();
+        }
+    }
+}
+
+impl<T: Transport> Drop for Captured<T> {
+    fn drop(&mut self) {
+        self.flush_inbound();
+    }
+}
+
+impl<T: Transport> Transport for Captured<T> {
+    fn send(&mut self, bytes: &[u8]) -> Result<(), TransportError> {
+        self.flush_inbound();
+        let at = Instant::now();
+        let r = self.inner.send(bytes);
+        self.record_sent(at, bytes, 0, None);
+        r
+    }
+
+    fn recv(&mut self, buf: &mut [u8], timeout: Duration) -> Result<usize, TransportError> {
+        let n = self.inner.recv(buf, timeout)?;
+        let now = Instant::now();
+        if self
+            .last_read
+            .is_some_and(|t| now.saturating_duration_since(t) >= self.gap)
+            && (n > 0 || !self.inbound.is_empty())
+        {
+            self.flush_inbound();
+        }
+        if n > 0 {
+            if self.inbound_at.is_none() {
+                let on_line = self.char_time.map_or(Duration::ZERO, |c| c * n as u32);
+                self.inbound_at = Some(now.checked_sub(on_line).unwrap_or(now));
+            }
+            self.inbound.extend_from_slice(&buf[..n]);
+            self.last_read = Some(now);
+        }
+        Ok(n)
+    }
+
+    fn discard_input(&mut self) -> Result<(), TransportError> {
+        self.flush_inbound();
+        self.inner.discard_input()
+    }
+
+    fn describe(&self) -> String {
+        self.inner.describe()
+    }
+
+    fn kind(&self) -> LinkKind {
+        self.inner.kind()
+    }
+
+    fn sent_at(&self) -> Option<Instant> {
+        self.inner.sent_at()
+    }
+
+    fn peer_lateness(&self) -> Option<Duration> {
+        self.inner.peer_lateness()
+    }
+
+    fn send_was_broken(&self) -> bool {
+        self.inner.send_was_broken()
+    }
+
+    fn line_timing(&self) -> Option<LineSettings> {
+        self.inner.line_timing()
+    }
+
+    fn line_tags(&self) -> Option<LineTags> {
+        self.inner.line_tags()
+    }
+
+    fn send_pieces(
+        &mut self,
+        pieces: &[&[u8]],
+        gap: Duration,
+    ) -> Result<Vec<Duration>, TransportError> {
+        self.flush_inbound();
+        let start = Instant::now();
+        let r = self.inner.send_pieces(pieces, gap);
+        // The pieces' start times: from the gaps as they left, and each piece's time on
+        // the line where it is known.
+        let gaps = r.as_ref().map(|g| g.as_slice()).unwrap_or(&[]);
+        let mut at = start;
+        for (i, p) in pieces.iter().enumerate() {
+            let flags = if i > 0 { capture::FLAG_WRONG_GAP } else { 0 };
+            let why = Some(format!(
+                "piece {} of {} sent with {} µs of silence between pieces on purpose",
+                i + 1,
+                pieces.len(),
+                gap.as_micros()
+            ));
+            self.record_sent(at, p, flags, why);
+            let on_line = self
+                .char_time
+                .map_or(Duration::ZERO, |c| c * p.len() as u32);
+            at += on_line + gaps.get(i).copied().unwrap_or(gap);
+        }
+        r
+    }
+
+    fn frames_only(&self) -> Option<&'static str> {
+        self.inner.frames_only()
+    }
+
+    fn take_notes(&mut self) -> Vec<String> {
+        self.inner.take_notes()
+    }
+}
