@@ -24,6 +24,7 @@ Examples:
   conformance monitor --port /dev/ttyUSB1 --model f510 -a 1,2 -b 9600 -P even
   conformance monitor --port /dev/ttyUSB1 --model a510 --mode ascii -d 7 --duration 1h --format html -o bus.html
   conformance monitor --port /dev/pts/7 --model f510 --quiet --format json -o bus.json   (a bus's third end)
+  conformance monitor --capture-in run.pcapng --model f510 -b 9600 -P even   (a capture, offline)
 
 Nothing is ever written to the port: it is read, and only read. Put a third adapter on the
 RS-485 pair (or a third end of `conformance bus`) and leave the master and the drives as
@@ -64,8 +65,17 @@ pub enum ModeArg {
 #[command(after_help = AFTER_HELP)]
 pub struct MonitorArgs {
     /// The serial port (or pseudo-terminal) to listen on.
-    #[arg(long, value_name = "PATH")]
-    port: String,
+    #[arg(
+        long,
+        value_name = "PATH",
+        required_unless_present = "capture_in",
+        conflicts_with = "capture_in"
+    )]
+    port: Option<String>,
+    /// Judge a capture instead of a port: pcap or pcapng (this suite's `--capture`, or a
+    /// serial sniffer's under a user link type 147..162), each packet at its own time.
+    #[arg(long, value_name = "FILE")]
+    capture_in: Option<PathBuf>,
     /// The drives' model: f510, a510, l510, e510, l510-legacy.
     #[arg(long, value_name = "MODEL")]
     model: String,
@@ -147,22 +157,10 @@ pub fn run(args: MonitorArgs) -> anyhow::Result<ExitCode> {
             gap_allowance: Duration::from_millis(args.allowance),
         },
     )?;
-    let port = SerialTransport::open(&args.port, line, serial_kind(&args.port))
-        .with_context(|| format!("cannot listen on {}", args.port))?;
-    let mut tap = ReadOnlyPort::new(Box::new(port));
-    // The one handler of every long command: Ctrl-C, SIGTERM and SIGHUP end the listening
-    // and write the report.
-    let stop = super::interrupt::stop_flag()?;
     let started = humantime::format_rfc3339_seconds(SystemTime::now()).to_string();
-    if !args.quiet {
-        eprintln!(
-            "listening on {} ({mode}, {line}); nothing is sent. Ctrl-C ends and reports.",
-            tap.describe()
-        );
-    }
     let mut err = std::io::stderr();
     let color = err.is_terminal();
-    let ended = monitor::run(&mut tap, &mut mon, &stop, args.duration, |l| {
+    let mut on_line = |l: &monitor::Line| {
         if !args.quiet {
             let _ = if color && l.status == conformance::judge::VerdictStatus::Deviation {
                 writeln!(err, "\x1b[31m{l}\x1b[0m")
@@ -170,13 +168,77 @@ pub fn run(args: MonitorArgs) -> anyhow::Result<ExitCode> {
                 writeln!(err, "{l}")
             };
         }
-    })?;
+    };
+    let (source, ended) = match (&args.port, &args.capture_in) {
+        (_, Some(path)) => {
+            let data = std::fs::read(path)
+                .with_context(|| format!("cannot read the capture {}", path.display()))?;
+            let r = monitor::replay::replay(&data, &mut mon, &mut on_line)
+                .with_context(|| format!("cannot judge the capture {}", path.display()))?;
+            let ended = match &r.stopped {
+                Some(e) => {
+                    eprintln!(
+                        "warning: {}: {e}; the packets before it were judged",
+                        path.display()
+                    );
+                    format!(
+                        "end of the capture, cut short after {} packets ({e})",
+                        r.packets
+                    )
+                }
+                None => format!("end of the capture ({} packets)", r.packets),
+            };
+            (format!("capture {}", path.display()), ended)
+        }
+        (Some(port), None) => listen(&args, port, line, mode, &mut mon, &mut on_line)?,
+        (None, None) => anyhow::bail!("say what to listen to: --port PATH or --capture-in FILE"),
+    };
+    report(&args, mode, line, started, &mon, &source, &ended)
+}
+
+/// Listens on `port` until Ctrl-C, SIGTERM, `--duration` or the end of the input; returns
+/// the port's description and why listening ended.
+fn listen(
+    args: &MonitorArgs,
+    port: &str,
+    line: LineSettings,
+    mode: Mode,
+    mon: &mut Monitor,
+    on_line: &mut dyn FnMut(&monitor::Line),
+) -> anyhow::Result<(String, String)> {
+    let port = SerialTransport::open(port, line, serial_kind(port))
+        .with_context(|| format!("cannot listen on {port}"))?;
+    let mut tap = ReadOnlyPort::new(Box::new(port));
+    // The one handler of every long command: Ctrl-C, SIGTERM and SIGHUP end the listening
+    // and write the report.
+    let stop = super::interrupt::stop_flag()?;
+    if !args.quiet {
+        eprintln!(
+            "listening on {} ({mode}, {line}); nothing is sent. Ctrl-C ends and reports.",
+            tap.describe()
+        );
+    }
+    let ended = monitor::run(&mut tap, mon, &stop, args.duration, on_line)?;
     let ended = match ended {
         Ended::Duration => "--duration passed".to_string(),
         Ended::Interrupted => "interrupted (Ctrl-C or SIGTERM)".to_string(),
         Ended::EndOfInput(why) => format!("end of input ({why})"),
     };
-    let summary = mon.summary(&tap.describe(), &ended);
+    Ok((tap.describe(), ended))
+}
+
+/// The report of what `mon` heard on `source`.
+fn report(
+    args: &MonitorArgs,
+    mode: Mode,
+    line: LineSettings,
+    started: String,
+    mon: &Monitor,
+    source: &str,
+    ended: &str,
+) -> anyhow::Result<ExitCode> {
+    let nodes = args.nodes.as_ref().map(|n| n.0.clone()).unwrap_or_default();
+    let summary = mon.summary(source, ended);
     let heard: Vec<u8> = mon.nodes().keys().copied().filter(|n| *n != 0).collect();
     let report = Report {
         kind: ReportKind::Monitor,
@@ -191,7 +253,7 @@ pub fn run(args: MonitorArgs) -> anyhow::Result<ExitCode> {
             address: heard.first().or(nodes.first()).copied().unwrap_or(1),
             links: [(
                 mode.to_string(),
-                format!("{} (listened, never written)", tap.describe()),
+                format!("{source} (listened, never written)"),
             )]
             .into_iter()
             .collect(),

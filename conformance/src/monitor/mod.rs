@@ -18,6 +18,7 @@
 pub mod frames;
 mod judge_master;
 mod live;
+pub mod replay;
 mod report;
 pub mod stats;
 pub mod tap;
