@@ -10,8 +10,16 @@
 //!   inter-frame gap", bit 27): a receiver that frames by silence sees them so;
 //! - received bytes grouped into inbound packets: a packet ends where the line was silent
 //!   for the frame gap (t3.5, at least 5 ms, as the master frames) or where this side
-//!   sends. Its time is that of the read that brought its first bytes, less their
-//!   transmission time where the line's timing is known.
+//!   sends. On a link whose timing is the host's (a pseudo-terminal, TCP) a silence
+//!   inside a frame whose length its function tells is the host's delivery, not the
+//!   line's: the frame is held whole unless the silence passes [`HOST_STALL`]. A
+//!   packet's time is that of the read that brought its first bytes, less their
+//!   transmission time where the line's timing is known, and never before the end of the
+//!   last frame sent (a reply cannot begin before its request ended).
+//!
+//! An outbound packet's time is when its first character went on the line: where the
+//! transport knows when the last one left ([`Transport::sent_at`], a paced link), that
+//! less the frame's transmission time.
 //!
 //! Each packet whose checksum is wrong (RTU CRC, ASCII LRC or delimiters) carries the
 //! CRC-error bit (24); an outbound one also a comment naming the label (the check) that
@@ -27,6 +35,10 @@ use super::{LineTags, LinkKind, Transport, TransportError};
 use crate::capture::{self, Interface, PacketMeta, PcapngWriter};
 use crate::codec::timing::LineSettings;
 use crate::codec::Mode;
+
+/// The longest silence inside a frame that a host's delivery is taken to cause on a link
+/// without the line's timing.
+pub const HOST_STALL: Duration = Duration::from_millis(200);
 
 /// The capture file of a run, shared by the links it opens.
 pub struct Recorder {
@@ -142,6 +154,8 @@ pub struct Captured<T: Transport> {
     inbound: Vec<u8>,
     inbound_at: Option<Instant>,
     last_read: Option<Instant>,
+    last_sent: Option<Instant>,
+    host_timing: bool,
 }
 
 impl<T: Transport> Captured<T> {
@@ -160,7 +174,6 @@ impl<T: Transport> Captured<T> {
             .line_timing()
             .map(|l| Duration::from_micros(l.char_time_us()));
         Captured {
-            inner,
             recorder,
             interface,
             mode,
@@ -169,6 +182,9 @@ impl<T: Transport> Captured<T> {
             inbound: Vec::new(),
             inbound_at: None,
             last_read: None,
+            last_sent: None,
+            host_timing: inner.kind() != LinkKind::Serial,
+            inner,
         }
     }
 
@@ -198,6 +214,38 @@ impl<T: Transport> Captured<T> {
         self.record(at, bytes, capture::FLAG_OUTBOUND | flags, why.as_deref());
     }
 
+    /// Whether the inbound bytes held start a frame that is not whole yet, by the length
+    /// its function tells (RTU) or its delimiters (ASCII), on a link whose timing is the
+    /// host's.
+    fn holds_part_of_a_frame(&self) -> bool {
+        if !self.host_timing {
+            return false;
+        }
+        match self.mode {
+            // Too short to tell its length: under the shortest frame (address, function,
+            // CRC).
+            Mode::Rtu => match crate::codec::deframe::rtu_frame_len(
+                crate::codec::Direction::Response,
+                &self.inbound,
+            ) {
+                Some(n) => self.inbound.len() < n,
+                None => self.inbound.len() < 4,
+            },
+            Mode::Ascii => self.inbound.first() == Some(&b':') && !self.inbound.ends_with(b"\r\n"),
+        }
+    }
+
+    /// When a transmission of `len` characters that started at `before` (the clock read
+    /// before the write) began on the line.
+    fn sent_start(&self, before: Instant, len: usize) -> Instant {
+        match (self.inner.sent_at(), self.char_time) {
+            (Some(end), Some(c)) => end
+                .checked_sub(c * len as u32)
+                .map_or(before, |s| s.max(before)),
+            _ => before,
+        }
+    }
+
     /// Writes the inbound packet held, if any.
     fn flush_inbound(&mut self) {
         if let Some(at) = self.inbound_at.take() {
@@ -218,8 +266,10 @@ impl<T: Transport> Drop for Captured<T> {
 impl<T: Transport> Transport for Captured<T> {
     fn send(&mut self, bytes: &[u8]) -> Result<(), TransportError> {
         self.flush_inbound();
-        let at = Instant::now();
+        let before = Instant::now();
         let r = self.inner.send(bytes);
+        let at = self.sent_start(before, bytes.len());
+        self.last_sent = Some(self.inner.sent_at().unwrap_or_else(Instant::now));
         self.record_sent(at, bytes, 0, None);
         r
     }
@@ -227,17 +277,23 @@ impl<T: Transport> Transport for Captured<T> {
     fn recv(&mut self, buf: &mut [u8], timeout: Duration) -> Result<usize, TransportError> {
         let n = self.inner.recv(buf, timeout)?;
         let now = Instant::now();
-        if self
-            .last_read
-            .is_some_and(|t| now.saturating_duration_since(t) >= self.gap)
-            && (n > 0 || !self.inbound.is_empty())
-        {
-            self.flush_inbound();
+        if let Some(t) = self.last_read {
+            let silence = now.saturating_duration_since(t);
+            if !self.inbound.is_empty()
+                && silence >= self.gap
+                && (silence >= HOST_STALL || !self.holds_part_of_a_frame())
+            {
+                self.flush_inbound();
+            }
         }
         if n > 0 {
             if self.inbound_at.is_none() {
                 let on_line = self.char_time.map_or(Duration::ZERO, |c| c * n as u32);
-                self.inbound_at = Some(now.checked_sub(on_line).unwrap_or(now));
+                let mut at = now.checked_sub(on_line).unwrap_or(now);
+                if let Some(sent) = self.last_sent {
+                    at = at.max(sent);
+                }
+                self.inbound_at = Some(at);
             }
             self.inbound.extend_from_slice(&buf[..n]);
             self.last_read = Some(now);
@@ -286,6 +342,7 @@ impl<T: Transport> Transport for Captured<T> {
         self.flush_inbound();
         let start = Instant::now();
         let r = self.inner.send_pieces(pieces, gap);
+        self.last_sent = Some(self.inner.sent_at().unwrap_or_else(Instant::now));
         // The pieces' start times: from the gaps as they left, and each piece's time on
         // the line where it is known.
         let gaps = r.as_ref().map(|g| g.as_slice()).unwrap_or(&[]);

@@ -1,0 +1,444 @@
+//! `--capture FILE.pcapng` and `monitor --capture-in`: a `check` run against the simulator
+//! is recorded; the capture holds every request of the JSON report in order, tshark
+//! decodes every frame with the unit ids, function codes and register addresses the
+//! bytes carry and marks exactly the frames sent with a wrong CRC on purpose, and the
+//! monitor judges the capture offline with the counts the capture holds.
+#![cfg(unix)]
+
+mod common;
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+use std::sync::OnceLock;
+
+use common::{need, Peer};
+use conformance::capture::{Direction, Reader, FLAG_CRC_ERROR};
+use serde_json::Value;
+
+/// The user DLT table entry that maps link type 147 to Wireshark's Modbus RTU dissector.
+const USER_DLT: &str = r#"uat:user_dlts:"User 0 (DLT=147)","mbrtu","0","","0","""#;
+
+fn dir() -> PathBuf {
+    let d = std::env::temp_dir().join(format!("capture-test-{}", std::process::id()));
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+/// A run of `check --sim f510 --mode rtu` with `extra` arguments, captured: the capture's
+/// path and the JSON report.
+fn captured_check(name: &str, extra: &[&str]) -> (PathBuf, Value) {
+    let d = dir();
+    let cap = d.join(format!("{name}.pcapng"));
+    let json = d.join(format!("{name}.json"));
+    let out = Command::new(common::bin())
+        .args(["check", "--sim", "f510", "--mode", "rtu", "--quiet"])
+        .args(extra)
+        .arg("--capture")
+        .arg(&cap)
+        .args(["--format", "json", "-o"])
+        .arg(&json)
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(0), "{stderr}");
+    assert!(stderr.contains("capture: "), "{stderr}");
+    let report = serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    (cap, report)
+}
+
+/// The whole RTU suite, once for every test of this file.
+fn whole_run() -> &'static (PathBuf, Value) {
+    static RUN: OnceLock<(PathBuf, Value)> = OnceLock::new();
+    RUN.get_or_init(|| captured_check("whole", &[]))
+}
+
+/// One packet of a capture, owned.
+struct Frame {
+    direction: Option<Direction>,
+    flags: u32,
+    comment: Option<String>,
+    bytes: Vec<u8>,
+}
+
+fn frames(path: &Path) -> Vec<Frame> {
+    let data = std::fs::read(path).unwrap();
+    Reader::new(&data)
+        .unwrap()
+        .map(|p| {
+            let p = p.unwrap();
+            Frame {
+                direction: p.direction,
+                flags: p.flags.unwrap_or(0),
+                comment: p.comment.map(str::to_string),
+                bytes: p.data.to_vec(),
+            }
+        })
+        .collect()
+}
+
+fn hex(s: &str) -> Vec<u8> {
+    s.split_whitespace()
+        .map(|b| u8::from_str_radix(b, 16).unwrap())
+        .collect()
+}
+
+/// Every exchange's request in the report, with the check it belongs to, in order.
+fn requests(report: &Value) -> Vec<(String, Vec<u8>)> {
+    report["checks"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .flat_map(|c| {
+            let id = c["id"].as_str().unwrap().to_string();
+            c["exchanges"]
+                .as_array()
+                .unwrap()
+                .iter()
+                .filter_map(|e| e["request"].as_str().map(hex))
+                .map(move |r| (id.clone(), r))
+                .collect::<Vec<_>>()
+        })
+        .collect()
+}
+
+fn crc_ok(b: &[u8]) -> bool {
+    b.len() >= 4 && conformance::codec::crc::crc16_frame_ok(b)
+}
+
+#[test]
+fn the_capture_holds_every_request_of_the_report_in_order_with_directions_and_damage_marked() {
+    let (cap, report) = whole_run();
+    let frames = frames(cap);
+    let sent: Vec<&Frame> = frames
+        .iter()
+        .filter(|f| f.direction == Some(Direction::Outbound))
+        .collect();
+    let received = frames
+        .iter()
+        .filter(|f| f.direction == Some(Direction::Inbound))
+        .count();
+    assert_eq!(
+        sent.len() + received,
+        frames.len(),
+        "every frame has a direction"
+    );
+    assert!(received > 100, "{received} frames received");
+    // The report's requests are the frames sent, in order (the capture has more: the
+    // preflight, liveness probes, the restore).
+    let reqs = requests(report);
+    assert!(reqs.len() > 100, "{} requests", reqs.len());
+    let mut at = 0;
+    for (id, r) in &reqs {
+        let found = sent[at..].iter().position(|f| &f.bytes == r);
+        let Some(i) = found else {
+            panic!("{id}: request {r:02X?} is not among the frames sent after frame {at}");
+        };
+        at += i + 1;
+    }
+    // The CRC-error bit is set on exactly the frames whose CRC is wrong; every such frame
+    // the suite sent names the check that damaged it, and that check is in the report.
+    let ids: Vec<&str> = report["checks"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|c| c["id"].as_str().unwrap())
+        .collect();
+    let mut damaged = 0;
+    for f in &frames {
+        assert_eq!(
+            f.flags & FLAG_CRC_ERROR != 0,
+            !crc_ok(&f.bytes),
+            "{:02X?}",
+            f.bytes
+        );
+        if f.direction == Some(Direction::Outbound) && !crc_ok(&f.bytes) {
+            damaged += 1;
+            let c = f.comment.as_deref().unwrap_or_default();
+            let id = c
+                .strip_prefix("check ")
+                .and_then(|c| c.split(':').next())
+                .unwrap_or_default();
+            assert!(ids.contains(&id), "comment {c:?} of {:02X?}", f.bytes);
+            assert!(c.contains("on purpose"), "{c}");
+        } else {
+            assert_eq!(f.comment, None, "{:02X?}", f.bytes);
+        }
+    }
+    let bad_crc = reqs.iter().find(|(id, _)| id == "rtu.bad-crc").unwrap();
+    assert!(!crc_ok(&bad_crc.1));
+    assert!(damaged >= 1);
+    // The clean simulator never answers with a wrong CRC.
+    assert!(frames
+        .iter()
+        .filter(|f| f.direction == Some(Direction::Inbound))
+        .all(|f| crc_ok(&f.bytes)));
+}
+
+/// tshark's fields for every frame of `cap`, one row per frame.
+fn tshark(cap: &Path, fields: &[&str]) -> Vec<Vec<String>> {
+    let mut cmd = Command::new("tshark");
+    cmd.arg("-r")
+        .arg(cap)
+        .args(["-o", USER_DLT, "-o", "mbrtu.crc_verification:TRUE"])
+        .args(["-T", "fields", "-E", "separator=/t", "-E", "occurrence=f"]);
+    for f in fields {
+        cmd.args(["-e", f]);
+    }
+    let out = cmd.output().unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    String::from_utf8(out.stdout)
+        .unwrap()
+        .lines()
+        .map(|l| l.split('\t').map(str::to_string).collect())
+        .collect()
+}
+
+#[test]
+fn tshark_decodes_every_frame_as_its_bytes_say_and_marks_exactly_the_bad_crc_frames() {
+    if !need(Peer::Tshark) {
+        return;
+    }
+    let (cap, report) = whole_run();
+    let frames = frames(cap);
+    let rows = tshark(
+        cap,
+        &[
+            "frame.number",
+            "mbrtu.unit_id",
+            "modbus.func_code",
+            "mbrtu.crc16.status",
+            "modbus.reference_num",
+            "frame.packet_flags_crc_error",
+        ],
+    );
+    assert_eq!(rows.len(), frames.len());
+    let mut decoded = 0;
+    let mut incorrect = Vec::new();
+    for (row, f) in rows.iter().zip(&frames) {
+        let b = &f.bytes;
+        let (unit, function, status, reference, flag) =
+            (&row[1], &row[2], &row[3], &row[4], &row[5]);
+        // Wireshark reads our CRC-error bit from the Enhanced Packet Block flags.
+        assert_eq!(flag == "1", !crc_ok(b), "frame {}: {b:02X?}", row[0]);
+        if unit.is_empty() {
+            // Only frames the dissector cannot take are left undecoded: the broadcast
+            // address 0 (mbrtu refuses a first byte of 0) and fragments too short for a
+            // function code and a CRC.
+            assert!(
+                b.first() == Some(&0) || b.len() < 5,
+                "frame {} not decoded: {b:02X?}",
+                row[0]
+            );
+            continue;
+        }
+        decoded += 1;
+        assert_eq!(unit, &b[0].to_string(), "frame {}", row[0]);
+        assert_eq!(function, &(b[1] & 0x7F).to_string(), "frame {}", row[0]);
+        if status == "0" {
+            incorrect.push(b.clone());
+        } else {
+            assert_eq!(status, "1", "frame {}", row[0]);
+            assert!(crc_ok(b), "frame {}: tshark says its CRC is right", row[0]);
+        }
+        // A request's register address, where the function has one and the dissector
+        // can tell a request from a reply by its length (a 06H reply is a copy of its
+        // request: Wireshark leaves it unclassified, without fields).
+        if f.direction == Some(Direction::Outbound)
+            && crc_ok(b)
+            && b.len() >= 8
+            && matches!(b[1], 0x03 | 0x10)
+        {
+            let start = u16::from_be_bytes([b[2], b[3]]);
+            assert_eq!(reference, &start.to_string(), "frame {}: {b:02X?}", row[0]);
+        }
+    }
+    assert!(
+        decoded * 10 > frames.len() * 9,
+        "{decoded} of {} decoded",
+        frames.len()
+    );
+    // The frames Wireshark shows as "CRC incorrect" are the frames sent with a wrong CRC
+    // on purpose, and the request of the bad-CRC check is one of them.
+    assert!(!incorrect.is_empty());
+    for b in &incorrect {
+        assert!(!crc_ok(b));
+    }
+    let bad = requests(report)
+        .into_iter()
+        .find(|(id, _)| id == "rtu.bad-crc")
+        .unwrap()
+        .1;
+    assert!(incorrect.contains(&bad), "{bad:02X?} not marked");
+    // Every report exchange's unit id and function code, as tshark decoded its frame.
+    let sent: Vec<(usize, &Frame)> = frames
+        .iter()
+        .enumerate()
+        .filter(|(_, f)| f.direction == Some(Direction::Outbound))
+        .collect();
+    let mut at = 0;
+    for (id, r) in requests(report) {
+        let i = sent[at..].iter().position(|(_, f)| f.bytes == r).unwrap() + at;
+        at = i + 1;
+        let row = &rows[sent[i].0];
+        if r[0] != 0 && r.len() >= 5 {
+            assert_eq!(row[1], r[0].to_string(), "{id}");
+            assert_eq!(row[2], (r[1] & 0x7F).to_string(), "{id}");
+        }
+    }
+}
+
+fn monitor_capture(cap: &Path, name: &str, extra: &[&str]) -> (Option<i32>, Value, String) {
+    let json = dir().join(format!("{name}.monitor.json"));
+    let out = Command::new(common::bin())
+        .args(["monitor", "--model", "f510", "--quiet", "--capture-in"])
+        .arg(cap)
+        .args(extra)
+        .args(["--format", "json", "-o"])
+        .arg(&json)
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr).into_owned();
+    let report = std::fs::read_to_string(&json)
+        .ok()
+        .and_then(|s| serde_json::from_str(&s).ok())
+        .unwrap_or(Value::Null);
+    (out.status.code(), report, stderr)
+}
+
+fn node<'a>(r: &'a Value, address: &str) -> &'a Value {
+    r["monitor"]["nodes"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|n| n["address"] == address)
+        .unwrap_or_else(|| panic!("no node {address} in {}", r["monitor"]))
+}
+
+#[test]
+fn monitor_judges_a_clean_capture_with_the_counts_it_holds() {
+    // Reads and writes the manual allows, each answered: nothing to find on either side.
+    let (cap, report) = captured_check(
+        "clean",
+        &[
+            "--only",
+            "rtu.map.*.first",
+            "--only",
+            "rtu.map.*.last",
+            "--only",
+            "rtu.write.group-*",
+        ],
+    );
+    assert_eq!(report["summary"]["deviation"], 0);
+    let frames = frames(&cap);
+    let sent = frames
+        .iter()
+        .filter(|f| f.direction == Some(Direction::Outbound) && f.bytes[0] == 1)
+        .count();
+    let received = frames
+        .iter()
+        .filter(|f| f.direction == Some(Direction::Inbound))
+        .count();
+    assert!(sent > 50, "{sent}");
+    // A request sent again with nothing received between: the simulator, on a loaded
+    // host, answered too late for the master, which tried again. On the line that is a
+    // request without a reply, and the monitor must say so, once for each.
+    let retries = frames
+        .windows(2)
+        .filter(|w| {
+            w.iter().all(|f| f.direction == Some(Direction::Outbound)) && w[0].bytes == w[1].bytes
+        })
+        .count() as u64;
+    let (code, m, stderr) = monitor_capture(&cap, "clean", &["-a", "1"]);
+    let n = node(&m, "01");
+    assert_eq!(n["requests"], sent as u64, "{n}");
+    let replies = n["replies"].as_u64().unwrap();
+    let deviations = n["deviations"].as_u64().unwrap();
+    if retries == 0 {
+        // Nothing went wrong on the line: nothing to find.
+        assert_eq!(code, Some(0), "{stderr}");
+        assert_eq!(replies, received as u64, "{n}");
+        assert_eq!(deviations, 0, "{n}");
+    } else {
+        // What the line shows of a late answer and a retry, and nothing else: the
+        // request without its reply in time, the reply late or after the next request.
+        assert_eq!(code, Some(1), "{stderr}");
+        assert!(replies <= received as u64, "{n}");
+        assert!(deviations >= 1 && deviations <= 2 * retries, "{n}");
+        let kinds: Vec<&String> = n["errors"].as_object().unwrap().keys().collect();
+        let explained = [
+            "drive.no-reply",
+            "drive.late-reply",
+            "master.request-before-reply",
+            "master.retry",
+        ];
+        assert!(
+            kinds.iter().all(|k| explained.contains(&k.as_str())),
+            "{kinds:?}"
+        );
+    }
+    assert_eq!(
+        m["monitor"]["ended"],
+        format!("end of the capture ({} packets)", frames.len())
+    );
+}
+
+#[test]
+fn monitor_judges_the_whole_run_and_finds_the_damage_the_checks_did_on_purpose() {
+    let (cap, _) = whole_run();
+    let frames = frames(cap);
+    let (code, m, stderr) = monitor_capture(cap, "whole", &["-a", "1"]);
+    // The suite sends what the manual forbids on purpose: the master's side deviates.
+    assert_eq!(code, Some(1), "{stderr}");
+    let n = node(&m, "01");
+    let bad_to_1 = frames
+        .iter()
+        .filter(|f| {
+            f.direction == Some(Direction::Outbound) && f.bytes[0] == 1 && !crc_ok(&f.bytes)
+        })
+        .count() as u64;
+    assert!(bad_to_1 >= 1);
+    assert_eq!(n["crc_errors"], bad_to_1, "{n}");
+    assert_eq!(n["errors"]["master.bad-checksum"], bad_to_1, "{n}");
+    assert!(
+        n["errors"]["master.register-not-in-map"].as_u64().unwrap() > 0,
+        "{n}"
+    );
+    assert_eq!(
+        m["monitor"]["ended"],
+        format!("end of the capture ({} packets)", frames.len())
+    );
+}
+
+#[test]
+fn monitor_refuses_what_is_no_capture_and_names_the_offset_of_a_cut() {
+    let d = dir();
+    let junk = d.join("junk.pcapng");
+    std::fs::write(&junk, b"not a capture at all").unwrap();
+    let (code, _, stderr) = monitor_capture(&junk, "junk", &[]);
+    assert_eq!(code, Some(2), "{stderr}");
+    assert!(stderr.contains("at byte 0"), "{stderr}");
+    // A capture cut inside its last block: the packets before it are judged.
+    let (cap, _) = whole_run();
+    let data = std::fs::read(cap).unwrap();
+    let cut = d.join("cut.pcapng");
+    std::fs::write(&cut, &data[..data.len() - 3]).unwrap();
+    let (code, m, stderr) = monitor_capture(&cut, "cut", &["-a", "1"]);
+    assert_eq!(code, Some(1), "{stderr}");
+    assert!(
+        stderr.contains("Enhanced Packet Block cut short"),
+        "{stderr}"
+    );
+    let ended = m["monitor"]["ended"].as_str().unwrap();
+    let whole = frames(cap).len();
+    assert!(
+        ended.starts_with(&format!(
+            "end of the capture, cut short after {} packets",
+            whole - 1
+        )),
+        "{ended}"
+    );
+}
