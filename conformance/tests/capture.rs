@@ -24,14 +24,14 @@ fn dir() -> PathBuf {
     d
 }
 
-/// A run of `check --sim f510 --mode rtu` with `extra` arguments, captured: the capture's
-/// path and the JSON report.
-fn captured_check(name: &str, extra: &[&str]) -> (PathBuf, Value) {
+/// A run of `check --sim f510 --mode MODE` with `extra` arguments, captured: the
+/// capture's path and the JSON report.
+fn captured_check(name: &str, mode: &str, extra: &[&str]) -> (PathBuf, Value) {
     let d = dir();
     let cap = d.join(format!("{name}.pcapng"));
     let json = d.join(format!("{name}.json"));
     let out = Command::new(common::bin())
-        .args(["check", "--sim", "f510", "--mode", "rtu", "--quiet"])
+        .args(["check", "--sim", "f510", "--mode", mode, "--quiet"])
         .args(extra)
         .arg("--capture")
         .arg(&cap)
@@ -49,11 +49,12 @@ fn captured_check(name: &str, extra: &[&str]) -> (PathBuf, Value) {
 /// The whole RTU suite, once for every test of this file.
 fn whole_run() -> &'static (PathBuf, Value) {
     static RUN: OnceLock<(PathBuf, Value)> = OnceLock::new();
-    RUN.get_or_init(|| captured_check("whole", &[]))
+    RUN.get_or_init(|| captured_check("whole", "rtu", &[]))
 }
 
 /// One packet of a capture, owned.
 struct Frame {
+    link_type: u16,
     direction: Option<Direction>,
     flags: u32,
     comment: Option<String>,
@@ -67,6 +68,7 @@ fn frames(path: &Path) -> Vec<Frame> {
         .map(|p| {
             let p = p.unwrap();
             Frame {
+                link_type: p.link_type,
                 direction: p.direction,
                 flags: p.flags.unwrap_or(0),
                 comment: p.comment.map(str::to_string),
@@ -174,13 +176,20 @@ fn the_capture_holds_every_request_of_the_report_in_order_with_directions_and_da
         .all(|f| crc_ok(&f.bytes)));
 }
 
-/// tshark's fields for every frame of `cap`, one row per frame.
+/// tshark's fields for every frame of `cap`, one row per frame (of a field that occurs
+/// several times in a frame, the first).
 fn tshark(cap: &Path, fields: &[&str]) -> Vec<Vec<String>> {
+    tshark_occurrences(cap, fields, "f")
+}
+
+/// [`tshark`], with `occurrence` "f" (first), "l" (last) or "a" (all, comma-separated).
+fn tshark_occurrences(cap: &Path, fields: &[&str], occurrence: &str) -> Vec<Vec<String>> {
     let mut cmd = Command::new("tshark");
     cmd.arg("-r")
         .arg(cap)
         .args(["-o", USER_DLT, "-o", "mbrtu.crc_verification:TRUE"])
-        .args(["-T", "fields", "-E", "separator=/t", "-E", "occurrence=f"]);
+        .args(["-T", "fields", "-E", "separator=/t", "-E"])
+        .arg(format!("occurrence={occurrence}"));
     for f in fields {
         cmd.args(["-e", f]);
     }
@@ -323,6 +332,7 @@ fn monitor_judges_a_clean_capture_with_the_counts_it_holds() {
     // Reads and writes the manual allows, each answered: nothing to find on either side.
     let (cap, report) = captured_check(
         "clean",
+        "rtu",
         &[
             "--only",
             "rtu.map.*.first",
@@ -441,4 +451,117 @@ fn monitor_refuses_what_is_no_capture_and_names_the_offset_of_a_cut() {
         )),
         "{ended}"
     );
+}
+
+#[test]
+fn a_fuzz_capture_decodes_in_tshark_and_every_damaged_frame_is_marked_and_named() {
+    if !need(Peer::Tshark) {
+        return;
+    }
+    let d = dir();
+    let cap = d.join("fuzz.pcapng");
+    let out = Command::new(common::bin())
+        .args([
+            "fuzz", "--sim", "f510", "--mode", "rtu", "--cases", "150", "--quiet",
+        ])
+        .arg("--capture")
+        .arg(&cap)
+        .args(["--format", "json", "-o"])
+        .arg(d.join("fuzz.json"))
+        .output()
+        .unwrap();
+    assert_eq!(
+        out.status.code(),
+        Some(0),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let frames = frames(&cap);
+    let sent = frames
+        .iter()
+        .filter(|f| f.direction == Some(Direction::Outbound))
+        .count();
+    assert!(sent >= 150, "{sent} frames sent for 150 cases");
+    let rows = tshark_occurrences(
+        &cap,
+        &[
+            "frame.number",
+            "frame.packet_flags_crc_error",
+            "mbrtu.unit_id",
+            "mbrtu.crc16.status",
+        ],
+        "a",
+    );
+    assert_eq!(rows.len(), frames.len());
+    let mut damaged = 0;
+    for (row, f) in rows.iter().zip(&frames) {
+        let b = &f.bytes;
+        assert_eq!(f.link_type, 147);
+        assert_eq!(row[1] == "1", !crc_ok(b), "frame {}: {b:02X?}", row[0]);
+        let statuses: Vec<&str> = row[3].split(',').filter(|s| !s.is_empty()).collect();
+        if f.direction == Some(Direction::Inbound) {
+            // The simulator's replies: whole frames, decoded, CRC right.
+            assert!(crc_ok(b), "frame {}: {b:02X?}", row[0]);
+            assert_eq!(statuses, ["1"], "frame {}: {b:02X?}", row[0]);
+            assert_eq!(row[2].split(',').next().unwrap(), b[0].to_string());
+        } else if !crc_ok(b) {
+            damaged += 1;
+            // Wireshark never shows a damaged frame as all right, and the comment says
+            // the campaign damaged it.
+            assert!(
+                !statuses.iter().all(|s| *s == "1") || statuses.is_empty(),
+                "frame {}",
+                row[0]
+            );
+            let c = f.comment.as_deref().unwrap_or_default();
+            assert!(
+                c.starts_with("fuzz") && c.contains("on purpose"),
+                "frame {}: {c:?}",
+                row[0]
+            );
+        }
+    }
+    assert!(damaged > 5, "{damaged} damaged frames in 150 cases");
+}
+
+#[test]
+fn an_ascii_capture_keeps_the_characters_under_link_type_148_and_the_monitor_judges_it() {
+    let (cap, report) = captured_check(
+        "ascii",
+        "ascii",
+        &[
+            "--only",
+            "ascii.map.group-0.*",
+            "--only",
+            "ascii.map.group-1.*",
+        ],
+    );
+    let frames = frames(&cap);
+    assert!(frames.iter().all(|f| f.link_type == 148));
+    let sent: Vec<&Frame> = frames
+        .iter()
+        .filter(|f| f.direction == Some(Direction::Outbound))
+        .collect();
+    let reqs = requests(&report);
+    assert!(reqs.len() >= 4, "{} requests", reqs.len());
+    for (id, r) in reqs {
+        assert!(sent.iter().any(|f| f.bytes == r), "{id}: {r:02X?}");
+        assert!(r.starts_with(b":") && r.ends_with(b"\r\n"), "{id}");
+    }
+    for f in &frames {
+        let lrc_ok = conformance::codec::ascii::is_valid_frame(&f.bytes);
+        assert_eq!(
+            f.flags & FLAG_CRC_ERROR != 0,
+            !lrc_ok,
+            "{:?}",
+            String::from_utf8_lossy(&f.bytes)
+        );
+    }
+    let (code, m, stderr) = monitor_capture(&cap, "ascii", &["-a", "1", "--mode", "ascii"]);
+    assert!(matches!(code, Some(0 | 1)), "{stderr}");
+    let n = node(&m, "01");
+    let to_1 = sent.iter().filter(|f| f.bytes.starts_with(b":01")).count() as u64;
+    assert!(to_1 >= 4);
+    assert_eq!(n["requests"], to_1, "{n}");
+    assert_eq!(n["crc_errors"], 0, "{n}");
 }
