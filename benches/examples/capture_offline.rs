@@ -135,6 +135,7 @@ fn main() {
     let ours = t0.elapsed();
     assert_eq!(r.packets, frames);
     let node = &mon.nodes()[&1];
+    assert_eq!(node.requests, frames / 2);
     println!(
         "ours:   {} frames read and judged in {:.3} s: {:.0} frames/s ({} exchanges, {} deviations)",
         r.packets,
@@ -143,7 +144,6 @@ fn main() {
         lines,
         mon.deviations()
     );
-    let _ = node;
 
     // tshark: decode only.
     let have_tshark = Command::new("tshark")

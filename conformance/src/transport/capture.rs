@@ -372,3 +372,157 @@ impl<T: Transport> Transport for Captured<T> {
         self.inner.take_notes()
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::capture::{Reader, FLAG_INBOUND, FLAG_OUTBOUND, FLAG_WRONG_GAP};
+    use crate::codec::timing::Parity;
+    use crate::transport::memory;
+
+    /// A sink the test reads back after the recorder wrote to it.
+    #[derive(Clone, Default)]
+    struct Sink(Arc<Mutex<Vec<u8>>>);
+
+    impl Write for Sink {
+        fn write(&mut self, b: &[u8]) -> std::io::Result<usize> {
+            self.0.lock().unwrap().extend_from_slice(b);
+            Ok(b.len())
+        }
+        fn flush(&mut self) -> std::io::Result<()> {
+            Ok(())
+        }
+    }
+
+    const REQUEST: [u8; 8] = [0x01, 0x03, 0x01, 0x23, 0x00, 0x01, 0x74, 0x3C];
+    const REPLY: [u8; 7] = [0x01, 0x03, 0x02, 0x17, 0x70, 0xB6, 0x50];
+    const EXCEPTION: [u8; 5] = [0x01, 0x83, 0x02, 0xC0, 0xF1];
+
+    fn drain(t: &mut impl Transport, wait: Duration) -> usize {
+        let mut buf = [0u8; 64];
+        t.recv(&mut buf, wait).unwrap()
+    }
+
+    #[test]
+    fn sends_and_receives_become_packets_with_directions_flags_and_comments() {
+        let sink = Sink::default();
+        let rec = Recorder::new(Box::new(sink.clone()), "test")
+            .unwrap()
+            .shared();
+        let (a, mut b) = memory::pair();
+        let line = LineSettings::new(9600, 8, Parity::Even, 1);
+        let mut a = Captured::new(a, rec.clone(), Mode::Rtu, line);
+        rec.lock()
+            .unwrap()
+            .set_label(Some("check rtu.bad-crc".into()));
+        a.send(&REQUEST).unwrap();
+        // A reply the host delivers in two parts 20 ms apart (over the 5 ms frame gap):
+        // its length says it is not whole after the first part, so it is one packet.
+        b.send(&REPLY[..3]).unwrap();
+        assert_eq!(drain(&mut a, Duration::from_millis(200)), 3);
+        std::thread::sleep(Duration::from_millis(20));
+        b.send(&REPLY[3..]).unwrap();
+        assert_eq!(drain(&mut a, Duration::from_millis(200)), 4);
+        // A whole frame after a silence: a new packet.
+        std::thread::sleep(Duration::from_millis(20));
+        b.send(&EXCEPTION).unwrap();
+        assert_eq!(drain(&mut a, Duration::from_millis(200)), 5);
+        assert_eq!(drain(&mut a, Duration::from_millis(20)), 0);
+        let mut bad = REQUEST;
+        bad[7] ^= 0xFF;
+        a.send(&bad).unwrap();
+        a.send_pieces(&[&REQUEST[..4], &REQUEST[4..]], Duration::from_millis(2))
+            .unwrap();
+        drop(a);
+        let data = sink.0.lock().unwrap().clone();
+        let packets: Vec<_> = Reader::new(&data)
+            .unwrap()
+            .collect::<Result<_, _>>()
+            .unwrap();
+        let seen: Vec<(&[u8], u32)> = packets
+            .iter()
+            .map(|p| (p.data, p.flags.unwrap_or(0)))
+            .collect();
+        assert_eq!(
+            seen,
+            vec![
+                (&REQUEST[..], FLAG_OUTBOUND),
+                (&REPLY[..], FLAG_INBOUND),
+                (&EXCEPTION[..], FLAG_INBOUND),
+                (&bad[..], FLAG_OUTBOUND | capture::FLAG_CRC_ERROR),
+                (&REQUEST[..4], FLAG_OUTBOUND | capture::FLAG_CRC_ERROR),
+                (
+                    &REQUEST[4..],
+                    FLAG_OUTBOUND | capture::FLAG_CRC_ERROR | FLAG_WRONG_GAP
+                ),
+            ]
+        );
+        assert!(packets
+            .iter()
+            .all(|p| p.link_type == capture::LINKTYPE_USER0));
+        assert_eq!(packets[0].comment, None);
+        assert_eq!(packets[1].comment, None);
+        assert_eq!(
+            packets[3].comment,
+            Some("check rtu.bad-crc: sent with a wrong CRC on purpose")
+        );
+        assert!(packets[5]
+            .comment
+            .is_some_and(|c| c.starts_with("check rtu.bad-crc: ") && c.contains("piece 2 of 2")));
+        // Times: in order, the reply after the request, the exception 20 ms or more after
+        // the reply's first part.
+        let t: Vec<u64> = packets.iter().map(|p| p.timestamp_ns.unwrap()).collect();
+        assert!(t.windows(2).all(|w| w[0] <= w[1]), "{t:?}");
+        assert!(t[2] - t[1] >= 40_000_000, "{t:?}");
+        assert_eq!(rec.lock().unwrap().packets(), 6);
+        assert_eq!(rec.lock().unwrap().error(), None);
+    }
+
+    #[test]
+    fn a_failing_file_stops_the_recording_and_says_why_once() {
+        struct Full;
+        impl Write for Full {
+            fn write(&mut self, _: &[u8]) -> std::io::Result<usize> {
+                Err(std::io::Error::other("disk full"))
+            }
+            fn flush(&mut self) -> std::io::Result<()> {
+                Ok(())
+            }
+        }
+        // The section header goes to a sink that fails from the first packet on.
+        struct Once(bool);
+        impl Write for Once {
+            fn write(&mut self, b: &[u8]) -> std::io::Result<usize> {
+                if self.0 {
+                    Full.write(b)
+                } else {
+                    Ok(b.len())
+                }
+            }
+            fn flush(&mut self) -> std::io::Result<()> {
+                self.0 = true;
+                Ok(())
+            }
+        }
+        let rec = Recorder::new(Box::new(Once(false)), "test")
+            .unwrap()
+            .shared();
+        let (a, _b) = memory::pair();
+        let mut a = Captured::new(
+            a,
+            rec.clone(),
+            Mode::Rtu,
+            LineSettings::new(9600, 8, Parity::Even, 1),
+        );
+        // The link goes on working; the recording stopped at the interface block.
+        a.send(&REQUEST).unwrap();
+        a.send(&REQUEST).unwrap();
+        let r = rec.lock().unwrap();
+        assert_eq!(r.packets(), 0);
+        assert!(
+            r.error().is_some_and(|e| e.contains("disk full")),
+            "{:?}",
+            r.error()
+        );
+    }
+}
