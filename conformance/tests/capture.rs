@@ -565,3 +565,52 @@ fn an_ascii_capture_keeps_the_characters_under_link_type_148_and_the_monitor_jud
     assert_eq!(n["requests"], to_1, "{n}");
     assert_eq!(n["crc_errors"], 0, "{n}");
 }
+
+#[test]
+fn a_simulator_killed_mid_run_leaves_a_whole_capture_seen_from_the_drive() {
+    use std::io::{BufRead, BufReader};
+    let d = dir();
+    let cap = d.join("simulate.pcapng");
+    let mut sim = Command::new(common::bin())
+        .args(["simulate", "--pty", "--pace", "--quiet", "--capture"])
+        .arg(&cap)
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    let mut path = String::new();
+    BufReader::new(sim.stdout.take().unwrap())
+        .read_line(&mut path)
+        .unwrap();
+    let out = Command::new(common::bin())
+        .args([
+            "check", "--model", "f510", "--mode", "rtu", "--quiet", "--port",
+        ])
+        .arg(path.trim())
+        .args(["--only", "rtu.map.group-0.*", "--format", "json", "-o"])
+        .arg(d.join("simulate.json"))
+        .output()
+        .unwrap();
+    // Killed, not stopped: no chance to finish anything.
+    sim.kill().unwrap();
+    sim.wait().unwrap();
+    assert_eq!(
+        out.status.code(),
+        Some(0),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let frames = frames(&cap);
+    assert!(frames.len() >= 8, "{} frames", frames.len());
+    // From the drive's side: the requests came in, the replies went out.
+    for f in &frames {
+        let request = f.bytes.len() == 8 && f.bytes[1] == 0x03;
+        let expected = if request {
+            Direction::Inbound
+        } else {
+            Direction::Outbound
+        };
+        assert_eq!(f.direction, Some(expected), "{:02X?}", f.bytes);
+        assert!(crc_ok(&f.bytes), "{:02X?}", f.bytes);
+    }
+}

@@ -130,6 +130,31 @@ pub struct TargetArgs {
     pub capture: Option<PathBuf>,
 }
 
+/// Creates the capture file `path` (`--capture`): a pcapng section naming this program.
+pub fn open_capture(path: &std::path::Path) -> anyhow::Result<SharedRecorder> {
+    let file = std::fs::File::create(path)
+        .with_context(|| format!("cannot create the capture {}", path.display()))?;
+    let app = format!("conformance {}", env!("CARGO_PKG_VERSION"));
+    let rec = Recorder::new(Box::new(file), &app)
+        .with_context(|| format!("cannot write the capture {}", path.display()))?;
+    Ok(rec.shared())
+}
+
+/// Says on stderr what the capture `path` holds, or why it stopped.
+pub fn close_capture(path: &std::path::Path, rec: &SharedRecorder) {
+    let Ok(r) = rec.lock() else {
+        return;
+    };
+    match r.error() {
+        Some(e) => eprintln!(
+            "warning: the capture {} stopped after {} frames: {e}",
+            path.display(),
+            r.packets()
+        ),
+        None => eprintln!("capture: {} frames in {}", r.packets(), path.display()),
+    }
+}
+
 /// The safety switches of a real drive.
 #[derive(Debug, Args)]
 pub struct SafetyArgs {
@@ -178,32 +203,13 @@ pub struct Link {
 impl TargetArgs {
     /// Creates the `--capture` file, if one was asked for.
     pub fn open_capture(&self) -> anyhow::Result<Option<SharedRecorder>> {
-        let Some(path) = &self.capture else {
-            return Ok(None);
-        };
-        let file = std::fs::File::create(path)
-            .with_context(|| format!("cannot create the capture {}", path.display()))?;
-        let app = format!("conformance {}", env!("CARGO_PKG_VERSION"));
-        let rec = Recorder::new(Box::new(file), &app)
-            .with_context(|| format!("cannot write the capture {}", path.display()))?;
-        Ok(Some(rec.shared()))
+        self.capture.as_deref().map(open_capture).transpose()
     }
 
     /// Says on stderr what the capture holds, or why it stopped.
     pub fn close_capture(&self, rec: Option<&SharedRecorder>) {
-        let (Some(path), Some(rec)) = (&self.capture, rec) else {
-            return;
-        };
-        let Ok(r) = rec.lock() else {
-            return;
-        };
-        match r.error() {
-            Some(e) => eprintln!(
-                "warning: the capture {} stopped after {} frames: {e}",
-                path.display(),
-                r.packets()
-            ),
-            None => eprintln!("capture: {} frames in {}", r.packets(), path.display()),
+        if let (Some(path), Some(rec)) = (&self.capture, rec) {
+            close_capture(path, rec);
         }
     }
 

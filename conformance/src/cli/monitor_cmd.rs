@@ -14,6 +14,7 @@ use conformance::codec::Mode;
 use conformance::monitor::{self, Ended, Monitor, MonitorConfig, ReadOnlyPort, Tap};
 use conformance::report::{Device, NodeInfo, Report, ReportKind, RunOptions};
 use conformance::session::serial_kind;
+use conformance::transport::capture::Captured;
 use conformance::transport::serial::SerialTransport;
 
 use super::check_cmd::{finish, Format};
@@ -76,6 +77,10 @@ pub struct MonitorArgs {
     /// serial sniffer's under a user link type 147..162), each packet at its own time.
     #[arg(long, value_name = "FILE")]
     capture_in: Option<PathBuf>,
+    /// With --port: also record every frame heard in this pcapng file (no direction: a
+    /// tap hears both sides on one wire).
+    #[arg(long, value_name = "FILE.pcapng", conflicts_with = "capture_in")]
+    capture: Option<PathBuf>,
     /// The drives' model: f510, a510, l510, e510, l510-legacy.
     #[arg(long, value_name = "MODEL")]
     model: String,
@@ -208,7 +213,17 @@ fn listen(
 ) -> anyhow::Result<(String, String)> {
     let port = SerialTransport::open(port, line, serial_kind(port))
         .with_context(|| format!("cannot listen on {port}"))?;
-    let mut tap = ReadOnlyPort::new(Box::new(port));
+    let capture = args
+        .capture
+        .as_deref()
+        .map(super::link::open_capture)
+        .transpose()?;
+    let mut tap = match &capture {
+        Some(rec) => ReadOnlyPort::new(Box::new(
+            Captured::new(port, rec.clone(), mode, line).as_tap(),
+        )),
+        None => ReadOnlyPort::new(Box::new(port)),
+    };
     // The one handler of every long command: Ctrl-C, SIGTERM and SIGHUP end the listening
     // and write the report.
     let stop = super::interrupt::stop_flag()?;
@@ -224,7 +239,13 @@ fn listen(
         Ended::Interrupted => "interrupted (Ctrl-C or SIGTERM)".to_string(),
         Ended::EndOfInput(why) => format!("end of input ({why})"),
     };
-    Ok((tap.describe(), ended))
+    let described = tap.describe();
+    // The last frame heard is written when the port is let go.
+    drop(tap);
+    if let (Some(path), Some(rec)) = (&args.capture, &capture) {
+        super::link::close_capture(path, rec);
+    }
+    Ok((described, ended))
 }
 
 /// The report of what `mon` heard on `source`.

@@ -156,6 +156,7 @@ pub struct Captured<T: Transport> {
     last_read: Option<Instant>,
     last_sent: Option<Instant>,
     host_timing: bool,
+    inbound_flag: u32,
 }
 
 impl<T: Transport> Captured<T> {
@@ -185,7 +186,16 @@ impl<T: Transport> Captured<T> {
             last_sent: None,
             host_timing: inner.kind() != LinkKind::Serial,
             inner,
+            inbound_flag: capture::FLAG_INBOUND,
         }
+    }
+
+    /// For a tap that hears both sides of a bus (`monitor`): what it receives is written
+    /// without a direction (flags bits 0-1 `00`, "not known"), as a single-direction
+    /// sniffer's file is.
+    pub fn as_tap(mut self) -> Self {
+        self.inbound_flag = 0;
+        self
     }
 
     fn record(&mut self, at: Instant, bytes: &[u8], mut flags: u32, why: Option<&str>) {
@@ -250,7 +260,7 @@ impl<T: Transport> Captured<T> {
     fn flush_inbound(&mut self) {
         if let Some(at) = self.inbound_at.take() {
             let bytes = std::mem::take(&mut self.inbound);
-            self.record(at, &bytes, capture::FLAG_INBOUND, None);
+            self.record(at, &bytes, self.inbound_flag, None);
             self.inbound = bytes;
             self.inbound.clear();
         }
