@@ -623,3 +623,59 @@ fn direction_flags() {
     assert_eq!(Direction::Outbound.flag(), 2);
     assert_eq!(link_type_of(crate::codec::Mode::Ascii), 148);
 }
+
+/// A stand-in for the fuzz target under plain `cargo test`: mutated captures (bytes
+/// flipped, lengths set to extremes, cut, spliced) through the reader's oracle.
+#[test]
+fn mutated_captures_keep_every_law_of_the_oracle() {
+    let frames: Vec<(PacketMeta, Vec<u8>)> = (0..6u8)
+        .map(|i| {
+            (
+                PacketMeta {
+                    interface: u32::from(i % 2),
+                    timestamp_us: 1_000 * u64::from(i),
+                    flags: if i % 2 == 0 {
+                        FLAG_OUTBOUND
+                    } else {
+                        FLAG_INBOUND
+                    },
+                    comment: (i == 3).then(|| "damaged".to_string()),
+                },
+                READ[..usize::from(i) + 2].to_vec(),
+            )
+        })
+        .collect();
+    let seeds = [
+        written(&frames, &[rtu_iface(), ascii_iface()]),
+        pcapng_big_endian(),
+        pcap(true, true, 147, &[(1, 2, &READ), (3, 4, &READ[..5])]),
+        pcap(false, false, 147, &[(1, 2, &READ)]),
+    ];
+    let mut rng = crate::rng::Rng::new(0xCA9);
+    for _ in 0..20_000 {
+        let mut v = seeds[rng.below(seeds.len() as u64) as usize].clone();
+        for _ in 0..=rng.below(4) {
+            if v.is_empty() {
+                break;
+            }
+            let at = rng.below(v.len() as u64) as usize;
+            match rng.below(5) {
+                0 => v[at] = rng.byte(),
+                1 => v[at] ^= 1 << rng.below(8),
+                // A length-sized field at an aligned offset set to an extreme.
+                2 => {
+                    let at = at & !3;
+                    let x = [0u32, 1, 11, 12, 0x7FFF_FFFF, 0xFFFF_FFFF][rng.below(6) as usize];
+                    let end = (at + 4).min(v.len());
+                    v[at..end].copy_from_slice(&x.to_le_bytes()[..end - at]);
+                }
+                3 => v.truncate(at),
+                _ => {
+                    let tail = v[at..].to_vec();
+                    v.extend_from_slice(&tail);
+                }
+            }
+        }
+        crate::oracle::capture_reader(&v);
+    }
+}
