@@ -23,7 +23,8 @@
 //!
 //! Each packet whose checksum is wrong (RTU CRC, ASCII LRC or delimiters) carries the
 //! CRC-error bit (24); an outbound one also a comment naming the label (the check) that
-//! damaged it. Bytes dropped by `discard_input` were never handed up and are not recorded.
+//! damaged it. Bytes waiting when the caller discards input (a late reply it gave up on)
+//! are read into the capture first, then dropped.
 //! A write to the file that fails stops the recording and is reported once, at the end
 //! ([`Recorder::error`]): the run itself goes on.
 
@@ -312,6 +313,15 @@ impl<T: Transport> Transport for Captured<T> {
     }
 
     fn discard_input(&mut self) -> Result<(), TransportError> {
+        // What is waiting was on the line (a late reply the master gives up on): it is
+        // read into the capture before it is dropped. Bounded: a peer that never stops
+        // sending cannot hold the caller here.
+        let mut buf = [0u8; 512];
+        for _ in 0..64 {
+            if self.recv(&mut buf, Duration::ZERO)? == 0 {
+                break;
+            }
+        }
         self.flush_inbound();
         self.inner.discard_input()
     }
@@ -486,6 +496,31 @@ mod tests {
         assert!(t[2] - t[1] >= 40_000_000, "{t:?}");
         assert_eq!(rec.lock().unwrap().packets(), 6);
         assert_eq!(rec.lock().unwrap().error(), None);
+    }
+
+    #[test]
+    fn bytes_discarded_by_the_caller_are_in_the_capture_first() {
+        let sink = Sink::default();
+        let rec = Recorder::new(Box::new(sink.clone()), "test")
+            .unwrap()
+            .shared();
+        let (a, mut b) = memory::pair();
+        let line = LineSettings::new(9600, 8, Parity::Even, 1);
+        let mut a = Captured::new(a, rec, Mode::Rtu, line);
+        a.send(&REQUEST).unwrap();
+        b.send(&REPLY).unwrap();
+        std::thread::sleep(Duration::from_millis(10));
+        a.discard_input().unwrap();
+        assert_eq!(drain(&mut a, Duration::from_millis(10)), 0);
+        drop(a);
+        let data = sink.0.lock().unwrap().clone();
+        let packets: Vec<_> = Reader::new(&data)
+            .unwrap()
+            .collect::<Result<_, _>>()
+            .unwrap();
+        assert_eq!(packets.len(), 2);
+        assert_eq!(packets[1].data, &REPLY);
+        assert_eq!(packets[1].direction, Some(capture::Direction::Inbound));
     }
 
     #[test]
