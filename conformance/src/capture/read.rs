@@ -309,7 +309,7 @@ fn options(
                 o.comment = std::str::from_utf8(v).ok();
             }
             (BlockKind::Interface, opt::IF_TSRESOL) if !v.is_empty() => o.tsresol = Some(v[0]),
-            (BlockKind::Interface, 14) if v.len() == 8 => {
+            (BlockKind::Interface, opt::IF_TSOFFSET) if v.len() == 8 => {
                 let b = [v[0], v[1], v[2], v[3], v[4], v[5], v[6], v[7]];
                 o.tsoffset = Some(if big {
                     i64::from_be_bytes(b)

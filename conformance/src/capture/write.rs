@@ -30,6 +30,7 @@ pub(crate) mod opt {
     pub const IF_NAME: u16 = 2;
     pub const IF_DESCRIPTION: u16 = 3;
     pub const IF_TSRESOL: u16 = 9;
+    pub const IF_TSOFFSET: u16 = 14;
     pub const EPB_FLAGS: u16 = 2;
 }
 
