@@ -54,6 +54,7 @@ fn whole_run() -> &'static (PathBuf, Value) {
 
 /// One packet of a capture, owned.
 struct Frame {
+    interface: u32,
     link_type: u16,
     direction: Option<Direction>,
     flags: u32,
@@ -68,6 +69,7 @@ fn frames(path: &Path) -> Vec<Frame> {
         .map(|p| {
             let p = p.unwrap();
             Frame {
+                interface: p.interface,
                 link_type: p.link_type,
                 direction: p.direction,
                 flags: p.flags.unwrap_or(0),
@@ -613,4 +615,71 @@ fn a_simulator_killed_mid_run_leaves_a_whole_capture_seen_from_the_drive() {
         assert_eq!(f.direction, Some(expected), "{:02X?}", f.bytes);
         assert!(crc_ok(&f.bytes), "{:02X?}", f.bytes);
     }
+}
+
+#[test]
+fn a_bus_capture_holds_each_endpoints_frames_on_its_own_interface() {
+    use std::io::{BufRead, BufReader};
+    let d = dir();
+    let cap = d.join("bus.pcapng");
+    let link = d.join("bus-master");
+    let mut bus = Command::new(common::bin())
+        .args(["bus", "--model", "f510", "-a", "1", "--quiet", "--link"])
+        .arg(format!("m={}", link.display()))
+        .arg("--capture")
+        .arg(&cap)
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    // One line per endpoint with a path: the master's.
+    let mut first = String::new();
+    BufReader::new(bus.stdout.take().unwrap())
+        .read_line(&mut first)
+        .unwrap();
+    assert!(first.starts_with("m "), "{first}");
+    let out = Command::new(common::bin())
+        .args([
+            "check", "--model", "f510", "--mode", "rtu", "-a", "1", "--quiet", "--port",
+        ])
+        .arg(&link)
+        .args(["--only", "rtu.map.group-0.*", "--format", "json", "-o"])
+        .arg(d.join("bus.json"))
+        .output()
+        .unwrap();
+    bus.kill().unwrap();
+    bus.wait().unwrap();
+    assert_eq!(
+        out.status.code(),
+        Some(0),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let report: Value =
+        serde_json::from_str(&std::fs::read_to_string(d.join("bus.json")).unwrap()).unwrap();
+    let frames = frames(&cap);
+    // One interface per endpoint (and the line's own, for collisions): the master's is
+    // the one that spoke first.
+    let m = frames[0].interface;
+    let master: Vec<&Frame> = frames.iter().filter(|f| f.interface == m).collect();
+    let drive: Vec<&Frame> = frames.iter().filter(|f| f.interface != m).collect();
+    assert!(drive.iter().all(|f| f.interface == drive[0].interface));
+    let mut at = 0;
+    for (id, r) in requests(&report) {
+        let i = master[at..]
+            .iter()
+            .position(|f| f.bytes == r)
+            .unwrap_or_else(|| panic!("{id}: {r:02X?} not sent by the master"));
+        at += i + 1;
+    }
+    assert!(drive.len() >= 4, "{} replies", drive.len());
+    for f in frames.iter() {
+        assert_eq!(
+            f.direction,
+            Some(Direction::Outbound),
+            "sent by its endpoint"
+        );
+        assert!(crc_ok(&f.bytes), "{:02X?}", f.bytes);
+    }
+    assert!(drive.iter().all(|f| f.bytes[0] == 1));
 }
