@@ -581,9 +581,8 @@ fn a_simulator_killed_mid_run_leaves_a_whole_capture_seen_from_the_drive() {
         .spawn()
         .unwrap();
     let mut path = String::new();
-    BufReader::new(sim.stdout.take().unwrap())
-        .read_line(&mut path)
-        .unwrap();
+    let mut sim_out = BufReader::new(sim.stdout.take().unwrap());
+    sim_out.read_line(&mut path).unwrap();
     let out = Command::new(common::bin())
         .args([
             "check", "--model", "f510", "--mode", "rtu", "--quiet", "--port",
@@ -596,6 +595,7 @@ fn a_simulator_killed_mid_run_leaves_a_whole_capture_seen_from_the_drive() {
     // Killed, not stopped: no chance to finish anything.
     sim.kill().unwrap();
     sim.wait().unwrap();
+    drop(sim_out);
     assert_eq!(
         out.status.code(),
         Some(0),
@@ -629,14 +629,14 @@ fn a_bus_capture_holds_each_endpoints_frames_on_its_own_interface() {
         .arg("--capture")
         .arg(&cap)
         .stdout(std::process::Stdio::piped())
-        .stderr(std::process::Stdio::null())
+        .stderr(std::fs::File::create(d.join("bus.err")).unwrap())
         .spawn()
         .unwrap();
-    // One line per endpoint with a path: the master's.
+    // One line per endpoint with a path: the master's. The pipe stays open while the bus
+    // runs (a bus whose stdout is gone ends).
     let mut first = String::new();
-    BufReader::new(bus.stdout.take().unwrap())
-        .read_line(&mut first)
-        .unwrap();
+    let mut paths = BufReader::new(bus.stdout.take().unwrap());
+    paths.read_line(&mut first).unwrap();
     assert!(first.starts_with("m "), "{first}");
     let out = Command::new(common::bin())
         .args([
@@ -647,13 +647,17 @@ fn a_bus_capture_holds_each_endpoints_frames_on_its_own_interface() {
         .arg(d.join("bus.json"))
         .output()
         .unwrap();
+    let running = bus.try_wait().unwrap().is_none();
     bus.kill().unwrap();
     bus.wait().unwrap();
+    drop(paths);
     assert_eq!(
         out.status.code(),
         Some(0),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
+        "{} (the bus {}: {})",
+        String::from_utf8_lossy(&out.stderr),
+        if running { "was running" } else { "had ended" },
+        std::fs::read_to_string(d.join("bus.err")).unwrap_or_default()
     );
     let report: Value =
         serde_json::from_str(&std::fs::read_to_string(d.join("bus.json")).unwrap()).unwrap();
@@ -682,4 +686,110 @@ fn a_bus_capture_holds_each_endpoints_frames_on_its_own_interface() {
         assert!(crc_ok(&f.bytes), "{:02X?}", f.bytes);
     }
     assert!(drive.iter().all(|f| f.bytes[0] == 1));
+}
+
+#[test]
+fn a_monitor_on_a_bus_records_what_the_line_carried_and_tshark_decodes_it() {
+    use std::io::{BufRead, BufReader};
+    if !need(Peer::Tshark) {
+        return;
+    }
+    let d = dir();
+    let line_cap = d.join("tap-line.pcapng");
+    let tap_cap = d.join("tap.pcapng");
+    let (m, tap) = (d.join("tap-master"), d.join("tap-tap"));
+    let mut bus = Command::new(common::bin())
+        .args(["bus", "--model", "f510", "-a", "1", "--quiet", "--link"])
+        .arg(format!("m={}", m.display()))
+        .arg("--link")
+        .arg(format!("tap={}", tap.display()))
+        .arg("--capture")
+        .arg(&line_cap)
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    let mut lines = BufReader::new(bus.stdout.take().unwrap()).lines();
+    for _ in 0..2 {
+        lines.next().unwrap().unwrap();
+    }
+    let mut monitor = Command::new(common::bin())
+        .args([
+            "monitor",
+            "--model",
+            "f510",
+            "-a",
+            "1",
+            "--duration",
+            "8",
+            "--port",
+        ])
+        .arg(&tap)
+        .arg("--capture")
+        .arg(&tap_cap)
+        .args(["--format", "json", "-o"])
+        .arg(d.join("tap.json"))
+        .stderr(std::process::Stdio::piped())
+        .stdout(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    let mut heard = BufReader::new(monitor.stderr.take().unwrap()).lines();
+    let first = heard.next().unwrap().unwrap();
+    assert!(first.starts_with("listening on"), "{first}");
+    let drain = std::thread::spawn(move || heard.map_while(Result::ok).collect::<Vec<_>>());
+    let out = Command::new(common::bin())
+        .args([
+            "check", "--model", "f510", "--mode", "rtu", "-a", "1", "--quiet", "--port",
+        ])
+        .arg(&m)
+        .args(["--only", "rtu.map.group-0.*", "--format", "json", "-o"])
+        .arg(d.join("tap-check.json"))
+        .output()
+        .unwrap();
+    let status = monitor.wait().unwrap();
+    let stderr = drain.join().unwrap().join("\n");
+    bus.kill().unwrap();
+    bus.wait().unwrap();
+    assert_eq!(
+        out.status.code(),
+        Some(0),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(matches!(status.code(), Some(0 | 1)), "{stderr}");
+    assert!(stderr.contains("capture: "), "{stderr}");
+    // The tap heard what the line carried, byte for byte, with no direction.
+    let on_line: Vec<u8> = frames(&line_cap)
+        .into_iter()
+        .flat_map(|f| f.bytes)
+        .collect();
+    let tapped = frames(&tap_cap);
+    let heard_bytes: Vec<u8> = tapped.iter().flat_map(|f| f.bytes.clone()).collect();
+    assert_eq!(heard_bytes, on_line);
+    for f in &tapped {
+        assert_eq!(
+            (f.direction, f.flags),
+            (None, 0),
+            "{:02X?} in {:02X?}",
+            f.bytes,
+            tapped.iter().map(|f| f.bytes.len()).collect::<Vec<_>>()
+        );
+    }
+    assert!(tapped.len() >= 8, "{} frames", tapped.len());
+    // tshark decodes every frame the tap recorded.
+    let rows = tshark(
+        &tap_cap,
+        &["frame.number", "mbrtu.unit_id", "mbrtu.crc16.status"],
+    );
+    assert_eq!(rows.len(), tapped.len());
+    for (row, f) in rows.iter().zip(&tapped) {
+        assert_eq!(
+            row[1],
+            f.bytes[0].to_string(),
+            "frame {}: {:02X?}",
+            row[0],
+            f.bytes
+        );
+        assert_eq!(row[2], "1", "frame {}", row[0]);
+    }
 }

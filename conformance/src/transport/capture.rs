@@ -11,8 +11,9 @@
 //! - received bytes grouped into inbound packets: a packet ends where the line was silent
 //!   for the frame gap (t3.5, at least 5 ms, as the master frames) or where this side
 //!   sends. On a link whose timing is the host's (a pseudo-terminal, TCP) a silence
-//!   inside a frame whose length its function tells is the host's delivery, not the
-//!   line's: the frame is held whole unless the silence passes [`HOST_STALL`]. A
+//!   inside a frame whose length its function tells (and whose checksum is not right
+//!   yet) is the host's delivery, not the line's: the frame is held whole unless the
+//!   silence passes [`HOST_STALL`]. A
 //!   packet's time is that of the read that brought its first bytes, less their
 //!   transmission time where the line's timing is known, and never before the end of the
 //!   last frame sent (a reply cannot begin before its request ended).
@@ -225,23 +226,32 @@ impl<T: Transport> Captured<T> {
         self.record(at, bytes, capture::FLAG_OUTBOUND | flags, why.as_deref());
     }
 
-    /// Whether the inbound bytes held start a frame that is not whole yet, by the length
-    /// its function tells (RTU) or its delimiters (ASCII), on a link whose timing is the
-    /// host's.
+    /// Whether the inbound bytes held start a frame that is not whole yet, on a link whose
+    /// timing is the host's: not a frame with a right checksum already, and shorter than
+    /// the length its function tells as a request or as a reply (RTU; a master receives
+    /// replies, a simulated drive requests, a tap both), or without its CR LF (ASCII).
     fn holds_part_of_a_frame(&self) -> bool {
-        if !self.host_timing {
+        if !self.host_timing || checksum_ok(self.mode, &self.inbound) {
             return false;
         }
+        let len = self.inbound.len();
         match self.mode {
             // Too short to tell its length: under the shortest frame (address, function,
             // CRC).
-            Mode::Rtu => match crate::codec::deframe::rtu_frame_len(
-                crate::codec::Direction::Response,
-                &self.inbound,
-            ) {
-                Some(n) => self.inbound.len() < n,
-                None => self.inbound.len() < 4,
-            },
+            Mode::Rtu => {
+                len < 4
+                    || [
+                        crate::codec::Direction::Request,
+                        crate::codec::Direction::Response,
+                    ]
+                    .into_iter()
+                    .any(|d| {
+                        matches!(
+                            crate::codec::deframe::rtu_frame_len(d, &self.inbound),
+                            Some(n) if len < n
+                        )
+                    })
+            }
             Mode::Ascii => self.inbound.first() == Some(&b':') && !self.inbound.ends_with(b"\r\n"),
         }
     }
@@ -496,6 +506,33 @@ mod tests {
         assert!(t[2] - t[1] >= 40_000_000, "{t:?}");
         assert_eq!(rec.lock().unwrap().packets(), 6);
         assert_eq!(rec.lock().unwrap().error(), None);
+    }
+
+    #[test]
+    fn a_tap_records_requests_and_replies_apart_and_without_direction() {
+        let sink = Sink::default();
+        let rec = Recorder::new(Box::new(sink.clone()), "test")
+            .unwrap()
+            .shared();
+        let (a, mut b) = memory::pair();
+        let line = LineSettings::new(9600, 8, Parity::Even, 1);
+        let mut a = Captured::new(a, rec, Mode::Rtu, line).as_tap();
+        // A request read as a reply would be 42 bytes long (byte count 25H): its right
+        // CRC says it is whole.
+        let request = [0x01, 0x03, 0x25, 0x20, 0x00, 0x01, 0x8E, 0xCC];
+        b.send(&request).unwrap();
+        assert_eq!(drain(&mut a, Duration::from_millis(200)), 8);
+        std::thread::sleep(Duration::from_millis(20));
+        b.send(&REPLY).unwrap();
+        assert_eq!(drain(&mut a, Duration::from_millis(200)), 7);
+        drop(a);
+        let data = sink.0.lock().unwrap().clone();
+        let packets: Vec<_> = Reader::new(&data)
+            .unwrap()
+            .collect::<Result<_, _>>()
+            .unwrap();
+        let seen: Vec<(&[u8], Option<u32>)> = packets.iter().map(|p| (p.data, p.flags)).collect();
+        assert_eq!(seen, vec![(&request[..], None), (&REPLY[..], None)]);
     }
 
     #[test]
