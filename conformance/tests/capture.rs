@@ -552,6 +552,16 @@ fn an_ascii_capture_keeps_the_characters_under_link_type_148_and_the_monitor_jud
     }
     for f in &frames {
         let lrc_ok = conformance::codec::ascii::is_valid_frame(&f.bytes);
+        // A whole frame carries its RTU equivalent in its comment.
+        if lrc_ok {
+            let mut rtu = [0u8; 256];
+            let n = conformance::codec::ascii_to_rtu(&f.bytes, &mut rtu).unwrap();
+            let shown: Vec<String> = rtu[..n].iter().map(|b| format!("{b:02X}")).collect();
+            assert_eq!(
+                f.comment.as_deref(),
+                Some(format!("as RTU: {}", shown.join(" ")).as_str())
+            );
+        }
         assert_eq!(
             f.flags & FLAG_CRC_ERROR != 0,
             !lrc_ok,

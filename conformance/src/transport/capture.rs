@@ -113,12 +113,21 @@ impl Recorder {
         self.writer = None;
     }
 
-    /// Writes one packet that started at `at`.
-    fn record(&mut self, interface: u32, at: Instant, bytes: &[u8], flags: u32, why: Option<&str>) {
+    /// Writes one packet that started at `at`, with a comment: why it is damaged (after
+    /// the label of what runs now), or else a note as it is.
+    fn record(
+        &mut self,
+        interface: u32,
+        at: Instant,
+        bytes: &[u8],
+        flags: u32,
+        why: Option<&str>,
+        note: Option<&str>,
+    ) {
         let comment = match (why, &self.label) {
             (Some(why), Some(label)) => Some(format!("{label}: {why}")),
             (Some(why), None) => Some(why.to_string()),
-            _ => None,
+            _ => note.map(str::to_string),
         };
         let since = at.saturating_duration_since(self.origin).as_micros() as u64;
         let meta = PacketMeta {
@@ -207,8 +216,19 @@ impl<T: Transport> Captured<T> {
         if !checksum_ok(self.mode, bytes) {
             flags |= capture::FLAG_CRC_ERROR;
         }
+        // Wireshark has no Modbus ASCII dissector: a whole ASCII frame says what it is in
+        // RTU in its comment, which a reader can paste into anything that decodes RTU.
+        let note = match (why, self.mode) {
+            (None, Mode::Ascii) => {
+                let mut rtu = [0u8; crate::codec::MAX_RTU_FRAME];
+                crate::codec::ascii_to_rtu(bytes, &mut rtu)
+                    .ok()
+                    .map(|n| format!("as RTU: {}", crate::codec::hex::Hex(&rtu[..n])))
+            }
+            _ => None,
+        };
         if let Ok(mut r) = self.recorder.lock() {
-            r.record(interface, at, bytes, flags, why);
+            r.record(interface, at, bytes, flags, why, note.as_deref());
         }
     }
 
