@@ -3,6 +3,8 @@
 //!
 //! Layers, lowest first; a lower layer never uses a higher one:
 //! - [`codec`]: CRC, LRC, frames, messages, streaming deframers. Pure, no I/O.
+//! - [`capture`]: pcapng writer and pcap/pcapng reader (Wireshark's formats). Pure, no I/O
+//!   beyond `std::io::Write`.
 //! - [`vectors`]: the manuals' example frames as golden vectors (data under `vectors/`),
 //!   checked by the codec.
 //! - [`model`]: the drive models (data under `vectors/models/`) and their rules.
@@ -26,6 +28,7 @@
 #![deny(unsafe_code)]
 #![warn(missing_docs)]
 
+pub mod capture;
 pub mod codec;
 pub mod fuzz;
 pub mod gate;

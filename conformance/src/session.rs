@@ -68,6 +68,8 @@ pub struct SessionConfig {
     pub line: LineSettings,
     /// Runner options.
     pub options: Options,
+    /// Where every frame on the link is recorded (`--capture`), if anywhere.
+    pub capture: Option<crate::transport::capture::SharedRecorder>,
 }
 
 /// Why a session could not start.
@@ -244,6 +246,24 @@ pub fn serial_kind(path: &str) -> LinkKind {
 /// TCP), or a simulator started
 /// on a pseudo-terminal pair (stopped when the guard is dropped).
 pub fn open(
+    config: &SessionConfig,
+    mode: Mode,
+) -> Result<(Option<SimThread>, Box<dyn Transport>), SessionError> {
+    let (sim, transport) = open_link(config, mode)?;
+    let transport: Box<dyn Transport> = match &config.capture {
+        Some(rec) => Box::new(crate::transport::capture::Captured::new(
+            transport,
+            rec.clone(),
+            mode,
+            config.line,
+        )),
+        None => transport,
+    };
+    Ok((sim, transport))
+}
+
+/// [`open`] without the capture.
+fn open_link(
     config: &SessionConfig,
     mode: Mode,
 ) -> Result<(Option<SimThread>, Box<dyn Transport>), SessionError> {

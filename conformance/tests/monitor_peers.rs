@@ -646,7 +646,7 @@ fn check_and_monitor_agree(who: &str, d: &Path, device: Command, left_out: &[&st
     let (_, v) = common::check_device(d, &args, Duration::from_secs(300));
     assert_eq!(v["complete"], true, "{who}: {}", v["stopped"]);
     std::thread::sleep(Duration::from_millis(300));
-    let (_, r, lines, _) = l.stop(0);
+    let (_, r, _, _) = l.stop(0);
     let heard: Vec<Value> = std::fs::read_to_string(d.join("heard.jsonl"))
         .unwrap()
         .lines()

@@ -66,6 +66,7 @@ fn config(
         modes: modes.to_vec(),
         line: LineSettings::new(9600, 8, Parity::Even, 1),
         options: opts,
+        capture: None,
     }
 }
 
@@ -275,6 +276,7 @@ fn a_lost_link_ends_the_run_with_an_error_and_a_whole_report() {
         modes: vec![Mode::Rtu],
         line: LineSettings::new(9600, 8, Parity::Even, 1),
         options: options(&[]),
+        capture: None,
     };
     let stop = AtomicBool::new(false);
     let killer = child.clone();

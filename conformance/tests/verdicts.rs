@@ -173,6 +173,7 @@ fn run(cell: Cell, quirk: Option<Quirk>) -> Report {
         modes: vec![cell.mode],
         line,
         options,
+        capture: None,
     };
     let stop = std::sync::atomic::AtomicBool::new(false);
     session::run(&config, &stop, &mut |_, _| {}, &mut |_| {}).unwrap()

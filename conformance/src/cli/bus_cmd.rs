@@ -122,6 +122,11 @@ pub struct BusArgs {
     /// Write the line's log as JSON lines to this file.
     #[arg(long, value_name = "FILE")]
     log: Option<PathBuf>,
+    /// Record the line as a pcapng capture: one interface per endpoint with what it sent,
+    /// one for what listeners read from collisions and damaged characters; frames under
+    /// the link type of --mode (147 RTU, 148 ASCII).
+    #[arg(long, value_name = "FILE.pcapng")]
+    capture: Option<PathBuf>,
     /// No log on stderr.
     #[arg(short, long)]
     quiet: bool,
@@ -317,6 +322,13 @@ pub fn run(args: BusArgs) -> anyhow::Result<ExitCode> {
         let file = File::create(path)
             .with_context(|| format!("cannot create the log file {}", path.display()))?;
         log = log.with_json(Box::new(std::io::BufWriter::new(file)));
+    }
+    if let Some(path) = &args.capture {
+        let file = File::create(path)
+            .with_context(|| format!("cannot create the capture {}", path.display()))?;
+        log = log
+            .with_capture(Box::new(file), mode)
+            .with_context(|| format!("cannot write the capture {}", path.display()))?;
     }
 
     let threads: Vec<_> = drives

@@ -158,8 +158,14 @@ pub fn render(report: &Report, format: Format, verbose: bool) -> anyhow::Result<
 }
 
 /// Writes `contents` to `path` through a temporary file and a rename, so that the file is
-/// always a whole report.
+/// always a whole report. A path that is no regular file (`-o /dev/null`, `-o
+/// /dev/stdout`, a pipe) is written in place: a rename would put a regular file where
+/// the device was, for every program on the machine.
 pub fn write_atomic(path: &Path, contents: &str) -> std::io::Result<()> {
+    if std::fs::metadata(path).is_ok_and(|m| !m.is_file()) {
+        let mut f = std::fs::OpenOptions::new().write(true).open(path)?;
+        return f.write_all(contents.as_bytes());
+    }
     let mut tmp = path.as_os_str().to_owned();
     tmp.push(".partial");
     let tmp = PathBuf::from(tmp);
@@ -175,6 +181,11 @@ pub fn run(mut args: CheckArgs) -> anyhow::Result<ExitCode> {
     // `check` runs several drives on one bus (-a 1,2,5).
     args.target.several_nodes = true;
     let several = args.target.nodes.0.len() > 1;
+    let capture = if args.list {
+        None
+    } else {
+        args.target.open_capture()?
+    };
     let mut stop = None;
     let mut identified = None;
     let resolved = if args.target.model_is_auto() {
@@ -188,7 +199,7 @@ pub fn run(mut args: CheckArgs) -> anyhow::Result<ExitCode> {
             bail!("--model auto identifies one drive: run `conformance identify -a N` for each node, then `check --model MODEL -a {}` (one model for the bus)", args.target.nodes.0.iter().map(|n| n.to_string()).collect::<Vec<_>>().join(","));
         }
         let link = args.target.resolve_link(false, None)?;
-        let config = identify_cmd::config(&args.target, link, &args.identify)?;
+        let config = identify_cmd::config(&args.target, link, &args.identify, capture.clone())?;
         let flag = super::interrupt::stop_flag()?;
         let t0 = std::time::Instant::now();
         let t0_wall = std::time::SystemTime::now();
@@ -277,6 +288,7 @@ pub fn run(mut args: CheckArgs) -> anyhow::Result<ExitCode> {
         modes,
         line: args.target.line.settings(),
         options,
+        capture: capture.clone(),
     };
 
     if args.list {
@@ -363,8 +375,15 @@ pub fn run(mut args: CheckArgs) -> anyhow::Result<ExitCode> {
         if let Some(b) = &bar {
             b.set_message(format!("{mode} {}", c.id));
         }
+        // Frames the check damages on purpose are commented with its id.
+        if let Some(rec) = &capture {
+            if let Ok(mut r) = rec.lock() {
+                r.set_label(Some(format!("check {}", c.id)));
+            }
+        }
     };
     let mut report = session::run(&config, &stop, &mut on_start, &mut on_result)?;
+    args.target.close_capture(capture.as_ref());
     if let Some(r) = identified {
         report.results.insert(0, r);
     }
@@ -411,4 +430,40 @@ pub fn finish(
         }
     }
     Ok(ExitCode::from(report.exit_code()))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::write_atomic;
+
+    /// A FIFO stands for /dev/null and /dev/stdout: it is written through and stays a
+    /// FIFO (a rename over it made a regular file of /dev/null once).
+    #[cfg(unix)]
+    #[test]
+    fn a_path_that_is_no_regular_file_is_written_in_place() {
+        use std::io::Read;
+        use std::os::unix::fs::FileTypeExt;
+        let dir = std::env::temp_dir().join(format!("write-atomic-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let fifo = dir.join("fifo");
+        nix::unistd::mkfifo(&fifo, nix::sys::stat::Mode::S_IRWXU).unwrap();
+        let f = fifo.clone();
+        let reader = std::thread::spawn(move || {
+            let mut s = String::new();
+            std::fs::File::open(&f)
+                .unwrap()
+                .read_to_string(&mut s)
+                .unwrap();
+            s
+        });
+        write_atomic(&fifo, "report\n").unwrap();
+        assert_eq!(reader.join().unwrap(), "report\n");
+        assert!(std::fs::metadata(&fifo).unwrap().file_type().is_fifo());
+        // A regular file is still replaced whole.
+        let file = dir.join("r.txt");
+        write_atomic(&file, "one").unwrap();
+        write_atomic(&file, "two").unwrap();
+        assert_eq!(std::fs::read_to_string(&file).unwrap(), "two");
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
 }

@@ -295,6 +295,7 @@ pub fn run(args: FuzzArgs) -> anyhow::Result<ExitCode> {
         modes,
         line,
         options,
+        capture: args.target.open_capture()?,
     };
     let stop = super::interrupt::stop_flag()?;
     let terminal = std::io::stderr().is_terminal();
@@ -319,7 +320,15 @@ pub fn run(args: FuzzArgs) -> anyhow::Result<ExitCode> {
     let mut plain = (!args.quiet && !terminal).then(PlainProgress::new);
     let mut started = Instant::now();
     let mut last_mode = None;
+    // Frames a fuzz case damages on purpose are commented with how far the campaign was.
+    let capture = config.capture.clone();
+    if let Some(Ok(mut r)) = capture.as_ref().map(|c| c.lock()) {
+        r.set_label(Some("fuzz, the first case".into()));
+    }
     let mut progress = |mode: Mode, n: u64, findings: usize| {
+        if let Some(Ok(mut r)) = capture.as_ref().map(|c| c.lock()) {
+            r.set_label(Some(format!("fuzz {mode}, the case after {n} done")));
+        }
         if last_mode != Some(mode) {
             last_mode = Some(mode);
             started = Instant::now();
@@ -336,6 +345,7 @@ pub fn run(args: FuzzArgs) -> anyhow::Result<ExitCode> {
         }
     };
     let report = session::fuzz(&config, &cfg, &stop, &mut progress)?;
+    args.target.close_capture(config.capture.as_ref());
     if let Some(b) = &bar {
         b.finish_and_clear();
     }

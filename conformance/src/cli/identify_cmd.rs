@@ -17,6 +17,7 @@ use conformance::runner::Options;
 use super::check_cmd::write_atomic;
 use super::common::load_model;
 use super::link::{Link, TargetArgs};
+use conformance::transport::capture::SharedRecorder;
 
 const AFTER_HELP: &str = "\
 Examples:
@@ -84,11 +85,12 @@ pub struct IdentifyArgs {
     quiet: bool,
 }
 
-/// The identification of the device `target` names, over `link`.
+/// The identification of the device `target` names, over `link`, recorded on `capture`.
 pub fn config(
     target: &TargetArgs,
     link: Link,
     tuning: &IdentifyTuning,
+    capture: Option<SharedRecorder>,
 ) -> anyhow::Result<IdentifyConfig> {
     let address = target.address();
     if address == 0 {
@@ -132,6 +134,7 @@ pub fn config(
             max_probes: usize::from(tuning.max_probes),
         },
         tolerance: tuning.tolerance,
+        capture,
     })
 }
 
@@ -169,9 +172,11 @@ pub fn run(args: IdentifyArgs) -> anyhow::Result<ExitCode> {
         bail!("identify finds the model itself: --model and --model-file are not taken (`check --model auto` identifies and then checks)");
     }
     let link = args.target.resolve_link(false, None)?;
-    let config = config(&args.target, link, &args.tuning)?;
+    let capture = args.target.open_capture()?;
+    let config = config(&args.target, link, &args.tuning, capture.clone())?;
     let stop = super::interrupt::stop_flag()?;
     let id = identify_device(&config, &stop, args.quiet)?;
+    args.target.close_capture(capture.as_ref());
     let rendered = match args.format {
         Format::Text => render::text(&id),
         Format::Json => serde_json::to_string_pretty(&render::json(&id))? + "\n",

@@ -6,7 +6,7 @@ use std::path::PathBuf;
 use std::sync::Arc;
 use std::time::Duration;
 
-use anyhow::bail;
+use anyhow::{bail, Context};
 use clap::{Args, ValueEnum};
 use conformance::codec::timing::LineSettings;
 use conformance::codec::Mode;
@@ -14,6 +14,7 @@ use conformance::model::DriveModel;
 use conformance::runner::{EchoMode, MasterTiming};
 use conformance::session::Target;
 use conformance::sim::PlantedQuirk;
+use conformance::transport::capture::{Recorder, SharedRecorder};
 
 use super::common::{load_model, parse_nodes, LineArgs, NodeList, Number};
 
@@ -122,6 +123,36 @@ pub struct TargetArgs {
     /// With --sim: write the simulator's traffic log (JSON lines) to this file.
     #[arg(long, value_name = "FILE", requires = "sim")]
     pub sim_log: Option<PathBuf>,
+    /// Record every frame sent and received, damaged ones included, with its time and
+    /// direction, in this pcapng file (Wireshark and tshark open it; see the guide's
+    /// "Captures" page for the Modbus RTU decoding).
+    #[arg(long, value_name = "FILE.pcapng")]
+    pub capture: Option<PathBuf>,
+}
+
+/// Creates the capture file `path` (`--capture`): a pcapng section naming this program.
+pub fn open_capture(path: &std::path::Path) -> anyhow::Result<SharedRecorder> {
+    let file = std::fs::File::create(path)
+        .with_context(|| format!("cannot create the capture {}", path.display()))?;
+    let app = format!("conformance {}", env!("CARGO_PKG_VERSION"));
+    let rec = Recorder::new(Box::new(file), &app)
+        .with_context(|| format!("cannot write the capture {}", path.display()))?;
+    Ok(rec.shared())
+}
+
+/// Says on stderr what the capture `path` holds, or why it stopped.
+pub fn close_capture(path: &std::path::Path, rec: &SharedRecorder) {
+    let Ok(r) = rec.lock() else {
+        return;
+    };
+    match r.error() {
+        Some(e) => eprintln!(
+            "warning: the capture {} stopped after {} frames: {e}",
+            path.display(),
+            r.packets()
+        ),
+        None => eprintln!("capture: {} frames in {}", r.packets(), path.display()),
+    }
 }
 
 /// The safety switches of a real drive.
@@ -170,6 +201,18 @@ pub struct Link {
 }
 
 impl TargetArgs {
+    /// Creates the `--capture` file, if one was asked for.
+    pub fn open_capture(&self) -> anyhow::Result<Option<SharedRecorder>> {
+        self.capture.as_deref().map(open_capture).transpose()
+    }
+
+    /// Says on stderr what the capture holds, or why it stopped.
+    pub fn close_capture(&self, rec: Option<&SharedRecorder>) {
+        if let (Some(path), Some(rec)) = (&self.capture, rec) {
+            close_capture(path, rec);
+        }
+    }
+
     /// The node address (the first, where `check` was given several).
     pub fn address(&self) -> u8 {
         self.nodes.first()

@@ -14,6 +14,7 @@ use conformance::codec::Mode;
 use conformance::monitor::{self, Ended, Monitor, MonitorConfig, ReadOnlyPort, Tap};
 use conformance::report::{Device, NodeInfo, Report, ReportKind, RunOptions};
 use conformance::session::serial_kind;
+use conformance::transport::capture::Captured;
 use conformance::transport::serial::SerialTransport;
 
 use super::check_cmd::{finish, format_for, Format, FORMAT_DEFAULT};
@@ -25,6 +26,7 @@ Examples:
   conformance monitor --port /dev/ttyUSB1 --model a510 --mode ascii -d 7 --duration 1h --format html -o bus.html
   conformance monitor --port /dev/pts/7 --model f510 --quiet --format json -o bus.json   (a bus's third end)
   conformance monitor --port /dev/ttyUSB1 --model e510 --mode auto   RTU or ASCII, told from the traffic
+  conformance monitor --capture-in run.pcapng --model f510 -b 9600 -P even   (a capture, offline)
 
 Nothing is ever written to the port: it is read, and only read. Put a third adapter on the
 RS-485 pair (or a third end of `conformance bus`) and leave the master and the drives as
@@ -67,8 +69,21 @@ pub enum ModeArg {
 #[command(after_help = AFTER_HELP)]
 pub struct MonitorArgs {
     /// The serial port (or pseudo-terminal) to listen on.
-    #[arg(long, value_name = "PATH")]
-    port: String,
+    #[arg(
+        long,
+        value_name = "PATH",
+        required_unless_present = "capture_in",
+        conflicts_with = "capture_in"
+    )]
+    port: Option<String>,
+    /// Judge a capture instead of a port: pcap or pcapng (this suite's `--capture`, or a
+    /// serial sniffer's under a user link type 147..162), each packet at its own time.
+    #[arg(long, value_name = "FILE")]
+    capture_in: Option<PathBuf>,
+    /// With --port: also record every frame heard in this pcapng file (no direction: a
+    /// tap hears both sides on one wire).
+    #[arg(long, value_name = "FILE.pcapng", conflicts_with = "capture_in")]
+    capture: Option<PathBuf>,
     /// The drives' model: f510, a510, l510, e510, l510-legacy.
     #[arg(long, value_name = "MODEL")]
     model: String,
@@ -160,30 +175,200 @@ pub fn run(args: MonitorArgs) -> anyhow::Result<ExitCode> {
         ParityArg::Odd => Parity::Odd,
     };
     let line = LineSettings::new(args.baud, args.data_bits, parity, args.stop_bits);
-    let port = SerialTransport::open(&args.port, line, serial_kind(&args.port))
-        .with_context(|| format!("cannot listen on {}", args.port))?;
-    let mut tap = ReadOnlyPort::new(Box::new(port));
+    let started = humantime::format_rfc3339_seconds(SystemTime::now()).to_string();
+    let mut out = Out::new(&args)?;
+    let new_monitor = |mode: Mode| -> anyhow::Result<Monitor> {
+        if mode == Mode::Rtu && args.data_bits != 8 {
+            anyhow::bail!("RTU needs 8 data bits (-d 8)");
+        }
+        Ok(Monitor::new(
+            model.clone(),
+            MonitorConfig {
+                mode,
+                line,
+                nodes: nodes.clone(),
+                window: Duration::from_millis(args.window),
+                response_allowance: Duration::from_millis(args.allowance),
+                gap_allowance: Duration::from_millis(args.allowance),
+            },
+        )?)
+    };
+    let (mode, mon, source, ended) = match (&args.port, &args.capture_in) {
+        (_, Some(path)) => {
+            let data = std::fs::read(path)
+                .with_context(|| format!("cannot read the capture {}", path.display()))?;
+            let mode = match asked {
+                Some(m) => m,
+                None => {
+                    let m = told(monitor::replay::guess_mode(&data)?, line)?;
+                    out.say(monitor::Said::Notice(&format!(
+                        "--mode auto: {m} (two valid {m} frames at the start of the capture)"
+                    )));
+                    m
+                }
+            };
+            let mut mon = new_monitor(mode)?;
+            let r = monitor::replay::replay(&data, &mut mon, |l| out.say(monitor::Said::Line(l)))
+                .with_context(|| format!("cannot judge the capture {}", path.display()))?;
+            let ended = match &r.stopped {
+                Some(e) => {
+                    eprintln!(
+                        "warning: {}: {e}; the packets before it were judged",
+                        path.display()
+                    );
+                    format!(
+                        "end of the capture, cut short after {} packets ({e})",
+                        r.packets
+                    )
+                }
+                None => format!("end of the capture ({} packets)", r.packets),
+            };
+            (mode, mon, format!("capture {}", path.display()), ended)
+        }
+        (Some(port), None) => listen(&args, port, line, asked, &new_monitor, &mut out)?,
+        (None, None) => anyhow::bail!("say what to listen to: --port PATH or --capture-in FILE"),
+    };
+    let code = report(&args, mode, line, started, &mon, &source, &ended)?;
+    // The report is written first: a log that failed loses no verdict.
+    if let Some(e) = out.log_failed {
+        eprintln!("error: {e:#}");
+        return Ok(ExitCode::from(2));
+    }
+    Ok(code)
+}
+
+/// The mode `--mode auto` was told, or why it was not.
+fn told(g: monitor::guess::Guess, line: LineSettings) -> anyhow::Result<Mode> {
+    use monitor::guess::{Guess, GIVE_UP_AFTER};
+    match g {
+        Guess::Mode(m, _) => Ok(m),
+        Guess::AsciiSevenBits(n) => anyhow::bail!(
+            "--mode auto: {n} Modbus ASCII frames, but only with bit 7 of every byte cleared: the line has 7 data bits and was read as {line}; use --mode ascii -d 7 -P even (or -P odd)"
+        ),
+        Guess::Neither(first) => anyhow::bail!(
+            "--mode auto: no Modbus RTU or ASCII frame in the first {GIVE_UP_AFTER} bytes at {line}: {} ...; the line settings (-b, -P, -d, -s) may not be the line's",
+            conformance::codec::hex::Hex(&first)
+        ),
+        Guess::Undecided => anyhow::bail!(
+            "--mode auto: too little traffic to tell RTU from ASCII (two valid frames of one mode are needed); say --mode rtu or --mode ascii"
+        ),
+    }
+}
+
+/// Where what the monitor says goes: live lines to stderr (and `--log`), the rolling
+/// summary to a terminal, notices always.
+struct Out<'a> {
+    args: &'a MonitorArgs,
+    err: std::io::Stderr,
+    color: bool,
+    usb: Option<String>,
+    log: Option<(std::io::LineWriter<std::fs::File>, &'a std::path::Path)>,
+    log_failed: Option<anyhow::Error>,
+}
+
+impl<'a> Out<'a> {
+    fn new(args: &'a MonitorArgs) -> anyhow::Result<Out<'a>> {
+        let log = match &args.log {
+            Some(p) => Some((
+                std::io::LineWriter::new(
+                    std::fs::File::create(p)
+                        .with_context(|| format!("cannot write the log {}", p.display()))?,
+                ),
+                p.as_path(),
+            )),
+            None => None,
+        };
+        let err = std::io::stderr();
+        Ok(Out {
+            args,
+            color: err.is_terminal(),
+            err,
+            usb: args.port.as_deref().and_then(usb_name),
+            log,
+            log_failed: None,
+        })
+    }
+
+    fn say(&mut self, said: monitor::Said<'_>) {
+        match said {
+            monitor::Said::Line(l) => {
+                if let (Some((w, p)), None) = (self.log.as_mut(), self.log_failed.as_ref()) {
+                    if let Err(e) = writeln!(w, "{}", l.to_json()) {
+                        self.log_failed = Some(
+                            anyhow::Error::new(e)
+                                .context(format!("cannot write the log {}", p.display())),
+                        );
+                    }
+                }
+                if !self.args.quiet {
+                    let _ =
+                        if self.color && l.status == conformance::judge::VerdictStatus::Deviation {
+                            writeln!(self.err, "\x1b[31m{l}\x1b[0m")
+                        } else {
+                            writeln!(self.err, "{l}")
+                        };
+                }
+            }
+            // On a terminal only: a pipe or a file gets the lines and the report.
+            monitor::Said::Summary(lines) => {
+                if self.color && !self.args.quiet {
+                    let _ = writeln!(self.err, "\x1b[2m-- so far:");
+                    for l in lines {
+                        let _ = writeln!(self.err, "   {l}");
+                    }
+                    let _ = write!(self.err, "\x1b[0m");
+                }
+            }
+            // Said even with --quiet: it changes what the report can be trusted for.
+            monitor::Said::Notice(n) => {
+                let n = match &self.usb {
+                    Some(name) => n.replace("ttyUSBn", name),
+                    None => n.to_string(),
+                };
+                let _ = writeln!(self.err, "notice: {n}");
+            }
+        }
+    }
+}
+
+/// Listens on `port` (telling the mode first with `--mode auto`) until Ctrl-C, SIGTERM,
+/// `--duration` or the end of the input: the mode, the monitor, the port's description
+/// and why listening ended.
+fn listen(
+    args: &MonitorArgs,
+    port: &str,
+    line: LineSettings,
+    asked: Option<Mode>,
+    new_monitor: &dyn Fn(Mode) -> anyhow::Result<Monitor>,
+    out: &mut Out<'_>,
+) -> anyhow::Result<(Mode, Monitor, String, String)> {
+    let port = SerialTransport::open(port, line, serial_kind(port))
+        .with_context(|| format!("cannot listen on {port}"))?;
     // The one handler of every long command: Ctrl-C, SIGTERM and SIGHUP end the listening
     // and write the report.
     let stop = super::interrupt::stop_flag()?;
-    let started = humantime::format_rfc3339_seconds(SystemTime::now()).to_string();
     let origin = Instant::now();
-    let (mode, before) = match asked {
-        Some(m) => (m, Vec::new()),
+    let port: Box<dyn conformance::transport::Transport> = Box::new(port);
+    let (mode, before, port) = match asked {
+        Some(m) => (m, Vec::new(), port),
         None => {
+            let mut probe = ReadOnlyPort::new(port);
             if !args.quiet {
                 eprintln!(
                     "listening on {} ({line}) to tell RTU from ASCII; nothing is sent.",
-                    tap.describe()
+                    probe.describe()
                 );
             }
-            match monitor::listen_for_mode(&mut tap, &stop, args.duration, origin, line)? {
+            let told = monitor::listen_for_mode(&mut probe, &stop, args.duration, origin, line)
+                .map_err(|e| anyhow::anyhow!("--mode auto: {e}"))?;
+            match told {
                 Ok((m, heard)) => {
                     if !args.quiet {
                         let n: usize = heard.iter().map(|(_, b)| b.len()).sum();
                         eprintln!("--mode auto: {m} (two valid {m} frames in the first {n} bytes)");
                     }
-                    (m, heard)
+                    let port = probe.into_inner();
+                    (m, heard, port)
                 }
                 Err(ended) => anyhow::bail!(
                     "--mode auto: listening ended ({}) before two valid frames told RTU from ASCII; nothing was judged",
@@ -192,40 +377,24 @@ pub fn run(args: MonitorArgs) -> anyhow::Result<ExitCode> {
             }
         }
     };
-    if mode == Mode::Rtu && args.data_bits != 8 {
-        anyhow::bail!("RTU needs 8 data bits (-d 8)");
-    }
-    let mut mon = Monitor::new(
-        model,
-        MonitorConfig {
-            mode,
-            line,
-            nodes: nodes.clone(),
-            window: Duration::from_millis(args.window),
-            response_allowance: Duration::from_millis(args.allowance),
-            gap_allowance: Duration::from_millis(args.allowance),
-        },
-    )?;
+    let mut mon = new_monitor(mode)?;
+    let capture = args
+        .capture
+        .as_deref()
+        .map(super::link::open_capture)
+        .transpose()?;
+    let mut tap = match &capture {
+        Some(rec) => ReadOnlyPort::new(Box::new(
+            Captured::new(port, rec.clone(), mode, line).as_tap(),
+        )),
+        None => ReadOnlyPort::new(port),
+    };
     if !args.quiet {
         eprintln!(
             "listening on {} ({mode}, {line}); nothing is sent. Ctrl-C ends and reports.",
             tap.describe()
         );
     }
-    let mut log = match &args.log {
-        Some(p) => Some((
-            std::io::LineWriter::new(
-                std::fs::File::create(p)
-                    .with_context(|| format!("cannot write the log {}", p.display()))?,
-            ),
-            p,
-        )),
-        None => None,
-    };
-    let mut log_failed: Option<anyhow::Error> = None;
-    let mut err = std::io::stderr();
-    let color = err.is_terminal();
-    let usb = usb_name(&args.port);
     let ended = monitor::run_from(
         &mut tap,
         &mut mon,
@@ -233,46 +402,30 @@ pub fn run(args: MonitorArgs) -> anyhow::Result<ExitCode> {
         args.duration,
         origin,
         before,
-        |said| match said {
-            monitor::Said::Line(l) => {
-                if let (Some((w, p)), None) = (log.as_mut(), log_failed.as_ref()) {
-                    if let Err(e) = writeln!(w, "{}", l.to_json()) {
-                        log_failed = Some(
-                            anyhow::Error::new(e)
-                                .context(format!("cannot write the log {}", p.display())),
-                        );
-                    }
-                }
-                if !args.quiet {
-                    let _ = if color && l.status == conformance::judge::VerdictStatus::Deviation {
-                        writeln!(err, "\x1b[31m{l}\x1b[0m")
-                    } else {
-                        writeln!(err, "{l}")
-                    };
-                }
-            }
-            // On a terminal only: a pipe or a file gets the lines and the report.
-            monitor::Said::Summary(lines) => {
-                if color && !args.quiet {
-                    let _ = writeln!(err, "\x1b[2m-- so far:");
-                    for l in lines {
-                        let _ = writeln!(err, "   {l}");
-                    }
-                    let _ = write!(err, "\x1b[0m");
-                }
-            }
-            // Said even with --quiet: it changes what the report can be trusted for.
-            monitor::Said::Notice(n) => {
-                let n = match &usb {
-                    Some(name) => n.replace("ttyUSBn", name),
-                    None => n.to_string(),
-                };
-                let _ = writeln!(err, "notice: {n}");
-            }
-        },
+        |said| out.say(said),
     )?;
     let ended = describe_end(&ended);
-    let summary = mon.summary(&tap.describe(), &ended);
+    let described = tap.describe();
+    // The last frame heard is written when the port is let go.
+    drop(tap);
+    if let (Some(path), Some(rec)) = (&args.capture, &capture) {
+        super::link::close_capture(path, rec);
+    }
+    Ok((mode, mon, described, ended))
+}
+
+/// The report of what `mon` heard on `source`.
+fn report(
+    args: &MonitorArgs,
+    mode: Mode,
+    line: LineSettings,
+    started: String,
+    mon: &Monitor,
+    source: &str,
+    ended: &str,
+) -> anyhow::Result<ExitCode> {
+    let nodes = args.nodes.as_ref().map(|n| n.0.clone()).unwrap_or_default();
+    let summary = mon.summary(source, ended);
     let heard: Vec<u8> = mon.nodes().keys().copied().filter(|n| *n != 0).collect();
     let report = Report {
         kind: ReportKind::Monitor,
@@ -287,7 +440,7 @@ pub fn run(args: MonitorArgs) -> anyhow::Result<ExitCode> {
             address: heard.first().or(nodes.first()).copied().unwrap_or(1),
             links: [(
                 mode.to_string(),
-                format!("{} (listened, never written)", tap.describe()),
+                format!("{source} (listened, never written)"),
             )]
             .into_iter()
             .collect(),
@@ -319,16 +472,10 @@ pub fn run(args: MonitorArgs) -> anyhow::Result<ExitCode> {
         fuzz: None,
         monitor: Some(summary),
     };
-    let code = finish(
+    finish(
         &report,
         format_for(args.format, args.output.as_deref()),
         args.verbose,
         args.output.as_deref(),
-    )?;
-    // The report is written first: a log that failed loses no verdict.
-    if let Some(e) = log_failed {
-        eprintln!("error: {e:#}");
-        return Ok(ExitCode::from(2));
-    }
-    Ok(code)
+    )
 }

@@ -139,6 +139,7 @@ pub fn run(args: SendArgs) -> anyhow::Result<ExitCode> {
         modes: vec![mode],
         line,
         options,
+        capture: args.target.open_capture()?,
     };
     let (_sim, transport) = session::open(&config, mode)?;
     let mut out = std::io::stdout().lock();

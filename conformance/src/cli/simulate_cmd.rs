@@ -10,11 +10,13 @@ use std::time::Duration;
 
 use anyhow::{bail, Context};
 use clap::{Args, ValueEnum};
+use conformance::codec::timing::LineSettings;
 use conformance::codec::Mode;
 use conformance::sim::mbap::{serve_gateway, GatewayConfig, NoReply};
 use conformance::sim::{
     serve, Bus, LogFormat, PlantedQuirk, Responder, SimError, TrafficLog, QUIRK_HELP,
 };
+use conformance::transport::capture::{Captured, SharedRecorder};
 use conformance::transport::serial::SerialTransport;
 use conformance::transport::tcp::TcpTransport;
 use conformance::transport::{LinkKind, Transport, TransportError};
@@ -90,6 +92,10 @@ pub struct SimulateArgs {
     /// it: see docs/src/identify-and-scan.md).
     #[arg(long, requires = "pty")]
     emulate_line: bool,
+    /// With --port or --pty: record every frame received and sent (seen from the drive's
+    /// side: requests inbound, replies outbound) in this pcapng file.
+    #[arg(long, value_name = "FILE.pcapng", conflicts_with = "tcp")]
+    capture: Option<PathBuf>,
     /// Serve over TCP at HOST:PORT: RTU or ASCII frames (as a serial server), or Modbus
     /// TCP with --framing mbap (as a Modbus TCP gateway with this drive behind it).
     #[arg(long, value_name = "HOST:PORT", group = "where")]
@@ -188,11 +194,16 @@ pub fn run(args: SimulateArgs) -> anyhow::Result<ExitCode> {
     if args.line.rts.rts && args.port.is_none() {
         bail!("--rts drives the RTS line of a serial port: give --port PATH");
     }
+    let capture = args
+        .capture
+        .as_deref()
+        .map(super::link::open_capture)
+        .transpose()?;
     let result = if let Some(path) = &args.port {
-        let mut t = SerialTransport::open(path, line, LinkKind::Serial)?
+        let t = SerialTransport::open(path, line, LinkKind::Serial)?
             .with_rts(args.line.rts.control())?;
         log.message(&format!("{banner} on {}", t.describe()))?;
-        run_once(&mut t, &mut drive, mode, &mut log, &stop)
+        run_recorded(t, capture.as_ref(), line, &mut drive, mode, &mut log, &stop)
     } else if args.pty {
         #[cfg(unix)]
         {
@@ -211,7 +222,7 @@ pub fn run(args: SimulateArgs) -> anyhow::Result<ExitCode> {
             writeln!(out, "{}", path.display())?;
             out.flush()?;
             log.message(&format!("{banner} on {}", t.describe()))?;
-            run_once(&mut t, &mut drive, mode, &mut log, &stop)
+            run_recorded(t, capture.as_ref(), line, &mut drive, mode, &mut log, &stop)
         }
         #[cfg(not(unix))]
         bail!("pseudo-terminals need a Unix system")
@@ -263,6 +274,9 @@ pub fn run(args: SimulateArgs) -> anyhow::Result<ExitCode> {
     } else {
         bail!("say where to serve: --port PATH, --pty or --tcp HOST:PORT");
     };
+    if let (Some(path), Some(rec)) = (&args.capture, &capture) {
+        super::link::close_capture(path, rec);
+    }
     match result {
         Ok(()) => Ok(ExitCode::SUCCESS),
         Err(e) => Err(e.into()),
@@ -307,6 +321,28 @@ impl Drop for PtyLink {
         if std::fs::read_link(&self.link).is_ok_and(|t| t == self.target) {
             let _ = std::fs::remove_file(&self.link);
         }
+    }
+}
+
+/// [`run_once`] on `t`, recorded on `capture` where one is asked for.
+fn run_recorded<T: Transport>(
+    mut t: T,
+    capture: Option<&SharedRecorder>,
+    line: LineSettings,
+    drive: &mut dyn Responder,
+    mode: Mode,
+    log: &mut TrafficLog,
+    stop: &AtomicBool,
+) -> Result<(), SimError> {
+    match capture {
+        Some(rec) => run_once(
+            &mut Captured::new(t, rec.clone(), mode, line),
+            drive,
+            mode,
+            log,
+            stop,
+        ),
+        None => run_once(&mut t, drive, mode, log, stop),
     }
 }
 

@@ -50,6 +50,8 @@ pub struct IdentifyConfig {
     pub limits: PlanLimits,
     /// Answers a model may miss and still be named.
     pub tolerance: usize,
+    /// Where every frame on the link is recorded (`--capture`), if anywhere.
+    pub capture: Option<crate::transport::capture::SharedRecorder>,
 }
 
 /// One probe sent, and what came back.
@@ -239,6 +241,7 @@ pub fn run(
             modes: vec![mode],
             line: config.line,
             options: config.options.clone(),
+            capture: config.capture.clone(),
         };
         let (sim, transport) = session::open(&session, mode)?;
         let (probes, candidates) = plan(&models, mode, address, config.limits);

@@ -11,7 +11,9 @@ use std::io::Write;
 use serde::Serialize;
 
 use super::LineError;
-use crate::codec::hex::Hex;
+use crate::capture::{self, Interface, PacketMeta, PcapngWriter};
+use crate::codec::hex::{parse_hex, Hex};
+use crate::codec::Mode;
 
 /// One endpoint as the start record lists it.
 #[derive(Debug, Clone, Serialize)]
@@ -199,6 +201,120 @@ impl Record {
 pub struct LineLog {
     json: Option<Box<dyn Write + Send>>,
     text: Option<Box<dyn Write + Send>>,
+    capture: Option<LineCapture>,
+}
+
+/// The line as a pcapng capture (`bus --capture`): one interface per endpoint, holding
+/// what that endpoint sent (outbound from its side), and one for the line itself, holding
+/// what listeners read from collisions and damaged characters.
+struct LineCapture {
+    writer: PcapngWriter<Box<dyn Write + Send>>,
+    mode: Mode,
+    /// Wall-clock microseconds at the line's start (`t_us` 0).
+    origin_us: u64,
+    /// Interface of each endpoint, by name, then the line's.
+    interfaces: Vec<String>,
+}
+
+impl LineCapture {
+    fn interface(&self, name: &str) -> u32 {
+        let line = self.interfaces.len().saturating_sub(1);
+        self.interfaces
+            .iter()
+            .position(|n| n == name)
+            .unwrap_or(line) as u32
+    }
+
+    fn record(&mut self, r: &Record) -> Result<(), capture::WriteError> {
+        let packet = |t_us: u64, interface: u32, flags: u32, comment: Option<String>| PacketMeta {
+            interface,
+            timestamp_us: self.origin_us.saturating_add(t_us),
+            flags,
+            comment,
+        };
+        let (meta, bytes) = match r {
+            Record::Start {
+                line, endpoints, ..
+            } => {
+                self.origin_us = std::time::SystemTime::now()
+                    .duration_since(std::time::SystemTime::UNIX_EPOCH)
+                    .map(|d| d.as_micros() as u64)
+                    .unwrap_or(0);
+                for e in endpoints {
+                    let what = e.path.as_deref().or(e.device.as_deref()).unwrap_or("");
+                    self.writer.add_interface(&Interface {
+                        link_type: capture::link_type_of(self.mode),
+                        name: e.name.clone(),
+                        description: format!("{} {line}, endpoint {} {what}", self.mode, e.name),
+                    })?;
+                    self.interfaces.push(e.name.clone());
+                }
+                self.writer.add_interface(&Interface {
+                    link_type: capture::link_type_of(self.mode),
+                    name: "line".into(),
+                    description: format!(
+                        "{} {line}, what listeners read from collisions and damaged characters",
+                        self.mode
+                    ),
+                })?;
+                self.interfaces.push(String::new());
+                return Ok(());
+            }
+            Record::Tx {
+                t_us, from, hex, ..
+            } => {
+                let bytes = parse_hex(hex).unwrap_or_default();
+                let mut flags = capture::FLAG_OUTBOUND;
+                if !checksum_ok(self.mode, &bytes) {
+                    flags |= capture::FLAG_CRC_ERROR;
+                }
+                (packet(*t_us, self.interface(from), flags, None), bytes)
+            }
+            Record::Collision {
+                t_us,
+                endpoints,
+                chars,
+                line_hex,
+                ..
+            } => (
+                packet(
+                    *t_us,
+                    self.interface(""),
+                    FLAG_SYMBOL_ERROR,
+                    Some(format!(
+                        "collision of {}: {chars} characters read damaged",
+                        endpoints.join(", ")
+                    )),
+                ),
+                parse_hex(line_hex).unwrap_or_default(),
+            ),
+            Record::Damaged { t_us, hex, error } => (
+                packet(
+                    *t_us,
+                    self.interface(""),
+                    FLAG_SYMBOL_ERROR,
+                    Some(format!(
+                        "a character read damaged{}",
+                        error.map(|e| format!(" ({e} error)")).unwrap_or_default()
+                    )),
+                ),
+                parse_hex(hex).unwrap_or_default(),
+            ),
+            _ => return Ok(()),
+        };
+        self.writer.write_packet(&meta, &bytes)
+    }
+}
+
+/// `epb_flags` bit 31: symbol error (a character the line damaged).
+const FLAG_SYMBOL_ERROR: u32 = 1 << 31;
+
+/// Whether `frame` carries a right checksum for `mode`.
+fn checksum_ok(mode: Mode, frame: &[u8]) -> bool {
+    match mode {
+        Mode::Rtu => frame.len() >= 4 && crate::codec::crc::crc16_frame_ok(frame),
+        Mode::Ascii => crate::codec::ascii::is_valid_frame(frame),
+    }
 }
 
 impl LineLog {
@@ -211,6 +327,19 @@ impl LineLog {
     pub fn with_json(mut self, w: Box<dyn Write + Send>) -> Self {
         self.json = Some(w);
         self
+    }
+
+    /// Also writes the line as a pcapng capture to `w`, its frames under the link type of
+    /// `mode` (see [`crate::capture`]).
+    pub fn with_capture(mut self, w: Box<dyn Write + Send>, mode: Mode) -> Result<Self, LineError> {
+        let writer = PcapngWriter::new(w, "conformance bus").map_err(capture_error)?;
+        self.capture = Some(LineCapture {
+            writer,
+            mode,
+            origin_us: 0,
+            interfaces: Vec::new(),
+        });
+        Ok(self)
     }
 
     /// Also writes one human line a record to `w` (prefixed `# `).
@@ -229,6 +358,9 @@ impl LineLog {
         if let Some(w) = self.text.as_mut() {
             writeln!(w, "# {}", r.text()).map_err(LineError::Log)?;
         }
+        if let Some(c) = self.capture.as_mut() {
+            c.record(r).map_err(capture_error)?;
+        }
         Ok(())
     }
 
@@ -241,6 +373,13 @@ impl LineLog {
             w.flush().map_err(LineError::Log)?;
         }
         Ok(())
+    }
+}
+
+fn capture_error(e: capture::WriteError) -> LineError {
+    match e {
+        capture::WriteError::Io(e) => LineError::Log(e),
+        other => LineError::Log(std::io::Error::other(other.to_string())),
     }
 }
 

@@ -19,6 +19,7 @@ pub mod frames;
 pub mod guess;
 mod judge_master;
 mod live;
+pub mod replay;
 mod report;
 pub mod stats;
 pub mod tap;

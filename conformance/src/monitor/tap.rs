@@ -28,6 +28,11 @@ impl ReadOnlyPort {
     pub fn new(port: Box<dyn Transport>) -> Self {
         ReadOnlyPort { port }
     }
+
+    /// The port back (to listen on it through another wrapper: a capture).
+    pub fn into_inner(self) -> Box<dyn Transport> {
+        self.port
+    }
 }
 
 impl Tap for ReadOnlyPort {

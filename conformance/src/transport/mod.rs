@@ -11,12 +11,15 @@
 //!   and hands back RTU frames, as if it were the serial line behind the gateway; it can
 //!   carry whole valid frames only ([`Transport::frames_only`]).
 //! - [`memory::MemoryEnd`]: an in-memory pair, for tests.
+//! - [`capture::Captured`]: any of them, with every frame sent and received recorded in a
+//!   pcapng capture (`--capture`).
 //! - [`uart`]: what a UART reads from characters sent at other line settings (the
 //!   simulator's pseudo-terminal emulates a drive's line with it).
 //!
 //! Reads wait at most the timeout they are given and return 0 when nothing arrived; a
 //! closed link is [`TransportError::Closed`], never a silent empty read.
 
+pub mod capture;
 pub mod mbap;
 pub mod memory;
 #[cfg(unix)]

@@ -25,6 +25,8 @@ pub fn seeds(set: &VectorSet, files: &[(String, String)]) -> Vec<Seed> {
         let mut rtu_stream = vec![CHUNK_CONTROL];
         let mut mbap_stream = Vec::new();
         let mut ascii_stream = vec![CHUNK_CONTROL];
+        // Every frame of the file, RTU on interface 0 and ASCII on 1, as a capture.
+        let mut captured: Vec<(u32, Vec<u8>)> = Vec::new();
         for v in &file.vectors {
             let Body::Frame(fv) = &v.body else { continue };
             let versions = [
@@ -53,6 +55,7 @@ pub fn seeds(set: &VectorSet, files: &[(String, String)]) -> Vec<Seed> {
                 stream.extend_from_slice(&bytes);
                 match fv.mode {
                     FileMode::Rtu => {
+                        captured.push((0, bytes.clone()));
                         rtu_stream.extend_from_slice(&bytes);
                         // What a Modbus TCP gateway makes of it: the PDU under an MBAP
                         // header, the node address as the unit id.
@@ -90,6 +93,7 @@ pub fn seeds(set: &VectorSet, files: &[(String, String)]) -> Vec<Seed> {
                         });
                     }
                     FileMode::Ascii => {
+                        captured.push((1, bytes.clone()));
                         ascii_stream.extend_from_slice(&bytes);
                         out.push(Seed {
                             target: "ascii_frame",
@@ -120,6 +124,11 @@ pub fn seeds(set: &VectorSet, files: &[(String, String)]) -> Vec<Seed> {
             name: format!("{}.all-mbap", file.document),
             bytes: mbap_stream,
         });
+        out.push(Seed {
+            target: "capture_reader",
+            name: format!("{}.pcapng", file.document),
+            bytes: capture_of(&captured),
+        });
     }
     for (name, text) in files {
         out.push(Seed {
@@ -129,4 +138,39 @@ pub fn seeds(set: &VectorSet, files: &[(String, String)]) -> Vec<Seed> {
         });
     }
     out
+}
+
+/// A pcapng file of `frames` (interface 0: RTU, 1: ASCII), alternately sent and
+/// received, a millisecond apart.
+fn capture_of(frames: &[(u32, Vec<u8>)]) -> Vec<u8> {
+    use crate::capture::{self, Interface, PacketMeta, PcapngWriter};
+    let write = || -> Result<Vec<u8>, capture::WriteError> {
+        let mut w = PcapngWriter::new(Vec::new(), "vectors")?;
+        for (link_type, description) in [
+            (capture::LINKTYPE_USER0, "rtu"),
+            (capture::LINKTYPE_USER1, "ascii"),
+        ] {
+            w.add_interface(&Interface {
+                link_type,
+                name: "vectors".into(),
+                description: description.into(),
+            })?;
+        }
+        for (i, (interface, bytes)) in frames.iter().enumerate() {
+            let direction = if i % 2 == 0 {
+                capture::Direction::Outbound
+            } else {
+                capture::Direction::Inbound
+            };
+            let meta = PacketMeta {
+                interface: *interface,
+                timestamp_us: 1_000 * i as u64,
+                flags: direction.flag(),
+                comment: None,
+            };
+            w.write_packet(&meta, bytes)?;
+        }
+        Ok(w.into_inner())
+    };
+    write().unwrap_or_default()
 }

@@ -1,5 +1,5 @@
 //! The programs nobody here wrote that the tests use as peers (mbpoll, libmodbus, pymodbus,
-//! minimalmodbus, Chromium, a C compiler, jsmodbus), how a test asks for one, and what
+//! minimalmodbus, Chromium, a C compiler, jsmodbus, tshark), how a test asks for one, and what
 //! happens when one is missing.
 //!
 //! A test asks with [`need`]. When the peer is here, it runs. When it is not, the test
@@ -41,6 +41,8 @@ pub enum Peer {
     Minimalmodbus,
     /// jsmodbus under Node.js (`npm ci` in adapters/jsmodbus).
     Jsmodbus,
+    /// tshark, Wireshark's command-line decoder (Debian `tshark`).
+    Tshark,
 }
 
 impl Peer {
@@ -56,6 +58,7 @@ impl Peer {
             Peer::Pymodbus => "pymodbus==3.16.1 and pyserial==3.5 (PyPI)",
             Peer::Minimalmodbus => "minimalmodbus==2.1.1 and pyserial==3.5 (PyPI)",
             Peer::Jsmodbus => "jsmodbus under Node.js (npm ci in adapters/jsmodbus)",
+            Peer::Tshark => "tshark (Debian package tshark)",
         }
     }
 
@@ -63,6 +66,7 @@ impl Peer {
     fn probe(self) -> Result<(), String> {
         match self {
             Peer::Mbpoll => succeeds(Command::new("mbpoll").arg("-V")),
+            Peer::Tshark => succeeds(Command::new("tshark").arg("--version")),
             Peer::CCompiler => succeeds(Command::new(cc()).arg("--version")),
             Peer::Libmodbus => {
                 succeeds(Command::new(cc()).arg("--version"))?;

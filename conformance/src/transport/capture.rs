@@ -1,0 +1,630 @@
+//! Recording a link as a pcapng capture (`--capture FILE.pcapng`).
+//!
+//! [`Recorder`] owns the file: one interface per link opened (a run in both modes opens
+//! two), and the label of what is running now (a check id), for the comments on frames
+//! damaged on purpose. [`Captured`] wraps any [`Transport`] and records, on the
+//! recorder it shares:
+//!
+//! - each `send` as one outbound packet, stamped with the time it started; each piece of a
+//!   `send_pieces` as its own packet (the pieces after the first flagged "wrong
+//!   inter-frame gap", bit 27): a receiver that frames by silence sees them so;
+//! - received bytes grouped into inbound packets: a packet ends where the line was silent
+//!   for the frame gap (t3.5, at least 5 ms, as the master frames) or where this side
+//!   sends. On a link whose timing is the host's (a pseudo-terminal, TCP) a silence
+//!   inside a frame whose length its function tells (and whose checksum is not right
+//!   yet) is the host's delivery, not the line's: the frame is held whole unless the
+//!   silence passes [`HOST_STALL`]. A
+//!   packet's time is that of the read that brought its first bytes, less their
+//!   transmission time where the line's timing is known, and never before the end of the
+//!   last frame sent (a reply cannot begin before its request ended).
+//!
+//! An outbound packet's time is when its first character went on the line: where the
+//! transport knows when the last one left ([`Transport::sent_at`], a paced link), that
+//! less the frame's transmission time.
+//!
+//! Each packet whose checksum is wrong (RTU CRC, ASCII LRC or delimiters) carries the
+//! CRC-error bit (24); an outbound one also a comment naming the label (the check) that
+//! damaged it. Bytes waiting when the caller discards input (a late reply it gave up on)
+//! are read into the capture first, then dropped.
+//! A write to the file that fails stops the recording and is reported once, at the end
+//! ([`Recorder::error`]): the run itself goes on.
+
+use std::io::Write;
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant, SystemTime};
+
+use super::{LineTags, LinkKind, Transport, TransportError};
+use crate::capture::{self, Interface, PacketMeta, PcapngWriter};
+use crate::codec::timing::LineSettings;
+use crate::codec::Mode;
+
+/// The longest silence inside a frame that a host's delivery is taken to cause on a link
+/// without the line's timing.
+pub const HOST_STALL: Duration = Duration::from_millis(200);
+
+/// The capture file of a run, shared by the links it opens.
+pub struct Recorder {
+    writer: Option<PcapngWriter<Box<dyn Write + Send>>>,
+    origin: Instant,
+    origin_us: u64,
+    label: Option<String>,
+    error: Option<String>,
+    packets: u64,
+}
+
+/// A recorder shared by the transports of a run and the command that labels the checks.
+pub type SharedRecorder = Arc<Mutex<Recorder>>;
+
+impl Recorder {
+    /// Starts a capture on `sink` (a section header naming `application`).
+    pub fn new(
+        sink: Box<dyn Write + Send>,
+        application: &str,
+    ) -> Result<Self, capture::WriteError> {
+        let origin_us = SystemTime::now()
+            .duration_since(SystemTime::UNIX_EPOCH)
+            .map(|d| d.as_micros() as u64)
+            .unwrap_or(0);
+        Ok(Recorder {
+            writer: Some(PcapngWriter::new(sink, application)?),
+            origin: Instant::now(),
+            origin_us,
+            label: None,
+            error: None,
+            packets: 0,
+        })
+    }
+
+    /// Shares it.
+    pub fn shared(self) -> SharedRecorder {
+        Arc::new(Mutex::new(self))
+    }
+
+    /// What runs now (a check id, a fuzz case), named in the comment of frames it damages
+    /// on purpose; None between checks.
+    pub fn set_label(&mut self, label: Option<String>) {
+        self.label = label;
+    }
+
+    /// The first write that failed, if one did (the recording stopped there).
+    pub fn error(&self) -> Option<&str> {
+        self.error.as_deref()
+    }
+
+    /// Packets written.
+    pub fn packets(&self) -> u64 {
+        self.packets
+    }
+
+    /// Describes a link; None once the recording failed.
+    fn interface(&mut self, iface: &Interface) -> Option<u32> {
+        let w = self.writer.as_mut()?;
+        match w.add_interface(iface) {
+            Ok(i) => Some(i),
+            Err(e) => {
+                self.fail(e);
+                None
+            }
+        }
+    }
+
+    fn fail(&mut self, e: capture::WriteError) {
+        self.error.get_or_insert_with(|| e.to_string());
+        self.writer = None;
+    }
+
+    /// Writes one packet that started at `at`, with a comment: why it is damaged (after
+    /// the label of what runs now), or else a note as it is.
+    fn record(
+        &mut self,
+        interface: u32,
+        at: Instant,
+        bytes: &[u8],
+        flags: u32,
+        why: Option<&str>,
+        note: Option<&str>,
+    ) {
+        let comment = match (why, &self.label) {
+            (Some(why), Some(label)) => Some(format!("{label}: {why}")),
+            (Some(why), None) => Some(why.to_string()),
+            _ => note.map(str::to_string),
+        };
+        let since = at.saturating_duration_since(self.origin).as_micros() as u64;
+        let meta = PacketMeta {
+            interface,
+            timestamp_us: self.origin_us + since,
+            flags,
+            comment,
+        };
+        let Some(w) = self.writer.as_mut() else {
+            return;
+        };
+        match w.write_packet(&meta, bytes) {
+            Ok(()) => self.packets += 1,
+            Err(e) => self.fail(e),
+        }
+    }
+}
+
+/// Whether `frame` carries a right checksum for `mode`.
+fn checksum_ok(mode: Mode, frame: &[u8]) -> bool {
+    match mode {
+        Mode::Rtu => frame.len() >= 4 && crate::codec::crc::crc16_frame_ok(frame),
+        Mode::Ascii => crate::codec::ascii::is_valid_frame(frame),
+    }
+}
+
+/// A transport whose traffic is recorded (see the module's documentation).
+pub struct Captured<T: Transport> {
+    inner: T,
+    recorder: SharedRecorder,
+    interface: Option<u32>,
+    mode: Mode,
+    char_time: Option<Duration>,
+    gap: Duration,
+    inbound: Vec<u8>,
+    inbound_at: Option<Instant>,
+    last_read: Option<Instant>,
+    last_sent: Option<Instant>,
+    host_timing: bool,
+    inbound_flag: u32,
+}
+
+impl<T: Transport> Captured<T> {
+    /// Records `inner`, a link carrying `mode` frames at `line`, on `recorder`, as a new
+    /// interface described by the link, the mode and the line.
+    pub fn new(inner: T, recorder: SharedRecorder, mode: Mode, line: LineSettings) -> Self {
+        let name = inner.describe();
+        let description = format!("{mode} {line}, {name}");
+        let iface = Interface {
+            link_type: capture::link_type_of(mode),
+            name,
+            description,
+        };
+        let interface = recorder.lock().ok().and_then(|mut r| r.interface(&iface));
+        let char_time = inner
+            .line_timing()
+            .map(|l| Duration::from_micros(l.char_time_us()));
+        Captured {
+            recorder,
+            interface,
+            mode,
+            char_time,
+            gap: Duration::from_millis(5).max(Duration::from_micros(line.t3_5_us())),
+            inbound: Vec::new(),
+            inbound_at: None,
+            last_read: None,
+            last_sent: None,
+            host_timing: inner.kind() != LinkKind::Serial,
+            inner,
+            inbound_flag: capture::FLAG_INBOUND,
+        }
+    }
+
+    /// For a tap that hears both sides of a bus (`monitor`): what it receives is written
+    /// without a direction (flags bits 0-1 `00`, "not known"), as a single-direction
+    /// sniffer's file is.
+    pub fn as_tap(mut self) -> Self {
+        self.inbound_flag = 0;
+        self
+    }
+
+    fn record(&mut self, at: Instant, bytes: &[u8], mut flags: u32, why: Option<&str>) {
+        let Some(interface) = self.interface else {
+            return;
+        };
+        if !checksum_ok(self.mode, bytes) {
+            flags |= capture::FLAG_CRC_ERROR;
+        }
+        // Wireshark has no Modbus ASCII dissector: a whole ASCII frame says what it is in
+        // RTU in its comment, which a reader can paste into anything that decodes RTU.
+        let note = match (why, self.mode) {
+            (None, Mode::Ascii) => {
+                let mut rtu = [0u8; crate::codec::MAX_RTU_FRAME];
+                crate::codec::ascii_to_rtu(bytes, &mut rtu)
+                    .ok()
+                    .map(|n| format!("as RTU: {}", crate::codec::hex::Hex(&rtu[..n])))
+            }
+            _ => None,
+        };
+        if let Ok(mut r) = self.recorder.lock() {
+            r.record(interface, at, bytes, flags, why, note.as_deref());
+        }
+    }
+
+    /// Records one outbound frame; a wrong checksum is named as damage on purpose.
+    fn record_sent(&mut self, at: Instant, bytes: &[u8], flags: u32, why: Option<String>) {
+        let damaged = (!checksum_ok(self.mode, bytes)).then_some(match self.mode {
+            Mode::Rtu => "sent with a wrong CRC on purpose",
+            Mode::Ascii => "sent with a wrong LRC or framing on purpose",
+        });
+        let why = match (why, damaged) {
+            (Some(w), Some(d)) => Some(format!("{d}; {w}")),
+            (Some(w), None) => Some(w),
+            (None, d) => d.map(str::to_string),
+        };
+        self.record(at, bytes, capture::FLAG_OUTBOUND | flags, why.as_deref());
+    }
+
+    /// Whether the inbound bytes held start a frame that is not whole yet, on a link whose
+    /// timing is the host's: not a frame with a right checksum already, and shorter than
+    /// the length its function tells as a request or as a reply (RTU; a master receives
+    /// replies, a simulated drive requests, a tap both), or without its CR LF (ASCII).
+    fn holds_part_of_a_frame(&self) -> bool {
+        if !self.host_timing || checksum_ok(self.mode, &self.inbound) {
+            return false;
+        }
+        let len = self.inbound.len();
+        match self.mode {
+            // Too short to tell its length: under the shortest frame (address, function,
+            // CRC).
+            Mode::Rtu => {
+                len < 4
+                    || [
+                        crate::codec::Direction::Request,
+                        crate::codec::Direction::Response,
+                    ]
+                    .into_iter()
+                    .any(|d| {
+                        matches!(
+                            crate::codec::deframe::rtu_frame_len(d, &self.inbound),
+                            Some(n) if len < n
+                        )
+                    })
+            }
+            Mode::Ascii => self.inbound.first() == Some(&b':') && !self.inbound.ends_with(b"\r\n"),
+        }
+    }
+
+    /// When a transmission of `len` characters that started at `before` (the clock read
+    /// before the write) began on the line.
+    fn sent_start(&self, before: Instant, len: usize) -> Instant {
+        match (self.inner.sent_at(), self.char_time) {
+            (Some(end), Some(c)) => end
+                .checked_sub(c * len as u32)
+                .map_or(before, |s| s.max(before)),
+            _ => before,
+        }
+    }
+
+    /// Writes the inbound packet held, if any.
+    fn flush_inbound(&mut self) {
+        if let Some(at) = self.inbound_at.take() {
+            let bytes = std::mem::take(&mut self.inbound);
+            self.record(at, &bytes, self.inbound_flag, None);
+            self.inbound = bytes;
+            self.inbound.clear();
+        }
+    }
+}
+
+impl<T: Transport> Drop for Captured<T> {
+    fn drop(&mut self) {
+        self.flush_inbound();
+    }
+}
+
+impl<T: Transport> Transport for Captured<T> {
+    fn send(&mut self, bytes: &[u8]) -> Result<(), TransportError> {
+        self.flush_inbound();
+        let before = Instant::now();
+        let r = self.inner.send(bytes);
+        let at = self.sent_start(before, bytes.len());
+        self.last_sent = Some(self.inner.sent_at().unwrap_or_else(Instant::now));
+        self.record_sent(at, bytes, 0, None);
+        r
+    }
+
+    fn recv(&mut self, buf: &mut [u8], timeout: Duration) -> Result<usize, TransportError> {
+        let n = self.inner.recv(buf, timeout)?;
+        let now = Instant::now();
+        if let Some(t) = self.last_read {
+            let silence = now.saturating_duration_since(t);
+            if !self.inbound.is_empty()
+                && silence >= self.gap
+                && (silence >= HOST_STALL || !self.holds_part_of_a_frame())
+            {
+                self.flush_inbound();
+            }
+        }
+        if n > 0 {
+            if self.inbound_at.is_none() {
+                let on_line = self.char_time.map_or(Duration::ZERO, |c| c * n as u32);
+                let mut at = now.checked_sub(on_line).unwrap_or(now);
+                if let Some(sent) = self.last_sent {
+                    at = at.max(sent);
+                }
+                self.inbound_at = Some(at);
+            }
+            self.inbound.extend_from_slice(&buf[..n]);
+            self.last_read = Some(now);
+        }
+        Ok(n)
+    }
+
+    fn discard_input(&mut self) -> Result<(), TransportError> {
+        // What is waiting was on the line (a late reply the master gives up on): it is
+        // read into the capture before it is dropped. Bounded: a peer that never stops
+        // sending cannot hold the caller here.
+        let mut buf = [0u8; 512];
+        for _ in 0..64 {
+            if self.recv(&mut buf, Duration::ZERO)? == 0 {
+                break;
+            }
+        }
+        self.flush_inbound();
+        self.inner.discard_input()
+    }
+
+    fn describe(&self) -> String {
+        self.inner.describe()
+    }
+
+    fn kind(&self) -> LinkKind {
+        self.inner.kind()
+    }
+
+    fn sent_at(&self) -> Option<Instant> {
+        self.inner.sent_at()
+    }
+
+    fn peer_lateness(&self) -> Option<Duration> {
+        self.inner.peer_lateness()
+    }
+
+    fn send_was_broken(&self) -> bool {
+        self.inner.send_was_broken()
+    }
+
+    fn line_timing(&self) -> Option<LineSettings> {
+        self.inner.line_timing()
+    }
+
+    fn line_tags(&self) -> Option<LineTags> {
+        self.inner.line_tags()
+    }
+
+    fn send_pieces(
+        &mut self,
+        pieces: &[&[u8]],
+        gap: Duration,
+    ) -> Result<Vec<Duration>, TransportError> {
+        self.flush_inbound();
+        let start = Instant::now();
+        let r = self.inner.send_pieces(pieces, gap);
+        self.last_sent = Some(self.inner.sent_at().unwrap_or_else(Instant::now));
+        // The pieces' start times: from the gaps as they left, and each piece's time on
+        // the line where it is known.
+        let gaps = r.as_ref().map(|g| g.as_slice()).unwrap_or(&[]);
+        let mut at = start;
+        for (i, p) in pieces.iter().enumerate() {
+            let flags = if i > 0 { capture::FLAG_WRONG_GAP } else { 0 };
+            let why = Some(format!(
+                "piece {} of {} sent with {} µs of silence between pieces on purpose",
+                i + 1,
+                pieces.len(),
+                gap.as_micros()
+            ));
+            self.record_sent(at, p, flags, why);
+            let on_line = self
+                .char_time
+                .map_or(Duration::ZERO, |c| c * p.len() as u32);
+            at += on_line + gaps.get(i).copied().unwrap_or(gap);
+        }
+        r
+    }
+
+    fn frames_only(&self) -> Option<&'static str> {
+        self.inner.frames_only()
+    }
+
+    fn take_notes(&mut self) -> Vec<String> {
+        self.inner.take_notes()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::capture::{Reader, FLAG_INBOUND, FLAG_OUTBOUND, FLAG_WRONG_GAP};
+    use crate::codec::timing::Parity;
+    use crate::transport::memory;
+
+    /// A sink the test reads back after the recorder wrote to it.
+    #[derive(Clone, Default)]
+    struct Sink(Arc<Mutex<Vec<u8>>>);
+
+    impl Write for Sink {
+        fn write(&mut self, b: &[u8]) -> std::io::Result<usize> {
+            self.0.lock().unwrap().extend_from_slice(b);
+            Ok(b.len())
+        }
+        fn flush(&mut self) -> std::io::Result<()> {
+            Ok(())
+        }
+    }
+
+    const REQUEST: [u8; 8] = [0x01, 0x03, 0x01, 0x23, 0x00, 0x01, 0x74, 0x3C];
+    const REPLY: [u8; 7] = [0x01, 0x03, 0x02, 0x17, 0x70, 0xB6, 0x50];
+    const EXCEPTION: [u8; 5] = [0x01, 0x83, 0x02, 0xC0, 0xF1];
+
+    fn drain(t: &mut impl Transport, wait: Duration) -> usize {
+        let mut buf = [0u8; 64];
+        t.recv(&mut buf, wait).unwrap()
+    }
+
+    #[test]
+    fn sends_and_receives_become_packets_with_directions_flags_and_comments() {
+        let sink = Sink::default();
+        let rec = Recorder::new(Box::new(sink.clone()), "test")
+            .unwrap()
+            .shared();
+        let (a, mut b) = memory::pair();
+        let line = LineSettings::new(9600, 8, Parity::Even, 1);
+        let mut a = Captured::new(a, rec.clone(), Mode::Rtu, line);
+        rec.lock()
+            .unwrap()
+            .set_label(Some("check rtu.bad-crc".into()));
+        a.send(&REQUEST).unwrap();
+        // A reply the host delivers in two parts 20 ms apart (over the 5 ms frame gap):
+        // its length says it is not whole after the first part, so it is one packet.
+        b.send(&REPLY[..3]).unwrap();
+        assert_eq!(drain(&mut a, Duration::from_millis(200)), 3);
+        std::thread::sleep(Duration::from_millis(20));
+        b.send(&REPLY[3..]).unwrap();
+        assert_eq!(drain(&mut a, Duration::from_millis(200)), 4);
+        // A whole frame after a silence: a new packet.
+        std::thread::sleep(Duration::from_millis(20));
+        b.send(&EXCEPTION).unwrap();
+        assert_eq!(drain(&mut a, Duration::from_millis(200)), 5);
+        assert_eq!(drain(&mut a, Duration::from_millis(20)), 0);
+        let mut bad = REQUEST;
+        bad[7] ^= 0xFF;
+        a.send(&bad).unwrap();
+        a.send_pieces(&[&REQUEST[..4], &REQUEST[4..]], Duration::from_millis(2))
+            .unwrap();
+        drop(a);
+        let data = sink.0.lock().unwrap().clone();
+        let packets: Vec<_> = Reader::new(&data)
+            .unwrap()
+            .collect::<Result<_, _>>()
+            .unwrap();
+        let seen: Vec<(&[u8], u32)> = packets
+            .iter()
+            .map(|p| (p.data, p.flags.unwrap_or(0)))
+            .collect();
+        assert_eq!(
+            seen,
+            vec![
+                (&REQUEST[..], FLAG_OUTBOUND),
+                (&REPLY[..], FLAG_INBOUND),
+                (&EXCEPTION[..], FLAG_INBOUND),
+                (&bad[..], FLAG_OUTBOUND | capture::FLAG_CRC_ERROR),
+                (&REQUEST[..4], FLAG_OUTBOUND | capture::FLAG_CRC_ERROR),
+                (
+                    &REQUEST[4..],
+                    FLAG_OUTBOUND | capture::FLAG_CRC_ERROR | FLAG_WRONG_GAP
+                ),
+            ]
+        );
+        assert!(packets
+            .iter()
+            .all(|p| p.link_type == capture::LINKTYPE_USER0));
+        assert_eq!(packets[0].comment, None);
+        assert_eq!(packets[1].comment, None);
+        assert_eq!(
+            packets[3].comment,
+            Some("check rtu.bad-crc: sent with a wrong CRC on purpose")
+        );
+        assert!(packets[5]
+            .comment
+            .is_some_and(|c| c.starts_with("check rtu.bad-crc: ") && c.contains("piece 2 of 2")));
+        // Times: in order, the reply after the request, the exception 20 ms or more after
+        // the reply's first part.
+        let t: Vec<u64> = packets.iter().map(|p| p.timestamp_ns.unwrap()).collect();
+        assert!(t.windows(2).all(|w| w[0] <= w[1]), "{t:?}");
+        assert!(t[2] - t[1] >= 40_000_000, "{t:?}");
+        assert_eq!(rec.lock().unwrap().packets(), 6);
+        assert_eq!(rec.lock().unwrap().error(), None);
+    }
+
+    #[test]
+    fn a_tap_records_requests_and_replies_apart_and_without_direction() {
+        let sink = Sink::default();
+        let rec = Recorder::new(Box::new(sink.clone()), "test")
+            .unwrap()
+            .shared();
+        let (a, mut b) = memory::pair();
+        let line = LineSettings::new(9600, 8, Parity::Even, 1);
+        let mut a = Captured::new(a, rec, Mode::Rtu, line).as_tap();
+        // A request read as a reply would be 42 bytes long (byte count 25H): its right
+        // CRC says it is whole.
+        let request = [0x01, 0x03, 0x25, 0x20, 0x00, 0x01, 0x8E, 0xCC];
+        b.send(&request).unwrap();
+        assert_eq!(drain(&mut a, Duration::from_millis(200)), 8);
+        std::thread::sleep(Duration::from_millis(20));
+        b.send(&REPLY).unwrap();
+        assert_eq!(drain(&mut a, Duration::from_millis(200)), 7);
+        drop(a);
+        let data = sink.0.lock().unwrap().clone();
+        let packets: Vec<_> = Reader::new(&data)
+            .unwrap()
+            .collect::<Result<_, _>>()
+            .unwrap();
+        let seen: Vec<(&[u8], Option<u32>)> = packets.iter().map(|p| (p.data, p.flags)).collect();
+        assert_eq!(seen, vec![(&request[..], None), (&REPLY[..], None)]);
+    }
+
+    #[test]
+    fn bytes_discarded_by_the_caller_are_in_the_capture_first() {
+        let sink = Sink::default();
+        let rec = Recorder::new(Box::new(sink.clone()), "test")
+            .unwrap()
+            .shared();
+        let (a, mut b) = memory::pair();
+        let line = LineSettings::new(9600, 8, Parity::Even, 1);
+        let mut a = Captured::new(a, rec, Mode::Rtu, line);
+        a.send(&REQUEST).unwrap();
+        b.send(&REPLY).unwrap();
+        std::thread::sleep(Duration::from_millis(10));
+        a.discard_input().unwrap();
+        assert_eq!(drain(&mut a, Duration::from_millis(10)), 0);
+        drop(a);
+        let data = sink.0.lock().unwrap().clone();
+        let packets: Vec<_> = Reader::new(&data)
+            .unwrap()
+            .collect::<Result<_, _>>()
+            .unwrap();
+        assert_eq!(packets.len(), 2);
+        assert_eq!(packets[1].data, &REPLY);
+        assert_eq!(packets[1].direction, Some(capture::Direction::Inbound));
+    }
+
+    #[test]
+    fn a_failing_file_stops_the_recording_and_says_why_once() {
+        struct Full;
+        impl Write for Full {
+            fn write(&mut self, _: &[u8]) -> std::io::Result<usize> {
+                Err(std::io::Error::other("disk full"))
+            }
+            fn flush(&mut self) -> std::io::Result<()> {
+                Ok(())
+            }
+        }
+        // The section header goes to a sink that fails from the first packet on.
+        struct Once(bool);
+        impl Write for Once {
+            fn write(&mut self, b: &[u8]) -> std::io::Result<usize> {
+                if self.0 {
+                    Full.write(b)
+                } else {
+                    Ok(b.len())
+                }
+            }
+            fn flush(&mut self) -> std::io::Result<()> {
+                self.0 = true;
+                Ok(())
+            }
+        }
+        let rec = Recorder::new(Box::new(Once(false)), "test")
+            .unwrap()
+            .shared();
+        let (a, _b) = memory::pair();
+        let mut a = Captured::new(
+            a,
+            rec.clone(),
+            Mode::Rtu,
+            LineSettings::new(9600, 8, Parity::Even, 1),
+        );
+        // The link goes on working; the recording stopped at the interface block.
+        a.send(&REQUEST).unwrap();
+        a.send(&REQUEST).unwrap();
+        let r = rec.lock().unwrap();
+        assert_eq!(r.packets(), 0);
+        assert!(
+            r.error().is_some_and(|e| e.contains("disk full")),
+            "{:?}",
+            r.error()
+        );
+    }
+}

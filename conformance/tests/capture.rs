@@ -1,0 +1,879 @@
+//! `--capture FILE.pcapng` and `monitor --capture-in`: a `check` run against the simulator
+//! is recorded; the capture holds every request of the JSON report in order, tshark
+//! decodes every frame with the unit ids, function codes and register addresses the
+//! bytes carry and marks exactly the frames sent with a wrong CRC on purpose, and the
+//! monitor judges the capture offline with the counts the capture holds.
+#![cfg(unix)]
+
+mod common;
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+use std::sync::OnceLock;
+
+use common::{need, Peer};
+use conformance::capture::{Direction, Reader, FLAG_CRC_ERROR};
+use serde_json::Value;
+
+/// The user DLT table entry that maps link type 147 to Wireshark's Modbus RTU dissector.
+const USER_DLT: &str = r#"uat:user_dlts:"User 0 (DLT=147)","mbrtu","0","","0","""#;
+
+fn dir() -> PathBuf {
+    let d = std::env::temp_dir().join(format!("capture-test-{}", std::process::id()));
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+/// A run of `check --sim f510 --mode MODE` with `extra` arguments, captured: the
+/// capture's path and the JSON report.
+fn captured_check(name: &str, mode: &str, extra: &[&str]) -> (PathBuf, Value) {
+    let d = dir();
+    let cap = d.join(format!("{name}.pcapng"));
+    let json = d.join(format!("{name}.json"));
+    let out = Command::new(common::bin())
+        .args(["check", "--sim", "f510", "--mode", mode, "--quiet"])
+        .args(extra)
+        .arg("--capture")
+        .arg(&cap)
+        .args(["--format", "json", "-o"])
+        .arg(&json)
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(0), "{stderr}");
+    assert!(stderr.contains("capture: "), "{stderr}");
+    let report = serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    (cap, report)
+}
+
+/// The whole RTU suite, once for every test of this file.
+fn whole_run() -> &'static (PathBuf, Value) {
+    static RUN: OnceLock<(PathBuf, Value)> = OnceLock::new();
+    RUN.get_or_init(|| captured_check("whole", "rtu", &[]))
+}
+
+/// One packet of a capture, owned.
+struct Frame {
+    interface: u32,
+    link_type: u16,
+    direction: Option<Direction>,
+    flags: u32,
+    comment: Option<String>,
+    bytes: Vec<u8>,
+}
+
+fn frames(path: &Path) -> Vec<Frame> {
+    let data = std::fs::read(path).unwrap();
+    Reader::new(&data)
+        .unwrap()
+        .map(|p| {
+            let p = p.unwrap();
+            Frame {
+                interface: p.interface,
+                link_type: p.link_type,
+                direction: p.direction,
+                flags: p.flags.unwrap_or(0),
+                comment: p.comment.map(str::to_string),
+                bytes: p.data.to_vec(),
+            }
+        })
+        .collect()
+}
+
+fn hex(s: &str) -> Vec<u8> {
+    s.split_whitespace()
+        .map(|b| u8::from_str_radix(b, 16).unwrap())
+        .collect()
+}
+
+/// Every exchange's request in the report, with the check it belongs to, in order.
+fn requests(report: &Value) -> Vec<(String, Vec<u8>)> {
+    report["checks"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .flat_map(|c| {
+            let id = c["id"].as_str().unwrap().to_string();
+            c["exchanges"]
+                .as_array()
+                .unwrap()
+                .iter()
+                .filter_map(|e| e["request"].as_str().map(hex))
+                .map(move |r| (id.clone(), r))
+                .collect::<Vec<_>>()
+        })
+        .collect()
+}
+
+fn crc_ok(b: &[u8]) -> bool {
+    b.len() >= 4 && conformance::codec::crc::crc16_frame_ok(b)
+}
+
+#[test]
+fn the_capture_holds_every_request_of_the_report_in_order_with_directions_and_damage_marked() {
+    let (cap, report) = whole_run();
+    let frames = frames(cap);
+    let sent: Vec<&Frame> = frames
+        .iter()
+        .filter(|f| f.direction == Some(Direction::Outbound))
+        .collect();
+    let received = frames
+        .iter()
+        .filter(|f| f.direction == Some(Direction::Inbound))
+        .count();
+    assert_eq!(
+        sent.len() + received,
+        frames.len(),
+        "every frame has a direction"
+    );
+    assert!(received > 100, "{received} frames received");
+    // The report's requests are the frames sent, in order (the capture has more: the
+    // preflight, liveness probes, the restore).
+    let reqs = requests(report);
+    assert!(reqs.len() > 100, "{} requests", reqs.len());
+    let mut at = 0;
+    for (id, r) in &reqs {
+        let found = sent[at..].iter().position(|f| &f.bytes == r);
+        let Some(i) = found else {
+            panic!("{id}: request {r:02X?} is not among the frames sent after frame {at}");
+        };
+        at += i + 1;
+    }
+    // The CRC-error bit is set on exactly the frames whose CRC is wrong; every such frame
+    // the suite sent names the check that damaged it, and that check is in the report.
+    let ids: Vec<&str> = report["checks"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|c| c["id"].as_str().unwrap())
+        .collect();
+    let mut damaged = 0;
+    for f in &frames {
+        assert_eq!(
+            f.flags & FLAG_CRC_ERROR != 0,
+            !crc_ok(&f.bytes),
+            "{:02X?}",
+            f.bytes
+        );
+        if f.direction == Some(Direction::Outbound) && !crc_ok(&f.bytes) {
+            damaged += 1;
+            let c = f.comment.as_deref().unwrap_or_default();
+            let id = c
+                .strip_prefix("check ")
+                .and_then(|c| c.split(':').next())
+                .unwrap_or_default();
+            assert!(ids.contains(&id), "comment {c:?} of {:02X?}", f.bytes);
+            assert!(c.contains("on purpose"), "{c}");
+        } else {
+            assert_eq!(f.comment, None, "{:02X?}", f.bytes);
+        }
+    }
+    let bad_crc = reqs.iter().find(|(id, _)| id == "rtu.bad-crc").unwrap();
+    assert!(!crc_ok(&bad_crc.1));
+    assert!(damaged >= 1);
+    // The clean simulator never answers with a wrong CRC.
+    assert!(frames
+        .iter()
+        .filter(|f| f.direction == Some(Direction::Inbound))
+        .all(|f| crc_ok(&f.bytes)));
+}
+
+/// tshark's fields for every frame of `cap`, one row per frame (of a field that occurs
+/// several times in a frame, the first).
+fn tshark(cap: &Path, fields: &[&str]) -> Vec<Vec<String>> {
+    tshark_occurrences(cap, fields, "f")
+}
+
+/// [`tshark`], with `occurrence` "f" (first), "l" (last) or "a" (all, comma-separated).
+fn tshark_occurrences(cap: &Path, fields: &[&str], occurrence: &str) -> Vec<Vec<String>> {
+    let mut cmd = Command::new("tshark");
+    cmd.arg("-r")
+        .arg(cap)
+        .args(["-o", USER_DLT, "-o", "mbrtu.crc_verification:TRUE"])
+        .args(["-T", "fields", "-E", "separator=/t", "-E"])
+        .arg(format!("occurrence={occurrence}"));
+    for f in fields {
+        cmd.args(["-e", f]);
+    }
+    let out = cmd.output().unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    String::from_utf8(out.stdout)
+        .unwrap()
+        .lines()
+        .map(|l| l.split('\t').map(str::to_string).collect())
+        .collect()
+}
+
+#[test]
+fn tshark_decodes_every_frame_as_its_bytes_say_and_marks_exactly_the_bad_crc_frames() {
+    if !need(Peer::Tshark) {
+        return;
+    }
+    let (cap, report) = whole_run();
+    let frames = frames(cap);
+    let rows = tshark(
+        cap,
+        &[
+            "frame.number",
+            "mbrtu.unit_id",
+            "modbus.func_code",
+            "mbrtu.crc16.status",
+            "modbus.reference_num",
+            "frame.packet_flags_crc_error",
+        ],
+    );
+    assert_eq!(rows.len(), frames.len());
+    let mut decoded = 0;
+    let mut incorrect = Vec::new();
+    for (row, f) in rows.iter().zip(&frames) {
+        let b = &f.bytes;
+        let (unit, function, status, reference, flag) =
+            (&row[1], &row[2], &row[3], &row[4], &row[5]);
+        // Wireshark reads our CRC-error bit from the Enhanced Packet Block flags.
+        assert_eq!(flag == "1", !crc_ok(b), "frame {}: {b:02X?}", row[0]);
+        if unit.is_empty() {
+            // Only frames the dissector cannot take are left undecoded: the broadcast
+            // address 0 (mbrtu refuses a first byte of 0) and fragments too short for a
+            // function code and a CRC.
+            assert!(
+                b.first() == Some(&0) || b.len() < 5,
+                "frame {} not decoded: {b:02X?}",
+                row[0]
+            );
+            continue;
+        }
+        decoded += 1;
+        assert_eq!(unit, &b[0].to_string(), "frame {}", row[0]);
+        assert_eq!(function, &(b[1] & 0x7F).to_string(), "frame {}", row[0]);
+        if status == "0" {
+            incorrect.push(b.clone());
+        } else {
+            assert_eq!(status, "1", "frame {}", row[0]);
+            assert!(crc_ok(b), "frame {}: tshark says its CRC is right", row[0]);
+        }
+        // A request's register address, where the function has one and the dissector
+        // can tell a request from a reply by its length (a 06H reply is a copy of its
+        // request: Wireshark leaves it unclassified, without fields).
+        if f.direction == Some(Direction::Outbound)
+            && crc_ok(b)
+            && b.len() >= 8
+            && matches!(b[1], 0x03 | 0x10)
+        {
+            let start = u16::from_be_bytes([b[2], b[3]]);
+            assert_eq!(reference, &start.to_string(), "frame {}: {b:02X?}", row[0]);
+        }
+    }
+    assert!(
+        decoded * 10 > frames.len() * 9,
+        "{decoded} of {} decoded",
+        frames.len()
+    );
+    // The frames Wireshark shows as "CRC incorrect" are the frames sent with a wrong CRC
+    // on purpose, and the request of the bad-CRC check is one of them.
+    assert!(!incorrect.is_empty());
+    for b in &incorrect {
+        assert!(!crc_ok(b));
+    }
+    let bad = requests(report)
+        .into_iter()
+        .find(|(id, _)| id == "rtu.bad-crc")
+        .unwrap()
+        .1;
+    assert!(incorrect.contains(&bad), "{bad:02X?} not marked");
+    // Every report exchange's unit id and function code, as tshark decoded its frame.
+    let sent: Vec<(usize, &Frame)> = frames
+        .iter()
+        .enumerate()
+        .filter(|(_, f)| f.direction == Some(Direction::Outbound))
+        .collect();
+    let mut at = 0;
+    for (id, r) in requests(report) {
+        let i = sent[at..].iter().position(|(_, f)| f.bytes == r).unwrap() + at;
+        at = i + 1;
+        let row = &rows[sent[i].0];
+        if r[0] != 0 && r.len() >= 5 {
+            assert_eq!(row[1], r[0].to_string(), "{id}");
+            assert_eq!(row[2], (r[1] & 0x7F).to_string(), "{id}");
+        }
+    }
+}
+
+fn monitor_capture(cap: &Path, name: &str, extra: &[&str]) -> (Option<i32>, Value, String) {
+    let json = dir().join(format!("{name}.monitor.json"));
+    let out = Command::new(common::bin())
+        .args(["monitor", "--model", "f510", "--quiet", "--capture-in"])
+        .arg(cap)
+        .args(extra)
+        .args(["--format", "json", "-o"])
+        .arg(&json)
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr).into_owned();
+    let report = std::fs::read_to_string(&json)
+        .ok()
+        .and_then(|s| serde_json::from_str(&s).ok())
+        .unwrap_or(Value::Null);
+    (out.status.code(), report, stderr)
+}
+
+fn node<'a>(r: &'a Value, address: &str) -> &'a Value {
+    r["monitor"]["nodes"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|n| n["address"] == address)
+        .unwrap_or_else(|| panic!("no node {address} in {}", r["monitor"]))
+}
+
+#[test]
+fn monitor_judges_a_clean_capture_with_the_counts_it_holds() {
+    // Reads and writes the manual allows, each answered: nothing to find on either side.
+    let (cap, report) = captured_check(
+        "clean",
+        "rtu",
+        &[
+            "--only",
+            "rtu.map.*.first",
+            "--only",
+            "rtu.map.*.last",
+            "--only",
+            "rtu.write.group-*",
+        ],
+    );
+    assert_eq!(report["summary"]["deviation"], 0);
+    let frames = frames(&cap);
+    let sent = frames
+        .iter()
+        .filter(|f| f.direction == Some(Direction::Outbound) && f.bytes[0] == 1)
+        .count();
+    let received = frames
+        .iter()
+        .filter(|f| f.direction == Some(Direction::Inbound))
+        .count();
+    assert!(sent > 50, "{sent}");
+    // A request sent again with nothing received between: the simulator, on a loaded
+    // host, answered too late for the master, which tried again. On the line that is a
+    // request without a reply, and the monitor must say so, once for each.
+    let retries = frames
+        .windows(2)
+        .filter(|w| {
+            w.iter().all(|f| f.direction == Some(Direction::Outbound)) && w[0].bytes == w[1].bytes
+        })
+        .count() as u64;
+    let (code, m, stderr) = monitor_capture(&cap, "clean", &["-a", "1"]);
+    let n = node(&m, "01");
+    assert_eq!(n["requests"], sent as u64, "{n}");
+    let replies = n["replies"].as_u64().unwrap();
+    let deviations = n["deviations"].as_u64().unwrap();
+    if retries == 0 {
+        // Nothing went wrong on the line: nothing to find.
+        assert_eq!(code, Some(0), "{stderr}");
+        assert_eq!(replies, received as u64, "{n}");
+        assert_eq!(deviations, 0, "{n}");
+    } else {
+        // What the line shows of a late answer and a retry, and nothing else: the
+        // request without its reply in time, the reply late or after the next request.
+        assert_eq!(code, Some(1), "{stderr}");
+        assert!(replies <= received as u64, "{n}");
+        assert!(deviations >= 1 && deviations <= 2 * retries, "{n}");
+        let kinds: Vec<&String> = n["errors"].as_object().unwrap().keys().collect();
+        let explained = [
+            "drive.no-reply",
+            "drive.late-reply",
+            "master.request-before-reply",
+            "master.retry",
+        ];
+        assert!(
+            kinds.iter().all(|k| explained.contains(&k.as_str())),
+            "{kinds:?}"
+        );
+    }
+    assert_eq!(
+        m["monitor"]["ended"],
+        format!("end of the capture ({} packets)", frames.len())
+    );
+}
+
+#[test]
+fn monitor_judges_the_whole_run_and_finds_the_damage_the_checks_did_on_purpose() {
+    let (cap, _) = whole_run();
+    let frames = frames(cap);
+    let (code, m, stderr) = monitor_capture(cap, "whole", &["-a", "1"]);
+    // The suite sends what the manual forbids on purpose: the master's side deviates.
+    assert_eq!(code, Some(1), "{stderr}");
+    let n = node(&m, "01");
+    let bad_to_1 = frames
+        .iter()
+        .filter(|f| {
+            f.direction == Some(Direction::Outbound) && f.bytes[0] == 1 && !crc_ok(&f.bytes)
+        })
+        .count() as u64;
+    assert!(bad_to_1 >= 1);
+    assert_eq!(n["crc_errors"], bad_to_1, "{n}");
+    assert_eq!(n["errors"]["master.bad-checksum"], bad_to_1, "{n}");
+    assert!(
+        n["errors"]["master.register-not-in-map"].as_u64().unwrap() > 0,
+        "{n}"
+    );
+    assert_eq!(
+        m["monitor"]["ended"],
+        format!("end of the capture ({} packets)", frames.len())
+    );
+}
+
+#[test]
+fn monitor_refuses_what_is_no_capture_and_names_the_offset_of_a_cut() {
+    let d = dir();
+    let junk = d.join("junk.pcapng");
+    std::fs::write(&junk, b"not a capture at all").unwrap();
+    let (code, _, stderr) = monitor_capture(&junk, "junk", &[]);
+    assert_eq!(code, Some(2), "{stderr}");
+    assert!(stderr.contains("at byte 0"), "{stderr}");
+    // A capture cut inside its last block: the packets before it are judged.
+    let (cap, _) = whole_run();
+    let data = std::fs::read(cap).unwrap();
+    let cut = d.join("cut.pcapng");
+    std::fs::write(&cut, &data[..data.len() - 3]).unwrap();
+    let (code, m, stderr) = monitor_capture(&cut, "cut", &["-a", "1"]);
+    assert_eq!(code, Some(1), "{stderr}");
+    assert!(
+        stderr.contains("Enhanced Packet Block cut short"),
+        "{stderr}"
+    );
+    let ended = m["monitor"]["ended"].as_str().unwrap();
+    let whole = frames(cap).len();
+    assert!(
+        ended.starts_with(&format!(
+            "end of the capture, cut short after {} packets",
+            whole - 1
+        )),
+        "{ended}"
+    );
+}
+
+#[test]
+fn a_fuzz_capture_decodes_in_tshark_and_every_damaged_frame_is_marked_and_named() {
+    if !need(Peer::Tshark) {
+        return;
+    }
+    let d = dir();
+    let cap = d.join("fuzz.pcapng");
+    let out = Command::new(common::bin())
+        .args([
+            "fuzz", "--sim", "f510", "--mode", "rtu", "--cases", "150", "--quiet",
+        ])
+        .arg("--capture")
+        .arg(&cap)
+        .args(["--format", "json", "-o"])
+        .arg(d.join("fuzz.json"))
+        .output()
+        .unwrap();
+    assert_eq!(
+        out.status.code(),
+        Some(0),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let frames = frames(&cap);
+    let sent = frames
+        .iter()
+        .filter(|f| f.direction == Some(Direction::Outbound))
+        .count();
+    assert!(sent >= 150, "{sent} frames sent for 150 cases");
+    let rows = tshark_occurrences(
+        &cap,
+        &[
+            "frame.number",
+            "frame.packet_flags_crc_error",
+            "mbrtu.unit_id",
+            "mbrtu.crc16.status",
+        ],
+        "a",
+    );
+    assert_eq!(rows.len(), frames.len());
+    let mut damaged = 0;
+    for (row, f) in rows.iter().zip(&frames) {
+        let b = &f.bytes;
+        assert_eq!(f.link_type, 147);
+        assert_eq!(row[1] == "1", !crc_ok(b), "frame {}: {b:02X?}", row[0]);
+        let statuses: Vec<&str> = row[3].split(',').filter(|s| !s.is_empty()).collect();
+        if f.direction == Some(Direction::Inbound) {
+            // The simulator's replies: whole frames, decoded, CRC right.
+            assert!(crc_ok(b), "frame {}: {b:02X?}", row[0]);
+            assert_eq!(statuses, ["1"], "frame {}: {b:02X?}", row[0]);
+            assert_eq!(row[2].split(',').next().unwrap(), b[0].to_string());
+        } else if !crc_ok(b) {
+            damaged += 1;
+            // Wireshark never shows a damaged frame as all right, and the comment says
+            // the campaign damaged it.
+            assert!(
+                !statuses.iter().all(|s| *s == "1") || statuses.is_empty(),
+                "frame {}",
+                row[0]
+            );
+            let c = f.comment.as_deref().unwrap_or_default();
+            assert!(
+                c.starts_with("fuzz") && c.contains("on purpose"),
+                "frame {}: {c:?}",
+                row[0]
+            );
+        }
+    }
+    assert!(damaged > 5, "{damaged} damaged frames in 150 cases");
+}
+
+#[test]
+fn an_ascii_capture_keeps_the_characters_under_link_type_148_and_the_monitor_judges_it() {
+    let (cap, report) = captured_check(
+        "ascii",
+        "ascii",
+        &[
+            "--only",
+            "ascii.map.group-0.*",
+            "--only",
+            "ascii.map.group-1.*",
+        ],
+    );
+    let frames = frames(&cap);
+    assert!(frames.iter().all(|f| f.link_type == 148));
+    let sent: Vec<&Frame> = frames
+        .iter()
+        .filter(|f| f.direction == Some(Direction::Outbound))
+        .collect();
+    let reqs = requests(&report);
+    assert!(reqs.len() >= 4, "{} requests", reqs.len());
+    for (id, r) in reqs {
+        assert!(sent.iter().any(|f| f.bytes == r), "{id}: {r:02X?}");
+        assert!(r.starts_with(b":") && r.ends_with(b"\r\n"), "{id}");
+    }
+    for f in &frames {
+        let lrc_ok = conformance::codec::ascii::is_valid_frame(&f.bytes);
+        // A whole frame carries its RTU equivalent in its comment.
+        if lrc_ok {
+            let mut rtu = [0u8; 256];
+            let n = conformance::codec::ascii_to_rtu(&f.bytes, &mut rtu).unwrap();
+            let shown: Vec<String> = rtu[..n].iter().map(|b| format!("{b:02X}")).collect();
+            assert_eq!(
+                f.comment.as_deref(),
+                Some(format!("as RTU: {}", shown.join(" ")).as_str())
+            );
+        }
+        assert_eq!(
+            f.flags & FLAG_CRC_ERROR != 0,
+            !lrc_ok,
+            "{:?}",
+            String::from_utf8_lossy(&f.bytes)
+        );
+    }
+    let (code, m, stderr) = monitor_capture(&cap, "ascii", &["-a", "1", "--mode", "ascii"]);
+    assert!(matches!(code, Some(0 | 1)), "{stderr}");
+    let n = node(&m, "01");
+    let to_1 = sent.iter().filter(|f| f.bytes.starts_with(b":01")).count() as u64;
+    assert!(to_1 >= 4);
+    assert_eq!(n["requests"], to_1, "{n}");
+    assert_eq!(n["crc_errors"], 0, "{n}");
+}
+
+#[test]
+fn a_simulator_killed_mid_run_leaves_a_whole_capture_seen_from_the_drive() {
+    use std::io::{BufRead, BufReader};
+    let d = dir();
+    let cap = d.join("simulate.pcapng");
+    let mut sim = Command::new(common::bin())
+        .args(["simulate", "--pty", "--pace", "--quiet", "--capture"])
+        .arg(&cap)
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    let mut path = String::new();
+    let mut sim_out = BufReader::new(sim.stdout.take().unwrap());
+    sim_out.read_line(&mut path).unwrap();
+    let out = Command::new(common::bin())
+        .args([
+            "check", "--model", "f510", "--mode", "rtu", "--quiet", "--port",
+        ])
+        .arg(path.trim())
+        .args(["--only", "rtu.map.group-0.*", "--format", "json", "-o"])
+        .arg(d.join("simulate.json"))
+        .output()
+        .unwrap();
+    // Killed, not stopped: no chance to finish anything.
+    sim.kill().unwrap();
+    sim.wait().unwrap();
+    drop(sim_out);
+    assert_eq!(
+        out.status.code(),
+        Some(0),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let frames = frames(&cap);
+    assert!(frames.len() >= 8, "{} frames", frames.len());
+    // From the drive's side: the requests came in, the replies went out.
+    for f in &frames {
+        let request = f.bytes.len() == 8 && f.bytes[1] == 0x03;
+        let expected = if request {
+            Direction::Inbound
+        } else {
+            Direction::Outbound
+        };
+        assert_eq!(f.direction, Some(expected), "{:02X?}", f.bytes);
+        assert!(crc_ok(&f.bytes), "{:02X?}", f.bytes);
+    }
+}
+
+#[test]
+fn a_bus_capture_holds_each_endpoints_frames_on_its_own_interface() {
+    use std::io::{BufRead, BufReader};
+    let d = dir();
+    let cap = d.join("bus.pcapng");
+    let link = d.join("bus-master");
+    let mut bus = Command::new(common::bin())
+        .args(["bus", "--model", "f510", "-a", "1", "--quiet", "--link"])
+        .arg(format!("m={}", link.display()))
+        .arg("--capture")
+        .arg(&cap)
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::fs::File::create(d.join("bus.err")).unwrap())
+        .spawn()
+        .unwrap();
+    // One line per endpoint with a path: the master's. The pipe stays open while the bus
+    // runs (a bus whose stdout is gone ends).
+    let mut first = String::new();
+    let mut paths = BufReader::new(bus.stdout.take().unwrap());
+    paths.read_line(&mut first).unwrap();
+    assert!(first.starts_with("m "), "{first}");
+    let out = Command::new(common::bin())
+        .args([
+            "check", "--model", "f510", "--mode", "rtu", "-a", "1", "--quiet", "--port",
+        ])
+        .arg(&link)
+        .args(["--only", "rtu.map.group-0.*", "--format", "json", "-o"])
+        .arg(d.join("bus.json"))
+        .output()
+        .unwrap();
+    let running = bus.try_wait().unwrap().is_none();
+    bus.kill().unwrap();
+    bus.wait().unwrap();
+    drop(paths);
+    assert_eq!(
+        out.status.code(),
+        Some(0),
+        "{} (the bus {}: {})",
+        String::from_utf8_lossy(&out.stderr),
+        if running { "was running" } else { "had ended" },
+        std::fs::read_to_string(d.join("bus.err")).unwrap_or_default()
+    );
+    let report: Value =
+        serde_json::from_str(&std::fs::read_to_string(d.join("bus.json")).unwrap()).unwrap();
+    let frames = frames(&cap);
+    // One interface per endpoint (and the line's own, for collisions): the master's is
+    // the one that spoke first.
+    let m = frames[0].interface;
+    let master: Vec<&Frame> = frames.iter().filter(|f| f.interface == m).collect();
+    let drive: Vec<&Frame> = frames.iter().filter(|f| f.interface != m).collect();
+    assert!(drive.iter().all(|f| f.interface == drive[0].interface));
+    let mut at = 0;
+    for (id, r) in requests(&report) {
+        let i = master[at..]
+            .iter()
+            .position(|f| f.bytes == r)
+            .unwrap_or_else(|| panic!("{id}: {r:02X?} not sent by the master"));
+        at += i + 1;
+    }
+    assert!(drive.len() >= 4, "{} replies", drive.len());
+    for f in frames.iter() {
+        assert_eq!(
+            f.direction,
+            Some(Direction::Outbound),
+            "sent by its endpoint"
+        );
+        assert!(crc_ok(&f.bytes), "{:02X?}", f.bytes);
+    }
+    assert!(drive.iter().all(|f| f.bytes[0] == 1));
+}
+
+#[test]
+fn a_monitor_on_a_bus_records_what_the_line_carried_and_tshark_decodes_it() {
+    use std::io::{BufRead, BufReader};
+    if !need(Peer::Tshark) {
+        return;
+    }
+    let d = dir();
+    let line_cap = d.join("tap-line.pcapng");
+    let tap_cap = d.join("tap.pcapng");
+    let (m, tap) = (d.join("tap-master"), d.join("tap-tap"));
+    let mut bus = Command::new(common::bin())
+        .args(["bus", "--model", "f510", "-a", "1", "--quiet", "--link"])
+        .arg(format!("m={}", m.display()))
+        .arg("--link")
+        .arg(format!("tap={}", tap.display()))
+        .arg("--capture")
+        .arg(&line_cap)
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    let mut lines = BufReader::new(bus.stdout.take().unwrap()).lines();
+    for _ in 0..2 {
+        lines.next().unwrap().unwrap();
+    }
+    let mut monitor = Command::new(common::bin())
+        .args([
+            "monitor",
+            "--model",
+            "f510",
+            "-a",
+            "1",
+            "--duration",
+            "8",
+            "--port",
+        ])
+        .arg(&tap)
+        .arg("--capture")
+        .arg(&tap_cap)
+        .args(["--format", "json", "-o"])
+        .arg(d.join("tap.json"))
+        .stderr(std::process::Stdio::piped())
+        .stdout(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    let mut heard = BufReader::new(monitor.stderr.take().unwrap()).lines();
+    let first = heard.next().unwrap().unwrap();
+    assert!(first.starts_with("listening on"), "{first}");
+    let drain = std::thread::spawn(move || heard.map_while(Result::ok).collect::<Vec<_>>());
+    let out = Command::new(common::bin())
+        .args([
+            "check", "--model", "f510", "--mode", "rtu", "-a", "1", "--quiet", "--port",
+        ])
+        .arg(&m)
+        .args(["--only", "rtu.map.group-0.*", "--format", "json", "-o"])
+        .arg(d.join("tap-check.json"))
+        .output()
+        .unwrap();
+    let status = monitor.wait().unwrap();
+    let stderr = drain.join().unwrap().join("\n");
+    bus.kill().unwrap();
+    bus.wait().unwrap();
+    assert_eq!(
+        out.status.code(),
+        Some(0),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(matches!(status.code(), Some(0 | 1)), "{stderr}");
+    assert!(stderr.contains("capture: "), "{stderr}");
+    // The tap heard what the line carried, byte for byte, with no direction.
+    let on_line: Vec<u8> = frames(&line_cap)
+        .into_iter()
+        .flat_map(|f| f.bytes)
+        .collect();
+    let tapped = frames(&tap_cap);
+    let heard_bytes: Vec<u8> = tapped.iter().flat_map(|f| f.bytes.clone()).collect();
+    assert_eq!(heard_bytes, on_line);
+    for f in &tapped {
+        assert_eq!(
+            (f.direction, f.flags),
+            (None, 0),
+            "{:02X?} in {:02X?}",
+            f.bytes,
+            tapped.iter().map(|f| f.bytes.len()).collect::<Vec<_>>()
+        );
+    }
+    assert!(tapped.len() >= 8, "{} frames", tapped.len());
+    // tshark decodes every frame the tap recorded.
+    let rows = tshark(
+        &tap_cap,
+        &["frame.number", "mbrtu.unit_id", "mbrtu.crc16.status"],
+    );
+    assert_eq!(rows.len(), tapped.len());
+    for (row, f) in rows.iter().zip(&tapped) {
+        assert_eq!(
+            row[1],
+            f.bytes[0].to_string(),
+            "frame {}: {:02X?}",
+            row[0],
+            f.bytes
+        );
+        assert_eq!(row[2], "1", "frame {}", row[0]);
+    }
+}
+
+/// A classic pcap file as a serial sniffer writes it: RTU frames under link type 147,
+/// no direction, in either byte order, with microsecond or nanosecond times.
+fn sniffer_pcap(big: bool, nanos: bool, frames: &[(u64, &[u8])]) -> Vec<u8> {
+    let w32 = |v: &mut Vec<u8>, x: u32| {
+        v.extend_from_slice(&if big {
+            x.to_be_bytes()
+        } else {
+            x.to_le_bytes()
+        })
+    };
+    let mut v = Vec::new();
+    w32(&mut v, if nanos { 0xA1B2_3C4D } else { 0xA1B2_C3D4 });
+    v.extend_from_slice(&if big { [0, 2, 0, 4] } else { [2, 0, 4, 0] });
+    for x in [0, 0, 65535, 147] {
+        w32(&mut v, x);
+    }
+    for (t_us, bytes) in frames {
+        let sec = 1_700_000_000 + t_us / 1_000_000;
+        let frac = if nanos {
+            t_us % 1_000_000 * 1000
+        } else {
+            t_us % 1_000_000
+        };
+        for x in [sec, frac, bytes.len() as u64, bytes.len() as u64] {
+            w32(&mut v, x as u32);
+        }
+        v.extend_from_slice(bytes);
+    }
+    v
+}
+
+#[test]
+fn monitor_judges_a_sniffers_pcap_in_either_byte_order_and_resolution() {
+    // Node 1 reads 2520H twice, each answered in 10 ms: first with one register, then
+    // with two (one was asked for): one deviation, on the drive's side.
+    let read = [0x01, 0x03, 0x25, 0x20, 0x00, 0x01, 0x8E, 0xCC];
+    let reply = [0x01, 0x03, 0x02, 0x00, 0x04, 0xB9, 0x87];
+    let read2 = read;
+    let mut wrong = vec![0x01, 0x03, 0x04, 0x00, 0x04, 0x00, 0x00];
+    let crc = conformance::codec::crc::crc16(&wrong).to_le_bytes();
+    wrong.extend_from_slice(&crc);
+    let frames: [(u64, &[u8]); 4] = [
+        (0, &read),
+        (19_200, &reply),
+        (200_000, &read2),
+        (219_200, &wrong),
+    ];
+    let d = dir();
+    for (big, nanos) in [(false, false), (true, true), (true, false), (false, true)] {
+        let name = format!("sniffer-{big}-{nanos}");
+        let path = d.join(format!("{name}.pcap"));
+        std::fs::write(&path, sniffer_pcap(big, nanos, &frames)).unwrap();
+        let (code, m, stderr) = monitor_capture(&path, &name, &["-a", "1"]);
+        assert_eq!(code, Some(1), "{name}: {stderr}");
+        let n = node(&m, "01");
+        assert_eq!(
+            (n["requests"].as_u64(), n["replies"].as_u64()),
+            (Some(2), Some(2)),
+            "{name}: {n}"
+        );
+        assert_eq!(n["deviations"], 1, "{name}: {n}");
+        let kinds: Vec<&String> = n["errors"].as_object().unwrap().keys().collect();
+        assert!(
+            kinds.len() == 1 && kinds[0].starts_with("drive."),
+            "{name}: {kinds:?}"
+        );
+        // Response times from the file's times: the reply began 10 ms after the 8-byte
+        // request ended, and its first character took 1.15 ms at 9600 8E1 (the monitor
+        // measures to its arrival, as a tap hears it).
+        let p50 = n["response_ms"]["p50"].as_f64().unwrap();
+        assert!((10.8..=11.6).contains(&p50), "{name}: {p50}");
+    }
+}
