@@ -477,9 +477,11 @@ fn replies_a_drive_drops_are_found_and_the_retries_of_the_master_counted() {
 }
 
 /// The suite's own `send --burst` puts two requests on the line in one write, with no
-/// t3.5 between them: the monitor finds the master's missing silence. (The drive frames
-/// the two as one frame with a wrong CRC and stays silent, as the model says; what the
-/// monitor makes of that silence is not asserted here.)
+/// t3.5 between them: the monitor finds the master's fault. Where its reads prove the
+/// silence short, that is `master.no-t3.5`; a busy host that read the second request late
+/// proves nothing about the silence (docs/src/monitor.md), and then the fault is the
+/// second request sent while the first was still due its reply. (The drive frames the two
+/// as one frame with a wrong CRC and stays silent, as the model says.)
 #[test]
 fn a_master_sending_two_requests_without_t35_is_found() {
     let d = dir("burst");
@@ -503,7 +505,9 @@ fn a_master_sending_two_requests_without_t35_is_found() {
     assert_eq!(code, 1, "{:#}\n{lines:#?}", r["summary"]);
     let master = findings(&r, "master");
     assert!(
-        master.iter().any(|(k, _)| k == "master.no-t3.5"),
+        master
+            .iter()
+            .any(|(k, _)| k == "master.no-t3.5" || k == "master.request-before-reply"),
         "{master:?}\n{lines:#?}"
     );
     assert!(log
@@ -603,7 +607,13 @@ const TIMING_KINDS: &[&str] = &[
 /// bytes that are no reply;
 /// monitor: a finding
 /// on the drive's side that is not about timing), except the checks in [`JUDGED_APART`].
-fn check_and_monitor_agree(who: &str, d: &Path, device: Command, left_out: &[&str]) {
+fn check_and_monitor_agree(
+    who: &str,
+    d: &Path,
+    device: Command,
+    timeout_ms: &str,
+    left_out: &[&str],
+) {
     let line = ["-P", "none", "-a", "1"];
     let l = Listening::with(d, &["-P", "none"], &line, Some((device, &line)));
     let master = l.master.to_str().unwrap().to_string();
@@ -638,7 +648,7 @@ fn check_and_monitor_agree(who: &str, d: &Path, device: Command, left_out: &[&st
         "-P",
         "none",
         "--timeout",
-        "1000",
+        timeout_ms,
     ];
     for o in &only {
         args.extend(["--only", o]);
@@ -670,8 +680,18 @@ fn check_and_monitor_agree(who: &str, d: &Path, device: Command, left_out: &[&st
                     .filter(|h| h["request"] == request)
                     .map(|h| format!("{} -> {} {}", h["request"], h["received"], h["issues"]))
                     .collect();
+                let around: Vec<String> = heard
+                    [next.saturating_sub(2)..(next + 6).min(heard.len())]
+                    .iter()
+                    .map(|h| {
+                        format!(
+                            "{} -> {} {} {}",
+                            h["request"], h["received"], h["issues"], h["notes"]
+                        )
+                    })
+                    .collect();
                 panic!(
-                    "{who}: {id}'s request {request} -> {received} is not in the monitor's log after line {next}; the same request there: {same:#?}"
+                    "{who}: {id}'s request {request} -> {received} is not in the monitor's log after line {next}; the same request there: {same:#?}; the lines there: {around:#?}"
                 );
             };
             let h = &heard[next + k];
@@ -699,6 +719,13 @@ fn check_and_monitor_agree(who: &str, d: &Path, device: Command, left_out: &[&st
                     },
                     h["issues"]
                 ));
+                // The lines before it, as the monitor heard them.
+                for e in &heard[next.saturating_sub(7)..next] {
+                    disagree.push(format!(
+                        "    heard {} -> {} {} {}",
+                        e["request"], e["received"], e["issues"], e["notes"]
+                    ));
+                }
             }
         }
     }
@@ -732,6 +759,7 @@ fn check_and_monitor_judge_pymodbus_s_server_alike() {
         "pymodbus server",
         &d,
         c,
+        "1000",
         &[
             "rtu.function",
             "rtu.garbage",
@@ -750,7 +778,10 @@ fn check_and_monitor_judge_libmodbus_s_server_alike() {
     };
     let mut c = Command::new(exe);
     c.stderr(Stdio::null());
-    check_and_monitor_agree("libmodbus server", &d, c, &[]);
+    // libmodbus's server sleeps its response timeout and flushes its input after a
+    // request it refuses (as tests/libmodbus_device.rs found): a read sent into that
+    // window is lost. 2500 ms gives the runner's probes room.
+    check_and_monitor_agree("libmodbus server", &d, c, "2500", &[]);
 }
 
 /// tests/libmodbus/server.c, built into `d`; `None` (after SKIPPED) without libmodbus.
