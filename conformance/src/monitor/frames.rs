@@ -131,6 +131,8 @@ pub struct TapFramer {
     last_at: Option<Duration>,
     /// The earliest the last byte read so far can have come.
     last_low: Option<Duration>,
+    /// The block being closed ended at a silence no read proves (a late read).
+    end_unproven: bool,
     /// When the last read returned, with bytes or without.
     last_poll: Option<Duration>,
     /// RTU: the start of a frame cut short by a silence (its length says more bytes are
@@ -155,6 +157,7 @@ impl TapFramer {
             before_block: None,
             last_at: None,
             last_low: None,
+            end_unproven: false,
             last_poll: None,
             carry: None,
             colon: None,
@@ -194,11 +197,14 @@ impl TapFramer {
         }
     }
 
-    fn expire_carry(&mut self, now: Duration, out: &mut Vec<TapFrame>) {
+    /// Gives up the start of a frame held for its rest once the reads prove the line
+    /// silent for [`CARRY_HOLD`] after it (`proven`: the last read that came back
+    /// empty); a late read proves nothing.
+    fn expire_carry(&mut self, proven: Duration, out: &mut Vec<TapFrame>) {
         if self
             .carry
             .as_ref()
-            .is_some_and(|c| now.saturating_sub(c.last) > CARRY_HOLD)
+            .is_some_and(|c| proven.saturating_sub(c.last) > CARRY_HOLD)
         {
             self.close_block(Vec::new(), Vec::new(), None, EndedBy::Silence, false, out);
         }
@@ -247,17 +253,21 @@ impl TapFramer {
         out: &mut Vec<TapFrame>,
     ) {
         if self.rtu.pending() == 0 {
-            self.expire_carry(at, out);
+            self.expire_carry(since, out);
         }
         let mut blocks = Vec::new();
         self.rtu
             .push_at(us(at), bytes, |e| blocks.push(block_of(e)));
         // Events during a push are the block the silence before these bytes closed
         // (or, past any frame's length, the block with these bytes: then nothing of it
-        // is left held).
+        // is left held). Where no read proves that silence (the host read these bytes
+        // late), a block that is no frame is held to be joined with them.
+        let t35 = Duration::from_micros(self.line.t3_5_us());
+        self.end_unproven = self.last_at.is_some_and(|l| since.saturating_sub(l) < t35);
         for b in blocks {
             self.close_held(b, EndedBy::Silence, out);
         }
+        self.end_unproven = false;
         if self.held == 0 {
             self.before_block = self.last_low;
         }
@@ -365,7 +375,7 @@ impl TapFramer {
                 if may_carry
                     && to == block.len()
                     && status != FrameStatus::Valid
-                    && starts_frame(&block[from..])
+                    && (starts_frame(&block[from..]) || self.end_unproven)
                 {
                     let prev = if k0 == 0 { before } else { Some(low(k0 - 1)) };
                     self.carry = Some(Carry {
@@ -670,6 +680,39 @@ mod tests {
         assert_eq!(out.len(), 1, "{out:?}");
         assert_eq!(out[0].status, FrameStatus::Valid);
         assert_eq!(out[0].max_gap, Some(Duration::ZERO));
+    }
+
+    /// Seen with pymodbus's server under load: the listener read the first 3 bytes of a
+    /// 04H request (a function of unknown length), then nothing for 30 ms (the host
+    /// was busy), then the rest with the reply. No read proved a silence after the 3
+    /// bytes: they are joined with the rest, not called a malformed request.
+    #[test]
+    fn a_frame_of_unknown_length_read_in_two_late_pieces_is_one_frame() {
+        let mut f = framer();
+        let mut out = Vec::new();
+        let request = [0x01, 0x04, 0x25, 0x20, 0x00, 0x01, 0x3B, 0x0C];
+        let reply = [0x01, 0x84, 0x02, 0xC2, 0xC1];
+        f.idle(ms(9), &mut out);
+        f.push(ms(10), &request[..3], &mut out);
+        f.push(ms(40), &[&request[3..], &reply[..]].concat(), &mut out);
+        f.idle(ms(300), &mut out);
+        assert_eq!(out.len(), 2, "{out:?}");
+        assert_eq!(out[0].bytes, request);
+        assert_eq!(out[0].status, FrameStatus::Valid);
+        assert_eq!(out[1].bytes, reply);
+        // The same bytes with reads that prove the silence (the listener polled at 20
+        // and 30 ms): the 3 bytes are a block of their own.
+        let mut f = framer();
+        let mut out = Vec::new();
+        f.idle(ms(9), &mut out);
+        f.push(ms(10), &request[..3], &mut out);
+        f.idle(ms(20), &mut out);
+        f.idle(ms(30), &mut out);
+        f.idle(ms(39), &mut out);
+        f.push(ms(40), &request[3..], &mut out);
+        f.idle(ms(300), &mut out);
+        assert_eq!(out[0].bytes, request[..3], "{out:?}");
+        assert_ne!(out[0].status, FrameStatus::Valid);
     }
 
     #[test]
