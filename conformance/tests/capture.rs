@@ -877,3 +877,50 @@ fn monitor_judges_a_sniffers_pcap_in_either_byte_order_and_resolution() {
         assert!((10.8..=11.6).contains(&p50), "{name}: {p50}");
     }
 }
+
+/// The bar: `monitor --capture-in` of a `check` run's capture gives the same
+/// verdicts for the same exchanges as the run's report. A simulator with a planted fault
+/// (every exception code one too high), so that some exchanges differ: each exchange of
+/// the report is found in the monitor's log, in order, and the two agree on every one.
+#[test]
+fn monitor_capture_in_judges_every_exchange_of_the_check_run_as_check_did() {
+    let d = dir();
+    let (cap, json, heard) = (
+        d.join("agree.pcapng"),
+        d.join("agree.json"),
+        d.join("agree.heard.jsonl"),
+    );
+    let out = Command::new(common::bin())
+        .args(["check", "--sim", "f510", "--mode", "rtu", "--quiet"])
+        .args(["--quirk", "wrong-exception", "--capture"])
+        .arg(&cap)
+        .args(["--format", "json", "-o"])
+        .arg(&json)
+        .output()
+        .unwrap();
+    assert_eq!(
+        out.status.code(),
+        Some(1),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let check: Value = serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    let (code, report, stderr) = monitor_capture(
+        &cap,
+        "agree",
+        &["-a", "1", "--log", heard.to_str().unwrap()],
+    );
+    assert_eq!(code, Some(1), "{stderr}");
+    let heard: Vec<Value> = std::fs::read_to_string(&heard)
+        .unwrap()
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap())
+        .collect();
+    let (agree, _) = common::agree::exchanges("capture of check", &check, &heard, &[]);
+    assert!(agree > 150, "only {agree} exchanges compared");
+    let errors = &node(&report, "01")["errors"];
+    assert!(
+        errors["drive.wrong-exception"].as_u64().unwrap() > 0,
+        "{errors}"
+    );
+}

@@ -591,15 +591,6 @@ const JUDGED_APART: &[(&str, &str)] = &[(
     "check reads 2523H expecting the value it wrote to 2502H: the model links the two, the monitor learns values only from writes to the same register",
 )];
 
-/// Drive-side kinds that are about timing, which `check` judges over a whole mode (its
-/// response-time and line-timing checks), not per exchange.
-const TIMING_KINDS: &[&str] = &[
-    "drive.early-reply",
-    "drive.late-reply",
-    "drive.gap-in-reply",
-    "drive.decision",
-];
-
 /// `check` runs against a device nobody here wrote, through the bus, while the monitor
 /// listens: every exchange of check's report is found in the monitor's log (`--log`), in
 /// order, and for each the two agree on whether the device's answer differs from the
@@ -662,75 +653,8 @@ fn check_and_monitor_agree(
         .lines()
         .map(|l| serde_json::from_str(l).unwrap())
         .collect();
-    let (mut agree, mut apart, mut next) = (0, 0, 0);
-    let mut disagree = Vec::new();
-    for c in v["checks"].as_array().unwrap() {
-        let id = c["id"].as_str().unwrap();
-        for e in c["exchanges"].as_array().unwrap() {
-            let request = e["request"].as_str().unwrap();
-            let received = e["received"].as_str().unwrap_or("");
-            // The same request and what came back: the runner's own probes between
-            // checks (a read of 2520H) are heard too, and are not in the report.
-            let Some(k) = heard[next..]
-                .iter()
-                .position(|h| h["request"] == request && h["received"] == received)
-            else {
-                let same: Vec<String> = heard[next..]
-                    .iter()
-                    .filter(|h| h["request"] == request)
-                    .map(|h| format!("{} -> {} {}", h["request"], h["received"], h["issues"]))
-                    .collect();
-                let around: Vec<String> = heard
-                    [next.saturating_sub(2)..(next + 6).min(heard.len())]
-                    .iter()
-                    .map(|h| {
-                        format!(
-                            "{} -> {} {} {}",
-                            h["request"], h["received"], h["issues"], h["notes"]
-                        )
-                    })
-                    .collect();
-                panic!(
-                    "{who}: {id}'s request {request} -> {received} is not in the monitor's log after line {next}; the same request there: {same:#?}; the lines there: {around:#?}"
-                );
-            };
-            let h = &heard[next + k];
-            next += k + 1;
-            // Bytes that differ, an answer where none is due, or none where one is.
-            let silence_due = e["predicted"].as_str().unwrap().starts_with("no reply");
-            let check_differs = !e["differs_at"].as_array().unwrap().is_empty()
-                || silence_due != received.is_empty()
-                || (!received.is_empty() && e["reply"].is_null());
-            let monitor_differs = h["issues"].as_array().unwrap().iter().any(|k| {
-                let k = k.as_str().unwrap();
-                k.starts_with("drive.") && !TIMING_KINDS.contains(&k)
-            });
-            if check_differs == monitor_differs {
-                agree += 1;
-            } else if JUDGED_APART.iter().any(|(i, _)| *i == id) {
-                apart += 1;
-            } else {
-                disagree.push(format!(
-                    "{id}: {request} -> {received}: check {}, monitor {}",
-                    if check_differs {
-                        "differs"
-                    } else {
-                        "agrees with the manual"
-                    },
-                    h["issues"]
-                ));
-                // The lines before it, as the monitor heard them.
-                for e in &heard[next.saturating_sub(7)..next] {
-                    disagree.push(format!(
-                        "    heard {} -> {} {} {}",
-                        e["request"], e["received"], e["issues"], e["notes"]
-                    ));
-                }
-            }
-        }
-    }
+    let (agree, apart) = common::agree::exchanges(who, &v, &heard, JUDGED_APART);
     assert!(agree > 50, "{who}: only {agree} exchanges compared");
-    assert_eq!(disagree, Vec::<String>::new(), "{who}");
     note(&format!(
         "{who}: check and monitor agree on {agree} exchanges, {apart} judged apart ({}); monitor's drive side: {}",
         JUDGED_APART.iter().map(|(i, _)| *i).collect::<Vec<_>>().join(", "),

@@ -364,9 +364,18 @@ impl Monitor {
                 self.close_unanswered(None);
             }
         }
+        // A copy of a 06H/08H request is its normal reply, or the master sending it
+        // again: by time, a copy later than any reply is due is the master's resend.
+        let copy_limit = self.model.response_time_on(Some(&self.cfg.line))
+            + self.cfg.response_allowance
+            + Duration::from_micros(self.cfg.line.char_time_us());
+        let resend = self.pending.as_ref().is_some_and(|p| {
+            is_copy(&p.bytes, &f.bytes)
+                && f.start.unwrap_or(f.end).saturating_sub(p.end) > copy_limit
+        });
         if let Some(p) = self.pending.as_mut() {
             match f.status {
-                FrameStatus::Valid if is_reply_to(self.cfg.mode, &p.bytes, &f.bytes) => {
+                FrameStatus::Valid if !resend && is_reply_to(self.cfg.mode, &p.bytes, &f.bytes) => {
                     self.close_with_reply(f, since_previous);
                     return;
                 }
@@ -397,8 +406,11 @@ impl Monitor {
         let address = body.as_ref().map_or(0, |b| b[0]);
         if f.status == FrameStatus::Valid {
             if let Some(b) = &body {
-                if Message::parse_body(b, Direction::Request).is_err()
-                    && Message::parse_body(b, Direction::Response).is_ok()
+                // Functions 80H..FFH are exceptions: no master sends one.
+                let exception = b.len() >= 2 && b[1] & function::EXCEPTION_BIT != 0;
+                if exception
+                    || Message::parse_body(b, Direction::Request).is_err()
+                        && Message::parse_body(b, Direction::Response).is_ok()
                 {
                     self.unsolicited(f, since_previous, address);
                     return;
@@ -875,6 +887,16 @@ fn is_reply_to(mode: Mode, request: &[u8], frame: &[u8]) -> bool {
             req[1],
             function::WRITE_SINGLE_REGISTER | function::LOOP_BACK
         );
+    }
+    // 06H/08H: a frame of the same function for another register (06H) or another test
+    // code (08H) is the master's next request, not a wrong reply: taking it as the reply
+    // would pair every request after it with the wrong frame.
+    if matches!(
+        req[1],
+        function::WRITE_SINGLE_REGISTER | function::LOOP_BACK
+    ) && (rep.len() < 4 || req.len() < 4 || rep[2..4] != req[2..4])
+    {
+        return false;
     }
     Message::parse_body(&rep, Direction::Response).is_ok()
 }

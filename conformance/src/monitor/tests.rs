@@ -530,3 +530,89 @@ fn a_tap_that_reads_request_and_reply_together_is_named_once() {
     run(&mut m, &apart);
     assert!(m.notices().is_empty(), "{:?}", m.notices());
 }
+
+/// Two loop-backs in a row (test codes 0002H then 000AH), the first sent twice: 000AH,
+/// another test code, is never the reply to 0002H, so every request keeps its own echo.
+#[test]
+fn a_loop_back_with_another_test_code_is_a_request_not_a_reply() {
+    let lb = |code: u16| {
+        frame(
+            Mode::Rtu,
+            1,
+            Pdu::LoopBack {
+                test_code: code,
+                data: &[0, 0],
+            },
+        )
+    };
+    let (a, b) = (lb(0x0002), lb(0x000A));
+    let mut m = monitor(Mode::Rtu, &[1]);
+    let lines = run(
+        &mut m,
+        &[
+            (0, &a),
+            (60, &a),
+            (77, &a),
+            (95, &b),
+            (112, &b),
+            (200, &b),
+            (217, &b),
+        ],
+    );
+    // The last two exchanges of 000AH are each a request and its echo.
+    let last: Vec<(&str, bool)> = lines
+        .iter()
+        .rev()
+        .take(2)
+        .map(|l| {
+            (
+                l.meaning.as_str(),
+                l.issues.iter().any(|i| i == "drive.wrong-reply"),
+            )
+        })
+        .collect();
+    assert_eq!(
+        last,
+        [
+            ("loop-back test 000AH", false),
+            ("loop-back test 000AH", false)
+        ],
+        "{lines:#?}"
+    );
+    assert!(
+        !lines
+            .iter()
+            .any(|l| l.issues.iter().any(|i| i == "drive.wrong-reply")),
+        "{lines:#?}"
+    );
+}
+
+/// The runner sent a write to a reserved register twice, 51 ms apart (its host stalled),
+/// then the drive's exception came. A copy later than any reply is due (10 ms + t3.5
+/// allowance) is the master's resend, not the echo; the exception is the resend's reply;
+/// and an exception frame is never taken for a request.
+#[test]
+fn a_copy_later_than_a_reply_is_due_is_a_resend_and_the_exception_its_reply() {
+    let w = write(1, 0x2500, 0);
+    let mut m = monitor(Mode::Rtu, &[1]);
+    let lines = run(
+        &mut m,
+        &[(0, &w), (51, &w), (60, &exception(1, 0x06, 0x03))],
+    );
+    let k = kinds(&m, 1);
+    assert!(k.contains(&"master.retry".to_string()), "{k:?}\n{lines:#?}");
+    assert!(
+        !k.contains(&"master.function-not-served".to_string()),
+        "{k:?}"
+    );
+    assert!(!k.contains(&"drive.unexpected-reply".to_string()), "{k:?}");
+    let last = lines.last().unwrap();
+    assert!(
+        last.reply.as_deref().unwrap_or("").contains("exception"),
+        "{lines:#?}"
+    );
+    // An exception frame with no request under way is a reply nobody asked for.
+    let mut m = monitor(Mode::Rtu, &[1]);
+    run(&mut m, &[(0, &exception(1, 0x06, 0x03))]);
+    assert_eq!(kinds(&m, 1), ["drive.unexpected-reply"]);
+}

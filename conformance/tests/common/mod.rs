@@ -2,6 +2,7 @@
 //! programs.
 #![allow(dead_code)]
 
+pub mod agree;
 mod peers;
 mod skip;
 pub use peers::*;
