@@ -40,9 +40,22 @@ fn captured_check(name: &str, mode: &str, extra: &[&str]) -> (PathBuf, Value) {
         .output()
         .unwrap();
     let stderr = String::from_utf8_lossy(&out.stderr);
-    assert_eq!(out.status.code(), Some(0), "{stderr}");
     assert!(stderr.contains("capture: "), "{stderr}");
-    let report = serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    let report: Value = serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    // Exit 0, or 2 where only this host stalled sending a request (an ERROR, never
+    // judged: a busy machine), with no deviation either way.
+    assert_eq!(report["summary"]["deviation"], 0, "{stderr}");
+    for c in report["checks"].as_array().unwrap() {
+        if c["status"] == "error" {
+            let why = c["summary"].as_str().unwrap();
+            assert!(
+                why.contains("could not send the request"),
+                "{}: {why}",
+                c["id"]
+            );
+        }
+    }
+    assert!(matches!(out.status.code(), Some(0 | 2)), "{stderr}");
     (cap, report)
 }
 
@@ -898,13 +911,25 @@ fn monitor_capture_in_judges_every_exchange_of_the_check_run_as_check_did() {
         .arg(&json)
         .output()
         .unwrap();
-    assert_eq!(
-        out.status.code(),
-        Some(1),
+    // Exit 1: deviations (the planted fault). 2 only where this host stalled sending a
+    // request (an ERROR, never judged); the other exchanges are still compared.
+    let check: Value = serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    assert!(
+        matches!(out.status.code(), Some(1 | 2)),
         "{}",
         String::from_utf8_lossy(&out.stderr)
     );
-    let check: Value = serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    assert_eq!(check["complete"], true, "{}", check["stopped"]);
+    for c in check["checks"].as_array().unwrap() {
+        if c["status"] == "error" {
+            let why = c["summary"].as_str().unwrap();
+            assert!(
+                why.contains("could not send the request"),
+                "{}: {why}",
+                c["id"]
+            );
+        }
+    }
     let (code, report, stderr) = monitor_capture(
         &cap,
         "agree",

@@ -77,6 +77,10 @@ pub struct TapFrame {
     pub silence_before: Option<Duration>,
     /// The largest silence between two of its bytes that came in different pieces.
     pub max_gap: Option<Duration>,
+    /// The side its first byte came from, where the source knows (a capture's direction
+    /// flags: `true` for one side, `false` for the other; which is which does not
+    /// matter, only whether two frames came from the same side).
+    pub side: Option<bool>,
 }
 
 /// A piece of bytes from the tap: where it ends in the block, when it was read, and the
@@ -99,6 +103,8 @@ struct Piece {
     at: Duration,
     low: Duration,
     since: Duration,
+    /// The side it came from, where the source knows (a capture's direction flags).
+    side: Option<bool>,
 }
 
 /// How long the start of a frame cut short waits for its rest.
@@ -131,6 +137,8 @@ pub struct TapFramer {
     last_at: Option<Duration>,
     /// The earliest the last byte read so far can have come.
     last_low: Option<Duration>,
+    /// The side of the bytes being pushed, where known.
+    side: Option<bool>,
     /// The block being closed ended at a silence no read proves (a late read).
     end_unproven: bool,
     /// When the last read returned, with bytes or without.
@@ -157,11 +165,17 @@ impl TapFramer {
             before_block: None,
             last_at: None,
             last_low: None,
+            side: None,
             end_unproven: false,
             last_poll: None,
             carry: None,
             colon: None,
         }
+    }
+
+    /// The side the next pieces come from (`None`: unknown, a tap).
+    pub fn set_side(&mut self, side: Option<bool>) {
+        self.side = side;
     }
 
     /// Feeds a piece of bytes that arrived at `at` (since the listener's origin).
@@ -278,6 +292,7 @@ impl TapFramer {
                 at,
                 low,
                 since,
+                side: self.side,
             });
         }
         if self.rtu.pending() == 0 {
@@ -428,6 +443,7 @@ impl TapFramer {
                     end_low: low(k1),
                     silence_before,
                     max_gap,
+                    side: pieces.get(k0).and_then(|p| p.side),
                 });
             }
             pos += s + n;
@@ -487,6 +503,7 @@ impl TapFramer {
             end_low: at,
             silence_before: silence,
             max_gap: None,
+            side: self.side,
         });
     }
 }

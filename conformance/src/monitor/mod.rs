@@ -133,6 +133,8 @@ struct Pending {
     end: Duration,
     /// The earliest its last byte can have come.
     end_low: Duration,
+    /// The side it came from, where the source knows.
+    side: Option<bool>,
     silence_before: Option<Duration>,
     judgement: Judgement,
     /// Bytes that came after it and are no frame (garbage before a reply).
@@ -221,6 +223,13 @@ impl Monitor {
     /// The model.
     pub fn model(&self) -> &DriveModel {
         &self.model
+    }
+
+    /// The side the next bytes come from, where the source knows it (a capture's
+    /// direction flags; `None`, a tap, the default): frames from the side of a request
+    /// are never its reply, frames from the other side are.
+    pub fn set_side(&mut self, side: Option<bool>) {
+        self.framer.set_side(side);
     }
 
     /// Bytes that arrived at `at` (since the listener's origin).
@@ -369,13 +378,25 @@ impl Monitor {
         let copy_limit = self.model.response_time_on(Some(&self.cfg.line))
             + self.cfg.response_allowance
             + Duration::from_micros(self.cfg.line.char_time_us());
-        let resend = self.pending.as_ref().is_some_and(|p| {
-            is_copy(&p.bytes, &f.bytes)
-                && f.start.unwrap_or(f.end).saturating_sub(p.end) > copy_limit
+        // Where the source knows the side each frame came from (a capture's direction
+        // flags), that settles it: a frame from the request's side is never its reply.
+        let same_side = self
+            .pending
+            .as_ref()
+            .and_then(|p| p.side.zip(f.side).map(|(a, b)| a == b));
+        let resend = same_side.unwrap_or_else(|| {
+            self.pending.as_ref().is_some_and(|p| {
+                is_copy(&p.bytes, &f.bytes)
+                    && f.start.unwrap_or(f.end).saturating_sub(p.end) > copy_limit
+            })
         });
         if let Some(p) = self.pending.as_mut() {
             match f.status {
-                FrameStatus::Valid if !resend && is_reply_to(self.cfg.mode, &p.bytes, &f.bytes) => {
+                FrameStatus::Valid
+                    if !resend
+                        && (same_side == Some(false)
+                            || is_reply_to(self.cfg.mode, &p.bytes, &f.bytes)) =>
+                {
                     self.close_with_reply(f, since_previous);
                     return;
                 }
@@ -477,6 +498,7 @@ impl Monitor {
             start: f.start,
             end: f.end,
             end_low: f.end_low,
+            side: f.side,
             silence_before: f.silence_before,
             judgement,
             leading: Vec::new(),
@@ -720,6 +742,7 @@ impl Monitor {
             end_low: p.end_low,
             silence_before: p.silence_before,
             max_gap: None,
+            side: p.side,
         };
         let mut line = self.line_for(
             &req_frame,

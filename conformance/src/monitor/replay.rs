@@ -110,6 +110,8 @@ pub fn replay(
         let t0 = *origin.get_or_insert(ts);
         let first = Duration::from_nanos(ts - t0);
         monitor.idle(first);
+        // Where the capture gives directions, they settle which frame answers which.
+        monitor.set_side(p.direction.map(|d| d == capture::Direction::Outbound));
         let mut end = first;
         for b in bytes.chunks(1) {
             end += char;

@@ -616,3 +616,32 @@ fn a_copy_later_than_a_reply_is_due_is_a_resend_and_the_exception_its_reply() {
     run(&mut m, &[(0, &exception(1, 0x06, 0x03))]);
     assert_eq!(kinds(&m, 1), ["drive.unexpected-reply"]);
 }
+
+/// A capture with directions settles what order and time cannot: a copy from the
+/// request's side is the master's resend however soon it comes, and one from the other
+/// side is the echo however late (then a late reply).
+#[test]
+fn directions_from_a_capture_tell_a_resend_from_a_late_echo() {
+    let w = write(1, 0x2502, 100);
+    let sided = |steps: &[(u64, bool)]| {
+        let mut m = monitor(Mode::Rtu, &[1]);
+        for (t, side) in steps {
+            m.idle(ms(*t));
+            m.set_side(Some(*side));
+            m.feed(ms(*t), &w);
+        }
+        m.idle(ms(5000));
+        m.finish();
+        let lines = m.take_lines();
+        (kinds(&m, 1), lines)
+    };
+    // A resend 20 ms after (soon enough to pass for an echo by time), then the echo.
+    let (k, lines) = sided(&[(0, true), (20, true), (35, false)]);
+    assert!(k.contains(&"master.retry".to_string()), "{k:?}\n{lines:#?}");
+    assert_eq!(lines.len(), 2, "{lines:#?}");
+    // The echo 80 ms after (later than a reply is due): still the echo, a late one.
+    let (k, lines) = sided(&[(0, true), (80, false)]);
+    assert_eq!(lines.len(), 1, "{lines:#?}");
+    assert!(k.contains(&"drive.late-reply".to_string()), "{k:?}");
+    assert!(!k.contains(&"master.retry".to_string()), "{k:?}");
+}
