@@ -181,7 +181,7 @@ pub fn run(args: MonitorArgs) -> anyhow::Result<ExitCode> {
         if mode == Mode::Rtu && args.data_bits != 8 {
             anyhow::bail!("RTU needs 8 data bits (-d 8)");
         }
-        Ok(Monitor::new(
+        let mut mon = Monitor::new(
             model.clone(),
             MonitorConfig {
                 mode,
@@ -191,7 +191,10 @@ pub fn run(args: MonitorArgs) -> anyhow::Result<ExitCode> {
                 response_allowance: Duration::from_millis(args.allowance),
                 gap_allowance: Duration::from_millis(args.allowance),
             },
-        )?)
+        )?;
+        // Nobody reads live lines with --quiet and no --log: not making them is faster.
+        mon.set_live(!args.quiet || args.log.is_some());
+        Ok(mon)
     };
     let (mode, mon, source, ended) = match (&args.port, &args.capture_in) {
         (_, Some(path)) => {

@@ -645,3 +645,27 @@ fn directions_from_a_capture_tell_a_resend_from_a_late_echo() {
     assert!(k.contains(&"drive.late-reply".to_string()), "{k:?}");
     assert!(!k.contains(&"master.retry".to_string()), "{k:?}");
 }
+
+/// Without live lines (`--quiet` and no `--log`) the verdicts and statistics are the
+/// same; only the lines are not made.
+#[test]
+fn without_live_lines_the_verdicts_are_the_same() {
+    let steps: Vec<(u64, Vec<u8>)> = vec![
+        (0, read(1, 0x2520, 1)),
+        (15, values(1, &[1])),
+        (100, read(1, 0x2530, 1)),
+        (115, exception(1, 3, 3)),
+        (300, write(1, 0x2502, 100)),
+    ];
+    let heard = |live: bool| {
+        let mut m = monitor(Mode::Rtu, &[1]);
+        m.set_live(live);
+        let frames: Vec<(u64, &[u8])> = steps.iter().map(|(t, f)| (*t, &f[..])).collect();
+        let lines = run(&mut m, &frames);
+        (kinds(&m, 1), m.nodes()[&1].exchanges, m.deviations(), lines.len())
+    };
+    let (k, n, d, lines) = heard(true);
+    assert_eq!(lines, 3);
+    assert!(d > 0 && k.contains(&"drive.wrong-exception".to_string()), "{k:?}");
+    assert_eq!(heard(false), (k, n, d, 0));
+}
