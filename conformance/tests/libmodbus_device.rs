@@ -49,7 +49,7 @@
 //! fails.
 
 mod common;
-use common::{cc, need, Kill, Peer, SerialPeer};
+use common::{Kill, SerialPeer};
 
 use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
@@ -57,33 +57,9 @@ use std::process::{Command, Stdio};
 use std::sync::mpsc;
 use std::time::{Duration, Instant};
 
-const SERVER_C: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/libmodbus/server.c");
-
 /// Builds the server into `dir`; `None` (after SKIPPED) when a tool is missing.
 fn build_server(dir: &Path) -> Option<PathBuf> {
-    if !need(Peer::Libmodbus) {
-        return None;
-    }
-    let flags = Command::new("pkg-config")
-        .args(["--cflags", "--libs", "libmodbus"])
-        .output()
-        .unwrap();
-    assert!(flags.status.success());
-    let flags = String::from_utf8(flags.stdout).unwrap();
-    let exe = dir.join("libmodbus-server");
-    let out = Command::new(cc())
-        .args(["-Wall", "-Wextra", "-Werror", "-O2", "-o"])
-        .arg(&exe)
-        .arg(SERVER_C)
-        .args(flags.split_whitespace())
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "cc server.c failed:\n{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    Some(exe)
+    common::libmodbus_program(dir, "server")
 }
 
 /// The check of `id` in the report.

@@ -25,7 +25,7 @@ use std::process::{Command, Stdio};
 use std::sync::mpsc;
 use std::time::Duration;
 
-use common::{bin, cc, need, note, python, Kill, Peer};
+use common::{bin, need, note, python, Kill, Peer};
 use serde_json::Value;
 
 fn dir(name: &str) -> PathBuf {
@@ -258,40 +258,24 @@ fn assert_heard_clean(who: &str, heard: &(i32, Value, Vec<String>, Vec<Value>), 
     }
 }
 
-/// The libmodbus client, built into `d`; `None` (after SKIPPED) without libmodbus.
-fn libmodbus_client(d: &Path) -> Option<PathBuf> {
-    build_c(d, "client")
+/// Python that opens pymodbus's serial client `c` on `port` with `timeout` (seconds) and
+/// `retries`. Parity E on a pseudo-terminal: pymodbus's connect() refuses it (EINVAL) and
+/// falls back to N here; the line carries bytes, whatever the program's termios says.
+fn pymodbus_connect(port: &Path, timeout: &str, retries: u32) -> String {
+    format!(
+        "from pymodbus.client import ModbusSerialClient\n\
+         for parity in ('E', 'N'):\n\
+         \x20   c = ModbusSerialClient(port={port:?}, baudrate=9600, parity=parity, stopbits=1, bytesize=8, timeout={timeout}, retries={retries})\n\
+         \x20   if c.connect():\n\
+         \x20       break\n\
+         else:\n\
+         \x20   raise SystemExit('pymodbus cannot open the endpoint')\n"
+    )
 }
 
-/// tests/libmodbus/NAME.c built into `d` with libmodbus; `None` (after SKIPPED) without
-/// it.
-fn build_c(d: &Path, name: &str) -> Option<PathBuf> {
-    if !need(Peer::Libmodbus) {
-        return None;
-    }
-    let flags = Command::new("pkg-config")
-        .args(["--cflags", "--libs", "libmodbus"])
-        .output()
-        .unwrap();
-    assert!(flags.status.success());
-    let flags = String::from_utf8(flags.stdout).unwrap();
-    let exe = d.join(name);
-    let out = Command::new(cc())
-        .args(["-Wall", "-Wextra", "-Werror", "-O2", "-o"])
-        .arg(&exe)
-        .arg(format!(
-            "{}/tests/libmodbus/{name}.c",
-            env!("CARGO_MANIFEST_DIR")
-        ))
-        .args(flags.split_whitespace())
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "cc {name}.c failed:\n{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    Some(exe)
+/// The libmodbus client, built into `d`; `None` (after SKIPPED) without libmodbus.
+fn libmodbus_client(d: &Path) -> Option<PathBuf> {
+    common::libmodbus_program(d, "client")
 }
 
 /// Runs `cmd` to its end (60 s at most): its stdout, which must come with exit 0 when
@@ -348,19 +332,13 @@ fn pymodbus_polling_and_writing_is_heard_and_the_drive_passes() {
     // Parity E on a pseudo-terminal: pymodbus's connect() refuses it (EINVAL) and falls
     // back to N here; the line carries bytes, whatever the program's termios says.
     let script = format!(
-        "from pymodbus.client import ModbusSerialClient\n\
-         for parity in ('E', 'N'):\n\
-         \x20   c = ModbusSerialClient(port={port:?}, baudrate=9600, parity=parity, stopbits=1, bytesize=8, timeout=2, retries=0)\n\
-         \x20   if c.connect():\n\
-         \x20       break\n\
-         else:\n\
-         \x20   raise SystemExit('pymodbus cannot open the endpoint')\n\
+        "{connect}\
          for _ in range(3):\n\
          \x20   print(hex(c.read_holding_registers(0x252F, count=1, device_id=1).registers[0]))\n\
          assert not c.write_register(0x2502, 0x04D2, device_id=1).isError()\n\
          print(hex(c.read_holding_registers(0x2502, count=1, device_id=1).registers[0]))\n\
          c.close()\n",
-        port = l.master.to_str().unwrap()
+        connect = pymodbus_connect(&l.master, "2", 0)
     );
     let out = run(Command::new(python()).args(["-c", &script]), true);
     assert_eq!(
@@ -432,18 +410,12 @@ fn replies_a_drive_drops_are_found_and_the_retries_of_the_master_counted() {
     let d = dir("retries");
     let l = Listening::start(&d, &["--quirk", "drop-every=2"]);
     let script = format!(
-        "from pymodbus.client import ModbusSerialClient\n\
-         for parity in ('E', 'N'):\n\
-         \x20   c = ModbusSerialClient(port={port:?}, baudrate=9600, parity=parity, stopbits=1, bytesize=8, timeout=0.3, retries=2)\n\
-         \x20   if c.connect():\n\
-         \x20       break\n\
-         else:\n\
-         \x20   raise SystemExit('pymodbus cannot open the endpoint')\n\
+        "{connect}\
          for _ in range(4):\n\
          \x20   r = c.read_holding_registers(0x252F, count=1, device_id=1)\n\
          \x20   print('error' if r.isError() else hex(r.registers[0]))\n\
          c.close()\n",
-        port = l.master.to_str().unwrap()
+        connect = pymodbus_connect(&l.master, "0.3", 2)
     );
     let out = run(Command::new(python()).args(["-c", &script]), false);
     // Every read gets its answer, at the first try or at a retry.
@@ -710,5 +682,5 @@ fn check_and_monitor_judge_libmodbus_s_server_alike() {
 
 /// tests/libmodbus/server.c, built into `d`; `None` (after SKIPPED) without libmodbus.
 fn libmodbus_server(d: &Path) -> Option<PathBuf> {
-    build_c(d, "server")
+    common::libmodbus_program(d, "server")
 }

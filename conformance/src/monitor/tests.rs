@@ -662,10 +662,18 @@ fn without_live_lines_the_verdicts_are_the_same() {
         m.set_live(live);
         let frames: Vec<(u64, &[u8])> = steps.iter().map(|(t, f)| (*t, &f[..])).collect();
         let lines = run(&mut m, &frames);
-        (kinds(&m, 1), m.nodes()[&1].exchanges, m.deviations(), lines.len())
+        (
+            kinds(&m, 1),
+            m.nodes()[&1].exchanges,
+            m.deviations(),
+            lines.len(),
+        )
     };
     let (k, n, d, lines) = heard(true);
     assert_eq!(lines, 3);
-    assert!(d > 0 && k.contains(&"drive.wrong-exception".to_string()), "{k:?}");
+    assert!(
+        d > 0 && k.contains(&"drive.wrong-exception".to_string()),
+        "{k:?}"
+    );
     assert_eq!(heard(false), (k, n, d, 0));
 }

@@ -362,3 +362,34 @@ impl Drop for GatewaySim {
         }
     }
 }
+
+/// tests/libmodbus/NAME.c (a small libmodbus program) built into `dir`; `None` (after
+/// SKIPPED) when libmodbus or a C compiler is missing.
+pub fn libmodbus_program(dir: &Path, name: &str) -> Option<PathBuf> {
+    if !need(Peer::Libmodbus) {
+        return None;
+    }
+    let flags = Command::new("pkg-config")
+        .args(["--cflags", "--libs", "libmodbus"])
+        .output()
+        .unwrap();
+    assert!(flags.status.success());
+    let flags = String::from_utf8(flags.stdout).unwrap();
+    let exe = dir.join(format!("libmodbus-{name}"));
+    let out = Command::new(super::cc())
+        .args(["-Wall", "-Wextra", "-Werror", "-O2", "-o"])
+        .arg(&exe)
+        .arg(format!(
+            "{}/tests/libmodbus/{name}.c",
+            env!("CARGO_MANIFEST_DIR")
+        ))
+        .args(flags.split_whitespace())
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "cc {name}.c failed:\n{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    Some(exe)
+}
