@@ -242,17 +242,12 @@ pub fn run(args: MonitorArgs) -> anyhow::Result<ExitCode> {
 
 /// The mode `--mode auto` was told, or why it was not.
 fn told(g: monitor::guess::Guess, line: LineSettings) -> anyhow::Result<Mode> {
-    use monitor::guess::{Guess, GIVE_UP_AFTER};
-    match g {
-        Guess::Mode(m, _) => Ok(m),
-        Guess::AsciiSevenBits(n) => anyhow::bail!(
-            "--mode auto: {n} Modbus ASCII frames, but only with bit 7 of every byte cleared: the line has 7 data bits and was read as {line}; use --mode ascii -d 7 -P even (or -P odd)"
-        ),
-        Guess::Neither(first) => anyhow::bail!(
-            "--mode auto: no Modbus RTU or ASCII frame in the first {GIVE_UP_AFTER} bytes at {line}: {} ...; the line settings (-b, -P, -d, -s) may not be the line's",
-            conformance::codec::hex::Hex(&first)
-        ),
-        Guess::Undecided => anyhow::bail!(
+    if let monitor::guess::Guess::Mode(m, _) = g {
+        return Ok(m);
+    }
+    match monitor::guess::why_not(&g, line) {
+        Some(why) => anyhow::bail!("--mode auto: {why}"),
+        None => anyhow::bail!(
             "--mode auto: too little traffic to tell RTU from ASCII (two valid frames of one mode are needed); say --mode rtu or --mode ascii"
         ),
     }

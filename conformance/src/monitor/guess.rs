@@ -101,6 +101,21 @@ pub fn guess(heard: &[u8]) -> Guess {
     Guess::Undecided
 }
 
+/// Why `guess` settled on no mode, in words for the user (`None`: it settled on one, or
+/// is still undecided).
+pub fn why_not(g: &Guess, line: crate::codec::timing::LineSettings) -> Option<String> {
+    match g {
+        Guess::Mode(..) | Guess::Undecided => None,
+        Guess::AsciiSevenBits(n) => Some(format!(
+            "{n} Modbus ASCII frames, but only with bit 7 of every byte cleared: the line has 7 data bits and was read as {line}; use --mode ascii -d 7 -P even (or -P odd)"
+        )),
+        Guess::Neither(first) => Some(format!(
+            "no Modbus RTU or ASCII frame in the first {GIVE_UP_AFTER} bytes at {line}: {} ...; the line settings (-b, -P, -d, -s) may not be the line's",
+            crate::codec::hex::Hex(first)
+        )),
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

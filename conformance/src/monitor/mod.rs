@@ -384,9 +384,11 @@ impl Monitor {
         }
         // A copy of a 06H/08H request is its normal reply, or the master sending it
         // again: by time, a copy later than any reply is due is the master's resend.
-        let copy_limit = self.model.response_time_on(Some(&self.cfg.line))
-            + self.cfg.response_allowance
-            + Duration::from_micros(self.cfg.line.char_time_us());
+        let copy_limit = || {
+            self.model.response_time_on(Some(&self.cfg.line))
+                + self.cfg.response_allowance
+                + Duration::from_micros(self.cfg.line.char_time_us())
+        };
         // Where the source knows the side each frame came from (a capture's direction
         // flags), that settles it: a frame from the request's side is never its reply.
         let same_side = self
@@ -396,7 +398,7 @@ impl Monitor {
         let resend = same_side.unwrap_or_else(|| {
             self.pending.as_ref().is_some_and(|p| {
                 is_copy(&p.bytes, &f.bytes)
-                    && f.start.unwrap_or(f.end).saturating_sub(p.end) > copy_limit
+                    && f.start.unwrap_or(f.end).saturating_sub(p.end) > copy_limit()
             })
         });
         if let Some(p) = self.pending.as_mut() {

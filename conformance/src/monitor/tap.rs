@@ -126,11 +126,14 @@ pub fn listen_for_mode(
     origin: Instant,
     line: crate::codec::timing::LineSettings,
 ) -> Result<Result<(crate::codec::Mode, Heard), Ended>, MonitorError> {
-    use super::guess::{guess, Guess, GIVE_UP_AFTER};
+    use super::guess::{guess, why_not, Guess, GIVE_UP_AFTER};
     let poll = poll_interval(line);
     let mut buf = [0u8; 512];
     let mut heard: Heard = Vec::new();
     let mut bytes: Vec<u8> = Vec::new();
+    // Bytes since the last guess: guessed at the end of a burst (a read that came back
+    // empty), or once enough are held to give up, not on every read.
+    let mut fresh = false;
     loop {
         if stop.load(Ordering::Relaxed) {
             return Ok(Err(Ended::Interrupted));
@@ -149,25 +152,21 @@ pub fn listen_for_mode(
                 Some((t, b)) if b.is_empty() => *t = at,
                 _ => heard.push((at, Vec::new())),
             }
+        } else {
+            heard.push((at, buf[..n].to_vec()));
+            bytes.extend_from_slice(&buf[..n]);
+            fresh = true;
+        }
+        if !fresh || (n > 0 && bytes.len() < GIVE_UP_AFTER) {
             continue;
         }
-        heard.push((at, buf[..n].to_vec()));
-        bytes.extend_from_slice(&buf[..n]);
-        match guess(&bytes) {
-            Guess::Undecided => {}
-            Guess::Mode(mode, _) => return Ok(Ok((mode, heard))),
-            Guess::AsciiSevenBits(n) => {
-                return Err(MonitorError::NoMode(format!(
-                    "{n} Modbus ASCII frames, but only with bit 7 of every byte cleared: the line has 7 data bits and this port reads {}; listen with --mode ascii -d 7 -P even (or -P odd)",
-                    line
-                )))
-            }
-            Guess::Neither(first) => {
-                return Err(MonitorError::NoMode(format!(
-                    "no Modbus RTU or ASCII frame in the first {GIVE_UP_AFTER} bytes heard at {line}: {} ...; the line settings (-b, -P, -d, -s) may not be the line's",
-                    crate::codec::hex::Hex(&first)
-                )))
-            }
+        fresh = false;
+        let g = guess(&bytes);
+        if let Guess::Mode(mode, _) = g {
+            return Ok(Ok((mode, heard)));
+        }
+        if let Some(why) = why_not(&g, line) {
+            return Err(MonitorError::NoMode(why));
         }
     }
 }
