@@ -321,6 +321,9 @@ fn header(out: &mut String, report: &Report) {
                 out,
                 "device",
                 &match &d.simulated {
+                    None if report.kind == ReportKind::Monitor => {
+                        "the drives heard on the bus (listened to, never written to)".into()
+                    }
                     None => "a real drive".into(),
                     Some(q) if q.is_empty() => "this suite's simulator".into(),
                     Some(q) => format!(

@@ -50,7 +50,14 @@ pub(super) fn node_label(node: Option<u8>) -> String {
 
 /// The table of the nodes and of the checks of the whole bus.
 pub(super) fn table(out: &mut String, report: &Report) {
-    out.push_str("<h2 id=\"nodes-h\">Nodes on the bus</h2><p class=\"muted\">Each node was checked in turn; the checks of the whole bus (broadcasts, another address) ran once. A link filters the table of every check to the node.</p><table id=\"nodes\"><thead><tr><th>node</th><th>identification</th><th class=\"num\">checks</th><th class=\"num\">pass</th><th class=\"num\">deviations</th><th class=\"num\">observations</th><th class=\"num\">skipped</th><th class=\"num\">errors</th><th>notes</th></tr></thead><tbody>");
+    let intro = if report.kind == super::super::ReportKind::Monitor {
+        "Each node heard on the bus, its drive's side and its master's side judged on every exchange; address 00 is the broadcasts. A link filters the table of every check to the node."
+    } else {
+        "Each node was checked in turn; the checks of the whole bus (broadcasts, another address) ran once. A link filters the table of every check to the node."
+    };
+    out.push_str("<h2 id=\"nodes-h\">Nodes on the bus</h2><p class=\"muted\">");
+    out.push_str(intro);
+    out.push_str("</p><table id=\"nodes\"><thead><tr><th>node</th><th>identification</th><th class=\"num\">checks</th><th class=\"num\">pass</th><th class=\"num\">deviations</th><th class=\"num\">observations</th><th class=\"num\">skipped</th><th class=\"num\">errors</th><th>notes</th></tr></thead><tbody>");
     for (node, s) in report.node_summaries() {
         let info = node.and_then(|n| report.device.nodes.iter().find(|x| x.address == n));
         let value = match node {
