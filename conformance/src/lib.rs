@@ -8,6 +8,9 @@
 //! - [`vectors`]: the manuals' example frames as golden vectors (data under `vectors/`),
 //!   checked by the codec.
 //! - [`model`]: the drive models (data under `vectors/models/`) and their rules.
+//! - [`requirements`]: every wire-testable statement of the manuals (data under
+//!   `vectors/requirements/`), traced to the checks, vectors, model facts, monitor kinds
+//!   and oracle classes that verify it (the tracing reads the runner's check list).
 //! - [`transport`]: serial port, pseudo-terminal, TCP, in-memory links behind one trait.
 //! - [`sim`]: the simulated drive, with fault injection.
 //! - [`line`] (Unix): the emulated multi-drop RS-485 line that programs and simulated
@@ -40,6 +43,7 @@ pub mod model;
 pub mod monitor;
 pub mod oracle;
 pub mod report;
+pub mod requirements;
 pub mod rng;
 pub mod runner;
 pub mod scan;

@@ -13,6 +13,7 @@ mod link;
 mod model_cmd;
 mod monitor_cmd;
 mod report_cmd;
+mod requirements_cmd;
 mod scan_cmd;
 mod send_cmd;
 mod simulate_cmd;
@@ -70,6 +71,9 @@ enum Command {
     Gate(gate_cmd::GateArgs),
     /// Render a saved JSON report as text (the default), HTML, JUnit XML, CSV or JSON.
     Report(report_cmd::ReportArgs),
+    /// The manuals' requirements (every wire-testable statement, with its quote), what
+    /// verifies each, and the coverage per document.
+    Requirements(requirements_cmd::RequirementsArgs),
     /// What changed between two runs of the same model (e.g. two firmware versions).
     Diff(report_cmd::DiffArgs),
     /// This suite's codec behind the adapter protocol, on stdin/stdout (the reference
@@ -84,6 +88,7 @@ pub fn run(cli: Cli) -> anyhow::Result<ExitCode> {
         Command::Encode(a) => codec_cmd::encode(a),
         Command::Vectors(a) => vectors_cmd::run(a),
         Command::Model(a) => model_cmd::run(a),
+        Command::Requirements(a) => requirements_cmd::run(a),
         Command::Simulate(a) => simulate_cmd::run(a),
         #[cfg(unix)]
         Command::Bus(a) => bus_cmd::run(a),

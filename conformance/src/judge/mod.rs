@@ -111,6 +111,25 @@ pub enum Kind {
 }
 
 impl Kind {
+    /// Every kind, in the order of the enum.
+    pub const ALL: [Kind; 15] = [
+        Kind::WrongReply,
+        Kind::WrongException,
+        Kind::WrongValue,
+        Kind::WrongAddress,
+        Kind::NoReply,
+        Kind::BadChecksum,
+        Kind::Truncated,
+        Kind::Malformed,
+        Kind::ExtraBytes,
+        Kind::UnexpectedReply,
+        Kind::LateReply,
+        Kind::EarlyReply,
+        Kind::GapInReply,
+        Kind::Retried,
+        Kind::Decision,
+    ];
+
     /// The kind as reports spell it.
     pub fn key(self) -> &'static str {
         match self {

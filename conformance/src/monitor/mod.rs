@@ -144,6 +144,40 @@ struct Pending {
     retry_after: Option<Duration>,
 }
 
+/// The kinds the monitor judges the master's side by (the drive's side is judged by the
+/// [`judge`](crate::judge::Kind) kinds). The requirements catalogue links to them.
+pub const MASTER_KINDS: [&str; 18] = [
+    "no-t3.5",
+    "incomplete-request",
+    "bad-checksum",
+    "malformed",
+    "broadcast-read",
+    "frame-too-long",
+    "function-not-served",
+    "register-not-in-map",
+    "count-over-limit",
+    "value-out-of-range",
+    "write-to-read-only",
+    "write-to-reserved",
+    "crosses-group",
+    "no-access-register",
+    "malformed-request",
+    "request-before-reply",
+    "retry",
+    "broadcast-turnaround",
+];
+
+/// The kinds of every monitor finding: the drive's (the judge's kinds) and the master's.
+pub fn kinds() -> Vec<&'static str> {
+    let mut out: Vec<&'static str> = crate::judge::Kind::ALL.iter().map(|k| k.key()).collect();
+    for k in MASTER_KINDS {
+        if !out.contains(&k) {
+            out.push(k);
+        }
+    }
+    out
+}
+
 /// The least silence after a broadcast before the master's next request: the low end of
 /// Modbus over Serial Line's "typically 100 ms to 200 ms" turnaround delay.
 pub const BROADCAST_TURNAROUND: Duration = Duration::from_millis(100);

@@ -7,6 +7,7 @@
 //! back with [`Report::from_json`]). Every string that came from a device, a model file
 //! or a report file is escaped.
 
+mod coverage;
 mod heard;
 mod nodes;
 mod svg;
@@ -509,7 +510,7 @@ pub fn html(report: &Report) -> String {
         "<a href=\"#deviations\">Deviations</a> · <a href=\"#observations\">Observations</a> · ",
     );
     if drive {
-        out.push_str("<a href=\"#plots\">Response time</a> · <a href=\"#timeline\">Timeline</a> · <a href=\"#map\">Register map</a> · ");
+        out.push_str("<a href=\"#plots\">Response time</a> · <a href=\"#timeline\">Timeline</a> · <a href=\"#map\">Register map</a> · <a href=\"#coverage\">Requirements</a> · ");
     }
     out.push_str(
         "<a href=\"#all\">Every check</a> · <a href=\"#restore\">Restore journal</a></nav>",
@@ -569,6 +570,7 @@ pub fn html(report: &Report) -> String {
         out.push_str("<h2 id=\"map\">Register map</h2><p class=\"muted\">Each register group (block) against the map checks: its first and last register, the whole block, one past its end, the gaps inside it, registers without access, and a write to the group; a cell is coloured by the worst status of its checks (hover for the ids).</p>");
         legend(&mut out);
         out.push_str(&svg::map_grid(report));
+        out.push_str(&coverage::section(report));
     }
 
     let mut modes: Vec<String> = report
@@ -634,14 +636,19 @@ pub fn html(report: &Report) -> String {
         };
         w!(
             out,
-            "<tr class=\"{c}\" data-id=\"{id}\" data-status=\"{c}\" data-mode=\"{m}\"{node}><td>{m}</td><td>{b}</td><td>{t}<div class=\"muted\">{src}</div></td><td>{sum}</td><td class=\"num\">{lat}</td></tr>",
+            "<tr class=\"{c}\" data-id=\"{id}\" data-status=\"{c}\" data-mode=\"{m}\"{node}><td>{m}</td><td>{b}</td><td>{t}<div class=\"muted\">{src}</div>{reqs}</td><td>{sum}</td><td class=\"num\">{lat}</td></tr>",
             c = class(r.status),
             m = esc(&mode),
             b = badge(r.status),
             t = esc(&r.title),
             src = esc(&r.source),
             sum = esc(&r.summary),
-            lat = worst_latency(r)
+            lat = worst_latency(r),
+            reqs = if drive {
+                coverage::links(report, &r.id)
+            } else {
+                String::new()
+            }
         );
     }
     out.push_str("</tbody></table>");

@@ -203,14 +203,31 @@ fn suite(
             esc(&c.id),
             c.duration.as_secs_f64()
         );
-        match c.status {
-            Status::Pass => {
-                let _ = writeln!(o, "/>");
+        // The requirements of the manual this check verifies, as pytest's
+        // record_property writes test case properties.
+        let reqs = crate::requirements::for_check(&r.device.model, &c.id);
+        if c.status == Status::Pass && reqs.is_empty() {
+            let _ = writeln!(o, "/>");
+            continue;
+        }
+        let _ = writeln!(o, ">");
+        if !reqs.is_empty() {
+            let _ = writeln!(o, "      <properties>");
+            for id in reqs {
+                let _ = writeln!(
+                    o,
+                    "        <property name=\"requirement\" value=\"{}\"/>",
+                    esc(id)
+                );
             }
+            let _ = writeln!(o, "      </properties>");
+        }
+        match c.status {
+            Status::Pass => {}
             Status::Deviation => {
                 let _ = writeln!(
                     o,
-                    ">\n      <failure type=\"deviation\" message=\"{}\">{}</failure>\n    </testcase>",
+                    "      <failure type=\"deviation\" message=\"{}\">{}</failure>",
                     esc(&c.summary),
                     esc(&body(c))
                 );
@@ -218,26 +235,23 @@ fn suite(
             Status::Error => {
                 let _ = writeln!(
                     o,
-                    ">\n      <error type=\"error\" message=\"{}\">{}</error>\n    </testcase>",
+                    "      <error type=\"error\" message=\"{}\">{}</error>",
                     esc(&c.summary),
                     esc(&body(c))
                 );
             }
             Status::Skip => {
-                let _ = writeln!(
-                    o,
-                    ">\n      <skipped message=\"{}\"/>\n    </testcase>",
-                    esc(&c.summary)
-                );
+                let _ = writeln!(o, "      <skipped message=\"{}\"/>", esc(&c.summary));
             }
             Status::Observation => {
                 let _ = writeln!(
                     o,
-                    ">\n      <system-out>OBSERVATION: {}</system-out>\n    </testcase>",
+                    "      <system-out>OBSERVATION: {}</system-out>",
                     esc(&body(c))
                 );
             }
         }
+        let _ = writeln!(o, "    </testcase>");
     }
     let _ = writeln!(o, "  </testsuite>");
 }

@@ -11,6 +11,7 @@ pub mod diff;
 mod html;
 mod junit;
 mod parse;
+pub mod requirements;
 mod text;
 
 use std::collections::BTreeMap;
@@ -261,7 +262,11 @@ impl Report {
     /// The report as JSON.
     pub fn to_json(&self) -> Value {
         let s = self.summary();
-        let checks: Vec<Value> = self.results.iter().map(check_json).collect();
+        let checks: Vec<Value> = self
+            .results
+            .iter()
+            .map(|r| check_json(r, &self.device.model))
+            .collect();
         let restore: Vec<Value> = self
             .restore
             .iter()
@@ -377,7 +382,7 @@ fn budget_json(b: &ModeBudget) -> Value {
     v
 }
 
-fn check_json(r: &CheckResult) -> Value {
+fn check_json(r: &CheckResult, model: &str) -> Value {
     let exchanges: Vec<Value> = r
         .exchanges
         .iter()
@@ -420,6 +425,10 @@ fn check_json(r: &CheckResult) -> Value {
     });
     if let Some(n) = r.node {
         v["node"] = json!(format!("{n:02X}"));
+    }
+    let reqs = crate::requirements::for_check(model, &r.id);
+    if !reqs.is_empty() {
+        v["requirements"] = json!(reqs);
     }
     v
 }

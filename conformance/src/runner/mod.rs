@@ -221,6 +221,35 @@ pub struct Options {
     pub bus: Vec<u8>,
 }
 
+impl Options {
+    /// Options for listing a model's checks without running them (the requirements'
+    /// traceability): node 1, every kind of check allowed, the default seed.
+    pub fn for_listing() -> Options {
+        Options {
+            address: 1,
+            other_address: 0x7F,
+            read_only: false,
+            allow_motion: true,
+            only: Vec::new(),
+            timing: MasterTiming {
+                timeout: Duration::from_millis(300),
+                silence: Duration::from_millis(100),
+                derive_silence: true,
+                quiet: Duration::from_millis(10),
+                gap: Duration::from_millis(1),
+                retries: 0,
+            },
+            response_allowance: Duration::from_millis(20),
+            gap_allowance: Duration::from_millis(20),
+            seed: 1,
+            echo: EchoMode::Off,
+            line: None,
+            allow_restart: true,
+            bus: vec![1],
+        }
+    }
+}
+
 /// A register the run changed and restored.
 #[derive(Debug, Clone, PartialEq, Eq, Serialize)]
 pub struct RestoreRecord {
