@@ -728,6 +728,11 @@ fn the_matcher_takes_wildcards_and_nothing_else() {
 }
 
 #[test]
+fn requirements_examples() {
+    check_page("docs/src/requirements.md");
+}
+
+#[test]
 fn readme_examples() {
     check_page("README.md");
 }

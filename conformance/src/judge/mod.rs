@@ -312,6 +312,33 @@ impl Verdict {
     }
 }
 
+/// The longest silence between two characters of one ASCII frame: Modbus over Serial Line
+/// V1.02, 2.5.2.1 ("intervals of up to one second can elapse between characters"). ASCII
+/// frames are delimited by ':' and CR LF, so neither t1.5 nor t3.5 applies to them.
+pub const ASCII_CHARACTER_TIMEOUT: Duration = Duration::from_secs(1);
+
+/// The longest silence inside a frame of `mode` on `line` before it counts: t1.5 plus
+/// `allowance` in RTU, [`ASCII_CHARACTER_TIMEOUT`] in ASCII; with the rule it breaks.
+pub fn gap_limit(mode: Mode, line: &LineSettings, allowance: Duration) -> (Duration, String) {
+    match mode {
+        Mode::Rtu => {
+            let t15 = Duration::from_micros(line.t1_5_us());
+            (
+                t15 + allowance,
+                format!(
+                    "over t1.5 ({} us + allowance {} us); Modbus over Serial Line V1.02, 2.5.1.1",
+                    t15.as_micros(),
+                    allowance.as_micros()
+                ),
+            )
+        }
+        Mode::Ascii => (
+            ASCII_CHARACTER_TIMEOUT,
+            "over the 1 s that may elapse between the characters of an ASCII frame; Modbus over Serial Line V1.02, 2.5.2.1".to_string(),
+        ),
+    }
+}
+
 /// How a listener that sees the line's timing judges it: the runner judges response
 /// times over a whole mode (its `response-time` check), a monitor exchange by exchange.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -436,7 +463,8 @@ impl<'m> Judge<'m> {
                     },
                 );
             }
-            if let Some(line) = rule.line {
+            // t3.5 delimits RTU frames only; an ASCII frame begins with its ':'.
+            if let Some(line) = rule.line.filter(|_| conv.mode == Mode::Rtu) {
                 // The listener reads the end of the request a little late: one character
                 // of tolerance, as `check`'s line-timing check.
                 let t35 = Duration::from_micros(line.t3_5_us());
@@ -460,15 +488,13 @@ impl<'m> Judge<'m> {
             }
         }
         if let (Some(gap), Some(line)) = (conv.timing.max_gap, rule.line) {
-            let t15 = Duration::from_micros(line.t1_5_us());
-            if gap > t15 + rule.gap_allowance {
+            let (limit, why) = gap_limit(conv.mode, &line, rule.gap_allowance);
+            if gap > limit {
                 v.push(
                     Kind::GapInReply,
                     Finding::deviation(format!(
-                        "a silence of {} us inside the reply, over t1.5 ({} us + allowance {} us); Modbus over Serial Line V1.02, 2.5.1.1",
+                        "a silence of {} us inside the reply, {why}",
                         gap.as_micros(),
-                        t15.as_micros(),
-                        rule.gap_allowance.as_micros()
                     )),
                 );
             }

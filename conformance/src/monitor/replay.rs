@@ -112,11 +112,13 @@ pub fn replay(
         monitor.idle(first);
         // Where the capture gives directions, they settle which frame answers which.
         monitor.set_side(p.direction.map(|d| d == capture::Direction::Outbound));
-        let mut end = first;
-        for b in bytes.chunks(1) {
-            end += char;
-            monitor.feed(end, b);
-        }
+        // The first byte when its last bit arrived (response times and silences are
+        // measured to it), the rest when the packet's last byte did: no silence inside a
+        // packet can be proven, and the framer needs no byte-by-byte clock for that.
+        let end = first + char * bytes.len() as u32;
+        let (head, rest) = bytes.split_at(1.min(bytes.len()));
+        monitor.feed(first + char, head);
+        monitor.feed(end, rest);
         for l in monitor.take_lines() {
             on_line(&l);
         }

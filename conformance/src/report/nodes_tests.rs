@@ -1,6 +1,7 @@
 //! The renderers on a run of several nodes, and a run of one node rendered exactly as
 //! before runs of several nodes existed (golden files in `testdata/`, written by the
-//! renderers of commit 0a61638).
+//! renderers of commit 0a61638; since then, additively, the requirement ids each check
+//! verifies in JUnit and HTML and the HTML's requirements coverage section).
 
 use super::diff::{Diff, DiffError};
 use super::fixtures::{one_node, result, several_nodes, NODES};

@@ -177,6 +177,17 @@ pub struct Requirement {
     pub withdrawn: Option<String>,
 }
 
+/// Checks of the model that verify no statement of this document, and why (a rule of the
+/// Modbus specification only, or a decision of the model where the manual is silent).
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Unlinked {
+    /// A check id pattern, as in [`VerifiedBy::checks`].
+    pub checks: String,
+    /// Why no requirement of this document is verified by them.
+    pub reason: String,
+}
+
 /// The requirements of one document.
 #[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -196,6 +207,9 @@ pub struct Catalogue {
     pub scope: String,
     /// The requirements, in the manual's order.
     pub requirements: Vec<Requirement>,
+    /// The model's checks that verify no requirement of this document, with the reason.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub checks_without_requirement: Vec<Unlinked>,
 }
 
 impl Catalogue {
@@ -264,6 +278,15 @@ impl Catalogue {
                     &r.id,
                     "reason",
                     "no check verifies it and no reason says why".into(),
+                ));
+            }
+        }
+        for u in &self.checks_without_requirement {
+            if u.reason.trim().len() < 10 {
+                return Err(bad(
+                    &u.checks,
+                    "checks_without_requirement",
+                    "the reason is missing or too short".into(),
                 ));
             }
         }

@@ -258,8 +258,34 @@ pub fn problems(cat: &Catalogue, u: &Universe) -> Vec<Problem> {
             }
         }
     }
+    let mut exempt: BTreeSet<&str> = BTreeSet::new();
+    for x in &cat.checks_without_requirement {
+        let mut n = 0;
+        for c in u.checks_of(&x.checks) {
+            n += 1;
+            exempt.insert(c);
+            if linked.contains(c) {
+                out.push(Problem {
+                    id: c.to_string(),
+                    text: format!(
+                        "listed under checks_without_requirement ('{}'), yet a requirement links it",
+                        x.checks
+                    ),
+                });
+            }
+        }
+        if n == 0 {
+            out.push(Problem {
+                id: x.checks.clone(),
+                text: format!(
+                    "checks_without_requirement pattern names no check of model {}",
+                    cat.model
+                ),
+            });
+        }
+    }
     for c in &u.checks {
-        if !linked.contains(c.as_str()) {
+        if !linked.contains(c.as_str()) && !exempt.contains(c.as_str()) {
             out.push(Problem {
                 id: c.clone(),
                 text: format!(

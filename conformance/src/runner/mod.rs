@@ -590,7 +590,8 @@ impl<'a> Ctx<'a> {
             return;
         };
         self.gap_replies += 1;
-        let limit = Duration::from_micros(line.t1_5_us()) + self.opts.gap_allowance;
+        // t1.5 in RTU; in ASCII up to 1 s may pass between characters.
+        let (limit, _) = crate::judge::gap_limit(self.mode, &line, self.opts.gap_allowance);
         let skip = if ex.echo { ex.request.len() } else { 0 };
         let ct = Duration::from_micros(line.char_time_us());
         let mut seen = 0;

@@ -67,13 +67,25 @@ pub(super) fn aggregates(model: &DriveModel, m: &str, out: &mut Vec<Check>) {
             Ok(v)
         },
     ));
+    let ascii = m == "ascii";
+    let (title, source) = if ascii {
+        (
+            "Silence between the characters of replies (at most 1 s), on a line with timing",
+            "Modbus over Serial Line V1.02, 2.5.2.1 (up to 1 s between the characters of an ASCII frame; no t1.5 or t3.5 in ASCII)",
+        )
+    } else {
+        (
+            "Silence inside replies (at most t1.5) and before them (at least t3.5), on a line with timing",
+            "Modbus over Serial Line V1.02, 2.5.1.1 (t1.5, t3.5)",
+        )
+    };
     let mut line_timing = check(
         format!("{m}.line-timing"),
-        "Silence inside replies (at most t1.5) and before them (at least t3.5), on a line with timing".to_string(),
-        "Modbus over Serial Line V1.02, 2.5.1.1 (t1.5, t3.5)".to_string(),
+        title.to_string(),
+        source.to_string(),
         false,
         false,
-        |ctx| {
+        move |ctx| {
             let Some(line) = ctx.line_timing() else {
                 return Ok(Verdict::skip(
                     "the link has no line timing (a pseudo-terminal without pacing, or TCP): gaps are the host's, not the device's",
@@ -90,6 +102,26 @@ pub(super) fn aggregates(model: &DriveModel, m: &str, out: &mut Vec<Check>) {
             let on_pty = ctx.link_kind() == crate::transport::LinkKind::Pty;
             let t15 = Duration::from_micros(line.t1_5_us());
             let t35 = Duration::from_micros(line.t3_5_us());
+            if ascii {
+                // ASCII frames are delimited by ':' and CR LF: only the 1 s between
+                // characters applies (a gap over it ends the frame at the receiver).
+                let mut v = Verdict {
+                    pass_summary: format!(
+                        "{} replies: largest silence between characters {} us (ASCII allows up to 1 s)",
+                        ctx.gap_replies,
+                        ctx.max_gap.as_micros()
+                    ),
+                    ..Verdict::default()
+                };
+                if let Some((req, gap)) = ctx.gaps.first().filter(|_| !on_pty) {
+                    v.findings.push(Finding::deviation(format!(
+                        "{} replies had a silence over 1 s between two characters; the first, to request {req}, had {} us; Modbus over Serial Line V1.02, 2.5.2.1",
+                        ctx.gaps.len(),
+                        gap.as_micros()
+                    )));
+                }
+                return Ok(v);
+            }
             let mut v = Verdict {
                 pass_summary: format!(
                     "{} replies: largest gap inside a reply {} us (t1.5 = {} us), none sooner than t3.5 = {} us",
@@ -126,7 +158,11 @@ pub(super) fn aggregates(model: &DriveModel, m: &str, out: &mut Vec<Check>) {
             // The host reads the end of its request a little late (the write returns after
             // the bytes left): one character time of tolerance.
             let tolerance = Duration::from_micros(line.char_time_us());
-            let early: Vec<&Duration> = ctx.latencies.iter().filter(|l| **l + tolerance < t35).collect();
+            let early: Vec<&Duration> = ctx
+                .latencies
+                .iter()
+                .filter(|l| **l + tolerance < t35)
+                .collect();
             if let Some(first) = early.iter().min() {
                 v.findings.push(Finding::deviation(format!(
                     "{} replies began less than t3.5 ({} us, less a tolerance of one character, {} us) after the request ended; the earliest after {} us",
