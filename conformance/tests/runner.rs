@@ -547,10 +547,12 @@ fn a_request_the_host_could_not_send_whole_is_an_error_never_a_deviation() {
             );
         }
     }
-    // The checks whose requests went out are judged as on a clean link.
+    // The checks whose requests went out are judged as on a clean link (not the
+    // response times over the mode: those are this host's timing on a memory link, and a
+    // busy machine may make one run observe a slow reply that the other does not).
     for (s, c) in stalled.iter().zip(&clean) {
         assert_eq!(s.id, c.id);
-        if s.status != Status::Error {
+        if s.status != Status::Error && !s.id.ends_with(".response-time") {
             assert_eq!(s.status, c.status, "{}: {}", s.id, s.summary);
         }
     }
@@ -560,7 +562,13 @@ fn a_request_the_host_could_not_send_whole_is_an_error_never_a_deviation() {
     let statuses = |r: &[conformance::runner::CheckResult]| -> Vec<(String, Status)> {
         r.iter().map(|c| (c.id.clone(), c.status)).collect()
     };
-    assert_eq!(statuses(&resent), statuses(&clean));
+    let judged = |r: &[conformance::runner::CheckResult]| -> Vec<(String, Status)> {
+        statuses(r)
+            .into_iter()
+            .filter(|(id, _)| !id.ends_with(".response-time"))
+            .collect()
+    };
+    assert_eq!(judged(&resent), judged(&clean));
 }
 
 /// Busy threads on every core (two per core) until dropped: a loaded machine.

@@ -702,6 +702,13 @@ fn a_bus_where_no_node_answers_reports_the_bus_checks_as_not_run() {
 #[test]
 fn scan_finds_every_node_of_a_simulated_bus() {
     let (_sim, pty) = common::sim_pty(&["--model", "f510", "--pace", "-a", "1,2,5"]);
+    // A simulator that starts late on a busy machine is not a missing drive: scan once it
+    // answers.
+    common::wait_until_answers(
+        std::path::Path::new(&pty),
+        "rtu",
+        &["-b", "9600", "-P", "even"],
+    );
     let o = Command::new(common::bin())
         .args([
             "scan", "--port", &pty, "-b", "9600", "-P", "even", "--mode", "rtu",

@@ -86,7 +86,13 @@ fn the_clean_simulator_weathers_the_storm() {
     }
     // With --writes preserving, nothing for other nodes is written.
     assert!(sent.get("broadcast-write").is_none() && sent.get("other-write").is_none());
-    assert_eq!(s["own_requests"], sent["own-request"]);
+    // An own request this host could not send whole (every send broken by a stall of a
+    // busy machine) is given up, neither lost nor answered.
+    assert_eq!(
+        s["own_requests"].as_u64().unwrap() + s["own_unsent"].as_u64().unwrap(),
+        sent["own-request"].as_u64().unwrap(),
+        "{s:#}"
+    );
     assert_eq!(s["load"]["count"], s["own_requests"]);
     // The idle reference: 20 requests; one not answered in time there is counted in
     // idle_problems (seen once under a load of 7, not explained yet: see the report).

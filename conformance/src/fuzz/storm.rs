@@ -181,6 +181,9 @@ pub struct StormOutcome {
     pub idle_problems: u64,
     /// Frames sent again because the host stalled inside them while pacing them.
     pub resent: u64,
+    /// Own requests given up after every send of them was broken by this host's stalls:
+    /// never seen whole by the device, so neither lost nor answered.
+    pub own_unsent: u64,
     /// The first problems, in words with the frames in hex.
     pub problems: Vec<String>,
     /// Time of the storm.
@@ -221,6 +224,7 @@ impl StormOutcome {
             "unexpected": self.unexpected,
             "idle_problems": self.idle_problems,
             "resent": self.resent,
+            "own_unsent": self.own_unsent,
             "idle": self.idle.distribution().map(|d| d.json()),
             "load": self.load.distribution().map(|d| d.json()),
             "elapsed_ms": ms(self.elapsed),
@@ -843,7 +847,10 @@ fn storm(
         let answer = match storm.own(ctx, &frame) {
             // An own request this host could not send whole is not one of the device's:
             // neither lost nor answered (the resends are counted).
-            Err(TransportError::Stalled { .. }) => continue,
+            Err(TransportError::Stalled { .. }) => {
+                storm.out.own_unsent += 1;
+                continue;
+            }
             r => r?,
         };
         storm.out.own += 1;

@@ -121,3 +121,40 @@ fn timing_is_judged_only_when_asked_and_only_where_seen() {
     let unseen = late.with_timing(Timing::default());
     assert_eq!(judge.verdict(&unseen, None).status(), VerdictStatus::Pass);
 }
+
+#[test]
+fn ascii_frames_are_timed_by_the_one_second_between_characters_not_by_t15_or_t35() {
+    // Modbus over Serial Line V1.02, 2.5.2.1: up to 1 s may pass between the characters
+    // of an ASCII frame, which ':' and CR LF delimit (no t1.5, no t3.5).
+    let model = f510();
+    let request = b":010300390001C2\r\n";
+    let reply = b":0183027A\r\n";
+    let judge = Judge::new(&model).with_timing(TimingRule {
+        line: Some(LineSettings::new(9600, 7, Parity::Even, 1)),
+        response_allowance: Duration::from_millis(20),
+        gap_allowance: Duration::from_millis(5),
+    });
+    let at = |first: u64, gap: u64| Timing {
+        request_end: Some(Duration::from_millis(100)),
+        request_end_earliest: None,
+        first_byte: Some(Duration::from_millis(100 + first)),
+        last_byte: None,
+        max_gap: Some(Duration::from_millis(gap)),
+        silence_before: None,
+        listened: Duration::from_millis(3000),
+    };
+    let conv = |first, gap| {
+        Conversation::new(Mode::Ascii, 1, request)
+            .with_reply(reply)
+            .with_timing(at(first, gap))
+    };
+    // A reply at once and a 50 ms pause between characters: both fine in ASCII (an RTU
+    // reply would be early and have a gap over t1.5).
+    let v = judge.verdict(&conv(0, 50), None);
+    assert!(v.kinds.is_empty(), "{:?}", v.findings);
+    let v = judge.verdict(&conv(5, 999), None);
+    assert!(v.kinds.is_empty(), "{:?}", v.findings);
+    let v = judge.verdict(&conv(5, 1_001), None);
+    assert_eq!(v.kinds, [Kind::GapInReply]);
+    assert!(v.findings[0].text.contains("2.5.2.1"), "{:?}", v.findings);
+}
