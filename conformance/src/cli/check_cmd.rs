@@ -92,6 +92,8 @@ pub struct CheckArgs {
     target: TargetArgs,
     #[arg(long, value_enum, help = FORMAT_DEFAULT)]
     format: Option<Format>,
+    #[command(flatten)]
+    expect: super::expect_cmd::ExpectArgs,
     /// Write the report here (kept valid after every check) instead of stdout.
     #[arg(short, long, value_name = "FILE")]
     output: Option<PathBuf>,
@@ -180,6 +182,7 @@ pub fn write_atomic(path: &Path, contents: &str) -> std::io::Result<()> {
 pub fn run(mut args: CheckArgs) -> anyhow::Result<ExitCode> {
     // `check` runs several drives on one bus (-a 1,2,5).
     args.target.several_nodes = true;
+    let expect = args.expect.load()?;
     let several = args.target.nodes.0.len() > 1;
     let capture = if args.list {
         None
@@ -393,6 +396,7 @@ pub fn run(mut args: CheckArgs) -> anyhow::Result<ExitCode> {
     if let Some(e) = write_error {
         return Err(e);
     }
+    expect.apply(&mut report);
     finish(&report, format, args.verbose, args.output.as_deref())
 }
 

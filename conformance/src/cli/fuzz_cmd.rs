@@ -121,6 +121,8 @@ pub struct FuzzArgs {
     full_windows: bool,
     #[arg(long, value_enum, help = FORMAT_DEFAULT)]
     format: Option<Format>,
+    #[command(flatten)]
+    expect: super::expect_cmd::ExpectArgs,
     /// Write the report here instead of stdout.
     #[arg(short, long, value_name = "FILE")]
     output: Option<PathBuf>,
@@ -210,6 +212,7 @@ impl PlainProgress {
 }
 
 pub fn run(args: FuzzArgs) -> anyhow::Result<ExitCode> {
+    let expect = args.expect.load()?;
     // Unpaced, the simulator answers at once (the fuzzer measures the device's answers,
     // not its timing).
     let sim_delay = args.target.no_pace.then_some(Duration::ZERO);
@@ -344,7 +347,7 @@ pub fn run(args: FuzzArgs) -> anyhow::Result<ExitCode> {
             p.update(mode, n, findings);
         }
     };
-    let report = session::fuzz(&config, &cfg, &stop, &mut progress)?;
+    let mut report = session::fuzz(&config, &cfg, &stop, &mut progress)?;
     args.target.close_capture(config.capture.as_ref());
     if let Some(b) = &bar {
         b.finish_and_clear();
@@ -352,6 +355,7 @@ pub fn run(args: FuzzArgs) -> anyhow::Result<ExitCode> {
     if let Some(p) = plain.as_mut() {
         p.end();
     }
+    expect.apply(&mut report);
     finish(
         &report,
         format_for(args.format, args.output.as_deref()),

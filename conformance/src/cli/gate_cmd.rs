@@ -55,6 +55,8 @@ pub struct GateArgs {
     timeout: u64,
     #[arg(long, value_enum, help = FORMAT_DEFAULT)]
     format: Option<Format>,
+    #[command(flatten)]
+    expect: super::expect_cmd::ExpectArgs,
     /// Write the report here (kept valid after every case) instead of stdout.
     #[arg(short, long, value_name = "FILE")]
     output: Option<PathBuf>,
@@ -129,6 +131,7 @@ impl GateProgress for Progress<'_> {
 }
 
 pub fn run(args: GateArgs) -> anyhow::Result<ExitCode> {
+    let expect = args.expect.load()?;
     let set = VectorSet::builtin()?;
     let opts = GateOptions {
         seed: args.seed,
@@ -232,6 +235,7 @@ pub fn run(args: GateArgs) -> anyhow::Result<ExitCode> {
     if let Some(e) = progress.error {
         return Err(e);
     }
+    expect.apply(&mut report);
     finish(
         &report,
         format_for(args.format, args.output.as_deref()),

@@ -122,6 +122,8 @@ pub struct MonitorArgs {
     allowance: u64,
     #[arg(long, value_enum, help = FORMAT_DEFAULT)]
     format: Option<Format>,
+    #[command(flatten)]
+    expect: super::expect_cmd::ExpectArgs,
     /// Write the report here instead of stdout.
     #[arg(short, long, value_name = "FILE")]
     output: Option<PathBuf>,
@@ -155,6 +157,9 @@ fn describe_end(ended: &Ended) -> String {
 }
 
 pub fn run(args: MonitorArgs) -> anyhow::Result<ExitCode> {
+    // An invalid expectations file stops the command before it listens (it is read
+    // again for the report).
+    args.expect.load()?;
     let asked = match args.mode {
         ModeArg::Rtu => Some(Mode::Rtu),
         ModeArg::Ascii => Some(Mode::Ascii),
@@ -425,7 +430,7 @@ fn report(
     let nodes = args.nodes.as_ref().map(|n| n.0.clone()).unwrap_or_default();
     let summary = mon.summary(source, ended);
     let heard: Vec<u8> = mon.nodes().keys().copied().filter(|n| *n != 0).collect();
-    let report = Report {
+    let mut report = Report {
         kind: ReportKind::Monitor,
         codec: None,
         started,
@@ -469,7 +474,9 @@ fn report(
         budget: Default::default(),
         fuzz: None,
         monitor: Some(summary),
+        expect: None,
     };
+    args.expect.load()?.apply(&mut report);
     finish(
         &report,
         format_for(args.format, args.output.as_deref()),
