@@ -376,27 +376,28 @@ impl Expectations {
                     }
                 }),
             };
-            let expires =
-                match e.expires {
-                    None => None,
-                    Some(d) => {
-                        let v = d.get_ref();
-                        match (v.date, v.time, v.offset) {
-                            (Some(x), None, None) => Some(Day {
-                                year: x.year,
-                                month: x.month,
-                                day: x.day,
-                            }),
-                            _ => return Err(invalid(
+            let expires = match e.expires {
+                None => None,
+                Some(d) => {
+                    let v = d.get_ref();
+                    match (v.date, v.time, v.offset) {
+                        (Some(x), None, None) => Some(Day {
+                            year: x.year,
+                            month: x.month,
+                            day: x.day,
+                        }),
+                        _ => {
+                            return Err(invalid(
                                 d.span().start,
                                 "expires",
                                 format!(
                                     "{v} is not a day: write it as 2027-01-31 (no quotes, no time)"
                                 ),
-                            )),
+                            ))
                         }
                     }
-                };
+                }
+            };
             let identification = match e.identification {
                 None => None,
                 Some(i) => {

@@ -184,6 +184,70 @@ impl Verdict {
             ..Verdict::default()
         }
     }
+
+    /// The verdict of a check whose set-up step (`what`: "read 1000H first", the read of
+    /// the value it must restore, or a write it needs) failed. An exception is the
+    /// device's answer, so evidence about it, never "could not tell": where the manual
+    /// says the request is served, a DEVIATION (with the frames); where it predicts the
+    /// exception, a SKIP. Only no valid answer is an ERROR (exit 2).
+    pub fn setup_failed(what: &str, e: SetupError) -> Self {
+        match e {
+            SetupError::Refused {
+                text,
+                code,
+                documented: true,
+                exchange,
+            } => Verdict {
+                findings: vec![Finding::deviation(format!(
+                    "cannot {what}: the manual serves it, the device refused it with exception {code:02X}H ({text}), so the check did not run"
+                ))],
+                exchanges: exchange.map(|x| vec![*x]).unwrap_or_default(),
+                ..Verdict::default()
+            },
+            SetupError::Refused {
+                text,
+                documented: false,
+                ..
+            } => Verdict::skip(format!(
+                "cannot {what}: the device refused it as the manual predicts ({text})"
+            )),
+            SetupError::NoAnswer(text) => Verdict::error(format!("cannot {what}: {text}")),
+        }
+    }
+}
+
+/// Why a set-up step (a read of the value a check must restore, or a write a check needs
+/// first) failed: an answer of the device, or no answer.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum SetupError {
+    /// The device answered with an exception: evidence about the device.
+    Refused {
+        /// What was asked and what came back.
+        text: String,
+        /// The exception code.
+        code: u8,
+        /// Whether the manual (the model) says the request is served with a normal
+        /// reply, which makes the refusal a deviation.
+        documented: bool,
+        /// The exchange, for the report.
+        exchange: Option<Box<ExchangeRecord>>,
+    },
+    /// No valid answer (silence, a broken frame): the run cannot tell.
+    NoAnswer(String),
+}
+
+impl std::fmt::Display for SetupError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            SetupError::Refused { text, .. } | SetupError::NoAnswer(text) => f.write_str(text),
+        }
+    }
+}
+
+/// The exception code of a reply body (address, function | 80H, code), if it is one.
+fn exception_code(mode: Mode, reply: Option<&Vec<u8>>) -> Option<u8> {
+    let body = judge::body_of(mode, reply?)?;
+    (body.len() == 3 && body[1] & 0x80 != 0).then(|| body[2])
 }
 
 /// Options of a run.
@@ -601,7 +665,11 @@ impl<'a> Ctx<'a> {
     }
 
     /// Reads `count` registers from `start`; the values, or why not.
-    pub fn read(&mut self, start: u16, count: u16) -> Result<Result<Vec<u16>, String>, RunError> {
+    pub fn read(
+        &mut self,
+        start: u16,
+        count: u16,
+    ) -> Result<Result<Vec<u16>, SetupError>, RunError> {
         self.read_at(self.opts.address, start, count)
     }
 
@@ -611,21 +679,31 @@ impl<'a> Ctx<'a> {
         node: u8,
         start: u16,
         count: u16,
-    ) -> Result<Result<Vec<u16>, String>, RunError> {
+    ) -> Result<Result<Vec<u16>, SetupError>, RunError> {
         let frame = self.frame_to(node, Pdu::ReadRequest { start, count });
         let p = self.probe_at(node, frame, None)?;
+        let text = || format!("reading {count} from {start:04X}H: {}", p.comparison.actual);
         Ok(match p.read_values() {
             Some(v) if v.len() == usize::from(count) => Ok(v),
-            _ => Err(format!(
-                "reading {count} from {start:04X}H: {}",
-                p.comparison.actual
-            )),
+            _ => match exception_code(self.mode, p.exchange.reply.as_ref()) {
+                Some(code) => Err(SetupError::Refused {
+                    text: text(),
+                    code,
+                    documented: !matches!(
+                        p.judgement.expect,
+                        crate::model::Expectation::Exception { .. }
+                            | crate::model::Expectation::Silence(_)
+                    ),
+                    exchange: Some(Box::new(p.record())),
+                }),
+                None => Err(SetupError::NoAnswer(text())),
+            },
         })
     }
 
     /// Reads `register`'s value before a check changes it, once per run, so that the
     /// restore can put it back.
-    pub fn remember(&mut self, register: u16) -> Result<Result<u16, String>, RunError> {
+    pub fn remember(&mut self, register: u16) -> Result<Result<u16, SetupError>, RunError> {
         self.remember_at(self.opts.address, register)
     }
 
@@ -635,7 +713,7 @@ impl<'a> Ctx<'a> {
         &mut self,
         node: u8,
         register: u16,
-    ) -> Result<Result<u16, String>, RunError> {
+    ) -> Result<Result<u16, SetupError>, RunError> {
         if let Some((_, _, v)) = self
             .journal
             .iter()
@@ -647,7 +725,9 @@ impl<'a> Ctx<'a> {
         // liveness probe showed the device alive), it is sent once more.
         let first = self.read_at(node, register, 1)?;
         let read = match first {
-            Err(e) if e.ends_with("no reply") => self.read_at(node, register, 1)?,
+            Err(SetupError::NoAnswer(e)) if e.ends_with("no reply") => {
+                self.read_at(node, register, 1)?
+            }
             other => other,
         };
         Ok(match read {
@@ -661,7 +741,7 @@ impl<'a> Ctx<'a> {
 
     /// The value `register` holds now, journalling it first if no check changed it yet
     /// (so that the restore can put it back).
-    pub fn remember_current(&mut self, register: u16) -> Result<Result<u16, String>, RunError> {
+    pub fn remember_current(&mut self, register: u16) -> Result<Result<u16, SetupError>, RunError> {
         let node = self.opts.address;
         if self
             .journal
@@ -675,7 +755,7 @@ impl<'a> Ctx<'a> {
 
     /// Writes one register and reports whether the device confirmed it (plain, for
     /// set-up and restore).
-    pub fn write(&mut self, register: u16, value: u16) -> Result<Result<(), String>, RunError> {
+    pub fn write(&mut self, register: u16, value: u16) -> Result<Result<(), SetupError>, RunError> {
         self.write_at(self.opts.address, register, value)
     }
 
@@ -685,23 +765,40 @@ impl<'a> Ctx<'a> {
         node: u8,
         register: u16,
         value: u16,
-    ) -> Result<Result<(), String>, RunError> {
+    ) -> Result<Result<(), SetupError>, RunError> {
         let frame = self.frame_to(node, Pdu::WriteSingle { register, value });
         let (ex, _) = self.exchange(&frame, true)?;
         Ok(match &ex.reply {
             Some(r) if *r == frame => Ok(()),
-            Some(r) => Err(format!(
-                "writing {value:04X} to {register:04X}H: {}",
-                judge::describe_reply(self.mode, r)
-            )),
-            None => Err(format!(
+            Some(r) => {
+                let text = format!(
+                    "writing {value:04X} to {register:04X}H: {}",
+                    judge::describe_reply(self.mode, r)
+                );
+                match exception_code(self.mode, Some(r)) {
+                    Some(code) => Err(SetupError::Refused {
+                        text,
+                        code,
+                        documented: !matches!(
+                            self.model.judge(node, self.mode, &frame).expect,
+                            crate::model::Expectation::Exception { .. }
+                                | crate::model::Expectation::Silence(_)
+                        ),
+                        exchange: None,
+                    }),
+                    // A reply that is no echo and no exception: the device answered
+                    // something else; the check's own judgement is not made.
+                    None => Err(SetupError::NoAnswer(text)),
+                }
+            }
+            None => Err(SetupError::NoAnswer(format!(
                 "writing {value:04X} to {register:04X}H: {}",
                 if ex.raw.is_empty() {
                     "no reply".to_string()
                 } else {
                     judge::explain_invalid(self.mode, ex.after_echo())
                 }
-            )),
+            ))),
         })
     }
 
