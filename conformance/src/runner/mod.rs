@@ -941,3 +941,53 @@ impl<'a> Ctx<'a> {
         )
     }
 }
+
+#[cfg(test)]
+mod setup_tests {
+    use super::*;
+
+    fn refused(documented: bool) -> SetupError {
+        SetupError::Refused {
+            text: "reading 1 from 1000H: node 01 83 exception function=03 code=02".into(),
+            code: 2,
+            documented,
+            exchange: Some(Box::new(ExchangeRecord {
+                request: vec![1, 3, 0x10, 0, 0, 1, 0x80, 0xCA],
+                expected: None,
+                received: vec![1, 0x83, 2, 0xC0, 0xF1],
+                reply: Some(vec![1, 0x83, 2, 0xC0, 0xF1]),
+                predicted: String::new(),
+                actual: String::new(),
+                latency: None,
+            })),
+        }
+    }
+
+    /// The rule of issue 28: an exception is the device's answer (a deviation where the
+    /// manual serves the register, a skip where it predicts the exception); only no valid
+    /// answer is "could not tell".
+    #[test]
+    fn a_refused_setup_step_is_evidence_and_silence_is_not() {
+        let v = Verdict::setup_failed("read 1000H first", refused(true));
+        assert!(v.error.is_none() && v.skip.is_none());
+        assert_eq!(v.findings.len(), 1);
+        assert_eq!(v.findings[0].severity, Severity::Deviation);
+        assert!(v.findings[0].text.contains("cannot read 1000H first"));
+        assert!(v.findings[0].text.contains("exception 02H"));
+        assert_eq!(v.exchanges.len(), 1, "the frames are kept");
+
+        let v = Verdict::setup_failed("read 1000H first", refused(false));
+        assert!(v.error.is_none() && v.findings.is_empty());
+        assert!(v.skip.as_deref().is_some_and(|s| s.contains("predicts")));
+
+        let v = Verdict::setup_failed(
+            "read 1000H first",
+            SetupError::NoAnswer("reading 1 from 1000H: no reply".into()),
+        );
+        assert!(v.findings.is_empty() && v.skip.is_none());
+        assert_eq!(
+            v.error.as_deref(),
+            Some("cannot read 1000H first: reading 1 from 1000H: no reply")
+        );
+    }
+}
