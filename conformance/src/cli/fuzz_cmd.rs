@@ -76,9 +76,12 @@ Ctrl-C, SIGTERM (timeout, CI runners) and SIGHUP stop the campaign after the cur
 case: what was written is restored and the whole report is written, marked INCOMPLETE
 (exit 2).
 
-Exit codes: 0 no finding; 1 findings; 2 the run could not run or complete (no answer to
-the preflight, the link failed, a hung device did not come back, a register could not be
-restored).";
+--expect FILE accepts known findings by their signature (signature = \"rtu.mismatch.03H.*\"):
+they are reported apart and do not make the exit code 1.
+
+Exit codes: 0 no finding (with --expect: none the file does not expect); 1 findings; 2
+the run could not run or complete (no answer to the preflight, the link failed, a hung
+device did not come back, a register could not be restored).";
 
 #[derive(Debug, Args)]
 #[command(after_help = AFTER_HELP)]

@@ -25,7 +25,11 @@ Examples:
   conformance gate --codec target/release/rmodbus-adapter --format junit -o gate.xml
   conformance gate --codec \"./my-adapter\" --seed 7 --count 5000 --no-vectors
 
-Exit codes: 0 no deviations; 1 deviations found; 2 the gate could not complete (the
+--expect FILE accepts known deviations of the codec by case id: they are reported apart
+and do not make the exit code 1.
+
+Exit codes: 0 no deviations (with --expect: none the file does not expect); 1 deviations
+found; 2 the gate could not complete (the
 adapter could not start, exited twice, or a case could not be decided).";
 
 #[derive(Debug, Args)]

@@ -51,7 +51,11 @@ meaning with the model's register names, CRC status, response time, verdict); --
 turns it off. At the end (Ctrl-C, SIGTERM, --duration, or the end of the input) the report
 goes to stdout or -o, in any format, with per-node statistics.
 
-Exit codes: 0 no deviation heard; 1 deviations; 2 could not run (bad arguments, the port
+--expect FILE accepts known deviations by result id (<mode>.nodeNN.drive.<kind>): they
+are reported apart and do not make the exit code 1.
+
+Exit codes: 0 no deviation heard (with --expect: none the file does not expect); 1
+deviations; 2 could not run (bad arguments, the port
 could not be opened).";
 
 /// Transmission mode of the bus.

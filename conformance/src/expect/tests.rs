@@ -421,3 +421,85 @@ fn days_parse_and_order() {
     assert!(Day::parse("x").is_none());
     assert!(Day::today() > day("2020-01-01"));
 }
+
+#[test]
+fn every_format_shows_expected_results_apart() {
+    let mut r = report(vec![
+        result("rtu.a", Status::Deviation),
+        result("rtu.b", Status::Deviation),
+        result("rtu.c", Status::Pass),
+    ]);
+    let mut a = entry(2, "rtu.a", Expected::Deviation);
+    a.ticket = Some("T-7".into());
+    let f = file(vec![a, entry(8, "rtu.c", Expected::Deviation)]);
+    apply(&mut r, &f, true, day("2026-06-01"));
+
+    let text = crate::report::text(&r, false);
+    assert!(
+        text.contains("EXPECT:  e.toml: 1 expected, 1 new, 1 unexpected pass (strict"),
+        "{text}"
+    );
+    let new_at = text.find("NEW DEVIATIONS (1)").expect("new section");
+    let exp_at = text.find("EXPECTED (1)").expect("expected section");
+    assert!(
+        text[new_at..exp_at].contains("[rtu.b]") && !text[new_at..exp_at].contains("[rtu.a]"),
+        "{text}"
+    );
+    assert!(
+        text.contains("[rtu.a] DEVIATION: reason 2 (e.toml:2, T-7)"),
+        "{text}"
+    );
+    assert!(
+        text.contains("[rtu.c] UNEXPECTED PASS: expected deviation (e.toml:8)"),
+        "{text}"
+    );
+
+    let junit = crate::report::junit(&r);
+    let doc = roxmltree::Document::parse(&junit).unwrap();
+    let root = doc.root_element();
+    assert_eq!(
+        root.attribute("failures"),
+        Some("2"),
+        "rtu.b, and rtu.c under strict"
+    );
+    assert_eq!(root.attribute("skipped"), Some("1"), "rtu.a");
+    let case = |id: &str| {
+        doc.descendants()
+            .find(|n| n.has_tag_name("testcase") && n.attribute("name") == Some(id))
+            .unwrap()
+    };
+    assert!(case("rtu.a")
+        .children()
+        .any(|n| n.has_tag_name("skipped") && n.attribute("type") == Some("expected")));
+    assert!(case("rtu.c")
+        .children()
+        .any(|n| n.has_tag_name("failure") && n.attribute("type") == Some("unexpected-pass")));
+
+    let csv = crate::report::csv(&r);
+    let rows: Vec<&str> = csv.lines().collect();
+    assert!(rows[0].ends_with(",expectation,expectation_entry"));
+    assert!(
+        rows[1].starts_with("rtu.a,") && rows[1].ends_with(",expected,e.toml:2: reason 2"),
+        "{csv}"
+    );
+    assert!(
+        rows[2].starts_with("rtu.b,") && rows[2].ends_with(",new,"),
+        "{csv}"
+    );
+    assert!(rows[3].contains(",unexpected-pass,"), "{csv}");
+
+    let html = crate::report::html(&r);
+    assert!(html.contains("<h2 id=\"deviations\">New deviations (1) and errors (0)</h2>"));
+    assert!(html.contains("<h2 id=\"expected\">Expected results (1)</h2>"));
+    assert!(html.contains(">UNEXPECTED PASS</span>"));
+
+    // Without a file, every format is as it was.
+    r.expect = None;
+    assert!(!crate::report::text(&r, false).contains("EXPECT"));
+    assert!(crate::report::csv(&r)
+        .lines()
+        .next()
+        .unwrap()
+        .ends_with(",summary"));
+    assert!(crate::report::junit(&r).contains("failures=\"2\" errors=\"0\" skipped=\"0\""));
+}

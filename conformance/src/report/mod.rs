@@ -8,6 +8,7 @@
 
 mod csv;
 pub mod diff;
+mod expect_html;
 mod expect_json;
 mod html;
 mod junit;
