@@ -327,3 +327,73 @@ fn an_invalid_file_is_refused_with_its_line_and_field_before_the_run() {
     assert_eq!(out.status.code(), Some(2));
     let _ = std::fs::remove_dir_all(&d);
 }
+
+/// A fuzz run: `expect --from` a campaign against wrong-exception writes one entry per
+/// finding signature; the same campaign with the file exits 0; a campaign against the
+/// clean drive does not find them again, which is an UNEXPECTED PASS (exit 1 with
+/// --strict-expect).
+#[test]
+fn fuzz_findings_are_expected_by_their_signature() {
+    let d = dir("fuzz");
+    let fuzz = |quirk: &[&str], more: &[&str]| {
+        let mut args = vec![
+            "--sim",
+            "f510",
+            "--mode",
+            "rtu",
+            "--cases",
+            "60",
+            "--no-minimize",
+        ];
+        args.extend(quirk);
+        args.extend(more);
+        common::report_of("fuzz", &d, &args, Duration::from_secs(120))
+    };
+    let (exit, v) = fuzz(&["--quirk", "wrong-exception"], &[]);
+    assert_eq!(exit, Some(1), "{}", v["summary"]);
+    let run = d.join("fuzz-first.json");
+    std::fs::rename(d.join("fuzz.json"), &run).unwrap();
+    let findings: BTreeSet<String> = v["checks"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter(|c| c["status"] == "deviation" || c["status"] == "observation")
+        .map(|c| c["id"].as_str().unwrap().to_string())
+        .collect();
+    assert!(!findings.is_empty());
+    let file = d.join("fuzz.toml");
+    let out = conformance(&[
+        "expect",
+        "--from",
+        run.to_str().unwrap(),
+        "-o",
+        file.to_str().unwrap(),
+    ]);
+    assert!(out.status.success());
+    let text = std::fs::read_to_string(&file).unwrap();
+    for id in &findings {
+        let sig = id.strip_prefix("fuzz.").unwrap();
+        assert!(
+            text.contains(&format!("signature = \"{sig}\"")),
+            "{sig}: {text}"
+        );
+    }
+    let f = file.to_str().unwrap();
+    let (exit, v) = fuzz(&["--quirk", "wrong-exception"], &["--expect", f]);
+    assert_eq!(exit, Some(0), "{}", v["expectations"]["counts"]);
+    assert_eq!(ids_marked(&v, "expected"), findings);
+    let (exit, v) = fuzz(&[], &["--expect", f, "--strict-expect"]);
+    assert_eq!(exit, Some(1), "{}", v["expectations"]["counts"]);
+    assert_eq!(
+        v["expectations"]["counts"]["unexpected_pass"],
+        findings.len()
+    );
+    assert!(v["expectations"]["entries"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .all(|e| e["state"] == "not-found"));
+    let (exit, _) = fuzz(&[], &["--expect", f]);
+    assert_eq!(exit, Some(0), "not strict");
+    let _ = std::fs::remove_dir_all(&d);
+}

@@ -2,7 +2,7 @@
 
 use std::collections::BTreeMap;
 
-use super::{glob_match, Day, Entry, Expectations, Expected};
+use super::{glob_match, Day, Entry, Expectations, Expected, Target};
 use crate::report::Report;
 use crate::runner::{CheckResult, Status};
 
@@ -18,6 +18,9 @@ pub enum EntryState {
     /// Its check ran, but on a device whose identification is not the entry's (or was not
     /// read).
     OtherDevice,
+    /// A fuzz finding's signature that a complete campaign of its mode did not find
+    /// again: the fuzz run's UNEXPECTED PASS.
+    NotFound,
 }
 
 impl EntryState {
@@ -28,6 +31,7 @@ impl EntryState {
             EntryState::Expired => "expired",
             EntryState::Unmatched => "unmatched",
             EntryState::OtherDevice => "other-device",
+            EntryState::NotFound => "not-found",
         }
     }
 
@@ -38,6 +42,7 @@ impl EntryState {
             "expired" => EntryState::Expired,
             "unmatched" => EntryState::Unmatched,
             "other-device" => EntryState::OtherDevice,
+            "not-found" => EntryState::NotFound,
             _ => return None,
         })
     }
@@ -123,7 +128,15 @@ impl Outcome {
         self.marks.get(&r.key())
     }
 
-    /// Entries that no longer apply or matched nothing.
+    /// Fuzz signatures a complete campaign did not find again (unexpected passes).
+    pub fn not_found(&self) -> usize {
+        self.entries
+            .iter()
+            .filter(|e| e.state == EntryState::NotFound)
+            .count()
+    }
+
+    /// Entries that no longer apply, matched nothing, or (fuzz) were not found again.
     pub fn stale(&self) -> impl Iterator<Item = &EntryReport> {
         self.entries
             .iter()
@@ -137,6 +150,26 @@ fn holds(expected: Expected, status: Status) -> bool {
         Expected::Observation => status == Status::Observation,
         Expected::Finding => matches!(status, Status::Deviation | Status::Observation),
     }
+}
+
+/// Whether a fuzz run's campaign that would have found `target` (its mode's, from the
+/// signature's first part; any mode's for a signature that starts with a wildcard) ran to
+/// its end.
+fn campaign_passed(report: &Report, target: &Target) -> bool {
+    let Target::Signature(sig) = target else {
+        return false;
+    };
+    if report.kind != crate::report::ReportKind::Fuzz {
+        return false;
+    }
+    let mode = sig.split('.').next().unwrap_or("");
+    report.results.iter().any(|r| {
+        r.status == Status::Pass
+            && r.id
+                .strip_prefix("fuzz.")
+                .and_then(|x| x.strip_suffix(".campaign"))
+                .is_some_and(|m| glob_match(mode, m))
+    })
 }
 
 /// The identification of the device `r` is about.
@@ -199,6 +232,7 @@ pub fn apply(report: &mut Report, exp: &Expectations, strict: bool, today: Day) 
             })
             .collect();
         let state = match (named.is_empty(), on_device.is_empty()) {
+            (true, _) if campaign_passed(report, &e.target) => EntryState::NotFound,
             (true, _) => EntryState::Unmatched,
             (false, true) => EntryState::OtherDevice,
             (false, false) => EntryState::Applied,

@@ -358,6 +358,23 @@ fn a_fuzz_finding_is_expected_by_its_signature() {
     .unwrap();
     apply(&mut r, &f, true, day("2026-06-01"));
     assert_eq!(r.exit_code(), 0);
+    // The clean drive: the campaign ran to its end and did not find it again.
+    r.results.truncate(1);
+    apply(&mut r, &f, false, day("2026-06-01"));
+    assert_eq!(
+        r.expect.as_ref().unwrap().entries[0].state,
+        EntryState::NotFound
+    );
+    assert_eq!((r.unexpected_passes(), r.exit_code()), (1, 0));
+    apply(&mut r, &f, true, day("2026-06-01"));
+    assert_eq!(r.exit_code(), 1, "strict");
+    // A campaign that did not end (ERROR) says nothing: the entry matched nothing.
+    r.results[0].status = Status::Error;
+    apply(&mut r, &f, true, day("2026-06-01"));
+    assert_eq!(
+        r.expect.as_ref().unwrap().entries[0].state,
+        EntryState::Unmatched
+    );
 }
 
 #[test]

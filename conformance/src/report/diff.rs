@@ -347,7 +347,7 @@ impl Diff {
                     e.path,
                     count(MarkKind::Expected),
                     new.unexpected_findings().len(),
-                    count(MarkKind::UnexpectedPass),
+                    new.unexpected_passes(),
                     e.stale().count()
                 )
             }),

@@ -58,7 +58,7 @@ pub fn section(
         expected.len(),
         esc(&e.path),
         report.unexpected_findings().len(),
-        passes.len(),
+        report.unexpected_passes(),
         if e.strict { " (strict: they fail the run)" } else { "" },
         stale.len(),
         if stale.len() == 1 { "y" } else { "ies" },
@@ -104,6 +104,9 @@ pub fn section(
                 ),
                 EntryState::Unmatched => "matched nothing in this run".into(),
                 EntryState::OtherDevice => "for another identification".into(),
+                EntryState::NotFound => {
+                    "UNEXPECTED PASS: a complete campaign did not find it again".into()
+                }
                 EntryState::Applied => String::new(),
             };
             let _ = write!(

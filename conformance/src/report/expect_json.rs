@@ -49,7 +49,7 @@ pub fn outcome(report: &Report, o: &Outcome) -> Value {
         "counts": {
             "expected": count(MarkKind::Expected),
             "unexpected": report.unexpected_findings().len(),
-            "unexpected_pass": count(MarkKind::UnexpectedPass),
+            "unexpected_pass": count(MarkKind::UnexpectedPass) + o.not_found(),
             "changed": count(MarkKind::Changed),
             "expired": o.entries.iter().filter(|e| e.state == EntryState::Expired).count(),
             "unmatched": o.entries.iter().filter(|e| matches!(e.state, EntryState::Unmatched | EntryState::OtherDevice)).count(),

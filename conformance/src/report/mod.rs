@@ -257,21 +257,25 @@ impl Report {
 
     /// Whether `r` is a result that fails a run: a deviation, or in a fuzz run a finding
     /// (an observation replayed and seen again, or never replayed).
-    fn fails_run(&self, r: &CheckResult) -> bool {
+    /// `unconfirmed`: [`Report::unconfirmed_ids`].
+    fn fails_run(&self, r: &CheckResult, unconfirmed: &[String]) -> bool {
         match r.status {
             Status::Deviation => true,
-            Status::Observation if self.kind == ReportKind::Fuzz => {
-                !self.unconfirmed_ids().contains(&r.id)
-            }
+            Status::Observation if self.kind == ReportKind::Fuzz => !unconfirmed.contains(&r.id),
             _ => false,
         }
     }
 
     /// The results that fail the run and that no expectation accepts: new deviations.
     pub fn unexpected_findings(&self) -> Vec<&CheckResult> {
+        let unconfirmed = if self.kind == ReportKind::Fuzz {
+            self.unconfirmed_ids()
+        } else {
+            Vec::new()
+        };
         self.results
             .iter()
-            .filter(|r| self.fails_run(r) && !self.is_expected(r))
+            .filter(|r| self.fails_run(r, &unconfirmed) && !self.is_expected(r))
             .collect()
     }
 
@@ -286,7 +290,8 @@ impl Report {
         self.expect.as_ref().and_then(|e| e.mark(r))
     }
 
-    /// Checks an expectation says deviate that passed.
+    /// Checks an expectation says deviate that passed, and (fuzz) expected finding
+    /// signatures that a complete campaign did not find again.
     pub fn unexpected_passes(&self) -> usize {
         self.results
             .iter()
@@ -295,6 +300,7 @@ impl Report {
                     .is_some_and(|m| m.kind == crate::expect::MarkKind::UnexpectedPass)
             })
             .count()
+            + self.expect.as_ref().map_or(0, |e| e.not_found())
     }
 
     /// The ids of fuzz findings that were replayed and not seen again: observations that

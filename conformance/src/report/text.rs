@@ -350,8 +350,8 @@ fn expect_header(o: &mut String, r: &Report) {
         e.path,
         count(MarkKind::Expected),
         r.unexpected_findings().len(),
-        count(MarkKind::UnexpectedPass),
-        if count(MarkKind::UnexpectedPass) == 1 { "" } else { "es" },
+        r.unexpected_passes(),
+        if r.unexpected_passes() == 1 { "" } else { "es" },
         if e.strict { " (strict: they fail the run)" } else { "" },
         count(MarkKind::Changed),
         stale,
@@ -440,6 +440,9 @@ fn stale_entries(o: &mut String, r: &Report) {
                     .map(|v| format!("{v:04X}H"))
                     .unwrap_or_default()
             ),
+            EntryState::NotFound => {
+                "UNEXPECTED PASS: a complete campaign did not find it again".to_string()
+            }
             EntryState::Applied => String::new(),
         };
         let _ = writeln!(
