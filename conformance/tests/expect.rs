@@ -13,7 +13,9 @@ use std::time::Duration;
 
 /// Short runs: the map checks of groups 1 and 10..18 (wrong-exception makes their
 /// past-end reads deviate) and the broadcast checks (reply-to-broadcast makes them
-/// deviate).
+/// deviate). The simulator is not paced (`--no-pace`): what is compared is which checks
+/// deviate, and a paced pseudo-terminal on a loaded host can stall a request (an ERROR,
+/// exit 2) that has nothing to do with expectations.
 const ONLY: [&str; 4] = ["--only", "rtu.map.group-1*", "--only", "rtu.broadcast.*"];
 
 fn dir(name: &str) -> PathBuf {
@@ -26,7 +28,7 @@ fn dir(name: &str) -> PathBuf {
 /// `conformance check --sim f510 ONLY ARGS --format json -o DIR/check.json`: exit code
 /// and report (checked against the schema).
 fn check(dir: &Path, args: &[&str]) -> (Option<i32>, serde_json::Value) {
-    let mut all = vec!["--sim", "f510"];
+    let mut all = vec!["--sim", "f510", "--no-pace"];
     all.extend(ONLY);
     all.extend(args);
     common::check_device(dir, &all, Duration::from_secs(120))
@@ -339,6 +341,7 @@ fn fuzz_findings_are_expected_by_their_signature() {
         let mut args = vec![
             "--sim",
             "f510",
+            "--no-pace",
             "--mode",
             "rtu",
             "--cases",
