@@ -400,3 +400,59 @@ fn fuzz_findings_are_expected_by_their_signature() {
     assert_eq!(exit, Some(0), "not strict");
     let _ = std::fs::remove_dir_all(&d);
 }
+
+/// `monitor` judges a capture: `expect --from` its report accepts what it heard, and the
+/// same capture judged with the file exits 0 with each of its results expected.
+#[test]
+fn a_monitor_run_is_gated_by_the_same_file() {
+    let d = dir("monitor");
+    let cap = d.join("run.pcapng");
+    let (exit, _) = check(
+        &d,
+        &[
+            "--quirk",
+            "wrong-exception",
+            "--mode",
+            "rtu",
+            "--capture",
+            cap.to_str().unwrap(),
+        ],
+    );
+    assert_eq!(exit, Some(1));
+    let monitor = |more: &[&str]| {
+        let mut args = vec![
+            "--capture-in",
+            cap.to_str().unwrap(),
+            "--model",
+            "f510",
+            "-a",
+            "1",
+        ];
+        args.extend(more);
+        common::report_of("monitor", &d, &args, Duration::from_secs(60))
+    };
+    let (exit, v) = monitor(&[]);
+    assert_eq!(exit, Some(1), "{}", v["summary"]);
+    let deviating = ids_with(&v, "deviation");
+    assert!(
+        deviating
+            .iter()
+            .any(|id| id.ends_with(".drive.wrong-exception")),
+        "{deviating:?}"
+    );
+    let run = d.join("monitor-first.json");
+    std::fs::rename(d.join("monitor.json"), &run).unwrap();
+    let file = d.join("monitor.toml");
+    let out = conformance(&[
+        "expect",
+        "--from",
+        run.to_str().unwrap(),
+        "-o",
+        file.to_str().unwrap(),
+    ]);
+    assert!(out.status.success());
+    let (exit, v) = monitor(&["--expect", file.to_str().unwrap()]);
+    assert_eq!(exit, Some(0), "{}", v["expectations"]["counts"]);
+    assert_eq!(ids_marked(&v, "expected"), deviating);
+    let _ = std::fs::remove_dir_all(&d);
+}
