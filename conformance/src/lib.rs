@@ -22,6 +22,8 @@
 //! - [`gate`]: checks another Modbus codec through an adapter process.
 //! - [`monitor`]: listens to a bus it never writes to and judges both sides of every
 //!   conversation through the [`judge`] (beside the runner, below the reports).
+//! - [`expect`]: expectations files (known, accepted results) and how a run stands
+//!   against one; [`report`] records the outcome and gives the exit code by it.
 //! - [`report`]: text, JSON and JUnit XML reports of a run.
 //! - [`scan`]: finds the devices on a line (line settings, mode, node addresses).
 //! - [`session`]: a whole run against a serial port, a TCP gateway or the in-process simulator.
@@ -33,6 +35,7 @@
 
 pub mod capture;
 pub mod codec;
+pub mod expect;
 pub mod fuzz;
 pub mod gate;
 pub mod identify;

@@ -865,6 +865,11 @@ fn reports_examples() {
 }
 
 #[test]
+fn expectations_examples() {
+    check_page("docs/src/expectations.md");
+}
+
+#[test]
 fn gates_examples() {
     check_page("docs/src/gates.md");
 }

@@ -2,6 +2,12 @@
 //! a generic holding-register device (no TECO registers, no TECO exception rules), on a
 //! pseudo-terminal pair (tests/common's `pty_pair`), checked as an F510. The run must complete, report
 //! the deviations a generic device has from the F510 manual, and neither panic nor hang.
+//!
+//! Exit codes a gate can trust (issue 28): a device that refuses a register a check must
+//! read (or write) first answers, so the check is a DEVIATION (the manual serves the
+//! register), not an ERROR, and the run exits 1, not 2. Shown against pymodbus without
+//! the registers from 1000H up, and against the simulator serving a model with registers
+//! taken out, which reaches every check that reads or writes first.
 
 mod common;
 use common::pymodbus_serial_server;
@@ -190,4 +196,190 @@ fn a_generic_pymodbus_device_fuzzed_as_f510_rtu() {
 #[test]
 fn a_generic_pymodbus_device_fuzzed_as_f510_ascii() {
     fuzz("ascii");
+}
+
+/// The issue's case: a generic server with no registers from 1000H up, checked as an
+/// F510. The write checks of groups 16..24 cannot read their register first; the device
+/// refused it with exception 02H, which is evidence: DEVIATION, and the run exits 1.
+#[test]
+fn a_generic_device_without_registers_from_1000h_up_deviates_and_exits_1() {
+    let dir = std::env::temp_dir().join(format!("teco-generic-short-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let Some(peer) = common::pymodbus_serial_with(&dir, "rtu", "1", 0x1000) else {
+        return;
+    };
+    let (exit, v) = common::check_device(
+        &dir,
+        &[
+            "--model",
+            "f510",
+            "--port",
+            peer.port.to_str().unwrap(),
+            "--mode",
+            "rtu",
+            "-P",
+            "none",
+            "--timeout",
+            "300",
+            "--only",
+            "rtu.write.group-*",
+        ],
+        Duration::from_secs(120),
+    );
+    assert_eq!(v["complete"], true, "{}", v["stopped"]);
+    assert_eq!(v["summary"]["error"], 0, "{}", v["summary"]);
+    assert_eq!(exit, Some(1), "{}", v["summary"]);
+    for g in [16, 17, 18, 20, 21, 22, 23, 24] {
+        let c = check_of(&v, &format!("rtu.write.group-{g}"));
+        assert_eq!(c["status"], "deviation", "{c}");
+        let s = c["summary"].as_str().unwrap();
+        assert!(
+            s.starts_with(&format!("cannot read {g:02X}00H first: "))
+                && s.contains("refused it with exception 02H"),
+            "{s}"
+        );
+    }
+    // The registers it has still pass.
+    assert_eq!(check_of(&v, "rtu.write.group-1")["status"], "pass");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+fn check_of<'a>(v: &'a serde_json::Value, id: &str) -> &'a serde_json::Value {
+    v["checks"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|c| c["id"] == id)
+        .unwrap_or_else(|| panic!("no check {id}"))
+}
+
+/// The F510 model with `edit` applied, written to `dir/name`: the simulator serves it,
+/// the runner checks against the real F510 model.
+fn edited_model(
+    dir: &std::path::Path,
+    name: &str,
+    edit: impl FnOnce(&mut serde_json::Value),
+) -> std::path::PathBuf {
+    let mut m: serde_json::Value =
+        serde_json::from_str(include_str!("../../vectors/models/f510.json")).unwrap();
+    edit(&mut m);
+    let path = dir.join(name);
+    std::fs::write(&path, serde_json::to_string(&m).unwrap()).unwrap();
+    path
+}
+
+/// `check --model f510` against the simulator serving `model`.
+fn check_sim_model(
+    dir: &std::path::Path,
+    model: &std::path::Path,
+    only: &[&str],
+) -> (Option<i32>, serde_json::Value) {
+    let (_sim, port) = common::sim_pty(&["--model-file", model.to_str().unwrap()]);
+    let mut args = vec![
+        "--model",
+        "f510",
+        "--port",
+        &port,
+        "--mode",
+        "rtu",
+        "--allow-motion",
+    ];
+    for o in only {
+        args.extend(["--only", o]);
+    }
+    common::check_device(dir, &args, Duration::from_secs(120))
+}
+
+/// Every check that reads a register first (the value it restores) against a drive whose
+/// registers are missing: each is a DEVIATION naming the register and the exception, none
+/// an ERROR, and the run exits 1.
+#[test]
+fn a_refused_read_before_a_check_is_a_deviation_not_an_error() {
+    let dir = std::env::temp_dir().join(format!("teco-generic-gap-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    // Without group 0 (0000H..), groups 16 and up (1000H..) and the command group
+    // (2500H..251FH: operation, frequency command, the two-word register).
+    let model = edited_model(&dir, "gap.json", |m| {
+        m["parameter_groups"]
+            .as_array_mut()
+            .unwrap()
+            .retain(|g| (1..16).contains(&g["group"].as_u64().unwrap()));
+        m["groups"]
+            .as_array_mut()
+            .unwrap()
+            .retain(|g| g["name"] != "command");
+        m["registers"].as_array_mut().unwrap().retain(|r| {
+            let a = u16::from_str_radix(r["register"].as_str().unwrap(), 16).unwrap();
+            !(0x2500..0x2520).contains(&a)
+        });
+    });
+    let setups = [
+        ("rtu.write.group-16", "cannot read 1000H first: "),
+        ("rtu.write.frequency-command", "cannot read 2502H first: "),
+        ("rtu.write.frequency-max", "cannot read 2502H first: "),
+        (
+            "rtu.write.out-of-range",
+            "cannot read 2502H first (so that a write could be undone): ",
+        ),
+        ("rtu.write.two-word", "cannot read 2510H first: "),
+        (
+            "rtu.write-count.limit",
+            "cannot read the values to write back first: ",
+        ),
+        ("rtu.broadcast.write", "cannot read 2502H first: "),
+        ("rtu.motion.run-stop", "cannot read 2501H first: "),
+        ("rtu.motion.external-fault", "cannot read 2501H first: "),
+    ];
+    let only: Vec<&str> = setups.iter().map(|(id, _)| *id).collect();
+    let (exit, v) = check_sim_model(&dir, &model, &only);
+    assert_eq!(v["complete"], true, "{}", v["stopped"]);
+    assert_eq!(v["summary"]["error"], 0, "{}", v["summary"]);
+    assert_eq!(exit, Some(1));
+    assert_eq!(v["exit_code"], 1);
+    for (id, lead) in setups {
+        let c = check_of(&v, id);
+        assert_eq!(c["status"], "deviation", "{c}");
+        let s = c["summary"].as_str().unwrap();
+        assert!(s.starts_with(lead), "{id}: {s}");
+        assert!(
+            s.contains("the manual serves it, the device refused it with exception 02H"),
+            "{id}: {s}"
+        );
+        // The refused exchange is in the report, with the model's prediction.
+        let e = &c["exchanges"][0];
+        assert!(
+            e["received"].as_str().unwrap().starts_with("01 83 02"),
+            "{id}: {e}"
+        );
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// A write a check needs first (the run check's 10.00 Hz) that the device refuses is a
+/// DEVIATION too.
+#[test]
+fn a_refused_write_before_a_check_is_a_deviation_not_an_error() {
+    let dir = std::env::temp_dir().join(format!("teco-generic-ro-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let model = edited_model(&dir, "ro.json", |m| {
+        for r in m["registers"].as_array_mut().unwrap() {
+            if r["register"] == "2502" {
+                let o = r.as_object_mut().unwrap();
+                o.insert("access".into(), "read-only".into());
+                o.remove("max");
+                o.remove("resolution");
+            }
+        }
+    });
+    let (exit, v) = check_sim_model(&dir, &model, &["rtu.motion.run-stop"]);
+    assert_eq!(v["summary"]["error"], 0, "{}", v["summary"]);
+    assert_eq!(exit, Some(1));
+    let c = check_of(&v, "rtu.motion.run-stop");
+    assert_eq!(c["status"], "deviation", "{c}");
+    let s = c["summary"].as_str().unwrap();
+    assert!(
+        s.starts_with("cannot write 03E8H (10.00 Hz) to 2502H first: the manual serves it, the device refused it with exception"),
+        "{s}"
+    );
+    let _ = std::fs::remove_dir_all(&dir);
 }

@@ -337,7 +337,10 @@ fn pymodbus_serving_two_nodes_is_checked_node_by_node() {
             c["summary"].as_str().unwrap()
         );
     }
-    assert_eq!(exit, Some(2), "node 3 cannot be written: {}", v["summary"]);
+    // Node 3 answers every read with an exception: that is the device's answer, so
+    // deviations (exit 1), never "could not tell" (issue 28).
+    assert_eq!(exit, Some(1), "{}", v["summary"]);
+    assert_eq!(v["summary"]["error"], 0, "{}", v["summary"]);
     let per_id = nodes_per_id(&v);
     assert_eq!(per_id["rtu.map.group-0.first"], ["01", "02", "03"]);
     assert_eq!(per_id["rtu.preflight"], ["01", "02", "03", "-"]);
@@ -365,8 +368,21 @@ fn pymodbus_serving_two_nodes_is_checked_node_by_node() {
     assert_eq!(first3["status"], "deviation");
     let received = first3["exchanges"][0]["received"].as_str().unwrap();
     assert!(received.starts_with("03 83 04"), "{received}");
-    // The writing check of node 3 cannot read the register it would write: ERROR.
-    assert_eq!(find("rtu.write.group-0", "03")["status"], "error");
+    // The writing check of node 3 cannot read the register it would write: the manual
+    // serves it, node 3 refused it: a DEVIATION with the frames, not an ERROR.
+    let w3 = find("rtu.write.group-0", "03");
+    assert_eq!(w3["status"], "deviation", "{w3}");
+    assert!(
+        w3["summary"]
+            .as_str()
+            .unwrap()
+            .starts_with("cannot read 0000H first: the manual serves it, the device refused it with exception 04H"),
+        "{w3}"
+    );
+    assert!(w3["exchanges"][0]["received"]
+        .as_str()
+        .unwrap()
+        .starts_with("03 83 04"));
     // The broadcast read is answered (00 83 04 ..): a deviation, once for the bus.
     let br = find("rtu.broadcast.read", "-");
     assert_eq!(br["status"], "deviation");
@@ -374,9 +390,10 @@ fn pymodbus_serving_two_nodes_is_checked_node_by_node() {
         .as_str()
         .unwrap()
         .starts_with("00 83 04"));
-    // The broadcast write is judged on the nodes whose register could be read first; node 3
-    // is named as not judged.
+    // The broadcast write is judged on the nodes whose register could be read first; node
+    // 3's refusal of that read is a deviation of its own.
     let bw = find("rtu.broadcast.write", "-");
+    assert_eq!(bw["status"], "deviation", "{bw}");
     let texts: Vec<&str> = bw["findings"]
         .as_array()
         .unwrap()
@@ -386,7 +403,8 @@ fn pymodbus_serving_two_nodes_is_checked_node_by_node() {
     assert!(
         texts
             .iter()
-            .any(|t| t.contains("of node 03H first") && t.contains("not judged")),
+            .any(|t| t.contains("cannot read 2502H of node 03H first")
+                && t.contains("refused it with exception 04H")),
         "{texts:?}"
     );
 }

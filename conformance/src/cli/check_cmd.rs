@@ -63,11 +63,23 @@ then INCOMPLETE (exit 2). The other address (--other-address) must be on none of
 
 Statuses: PASS; DEVIATION (the manual says X, the device did Y); OBSERVATION (the manual
 is silent or contradicts itself: what the device did); SKIP (with the reason); ERROR (the
-run could not tell).
+run could not tell: no valid answer). A read or write a check needs first (the value it
+must restore) that the device refuses with an exception is the device's answer: a
+DEVIATION where the manual serves the register, a SKIP where it predicts the exception.
 
-Exit codes: 0 no deviations; 1 deviations found; 2 the run could not complete (bad
-arguments, the link failed or was interrupted, a check could not tell, or a register
-could not be restored).";
+Expectations (--expect FILE, TOML; `conformance expect --from run.json` writes one):
+known results with a reason and a ticket. Expected deviations are reported apart from
+new ones; a check expected to deviate that passes is an UNEXPECTED PASS (exit 1 with
+--strict-expect); expired entries and entries that matched nothing are reported and do
+not apply.
+  conformance check --sim f510 --quirk wrong-exception -o run.json
+  conformance expect --from run.json --reason \"known, ticket 123\" -o expect.toml
+  conformance check --sim f510 --quirk wrong-exception --expect expect.toml     exit 0
+
+Exit codes: 0 no deviations (with --expect: none that the file does not expect); 1
+deviations found (with --expect: new ones, or with --strict-expect an unexpected pass); 2
+the run could not complete (bad arguments or expectations file, the link failed or was
+interrupted, a check could not tell, or a register could not be restored).";
 
 /// Report format.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
@@ -92,6 +104,8 @@ pub struct CheckArgs {
     target: TargetArgs,
     #[arg(long, value_enum, help = FORMAT_DEFAULT)]
     format: Option<Format>,
+    #[command(flatten)]
+    expect: super::expect_cmd::ExpectArgs,
     /// Write the report here (kept valid after every check) instead of stdout.
     #[arg(short, long, value_name = "FILE")]
     output: Option<PathBuf>,
@@ -180,6 +194,7 @@ pub fn write_atomic(path: &Path, contents: &str) -> std::io::Result<()> {
 pub fn run(mut args: CheckArgs) -> anyhow::Result<ExitCode> {
     // `check` runs several drives on one bus (-a 1,2,5).
     args.target.several_nodes = true;
+    let expect = args.expect.load()?;
     let several = args.target.nodes.0.len() > 1;
     let capture = if args.list {
         None
@@ -393,6 +408,7 @@ pub fn run(mut args: CheckArgs) -> anyhow::Result<ExitCode> {
     if let Some(e) = write_error {
         return Err(e);
     }
+    expect.apply(&mut report);
     finish(&report, format, args.verbose, args.output.as_deref())
 }
 
@@ -422,6 +438,17 @@ pub fn finish(
                 if report.complete { "" } else { " [INCOMPLETE]" },
                 path.display()
             );
+            if let Some(e) = &report.expect {
+                eprintln!(
+                    "against {}: {} expected, {} new, {} unexpected passes{}; {} entries not applied",
+                    e.path,
+                    report.results.iter().filter(|r| report.is_expected(r)).count(),
+                    report.unexpected_findings().len(),
+                    report.unexpected_passes(),
+                    if e.strict { " (strict)" } else { "" },
+                    e.stale().count()
+                );
+            }
         }
         None => {
             let mut out = std::io::stdout().lock();

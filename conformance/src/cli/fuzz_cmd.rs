@@ -76,9 +76,12 @@ Ctrl-C, SIGTERM (timeout, CI runners) and SIGHUP stop the campaign after the cur
 case: what was written is restored and the whole report is written, marked INCOMPLETE
 (exit 2).
 
-Exit codes: 0 no finding; 1 findings; 2 the run could not run or complete (no answer to
-the preflight, the link failed, a hung device did not come back, a register could not be
-restored).";
+--expect FILE accepts known findings by their signature (signature = \"rtu.mismatch.03H.*\"):
+they are reported apart and do not make the exit code 1.
+
+Exit codes: 0 no finding (with --expect: none the file does not expect); 1 findings; 2
+the run could not run or complete (no answer to the preflight, the link failed, a hung
+device did not come back, a register could not be restored).";
 
 #[derive(Debug, Args)]
 #[command(after_help = AFTER_HELP)]
@@ -121,6 +124,8 @@ pub struct FuzzArgs {
     full_windows: bool,
     #[arg(long, value_enum, help = FORMAT_DEFAULT)]
     format: Option<Format>,
+    #[command(flatten)]
+    expect: super::expect_cmd::ExpectArgs,
     /// Write the report here instead of stdout.
     #[arg(short, long, value_name = "FILE")]
     output: Option<PathBuf>,
@@ -210,6 +215,7 @@ impl PlainProgress {
 }
 
 pub fn run(args: FuzzArgs) -> anyhow::Result<ExitCode> {
+    let expect = args.expect.load()?;
     // Unpaced, the simulator answers at once (the fuzzer measures the device's answers,
     // not its timing).
     let sim_delay = args.target.no_pace.then_some(Duration::ZERO);
@@ -344,7 +350,7 @@ pub fn run(args: FuzzArgs) -> anyhow::Result<ExitCode> {
             p.update(mode, n, findings);
         }
     };
-    let report = session::fuzz(&config, &cfg, &stop, &mut progress)?;
+    let mut report = session::fuzz(&config, &cfg, &stop, &mut progress)?;
     args.target.close_capture(config.capture.as_ref());
     if let Some(b) = &bar {
         b.finish_and_clear();
@@ -352,6 +358,7 @@ pub fn run(args: FuzzArgs) -> anyhow::Result<ExitCode> {
     if let Some(p) = plain.as_mut() {
         p.end();
     }
+    expect.apply(&mut report);
     finish(
         &report,
         format_for(args.format, args.output.as_deref()),

@@ -25,7 +25,11 @@ Examples:
   conformance gate --codec target/release/rmodbus-adapter --format junit -o gate.xml
   conformance gate --codec \"./my-adapter\" --seed 7 --count 5000 --no-vectors
 
-Exit codes: 0 no deviations; 1 deviations found; 2 the gate could not complete (the
+--expect FILE accepts known deviations of the codec by case id: they are reported apart
+and do not make the exit code 1.
+
+Exit codes: 0 no deviations (with --expect: none the file does not expect); 1 deviations
+found; 2 the gate could not complete (the
 adapter could not start, exited twice, or a case could not be decided).";
 
 #[derive(Debug, Args)]
@@ -55,6 +59,8 @@ pub struct GateArgs {
     timeout: u64,
     #[arg(long, value_enum, help = FORMAT_DEFAULT)]
     format: Option<Format>,
+    #[command(flatten)]
+    expect: super::expect_cmd::ExpectArgs,
     /// Write the report here (kept valid after every case) instead of stdout.
     #[arg(short, long, value_name = "FILE")]
     output: Option<PathBuf>,
@@ -129,6 +135,7 @@ impl GateProgress for Progress<'_> {
 }
 
 pub fn run(args: GateArgs) -> anyhow::Result<ExitCode> {
+    let expect = args.expect.load()?;
     let set = VectorSet::builtin()?;
     let opts = GateOptions {
         seed: args.seed,
@@ -232,6 +239,7 @@ pub fn run(args: GateArgs) -> anyhow::Result<ExitCode> {
     if let Some(e) = progress.error {
         return Err(e);
     }
+    expect.apply(&mut report);
     finish(
         &report,
         format_for(args.format, args.output.as_deref()),

@@ -5,6 +5,7 @@ mod bus_cmd;
 mod check_cmd;
 mod codec_cmd;
 mod common;
+mod expect_cmd;
 mod fuzz_cmd;
 mod gate_cmd;
 mod identify_cmd;
@@ -76,6 +77,9 @@ enum Command {
     Requirements(requirements_cmd::RequirementsArgs),
     /// What changed between two runs of the same model (e.g. two firmware versions).
     Diff(report_cmd::DiffArgs),
+    /// A starting expectations file (--expect) from a run's JSON report: one entry per
+    /// deviation or finding, to give reasons and tickets.
+    Expect(expect_cmd::ExpectCmdArgs),
     /// This suite's codec behind the adapter protocol, on stdin/stdout (the reference
     /// adapter: `conformance gate --codec "conformance adapter"`).
     Adapter(gate_cmd::AdapterArgs),
@@ -102,5 +106,6 @@ pub fn run(cli: Cli) -> anyhow::Result<ExitCode> {
         Command::Adapter(a) => gate_cmd::adapter(a),
         Command::Report(a) => report_cmd::report(a),
         Command::Diff(a) => report_cmd::diff(a),
+        Command::Expect(a) => expect_cmd::run(a),
     }
 }

@@ -51,7 +51,11 @@ meaning with the model's register names, CRC status, response time, verdict); --
 turns it off. At the end (Ctrl-C, SIGTERM, --duration, or the end of the input) the report
 goes to stdout or -o, in any format, with per-node statistics.
 
-Exit codes: 0 no deviation heard; 1 deviations; 2 could not run (bad arguments, the port
+--expect FILE accepts known deviations by result id (<mode>.nodeNN.drive.<kind>): they
+are reported apart and do not make the exit code 1.
+
+Exit codes: 0 no deviation heard (with --expect: none the file does not expect); 1
+deviations; 2 could not run (bad arguments, the port
 could not be opened).";
 
 /// Transmission mode of the bus.
@@ -122,6 +126,8 @@ pub struct MonitorArgs {
     allowance: u64,
     #[arg(long, value_enum, help = FORMAT_DEFAULT)]
     format: Option<Format>,
+    #[command(flatten)]
+    expect: super::expect_cmd::ExpectArgs,
     /// Write the report here instead of stdout.
     #[arg(short, long, value_name = "FILE")]
     output: Option<PathBuf>,
@@ -155,6 +161,9 @@ fn describe_end(ended: &Ended) -> String {
 }
 
 pub fn run(args: MonitorArgs) -> anyhow::Result<ExitCode> {
+    // An invalid expectations file stops the command before it listens (it is read
+    // again for the report).
+    args.expect.load()?;
     let asked = match args.mode {
         ModeArg::Rtu => Some(Mode::Rtu),
         ModeArg::Ascii => Some(Mode::Ascii),
@@ -425,7 +434,7 @@ fn report(
     let nodes = args.nodes.as_ref().map(|n| n.0.clone()).unwrap_or_default();
     let summary = mon.summary(source, ended);
     let heard: Vec<u8> = mon.nodes().keys().copied().filter(|n| *n != 0).collect();
-    let report = Report {
+    let mut report = Report {
         kind: ReportKind::Monitor,
         codec: None,
         started,
@@ -469,7 +478,9 @@ fn report(
         budget: Default::default(),
         fuzz: None,
         monitor: Some(summary),
+        expect: None,
     };
+    args.expect.load()?.apply(&mut report);
     finish(
         &report,
         format_for(args.format, args.output.as_deref()),

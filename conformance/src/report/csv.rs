@@ -19,10 +19,22 @@ pub(crate) fn field(s: &str) -> String {
 pub fn csv(report: &Report) -> String {
     let nodes = !report.device.nodes.is_empty();
     let mut out = String::from(if nodes {
-        "node,id,mode,status,title,source,summary\r\n"
+        "node,id,mode,status,title,source,summary"
     } else {
-        "id,mode,status,title,source,summary\r\n"
+        "id,mode,status,title,source,summary"
     });
+    // A run with --expect: how each result stands against the file (expected,
+    // unexpected-pass, changed, or new for a deviation no entry accepts) and the entry.
+    let expect = report.expect.as_ref();
+    let new: std::collections::BTreeSet<String> = report
+        .unexpected_findings()
+        .iter()
+        .map(|x| x.key())
+        .collect();
+    if expect.is_some() {
+        out.push_str(",expectation,expectation_entry");
+    }
+    out.push_str("\r\n");
     for r in &report.results {
         if nodes {
             if let Some(n) = r.node {
@@ -42,6 +54,17 @@ pub fn csv(report: &Report) -> String {
         .map(field)
         .join(",");
         out.push_str(&row);
+        if let Some(e) = expect {
+            let (outcome, entry) = match report.expectation(r) {
+                Some(m) => (m.kind.key(), format!("{}:{}: {}", e.path, m.line, m.reason)),
+                None if new.contains(&r.key()) => ("new", String::new()),
+                None => ("", String::new()),
+            };
+            out.push(',');
+            out.push_str(outcome);
+            out.push(',');
+            out.push_str(&field(&entry));
+        }
         out.push_str("\r\n");
     }
     out

@@ -23,6 +23,7 @@ use serde_json::{json, Value};
 use super::html::{esc, CSS};
 use super::{Report, ReportKind};
 use crate::codec::hex::Hex;
+use crate::expect::MarkKind;
 use crate::runner::{CheckResult, Status};
 
 /// A shift of the median smaller than this share of the old median is noise.
@@ -125,6 +126,18 @@ pub fn node_section(r: &Report, node: u8, which: &'static str) -> Result<Report,
     out.device.address = node;
     out.device.identification = info.identification;
     out.device.nodes.clear();
+    // Marks are keyed like the results: this node's lose their `@N`.
+    if let Some(e) = out.expect.as_mut() {
+        let suffix = format!("@{node}");
+        e.marks = std::mem::take(&mut e.marks)
+            .into_iter()
+            .filter_map(|(k, m)| match k.strip_suffix(&suffix) {
+                Some(id) => Some((id.to_string(), m)),
+                None if !k.contains('@') => Some((k, m)),
+                None => None,
+            })
+            .collect();
+    }
     Ok(out)
 }
 
@@ -151,12 +164,15 @@ pub struct StatusChange {
     pub new: Status,
     /// The new run's summary of it.
     pub summary: String,
+    /// How the new run's expectations file (`--expect`) marks it, if it names it.
+    pub expectation: Option<MarkKind>,
 }
 
 impl StatusChange {
-    /// Whether the check got worse.
+    /// Whether the check got worse: its status did, and the new run's expectations do
+    /// not accept the new status.
     pub fn worse(&self) -> bool {
-        badness(self.new) > badness(self.old)
+        badness(self.new) > badness(self.old) && self.expectation != Some(MarkKind::Expected)
     }
 }
 
@@ -219,6 +235,10 @@ pub struct Diff {
     pub only_old: Vec<(String, Status)>,
     /// Checks only the new run has.
     pub only_new: Vec<(String, Status)>,
+    /// The new run's expectations (`--expect`): its file and one line of counts.
+    pub expect_line: Option<String>,
+    /// Keys of the new run's results its expectations accept as they are.
+    pub expected_new: BTreeSet<String>,
 }
 
 fn label(r: &Report) -> String {
@@ -314,6 +334,23 @@ impl Diff {
         let mut d = Diff {
             old_label: label(old),
             new_label: label(new),
+            expected_new: new
+                .results
+                .iter()
+                .filter(|r| new.is_expected(r))
+                .map(CheckResult::key)
+                .collect(),
+            expect_line: new.expect.as_ref().map(|e| {
+                let count = |k: MarkKind| e.marks.values().filter(|m| m.kind == k).count();
+                format!(
+                    "the new run against {}: {} expected, {} new, {} unexpected passes; {} entries not applied",
+                    e.path,
+                    count(MarkKind::Expected),
+                    new.unexpected_findings().len(),
+                    new.unexpected_passes(),
+                    e.stale().count()
+                )
+            }),
             ..Diff::default()
         };
         for n in &new.results {
@@ -329,6 +366,7 @@ impl Diff {
                     old: o.status,
                     new: n.status,
                     summary: n.summary.clone(),
+                    expectation: new.expectation(n).map(|m| m.kind),
                 });
             } else if n.status == Status::Deviation {
                 for (i, (eo, en)) in o.exchanges.iter().zip(&n.exchanges).enumerate() {
@@ -397,7 +435,10 @@ impl Diff {
     pub fn worse(&self) -> bool {
         self.status.iter().any(StatusChange::worse)
             || self.timing.iter().any(TimingShift::worse)
-            || self.only_new.iter().any(|(_, s)| badness(*s) > 0)
+            || self
+                .only_new
+                .iter()
+                .any(|(k, s)| badness(*s) > 0 && !self.expected_new.contains(k))
     }
 
     /// Whether the runs differ at all.
@@ -445,16 +486,30 @@ impl Diff {
         if !self.is_empty() {
             w!(out, "{}\n", self.counts());
         }
+        if let Some(e) = &self.expect_line {
+            w!(out, "expectations: {e}\n");
+        }
         if !self.status.is_empty() {
             w!(out, "\nStatus changes ({}):\n", self.status.len());
             for c in &self.status {
                 w!(
                     out,
-                    "  {} {:<44} {} -> {}\n      {}\n",
-                    if c.worse() { "worse" } else { "better" },
+                    "  {} {:<44} {} -> {}{}\n      {}\n",
+                    match (c.worse(), c.expectation) {
+                        (true, _) => "worse   ",
+                        (false, Some(MarkKind::Expected)) if badness(c.new) > badness(c.old) =>
+                            "expected",
+                        _ => "better  ",
+                    },
                     c.id,
                     c.old,
                     c.new,
+                    match c.expectation {
+                        Some(MarkKind::Expected) => " (expected)",
+                        Some(MarkKind::UnexpectedPass) => " (UNEXPECTED PASS)",
+                        Some(MarkKind::Changed) => " (not the expected status)",
+                        None => "",
+                    },
                     c.summary
                 );
             }
@@ -504,7 +559,12 @@ impl Diff {
             if !list.is_empty() {
                 w!(out, "\n{name} ({}):\n", list.len());
                 for (id, s) in list {
-                    w!(out, "  {id:<50} {s}\n");
+                    let expected = if self.expected_new.contains(id) && name.contains("new") {
+                        " (expected)"
+                    } else {
+                        ""
+                    };
+                    w!(out, "  {id:<50} {s}{expected}\n");
                 }
             }
         }
@@ -524,6 +584,7 @@ impl Diff {
             "status_changes": self.status.iter().map(|c| json!({
                 "id": c.id, "title": c.title, "old": st(c.old), "new": st(c.new),
                 "worse": c.worse(), "summary": c.summary,
+                "expectation": c.expectation.map(|k| k.key()),
             })).collect::<Vec<_>>(),
             "received_changes": self.bytes.iter().map(|b| json!({
                 "id": b.id, "exchange": b.exchange, "request": Hex(&b.request).to_string(),
@@ -534,7 +595,8 @@ impl Diff {
                 "old_n": t.old_n, "new_n": t.new_n, "worse": t.worse(),
             })).collect::<Vec<_>>(),
             "only_old": self.only_old.iter().map(|(id, s)| json!({"id": id, "status": st(*s)})).collect::<Vec<_>>(),
-            "only_new": self.only_new.iter().map(|(id, s)| json!({"id": id, "status": st(*s)})).collect::<Vec<_>>(),
+            "only_new": self.only_new.iter().map(|(id, s)| json!({"id": id, "status": st(*s), "expected": self.expected_new.contains(id)})).collect::<Vec<_>>(),
+            "expectations": self.expect_line,
         })
     }
 

@@ -523,23 +523,35 @@ pub fn html(report: &Report) -> String {
     // Deviations first, then what the run could not tell; observations (the manual is
     // silent) after them, folded.
     let s = report.summary();
-    w!(
-        out,
-        "<h2 id=\"deviations\">Deviations ({}) and errors ({})</h2>",
-        s.deviation,
-        s.error
-    );
+    // With an expectations file, the results it accepts have a section of their own.
     let mut notable: Vec<&CheckResult> = report
         .results
         .iter()
         .filter(|r| matches!(r.status, Status::Deviation | Status::Error))
+        .filter(|r| !report.is_expected(r))
         .collect();
+    w!(
+        out,
+        "<h2 id=\"deviations\">{} ({}) and errors ({})</h2>",
+        if report.expect.is_some() {
+            "New deviations"
+        } else {
+            "Deviations"
+        },
+        notable.len() - s.error,
+        s.error
+    );
     notable.sort_by_key(|r| r.status != Status::Deviation);
     if notable.is_empty() {
         out.push_str("<p>None: every check that ran agreed with the manual.</p>");
     }
     for r in notable {
         finding_block(&mut out, r, false, several);
+    }
+    if let Some(e) = &report.expect {
+        super::expect_html::section(&mut out, report, e, |out, r| {
+            finding_block(out, r, true, several)
+        });
     }
     if s.observation > 0 {
         w!(
@@ -639,7 +651,7 @@ pub fn html(report: &Report) -> String {
             "<tr class=\"{c}\" data-id=\"{id}\" data-status=\"{c}\" data-mode=\"{m}\"{node}><td>{m}</td><td>{b}</td><td>{t}<div class=\"muted\">{src}</div>{reqs}</td><td>{sum}</td><td class=\"num\">{lat}</td></tr>",
             c = class(r.status),
             m = esc(&mode),
-            b = badge(r.status),
+            b = badge(r.status) + &super::expect_html::tag(report, r),
             t = esc(&r.title),
             src = esc(&r.source),
             sum = esc(&r.summary),

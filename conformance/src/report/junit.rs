@@ -59,9 +59,16 @@ pub fn junit(r: &Report) -> String {
             }
         )),
         s.total,
-        s.deviation,
+        r.results
+            .iter()
+            .filter(|c| matches!(case(r, c), Case::Failure | Case::StrictUnexpectedPass))
+            .count(),
         s.error + usize::from(!r.complete),
-        s.skip,
+        s.skip
+            + r.results
+                .iter()
+                .filter(|c| case(r, c) == Case::Expected)
+                .count(),
         total_time
     );
     // One suite per id prefix: "rtu", "ascii" for a drive; "vector", "diff" for a gate.
@@ -178,21 +185,29 @@ fn suite(
     cases: &[&CheckResult],
     properties: &[(&str, String)],
 ) {
-    let count = |st: Status| cases.iter().filter(|c| c.status == st).count();
+    let count = |k: Case| cases.iter().filter(|c| case(r, c) == k).count();
     let _ = writeln!(
         o,
         "  <testsuite name=\"{}\" tests=\"{}\" failures=\"{}\" errors=\"{}\" skipped=\"{}\" time=\"{:.3}\" timestamp=\"{}\">",
         esc(name),
         cases.len(),
-        count(Status::Deviation),
-        count(Status::Error),
-        count(Status::Skip),
+        count(Case::Failure) + count(Case::StrictUnexpectedPass),
+        count(Case::Status(Status::Error)),
+        count(Case::Status(Status::Skip)) + count(Case::Expected),
         cases.iter().map(|c| c.duration.as_secs_f64()).sum::<f64>(),
         esc(&r.started)
     );
     let _ = writeln!(o, "    <properties>");
     for (k, v) in properties {
         let _ = writeln!(o, "      <property name=\"{k}\" value=\"{}\"/>", esc(v));
+    }
+    if let Some(e) = &r.expect {
+        let _ = writeln!(
+            o,
+            "      <property name=\"expectations\" value=\"{}{}\"/>",
+            esc(&e.path),
+            if e.strict { " (strict)" } else { "" }
+        );
     }
     let _ = writeln!(o, "    </properties>");
     for c in cases {
@@ -203,10 +218,65 @@ fn suite(
             esc(&c.id),
             c.duration.as_secs_f64()
         );
+        let mark = r.expectation(c);
+        let why = |m: &crate::expect::Mark| {
+            format!(
+                "expected {} ({}:{}): {}{}",
+                m.expected.key(),
+                r.expect.as_ref().map(|e| e.path.as_str()).unwrap_or(""),
+                m.line,
+                m.reason,
+                m.ticket
+                    .as_deref()
+                    .map(|t| format!(" [{t}]"))
+                    .unwrap_or_default()
+            )
+        };
+        // What goes inside the test case, after its properties.
+        let inner: Option<String> = match (case(r, c), mark) {
+            // An expected result is skipped, as pytest reports an xfail: not a failure,
+            // and not counted as a pass.
+            (Case::Expected, Some(m)) => Some(format!(
+                "      <skipped type=\"expected\" message=\"{}\"/>\n      <system-out>{}: {}</system-out>",
+                esc(&why(m)),
+                c.status,
+                esc(&body(c))
+            )),
+            (Case::StrictUnexpectedPass, Some(m)) => Some(format!(
+                "      <failure type=\"unexpected-pass\" message=\"UNEXPECTED PASS: {}\">{}</failure>",
+                esc(&why(m)),
+                esc(&c.summary)
+            )),
+            (Case::Status(Status::Pass), Some(m)) => Some(format!(
+                "      <system-out>UNEXPECTED PASS: {}</system-out>",
+                esc(&why(m))
+            )),
+            _ => match c.status {
+                Status::Pass => None,
+                Status::Deviation => Some(format!(
+                    "      <failure type=\"deviation\" message=\"{}\">{}</failure>",
+                    esc(&c.summary),
+                    esc(&body(c))
+                )),
+                Status::Error => Some(format!(
+                    "      <error type=\"error\" message=\"{}\">{}</error>",
+                    esc(&c.summary),
+                    esc(&body(c))
+                )),
+                Status::Skip => Some(format!(
+                    "      <skipped message=\"{}\"/>",
+                    esc(&c.summary)
+                )),
+                Status::Observation => Some(format!(
+                    "      <system-out>OBSERVATION: {}</system-out>",
+                    esc(&body(c))
+                )),
+            },
+        };
         // The requirements of the manual this check verifies, as pytest's
         // record_property writes test case properties.
         let reqs = crate::requirements::for_check(&r.device.model, &c.id);
-        if c.status == Status::Pass && reqs.is_empty() {
+        if inner.is_none() && reqs.is_empty() {
             let _ = writeln!(o, "/>");
             continue;
         }
@@ -222,36 +292,34 @@ fn suite(
             }
             let _ = writeln!(o, "      </properties>");
         }
-        match c.status {
-            Status::Pass => {}
-            Status::Deviation => {
-                let _ = writeln!(
-                    o,
-                    "      <failure type=\"deviation\" message=\"{}\">{}</failure>",
-                    esc(&c.summary),
-                    esc(&body(c))
-                );
-            }
-            Status::Error => {
-                let _ = writeln!(
-                    o,
-                    "      <error type=\"error\" message=\"{}\">{}</error>",
-                    esc(&c.summary),
-                    esc(&body(c))
-                );
-            }
-            Status::Skip => {
-                let _ = writeln!(o, "      <skipped message=\"{}\"/>", esc(&c.summary));
-            }
-            Status::Observation => {
-                let _ = writeln!(
-                    o,
-                    "      <system-out>OBSERVATION: {}</system-out>",
-                    esc(&body(c))
-                );
-            }
+        if let Some(inner) = inner {
+            let _ = writeln!(o, "{inner}");
         }
         let _ = writeln!(o, "    </testcase>");
     }
     let _ = writeln!(o, "  </testsuite>");
+}
+
+/// How a check counts in JUnit: its status, or how an expectations file marks it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Case {
+    Status(Status),
+    /// A deviation no expectation accepts.
+    Failure,
+    /// A result an expectation accepts: skipped.
+    Expected,
+    /// A pass expected to deviate, under --strict-expect: a failure.
+    StrictUnexpectedPass,
+}
+
+fn case(r: &Report, c: &CheckResult) -> Case {
+    use crate::expect::MarkKind;
+    match r.expectation(c).map(|m| m.kind) {
+        Some(MarkKind::Expected) => Case::Expected,
+        Some(MarkKind::UnexpectedPass) if r.expect.as_ref().is_some_and(|e| e.strict) => {
+            Case::StrictUnexpectedPass
+        }
+        _ if c.status == Status::Deviation => Case::Failure,
+        _ => Case::Status(c.status),
+    }
 }

@@ -8,6 +8,8 @@
 
 mod csv;
 pub mod diff;
+mod expect_html;
+mod expect_json;
 mod html;
 mod junit;
 mod parse;
@@ -155,6 +157,8 @@ pub struct Report {
     pub fuzz: Option<crate::fuzz::report::FuzzSummary>,
     /// For a monitor report: what was heard, per node.
     pub monitor: Option<crate::monitor::MonitorSummary>,
+    /// The run's results against an expectations file (`--expect`), if one was given.
+    pub expect: Option<crate::expect::Outcome>,
 }
 
 /// Counts per status.
@@ -232,14 +236,19 @@ impl Report {
         self.restore.iter().filter(|r| !r.restored).collect()
     }
 
-    /// The exit code: 0 no deviations, 1 deviations found, 2 the run could not complete
-    /// (cut short, a check that could not tell, or a register left unrestored).
+    /// The exit code: 0 no deviations (or only expected ones); 1 deviations found that no
+    /// expectation accepts (or, with `--strict-expect`, an unexpected pass); 2 the run
+    /// could not complete (cut short, a check that could not tell, or a register left
+    /// unrestored).
     pub fn exit_code(&self) -> u8 {
         let s = self.summary();
         if !self.complete || s.error > 0 || !self.unrestored().is_empty() {
             2
-        } else if s.deviation > 0
-            || (self.kind == ReportKind::Fuzz && s.observation > self.unconfirmed_findings())
+        } else if !self.unexpected_findings().is_empty()
+            || self
+                .expect
+                .as_ref()
+                .is_some_and(|e| e.strict && self.unexpected_passes() > 0)
         {
             1
         } else {
@@ -247,16 +256,77 @@ impl Report {
         }
     }
 
-    /// Fuzz findings that were replayed and not seen again: observations that do not
-    /// make the exit code 1 (one such event may be this host's timing).
-    fn unconfirmed_findings(&self) -> usize {
-        self.fuzz.as_ref().map_or(0, |f| {
-            f.modes
+    /// Whether `r` is a result that fails a run: a deviation, or in a fuzz run a finding
+    /// (an observation replayed and seen again, or never replayed).
+    /// `unconfirmed`: [`Report::unconfirmed_ids`].
+    fn fails_run(&self, r: &CheckResult, unconfirmed: &[String]) -> bool {
+        match r.status {
+            Status::Deviation => true,
+            Status::Observation if self.kind == ReportKind::Fuzz => !unconfirmed.contains(&r.id),
+            _ => false,
+        }
+    }
+
+    /// The results that fail the run and that no expectation accepts: new deviations.
+    pub fn unexpected_findings(&self) -> Vec<&CheckResult> {
+        let unconfirmed = if self.kind == ReportKind::Fuzz {
+            self.unconfirmed_ids()
+        } else {
+            Vec::new()
+        };
+        self.results
+            .iter()
+            .filter(|r| self.fails_run(r, &unconfirmed) && !self.is_expected(r))
+            .collect()
+    }
+
+    /// Whether an expectation accepts `r` as it is.
+    pub fn is_expected(&self, r: &CheckResult) -> bool {
+        self.expectation(r)
+            .is_some_and(|m| m.kind == crate::expect::MarkKind::Expected)
+    }
+
+    /// The mark an expectations file gave `r`, if any.
+    pub fn expectation(&self, r: &CheckResult) -> Option<&crate::expect::Mark> {
+        self.expect.as_ref().and_then(|e| e.mark(r))
+    }
+
+    /// Checks an expectation says deviate that passed, and (fuzz) expected finding
+    /// signatures that a complete campaign did not find again.
+    pub fn unexpected_passes(&self) -> usize {
+        self.results
+            .iter()
+            .filter(|r| {
+                self.expectation(r)
+                    .is_some_and(|m| m.kind == crate::expect::MarkKind::UnexpectedPass)
+            })
+            .count()
+            + self.expect.as_ref().map_or(0, |e| e.not_found())
+    }
+
+    /// The ids of fuzz findings that were replayed and not seen again: observations that
+    /// do not make the exit code 1 (one such event may be this host's timing). A report
+    /// read back from JSON has no campaign: its findings' text says so.
+    fn unconfirmed_ids(&self) -> Vec<String> {
+        match &self.fuzz {
+            Some(f) => f
+                .modes
                 .iter()
                 .flat_map(|m| &m.findings)
                 .filter(|x| x.replays > 0 && !x.reproduced)
-                .count()
-        })
+                .map(|x| format!("fuzz.{}", x.signature()))
+                .collect(),
+            None => self
+                .results
+                .iter()
+                .filter(|r| {
+                    r.findings
+                        .iter()
+                        .any(|f| f.text.starts_with("not a deviation: "))
+                })
+                .map(|r| r.id.clone())
+                .collect(),
+        }
     }
 
     /// The report as JSON.
@@ -265,7 +335,13 @@ impl Report {
         let checks: Vec<Value> = self
             .results
             .iter()
-            .map(|r| check_json(r, &self.device.model))
+            .map(|r| {
+                let mut v = check_json(r, &self.device.model);
+                if let Some(m) = self.expectation(r) {
+                    v["expectation"] = expect_json::mark(m);
+                }
+                v
+            })
             .collect();
         let restore: Vec<Value> = self
             .restore
@@ -356,6 +432,7 @@ impl Report {
             "budget": self.budget.iter().map(|(mode, b)| (mode.clone(), budget_json(b))).collect::<serde_json::Map<String, Value>>(),
             "fuzz": self.fuzz.as_ref().map(|f| f.to_json()),
             "monitor": self.monitor.as_ref().map(|m| m.to_json()),
+            "expectations": self.expect.as_ref().map(|o| expect_json::outcome(self, o)),
         })
     }
 }

@@ -392,6 +392,7 @@ impl Report {
                 .collect::<Result<BTreeMap<_, _>, ReportError>>()?,
             _ => BTreeMap::new(),
         };
+        let expect = super::expect_json::read_outcome(v, &results)?;
         Ok(Report {
             kind,
             codec,
@@ -408,6 +409,7 @@ impl Report {
             fuzz: None,
             // Nor the monitor's statistics: its results are.
             monitor: None,
+            expect,
         })
     }
 }

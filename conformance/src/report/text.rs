@@ -9,6 +9,7 @@ use std::fmt::Write as _;
 use super::{diff_positions, Report, Summary};
 use crate::codec::hex::Hex;
 use crate::codec::Mode;
+use crate::expect::{EntryState, MarkKind};
 use crate::runner::{CheckResult, ExchangeRecord, Status};
 
 /// `text` up to its first "; " outside parentheses (all of it if there is none).
@@ -48,6 +49,7 @@ pub fn text(r: &Report, verbose: bool) -> String {
         counts(&s, if gate { "cases" } else { "checks" }),
         if r.complete { "" } else { "  [INCOMPLETE]" }
     );
+    expect_header(&mut o, r);
     if let Some(c) = &r.codec {
         let _ = writeln!(
             o,
@@ -169,7 +171,7 @@ pub fn text(r: &Report, verbose: bool) -> String {
     let sections = r.node_summaries();
     if sections.is_empty() {
         let all: Vec<&CheckResult> = r.results.iter().collect();
-        results(&mut o, &all, verbose);
+        results(&mut o, r, &all, verbose);
     }
     for (node, c) in &sections {
         if node.is_none() && c.total == 0 {
@@ -188,8 +190,9 @@ pub fn text(r: &Report, verbose: bool) -> String {
                 .unwrap_or_default()
         );
         let all: Vec<&CheckResult> = r.results.iter().filter(|x| x.node == *node).collect();
-        results(&mut o, &all, verbose);
+        results(&mut o, r, &all, verbose);
     }
+    stale_entries(&mut o, r);
     if !r.restore.is_empty() {
         let bad = r.unrestored().len();
         let unchanged = r
@@ -237,13 +240,15 @@ pub fn text(r: &Report, verbose: bool) -> String {
 
 /// The results of one section (the whole run, or one node, or the bus): deviations (with
 /// their frames), errors, observations, skips, and the passes (`verbose`) or their count.
-fn results(o: &mut String, list: &[&CheckResult], verbose: bool) {
+fn results(o: &mut String, r: &Report, list: &[&CheckResult], verbose: bool) {
     let pass = list.iter().filter(|c| c.status == Status::Pass).count();
     let section = |o: &mut String, status: Status, heading: &str, exchanges: bool| {
+        // Expected results have a section of their own (with an expectations file, the
+        // deviations listed here are the new ones).
         let all: Vec<&CheckResult> = list
             .iter()
             .copied()
-            .filter(|c| c.status == status)
+            .filter(|c| c.status == status && !r.is_expected(c))
             .collect();
         if all.is_empty() {
             return;
@@ -287,6 +292,15 @@ fn results(o: &mut String, list: &[&CheckResult], verbose: bool) {
                 };
                 let _ = writeln!(o, "      {label:<8} {}", f.text);
             }
+            if let Some(m) = r.expectation(c) {
+                let _ = writeln!(
+                    o,
+                    "      expected {} ({}): {}",
+                    m.expected.key(),
+                    entry_at(r, m.line),
+                    m.reason
+                );
+            }
             if exchanges || verbose {
                 for e in &c.exchanges {
                     exchange(o, c.mode, e);
@@ -294,7 +308,17 @@ fn results(o: &mut String, list: &[&CheckResult], verbose: bool) {
             }
         }
     };
-    section(o, Status::Deviation, "DEVIATIONS", true);
+    section(
+        o,
+        Status::Deviation,
+        if r.expect.is_some() {
+            "NEW DEVIATIONS"
+        } else {
+            "DEVIATIONS"
+        },
+        true,
+    );
+    expected_results(o, r, list);
     section(o, Status::Error, "ERRORS", true);
     section(o, Status::Observation, "OBSERVATIONS", false);
     let skipped: Vec<&CheckResult> = list
@@ -312,6 +336,120 @@ fn results(o: &mut String, list: &[&CheckResult], verbose: bool) {
         section(o, Status::Pass, "PASSED", false);
     } else if pass > 0 {
         let _ = writeln!(o, "\nPASSED ({pass}): --verbose lists them");
+    }
+}
+
+/// With an expectations file: the file, and how the run stands against it.
+fn expect_header(o: &mut String, r: &Report) {
+    let Some(e) = &r.expect else { return };
+    let count = |k: MarkKind| e.marks.values().filter(|m| m.kind == k).count();
+    let stale = e.stale().count();
+    let _ = writeln!(
+        o,
+        "EXPECT:  {}: {} expected, {} new, {} unexpected pass{}{}, {} changed; {} of {} entr{} not applied{}",
+        e.path,
+        count(MarkKind::Expected),
+        r.unexpected_findings().len(),
+        r.unexpected_passes(),
+        if r.unexpected_passes() == 1 { "" } else { "es" },
+        if e.strict { " (strict: they fail the run)" } else { "" },
+        count(MarkKind::Changed),
+        stale,
+        e.entries.len(),
+        if e.entries.len() == 1 { "y" } else { "ies" },
+        if stale > 0 { " (listed below)" } else { "" },
+    );
+}
+
+/// "expect.toml:12".
+fn entry_at(r: &Report, line: usize) -> String {
+    match &r.expect {
+        Some(e) => format!("{}:{line}", e.path),
+        None => format!("line {line}"),
+    }
+}
+
+/// The results an expectations file accepts, and its unexpected passes.
+fn expected_results(o: &mut String, r: &Report, list: &[&CheckResult]) {
+    let marked = |k: MarkKind| -> Vec<(&CheckResult, &crate::expect::Mark)> {
+        list.iter()
+            .filter_map(|c| r.expectation(c).filter(|m| m.kind == k).map(|m| (*c, m)))
+            .filter(|(c, m)| m.kind != MarkKind::Expected || r.is_expected(c))
+            .collect()
+    };
+    let passes = marked(MarkKind::UnexpectedPass);
+    if !passes.is_empty() {
+        let _ = writeln!(o, "\nUNEXPECTED PASSES ({})", passes.len());
+        for (c, m) in passes {
+            let _ = writeln!(
+                o,
+                "  [{}] UNEXPECTED PASS: expected {} ({}): {}{}",
+                c.id,
+                m.expected.key(),
+                entry_at(r, m.line),
+                m.reason,
+                m.ticket
+                    .as_deref()
+                    .map(|t| format!(" [{t}]"))
+                    .unwrap_or_default()
+            );
+        }
+    }
+    let expected = marked(MarkKind::Expected);
+    if !expected.is_empty() {
+        let _ = writeln!(o, "\nEXPECTED ({})", expected.len());
+        for (c, m) in expected {
+            let _ = writeln!(
+                o,
+                "  [{}] {}: {} ({}{})",
+                c.id,
+                c.status,
+                m.reason,
+                entry_at(r, m.line),
+                m.ticket
+                    .as_deref()
+                    .map(|t| format!(", {t}"))
+                    .unwrap_or_default()
+            );
+            let _ = writeln!(o, "      result   {}", c.summary);
+        }
+    }
+}
+
+/// Entries of the expectations file that did not apply: expired, matched nothing, or
+/// for another device.
+fn stale_entries(o: &mut String, r: &Report) {
+    let Some(e) = &r.expect else { return };
+    let stale: Vec<_> = e.stale().collect();
+    if stale.is_empty() {
+        return;
+    }
+    let _ = writeln!(o, "\nEXPECTATIONS NOT APPLIED ({})", stale.len());
+    for x in stale {
+        let why = match x.state {
+            EntryState::Expired => format!(
+                "EXPIRED on {} (today {}): no longer applies",
+                x.entry.expires.map(|d| d.to_string()).unwrap_or_default(),
+                e.today
+            ),
+            EntryState::Unmatched => "matched nothing in this run".to_string(),
+            EntryState::OtherDevice => format!(
+                "for identification {}, not this device's",
+                x.entry
+                    .identification
+                    .map(|v| format!("{v:04X}H"))
+                    .unwrap_or_default()
+            ),
+            EntryState::NotFound => {
+                "UNEXPECTED PASS: a complete campaign did not find it again".to_string()
+            }
+            EntryState::Applied => String::new(),
+        };
+        let _ = writeln!(
+            o,
+            "  {}:{} {} ({}): {why}",
+            e.path, x.entry.line, x.entry.target, x.entry.reason
+        );
     }
 }
 

@@ -17,6 +17,10 @@ pub mod checks;
 pub mod liveness;
 pub mod master;
 pub mod pieces;
+mod setup;
+
+use setup::exception_code;
+pub use setup::SetupError;
 pub(crate) mod run;
 
 use std::collections::BTreeSet;
@@ -631,7 +635,11 @@ impl<'a> Ctx<'a> {
     }
 
     /// Reads `count` registers from `start`; the values, or why not.
-    pub fn read(&mut self, start: u16, count: u16) -> Result<Result<Vec<u16>, String>, RunError> {
+    pub fn read(
+        &mut self,
+        start: u16,
+        count: u16,
+    ) -> Result<Result<Vec<u16>, SetupError>, RunError> {
         self.read_at(self.opts.address, start, count)
     }
 
@@ -641,21 +649,31 @@ impl<'a> Ctx<'a> {
         node: u8,
         start: u16,
         count: u16,
-    ) -> Result<Result<Vec<u16>, String>, RunError> {
+    ) -> Result<Result<Vec<u16>, SetupError>, RunError> {
         let frame = self.frame_to(node, Pdu::ReadRequest { start, count });
         let p = self.probe_at(node, frame, None)?;
+        let text = || format!("reading {count} from {start:04X}H: {}", p.comparison.actual);
         Ok(match p.read_values() {
             Some(v) if v.len() == usize::from(count) => Ok(v),
-            _ => Err(format!(
-                "reading {count} from {start:04X}H: {}",
-                p.comparison.actual
-            )),
+            _ => match exception_code(self.mode, p.exchange.reply.as_ref()) {
+                Some(code) => Err(SetupError::Refused {
+                    text: text(),
+                    code,
+                    documented: !matches!(
+                        p.judgement.expect,
+                        crate::model::Expectation::Exception { .. }
+                            | crate::model::Expectation::Silence(_)
+                    ),
+                    exchange: Some(Box::new(p.record())),
+                }),
+                None => Err(SetupError::NoAnswer(text())),
+            },
         })
     }
 
     /// Reads `register`'s value before a check changes it, once per run, so that the
     /// restore can put it back.
-    pub fn remember(&mut self, register: u16) -> Result<Result<u16, String>, RunError> {
+    pub fn remember(&mut self, register: u16) -> Result<Result<u16, SetupError>, RunError> {
         self.remember_at(self.opts.address, register)
     }
 
@@ -665,7 +683,7 @@ impl<'a> Ctx<'a> {
         &mut self,
         node: u8,
         register: u16,
-    ) -> Result<Result<u16, String>, RunError> {
+    ) -> Result<Result<u16, SetupError>, RunError> {
         if let Some((_, _, v)) = self
             .journal
             .iter()
@@ -677,7 +695,9 @@ impl<'a> Ctx<'a> {
         // liveness probe showed the device alive), it is sent once more.
         let first = self.read_at(node, register, 1)?;
         let read = match first {
-            Err(e) if e.ends_with("no reply") => self.read_at(node, register, 1)?,
+            Err(SetupError::NoAnswer(e)) if e.ends_with("no reply") => {
+                self.read_at(node, register, 1)?
+            }
             other => other,
         };
         Ok(match read {
@@ -691,7 +711,7 @@ impl<'a> Ctx<'a> {
 
     /// The value `register` holds now, journalling it first if no check changed it yet
     /// (so that the restore can put it back).
-    pub fn remember_current(&mut self, register: u16) -> Result<Result<u16, String>, RunError> {
+    pub fn remember_current(&mut self, register: u16) -> Result<Result<u16, SetupError>, RunError> {
         let node = self.opts.address;
         if self
             .journal
@@ -705,7 +725,7 @@ impl<'a> Ctx<'a> {
 
     /// Writes one register and reports whether the device confirmed it (plain, for
     /// set-up and restore).
-    pub fn write(&mut self, register: u16, value: u16) -> Result<Result<(), String>, RunError> {
+    pub fn write(&mut self, register: u16, value: u16) -> Result<Result<(), SetupError>, RunError> {
         self.write_at(self.opts.address, register, value)
     }
 
@@ -715,23 +735,40 @@ impl<'a> Ctx<'a> {
         node: u8,
         register: u16,
         value: u16,
-    ) -> Result<Result<(), String>, RunError> {
+    ) -> Result<Result<(), SetupError>, RunError> {
         let frame = self.frame_to(node, Pdu::WriteSingle { register, value });
         let (ex, _) = self.exchange(&frame, true)?;
         Ok(match &ex.reply {
             Some(r) if *r == frame => Ok(()),
-            Some(r) => Err(format!(
-                "writing {value:04X} to {register:04X}H: {}",
-                judge::describe_reply(self.mode, r)
-            )),
-            None => Err(format!(
+            Some(r) => {
+                let text = format!(
+                    "writing {value:04X} to {register:04X}H: {}",
+                    judge::describe_reply(self.mode, r)
+                );
+                match exception_code(self.mode, Some(r)) {
+                    Some(code) => Err(SetupError::Refused {
+                        text,
+                        code,
+                        documented: !matches!(
+                            self.model.judge(node, self.mode, &frame).expect,
+                            crate::model::Expectation::Exception { .. }
+                                | crate::model::Expectation::Silence(_)
+                        ),
+                        exchange: None,
+                    }),
+                    // A reply that is no echo and no exception: the device answered
+                    // something else; the check's own judgement is not made.
+                    None => Err(SetupError::NoAnswer(text)),
+                }
+            }
+            None => Err(SetupError::NoAnswer(format!(
                 "writing {value:04X} to {register:04X}H: {}",
                 if ex.raw.is_empty() {
                     "no reply".to_string()
                 } else {
                     judge::explain_invalid(self.mode, ex.after_echo())
                 }
-            )),
+            ))),
         })
     }
 

@@ -250,6 +250,17 @@ pub fn pymodbus_serial_server(dir: &Path, mode: &str) -> Option<SerialPeer> {
 /// [`pymodbus_serial_server`] serving the node addresses `nodes` ("1,2"), each with its
 /// own registers.
 pub fn pymodbus_serial_nodes(dir: &Path, mode: &str, nodes: &str) -> Option<SerialPeer> {
+    pymodbus_serial_with(dir, mode, nodes, 65535)
+}
+
+/// [`pymodbus_serial_nodes`] with holding registers 0000H..`registers`-1 only: a generic
+/// device without the registers from `registers` up (reads there get exception 02H).
+pub fn pymodbus_serial_with(
+    dir: &Path,
+    mode: &str,
+    nodes: &str,
+    registers: u32,
+) -> Option<SerialPeer> {
     if !need(Peer::Pymodbus) {
         return None;
     }
@@ -261,6 +272,7 @@ pub fn pymodbus_serial_nodes(dir: &Path, mode: &str, nodes: &str) -> Option<Seri
     let device = Kill::spawn(
         Command::new(python())
             .args([server, a.to_str().unwrap(), mode, "--address", nodes])
+            .args(["--registers", &registers.to_string()])
             .stderr(Stdio::null()),
     );
     let first = nodes.split(',').next().unwrap_or("1");

@@ -6,7 +6,10 @@ The conformance runner checks it as an F510 to show that it completes against a 
 that nobody here wrote, reports that device's deviations from the F510 manual, and
 neither panics nor hangs.
 
-    pymodbus_server.py PORT [rtu|ascii] [--address 1[,2,...]]
+    pymodbus_server.py PORT [rtu|ascii] [--address 1[,2,...]] [--registers N]
+
+--registers N serves only 0000H..N-1 (a generic device without, say, the registers from
+1000H up: every read beyond is refused with exception 02H).
 
 With several addresses it serves one node at each, each with its own registers (several
 drives on one bus, for `check -a 1,2`).
@@ -29,13 +32,14 @@ def main() -> int:
     p.add_argument("port")
     p.add_argument("mode", nargs="?", default="rtu", choices=["rtu", "ascii"])
     p.add_argument("--address", default="1", help="node address, or several: 1,2")
+    p.add_argument("--registers", type=int, default=65535, help="holding registers 0000H..N-1")
     a = p.parse_args()
     logging.basicConfig(level=logging.WARNING, stream=sys.stderr)
     # pymodbus 3.16 numbers data blocks from 1 (protocol address 0 is block address 1)
     # and takes at most 65535 registers: protocol addresses 0000H..FFFEH.
     nodes = [int(n) for n in a.address.split(",")]
     devices = {
-        n: ModbusDeviceContext(hr=ModbusSequentialDataBlock(1, [0] * 65535)) for n in nodes
+        n: ModbusDeviceContext(hr=ModbusSequentialDataBlock(1, [0] * min(a.registers, 65535))) for n in nodes
     }
     context = ModbusServerContext(devices=devices, single=False)
     framer = FramerType.RTU if a.mode == "rtu" else FramerType.ASCII

@@ -30,12 +30,12 @@ pub(super) fn motion(model: &DriveModel, m: &str, out: &mut Vec<Check>) {
                 let mut findings = Vec::new();
                 for r in [Some(op), fc].into_iter().flatten() {
                     if let Err(e) = ctx.remember(r)? {
-                        return Ok(Verdict::error(format!("cannot read {r:04X}H first: {e}")));
+                        return Ok(Verdict::setup_failed(&format!("read {r:04X}H first"), e));
                     }
                 }
                 if let Some(f) = fc {
                     if let Err(e) = ctx.write(f, 1000)? {
-                        return Ok(Verdict::error(e));
+                        return Ok(Verdict::setup_failed(&format!("write 03E8H (10.00 Hz) to {f:04X}H first"), e));
                     }
                 }
                 let w = ctx.probe(ctx.frame(Pdu::WriteSingle { register: op, value: 1 << run }), None)?;
@@ -44,7 +44,7 @@ pub(super) fn motion(model: &DriveModel, m: &str, out: &mut Vec<Check>) {
                 match ctx.read(st, 1)? {
                     Ok(v) if v[0] & (1 << running) != 0 => {}
                     Ok(v) => findings.push(Finding::deviation(format!("after the run command {st:04X}H reads {:04X}H: bit {running} (running) is 0", v[0]))),
-                    Err(e) => findings.push(Finding::deviation(e)),
+                    Err(e) => findings.push(Finding::deviation(e.to_string())),
                 }
                 if let Some(o) = outf {
                     let mut moving = false;
@@ -99,7 +99,7 @@ pub(super) fn motion(model: &DriveModel, m: &str, out: &mut Vec<Check>) {
             move |ctx| {
                 let mut findings = Vec::new();
                 if let Err(e) = ctx.remember(op)? {
-                    return Ok(Verdict::error(format!("cannot read {op:04X}H first: {e}")));
+                    return Ok(Verdict::setup_failed(&format!("read {op:04X}H first"), e));
                 }
                 let w = ctx.probe(ctx.frame(Pdu::WriteSingle { register: op, value: 1 << ef }), None)?;
                 findings.extend(w.comparison.findings.clone());
@@ -107,7 +107,7 @@ pub(super) fn motion(model: &DriveModel, m: &str, out: &mut Vec<Check>) {
                 match ctx.read(st, 1)? {
                     Ok(v) if v[0] & (1 << fault) != 0 => {}
                     Ok(v) => findings.push(Finding::deviation(format!("after the external fault {st:04X}H reads {:04X}H: bit {fault} (fault) is 0", v[0]))),
-                    Err(e) => findings.push(Finding::deviation(e)),
+                    Err(e) => findings.push(Finding::deviation(e.to_string())),
                 }
                 if let (Some(fr), Some((c, fact))) = (fault_reg, &code) {
                     match ctx.read(fr, 1)? {
@@ -122,7 +122,7 @@ pub(super) fn motion(model: &DriveModel, m: &str, out: &mut Vec<Check>) {
                             severity: super::super::Severity::of(fact.basis),
                             text: format!("fault code {fr:04X}H reads {} (model: {c}, {})", v[0], fact.citation()),
                         }),
-                        Err(e) => findings.push(Finding::deviation(e)),
+                        Err(e) => findings.push(Finding::deviation(e.to_string())),
                     }
                 }
                 let r = ctx.probe(ctx.frame(Pdu::WriteSingle { register: op, value: 1 << reset }), None)?;
@@ -132,7 +132,7 @@ pub(super) fn motion(model: &DriveModel, m: &str, out: &mut Vec<Check>) {
                 match ctx.read(st, 1)? {
                     Ok(v) if v[0] & (1 << fault) == 0 => {}
                     Ok(v) => findings.push(Finding::deviation(format!("after the fault reset {st:04X}H reads {:04X}H: bit {fault} (fault) is still 1", v[0]))),
-                    Err(e) => findings.push(Finding::deviation(e)),
+                    Err(e) => findings.push(Finding::deviation(e.to_string())),
                 }
                 Ok(Verdict {
                     findings,

@@ -299,18 +299,37 @@ pub(super) fn addressing(model: &DriveModel, m: &str, out: &mut Vec<Check>) {
                 let mut nodes = Vec::new();
                 let mut origs = Vec::new();
                 let mut unread = Vec::new();
+                // Nodes that refused the read with an exception the manual does not
+                // predict: a deviation of that node (evidence, not "could not tell").
+                let mut refused = Verdict::default();
                 for &n in &ctx.opts.bus.clone() {
                     match ctx.remember_at(n, f)? {
                         Ok(v) => {
                             nodes.push(n);
                             origs.push(v);
                         }
-                        Err(e) if ctx.opts.bus.len() == 1 => return Ok(Verdict::error(format!("cannot read {f:04X}H first: {e}"))),
-                        Err(e) => unread.push(format!("cannot read {f:04X}H of node {n:02X}H first ({e}): the broadcast's effect on it is not judged")),
+                        Err(e) if ctx.opts.bus.len() == 1 => return Ok(Verdict::setup_failed(&format!("read {f:04X}H first"), e)),
+                        Err(e) => {
+                            let what = format!("read {f:04X}H of node {n:02X}H first");
+                            let v = Verdict::setup_failed(&what, e);
+                            match (v.error, v.skip) {
+                                (Some(why), _) | (None, Some(why)) => unread.push(format!("{why}: the broadcast's effect on it is not judged")),
+                                (None, None) => {
+                                    refused.findings.extend(v.findings);
+                                    refused.exchanges.extend(v.exchanges);
+                                }
+                            }
+                        }
                     }
                 }
                 if nodes.is_empty() {
-                    return Ok(Verdict::error(unread.join("; ")));
+                    if unread.is_empty() {
+                        return Ok(refused);
+                    }
+                    return Ok(Verdict {
+                        error: Some(unread.join("; ")),
+                        ..refused
+                    });
                 }
                 let value = if origs.contains(&0x0A0A) { 0x0B0B } else { 0x0A0A };
                 let bc = ctx.probe(ctx.frame_to(0, Pdu::WriteSingle { register: f, value }), None)?;
@@ -331,6 +350,8 @@ pub(super) fn addressing(model: &DriveModel, m: &str, out: &mut Vec<Check>) {
                 };
                 let mut v = verdict(&refs, format!("no reply to the broadcast, and {who}"));
                 v.findings.extend(unread.into_iter().map(Finding::observation));
+                v.findings.extend(refused.findings);
+                v.exchanges.extend(refused.exchanges);
                 Ok(v)
             },
         ));

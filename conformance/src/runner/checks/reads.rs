@@ -337,9 +337,10 @@ pub(super) fn counts(model: &DriveModel, mode: Mode, m: &str, out: &mut Vec<Chec
                         match ctx.read(wstart + at, n)? {
                             Ok(v) => values.extend(v),
                             Err(e) => {
-                                return Ok(Verdict::error(format!(
-                                    "cannot read the values to write back: {e}"
-                                )))
+                                return Ok(Verdict::setup_failed(
+                                    "read the values to write back first",
+                                    e,
+                                ))
                             }
                         }
                         at += n;

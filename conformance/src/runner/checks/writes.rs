@@ -21,7 +21,7 @@ pub(super) fn writes(model: &DriveModel, mode: Mode, m: &str, out: &mut Vec<Chec
             move |ctx| {
                 let orig = match ctx.remember(r)? {
                     Ok(v) => v,
-                    Err(e) => return Ok(Verdict::error(format!("cannot read {r:04X}H first: {e}"))),
+                    Err(e) => return Ok(Verdict::setup_failed(&format!("read {r:04X}H first"), e)),
                 };
                 let w = ctx.probe(ctx.frame(Pdu::WriteSingle { register: r, value: orig }), None)?;
                 let rb = ctx.probe(
@@ -50,7 +50,7 @@ pub(super) fn writes(model: &DriveModel, mode: Mode, m: &str, out: &mut Vec<Chec
             false,
             move |ctx| {
                 if let Err(e) = ctx.remember(f)? {
-                    return Ok(Verdict::error(format!("cannot read {f:04X}H first: {e}")));
+                    return Ok(Verdict::setup_failed(&format!("read {f:04X}H first"), e));
                 }
                 let value = 1234;
                 let w = ctx.probe(ctx.frame(Pdu::WriteSingle { register: f, value }), None)?;
@@ -99,7 +99,7 @@ pub(super) fn writes(model: &DriveModel, mode: Mode, m: &str, out: &mut Vec<Chec
                 false,
                 move |ctx| {
                     if let Err(e) = ctx.remember(f)? {
-                        return Ok(Verdict::error(format!("cannot read {f:04X}H first: {e}")));
+                        return Ok(Verdict::setup_failed(&format!("read {f:04X}H first"), e));
                     }
                     let w = ctx.probe(ctx.frame(Pdu::WriteSingle { register: f, value: max }), None)?;
                     let rb = ctx.probe(
@@ -137,8 +137,13 @@ pub(super) fn writes(model: &DriveModel, mode: Mode, m: &str, out: &mut Vec<Chec
                 true,
                 false,
                 move |ctx| {
-                    let (Ok(a), Ok(b)) = (ctx.remember(hi)?, ctx.remember(lo)?) else {
-                        return Ok(Verdict::error(format!("cannot read {hi:04X}H/{lo:04X}H first")));
+                    let a = match ctx.remember(hi)? {
+                        Ok(v) => v,
+                        Err(e) => return Ok(Verdict::setup_failed(&format!("read {hi:04X}H first"), e)),
+                    };
+                    let b = match ctx.remember(lo)? {
+                        Ok(v) => v,
+                        Err(e) => return Ok(Verdict::setup_failed(&format!("read {lo:04X}H first"), e)),
                     };
                     let bytes = [a.to_be_bytes(), b.to_be_bytes()].concat();
                     let Ok(values) = Registers::new(&bytes) else {
@@ -273,9 +278,10 @@ pub(super) fn refused_write(
             match ctx.remember_current(r)? {
                 Ok(v) => Some(v),
                 Err(e) => {
-                    return Ok(Verdict::error(format!(
-                        "cannot read {r:04X}H first, so a write could not be undone: {e}"
-                    )))
+                    return Ok(Verdict::setup_failed(
+                        &format!("read {r:04X}H first (so that a write could be undone)"),
+                        e,
+                    ))
                 }
             }
         } else {
