@@ -249,6 +249,17 @@ pub fn open(
     config: &SessionConfig,
     mode: Mode,
 ) -> Result<(Option<SimThread>, Box<dyn Transport>), SessionError> {
+    // A Modbus TCP gateway records its TCP stream (MBAP under made-up TCP headers), not
+    // RTU frames.
+    if let (Target::Mbap { addr, unit }, Some(rec)) = (&config.target, &config.capture) {
+        let g = MbapGateway::connect(
+            addr,
+            config.options.timing.timeout.max(Duration::from_secs(2)),
+            UnitMap::new(config.options.address, *unit),
+        )?
+        .with_capture(rec.clone());
+        return Ok((None, Box::new(g)));
+    }
     let (sim, transport) = open_link(config, mode)?;
     let transport: Box<dyn Transport> = match &config.capture {
         Some(rec) => Box::new(crate::transport::capture::Captured::new(

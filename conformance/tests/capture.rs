@@ -949,3 +949,113 @@ fn monitor_capture_in_judges_every_exchange_of_the_check_run_as_check_did() {
         "{errors}"
     );
 }
+
+/// A run through a Modbus TCP gateway records the TCP stream, each MBAP frame in a
+/// segment under made-up Ethernet, IPv4 and TCP headers (server port 502): the capture
+/// holds every request of the report as an MBAP frame in order, and tshark decodes each
+/// as Modbus/TCP with its transaction, unit, function and register, with good checksums.
+#[test]
+fn a_gateway_run_records_its_mbap_frames_as_tcp_that_tshark_decodes_as_modbus_tcp() {
+    let gw = common::GatewaySim::start("f510", 1, &[]);
+    let d = dir();
+    let cap = d.join("mbap.pcapng");
+    let json = d.join("mbap.json");
+    let out = Command::new(common::bin())
+        .args([
+            "check",
+            "--model",
+            "f510",
+            "--tcp",
+            &gw.addr,
+            "--framing",
+            "mbap",
+        ])
+        .args(["--mode", "rtu", "--only", "rtu.map.monitor.*", "--quiet"])
+        .arg("--capture")
+        .arg(&cap)
+        .args(["--format", "json", "-o"])
+        .arg(&json)
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(0), "{stderr}");
+    let report: Value = serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    let frames = frames(&cap);
+    assert!(frames
+        .iter()
+        .all(|f| f.link_type == conformance::capture::tcp::LINKTYPE_ETHERNET));
+    // The handshake, then one segment a write and a read.
+    let flags = |f: &Frame| f.bytes[14 + 20 + 13];
+    assert_eq!(
+        frames[..3].iter().map(flags).collect::<Vec<_>>(),
+        [0x02, 0x12, 0x10]
+    );
+    let ours: Vec<&Frame> = frames[3..]
+        .iter()
+        .filter(|f| f.direction == Some(Direction::Outbound))
+        .collect();
+    // Each request of the report (RTU: address, PDU, CRC) is one MBAP frame sent, in
+    // order: the same PDU, the unit id the node address.
+    let sent: Vec<Vec<u8>> = requests(&report).into_iter().map(|(_, b)| b).collect();
+    assert!(!sent.is_empty());
+    let mbap: Vec<&[u8]> = ours.iter().map(|f| &f.bytes[54..]).collect();
+    assert!(mbap.len() >= sent.len(), "{} < {}", mbap.len(), sent.len());
+    let tail = &mbap[mbap.len() - sent.len()..];
+    for (m, r) in tail.iter().zip(&sent) {
+        assert_eq!(&m[2..4], &[0, 0], "protocol id");
+        assert_eq!(usize::from(u16::from_be_bytes([m[4], m[5]])), m.len() - 6);
+        assert_eq!(m[6], r[0], "unit id = node address");
+        assert_eq!(&m[7..], &r[1..r.len() - 2], "the PDU");
+    }
+    if !need(Peer::Tshark) {
+        return;
+    }
+    let out = Command::new("tshark")
+        .arg("-r")
+        .arg(&cap)
+        .args([
+            "-o",
+            "tcp.check_checksum:TRUE",
+            "-o",
+            "ip.check_checksum:TRUE",
+        ])
+        .args(["-Y", "mbtcp", "-T", "fields", "-E", "separator=/t"])
+        .args([
+            "-e",
+            "tcp.dstport",
+            "-e",
+            "mbtcp.unit_id",
+            "-e",
+            "modbus.func_code",
+        ])
+        .args([
+            "-e",
+            "modbus.reference_num",
+            "-e",
+            "tcp.checksum.status",
+            "-e",
+            "ip.checksum.status",
+        ])
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let rows: Vec<Vec<String>> = String::from_utf8(out.stdout)
+        .unwrap()
+        .lines()
+        .map(|l| l.split('\t').map(str::to_string).collect())
+        .collect();
+    // Every segment carrying data is decoded as Modbus/TCP, with good checksums.
+    assert_eq!(rows.len(), frames.len() - 3, "{rows:?}");
+    assert!(rows.iter().all(|r| r[4] == "1" && r[5] == "1"), "{rows:?}");
+    let queries: Vec<&Vec<String>> = rows.iter().filter(|r| r[0] == "502").collect();
+    let last = &queries[queries.len() - sent.len()..];
+    for (q, r) in last.iter().zip(&sent) {
+        assert_eq!(q[1], r[0].to_string());
+        assert_eq!(q[2], r[1].to_string());
+        assert_eq!(q[3], u16::from_be_bytes([r[2], r[3]]).to_string());
+    }
+}

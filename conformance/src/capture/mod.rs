@@ -23,8 +23,11 @@
 //! once its user DLT table maps 147 to `mbrtu` (what the open serial sniffers do);
 //! ASCII frames under [`LINKTYPE_USER1`] (148), as the characters were sent: Wireshark has
 //! no Modbus ASCII dissector, and a translation to RTU would not be the line's bytes.
+//! Modbus TCP (MBAP) conversations go under Ethernet (1), with made-up Ethernet, IPv4 and
+//! TCP headers around the stream's bytes ([`tcp`]).
 
 pub mod read;
+pub mod tcp;
 pub mod write;
 
 #[cfg(test)]

@@ -114,9 +114,29 @@ pub struct MbapGateway {
     out_pos: usize,
     notes: Vec<String>,
     more_notes: usize,
+    recording: Option<super::capture::TcpRecording>,
 }
 
 impl MbapGateway {
+    /// Records the connection on `recorder` (`--capture`): every MBAP frame written and
+    /// every piece read, as TCP segments under made-up headers, which Wireshark decodes
+    /// as Modbus/TCP.
+    pub fn with_capture(mut self, recorder: super::capture::SharedRecorder) -> Self {
+        let addrs = self
+            .stream
+            .local_addr()
+            .and_then(|l| Ok((l, self.stream.peer_addr()?)));
+        if let Ok((local, peer)) = addrs {
+            self.recording = Some(super::capture::TcpRecording::new(
+                recorder,
+                local,
+                peer,
+                "Modbus TCP gateway",
+            ));
+        }
+        self
+    }
+
     /// Connects to the gateway at `addr` (HOST:PORT), waiting at most `timeout`.
     pub fn connect(addr: &str, timeout: Duration, units: UnitMap) -> Result<Self, TransportError> {
         let stream = super::tcp::connect_stream(addr, timeout)?;
@@ -154,6 +174,7 @@ impl MbapGateway {
             out_pos: 0,
             notes: Vec::new(),
             more_notes: 0,
+            recording: None,
         })
     }
 
@@ -198,6 +219,9 @@ impl MbapGateway {
                 link: self.describe(),
             }),
             Ok(n) => {
+                if let Some(r) = &mut self.recording {
+                    r.received(Instant::now(), &self.rx[self.rx_len..self.rx_len + n]);
+                }
                 self.rx_len += n;
                 Ok(n)
             }
@@ -334,9 +358,13 @@ impl Transport for MbapGateway {
             link: self.describe(),
             source,
         })?;
+        let at = Instant::now();
         self.stream
             .write_all(&out[..n])
             .map_err(|e| self.io_err("write", e))?;
+        if let Some(r) = &mut self.recording {
+            r.sent(at, &out[..n]);
+        }
         self.waiting = Some(Pending {
             transaction,
             unit,
