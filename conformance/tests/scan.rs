@@ -302,3 +302,94 @@ fn mbpoll_against_the_emulated_line() {
     assert!(!o.status.success(), "{text}");
     assert!(!text.contains("0x0110"), "{text}");
 }
+
+/// `scan --capture`: every try is recorded, each setting on an interface of its own whose
+/// description names the mode and the line, under the mode's link type (147 RTU, 148
+/// ASCII), and the reply that found the device is on the setting it answered.
+#[test]
+fn a_scan_capture_records_each_setting_on_its_own_interface() {
+    let (_sim, path) = sim_pty(&[
+        "--model",
+        "e510",
+        "--emulate-line",
+        "--pace",
+        "-b",
+        "19200",
+        "-P",
+        "odd",
+        "-m",
+        "ascii",
+        "-a",
+        "17",
+    ]);
+    let cap = tempfile_dir("scan-capture").join("scan.pcapng");
+    let (code, out, err) = run_bounded(
+        &[
+            "scan",
+            "--port",
+            &path,
+            "-b",
+            "19200",
+            "-P",
+            "odd,even",
+            "--addresses",
+            "16-17",
+            "--reply-window",
+            "150",
+            "--quiet",
+            "--capture",
+            cap.to_str().unwrap(),
+        ],
+        Duration::from_secs(120),
+    );
+    assert_eq!(code, Some(0), "{out}\n{err}");
+    assert!(err.contains("capture: "), "{err}");
+    let data = std::fs::read(&cap).unwrap();
+    let packets: Vec<conformance::capture::Packet<'_>> = conformance::capture::Reader::new(&data)
+        .unwrap()
+        .map(|p| p.unwrap())
+        .collect();
+    // Every request of every try: 2 parities x 2 modes x 2 addresses at most, at least
+    // the 3 settings before the one that answers, and node 17's read in ASCII 8O1.
+    let requests: Vec<&conformance::capture::Packet<'_>> = packets
+        .iter()
+        .filter(|p| p.direction == Some(conformance::capture::Direction::Outbound))
+        .collect();
+    assert!(requests.len() >= 4, "{}", requests.len());
+    for p in &packets {
+        let want = match p.data.first() {
+            Some(b':') => conformance::capture::LINKTYPE_USER1,
+            _ => conformance::capture::LINKTYPE_USER0,
+        };
+        assert_eq!(p.link_type, want, "{:02X?}", p.data);
+    }
+    // The reply: inbound, ASCII, from node 17 ("11"), on an interface other than the
+    // first setting's.
+    let reply = packets
+        .iter()
+        .find(|p| p.direction == Some(conformance::capture::Direction::Inbound))
+        .unwrap_or_else(|| panic!("no reply in the capture"));
+    assert!(reply.data.starts_with(b":1103"), "{:?}", reply.data);
+    assert_ne!(reply.interface, packets[0].interface);
+    // The interfaces are described by their settings, and tshark (where present) shows
+    // the answered one as ASCII 19200 8O1.
+    if !need(Peer::Tshark) {
+        return;
+    }
+    let o = Command::new("tshark")
+        .arg("-r")
+        .arg(&cap)
+        .args(["-T", "fields", "-e", "frame.interface_description"])
+        .output()
+        .unwrap();
+    let descriptions = String::from_utf8_lossy(&o.stdout).into_owned();
+    let of_reply = descriptions
+        .lines()
+        .nth(packets.iter().position(|p| std::ptr::eq(p, reply)).unwrap())
+        .unwrap();
+    assert!(of_reply.starts_with("ascii 19200 8O1"), "{of_reply}");
+    assert!(
+        descriptions.lines().any(|l| l.starts_with("rtu 19200 8E1")),
+        "{descriptions}"
+    );
+}

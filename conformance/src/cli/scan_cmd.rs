@@ -130,6 +130,11 @@ pub struct ScanArgs {
     /// No progress bar.
     #[arg(short, long)]
     quiet: bool,
+    /// Record every try (requests, replies, garbage) in this pcapng file, one interface a
+    /// setting (its mode and line settings in its description); through `--framing mbap`
+    /// the TCP stream, under made-up headers (see the guide's "Captures" page).
+    #[arg(long, value_name = "FILE.pcapng")]
+    capture: Option<PathBuf>,
 }
 
 /// Parses "1-247", "17", "1,2,5-9" into addresses, in order, without repeats.
@@ -210,6 +215,11 @@ pub fn run(args: ScanArgs) -> anyhow::Result<ExitCode> {
     if settings.is_empty() {
         bail!("no setting to try: RTU needs 8 data bits (-d 8)");
     }
+    let capture = args
+        .capture
+        .as_deref()
+        .map(super::link::open_capture)
+        .transpose()?;
     let mut link: Box<dyn ScanLink> = match (&args.port, &args.tcp) {
         (Some(path), None) => {
             let first = settings[0].line;
@@ -221,7 +231,11 @@ pub fn run(args: ScanArgs) -> anyhow::Result<ExitCode> {
                 // time, as on a real port.
                 port = port.paced_peer();
             }
-            Box::new(SerialLink::new(port, path))
+            let link = SerialLink::new(port, path);
+            Box::new(match &capture {
+                Some(rec) => link.recorded(rec.clone()),
+                None => link,
+            })
         }
         (None, Some(addr)) => {
             // The gateway's line is its own: one setting a mode, for the windows.
@@ -242,7 +256,10 @@ pub fn run(args: ScanArgs) -> anyhow::Result<ExitCode> {
                 }
                 settings.retain(|s| s.mode == Mode::Rtu);
                 // Node n is unit n: the map of one node to itself is the identity.
-                let t = MbapGateway::connect(addr, Duration::from_secs(2), UnitMap::new(1, 1))?;
+                let mut t = MbapGateway::connect(addr, Duration::from_secs(2), UnitMap::new(1, 1))?;
+                if let Some(rec) = &capture {
+                    t = t.with_capture(rec.clone());
+                }
                 // The gateway's own description names the one unit of a request; the
                 // sweep's header names every unit id it tries.
                 let described = format!(
@@ -256,7 +273,11 @@ pub fn run(args: ScanArgs) -> anyhow::Result<ExitCode> {
                 Box::new(FixedLink::new(Box::new(t), MBAP_SLACK).described_as(described))
             } else {
                 let t = TcpTransport::connect(addr, Duration::from_secs(2))?;
-                Box::new(FixedLink::new(Box::new(t), Duration::from_millis(20)))
+                let link = FixedLink::new(Box::new(t), Duration::from_millis(20));
+                Box::new(match &capture {
+                    Some(rec) => link.recorded(rec.clone()),
+                    None => link,
+                })
             }
         }
         _ => bail!("say where the line is: --port PATH or --tcp HOST:PORT"),
@@ -294,6 +315,12 @@ pub fn run(args: ScanArgs) -> anyhow::Result<ExitCode> {
     });
     if let Some(b) = &bar {
         b.finish_and_clear();
+    }
+    // The link (and the transport that records) is closed before the capture is
+    // summed up, so that the frames it held are written.
+    drop(link);
+    if let (Some(path), Some(rec)) = (&args.capture, &capture) {
+        super::link::close_capture(path, rec);
     }
     let result = result?;
     let rendered = match args.format {

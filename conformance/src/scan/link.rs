@@ -5,6 +5,8 @@
 use std::time::Duration;
 
 use crate::codec::timing::LineSettings;
+use crate::codec::Mode;
+use crate::transport::capture::{Captured, SharedRecorder};
 use crate::transport::serial::SerialTransport;
 use crate::transport::{LinkKind, Transport, TransportError};
 
@@ -13,6 +15,9 @@ pub trait ScanLink {
     /// Sets the line to `line`, where the link has a line this side controls; a gateway
     /// ignores it (its serial side is set in the gateway).
     fn set_line(&mut self, line: &LineSettings) -> Result<(), TransportError>;
+    /// The setting tried from now on (its line was set by [`ScanLink::set_line`]): a link
+    /// that records (`--capture`) starts a new interface for it.
+    fn setting(&mut self, _mode: crate::codec::Mode, _line: &LineSettings) {}
     /// The transport to send and receive on.
     fn transport(&mut self) -> &mut dyn Transport;
     /// Whether the line settings can be searched from here (false for a gateway: only
@@ -28,9 +33,70 @@ pub trait ScanLink {
 
 /// A serial port (or the slave side of a pseudo-terminal), reconfigured per setting.
 pub struct SerialLink {
-    port: SerialTransport,
+    port: Port<SerialTransport>,
     path: String,
     kind: LinkKind,
+}
+
+/// A link's transport, recorded or not. Recording starts at the first setting, so that
+/// each setting's frames go to an interface described by it.
+enum Port<T: Transport> {
+    Plain(T),
+    ToRecord(T, SharedRecorder),
+    Recorded(Box<Captured<T>>),
+    /// Only while changing from one to the other, inside [`Port::setting`].
+    Moving,
+}
+
+impl<T: Transport + 'static> Port<T> {
+    fn recorded(self, recorder: SharedRecorder) -> Self {
+        match self {
+            Port::Plain(p) => Port::ToRecord(p, recorder),
+            other => other,
+        }
+    }
+
+    fn inner(&mut self) -> Option<&mut T> {
+        match self {
+            Port::Plain(p) | Port::ToRecord(p, _) => Some(p),
+            Port::Recorded(c) => Some(c.inner_mut()),
+            Port::Moving => None,
+        }
+    }
+
+    fn transport(&mut self) -> Option<&mut dyn Transport> {
+        match self {
+            Port::Plain(p) | Port::ToRecord(p, _) => Some(p),
+            Port::Recorded(c) => Some(c.as_mut()),
+            Port::Moving => None,
+        }
+    }
+
+    fn describe(&self) -> String {
+        match self {
+            Port::Plain(p) | Port::ToRecord(p, _) => p.describe(),
+            Port::Recorded(c) => c.describe(),
+            Port::Moving => "scan link".to_string(),
+        }
+    }
+
+    fn setting(&mut self, mode: Mode, line: &LineSettings) {
+        *self = match std::mem::replace(self, Port::Moving) {
+            Port::ToRecord(p, rec) => Port::Recorded(Box::new(Captured::new(p, rec, mode, *line))),
+            Port::Recorded(mut c) => {
+                c.retarget(mode, *line);
+                Port::Recorded(c)
+            }
+            other => other,
+        };
+    }
+}
+
+/// What a moved-out port answers (never seen: the port is moved back at once).
+fn moved() -> TransportError {
+    TransportError::Closed {
+        link: "scan link (moved)".into(),
+    }
 }
 
 impl SerialLink {
@@ -38,23 +104,37 @@ impl SerialLink {
     pub fn new(port: SerialTransport, path: &str) -> Self {
         let kind = port.kind();
         SerialLink {
-            port,
+            port: Port::Plain(port),
             path: path.to_string(),
             kind,
         }
+    }
+
+    /// Records every try on `recorder` (`scan --capture`), one interface a setting.
+    pub fn recorded(mut self, recorder: SharedRecorder) -> Self {
+        self.port = std::mem::replace(&mut self.port, Port::Moving).recorded(recorder);
+        self
     }
 }
 
 impl ScanLink for SerialLink {
     fn set_line(&mut self, line: &LineSettings) -> Result<(), TransportError> {
-        if self.port.line() != *line {
-            self.port.set_line(*line)?;
+        let port = self.port.inner().ok_or_else(moved)?;
+        if port.line() != *line {
+            port.set_line(*line)?;
         }
-        self.port.discard_input()
+        self.transport().discard_input()
+    }
+
+    fn setting(&mut self, mode: Mode, line: &LineSettings) {
+        self.port.setting(mode, line);
     }
 
     fn transport(&mut self) -> &mut dyn Transport {
-        &mut self.port
+        // The port is moved out only inside `Port::setting`, and back before it returns.
+        self.port
+            .transport()
+            .expect("the scan's port is in place between settings")
     }
 
     fn searchable(&self) -> bool {
@@ -77,7 +157,7 @@ impl ScanLink for SerialLink {
 
 /// A link whose line settings are set elsewhere (a TCP gateway).
 pub struct FixedLink {
-    transport: Box<dyn Transport>,
+    transport: Port<Box<dyn Transport>>,
     slack: Duration,
     description: Option<String>,
 }
@@ -86,7 +166,7 @@ impl FixedLink {
     /// Wraps a transport; `slack` is what the network and the gateway may add.
     pub fn new(transport: Box<dyn Transport>, slack: Duration) -> Self {
         FixedLink {
-            transport,
+            transport: Port::Plain(transport),
             slack,
             description: None,
         }
@@ -99,15 +179,31 @@ impl FixedLink {
         self.description = Some(description);
         self
     }
+
+    /// Records the frames of every try on `recorder` (`scan --capture`), one interface a
+    /// setting (a Modbus TCP gateway records its TCP stream itself:
+    /// [`crate::transport::mbap::MbapGateway::with_capture`]).
+    pub fn recorded(mut self, recorder: SharedRecorder) -> Self {
+        self.transport = std::mem::replace(&mut self.transport, Port::Moving).recorded(recorder);
+        self
+    }
 }
 
 impl ScanLink for FixedLink {
     fn set_line(&mut self, _line: &LineSettings) -> Result<(), TransportError> {
-        self.transport.discard_input()
+        self.transport().discard_input()
+    }
+
+    fn setting(&mut self, mode: Mode, line: &LineSettings) {
+        self.transport.setting(mode, line);
     }
 
     fn transport(&mut self) -> &mut dyn Transport {
-        self.transport.as_mut()
+        // The transport is moved out only inside `Port::setting`, and back before it
+        // returns.
+        self.transport
+            .transport()
+            .expect("the scan's transport is in place between settings")
     }
 
     fn searchable(&self) -> bool {

@@ -183,11 +183,14 @@ fn try_one(
     w: &Windows,
     address: u8,
     slack: Duration,
-    current: &mut Option<LineSettings>,
+    current: &mut Option<(LineSettings, crate::codec::Mode)>,
 ) -> Result<Outcome, TransportError> {
-    if *current != Some(setting.line) {
+    if current.map(|c| c.0) != Some(setting.line) {
         link.set_line(&setting.line)?;
-        *current = Some(setting.line);
+    }
+    if *current != Some((setting.line, setting.mode)) {
+        link.setting(setting.mode, &setting.line);
+        *current = Some((setting.line, setting.mode));
     }
     let req = request(setting.mode, address);
     let t = link.transport();
@@ -306,7 +309,7 @@ pub fn scan(
     let mut found: Vec<Found> = Vec::new();
     let mut tries = 0u64;
     let mut stopped = None;
-    let mut current: Option<LineSettings> = None;
+    let mut current: Option<(LineSettings, crate::codec::Mode)> = None;
 
     while let Some((s, a)) = queue.pop_front() {
         if dead[s] || tried[s][usize::from(a)] || locked.is_some_and(|l| l != s) {

@@ -273,6 +273,36 @@ impl<T: Transport> Captured<T> {
         }
     }
 
+    /// The link it records, to change its settings (`scan` sets each line setting in
+    /// turn); call [`Captured::retarget`] after.
+    pub fn inner_mut(&mut self) -> &mut T {
+        &mut self.inner
+    }
+
+    /// The link now carries `mode` frames at `line` (a scan's next setting): what is held
+    /// is written, and the frames from here on go to a new interface described by the
+    /// mode and the line, under the mode's link type.
+    pub fn retarget(&mut self, mode: Mode, line: LineSettings) {
+        self.flush_inbound();
+        let name = self.inner.describe();
+        let iface = Interface {
+            link_type: capture::link_type_of(mode),
+            description: format!("{mode} {line}, {name}"),
+            name,
+        };
+        self.interface = self
+            .recorder
+            .lock()
+            .ok()
+            .and_then(|mut r| r.interface(&iface));
+        self.mode = mode;
+        self.char_time = self
+            .inner
+            .line_timing()
+            .map(|l| Duration::from_micros(l.char_time_us()));
+        self.gap = Duration::from_millis(5).max(Duration::from_micros(line.t3_5_us()));
+    }
+
     /// For a tap that hears both sides of a bus (`monitor`): what it receives is written
     /// without a direction (flags bits 0-1 `00`, "not known"), as a single-direction
     /// sniffer's file is.
