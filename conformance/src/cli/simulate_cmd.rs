@@ -12,7 +12,7 @@ use anyhow::{bail, Context};
 use clap::{Args, ValueEnum};
 use conformance::codec::timing::LineSettings;
 use conformance::codec::Mode;
-use conformance::sim::mbap::{serve_gateway, GatewayConfig, NoReply};
+use conformance::sim::mbap::{serve_gateway_recorded, GatewayConfig, NoReply};
 use conformance::sim::{
     serve, Bus, LogFormat, PlantedQuirk, Responder, SimError, TrafficLog, QUIRK_HELP,
 };
@@ -92,9 +92,11 @@ pub struct SimulateArgs {
     /// it: see docs/src/identify-and-scan.md).
     #[arg(long, requires = "pty")]
     emulate_line: bool,
-    /// With --port or --pty: record every frame received and sent (seen from the drive's
-    /// side: requests inbound, replies outbound) in this pcapng file.
-    #[arg(long, value_name = "FILE.pcapng", conflicts_with = "tcp")]
+    /// Record every frame received and sent (seen from the drive's side: requests
+    /// inbound, replies outbound) in this pcapng file; with --tcp, one interface a client,
+    /// and with --framing mbap each connection's TCP stream under made-up Ethernet/IPv4/TCP
+    /// headers, which Wireshark decodes as Modbus/TCP.
+    #[arg(long, value_name = "FILE.pcapng")]
     capture: Option<PathBuf>,
     /// Serve over TCP at HOST:PORT: RTU or ASCII frames (as a serial server), or Modbus
     /// TCP with --framing mbap (as a Modbus TCP gateway with this drive behind it).
@@ -251,7 +253,10 @@ pub fn run(args: SimulateArgs) -> anyhow::Result<ExitCode> {
                 NoReply::Silence => "silence".to_string(),
             }
         ))?;
-        let stats = serve_gateway(&listener, drive, log, &config, &stop)?;
+        let stats = serve_gateway_recorded(&listener, drive, log, &config, &stop, capture.clone())?;
+        if let (Some(path), Some(rec)) = (&args.capture, &capture) {
+            super::link::close_capture(path, rec);
+        }
         if !args.quiet {
             eprintln!(
                 "# stopped: {} connections ({} refused), {} requests, {} replies, {} gateway exceptions 0BH",
@@ -270,7 +275,15 @@ pub fn run(args: SimulateArgs) -> anyhow::Result<ExitCode> {
                 .map(|a| a.to_string())
                 .unwrap_or_default()
         ))?;
-        serve_tcp(&listener, &mut drive, mode, &mut log, &stop)
+        serve_tcp(
+            &listener,
+            &mut drive,
+            mode,
+            line,
+            capture.as_ref(),
+            &mut log,
+            &stop,
+        )
     } else {
         bail!("say where to serve: --port PATH, --pty or --tcp HOST:PORT");
     };
@@ -367,6 +380,8 @@ fn serve_tcp(
     listener: &std::net::TcpListener,
     drive: &mut dyn Responder,
     mode: Mode,
+    line: LineSettings,
+    capture: Option<&SharedRecorder>,
     log: &mut TrafficLog,
     stop: &AtomicBool,
 ) -> Result<(), SimError> {
@@ -382,7 +397,17 @@ fn serve_tcp(
         stream.set_nonblocking(false)?;
         let mut t = TcpTransport::from_stream(stream)?;
         log.message(&format!("client connected: {}", t.describe()))?;
-        match serve(&mut t, drive, mode, log, stop) {
+        let served = match capture {
+            Some(rec) => serve(
+                &mut Captured::new(t, rec.clone(), mode, line),
+                drive,
+                mode,
+                log,
+                stop,
+            ),
+            None => serve(&mut t, drive, mode, log, stop),
+        };
+        match served {
             Ok(_) => {}
             Err(SimError::Transport(TransportError::Closed { link })) => {
                 log.message(&format!("client went away: {link}"))?;

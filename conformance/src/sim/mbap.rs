@@ -38,6 +38,7 @@ use crate::codec::mbap::{
     frame_status, MbapFrame, MbapRepr, Status, GATEWAY_TARGET_FAILED, MAX_ADU,
 };
 use crate::codec::{Mode, MAX_RTU_FRAME};
+use crate::transport::capture::{SharedRecorder, TcpRecording};
 use crate::transport::sleep_until;
 
 /// What the gateway sends when no reply from the drive crosses its line.
@@ -115,6 +116,20 @@ pub fn serve_gateway(
     config: &GatewayConfig,
     stop: &AtomicBool,
 ) -> Result<GatewayStats, SimError> {
+    serve_gateway_recorded(listener, drive, log, config, stop, None)
+}
+
+/// [`serve_gateway`], recording each connection's TCP stream on `capture` (`simulate
+/// --tcp --framing mbap --capture`): one interface a connection, the MBAP frames under
+/// made-up Ethernet/IPv4/TCP headers.
+pub fn serve_gateway_recorded(
+    listener: &TcpListener,
+    drive: impl Into<Bus>,
+    log: TrafficLog,
+    config: &GatewayConfig,
+    stop: &AtomicBool,
+    capture: Option<SharedRecorder>,
+) -> Result<GatewayStats, SimError> {
     listener.set_nonblocking(true)?;
     let line = Mutex::new(Line {
         drive: drive.into(),
@@ -163,8 +178,17 @@ pub fn serve_gateway(
             drop(l);
             active.fetch_add(1, Ordering::Relaxed);
             let (line, active, halt, failure) = (&line, &active, &halt, &failure);
+            let recording = capture.as_ref().and_then(|rec| {
+                let local = stream.local_addr().ok()?;
+                Some(TcpRecording::serving(
+                    rec.clone(),
+                    local,
+                    peer,
+                    "simulated Modbus TCP gateway",
+                ))
+            });
             scope.spawn(move || {
-                let end = connection(stream, line, config, &|| {
+                let end = connection(stream, recording, line, config, &|| {
                     stop.load(Ordering::Relaxed) || halt.load(Ordering::Relaxed)
                 });
                 let mut l = lock(line);
@@ -193,6 +217,7 @@ pub fn serve_gateway(
 /// Serves one connection until it closes or `done` says to stop.
 fn connection(
     mut stream: TcpStream,
+    mut recording: Option<TcpRecording>,
     line: &Mutex<Line>,
     config: &GatewayConfig,
     done: &dyn Fn() -> bool,
@@ -211,7 +236,7 @@ fn connection(
                 frame[..n].copy_from_slice(&rx[..n]);
                 rx.copy_within(n..len, 0);
                 len -= n;
-                request(&mut stream, &frame[..n], line, config)?;
+                request(&mut stream, &mut recording, &frame[..n], line, config)?;
                 continue;
             }
             Ok(Status::Partial(_)) => {}
@@ -228,7 +253,12 @@ fn connection(
         }
         match stream.read(&mut rx[len..]) {
             Ok(0) => return Ok(()),
-            Ok(n) => len += n,
+            Ok(n) => {
+                if let Some(r) = &mut recording {
+                    r.received(Instant::now(), &rx[len..len + n]);
+                }
+                len += n;
+            }
             Err(e)
                 if matches!(
                     e.kind(),
@@ -243,6 +273,7 @@ fn connection(
 /// One request: on the line, the drive's answer, back to the client.
 fn request(
     stream: &mut TcpStream,
+    recording: &mut Option<TcpRecording>,
     frame: &[u8],
     line: &Mutex<Line>,
     config: &GatewayConfig,
@@ -313,7 +344,11 @@ fn request(
     };
     // The line is busy until the answer is in: other connections wait.
     sleep_until(after);
+    let at = Instant::now();
     stream.write_all(&out[..n]).map_err(End::Gone)?;
+    if let Some(r) = recording {
+        r.sent(at, &out[..n]);
+    }
     if event == "reply" {
         l.stats.replies += 1;
     } else {

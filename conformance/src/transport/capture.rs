@@ -153,6 +153,9 @@ pub struct TcpRecording {
     recorder: SharedRecorder,
     interface: Option<u32>,
     flow: capture::tcp::TcpFlow,
+    /// Whether this side is the connection's client (the suite's master), or its server
+    /// (the simulated gateway).
+    client: bool,
 }
 
 impl TcpRecording {
@@ -165,6 +168,29 @@ impl TcpRecording {
         peer: std::net::SocketAddr,
         what: &str,
     ) -> Self {
+        Self::start(recorder, local, peer, what, true)
+    }
+
+    /// As [`TcpRecording::new`], for the server's side of a connection (the simulated
+    /// gateway): what it sends goes from the server (written with port 502), what it
+    /// receives from the client `peer`.
+    pub fn serving(
+        recorder: SharedRecorder,
+        local: std::net::SocketAddr,
+        peer: std::net::SocketAddr,
+        what: &str,
+    ) -> Self {
+        Self::start(recorder, local, peer, what, false)
+    }
+
+    fn start(
+        recorder: SharedRecorder,
+        local: std::net::SocketAddr,
+        peer: std::net::SocketAddr,
+        what: &str,
+        client: bool,
+    ) -> Self {
+        let (from, to) = if client { (local, peer) } else { (peer, local) };
         let v4 = |a: std::net::SocketAddr| match a.ip() {
             std::net::IpAddr::V4(ip) => ip,
             std::net::IpAddr::V6(_) => std::net::Ipv4Addr::LOCALHOST,
@@ -173,12 +199,12 @@ impl TcpRecording {
             link_type: capture::tcp::LINKTYPE_ETHERNET,
             name: format!("tcp {peer}"),
             description: format!(
-                "{what}: TCP {local} -> {peer}, written with made-up Ethernet/IPv4/TCP headers (server port written as {}; MACs, sequence numbers and handshake made up)",
+                "{what}: TCP {from} -> {to}, written with made-up Ethernet/IPv4/TCP headers (server port written as {}; MACs, sequence numbers and handshake made up)",
                 capture::tcp::MODBUS_TCP_PORT
             ),
         };
         let interface = recorder.lock().ok().and_then(|mut r| r.interface(&iface));
-        let mut flow = capture::tcp::TcpFlow::new((v4(local), local.port()), v4(peer));
+        let mut flow = capture::tcp::TcpFlow::new((v4(from), from.port()), v4(to));
         let now = Instant::now();
         if let (Some(i), Ok(mut r)) = (interface, recorder.lock()) {
             for p in flow.handshake() {
@@ -189,6 +215,7 @@ impl TcpRecording {
             recorder,
             interface,
             flow,
+            client,
         }
     }
 
@@ -206,7 +233,9 @@ impl TcpRecording {
         let Some(i) = self.interface else {
             return;
         };
-        let packet = self.flow.data(outbound, bytes);
+        // The flow counts from the client's side: what this side sends comes from the
+        // client when this side is the client.
+        let packet = self.flow.data(outbound == self.client, bytes);
         let flags = if outbound {
             capture::FLAG_OUTBOUND
         } else {
