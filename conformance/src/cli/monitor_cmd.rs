@@ -469,6 +469,7 @@ fn report(
         budget: Default::default(),
         fuzz: None,
         monitor: Some(summary),
+        master: None,
     };
     finish(
         &report,

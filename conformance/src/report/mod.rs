@@ -154,6 +154,9 @@ pub struct Report {
     pub fuzz: Option<crate::fuzz::report::FuzzSummary>,
     /// For a monitor report: what was heard, per node.
     pub monitor: Option<crate::monitor::MonitorSummary>,
+    /// For a gate report on a master (`gate --master`): its settings and its findings by
+    /// kind.
+    pub master: Option<crate::gate::master::MasterSummary>,
 }
 
 /// Counts per status.
@@ -351,6 +354,7 @@ impl Report {
             "budget": self.budget.iter().map(|(mode, b)| (mode.clone(), budget_json(b))).collect::<serde_json::Map<String, Value>>(),
             "fuzz": self.fuzz.as_ref().map(|f| f.to_json()),
             "monitor": self.monitor.as_ref().map(|m| m.to_json()),
+            "master": self.master.as_ref().map(|m| m.to_json()),
         })
     }
 }

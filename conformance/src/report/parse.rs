@@ -408,6 +408,8 @@ impl Report {
             fuzz: None,
             // Nor the monitor's statistics: its results are.
             monitor: None,
+            // Nor the master gate's summary by kind: its results are.
+            master: None,
         })
     }
 }

@@ -1,0 +1,512 @@
+//! The master gate: `conformance gate --master CMD` runs a Modbus master (a library
+//! behind an adapter, `adapters/PROTOCOL.md`, role "master") against the simulated drive
+//! on a pseudo-terminal pair, under a schedule of faults, and judges every request it
+//! puts on the line and every value it reports.
+//!
+//! - [`protocol`]: the gate's side of the master adapter protocol.
+//! - [`drive`]: the drive's end of the line, which answers as the model says and
+//!   misbehaves as each case says; its read replies carry tags, values no other frame of
+//!   the run carries.
+//! - [`cases`]: the schedule: each operation (read, write-single, write-multiple,
+//!   loop-back, broadcast) paired with each behaviour of the drive, followed by a normal
+//!   read (the recovery).
+//! - [`verdict`]: the judgement of each operation; requests through the monitor's judge
+//!   of a master's request, so that a request gets one verdict whoever heard it.
+//! - [`reference`]: this suite's own master, the test double (`conformance adapter
+//!   --master [--master-quirk Q]`), used in tests only.
+
+pub mod cases;
+pub mod drive;
+pub mod protocol;
+pub mod reference;
+pub mod verdict;
+
+use std::collections::BTreeMap;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+pub use cases::{MasterCase, Plan};
+pub use protocol::{MasterAdapter, MasterSettings, Operation, Reported};
+pub use verdict::MasterFinding;
+
+use crate::codec::hex::Hex;
+use crate::codec::timing::LineSettings;
+use crate::codec::Mode;
+use crate::gate::adapter::CallError;
+use crate::judge::{Finding, Severity};
+use crate::model::DriveModel;
+use crate::monitor::{Monitor, MonitorConfig};
+use crate::runner::{CheckResult, ExchangeRecord, Status};
+use drive::{Behaviour, DriveSide, Sent};
+use verdict::{OpRecord, Role};
+
+/// Options of a master gate run.
+#[derive(Debug, Clone)]
+pub struct MasterOptions {
+    /// The drive's model.
+    pub model: DriveModel,
+    /// The drive's node address.
+    pub node: u8,
+    /// The modes to run.
+    pub modes: Vec<Mode>,
+    /// Only cases whose id matches one of these.
+    pub only: Vec<String>,
+    /// The master's own timeout and retries (asked for in `open`).
+    pub settings: MasterSettings,
+    /// The line settings given to the master (their timing judges t3.5).
+    pub line: LineSettings,
+    /// The command line that reproduces a case, without `--only` (e.g. `conformance
+    /// gate --master 'python3 a.py'`).
+    pub repro: String,
+}
+
+/// Told about each case as it runs.
+pub trait MasterProgress {
+    /// A case is about to run.
+    fn started(&mut self, case: &MasterCase);
+    /// A case ended.
+    fn finished(&mut self, result: &CheckResult);
+}
+
+/// Why a master gate run could not start.
+#[derive(Debug, thiserror::Error)]
+pub enum MasterGateError {
+    /// The pseudo-terminal pair could not be opened.
+    #[error("cannot open a pseudo-terminal pair for the master: {0}")]
+    Line(#[from] crate::transport::TransportError),
+    /// The settings make no sense (a node address out of range).
+    #[error("{0}")]
+    Config(String),
+}
+
+/// The outcome of a run.
+#[derive(Debug, Default)]
+pub struct MasterRun {
+    /// One result per case, in order.
+    pub results: Vec<CheckResult>,
+    /// Per kind of finding: the cases, in order, and the first one's text.
+    pub by_kind: BTreeMap<String, KindSummary>,
+    /// Per mode: the settings the master ran with (as it reported them in `open`).
+    pub settings: BTreeMap<String, MasterSettings>,
+}
+
+/// The cases that had one kind of finding.
+#[derive(Debug, Clone)]
+pub struct KindSummary {
+    /// The worst severity.
+    pub severity: Severity,
+    /// Case ids.
+    pub cases: Vec<String>,
+    /// The first finding's text.
+    pub example: String,
+    /// The one command that reproduces the first case.
+    pub repro: String,
+}
+
+fn mode_key(m: Mode) -> &'static str {
+    match m {
+        Mode::Rtu => "rtu",
+        Mode::Ascii => "ascii",
+    }
+}
+
+/// The cases of a run, selected by `only`.
+pub fn cases(opts: &MasterOptions) -> Vec<MasterCase> {
+    let plan = Plan::of(&opts.model, opts.node);
+    let mut all = cases::cases(&plan, &opts.settings, &opts.line, &opts.modes);
+    all.retain(|c| crate::runner::selected(&c.id, &opts.only));
+    all
+}
+
+/// The reproducer of a case.
+pub fn repro(opts: &MasterOptions, id: &str) -> String {
+    format!("{} --only {id}", opts.repro)
+}
+
+fn result(
+    case: &MasterCase,
+    status: Status,
+    summary: String,
+    findings: Vec<Finding>,
+    exchanges: Vec<ExchangeRecord>,
+    took: Duration,
+) -> CheckResult {
+    CheckResult {
+        id: case.id.clone(),
+        title: case.title.clone(),
+        mode: Some(case.mode),
+        source: case.fault.source.to_string(),
+        status,
+        summary,
+        findings,
+        exchanges,
+        duration: took,
+        node: None,
+    }
+}
+
+/// Runs `cases` through the master; stops before the next case once `stop` is set.
+pub fn run(
+    adapter: &mut MasterAdapter,
+    opts: &MasterOptions,
+    cases: &[MasterCase],
+    stop: &AtomicBool,
+    progress: &mut dyn MasterProgress,
+) -> Result<MasterRun, MasterGateError> {
+    let mut out = MasterRun::default();
+    let model = Arc::new(opts.model.clone());
+    for &mode in &opts.modes {
+        let mine: Vec<&MasterCase> = cases.iter().filter(|c| c.mode == mode).collect();
+        if mine.is_empty() {
+            continue;
+        }
+        if !adapter.speaks(mode) {
+            for case in mine {
+                progress.started(case);
+                let r = result(
+                    case,
+                    Status::Skip,
+                    format!(
+                        "the master does not speak {} (its hello's modes: {:?})",
+                        mode_key(mode),
+                        adapter.hello.modes
+                    ),
+                    vec![],
+                    vec![],
+                    Duration::ZERO,
+                );
+                progress.finished(&r);
+                out.results.push(r);
+            }
+            continue;
+        }
+        let drive = DriveSide::start(model.clone(), opts.node, mode, opts.line)?;
+        let opened = adapter.open(drive.path(), mode, opts.line, opts.settings);
+        let settings = match opened {
+            Ok(s) => s,
+            Err(e) => {
+                for case in mine {
+                    progress.started(case);
+                    let r = result(
+                        case,
+                        Status::Error,
+                        format!("the adapter could not open the line: {e}"),
+                        vec![],
+                        vec![],
+                        Duration::ZERO,
+                    );
+                    progress.finished(&r);
+                    out.results.push(r);
+                }
+                continue;
+            }
+        };
+        out.settings.insert(mode_key(mode).to_string(), settings);
+        let mut monitor_cfg = MonitorConfig {
+            mode,
+            line: opts.line,
+            nodes: vec![opts.node],
+            window: settings.timeout,
+            response_allowance: Duration::from_millis(5),
+            gap_allowance: Duration::from_millis(5),
+        };
+        if monitor_cfg.window.is_zero() {
+            monitor_cfg.window = Duration::from_millis(1);
+        }
+        let monitor = match Monitor::new(opts.model.clone(), monitor_cfg) {
+            Ok(m) => m,
+            Err(e) => return Err(MasterGateError::Config(e.to_string())),
+        };
+        for case in mine {
+            if stop.load(Ordering::Relaxed) {
+                break;
+            }
+            progress.started(case);
+            let r = run_case(adapter, opts, &drive, &monitor, &settings, case);
+            for f in &r.1 {
+                let e = out
+                    .by_kind
+                    .entry(f.kind.clone())
+                    .or_insert_with(|| KindSummary {
+                        severity: f.severity,
+                        cases: Vec::new(),
+                        example: format!("{}: {}", case.id, f.text),
+                        repro: repro(opts, &case.id),
+                    });
+                e.severity = e.severity.max(f.severity);
+                if e.cases.last() != Some(&case.id) {
+                    e.cases.push(case.id.clone());
+                }
+            }
+            progress.finished(&r.0);
+            out.results.push(r.0);
+        }
+        adapter.close();
+    }
+    Ok(out)
+}
+
+/// Runs one case: the operation under the fault, then the recovery read.
+fn run_case(
+    adapter: &mut MasterAdapter,
+    opts: &MasterOptions,
+    drive: &DriveSide,
+    monitor: &Monitor,
+    settings: &MasterSettings,
+    case: &MasterCase,
+) -> (CheckResult, Vec<MasterFinding>) {
+    let t0 = Instant::now();
+    let quiet = drive::apart(&drive.line);
+    if !adapter.supports(case.op.name()) {
+        return (
+            result(
+                case,
+                Status::Skip,
+                format!("the master does not offer {}", case.op.name()),
+                vec![],
+                vec![],
+                t0.elapsed(),
+            ),
+            vec![],
+        );
+    }
+    drive.arm(Behaviour::Normal);
+    drive.settle(quiet);
+    if case.fault.busy {
+        let n = (cases::BUSY_FOR.as_micros() / cases::BUSY_PACE.as_micros().max(1)) as usize;
+        drive.busy(&vec![0xFF; n], cases::BUSY_PACE);
+    }
+    let mark = drive.now();
+    drive.arm(case.fault.behaviour.clone());
+    let call = Instant::now();
+    let first = adapter.operate(&case.op);
+    let took = call.elapsed();
+    let ended = drive.now();
+    if case.fault.behaviour == Behaviour::AfterTimeout {
+        // The master gave up: the reply comes now, stale, before its next request.
+        drive.release_held();
+    }
+    drive.arm(Behaviour::Normal);
+    drive.settle(quiet);
+    let reported = match first {
+        Ok(Some(r)) => r,
+        Ok(None) => {
+            return (
+                result(
+                    case,
+                    Status::Skip,
+                    format!("the adapter answered unsupported for {}", case.op.name()),
+                    vec![],
+                    vec![],
+                    t0.elapsed(),
+                ),
+                vec![],
+            )
+        }
+        Err(e) => {
+            return (
+                result(
+                    case,
+                    Status::Error,
+                    adapter_error(&e),
+                    vec![],
+                    vec![],
+                    t0.elapsed(),
+                ),
+                vec![],
+            )
+        }
+    };
+    let mark2 = drive.now();
+    let call2 = Instant::now();
+    let second = adapter.operate(&case.recovery);
+    let took2 = call2.elapsed();
+    let ended2 = drive.now();
+    drive.settle(quiet);
+    let (log, requests, _) = drive.since(mark.saturating_sub(Duration::from_secs(2)));
+    let sent = drive.all_sent();
+    let in_first: Vec<_> = requests
+        .iter()
+        .filter(|r| r.start >= mark && r.start < mark2)
+        .cloned()
+        .collect();
+    let in_second: Vec<_> = requests
+        .iter()
+        .filter(|r| r.start >= mark2)
+        .cloned()
+        .collect();
+    let rec = OpRecord {
+        op: &case.op,
+        behaviour: &case.fault.behaviour,
+        role: Role::Fault,
+        reported: &reported,
+        took,
+        requests: &in_first,
+        sent: &sent,
+        log: &log,
+        ended,
+    };
+    let mut found = verdict::judge_requests(&rec, monitor, settings);
+    found.extend(verdict::judge_report(&rec, settings));
+    let mut exchanges = records(&in_first, &sent, &case.fault.behaviour, &reported);
+    let mut notes = Vec::new();
+    match second {
+        Ok(Some(reported2)) => {
+            let rec2 = OpRecord {
+                op: &case.recovery,
+                behaviour: &Behaviour::Normal,
+                role: Role::Recovery,
+                reported: &reported2,
+                took: took2,
+                requests: &in_second,
+                sent: &sent,
+                log: &log,
+                ended: ended2,
+            };
+            let mut more = verdict::judge_requests(&rec2, monitor, settings);
+            more.extend(verdict::judge_report(&rec2, settings));
+            for f in &mut more {
+                f.text = format!("in the read after the fault: {}", f.text);
+            }
+            found.extend(more);
+            exchanges.extend(records(&in_second, &sent, &Behaviour::Normal, &reported2));
+        }
+        Ok(None) => notes.push("the recovery read is unsupported".to_string()),
+        Err(e) => notes.push(format!("the recovery read: {}", adapter_error(&e))),
+    }
+    if let Some(e) = drive.error() {
+        notes.push(format!("the drive's line: {e}"));
+    }
+    // One finding of a kind per case is enough (a retry storm is one storm).
+    let mut seen = std::collections::BTreeSet::new();
+    found.retain(|f| seen.insert((f.kind.clone(), f.text.clone())));
+    let mut findings: Vec<Finding> = found
+        .iter()
+        .map(|f| Finding {
+            severity: f.severity,
+            text: format!("{}: {}", f.kind, f.text),
+        })
+        .collect();
+    findings.sort_by(|a, b| b.severity.cmp(&a.severity));
+    if let Some(first) = findings.first_mut() {
+        first
+            .text
+            .push_str(&format!("; reproduce: {}", repro(opts, &case.id)));
+    }
+    let status = match findings.iter().map(|f| f.severity).max() {
+        Some(Severity::Deviation) => Status::Deviation,
+        Some(Severity::Observation) => Status::Observation,
+        None if !notes.is_empty() => Status::Error,
+        None => Status::Pass,
+    };
+    let summary = match findings.first() {
+        Some(f) => f.text.clone(),
+        None if !notes.is_empty() => notes.join("; "),
+        None => format!("the master reported {reported}, as the drive sent"),
+    };
+    (
+        result(case, status, summary, findings, exchanges, t0.elapsed()),
+        found,
+    )
+}
+
+fn adapter_error(e: &CallError) -> String {
+    format!("the adapter failed: {e}")
+}
+
+/// The exchanges of one operation, for the report.
+fn records(
+    requests: &[drive::Request],
+    sent: &[Sent],
+    behaviour: &Behaviour,
+    reported: &Reported,
+) -> Vec<ExchangeRecord> {
+    requests
+        .iter()
+        .map(|r| {
+            let mine: Vec<&Sent> = sent.iter().filter(|s| s.for_seq == r.seq).collect();
+            let received: Vec<u8> = mine.iter().flat_map(|s| s.bytes.clone()).collect();
+            let reply = mine
+                .iter()
+                .find(|s| s.class.valid())
+                .map(|s| s.bytes.clone());
+            let latency = mine
+                .iter()
+                .filter_map(|s| s.at)
+                .min()
+                .map(|t| t.saturating_sub(r.end));
+            ExchangeRecord {
+                request: r.bytes.clone(),
+                expected: None,
+                received,
+                reply,
+                predicted: format!("the drive: {behaviour:?}"),
+                actual: format!(
+                    "the master reported {reported}{}",
+                    if r.valid {
+                        String::new()
+                    } else {
+                        format!(" (its request {} is not a valid frame)", Hex(&r.bytes))
+                    }
+                ),
+                latency,
+            }
+        })
+        .collect()
+}
+
+/// What a master gate report says besides its results: the master's settings and its
+/// findings grouped by kind, each with the command that reproduces its first case.
+#[derive(Debug, Clone, Default)]
+pub struct MasterSummary {
+    /// The modes the master speaks, as its hello says.
+    pub modes: Vec<String>,
+    /// The lines it can open, as its hello says.
+    pub lines: Vec<String>,
+    /// Per mode: the timeout and retries it ran with.
+    pub settings: BTreeMap<String, MasterSettings>,
+    /// Findings by kind.
+    pub kinds: BTreeMap<String, KindSummary>,
+}
+
+impl MasterSummary {
+    /// As the report's JSON `master` object.
+    pub fn to_json(&self) -> serde_json::Value {
+        serde_json::json!({
+            "modes": self.modes,
+            "lines": self.lines,
+            "settings": self.settings.iter().map(|(m, s)| (m.clone(), serde_json::json!({
+                "timeout_ms": s.timeout.as_millis() as u64,
+                "retries": s.retries,
+            }))).collect::<serde_json::Map<String, serde_json::Value>>(),
+            "kinds": self.kinds.iter().map(|(k, v)| serde_json::json!({
+                "kind": k,
+                "severity": match v.severity { Severity::Deviation => "deviation", Severity::Observation => "observation" },
+                "cases": v.cases,
+                "example": v.example,
+                "reproduce": v.repro,
+            })).collect::<Vec<_>>(),
+        })
+    }
+}
+
+/// The summary of a run, with what the adapter's hello (`raw`) says of the master.
+pub fn summary(run: &MasterRun, raw: &serde_json::Value) -> MasterSummary {
+    let list = |k: &str| -> Vec<String> {
+        raw.get(k)
+            .and_then(serde_json::Value::as_array)
+            .map(|a| {
+                a.iter()
+                    .filter_map(|x| x.as_str().map(String::from))
+                    .collect()
+            })
+            .unwrap_or_default()
+    };
+    MasterSummary {
+        modes: list("modes"),
+        lines: list("lines"),
+        settings: run.settings.clone(),
+        kinds: run.by_kind.clone(),
+    }
+}
