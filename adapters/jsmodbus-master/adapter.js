@@ -146,7 +146,7 @@ async function call(fn, onOk) {
     if (e && e.thrownInHandler !== undefined) {
       const t = e.thrownInHandler;
       return { ok: true, result: 'raised', type: t && t.constructor ? t.constructor.name : typeof t,
-        message: `thrown in jsmodbus's data handler: ${String(t && t.message || t) || '(empty message)'} at ${String(t && t.stack || '').split('\n')[1] || '?'}`.trim() };
+        message: `thrown in jsmodbus's data handler: ${t && t.name || 'Error'}(${JSON.stringify(t && t.message !== undefined ? t.message : String(t))}) ${(String(t && t.stack || '').split('\n')[1] || '').trim()}`.trim() };
     }
     return rejected(e);
   } finally {
