@@ -74,6 +74,9 @@ pub struct Chunk {
     /// When: for bytes from the master, when they were read; for bytes to it, just
     /// before they were written (the earliest the master can have had them).
     pub at: Duration,
+    /// For bytes to the master, just after they were written (the latest they can have
+    /// gone out); for bytes from it, `at`.
+    pub done: Duration,
     /// Which way.
     pub dir: Dir,
     /// The bytes.
@@ -384,6 +387,7 @@ impl Server {
             started.get_or_insert(at);
             lock(&self.state).log.push(Chunk {
                 at,
+                done: at,
                 dir: Dir::FromMaster,
                 bytes: buf[..n].to_vec(),
             });
@@ -408,7 +412,7 @@ impl Server {
 
     fn send_due(&mut self) {
         loop {
-            let next = {
+            let (k, next) = {
                 let mut s = lock(&self.state);
                 let now = Instant::now();
                 let Some(k) = (0..s.queue.len())
@@ -423,13 +427,20 @@ impl Server {
                 let bytes = s.sent[i].bytes.clone();
                 s.log.push(Chunk {
                     at,
+                    done: at,
                     dir: Dir::ToMaster,
                     bytes: bytes.clone(),
                 });
-                bytes
+                (s.log.len() - 1, bytes)
             };
-            if let Err(e) = self.pty.send(&next) {
-                lock(&self.state).error = Some(e.to_string());
+            let sent = self.pty.send(&next);
+            let done = self.origin.elapsed();
+            let mut s = lock(&self.state);
+            if let Some(c) = s.log.get_mut(k) {
+                c.done = done;
+            }
+            if let Err(e) = sent {
+                s.error = Some(e.to_string());
             }
         }
     }

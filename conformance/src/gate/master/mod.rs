@@ -218,12 +218,21 @@ pub fn run(
             Ok(m) => m,
             Err(e) => return Err(MasterGateError::Config(e.to_string())),
         };
+        let mut last_called = drive.now();
         for case in mine {
             if stop.load(Ordering::Relaxed) {
                 break;
             }
             progress.started(case);
-            let r = run_case(adapter, opts, &drive, &monitor, &settings, case);
+            let r = run_case(
+                adapter,
+                opts,
+                &drive,
+                &monitor,
+                &settings,
+                case,
+                &mut last_called,
+            );
             for f in &r.1 {
                 let e = out
                     .by_kind
@@ -255,6 +264,7 @@ fn run_case(
     monitor: &Monitor,
     settings: &MasterSettings,
     case: &MasterCase,
+    last_called: &mut Duration,
 ) -> (CheckResult, Vec<MasterFinding>) {
     let t0 = Instant::now();
     let quiet = drive::apart(&drive.line);
@@ -276,13 +286,17 @@ fn run_case(
     if case.fault.busy {
         let n = (cases::BUSY_FOR.as_micros() / cases::BUSY_PACE.as_micros().max(1)) as usize;
         drive.busy(&vec![0xFF; n], cases::BUSY_PACE);
+        // The operation is asked while the drive is well into sending.
+        std::thread::sleep(cases::BUSY_FOR / 5);
     }
+    let recent = *last_called;
     let mark = drive.now();
     drive.arm(case.fault.behaviour.clone());
     let call = Instant::now();
     let first = adapter.operate(&case.op);
     let took = call.elapsed();
     let ended = drive.now();
+    *last_called = mark;
     if case.fault.behaviour == Behaviour::AfterTimeout {
         // The master gave up: the reply comes now, stale, before its next request.
         drive.release_held();
@@ -323,6 +337,7 @@ fn run_case(
     let second = adapter.operate(&case.recovery);
     let took2 = call2.elapsed();
     let ended2 = drive.now();
+    *last_called = mark2;
     drive.settle(quiet);
     let (log, requests, _) = drive.since(mark.saturating_sub(Duration::from_secs(2)));
     let sent = drive.all_sent();
@@ -345,7 +360,9 @@ fn run_case(
         requests: &in_first,
         sent: &sent,
         log: &log,
+        called: mark,
         ended,
+        recent,
     };
     let mut found = verdict::judge_requests(&rec, monitor, settings);
     found.extend(verdict::judge_report(&rec, settings));
@@ -362,7 +379,9 @@ fn run_case(
                 requests: &in_second,
                 sent: &sent,
                 log: &log,
+                called: mark2,
                 ended: ended2,
+                recent: mark,
             };
             let mut more = verdict::judge_requests(&rec2, monitor, settings);
             more.extend(verdict::judge_report(&rec2, settings));

@@ -94,6 +94,16 @@ impl Operation {
         }
     }
 
+    /// The function code on the wire.
+    pub fn function(&self) -> u8 {
+        match self {
+            Operation::Read { .. } => 0x03,
+            Operation::WriteSingle { .. } => 0x06,
+            Operation::WriteMultiple { .. } => 0x10,
+            Operation::LoopBack { .. } => 0x08,
+        }
+    }
+
     /// Whether the master must wait for no reply (a broadcast).
     pub fn broadcast(&self) -> bool {
         matches!(

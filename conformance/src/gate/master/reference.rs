@@ -27,8 +27,9 @@ use crate::transport::{LinkKind, Transport};
 /// A deliberate bug of the test-double master.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Quirk {
-    /// Neither drops old input before a request nor checks that a reply answers it: a
-    /// late reply is taken as the next request's.
+    /// Does not drop old input before a request: a late reply of the right shape that
+    /// waits in its input is taken as the next request's (it still checks the node,
+    /// the function and the byte count).
     TakesStaleReply,
     /// Sends at once, without waiting for t3.5 of silence (also while the drive sends).
     NoT35,
@@ -72,6 +73,8 @@ struct Open {
     line: LineSettings,
     timeout: Duration,
     retries: u32,
+    /// What the takes-stale-reply quirk read while it waited for silence: still its input.
+    kept: Vec<u8>,
 }
 
 enum Outcome {
@@ -263,6 +266,7 @@ impl MasterState {
             line,
             timeout: Duration::from_millis(num("timeout_ms", 1000)),
             retries: num("retries", 0) as u32,
+            kept: Vec::new(),
         });
         Ok(json!({"ok": true}))
     }
@@ -288,8 +292,8 @@ impl MasterState {
             if quirk != Some(Quirk::TakesStaleReply) {
                 let _ = open.port.discard_input();
             }
-            if !matches!(quirk, Some(Quirk::NoT35 | Quirk::TakesStaleReply)) {
-                open.wait_silence();
+            if quirk != Some(Quirk::NoT35) {
+                open.wait_silence(quirk == Some(Quirk::TakesStaleReply));
             }
             open.port.send(&frame).map_err(|e| e.to_string())?;
             if broadcast {
@@ -341,13 +345,14 @@ impl Open {
     }
 
     /// Reads and drops what comes until the line has been silent for t3.5 (at most 2 s).
-    fn wait_silence(&mut self) {
+    fn wait_silence(&mut self, keep: bool) {
         let t35 = self.t(self.line.t3_5_us());
         let deadline = Instant::now() + Duration::from_secs(2);
         let mut buf = [0u8; 512];
         while Instant::now() < deadline {
             match self.port.recv(&mut buf, t35) {
                 Ok(0) | Err(_) => return,
+                Ok(n) if keep => self.kept.extend_from_slice(&buf[..n]),
                 Ok(_) => {}
             }
         }
@@ -368,26 +373,32 @@ impl Open {
         let mut last: Option<Instant> = None;
         let t15 = self.t(self.line.t1_5_us()) + Duration::from_millis(2);
         let mut buf = [0u8; 512];
+        let mut kept = std::mem::take(&mut self.kept);
         loop {
             let left = deadline.saturating_duration_since(Instant::now());
             if left.is_zero() {
                 return Outcome::Failed("timeout", format!("no reply to {} in time", Hex(frame)));
             }
-            let n = match self
-                .port
-                .recv(&mut buf, left.min(Duration::from_millis(20)))
-            {
-                Ok(n) => n,
-                Err(e) => return Outcome::Failed("other", e.to_string()),
+            let n = if kept.is_empty() {
+                match self
+                    .port
+                    .recv(&mut buf, left.min(Duration::from_millis(20)))
+                {
+                    Ok(n) => n,
+                    Err(e) => return Outcome::Failed("other", e.to_string()),
+                }
+            } else {
+                let n = kept.len().min(buf.len());
+                buf[..n].copy_from_slice(&kept[..n]);
+                kept.drain(..n);
+                n
             };
             if n == 0 {
                 continue;
             }
             let now = Instant::now();
             // A silence over t1.5 inside a frame: what came before it is dropped.
-            if last.is_some_and(|l| now.duration_since(l) > t15)
-                && quirk != Some(Quirk::TakesStaleReply)
-            {
+            if last.is_some_and(|l| now.duration_since(l) > t15) {
                 rtu.flush(|_| {});
                 ascii.flush(|_| {});
                 raw.clear();
@@ -408,10 +419,8 @@ impl Open {
                 }),
             }
             for f in frames {
-                if quirk == Some(Quirk::TakesStaleReply) || answers(self.mode, request, &f) {
-                    if from_node(self.mode, request.address, &f) {
-                        return Outcome::Reply(f);
-                    }
+                if answers(self.mode, request, &f) {
+                    return Outcome::Reply(f);
                 }
             }
             if quirk == Some(Quirk::AcceptsBadCrc) {
@@ -421,10 +430,6 @@ impl Open {
             }
         }
     }
-}
-
-fn from_node(mode: Mode, address: u8, frame: &[u8]) -> bool {
-    crate::judge::body_of(mode, frame).is_some_and(|b| b[0] == address)
 }
 
 /// Whether `frame` (valid) answers `request`: its function or its exception, and for a

@@ -74,21 +74,39 @@ pub struct OpRecord<'a> {
     pub sent: &'a [Sent],
     /// The whole line log so far.
     pub log: &'a [Chunk],
+    /// When the call began (the gate asked the adapter).
+    pub called: Duration,
     /// When the call ended (the adapter's answer).
     pub ended: Duration,
+    /// When the master's previous operation began: frames for earlier requests sent
+    /// since are what a master that does not match replies to requests can take.
+    pub recent: Duration,
 }
 
 fn ms(d: Duration) -> f64 {
     d.as_secs_f64() * 1000.0
 }
 
-/// The silence on the line before `at`: since the last bytes either way before it.
-fn silence_before(log: &[Chunk], at: Duration) -> Option<Duration> {
-    log.iter()
-        .filter(|c| c.at < at)
-        .map(|c| c.at)
-        .max()
-        .map(|last| at.saturating_sub(last))
+/// The longest silence the master can have seen on the line at any moment from `from`
+/// (when it can have begun to wait: the operation asked, or its previous request sent)
+/// to `to` (its request read): an upper bound, from each chunk's earliest and latest
+/// time, so that a host that stalls while the drive sends never makes a master that
+/// waited look as if it did not. `None`: nothing before it to be silent after.
+fn longest_silence(log: &[Chunk], from: Duration, to: Duration) -> Option<Duration> {
+    let mut events: Vec<&Chunk> = log.iter().filter(|c| c.at < to).collect();
+    events.sort_by_key(|c| c.at);
+    let last = events.last()?;
+    let mut longest = to.saturating_sub(last.at);
+    for w in events.windows(2) {
+        if w[1].done >= from {
+            longest = longest.max(w[1].done.saturating_sub(w[0].at));
+        }
+    }
+    if events[0].done >= from {
+        // Nothing before the first chunk: the line was silent as long as it likes.
+        return Some(Duration::MAX);
+    }
+    Some(longest)
 }
 
 /// Whether the drive was sending bytes just before `at` (a chunk to the master within
@@ -127,8 +145,10 @@ pub fn judge_requests(
         }
         return out;
     }
+    let mut from = rec.called;
     for r in rec.requests {
-        let silence = silence_before(rec.log, r.start);
+        let silence = longest_silence(rec.log, from, r.start);
+        from = r.end;
         let f = TapFrame {
             bytes: r.bytes.clone(),
             status: if r.valid {
@@ -144,6 +164,22 @@ pub fn judge_requests(
             max_gap: None,
             side: Some(true),
         };
+        // ASCII has no t3.5 (a frame begins with ':'), but a master still must not send
+        // while the drive is sending: less than one character of silence is that.
+        if mode == crate::codec::Mode::Ascii {
+            let char_time = Duration::from_micros(line.char_time_us());
+            if let Some(s) = silence.filter(|s| *s < char_time) {
+                out.push(dev(
+                    "talks-over-drive",
+                    format!(
+                        "request {}: sent while the drive was sending (at most {} us of silence before it, under one character time of {} us); Modbus over Serial Line V1.02, 2.5.2.1 (one device sends at a time)",
+                        Hex(&r.bytes),
+                        s.as_micros(),
+                        char_time.as_micros()
+                    ),
+                ));
+            }
+        }
         for issue in monitor.judge_master_request(&f) {
             if issue.side != Side::Master {
                 continue;
@@ -161,7 +197,6 @@ pub fn judge_requests(
             });
         }
     }
-    let _ = mode;
     // Retries: how many, and how soon. Only requests carrying the operation (another
     // frame of the master is judged above).
     let tries: Vec<&Request> = rec.requests.iter().filter(|r| r.valid).collect();
@@ -252,24 +287,66 @@ pub fn judge_report(rec: &OpRecord<'_>, settings: &MasterSettings) -> Vec<Master
     let mut out = Vec::new();
     let seqs: Vec<u32> = rec.requests.iter().map(|r| r.seq).collect();
     let ours = |s: &Sent| seqs.contains(&s.for_seq);
+    let came_in_time = |s: &Sent| s.at.is_some_and(|t| t <= rec.ended);
     // The valid replies to this operation's requests that came while it waited.
     let valid: Vec<&Sent> = rec
         .sent
         .iter()
-        .filter(|s| ours(s) && s.class == SentClass::Reply && s.at.is_some_and(|t| t <= rec.ended))
+        .filter(|s| ours(s) && s.class == SentClass::Reply && came_in_time(s))
+        .collect();
+    let mine: Vec<&Sent> = rec
+        .sent
+        .iter()
+        .filter(|s| ours(s) && came_in_time(s))
         .collect();
     let split = matches!(rec.behaviour, Behaviour::Split(_)) && rec.role == Role::Fault;
-    let valid_exception = valid.iter().find_map(|s| s.exception);
-    let valid_values: Option<&Sent> = valid.iter().copied().find(|s| s.values.is_some());
-    let failing_kind = match rec.role {
-        Role::Recovery => "no-recovery",
-        Role::Fault => "missed-reply",
+    let valid_exception = valid.iter().find_map(|s| s.exception).filter(|_| !split);
+    let function = rec.op.function();
+    // Valid frames for earlier requests, of this operation's function, that came since
+    // the master's previous operation began: what a master that does not match replies
+    // to requests can have taken.
+    let earlier = |exception: Option<u8>| -> Option<&Sent> {
+        rec.sent.iter().rev().find(|s| {
+            !ours(s)
+                && matches!(
+                    s.class,
+                    SentClass::Reply
+                        | SentClass::Stale
+                        | SentClass::Duplicate
+                        | SentClass::BroadcastReply
+                )
+                && s.at.is_some_and(|t| t > rec.recent && t <= rec.ended)
+                && s.bytes.len() > 1
+                && frame_function(&s.bytes)
+                    == Some(function | if exception.is_some() { 0x80 } else { 0 })
+                && (exception.is_none() || s.exception == exception)
+        })
     };
-    let what_came = |list: &[&Sent]| -> String {
+    let listed = |list: &[&Sent]| -> String {
+        if list.is_empty() {
+            return "nothing".into();
+        }
         list.iter()
             .map(|s| Hex(&s.bytes).to_string())
             .collect::<Vec<_>>()
             .join(" / ")
+    };
+    let stale = |s: &Sent| {
+        dev(
+            "stale-reply-taken",
+            format!(
+                "reported {} for {}: what a frame for an earlier request says ({}, request #{}, which came after its previous operation began); for this operation the drive sent {}",
+                rec.reported,
+                rec.op,
+                Hex(&s.bytes),
+                s.for_seq,
+                listed(&mine)
+            ),
+        )
+    };
+    let failing_kind = match rec.role {
+        Role::Recovery => "no-recovery",
+        Role::Fault => "missed-reply",
     };
     if let Reported::Raised { kind, message } = rec.reported {
         out.push(dev(
@@ -277,11 +354,7 @@ pub fn judge_report(rec: &OpRecord<'_>, settings: &MasterSettings) -> Vec<Master
             format!(
                 "the library raised {kind}: {message} (for {}; the drive sent {})",
                 rec.op,
-                if valid.is_empty() {
-                    "no valid reply".to_string()
-                } else {
-                    what_came(&valid)
-                }
+                listed(&mine)
             ),
         ));
         return out;
@@ -298,44 +371,22 @@ pub fn judge_report(rec: &OpRecord<'_>, settings: &MasterSettings) -> Vec<Master
         }
         return out;
     }
-    if let (Some(code), false) = (valid_exception, split) {
-        match rec.reported {
-            Reported::Exception(c) if *c == code => {}
-            Reported::Exception(c) => out.push(dev(
-                "wrong-exception-code",
-                format!(
-                    "reported exception {c:02X}H where the drive sent {code:02X}H ({})",
-                    what_came(&valid)
-                ),
-            )),
-            Reported::Error { .. } => out.push(dev(
-                "exception-not-recognised",
-                format!(
-                    "reported {} where the drive sent exception {code:02X}H ({})",
-                    rec.reported,
-                    what_came(&valid)
-                ),
-            )),
-            other => out.push(dev(
-                "exception-ignored",
-                format!(
-                    "reported {other} where the drive sent exception {code:02X}H ({}): the exception taken as data",
-                    what_came(&valid)
-                ),
-            )),
-        }
-        return out;
-    }
     match rec.reported {
         Reported::Values(v) => {
-            // A valid reply to this operation first: a copy of it carries the same values.
+            // By the tags: a valid reply to this operation first (a copy of it carries
+            // the same values), then any frame of the run.
             let from = rec
                 .sent
                 .iter()
                 .find(|s| ours(s) && s.class == SentClass::Reply && s.values.as_deref() == Some(v))
                 .or_else(|| source_of(rec.sent, v));
-            match (from, valid_values) {
-                (Some(s), _) if ours(s) && s.class == SentClass::Reply => {
+            let values = v
+                .iter()
+                .map(|x| format!("{x:04X}"))
+                .collect::<Vec<_>>()
+                .join(" ");
+            match from {
+                Some(s) if ours(s) && s.class == SentClass::Reply => {
                     if split {
                         out.push(obs(
                             "accepted-split-reply",
@@ -346,117 +397,128 @@ pub fn judge_report(rec: &OpRecord<'_>, settings: &MasterSettings) -> Vec<Master
                         ));
                     }
                 }
-                (Some(s), _) => {
-                    let (kind, what) = if ours(s) {
-                        class_kind(s.class)
-                    } else if matches!(s.class, SentClass::OtherNode | SentClass::BadChecksum) {
-                        class_kind(s.class)
-                    } else {
-                        ("stale-reply-taken", "a reply to an earlier request")
-                    };
+                Some(s) if !ours(s) && !matches!(s.class, SentClass::OtherNode | SentClass::BadChecksum) => {
+                    out.push(stale(s))
+                }
+                Some(s) => {
+                    let (kind, what) = class_kind(s.class);
                     out.push(dev(
                         kind,
                         format!(
-                            "reported the values {} of {what} ({}, for request #{}) as the answer to {}{}",
-                            v.iter().map(|x| format!("{x:04X}")).collect::<Vec<_>>().join(" "),
+                            "reported the values {values} of {what} ({}, for request #{}) as the answer to {}; for it the drive sent {}",
                             Hex(&s.bytes),
                             s.for_seq,
                             rec.op,
-                            match valid_values {
-                                Some(r) => format!("; its own reply was {}", Hex(&r.bytes)),
-                                None => String::new(),
-                            }
+                            listed(&mine)
                         ),
                     ));
                 }
-                (None, Some(r)) => out.push(dev(
-                    "wrong-values",
+                None if valid_exception.is_some() => out.push(dev(
+                    "exception-ignored",
                     format!(
-                        "reported values {} where the drive sent {}",
-                        v.iter().map(|x| format!("{x:04X}")).collect::<Vec<_>>().join(" "),
-                        Hex(&r.bytes)
+                        "reported values {values} where the drive sent exception {:02X}H ({}): the exception taken as data",
+                        valid_exception.unwrap_or(0),
+                        listed(&valid)
                     ),
                 )),
-                (None, None) => out.push(dev(
+                None => out.push(dev(
                     "wrong-values",
                     format!(
-                        "reported values {} where no valid reply came",
-                        v.iter().map(|x| format!("{x:04X}")).collect::<Vec<_>>().join(" ")
+                        "reported values {values} for {}, which no frame carried; the drive sent {}",
+                        rec.op,
+                        listed(&mine)
                     ),
                 )),
+            }
+        }
+        Reported::Exception(c) => {
+            if valid_exception == Some(*c) {
+                return out;
+            }
+            if let Some(s) = mine.iter().find(|s| {
+                matches!(s.class, SentClass::NoChecksum | SentClass::BadChecksum)
+                    && s.exception == Some(*c)
+            }) {
+                out.push(dev(
+                    "accepted-bad-checksum",
+                    format!(
+                        "reported exception {c:02X}H from a frame with a wrong or missing checksum ({})",
+                        Hex(&s.bytes)
+                    ),
+                ));
+            } else if let Some(s) = earlier(Some(*c)) {
+                out.push(stale(s));
+            } else if let Some(code) = valid_exception {
+                out.push(dev(
+                    "wrong-exception-code",
+                    format!(
+                        "reported exception {c:02X}H where the drive sent {code:02X}H ({})",
+                        listed(&valid)
+                    ),
+                ));
+            } else {
+                out.push(dev(
+                    "invented-exception",
+                    format!(
+                        "reported exception {c:02X}H where the drive sent no valid exception ({})",
+                        listed(&mine)
+                    ),
+                ));
             }
         }
         Reported::Done | Reported::Echo { .. } => {
-            if valid.is_empty() {
-                let came: Vec<&Sent> = rec.sent.iter().filter(|s| ours(s)).collect();
-                let (kind, what) = came
+            let normal = valid.iter().any(|s| s.exception.is_none()) && !split;
+            if normal {
+                if let (Reported::Echo { data, .. }, Operation::LoopBack { data: asked, .. }) =
+                    (rec.reported, rec.op)
+                {
+                    if data != asked {
+                        out.push(dev(
+                            "wrong-values",
+                            format!("a loop-back echoed {} for {}", Hex(data), Hex(asked)),
+                        ));
+                    }
+                }
+            } else if let Some(s) = earlier(None) {
+                out.push(stale(s));
+            } else if let Some(code) = valid_exception {
+                out.push(dev(
+                    "exception-ignored",
+                    format!(
+                        "reported {} where the drive sent exception {code:02X}H ({}): the exception taken as success",
+                        rec.reported,
+                        listed(&valid)
+                    ),
+                ));
+            } else {
+                let (kind, what) = mine
                     .iter()
-                    .find(|s| s.class != SentClass::Garbage)
+                    .find(|s| !matches!(s.class, SentClass::Garbage | SentClass::Reply))
                     .map_or(("success-without-reply", "nothing valid"), |s| {
                         class_kind(s.class)
                     });
-                let kind = if kind == "stale-reply-taken" && rec.role == Role::Fault {
-                    // A reply to this very operation, sent after it ended: the master did
-                    // not wait for it.
-                    "success-without-reply"
-                } else {
-                    kind
-                };
                 out.push(dev(
                     kind,
                     format!(
-                        "reported {} for {} where the drive sent {what}{}",
+                        "reported {} for {} where the drive sent {what} ({})",
                         rec.reported,
                         rec.op,
-                        if came.is_empty() {
-                            String::new()
-                        } else {
-                            format!(" ({})", what_came(&came))
-                        }
+                        listed(&mine)
                     ),
                 ));
-            } else if let (Reported::Echo { data, .. }, Operation::LoopBack { data: asked, .. }) =
-                (rec.reported, rec.op)
-            {
-                if data != asked {
-                    out.push(dev(
-                        "wrong-values",
-                        format!("a loop-back echoed {} for {}", Hex(data), Hex(asked)),
-                    ));
-                }
             }
         }
-        Reported::Exception(c)
-            if rec.sent.iter().any(|s| {
-                ours(s)
-                    && matches!(s.class, SentClass::NoChecksum | SentClass::BadChecksum)
-                    && s.exception == Some(*c)
-            }) =>
-        {
-            out.push(dev(
-                "accepted-bad-checksum",
-                format!(
-                    "reported exception {c:02X}H from a frame with a wrong or missing checksum ({})",
-                    what_came(&rec.sent.iter().filter(|s| ours(s)).collect::<Vec<_>>())
-                ),
-            ))
-        }
-        Reported::Exception(c) => out.push(dev(
-            "invented-exception",
-            format!(
-                "reported exception {c:02X}H where the drive sent no valid exception{}",
-                {
-                    let came: Vec<&Sent> = rec.sent.iter().filter(|s| ours(s)).collect();
-                    if came.is_empty() {
-                        String::new()
-                    } else {
-                        format!(" (it sent {})", what_came(&came))
-                    }
-                }
-            ),
-        )),
         Reported::Error { .. } => {
-            if !valid.is_empty() && !split {
+            if let (Some(code), false) = (valid_exception, split) {
+                out.push(dev(
+                    "exception-not-recognised",
+                    format!(
+                        "reported {} where the drive sent exception {code:02X}H ({})",
+                        rec.reported,
+                        listed(&valid)
+                    ),
+                ));
+            } else if !valid.is_empty() && !split {
                 let late = matches!(rec.behaviour, Behaviour::Late(_)) && rec.role == Role::Fault;
                 let garbage = matches!(
                     rec.behaviour,
@@ -474,7 +536,7 @@ pub fn judge_report(rec: &OpRecord<'_>, settings: &MasterSettings) -> Vec<Master
                     rec.reported,
                     rec.op,
                     ms(when),
-                    what_came(&valid),
+                    listed(&valid),
                     settings.timeout.as_millis()
                 );
                 if late {
@@ -489,4 +551,14 @@ pub fn judge_report(rec: &OpRecord<'_>, settings: &MasterSettings) -> Vec<Master
         Reported::Raised { .. } => {}
     }
     out
+}
+
+/// The function byte of an RTU or ASCII frame.
+fn frame_function(bytes: &[u8]) -> Option<u8> {
+    if bytes.first() == Some(&b':') {
+        let hex = std::str::from_utf8(bytes.get(3..5)?).ok()?;
+        u8::from_str_radix(hex, 16).ok()
+    } else {
+        bytes.get(1).copied()
+    }
 }
