@@ -96,9 +96,6 @@ function client(unit) {
 
 async function open(req) {
   closeLine();
-  if ((req.retries || 0) > 0) {
-    return { ok: false, error: 'unsupported: retries', detail: 'jsmodbus sends every request once', retries: 0 };
-  }
   if ((req.mode || 'rtu') !== 'rtu') return { ok: false, error: 'unsupported', detail: 'jsmodbus has no ASCII' };
   const l = req.line || {};
   const timeout = req.timeout_ms || 5000;
@@ -107,6 +104,7 @@ async function open(req) {
   else if (l.kind === 'tcp-rtu' || l.kind === 'mbap') opened = await tcpSocket(l.host, l.port);
   else return { ok: false, error: 'unsupported', detail: `line ${l.kind}` };
   line = { ...opened, kind: l.kind, timeout };
+  // jsmodbus has no retries: it runs with 0, whatever was asked.
   return { ok: true, timeout_ms: timeout, retries: 0 };
 }
 

@@ -6,7 +6,7 @@ reports their return value and errno; no frame is built or parsed here.
 * open (pty): ``modbus_new_rtu(path, baud, parity, data_bits, stop_bits)``,
   ``modbus_set_response_timeout(ctx, timeout_ms)``, ``modbus_connect``; (mbap):
   ``modbus_new_tcp(host, port)``. libmodbus has no ASCII and no RTU over TCP, and no
-  retries of its own: an open with ``retries`` > 0 is answered ``unsupported: retries``.
+  retries of its own: ``open`` answers ``retries: 0`` whatever was asked.
   The byte timeout is libmodbus's default (500 ms) unless LIBMODBUS_MASTER_BYTE_TIMEOUT_MS
   is set; the error recovery mode is libmodbus's default (none) unless
   LIBMODBUS_MASTER_RECOVERY=protocol.
@@ -87,9 +87,6 @@ def close_ctx() -> None:
 def op_open(req: dict) -> dict:
     global ctx
     close_ctx()
-    if int(req.get("retries", 0)) > 0:
-        return {"ok": False, "error": "unsupported: retries",
-                "detail": "libmodbus sends every request once", "retries": 0}
     line = req.get("line") or {}
     mode = req.get("mode", "rtu")
     if mode != "rtu":
@@ -118,6 +115,7 @@ def op_open(req: dict) -> dict:
         lib.modbus_free(c)
         return {"ok": False, "error": f"modbus_connect: {lib.modbus_strerror(err).decode()}"}
     ctx = c
+    # libmodbus has no retries: it runs with 0, whatever was asked.
     return {"ok": True, "timeout_ms": ms, "retries": 0}
 
 

@@ -10,7 +10,7 @@
 //! bounded by the master's `timeout_ms` for the whole reply. ASCII: `generate_ascii_frame`
 //! on the way out, bytes up to LF and `parse_ascii_frame` on the way in. Like the example,
 //! the adapter does not clear the input before a request and does not retry (an `open`
-//! with `retries` > 0 is answered `unsupported: retries`). Set
+//! answers `retries: 0` whatever was asked). Set
 //! `RMODBUS_MASTER_CLEAR_INPUT=1` to clear the port's input before each request.
 
 use std::io::{BufRead, Read, Write};
@@ -212,10 +212,6 @@ fn int(v: &Value, key: &str) -> Result<u64, String> {
 }
 
 fn open(req: &Value) -> Result<(Master, Value), Value> {
-    if int(req, "retries").unwrap_or(0) > 0 {
-        return Err(json!({"ok": false, "error": "unsupported: retries",
-                          "detail": "rmodbus has no retries (the example sends once)", "retries": 0}));
-    }
     let proto = match req.get("mode").and_then(Value::as_str).unwrap_or("rtu") {
         "rtu" => ModbusProto::Rtu,
         "ascii" => ModbusProto::Ascii,
@@ -265,6 +261,7 @@ fn open(req: &Value) -> Result<(Master, Value), Value> {
     let clear_input = std::env::var_os("RMODBUS_MASTER_CLEAR_INPUT").is_some();
     Ok((
         Master { line, proto, timeout, clear_input },
+        // No retries (the example sends once): 0, whatever was asked.
         json!({"ok": true, "timeout_ms": timeout.as_millis() as u64, "retries": 0}),
     ))
 }
