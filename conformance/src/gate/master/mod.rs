@@ -366,7 +366,7 @@ fn run_case(
     };
     let mut found = verdict::judge_requests(&rec, monitor, settings);
     found.extend(verdict::judge_report(&rec, settings));
-    let mut exchanges = records(&in_first, &sent, &case.fault.behaviour, &reported);
+    let mut exchanges = records(&in_first, &sent, &case.fault.title, &reported);
     let mut notes = Vec::new();
     match second {
         Ok(Some(reported2)) => {
@@ -389,7 +389,12 @@ fn run_case(
                 f.text = format!("in the read after the fault: {}", f.text);
             }
             found.extend(more);
-            exchanges.extend(records(&in_second, &sent, &Behaviour::Normal, &reported2));
+            exchanges.extend(records(
+                &in_second,
+                &sent,
+                "a normal reply (the read after the fault)",
+                &reported2,
+            ));
         }
         Ok(None) => notes.push("the recovery read is unsupported".to_string()),
         Err(e) => notes.push(format!("the recovery read: {}", adapter_error(&e))),
@@ -438,7 +443,7 @@ fn adapter_error(e: &CallError) -> String {
 fn records(
     requests: &[drive::Request],
     sent: &[Sent],
-    behaviour: &Behaviour,
+    behaviour: &str,
     reported: &Reported,
 ) -> Vec<ExchangeRecord> {
     requests
@@ -460,7 +465,7 @@ fn records(
                 expected: None,
                 received,
                 reply,
-                predicted: format!("the drive: {behaviour:?}"),
+                predicted: format!("the drive: {behaviour}"),
                 actual: format!(
                     "the master reported {reported}{}",
                     if r.valid {
@@ -507,6 +512,35 @@ impl MasterSummary {
                 "reproduce": v.repro,
             })).collect::<Vec<_>>(),
         })
+    }
+}
+
+impl MasterSummary {
+    /// The summary in the text report: the settings, then each kind of finding with its
+    /// cases and the command that reproduces the first.
+    pub fn text_lines(&self) -> Vec<String> {
+        let mut out = Vec::new();
+        for (mode, s) in &self.settings {
+            out.push(format!(
+                "master:  {mode}: its timeout {} ms, {} retries",
+                s.timeout.as_millis(),
+                s.retries
+            ));
+        }
+        for (kind, k) in &self.kinds {
+            let sev = match k.severity {
+                Severity::Deviation => "deviation",
+                Severity::Observation => "observation",
+            };
+            out.push(format!(
+                "found:   {kind} ({sev}) in {} case{}: {}",
+                k.cases.len(),
+                if k.cases.len() == 1 { "" } else { "s" },
+                k.cases.join(" ")
+            ));
+            out.push(format!("         reproduce: {}", k.repro));
+        }
+        out
     }
 }
 
