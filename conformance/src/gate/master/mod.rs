@@ -305,6 +305,12 @@ fn run_case(
     drive.settle(quiet);
     let reported = match first {
         Ok(Some(r)) => r,
+        // The adapter died while the call was in the library: the call crashed
+        // (adapters/PROTOCOL.md, "Timeouts and crashes"); the gate restarted it.
+        Err(CallError::Crashed(why)) => Reported::Raised {
+            kind: "crash".into(),
+            message: format!("the adapter exited during the call ({why})"),
+        },
         Ok(None) => {
             return (
                 result(
