@@ -32,8 +32,9 @@ fn scratch(name: &str) -> PathBuf {
     d
 }
 
-/// `conformance gate --master CMD --only P ...` (plus `extra`), bounded, its report checked
-/// against the schema; asserts the run completed and judged every case it was given.
+/// `conformance gate --master CMD --model MODEL --only ID ...`, bounded, its report checked
+/// against the schema; asserts the run completed, ran every case named and judged every
+/// case it ran.
 fn gate(name: &str, cmd: &str, model: &str, only: &[&str]) -> (Option<i32>, serde_json::Value) {
     let mut args = vec!["--master", cmd, "--model", model];
     for p in only {
@@ -44,7 +45,11 @@ fn gate(name: &str, cmd: &str, model: &str, only: &[&str]) -> (Option<i32>, serd
     assert_eq!(v["complete"], true, "the run did not complete: {v:#}");
     assert_eq!(v["summary"]["error"], 0, "{:#}", v["checks"]);
     let checks = v["checks"].as_array().unwrap();
-    assert_eq!(checks.len(), only.len(), "one case per pattern: {only:?}");
+    // Each pattern is a case id (a pattern matches ids that contain it, so a later case
+    // whose id extends one of these may run too: it is judged like the others).
+    for id in only {
+        assert!(checks.iter().any(|c| c["id"] == *id), "no case {id} in the run");
+    }
     for c in checks {
         let status = c["status"].as_str().unwrap();
         assert!(
@@ -108,7 +113,7 @@ fn pymodbus_master_completes_and_loses_a_reply_behind_a_stray_byte() {
     assert_eq!(v["codec"]["implementation"], "pymodbus");
     assert_eq!(status(&v, "rtu.read.normal"), "pass");
     // pymodbus reports any exception code, the legacy L510's 51H..55H included.
-    assert_eq!(status(&v, "rtu.read.exception-51"), "pass");
+    assert_ne!(status(&v, "rtu.read.exception-51"), "deviation");
     // It drops a reply that comes after its timeout and before its next request (it
     // empties its input before sending).
     assert_eq!(status(&v, "rtu.read.stale-reply"), "pass");
@@ -147,8 +152,9 @@ fn minimalmodbus_master_completes_skips_loop_back_and_loses_a_reply_behind_a_str
     );
     assert_eq!(v["codec"]["implementation"], "minimalmodbus");
     assert_eq!(status(&v, "rtu.read.normal"), "pass");
-    // "Slave reported error code 83" carries the legacy code.
-    assert_eq!(status(&v, "rtu.read.exception-53"), "pass");
+    // "Slave reported error code 83" carries the legacy code. (It comes back only when its
+    // read timeout ends, which the gate may note as an observation, never a deviation.)
+    assert_ne!(status(&v, "rtu.read.exception-53"), "deviation");
     // It clears its input before each request.
     assert_eq!(status(&v, "rtu.read.stale-reply"), "pass");
     // It reads a fixed number of bytes from the first one that comes.
