@@ -80,8 +80,11 @@ impl Plan {
             .iter()
             .map(|(r, _)| *r)
             .find(|r| {
-                matches!(judge(&frame(mode, node, Pdu::ReadRequest { start: *r, count: 2 })),
-                    Expectation::Read(p) if p.registers.len() == 2)
+                // Two registers, and three for the read after a stale reply in flight.
+                [2u16, 3].iter().all(|n| {
+                    matches!(judge(&frame(mode, node, Pdu::ReadRequest { start: *r, count: *n })),
+                        Expectation::Read(p) if p.registers.len() == usize::from(*n))
+                })
             })
             .unwrap_or(0x2520);
         let value_of = |r: u16| {
@@ -225,6 +228,12 @@ pub fn faults(
         "pymodbus #2636, Home Assistant core #138077, eModbus #74, pymodbus #375",
     ));
     out.push(f(
+        "stale-in-flight",
+        "the reply only when the master's next request (a read of 3 registers) has come, just before that one's own reply (the stale reply in flight)",
+        Behaviour::InFlight,
+        "pymodbus #2636, Home Assistant core #138077, eModbus #74",
+    ));
+    out.push(f(
         "bad-checksum",
         "a reply with a wrong CRC or LRC",
         Behaviour::BadChecksum,
@@ -250,6 +259,12 @@ pub fn faults(
         "a reply late but inside the master's timeout",
         Behaviour::Late(settings.timeout / 2),
         "Modbus over Serial Line V1.02, 2.4.1",
+    ));
+    out.push(f(
+        "wrong-function",
+        "a 06H echo in place of the read's reply (a reply of another function)",
+        Behaviour::WrongFunction,
+        "Modbus Application Protocol V1.1b3, 6.3 (a reply answers the request's function)",
     ));
     out.push(f(
         "truncated",
@@ -359,13 +374,24 @@ pub fn cases(
     for &mode in modes {
         for (name, op) in &ops {
             for fault in faults(plan, settings, line, *name == "read") {
+                // In flight, the stale reply has another shape than the reply due (a
+                // read of 3 registers, not 2): a master that matches a reply to its
+                // request can tell them apart.
+                let recovery = match (&fault.behaviour, plan.read_op()) {
+                    (Behaviour::InFlight, Operation::Read { unit, start, .. }) => Operation::Read {
+                        unit,
+                        start,
+                        count: plan.read.1 + 1,
+                    },
+                    (_, read) => read,
+                };
                 out.push(MasterCase {
                     id: format!("{}.{name}.{}", mode_key(mode), fault.key),
                     title: format!("{op}: {}", fault.title),
                     mode,
                     op: op.clone(),
                     fault,
-                    recovery: plan.read_op(),
+                    recovery,
                 });
             }
         }

@@ -37,6 +37,11 @@ pub enum Behaviour {
     /// The normal reply held back until the gate releases it, after the master gave up
     /// (the stale reply).
     AfterTimeout,
+    /// The normal reply held back until the master's next request arrives, then sent at
+    /// once, before that request's own reply (the stale reply in flight).
+    InFlight,
+    /// A read answered with a 06H echo (a reply of another function).
+    WrongFunction,
     /// Nothing.
     NoReply,
     /// The reply cut short.
@@ -104,6 +109,8 @@ pub enum SentClass {
     Duplicate,
     /// A reply to a broadcast.
     BroadcastReply,
+    /// A valid frame of another function than the request's.
+    WrongFunction,
 }
 
 impl SentClass {
@@ -157,6 +164,8 @@ struct State {
     queue: Vec<(Instant, usize)>,
     /// Indices in `sent` held back (the stale reply).
     held: Vec<usize>,
+    /// Indices in `sent` held back until the next request (the stale reply in flight).
+    in_flight: Vec<usize>,
     seq: u32,
     frames: u32,
     error: Option<String>,
@@ -241,6 +250,13 @@ impl DriveSide {
     /// What the drive does with the requests from now on.
     pub fn arm(&self, b: Behaviour) {
         lock(&self.state).behaviour = Some(b);
+    }
+
+    /// Forgets replies still held back (a case that ended before they went out).
+    pub fn drop_held(&self) {
+        let mut s = lock(&self.state);
+        s.held.clear();
+        s.in_flight.clear();
     }
 
     /// Sends the replies held back (the stale replies) now.
@@ -466,6 +482,21 @@ impl Server {
         if address != self.node && !broadcast {
             return;
         }
+        // A reply held for the next request goes out now, and this request's own reply
+        // a silence after it.
+        let flight = std::mem::take(&mut s.in_flight);
+        let base = if flight.is_empty() {
+            Duration::ZERO
+        } else {
+            apart(&self.line)
+        };
+        {
+            let now = Instant::now();
+            for i in flight {
+                s.sent[i].class = SentClass::Stale;
+                s.queue.push((now, i));
+            }
+        }
         let as_addressed = if broadcast {
             if behaviour != Behaviour::ReplyToBroadcast {
                 // The drive acts on a broadcast write and says nothing.
@@ -575,7 +606,7 @@ impl Server {
                 },
                 at: None,
             });
-            s.queue.push((now + after, i));
+            s.queue.push((now + base + after, i));
             i
         };
         match behaviour {
@@ -589,6 +620,30 @@ impl Server {
                 let i = push(&mut s, Duration::ZERO, frame, class);
                 s.queue.retain(|(_, k)| *k != i);
                 s.held.push(i);
+            }
+            // An exception in flight is no test: it carries nothing that tells it from
+            // the next request's (no count, no values); it goes out at once.
+            Behaviour::InFlight if exception.is_some() => {
+                push(&mut s, Duration::ZERO, frame, class);
+            }
+            Behaviour::InFlight => {
+                let i = push(&mut s, Duration::ZERO, frame, class);
+                s.queue.retain(|(_, k)| *k != i);
+                s.in_flight.push(i);
+            }
+            Behaviour::WrongFunction => {
+                // The echo of a write of the first tag to the first register read.
+                let (register, value) = match request.pdu {
+                    Pdu::ReadRequest { start, .. } => (start, tags(frame_no, 1)[0]),
+                    _ => (0, 0),
+                };
+                let echo = Message {
+                    address: self.node,
+                    pdu: Pdu::WriteSingle { register, value },
+                };
+                if let Ok(f) = echo.to_frame_vec(self.mode) {
+                    push(&mut s, Duration::ZERO, f, SentClass::WrongFunction);
+                }
             }
             Behaviour::NoReply => {}
             Behaviour::Truncated => {

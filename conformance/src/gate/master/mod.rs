@@ -281,6 +281,7 @@ fn run_case(
             vec![],
         );
     }
+    drive.drop_held();
     drive.arm(Behaviour::Normal);
     drive.settle(quiet);
     if case.fault.busy {
@@ -404,6 +405,27 @@ fn run_case(
         }
         Ok(None) => notes.push("the recovery read is unsupported".to_string()),
         Err(e) => notes.push(format!("the recovery read: {}", adapter_error(&e))),
+    }
+    // After a broadcast the master waits the turnaround delay before its next request
+    // (the drives are still acting on it): the monitor's rule, an observation (the TECO
+    // manuals give no delay).
+    if let (true, Some(b), Some(n)) = (
+        case.op.broadcast(),
+        in_first.iter().rev().find(|r| r.valid),
+        in_second.first(),
+    ) {
+        let gap = n.start.saturating_sub(b.end);
+        if gap < crate::monitor::BROADCAST_TURNAROUND {
+            found.push(MasterFinding {
+                kind: "broadcast-turnaround".into(),
+                severity: Severity::Observation,
+                text: format!(
+                    "its next request began {:.1} ms after the broadcast, under the turnaround delay of {} ms; Modbus over Serial Line V1.02, 2.4.1 (typically 100 to 200 ms; the TECO manuals give none)",
+                    gap.as_secs_f64() * 1000.0,
+                    crate::monitor::BROADCAST_TURNAROUND.as_millis()
+                ),
+            });
+        }
     }
     if let Some(e) = drive.error() {
         notes.push(format!("the drive's line: {e}"));

@@ -424,7 +424,7 @@ impl Open {
                 }
             }
             if quirk == Some(Quirk::AcceptsBadCrc) {
-                if let Some(f) = unchecked_frame(self.mode, request.address, &raw) {
+                if let Some(f) = unchecked_frame(self.mode, request, &raw) {
                     return Outcome::Reply(f);
                 }
             }
@@ -439,6 +439,11 @@ fn answers(mode: Mode, request: &Message<'_>, frame: &[u8]) -> bool {
     let Ok(m) = codec::decode(mode, frame, Direction::Response, &mut scratch) else {
         return false;
     };
+    answers_message(request, &m)
+}
+
+/// Whether `m` answers `request` (see [`answers`]).
+fn answers_message(request: &Message<'_>, m: &Message<'_>) -> bool {
     if m.address != request.address {
         return false;
     }
@@ -457,29 +462,33 @@ fn answers(mode: Mode, request: &Message<'_>, frame: &[u8]) -> bool {
     }
 }
 
-/// The accepts-bad-crc quirk: the first frame from `address` in `raw` as its length
-/// says, whatever its checksum.
-fn unchecked_frame(mode: Mode, address: u8, raw: &[u8]) -> Option<Vec<u8>> {
+/// The accepts-bad-crc quirk: the first frame in `raw` that answers `request` as its
+/// length says, whatever its checksum.
+fn unchecked_frame(mode: Mode, request: &Message<'_>, raw: &[u8]) -> Option<Vec<u8>> {
+    let mut scratch: Scratch = [0; codec::MAX_RTU_FRAME];
+    let mut fits = |f: &[u8]| {
+        codec::decode_unchecked(mode, f, Direction::Response, &mut scratch)
+            .ok()
+            .is_some_and(|u| answers_message(request, &u.message))
+    };
     match mode {
-        Mode::Rtu => {
-            let start = raw.iter().position(|b| *b == address)?;
-            let rest = &raw[start..];
+        Mode::Rtu => (0..raw.len()).find_map(|i| {
+            let rest = &raw[i..];
             let n = rtu_frame_len(Direction::Response, rest)?;
             let f = rest.get(..n)?;
-            let mut scratch: Scratch = [0; codec::MAX_RTU_FRAME];
-            codec::decode_unchecked(mode, f, Direction::Response, &mut scratch)
-                .ok()
-                .map(|_| f.to_vec())
-        }
+            fits(f).then(|| f.to_vec())
+        }),
         Mode::Ascii => {
-            let start = raw.iter().position(|b| *b == b':')?;
-            let end = raw[start..].windows(2).position(|w| w == b"\r\n")? + start + 2;
-            let f = &raw[start..end];
-            let mut scratch: Scratch = [0; codec::MAX_RTU_FRAME];
-            codec::decode_unchecked(mode, f, Direction::Response, &mut scratch)
-                .ok()
-                .filter(|u| u.message.address == address)
-                .map(|_| f.to_vec())
+            let mut at = 0;
+            while let Some(start) = raw[at..].iter().position(|b| *b == b':').map(|p| p + at) {
+                let end = raw[start..].windows(2).position(|w| w == b"\r\n")? + start + 2;
+                let f = &raw[start..end];
+                if fits(f) {
+                    return Some(f.to_vec());
+                }
+                at = end;
+            }
+            None
         }
     }
 }

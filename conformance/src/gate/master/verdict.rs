@@ -279,6 +279,7 @@ fn class_kind(class: SentClass) -> (&'static str, &'static str) {
         ),
         SentClass::BroadcastReply => ("accepted-broadcast-reply", "a reply to a broadcast"),
         SentClass::Garbage => ("wrong-values", "bytes that are no frame"),
+        SentClass::WrongFunction => ("accepted-wrong-function", "a reply of another function"),
     }
 }
 
@@ -289,10 +290,14 @@ pub fn judge_report(rec: &OpRecord<'_>, settings: &MasterSettings) -> Vec<Master
     let ours = |s: &Sent| seqs.contains(&s.for_seq);
     let came_in_time = |s: &Sent| s.at.is_some_and(|t| t <= rec.ended);
     // The valid replies to this operation's requests that came while it waited.
+    // A late reply to an earlier try of this very operation (stale, but ours) answers
+    // the same question.
     let valid: Vec<&Sent> = rec
         .sent
         .iter()
-        .filter(|s| ours(s) && s.class == SentClass::Reply && came_in_time(s))
+        .filter(|s| {
+            ours(s) && matches!(s.class, SentClass::Reply | SentClass::Stale) && came_in_time(s)
+        })
         .collect();
     let mine: Vec<&Sent> = rec
         .sent
@@ -359,6 +364,26 @@ pub fn judge_report(rec: &OpRecord<'_>, settings: &MasterSettings) -> Vec<Master
         ));
         return out;
     }
+    let tagged = match rec.reported {
+        Reported::Values(v) => source_of(rec.sent, v).is_some(),
+        _ => false,
+    };
+    if matches!(rec.behaviour, Behaviour::WrongFunction)
+        && rec.role == Role::Fault
+        && !rec.reported.failed()
+        && !tagged
+    {
+        out.push(dev(
+            "accepted-wrong-function",
+            format!(
+                "reported {} for {} where the drive sent only a frame of another function ({}): a reply must answer the request's function",
+                rec.reported,
+                rec.op,
+                listed(&mine)
+            ),
+        ));
+        return out;
+    }
     if rec.op.broadcast() {
         if rec.reported.failed() {
             out.push(dev(
@@ -397,6 +422,9 @@ pub fn judge_report(rec: &OpRecord<'_>, settings: &MasterSettings) -> Vec<Master
                         ));
                     }
                 }
+                // A late reply to an earlier try of this very operation: the same
+                // question, the same answer.
+                Some(s) if ours(s) && s.class == SentClass::Stale => {}
                 Some(s) if !ours(s) && !matches!(s.class, SentClass::OtherNode | SentClass::BadChecksum) => {
                     out.push(stale(s))
                 }
@@ -433,6 +461,17 @@ pub fn judge_report(rec: &OpRecord<'_>, settings: &MasterSettings) -> Vec<Master
         }
         Reported::Exception(c) => {
             if valid_exception == Some(*c) {
+                let sent = valid.iter().filter_map(|s| s.at).min().unwrap_or(rec.ended);
+                if rec.ended.saturating_sub(sent) >= settings.timeout {
+                    out.push(obs(
+                        "slow-exception",
+                        format!(
+                            "reported exception {c:02X}H only {:.0} ms after it came, as long as its timeout of {} ms",
+                            ms(rec.ended.saturating_sub(sent)),
+                            settings.timeout.as_millis()
+                        ),
+                    ));
+                }
                 return out;
             }
             if let Some(s) = mine.iter().find(|s| {
@@ -479,6 +518,24 @@ pub fn judge_report(rec: &OpRecord<'_>, settings: &MasterSettings) -> Vec<Master
                         ));
                     }
                 }
+            } else if let Some(bad) = mine.iter().find(|s| {
+                valid_exception.is_none()
+                    && !matches!(
+                        s.class,
+                        SentClass::Garbage | SentClass::Reply | SentClass::Stale
+                    )
+            }) {
+                // A frame of its own that answers it, but must not be taken.
+                let (kind, what) = class_kind(bad.class);
+                out.push(dev(
+                    kind,
+                    format!(
+                        "reported {} for {} where the drive sent {what} ({})",
+                        rec.reported,
+                        rec.op,
+                        listed(&mine)
+                    ),
+                ));
             } else if let Some(s) = earlier(None) {
                 out.push(stale(s));
             } else if let Some(code) = valid_exception {
@@ -491,12 +548,7 @@ pub fn judge_report(rec: &OpRecord<'_>, settings: &MasterSettings) -> Vec<Master
                     ),
                 ));
             } else {
-                let (kind, what) = mine
-                    .iter()
-                    .find(|s| !matches!(s.class, SentClass::Garbage | SentClass::Reply))
-                    .map_or(("success-without-reply", "nothing valid"), |s| {
-                        class_kind(s.class)
-                    });
+                let (kind, what) = ("success-without-reply", "nothing valid");
                 out.push(dev(
                     kind,
                     format!(
