@@ -48,7 +48,10 @@ fn gate(name: &str, cmd: &str, model: &str, only: &[&str]) -> (Option<i32>, serd
     // Each pattern is a case id (a pattern matches ids that contain it, so a later case
     // whose id extends one of these may run too: it is judged like the others).
     for id in only {
-        assert!(checks.iter().any(|c| c["id"] == *id), "no case {id} in the run");
+        assert!(
+            checks.iter().any(|c| c["id"] == *id),
+            "no case {id} in the run"
+        );
     }
     for c in checks {
         let status = c["status"].as_str().unwrap();
@@ -103,6 +106,8 @@ fn pymodbus_master_completes_and_loses_a_reply_behind_a_stray_byte() {
             "rtu.read.normal",
             "rtu.read.exception-51",
             "rtu.read.stale-reply",
+            "rtu.read.stale-in-flight",
+            "rtu.read.wrong-function",
             "rtu.read.zero-before",
             "rtu.loop-back.normal",
             "rtu.broadcast-single.normal",
@@ -111,6 +116,11 @@ fn pymodbus_master_completes_and_loses_a_reply_behind_a_stray_byte() {
         ],
     );
     assert_eq!(v["codec"]["implementation"], "pymodbus");
+    // The headline (pymodbus #2636): a reply that comes while its next request waits is
+    // taken as that request's, even with another register count.
+    finding(&v, "stale-reply-taken", "rtu.read.stale-in-flight");
+    // A 06H echo in place of a read's reply: its value is reported as the register's.
+    finding(&v, "accepted-wrong-function", "rtu.read.wrong-function");
     assert_eq!(status(&v, "rtu.read.normal"), "pass");
     // pymodbus reports any exception code, the legacy L510's 51H..55H included.
     assert_ne!(status(&v, "rtu.read.exception-51"), "deviation");
@@ -121,6 +131,8 @@ fn pymodbus_master_completes_and_loses_a_reply_behind_a_stray_byte() {
     assert_eq!(status(&v, "ascii.read.normal"), "pass");
     // RTU: a lone 00H before the reply makes its framer drop the good reply behind it.
     finding(&v, "garbage-breaks-reply", "rtu.read.zero-before");
+    // (Its next request follows a broadcast at once, which the gate notes as the
+    // observation broadcast-turnaround: a matter of timing, so not asserted here.)
     // ASCII: bytes before ':' are skipped.
     assert_eq!(status(&v, "ascii.read.zero-before"), "pass");
     assert_eq!(code, Some(1));
@@ -287,6 +299,7 @@ fn jsmodbus_master_throws_on_a_legacy_exception_and_is_stuck_after_stray_bytes()
             "rtu.read.normal",
             "rtu.read.exception-55",
             "rtu.read.stale-reply",
+            "rtu.read.stale-in-flight",
             "rtu.broadcast-single.normal",
             "rtu.read.garbage-after",
             "ascii.read.normal",
@@ -296,8 +309,10 @@ fn jsmodbus_master_throws_on_a_legacy_exception_and_is_stuck_after_stray_bytes()
     assert_eq!(status(&v, "rtu.read.normal"), "pass");
     // errorCodeToMessage throws inside the socket's data handler.
     finding(&v, "raised", "rtu.read.exception-55");
-    // A reply with no request waiting for it is dropped.
+    // A reply with no request waiting for it is dropped; one that comes while the next
+    // request waits is given to that request.
     assert_eq!(status(&v, "rtu.read.stale-reply"), "pass");
+    finding(&v, "stale-reply-taken", "rtu.read.stale-in-flight");
     // No broadcast notion: the write to unit 0 waits for a reply.
     finding(&v, "waits-after-broadcast", "rtu.broadcast-single.normal");
     // Bytes that parse as no response stay at the head of its receive buffer.

@@ -17,7 +17,9 @@ use std::io::{BufRead, Read, Write};
 use std::time::{Duration, Instant};
 
 use rmodbus::client::ModbusRequest;
-use rmodbus::{generate_ascii_frame, guess_response_frame_len, parse_ascii_frame, ErrorKind, ModbusProto};
+use rmodbus::{
+    generate_ascii_frame, guess_response_frame_len, parse_ascii_frame, ErrorKind, ModbusProto,
+};
 use serde_json::{json, Map, Value};
 
 enum Line {
@@ -93,14 +95,25 @@ impl Master {
         while got < buf.len() {
             let left = deadline.saturating_duration_since(Instant::now());
             if left.is_zero() {
-                return Err(Failure::Timeout(format!("{got} of {} bytes before the timeout", buf.len())));
+                return Err(Failure::Timeout(format!(
+                    "{got} of {} bytes before the timeout",
+                    buf.len()
+                )));
             }
-            self.line.set_timeout(left).map_err(|e| Failure::Io(e.to_string()))?;
+            self.line
+                .set_timeout(left)
+                .map_err(|e| Failure::Io(e.to_string()))?;
             match self.line.read(&mut buf[got..]) {
                 Ok(0) => return Err(Failure::Io("end of stream".into())),
                 Ok(n) => got += n,
-                Err(e) if e.kind() == std::io::ErrorKind::TimedOut || e.kind() == std::io::ErrorKind::WouldBlock => {
-                    return Err(Failure::Timeout(format!("{got} of {} bytes before the timeout", buf.len())))
+                Err(e)
+                    if e.kind() == std::io::ErrorKind::TimedOut
+                        || e.kind() == std::io::ErrorKind::WouldBlock =>
+                {
+                    return Err(Failure::Timeout(format!(
+                        "{got} of {} bytes before the timeout",
+                        buf.len()
+                    )))
                 }
                 Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
                 Err(e) => return Err(Failure::Io(e.to_string())),
@@ -110,7 +123,12 @@ impl Master {
     }
 
     /// Sends the request; reads the reply (none for a broadcast) as rmodbus's example does.
-    fn exchange(&mut self, req: &ModbusRequest, frame: &[u8], broadcast: bool) -> Result<Vec<u8>, Failure> {
+    fn exchange(
+        &mut self,
+        req: &ModbusRequest,
+        frame: &[u8],
+        broadcast: bool,
+    ) -> Result<Vec<u8>, Failure> {
         if self.clear_input {
             self.line.clear_input();
         }
@@ -121,7 +139,9 @@ impl Master {
         } else {
             frame.to_vec()
         };
-        self.line.write_all(&wire).map_err(|e| Failure::Io(e.to_string()))?;
+        self.line
+            .write_all(&wire)
+            .map_err(|e| Failure::Io(e.to_string()))?;
         let _ = self.line.flush();
         let _ = req;
         if broadcast {
@@ -150,7 +170,9 @@ impl Master {
         } else {
             response.resize(3, 0);
             self.read_exact_by(&mut response[2..], deadline)?;
-            usize::from(guess_response_frame_len(&response, ModbusProto::Rtu).map_err(Failure::Rmodbus)?)
+            usize::from(
+                guess_response_frame_len(&response, ModbusProto::Rtu).map_err(Failure::Rmodbus)?,
+            )
         };
         if response.len() < total {
             let had = response.len();
@@ -181,7 +203,9 @@ fn exception_code(e: ErrorKind) -> Option<u8> {
 
 fn failure(f: Failure) -> Value {
     match f {
-        Failure::Timeout(m) => json!({"ok": true, "result": "error", "kind": "timeout", "message": m}),
+        Failure::Timeout(m) => {
+            json!({"ok": true, "result": "error", "kind": "timeout", "message": m})
+        }
         Failure::Io(m) => json!({"ok": true, "result": "error", "kind": "other", "message": m}),
         Failure::Rmodbus(e) => match exception_code(e) {
             Some(code) => json!({"ok": true, "result": "exception", "code": format!("{code:02X}"),
@@ -189,7 +213,9 @@ fn failure(f: Failure) -> Value {
             None => {
                 let kind = match e {
                     ErrorKind::FrameCRCError => "checksum",
-                    ErrorKind::FrameBroken | ErrorKind::OOB | ErrorKind::UnknownError => "invalid-frame",
+                    ErrorKind::FrameBroken | ErrorKind::OOB | ErrorKind::UnknownError => {
+                        "invalid-frame"
+                    }
                     _ => "other",
                 };
                 json!({"ok": true, "result": "error", "kind": kind, "message": format!("{e:?}: {e}")})
@@ -203,19 +229,26 @@ fn h4(v: u16) -> String {
 }
 
 fn hex4(v: &Value, key: &str) -> Result<u16, String> {
-    let s = v.get(key).and_then(Value::as_str).ok_or(format!("field {key} missing"))?;
+    let s = v
+        .get(key)
+        .and_then(Value::as_str)
+        .ok_or(format!("field {key} missing"))?;
     u16::from_str_radix(s.trim_end_matches(['H', 'h']), 16).map_err(|e| format!("field {key}: {e}"))
 }
 
 fn int(v: &Value, key: &str) -> Result<u64, String> {
-    v.get(key).and_then(Value::as_u64).ok_or(format!("field {key} missing"))
+    v.get(key)
+        .and_then(Value::as_u64)
+        .ok_or(format!("field {key} missing"))
 }
 
 fn open(req: &Value) -> Result<(Master, Value), Value> {
     let proto = match req.get("mode").and_then(Value::as_str).unwrap_or("rtu") {
         "rtu" => ModbusProto::Rtu,
         "ascii" => ModbusProto::Ascii,
-        m => return Err(json!({"ok": false, "error": "unsupported", "detail": format!("mode {m}")})),
+        m => {
+            return Err(json!({"ok": false, "error": "unsupported", "detail": format!("mode {m}")}))
+        }
     };
     let timeout = Duration::from_millis(int(req, "timeout_ms").unwrap_or(1000));
     let line = req.get("line").cloned().unwrap_or(Value::Null);
@@ -250,17 +283,28 @@ fn open(req: &Value) -> Result<(Master, Value), Value> {
             Line::Serial(port)
         }
         "tcp-rtu" => {
-            let host = line.get("host").and_then(Value::as_str).unwrap_or("127.0.0.1");
+            let host = line
+                .get("host")
+                .and_then(Value::as_str)
+                .unwrap_or("127.0.0.1");
             let port = int(&line, "port").unwrap_or(502);
-            let s = std::net::TcpStream::connect((host, port as u16)).map_err(|e| bad(format!("connect: {e}")))?;
+            let s = std::net::TcpStream::connect((host, port as u16))
+                .map_err(|e| bad(format!("connect: {e}")))?;
             let _ = s.set_nodelay(true);
             Line::Tcp(s)
         }
-        k => return Err(json!({"ok": false, "error": "unsupported", "detail": format!("line {k}")})),
+        k => {
+            return Err(json!({"ok": false, "error": "unsupported", "detail": format!("line {k}")}))
+        }
     };
     let clear_input = std::env::var_os("RMODBUS_MASTER_CLEAR_INPUT").is_some();
     Ok((
-        Master { line, proto, timeout, clear_input },
+        Master {
+            line,
+            proto,
+            timeout,
+            clear_input,
+        },
         // No retries (the example sends once): 0, whatever was asked.
         json!({"ok": true, "timeout_ms": timeout.as_millis() as u64, "retries": 0}),
     ))
@@ -270,17 +314,28 @@ fn operate(m: &mut Master, op: &str, req: &Value) -> Result<Value, String> {
     let unit = int(req, "unit")? as u8;
     let mut mreq = ModbusRequest::new(unit, m.proto);
     let mut frame: Vec<u8> = Vec::new();
-    let gen = |r: Result<(), ErrorKind>| r.map_err(|e| format!("rmodbus refused the request: {e:?}"));
+    let gen =
+        |r: Result<(), ErrorKind>| r.map_err(|e| format!("rmodbus refused the request: {e:?}"));
     match op {
-        "read" => gen(mreq.generate_get_holdings(hex4(req, "start")?, int(req, "count")? as u16, &mut frame))?,
-        "write-single" => gen(mreq.generate_set_holding(hex4(req, "register")?, hex4(req, "value")?, &mut frame))?,
+        "read" => gen(mreq.generate_get_holdings(
+            hex4(req, "start")?,
+            int(req, "count")? as u16,
+            &mut frame,
+        ))?,
+        "write-single" => {
+            gen(mreq.generate_set_holding(hex4(req, "register")?, hex4(req, "value")?, &mut frame))?
+        }
         "write-multiple" => {
             let values: Vec<u16> = req
                 .get("values")
                 .and_then(Value::as_array)
                 .ok_or("field values missing")?
                 .iter()
-                .map(|v| v.as_str().and_then(|s| u16::from_str_radix(s, 16).ok()).ok_or("bad value"))
+                .map(|v| {
+                    v.as_str()
+                        .and_then(|s| u16::from_str_radix(s, 16).ok())
+                        .ok_or("bad value")
+                })
                 .collect::<Result<_, _>>()?;
             gen(mreq.generate_set_holdings_bulk(hex4(req, "start")?, &values, &mut frame))?
         }
@@ -323,12 +378,20 @@ fn main() {
         let req: Value = match serde_json::from_str(line) {
             Ok(v @ Value::Object(_)) => v,
             _ => {
-                let _ = writeln!(out, "{}", json!({"id": null, "ok": false, "error": "bad request: not a JSON object"}));
+                let _ = writeln!(
+                    out,
+                    "{}",
+                    json!({"id": null, "ok": false, "error": "bad request: not a JSON object"})
+                );
                 let _ = out.flush();
                 continue;
             }
         };
-        let op = req.get("op").and_then(Value::as_str).unwrap_or("").to_string();
+        let op = req
+            .get("op")
+            .and_then(Value::as_str)
+            .unwrap_or("")
+            .to_string();
         let mut answer = match op.as_str() {
             "hello" => {
                 if req.get("protocol").and_then(Value::as_u64) == Some(1)
@@ -358,7 +421,9 @@ fn main() {
             }
             "read" | "write-single" | "write-multiple" => match master.as_mut() {
                 None => json!({"ok": false, "error": "not open"}),
-                Some(m) => match std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| operate(m, &op, &req))) {
+                Some(m) => match std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+                    operate(m, &op, &req)
+                })) {
                     Ok(Ok(a)) => a,
                     Ok(Err(e)) => json!({"ok": false, "error": format!("bad request: {e}")}),
                     Err(p) => {
@@ -371,8 +436,12 @@ fn main() {
                     }
                 },
             },
-            "loop-back" => json!({"ok": false, "error": "unsupported", "detail": "rmodbus's client has no 08H request"}),
-            other => json!({"ok": false, "error": "unsupported", "detail": format!("op {other:?}")}),
+            "loop-back" => {
+                json!({"ok": false, "error": "unsupported", "detail": "rmodbus's client has no 08H request"})
+            }
+            other => {
+                json!({"ok": false, "error": "unsupported", "detail": format!("op {other:?}")})
+            }
         };
         if let Value::Object(map) = &mut answer {
             let mut with_id = Map::new();
