@@ -169,7 +169,13 @@ struct State {
     seq: u32,
     frames: u32,
     error: Option<String>,
+    /// Times the drive's thread was not scheduled for longer than [`STALL`]: (from, to).
+    stalls: Vec<(Duration, Duration)>,
 }
+
+/// A gap between two turns of the drive's loop (which turns at least every 5 ms) over
+/// this is the host's doing: bytes waited unread, replies went out late.
+pub const STALL: Duration = Duration::from_millis(40);
 
 /// The drive's end of the line.
 pub struct DriveSide {
@@ -323,6 +329,18 @@ impl DriveSide {
         lock(&self.state).sent.clone()
     }
 
+    /// The longest time from `from` on that the drive's thread was not scheduled (over
+    /// [`STALL`]; zero if none).
+    pub fn stalled_since(&self, from: Duration) -> Duration {
+        lock(&self.state)
+            .stalls
+            .iter()
+            .filter(|(_, to)| *to >= from)
+            .map(|(a, b)| b.saturating_sub(*a))
+            .max()
+            .unwrap_or_default()
+    }
+
     /// An error of the line, if the drive's thread met one.
     pub fn error(&self) -> Option<String> {
         lock(&self.state).error.clone()
@@ -363,7 +381,13 @@ impl Server {
         // Bytes of a request under way: when its first byte came.
         let mut started: Option<Duration> = None;
         let mut last_rx: Option<Instant> = None;
+        let mut turn = self.origin.elapsed();
         while !stop.load(Ordering::Relaxed) {
+            let now = self.origin.elapsed();
+            if now.saturating_sub(turn) > STALL {
+                lock(&self.state).stalls.push((turn, now));
+            }
+            turn = now;
             self.send_due();
             let wait = {
                 let s = lock(&self.state);

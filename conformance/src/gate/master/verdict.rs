@@ -134,7 +134,8 @@ pub fn judge_requests(
     let mode = monitor.config().mode;
     let line = monitor.config().line;
     if rec.requests.is_empty() {
-        if !rec.reported.failed() {
+        // A master that says it timed out but sent nothing did not ask.
+        if !matches!(rec.reported, Reported::Raised { .. }) {
             out.push(dev(
                 "no-request",
                 format!(
