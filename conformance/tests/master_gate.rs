@@ -85,6 +85,8 @@ fn the_clean_master_gives_no_finding_in_rtu_and_ascii() {
     for id in [
         "rtu.read.normal",
         "rtu.read.stale-reply",
+        "rtu.read.stale-in-flight",
+        "rtu.read.wrong-function",
         "rtu.read.exception-02",
         "rtu.read.bad-checksum",
         "rtu.read.other-node",
@@ -197,6 +199,30 @@ fn a_master_that_reads_over_the_limit_is_caught() {
         let v = caught_as("reads-over-limit", mode, "request-over-limit", &[]);
         assert_eq!(status_of(&v, &format!("{mode}.read.normal")), "deviation");
     }
+}
+
+#[test]
+fn over_tcp_the_same_master_is_judged_without_line_timing() {
+    let (o, v) = gate_master(&master(None), &["--mode", "rtu", "--line", "tcp-rtu"]);
+    schema_valid(&v);
+    assert_eq!(o.status.code(), Some(0), "{:#}", v["master"]["kinds"]);
+    assert!(deviation_kinds(&v).is_empty(), "{:#}", v["master"]["kinds"]);
+    assert_eq!(v["master"]["line"], "tcp-rtu");
+    assert_eq!(status_of(&v, "rtu.read.stale-reply"), "pass");
+    // No t1.5 or t3.5 over TCP: the cases that need them are skipped, with the reason.
+    for id in ["rtu.read.split", "rtu.read.line-busy"] {
+        assert_eq!(status_of(&v, id), "skip", "{id}");
+    }
+    let v = caught_as(
+        "accepts-bad-crc",
+        "rtu",
+        "accepted-bad-checksum",
+        &["--line", "tcp-rtu"],
+    );
+    assert!(v["master"]["kinds"][0]["reproduce"]
+        .as_str()
+        .unwrap()
+        .contains("--line tcp-rtu"));
 }
 
 #[test]

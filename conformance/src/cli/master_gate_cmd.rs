@@ -29,6 +29,15 @@ pub enum ModesArg {
     Both,
 }
 
+/// The line the gate serves.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum LineArg {
+    /// A pseudo-terminal pair (the master opens it as a serial port).
+    Pty,
+    /// RTU or ASCII frames over TCP (the master connects to 127.0.0.1).
+    TcpRtu,
+}
+
 /// The options of `gate --master` (ignored with `--codec`).
 #[derive(Debug, Args)]
 pub struct MasterGateArgs {
@@ -56,6 +65,10 @@ pub struct MasterGateArgs {
     /// With --master: the parity given to the master.
     #[arg(short = 'P', long, value_enum, default_value = "none")]
     parity: ParityArg,
+    /// With --master: the line the gate serves (tcp-rtu has no line timing: no t3.5, no
+    /// gaps).
+    #[arg(long, value_enum, default_value = "pty")]
+    line: LineArg,
 }
 
 /// The options `gate` shares between codecs and masters.
@@ -115,6 +128,13 @@ pub fn run(
     if args.baud != 9600 {
         repro.push_str(&format!(" -b {}", args.baud));
     }
+    let line_kind = match args.line {
+        LineArg::Pty => master::drive::LineKind::Pty,
+        LineArg::TcpRtu => {
+            repro.push_str(" --line tcp-rtu");
+            master::drive::LineKind::TcpRtu
+        }
+    };
     let opts = MasterOptions {
         model,
         node: args.node,
@@ -126,6 +146,7 @@ pub fn run(
         },
         line,
         repro,
+        line_kind,
     };
     let cases = master::cases(&opts);
     if common.list {
@@ -196,7 +217,7 @@ pub fn run(
     if let Some(c) = report.codec.as_mut() {
         c.incidents = adapter.adapter.incidents.clone();
     }
-    report.master = Some(master::summary(&run, &hello.raw));
+    report.master = Some(master::summary(&run, &hello.raw, line_kind));
     let gone = report
         .results
         .iter()

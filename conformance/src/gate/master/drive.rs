@@ -23,6 +23,7 @@ use crate::codec::timing::LineSettings;
 use crate::codec::{self, Mode};
 use crate::model::{DriveModel, Expectation};
 use crate::transport::pty::PtyMaster;
+use crate::transport::tcp::TcpTransport;
 use crate::transport::{Transport, TransportError};
 
 /// What the drive does with the requests of one operation.
@@ -182,7 +183,7 @@ pub struct DriveSide {
     state: Arc<Mutex<State>>,
     stop: Arc<AtomicBool>,
     thread: Option<JoinHandle<()>>,
-    path: PathBuf,
+    endpoint: Endpoint,
     origin: Instant,
     /// RTU or ASCII.
     pub mode: Mode,
@@ -208,6 +209,85 @@ fn lock(state: &Mutex<State>) -> MutexGuard<'_, State> {
     state.lock().unwrap_or_else(|e| e.into_inner())
 }
 
+/// Where the master reaches the drive.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum Endpoint {
+    /// A pseudo-terminal's slave path, opened as a serial port.
+    Pty(PathBuf),
+    /// RTU (or ASCII) frames over a TCP stream to this address (`tcp-rtu`).
+    TcpRtu(std::net::SocketAddr),
+}
+
+/// The kind of line the gate serves.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum LineKind {
+    /// A pseudo-terminal pair.
+    Pty,
+    /// A TCP listener on 127.0.0.1 carrying the serial frames as they are.
+    TcpRtu,
+}
+
+impl LineKind {
+    /// As the protocol's `line.kind` spells it.
+    pub fn key(self) -> &'static str {
+        match self {
+            LineKind::Pty => "pty",
+            LineKind::TcpRtu => "tcp-rtu",
+        }
+    }
+}
+
+/// The drive's end: a pty, or a TCP listener and the connection it accepted.
+enum Link {
+    Pty(PtyMaster),
+    Tcp {
+        listener: std::net::TcpListener,
+        conn: Option<TcpTransport>,
+    },
+}
+
+impl Link {
+    fn recv(&mut self, buf: &mut [u8], wait: Duration) -> Result<usize, TransportError> {
+        match self {
+            Link::Pty(p) => p.recv(buf, wait),
+            Link::Tcp { listener, conn } => {
+                if conn.is_none() {
+                    match listener.accept() {
+                        Ok((s, _)) => {
+                            let _ = s.set_nonblocking(false);
+                            *conn = TcpTransport::from_stream(s).ok();
+                        }
+                        Err(_) => {
+                            std::thread::sleep(wait);
+                            return Ok(0);
+                        }
+                    }
+                }
+                let Some(c) = conn.as_mut() else {
+                    return Ok(0);
+                };
+                match c.recv(buf, wait) {
+                    // The master closed its connection: wait for its next one.
+                    Err(TransportError::Closed { .. }) => {
+                        *conn = None;
+                        Ok(0)
+                    }
+                    other => other,
+                }
+            }
+        }
+    }
+
+    fn send(&mut self, bytes: &[u8]) -> Result<(), TransportError> {
+        match self {
+            Link::Pty(p) => p.send(bytes),
+            Link::Tcp { conn: Some(c), .. } => c.send(bytes),
+            // Nobody connected: the bytes go nowhere, as on a line nobody listens to.
+            Link::Tcp { conn: None, .. } => Ok(()),
+        }
+    }
+}
+
 impl DriveSide {
     /// Opens a pseudo-terminal pair and starts serving node `node` of `model` on it.
     pub fn start(
@@ -216,13 +296,45 @@ impl DriveSide {
         mode: Mode,
         line: LineSettings,
     ) -> Result<Self, TransportError> {
-        let pty = PtyMaster::open(None)?;
-        let path = pty.slave_path().to_path_buf();
+        Self::start_on(model, node, mode, line, LineKind::Pty)
+    }
+
+    /// [`DriveSide::start`] on a line of `kind`.
+    pub fn start_on(
+        model: Arc<DriveModel>,
+        node: u8,
+        mode: Mode,
+        line: LineSettings,
+        kind: LineKind,
+    ) -> Result<Self, TransportError> {
+        let (link, endpoint) = match kind {
+            LineKind::Pty => {
+                let pty = PtyMaster::open(None)?;
+                let path = pty.slave_path().to_path_buf();
+                (Link::Pty(pty), Endpoint::Pty(path))
+            }
+            LineKind::TcpRtu => {
+                let open_err = |source| TransportError::Open {
+                    what: "a TCP listener on 127.0.0.1 for the master".into(),
+                    source,
+                };
+                let listener = std::net::TcpListener::bind("127.0.0.1:0").map_err(open_err)?;
+                listener.set_nonblocking(true).map_err(open_err)?;
+                let addr = listener.local_addr().map_err(open_err)?;
+                (
+                    Link::Tcp {
+                        listener,
+                        conn: None,
+                    },
+                    Endpoint::TcpRtu(addr),
+                )
+            }
+        };
         let state = Arc::new(Mutex::new(State::default()));
         let stop = Arc::new(AtomicBool::new(false));
         let origin = Instant::now();
         let mut server = Server {
-            pty,
+            link,
             model,
             node,
             mode,
@@ -236,16 +348,16 @@ impl DriveSide {
             state,
             stop,
             thread: Some(thread),
-            path,
+            endpoint,
             origin,
             mode,
             line,
         })
     }
 
-    /// The path the master opens as its serial port.
-    pub fn path(&self) -> &std::path::Path {
-        &self.path
+    /// Where the master reaches the drive.
+    pub fn endpoint(&self) -> &Endpoint {
+        &self.endpoint
     }
 
     /// Time since the run's origin.
@@ -357,7 +469,7 @@ impl Drop for DriveSide {
 }
 
 struct Server {
-    pty: PtyMaster,
+    link: Link,
     model: Arc<DriveModel>,
     node: u8,
     mode: Mode,
@@ -397,7 +509,7 @@ impl Server {
                         .min(Duration::from_millis(5))
                 })
             };
-            let n = match self.pty.recv(&mut buf, wait) {
+            let n = match self.link.recv(&mut buf, wait) {
                 Ok(n) => n,
                 Err(e) => {
                     lock(&self.state).error = Some(e.to_string());
@@ -473,7 +585,7 @@ impl Server {
                 });
                 (s.log.len() - 1, bytes)
             };
-            let sent = self.pty.send(&next);
+            let sent = self.link.send(&next);
             let done = self.origin.elapsed();
             let mut s = lock(&self.state);
             if let Some(c) = s.log.get_mut(k) {

@@ -59,6 +59,8 @@ pub struct MasterOptions {
     /// The command line that reproduces a case, without `--only` (e.g. `conformance
     /// gate --master 'python3 a.py'`).
     pub repro: String,
+    /// The line the gate serves: a pty, or RTU/ASCII frames over TCP.
+    pub line_kind: drive::LineKind,
 }
 
 /// Told about each case as it runs.
@@ -181,8 +183,28 @@ pub fn run(
             }
             continue;
         }
-        let drive = DriveSide::start(model.clone(), opts.node, mode, opts.line)?;
-        let opened = adapter.open(drive.path(), mode, opts.line, opts.settings);
+        if !adapter.opens(opts.line_kind.key()) {
+            for case in mine {
+                progress.started(case);
+                let r = result(
+                    case,
+                    Status::Skip,
+                    format!(
+                        "the master cannot open a {} line (its hello's lines: {:?})",
+                        opts.line_kind.key(),
+                        adapter.hello.lines
+                    ),
+                    vec![],
+                    vec![],
+                    Duration::ZERO,
+                );
+                progress.finished(&r);
+                out.results.push(r);
+            }
+            continue;
+        }
+        let drive = DriveSide::start_on(model.clone(), opts.node, mode, opts.line, opts.line_kind)?;
+        let opened = adapter.open(drive.endpoint(), mode, opts.line, opts.settings);
         let settings = match opened {
             Ok(s) => s,
             Err(e) => {
@@ -290,6 +312,23 @@ fn run_case(
 ) -> (CheckResult, Vec<MasterFinding>) {
     let t0 = Instant::now();
     let quiet = drive::apart(&drive.line);
+    let timed = opts.line_kind == drive::LineKind::Pty;
+    if !timed && (case.fault.busy || matches!(case.fault.behaviour, Behaviour::Split(_))) {
+        return (
+            result(
+                case,
+                Status::Skip,
+                format!(
+                    "a {} line carries no line timing (t1.5, t3.5): run it on a pty",
+                    opts.line_kind.key()
+                ),
+                vec![],
+                vec![],
+                t0.elapsed(),
+            ),
+            vec![],
+        );
+    }
     if !adapter.supports(case.op.name()) {
         return (
             result(
@@ -392,6 +431,7 @@ fn run_case(
         called: mark,
         ended,
         recent,
+        timed,
     };
     let mut found = verdict::judge_requests(&rec, monitor, settings);
     found.extend(verdict::judge_report(&rec, settings));
@@ -411,6 +451,7 @@ fn run_case(
                 called: mark2,
                 ended: ended2,
                 recent: mark,
+                timed,
             };
             let mut more = verdict::judge_requests(&rec2, monitor, settings);
             more.extend(verdict::judge_report(&rec2, settings));
@@ -542,6 +583,8 @@ pub struct MasterSummary {
     pub settings: BTreeMap<String, MasterSettings>,
     /// Findings by kind.
     pub kinds: BTreeMap<String, KindSummary>,
+    /// The line the gate served (`pty`, `tcp-rtu`).
+    pub line: String,
 }
 
 impl MasterSummary {
@@ -550,6 +593,7 @@ impl MasterSummary {
         serde_json::json!({
             "modes": self.modes,
             "lines": self.lines,
+            "line": self.line,
             "settings": self.settings.iter().map(|(m, s)| (m.clone(), serde_json::json!({
                 "timeout_ms": s.timeout.as_millis() as u64,
                 "retries": s.retries,
@@ -572,7 +616,8 @@ impl MasterSummary {
         let mut out = Vec::new();
         for (mode, s) in &self.settings {
             out.push(format!(
-                "master:  {mode}: its timeout {} ms, {} retries",
+                "master:  {mode} on a {} line: its timeout {} ms, {} retries",
+                self.line,
                 s.timeout.as_millis(),
                 s.retries
             ));
@@ -595,7 +640,7 @@ impl MasterSummary {
 }
 
 /// The summary of a run, with what the adapter's hello (`raw`) says of the master.
-pub fn summary(run: &MasterRun, raw: &serde_json::Value) -> MasterSummary {
+pub fn summary(run: &MasterRun, raw: &serde_json::Value, line: drive::LineKind) -> MasterSummary {
     let list = |k: &str| -> Vec<String> {
         raw.get(k)
             .and_then(serde_json::Value::as_array)
@@ -611,5 +656,6 @@ pub fn summary(run: &MasterRun, raw: &serde_json::Value) -> MasterSummary {
         lines: list("lines"),
         settings: run.settings.clone(),
         kinds: run.by_kind.clone(),
+        line: line.key().to_string(),
     }
 }

@@ -371,17 +371,34 @@ impl MasterAdapter {
         self.hello.modes.iter().any(|x| x == m)
     }
 
-    /// Opens the pty at `path`; returns the settings the master runs with.
+    /// Whether the master can open a line of `kind` (`pty`, `tcp-rtu`); an adapter that
+    /// lists no `lines` opens a pty only.
+    pub fn opens(&self, kind: &str) -> bool {
+        if self.hello.lines.is_empty() {
+            return kind == "pty";
+        }
+        self.hello.lines.iter().any(|l| l == kind)
+    }
+
+    /// Opens the line at `endpoint`; returns the settings the master runs with.
     pub fn open(
         &mut self,
-        path: &std::path::Path,
+        endpoint: &super::drive::Endpoint,
         mode: Mode,
         line: LineSettings,
         want: MasterSettings,
     ) -> Result<MasterSettings, CallError> {
+        let line_json = match endpoint {
+            super::drive::Endpoint::Pty(path) => {
+                json!({"kind": "pty", "path": path.to_string_lossy()})
+            }
+            super::drive::Endpoint::TcpRtu(addr) => {
+                json!({"kind": "tcp-rtu", "host": addr.ip().to_string(), "port": addr.port()})
+            }
+        };
         let request = json!({
             "op": "open",
-            "line": {"kind": "pty", "path": path.to_string_lossy()},
+            "line": line_json,
             "mode": match mode { Mode::Rtu => "rtu", Mode::Ascii => "ascii" },
             "baud": line.baud,
             "parity": parity_key(line.parity),

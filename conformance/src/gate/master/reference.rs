@@ -22,6 +22,7 @@ use crate::codec::pdu::{Direction, Message, Pdu, Registers};
 use crate::codec::timing::{LineSettings, Parity};
 use crate::codec::{self, Mode};
 use crate::transport::serial::SerialTransport;
+use crate::transport::tcp::TcpTransport;
 use crate::transport::{LinkKind, Transport};
 
 /// A deliberate bug of the test-double master.
@@ -68,7 +69,7 @@ pub const OVER_LIMIT_COUNT: u16 = 100;
 const TURNAROUND: Duration = Duration::from_millis(100);
 
 struct Open {
-    port: SerialTransport,
+    port: Box<dyn Transport>,
     mode: Mode,
     line: LineSettings,
     timeout: Duration,
@@ -140,7 +141,7 @@ impl MasterState {
                 "implementation": "teco-modbus-conformance (test double)",
                 "version": env!("CARGO_PKG_VERSION"),
                 "supports": ["read", "write-single", "write-multiple", "loop-back", "broadcast"],
-                "lines": ["pty"], "modes": ["rtu", "ascii"],
+                "lines": ["pty", "tcp-rtu"], "modes": ["rtu", "ascii"],
                 "quirk": self.quirk.and_then(|q| Quirk::ALL.iter().find(|(_, x)| *x == q).map(|(n, _)| *n)),
             })),
             Some("open") => self.open(req),
@@ -235,14 +236,8 @@ impl MasterState {
 
     fn open(&mut self, req: &Value) -> Result<Value, String> {
         self.open = None;
-        let line = req.get("line").ok_or("missing \"line\"")?;
-        if line.get("kind").and_then(Value::as_str) != Some("pty") {
-            return Ok(json!({"ok": false, "error": "unsupported: line kind"}));
-        }
-        let path = line
-            .get("path")
-            .and_then(Value::as_str)
-            .ok_or("missing line.path")?;
+        let line_req = req.get("line").ok_or("missing \"line\"")?;
+        let kind = line_req.get("kind").and_then(Value::as_str).unwrap_or("");
         let mode = match req.get("mode").and_then(Value::as_str) {
             Some("ascii") => Mode::Ascii,
             _ => Mode::Rtu,
@@ -259,7 +254,32 @@ impl MasterState {
             parity,
             num("stop_bits", 1) as u8,
         );
-        let port = SerialTransport::open(path, line, LinkKind::Pty).map_err(|e| e.to_string())?;
+        let port: Box<dyn Transport> = match kind {
+            "pty" => {
+                let path = line_req
+                    .get("path")
+                    .and_then(Value::as_str)
+                    .ok_or("missing line.path")?;
+                Box::new(
+                    SerialTransport::open(path, line, LinkKind::Pty).map_err(|e| e.to_string())?,
+                )
+            }
+            "tcp-rtu" => {
+                let host = line_req
+                    .get("host")
+                    .and_then(Value::as_str)
+                    .ok_or("missing line.host")?;
+                let port = line_req
+                    .get("port")
+                    .and_then(Value::as_u64)
+                    .ok_or("missing line.port")?;
+                Box::new(
+                    TcpTransport::connect(&format!("{host}:{port}"), Duration::from_secs(5))
+                        .map_err(|e| e.to_string())?,
+                )
+            }
+            _ => return Ok(json!({"ok": false, "error": "unsupported: line kind"})),
+        };
         self.open = Some(Open {
             port,
             mode,

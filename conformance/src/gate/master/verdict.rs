@@ -81,6 +81,8 @@ pub struct OpRecord<'a> {
     /// When the master's previous operation began: frames for earlier requests sent
     /// since are what a master that does not match replies to requests can take.
     pub recent: Duration,
+    /// Whether the line has a line's timing (a pty: t3.5 is judged; TCP: not).
+    pub timed: bool,
 }
 
 fn ms(d: Duration) -> f64 {
@@ -148,7 +150,11 @@ pub fn judge_requests(
     }
     let mut from = rec.called;
     for r in rec.requests {
-        let silence = longest_silence(rec.log, from, r.start);
+        let silence = if rec.timed {
+            longest_silence(rec.log, from, r.start)
+        } else {
+            None
+        };
         from = r.end;
         let f = TapFrame {
             bytes: r.bytes.clone(),
