@@ -626,6 +626,14 @@ impl Server {
         } else {
             apart(&self.line)
         };
+        // A drive still sending (the busy line) finishes that first, then answers.
+        let busy_for = s
+            .queue
+            .iter()
+            .map(|(t, _)| t.saturating_duration_since(Instant::now()))
+            .max()
+            .map_or(Duration::ZERO, |d| d + Duration::from_millis(1));
+        let base = base.max(busy_for);
         {
             let now = Instant::now();
             for i in flight {

@@ -347,7 +347,19 @@ fn run_case(
     drive.settle(quiet);
     if case.fault.busy {
         let n = (cases::BUSY_FOR.as_micros() / cases::BUSY_PACE.as_micros().max(1)) as usize;
-        drive.busy(&vec![0xFF; n], cases::BUSY_PACE);
+        let bytes = match drive.mode {
+            Mode::Rtu => vec![0xFF; n],
+            // ASCII: one long frame, ':' first and CR LF last, a character at a time.
+            Mode::Ascii => {
+                let mut b = vec![b'0'; n.max(3)];
+                b[0] = b':';
+                let k = b.len();
+                b[k - 2] = b'\r';
+                b[k - 1] = b'\n';
+                b
+            }
+        };
+        drive.busy(&bytes, cases::BUSY_PACE);
         // The operation is asked while the drive is well into sending.
         std::thread::sleep(cases::BUSY_FOR / 5);
     }

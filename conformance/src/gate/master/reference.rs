@@ -369,11 +369,27 @@ impl Open {
         let t35 = self.t(self.line.t3_5_us());
         let deadline = Instant::now() + Duration::from_secs(2);
         let mut buf = [0u8; 512];
+        // ASCII: a frame under way (':' seen, no LF yet) may pause; wait for its end.
+        let mut open = false;
         while Instant::now() < deadline {
-            match self.port.recv(&mut buf, t35) {
+            let wait = if open { Duration::from_millis(20) } else { t35 };
+            match self.port.recv(&mut buf, wait) {
+                Ok(0) if open => {}
                 Ok(0) | Err(_) => return,
-                Ok(n) if keep => self.kept.extend_from_slice(&buf[..n]),
-                Ok(_) => {}
+                Ok(n) => {
+                    if self.mode == Mode::Ascii {
+                        for b in &buf[..n] {
+                            match b {
+                                b':' => open = true,
+                                b'\n' => open = false,
+                                _ => {}
+                            }
+                        }
+                    }
+                    if keep {
+                        self.kept.extend_from_slice(&buf[..n]);
+                    }
+                }
             }
         }
     }

@@ -111,6 +111,46 @@ fn longest_silence(log: &[Chunk], from: Duration, to: Duration) -> Option<Durati
     Some(longest)
 }
 
+/// Where the drive's ASCII frame was open when a request was read at `at`: the time its
+/// ':' went out (only if it was out, `done`, before `from`, when the master could begin to
+/// wait), with no LF written before `at`. `None`: no frame of the drive was under way.
+fn open_ascii_frame(log: &[Chunk], from: Duration, at: Duration) -> Option<Duration> {
+    let mut open: Option<(Duration, Duration)> = None;
+    let mut chunks: Vec<&Chunk> = log
+        .iter()
+        .filter(|c| c.dir == Dir::ToMaster && c.at < at)
+        .collect();
+    chunks.sort_by_key(|c| c.at);
+    for c in chunks {
+        for b in &c.bytes {
+            match b {
+                b':' => open = Some((c.at, c.done)),
+                b'\n' => open = None,
+                _ => {}
+            }
+        }
+    }
+    let (colon, done) = open.filter(|(_, done)| *done < from)?;
+    let _ = done;
+    // And the drive went on with that frame after the request: its LF came later (a
+    // frame the drive abandoned, such as a truncated reply, is no frame under way).
+    let mut later: Vec<&Chunk> = log
+        .iter()
+        .filter(|c| c.dir == Dir::ToMaster && c.at >= at)
+        .collect();
+    later.sort_by_key(|c| c.at);
+    for c in later {
+        for b in &c.bytes {
+            match b {
+                b'\n' => return Some(colon),
+                b':' => return None,
+                _ => {}
+            }
+        }
+    }
+    None
+}
+
 /// Whether the drive was sending bytes just before `at` (a chunk to the master within
 /// `within` before it).
 fn drive_sending(log: &[Chunk], at: Duration, within: Duration) -> bool {
@@ -155,6 +195,7 @@ pub fn judge_requests(
         } else {
             None
         };
+        let from_before = from;
         from = r.end;
         let f = TapFrame {
             bytes: r.bytes.clone(),
@@ -171,18 +212,18 @@ pub fn judge_requests(
             max_gap: None,
             side: Some(true),
         };
-        // ASCII has no t3.5 (a frame begins with ':'), but a master still must not send
-        // while the drive is sending: less than one character of silence is that.
-        if mode == crate::codec::Mode::Ascii {
-            let char_time = Duration::from_micros(line.char_time_us());
-            if let Some(s) = silence.filter(|s| *s < char_time) {
+        // ASCII has no t3.5 (a frame begins with ':' and may pause up to a second
+        // between characters), but a master still must not send while the drive's frame
+        // is under way: its ':' out before the master could begin to wait, its LF not
+        // yet begun when the request was read.
+        if mode == crate::codec::Mode::Ascii && rec.timed {
+            if let Some(colon) = open_ascii_frame(rec.log, from_before, r.start) {
                 out.push(dev(
                     "talks-over-drive",
                     format!(
-                        "request {}: sent while the drive was sending (at most {} us of silence before it, under one character time of {} us); Modbus over Serial Line V1.02, 2.5.2.1 (one device sends at a time)",
+                        "request {}: sent while the drive's ASCII frame was under way (its ':' went out {:.1} ms before, its CR LF had not); Modbus over Serial Line V1.02, 2.5.2.1 (one device sends at a time)",
                         Hex(&r.bytes),
-                        s.as_micros(),
-                        char_time.as_micros()
+                        r.start.saturating_sub(colon).as_secs_f64() * 1000.0
                     ),
                 ));
             }
