@@ -309,11 +309,13 @@ impl MasterState {
         };
         let mut outcome = Outcome::Failed("timeout", "no reply".into());
         for _ in 0..tries {
-            if quirk != Some(Quirk::TakesStaleReply) {
-                let _ = open.port.discard_input();
-            }
+            // First the line's silence (reading what comes, so that an ASCII frame
+            // under way is seen from its ':'), then whatever is left is dropped.
             if quirk != Some(Quirk::NoT35) {
                 open.wait_silence(quirk == Some(Quirk::TakesStaleReply));
+            }
+            if quirk != Some(Quirk::TakesStaleReply) {
+                let _ = open.port.discard_input();
             }
             open.port.send(&frame).map_err(|e| e.to_string())?;
             if broadcast {
