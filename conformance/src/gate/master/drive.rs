@@ -479,15 +479,19 @@ struct Server {
 }
 
 enum Framer {
-    Rtu(RtuDeframer),
-    Ascii(AsciiDeframer),
+    // Boxed: the RTU deframer holds a frame's buffer, the ASCII one far more.
+    Rtu(Box<RtuDeframer>),
+    Ascii(Box<AsciiDeframer>),
 }
 
 impl Server {
     fn run(&mut self, stop: &AtomicBool) {
         let mut framer = match self.mode {
-            Mode::Rtu => Framer::Rtu(RtuDeframer::new(Direction::Request, RtuFraming::ByLength)),
-            Mode::Ascii => Framer::Ascii(AsciiDeframer::default()),
+            Mode::Rtu => Framer::Rtu(Box::new(RtuDeframer::new(
+                Direction::Request,
+                RtuFraming::ByLength,
+            ))),
+            Mode::Ascii => Framer::Ascii(Box::default()),
         };
         let mut buf = [0u8; 1024];
         // Bytes of a request under way: when its first byte came.

@@ -515,7 +515,7 @@ fn run_case(
             text: format!("{}: {}", f.kind, f.text),
         })
         .collect();
-    findings.sort_by(|a, b| b.severity.cmp(&a.severity));
+    findings.sort_by_key(|f| std::cmp::Reverse(f.severity));
     if let Some(first) = findings.first_mut() {
         first
             .text
