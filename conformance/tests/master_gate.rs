@@ -109,6 +109,18 @@ fn the_clean_master_gives_no_finding_in_rtu_and_ascii() {
     assert_eq!(v["master"]["settings"]["ascii"]["retries"], 0);
 }
 
+#[test]
+fn a_clean_master_that_retries_as_its_setting_says_gives_no_finding() {
+    let (o, v) = gate_master(&master(None), &["--mode", "rtu", "--retries", "1"]);
+    schema_valid(&v);
+    let kinds = deviation_kinds(&v);
+    assert!(kinds.is_empty(), "{kinds:?}: {:#}", v["master"]["kinds"]);
+    assert_eq!(o.status.code(), Some(0));
+    assert_eq!(v["master"]["settings"]["rtu"]["retries"], 1);
+    // A second try after a reply split by a silence over t1.5 is right, not a storm.
+    assert_eq!(status_of(&v, "rtu.read.split"), "pass");
+}
+
 /// Runs the whole schedule of `mode` against the master with `quirk`; asserts that the
 /// gate found deviations of `kind` and of no other kind, and returns the report.
 fn caught_as(quirk: &str, mode: &str, kind: &str, extra: &[&str]) -> serde_json::Value {

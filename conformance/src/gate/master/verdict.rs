@@ -269,10 +269,12 @@ pub fn judge_requests(
     }
     for w in tries.windows(2) {
         let (a, b) = (w[0], w[1]);
-        let answered = rec
-            .sent
-            .iter()
-            .any(|s| s.for_seq == a.seq && s.class.valid() && s.at.is_some_and(|t| t < b.start));
+        // (A reply split by a silence over t1.5 is no valid reply: trying again is right.)
+        let split = matches!(rec.behaviour, Behaviour::Split(_)) && rec.role == Role::Fault;
+        let answered = !split
+            && rec.sent.iter().any(|s| {
+                s.for_seq == a.seq && s.class.valid() && s.at.is_some_and(|t| t < b.start)
+            });
         let pause = b.start.saturating_sub(a.end);
         if answered {
             out.push(dev(
