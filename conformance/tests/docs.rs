@@ -878,3 +878,8 @@ fn gates_examples() {
 fn simulator_examples() {
     check_page("docs/src/simulator.md");
 }
+
+#[test]
+fn master_gate_examples() {
+    check_page("docs/src/master-gate.md");
+}

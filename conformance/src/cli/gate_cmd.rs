@@ -25,8 +25,16 @@ Examples:
   conformance gate --codec target/release/rmodbus-adapter --format junit -o gate.xml
   conformance gate --codec \"./my-adapter\" --seed 7 --count 5000 --no-vectors
 
---expect FILE accepts known deviations of the codec by case id: they are reported apart
-and do not make the exit code 1.
+Masters (--master): the adapter wraps a Modbus master (client) library; the gate plays the
+drive on a pseudo-terminal pair and misbehaves on purpose, one fault per case (stale reply,
+no reply, bad CRC/LRC, another node's reply, exceptions, ...). See docs/src/master-gate.md.
+  conformance gate --master \"conformance adapter --master\"   this suite's own master (a
+                                                         test double)
+  conformance gate --master \"python3 adapters/pymodbus-master/adapter.py\" --model l510-legacy
+  conformance gate --master \"CMD\" --only rtu.read.stale-reply --master-timeout 500
+
+--expect FILE accepts known deviations by case id: they are reported apart and do not
+make the exit code 1.
 
 Exit codes: 0 no deviations (with --expect: none the file does not expect); 1 deviations
 found; 2 the gate could not complete (the
@@ -37,8 +45,20 @@ adapter could not start, exited twice, or a case could not be decided).";
 pub struct GateArgs {
     /// The adapter command, run through `sh -c`. A first word `conformance` is this
     /// program (its own codec: `conformance adapter`), whatever is on the PATH.
+    #[arg(
+        long,
+        value_name = "CMD",
+        required_unless_present = "master",
+        conflicts_with = "master"
+    )]
+    codec: Option<String>,
+    /// A master adapter command (adapters/PROTOCOL.md, role "master"), run through
+    /// `sh -c`: the gate plays the drive and judges the master. A first word
+    /// `conformance` is this program (`conformance adapter --master`).
     #[arg(long, value_name = "CMD")]
-    codec: String,
+    master: Option<String>,
+    #[command(flatten)]
+    master_opts: super::master_gate_cmd::MasterGateArgs,
     /// Seed of the differential cases.
     #[arg(long, value_parser = parse_seed, default_value = "0x7ECC0")]
     seed: u64,
@@ -75,7 +95,7 @@ pub struct GateArgs {
 /// The adapter command as it is run: a command whose first word is `conformance` runs this
 /// very program (`conformance adapter` works from a fresh clone, where `conformance` is
 /// not on the PATH, and always tests the codec of the version that runs the gate).
-fn this_program(command: &str) -> anyhow::Result<String> {
+pub(super) fn this_program(command: &str) -> anyhow::Result<String> {
     let trimmed = command.trim_start();
     let Some(rest) = trimmed.strip_prefix("conformance") else {
         return Ok(command.to_string());
@@ -89,7 +109,7 @@ fn this_program(command: &str) -> anyhow::Result<String> {
 }
 
 /// `text` as one word for `sh -c`.
-fn shell_quote(text: &str) -> String {
+pub(super) fn shell_quote(text: &str) -> String {
     format!("'{}'", text.replace('\'', "'\\''"))
 }
 
@@ -102,13 +122,13 @@ fn parse_seed(s: &str) -> Result<u64, String> {
     .map_err(|e| format!("{s:?} is not a seed (decimal or 0x hex): {e}"))
 }
 
-struct Progress<'a> {
-    report: Report,
-    bar: Option<indicatif::ProgressBar>,
-    output: Option<&'a PathBuf>,
-    format: Format,
-    verbose: bool,
-    error: Option<anyhow::Error>,
+pub(super) struct Progress<'a> {
+    pub(super) report: Report,
+    pub(super) bar: Option<indicatif::ProgressBar>,
+    pub(super) output: Option<&'a PathBuf>,
+    pub(super) format: Format,
+    pub(super) verbose: bool,
+    pub(super) error: Option<anyhow::Error>,
 }
 
 impl GateProgress for Progress<'_> {
@@ -135,7 +155,25 @@ impl GateProgress for Progress<'_> {
 }
 
 pub fn run(args: GateArgs) -> anyhow::Result<ExitCode> {
+    if let Some(master) = args.master.clone() {
+        return super::master_gate_cmd::run(
+            &master,
+            &this_program(&master)?,
+            &args.master_opts,
+            super::master_gate_cmd::Common {
+                only: args.only.clone(),
+                list: args.list,
+                timeout: args.timeout,
+                format: args.format,
+                output: args.output.clone(),
+                verbose: args.verbose,
+                quiet: args.quiet,
+                expect: args.expect.load()?,
+            },
+        );
+    }
     let expect = args.expect.load()?;
+    let codec = args.codec.clone().unwrap_or_default();
     let set = VectorSet::builtin()?;
     let opts = GateOptions {
         seed: args.seed,
@@ -144,7 +182,7 @@ pub fn run(args: GateArgs) -> anyhow::Result<ExitCode> {
         only: args.only.clone(),
         timeout: Duration::from_millis(args.timeout),
     };
-    let cases = gate::cases(&set, &opts, &args.codec);
+    let cases = gate::cases(&set, &opts, &codec);
     if args.list {
         let mut out = std::io::stdout().lock();
         for c in &cases {
@@ -168,7 +206,7 @@ pub fn run(args: GateArgs) -> anyhow::Result<ExitCode> {
     unsafe {
         libc::signal(libc::SIGPIPE, libc::SIG_IGN);
     }
-    let mut adapter = Adapter::start(&this_program(&args.codec)?, opts.timeout)?;
+    let mut adapter = Adapter::start(&this_program(&codec)?, opts.timeout)?;
     let hello = adapter.hello.clone();
     let started = humantime::format_rfc3339_seconds(SystemTime::now()).to_string();
     let report = Report {
@@ -177,7 +215,7 @@ pub fn run(args: GateArgs) -> anyhow::Result<ExitCode> {
             adapter: hello.adapter.clone(),
             implementation: hello.implementation.clone(),
             version: hello.version.clone(),
-            command: args.codec.clone(),
+            command: codec.clone(),
             supports: hello.supports.clone(),
             incidents: vec![],
             seed: args.seed,
@@ -282,9 +320,36 @@ pub struct AdapterArgs {
     /// frames whatever their CRC or LRC.
     #[arg(long, value_name = "FAULT", hide = true)]
     r#break: Option<String>,
+    /// This suite's own Modbus master behind the master adapter protocol (for
+    /// `conformance gate --master`): a test double, for the gate's own tests.
+    #[arg(long)]
+    master: bool,
+    /// With --master, a planted bug, for tests only: takes-stale-reply, no-t35,
+    /// accepts-bad-crc, retry-storm, ignores-exception, reads-over-limit.
+    #[arg(long, value_name = "QUIRK", requires = "master")]
+    master_quirk: Option<String>,
 }
 
 pub fn adapter(args: AdapterArgs) -> anyhow::Result<ExitCode> {
+    if args.master {
+        let quirk = match args.master_quirk.as_deref() {
+            None => None,
+            Some(name) => Some(gate::master::reference::Quirk::parse(name).ok_or_else(|| {
+                anyhow::anyhow!(
+                    "unknown master quirk {name:?}; the quirks are {}",
+                    gate::master::reference::Quirk::ALL
+                        .iter()
+                        .map(|(n, _)| *n)
+                        .collect::<Vec<_>>()
+                        .join(", ")
+                )
+            })?),
+        };
+        let stdin = std::io::stdin().lock();
+        let stdout = std::io::stdout().lock();
+        gate::master::reference::serve(stdin, stdout, quirk)?;
+        return Ok(ExitCode::SUCCESS);
+    }
     let fault = match args.r#break.as_deref() {
         None => None,
         Some("accept-bad-checksum") => Some(gate::reference::Fault::AcceptBadChecksum),

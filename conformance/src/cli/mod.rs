@@ -11,6 +11,7 @@ mod gate_cmd;
 mod identify_cmd;
 mod interrupt;
 mod link;
+mod master_gate_cmd;
 mod model_cmd;
 mod monitor_cmd;
 mod report_cmd;
@@ -68,7 +69,8 @@ enum Command {
     Monitor(monitor_cmd::MonitorArgs),
     /// Find the devices on a line: line settings, mode and node addresses (reads only).
     Scan(scan_cmd::ScanArgs),
-    /// Check another Modbus codec through an adapter (adapters/PROTOCOL.md).
+    /// Check another Modbus codec (--codec) or master (--master) through an adapter
+    /// (adapters/PROTOCOL.md).
     Gate(gate_cmd::GateArgs),
     /// Render a saved JSON report as text (the default), HTML, JUnit XML, CSV or JSON.
     Report(report_cmd::ReportArgs),

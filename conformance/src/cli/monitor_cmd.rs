@@ -479,6 +479,7 @@ fn report(
         fuzz: None,
         monitor: Some(summary),
         expect: None,
+        master: None,
     };
     args.expect.load()?.apply(&mut report);
     finish(

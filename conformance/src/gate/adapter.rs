@@ -196,6 +196,8 @@ pub struct Hello {
     pub version: String,
     /// Operations supported ("decode", "encode:rtu", ...).
     pub supports: Vec<String>,
+    /// The whole answer, for fields a role adds (a master's `lines` and `modes`).
+    pub raw: Value,
 }
 
 impl Hello {
@@ -277,6 +279,10 @@ pub struct Adapter {
     pub hello: Hello,
     /// Crashes and restarts, for the report.
     pub incidents: Vec<String>,
+    /// Fields the hello carries besides `op` and `protocol` (a master's `"role"`).
+    hello_extra: Value,
+    /// A request sent again after a restart, before the next call (a master's `open`).
+    reopen: Option<Value>,
 }
 
 /// Starts `command`; its stderr is held back until [`Process::pass_stderr_through`], or
@@ -347,6 +353,15 @@ fn spawn(command: &str, pass_through: bool) -> Result<Process, std::io::Error> {
 impl Adapter {
     /// Starts `command` (through `sh -c`) and shakes hands.
     pub fn start(command: &str, timeout: Duration) -> Result<Self, AdapterError> {
+        Self::start_with(command, timeout, json!({}))
+    }
+
+    /// [`Adapter::start`] with `extra` fields in the hello (`{"role": "master"}`).
+    pub fn start_with(
+        command: &str,
+        timeout: Duration,
+        extra: Value,
+    ) -> Result<Self, AdapterError> {
         let process = spawn(command, false).map_err(|source| AdapterError::Spawn {
             command: command.to_string(),
             source,
@@ -361,6 +376,8 @@ impl Adapter {
             starting: true,
             hello: Hello::default(),
             incidents: Vec::new(),
+            hello_extra: extra,
+            reopen: None,
         };
         match a.handshake() {
             Ok(hello) => a.hello = hello,
@@ -391,7 +408,13 @@ impl Adapter {
         // HANDSHAKE_TIMEOUT, whatever the per-case timeout.
         let per_case = self.timeout;
         self.timeout = per_case.max(HANDSHAKE_TIMEOUT);
-        let answer = self.raw_call_with_id(0, json!({"op": "hello", "protocol": PROTOCOL}));
+        let mut hello = json!({"op": "hello", "protocol": PROTOCOL});
+        if let (Some(h), Some(extra)) = (hello.as_object_mut(), self.hello_extra.as_object()) {
+            for (k, v) in extra {
+                h.insert(k.clone(), v.clone());
+            }
+        }
+        let answer = self.raw_call_with_id(0, hello);
         self.timeout = per_case;
         let v = answer.map_err(|e| e.to_string())?;
         if v.get("ok") != Some(&Value::Bool(true)) {
@@ -417,7 +440,25 @@ impl Adapter {
                         .collect()
                 })
                 .unwrap_or_default(),
+            raw: v,
         })
+    }
+
+    /// The time each answer is waited for.
+    pub fn timeout(&self) -> Duration {
+        self.timeout
+    }
+
+    /// Sets the time each answer is waited for (a master's worst case changes with its
+    /// settings).
+    pub fn set_timeout(&mut self, timeout: Duration) {
+        self.timeout = timeout;
+    }
+
+    /// A request to send again, once, after the adapter is restarted (a master's `open`:
+    /// a restarted adapter has no line open). Its answer is not judged.
+    pub fn set_reopen(&mut self, request: Option<Value>) {
+        self.reopen = request;
     }
 
     /// The command.
@@ -449,7 +490,16 @@ impl Adapter {
             Ok(p) => {
                 self.process = Some(p);
                 match self.handshake() {
-                    Ok(_) => self.incidents.push(format!("{why}; restarted")),
+                    Ok(_) => {
+                        self.incidents.push(format!("{why}; restarted"));
+                        if let Some(open) = self.reopen.clone() {
+                            if let Err(e) = self.raw_call(open) {
+                                self.incidents.push(format!(
+                                    "after the restart, opening its line again failed: {e}"
+                                ));
+                            }
+                        }
+                    }
                     Err(e) => {
                         self.incidents
                             .push(format!("{why}; restarted, but the handshake failed: {e}"));

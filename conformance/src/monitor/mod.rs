@@ -375,6 +375,18 @@ impl Monitor {
         self.nodes.values().map(|n| n.deviations).sum()
     }
 
+    /// The master's side of one request frame only: the request against the manual and
+    /// the model (function, register map, counts, broadcasts, checksum) and t3.5 of
+    /// silence before it (`f.silence_before`). The master gate judges every request of
+    /// the master under test with it, so that a request gets one verdict whoever heard it.
+    pub fn judge_master_request(&self, f: &TapFrame) -> Vec<Issue> {
+        let address = judge::body_of(self.cfg.mode, &f.bytes).map_or(0, |b| b[0]);
+        let judgement = self
+            .model
+            .judge(self.judged_as(address), self.cfg.mode, &f.bytes);
+        judge_master::judge_request(self, f, &judgement)
+    }
+
     fn timing_rule(&self) -> TimingRule {
         TimingRule {
             line: Some(self.cfg.line),

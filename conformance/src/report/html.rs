@@ -244,9 +244,10 @@ fn header(out: &mut String, report: &Report) {
         ReportKind::Drive | ReportKind::Fuzz | ReportKind::Monitor => {
             format!("TECO {} drive", report.device.model)
         }
-        ReportKind::Gate => match &report.codec {
-            Some(c) => format!("codec {} {}", c.implementation, c.version),
-            None => "codec".into(),
+        ReportKind::Gate => match (&report.codec, report.master.is_some()) {
+            (Some(c), true) => format!("master {} {}", c.implementation, c.version),
+            (Some(c), false) => format!("codec {} {}", c.implementation, c.version),
+            (None, _) => "codec".into(),
         },
     };
     w!(out, "<h1>Modbus conformance report: {}</h1>", esc(&what));
@@ -348,11 +349,21 @@ fn header(out: &mut String, report: &Report) {
                 );
                 row(out, "command", &format!("<code>{}</code>", esc(&c.command)));
                 row(out, "supports", &esc(&c.supports.join(", ")));
-                row(
-                    out,
-                    "differential cases",
-                    &format!("{} (seed {:#x})", c.count, c.seed),
-                );
+                match &report.master {
+                    // A master: its settings and what was found, by kind, each with the
+                    // command that reproduces it.
+                    Some(m) => {
+                        for l in m.text_lines() {
+                            let (k, v) = l.split_once(':').unwrap_or(("", &l));
+                            row(out, k.trim(), &esc(v.trim()));
+                        }
+                    }
+                    None => row(
+                        out,
+                        "differential cases",
+                        &format!("{} (seed {:#x})", c.count, c.seed),
+                    ),
+                }
                 for i in &c.incidents {
                     row(out, "incident", &esc(i));
                 }
@@ -492,6 +503,9 @@ pub fn html(report: &Report) -> String {
     let title = match report.kind {
         ReportKind::Drive | ReportKind::Fuzz | ReportKind::Monitor => {
             format!("Conformance report: {}", report.device.model)
+        }
+        ReportKind::Gate if report.master.is_some() => {
+            "Conformance report: master gate".to_string()
         }
         ReportKind::Gate => "Conformance report: codec gate".to_string(),
     };

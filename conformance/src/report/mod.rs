@@ -159,6 +159,9 @@ pub struct Report {
     pub monitor: Option<crate::monitor::MonitorSummary>,
     /// The run's results against an expectations file (`--expect`), if one was given.
     pub expect: Option<crate::expect::Outcome>,
+    /// For a gate report on a master (`gate --master`): its settings and its findings by
+    /// kind.
+    pub master: Option<crate::gate::master::MasterSummary>,
 }
 
 /// Counts per status.
@@ -433,6 +436,7 @@ impl Report {
             "fuzz": self.fuzz.as_ref().map(|f| f.to_json()),
             "monitor": self.monitor.as_ref().map(|m| m.to_json()),
             "expectations": self.expect.as_ref().map(|o| expect_json::outcome(self, o)),
+            "master": self.master.as_ref().map(|m| m.to_json()),
         })
     }
 }

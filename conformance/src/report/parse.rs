@@ -410,6 +410,8 @@ impl Report {
             // Nor the monitor's statistics: its results are.
             monitor: None,
             expect,
+            // Nor the master gate's summary by kind: its results are.
+            master: None,
         })
     }
 }

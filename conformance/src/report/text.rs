@@ -35,7 +35,9 @@ pub fn text(r: &Report, verbose: bool) -> String {
     let _ = writeln!(
         o,
         "TECO Modbus {} ({} {})",
-        if gate {
+        if r.master.is_some() {
+            "master gate report"
+        } else if gate {
             "codec gate report"
         } else {
             "conformance report"
@@ -53,18 +55,32 @@ pub fn text(r: &Report, verbose: bool) -> String {
     if let Some(c) = &r.codec {
         let _ = writeln!(
             o,
-            "codec:   {} {} (adapter {}; supports {})",
+            "{}{} {} (adapter {}; supports {})",
+            if r.master.is_some() {
+                "master:  "
+            } else {
+                "codec:   "
+            },
             c.implementation,
             c.version,
             c.adapter,
             c.supports.join(" ")
         );
         let _ = writeln!(o, "command: {}", c.command);
-        let _ = writeln!(
-            o,
-            "cases:   golden vectors, and {} differential cases from seed {:#x}",
-            c.count, c.seed
-        );
+        match &r.master {
+            Some(m) => {
+                for l in m.text_lines() {
+                    let _ = writeln!(o, "{l}");
+                }
+            }
+            None => {
+                let _ = writeln!(
+                    o,
+                    "cases:   golden vectors, and {} differential cases from seed {:#x}",
+                    c.count, c.seed
+                );
+            }
+        }
         for i in &c.incidents {
             let _ = writeln!(o, "adapter: {i}");
         }

@@ -1,0 +1,203 @@
+#!/usr/bin/env python3
+"""Master adapter for the mbpoll program (the master adapter protocol, role "master", of
+../PROTOCOL.md): every operation runs ``mbpoll`` once (``-1``) and the answer is read from
+its output and exit code. The adapter never touches the line itself.
+
+* open only records the settings: ``-m rtu -b BAUD -P none|even|odd -d BITS -s STOP
+  -o TIMEOUT_S`` and the pty path (or ``-m tcp -p PORT HOST`` for ``mbap``). mbpoll has no
+  ASCII and no retries (``open`` answers ``retries: 0`` whatever was asked); its time-out
+  is 0.01..10 s (a ``timeout_ms`` outside is brought inside, and the answer says so).
+* read: ``mbpoll ... -a UNIT -0 -1 -t 4:hex -r START -c COUNT PATH`` and the ``[ref]: 0xNNNN``
+  lines of its output.
+* write-single: ``mbpoll ... -t 4 -r REG PATH VALUE`` (one value: mbpoll sends 06H);
+  write-multiple: ``... PATH V1 V2 ...`` (10H).
+* broadcast: mbpoll refuses address 0 in RTU ("slave address out of range"), so the
+  adapter does not announce it.
+* loop-back: not offered by mbpoll.
+
+A failed call exits 1 with ``Read output (holding) register failed: <libmodbus's
+modbus_strerror text>`` (or ``Write ...``) on stderr; the text is mapped back to the
+exception code or error kind as libmodbus words them.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+import shutil
+import subprocess
+import sys
+
+ADAPTER = "mbpoll-master"
+OUT = sys.stdout
+sys.stdout = sys.stderr
+
+# libmodbus 3.1.6 modbus_strerror texts (src/modbus.c) back to the exception code.
+EXCEPTION_OF_TEXT = {
+    "Illegal function": 0x01,
+    "Illegal data address": 0x02,
+    "Illegal data value": 0x03,
+    "Slave device or server failure": 0x04,
+    "Acknowledge": 0x05,
+    "Slave device or server is busy": 0x06,
+    "Negative acknowledge": 0x07,
+    "Memory parity error": 0x08,
+    "Gateway path unavailable": 0x0A,
+    "Target device failed to respond": 0x0B,
+}
+KIND_OF_TEXT = {
+    "Connection timed out": "timeout",
+    "Invalid CRC": "checksum",
+    "Invalid data": "invalid-frame",
+    "Invalid exception code": "invalid-frame",
+    "Unknown exception code": "invalid-frame",
+    "Too many data": "invalid-frame",
+    "Response not from requested slave": "invalid-frame",
+}
+
+settings: dict | None = None
+
+
+def mbpoll_version() -> str:
+    try:
+        out = subprocess.run(["mbpoll", "-V"], capture_output=True, text=True, timeout=5)
+        return (out.stdout or out.stderr).strip() or "?"
+    except (OSError, subprocess.SubprocessError):
+        return "not installed"
+
+
+def op_hello(req: dict) -> dict:
+    if req.get("protocol") != 1 or req.get("role") != "master":
+        return {"ok": False, "error": "this adapter speaks protocol 1, role master"}
+    if shutil.which("mbpoll") is None:
+        return {"ok": False, "error": "mbpoll is not on the PATH (Debian package mbpoll)"}
+    return {"ok": True, "protocol": 1, "role": "master", "adapter": ADAPTER,
+            "implementation": "mbpoll", "version": mbpoll_version(),
+            "supports": ["read", "write-single", "write-multiple"],
+            "lines": ["pty", "mbap"], "modes": ["rtu"]}
+
+
+def op_open(req: dict) -> dict:
+    global settings
+    settings = None
+    if req.get("mode", "rtu") != "rtu":
+        return {"ok": False, "error": "unsupported", "detail": "mbpoll has no ASCII"}
+    # mbpoll's -o is 0.01..10 s and it has no retries: it runs with the nearest timeout and
+    # 0 retries, whatever was asked (the gate judges with what this answer reports).
+    ms = min(max(int(req.get("timeout_ms", 1000)), 10), 10000)
+    line = req.get("line") or {}
+    if line.get("kind") == "pty":
+        parity = {"N": "none", "E": "even", "O": "odd"}[str(req.get("parity", "N"))[:1].upper()]
+        args = ["-m", "rtu", "-b", str(int(req.get("baud", 19200))), "-P", parity,
+                "-d", str(int(req.get("data_bits", 8))), "-s", str(int(req.get("stop_bits", 1)))]
+        target = line["path"]
+    elif line.get("kind") == "mbap":
+        args = ["-m", "tcp", "-p", str(int(line["port"]))]
+        target = str(line["host"])
+    else:
+        return {"ok": False, "error": "unsupported", "detail": f"line {line.get('kind')}"}
+    args += ["-o", f"{ms / 1000:.2f}"]
+    settings = {"args": args, "target": target, "timeout_ms": ms}
+    return {"ok": True, "timeout_ms": ms, "retries": 0}
+
+
+def run(extra: list[str], values: list[str] | None = None) -> tuple[int, str, str]:
+    if settings is None:
+        raise RuntimeError("not open")
+    cmd = ["mbpoll", *settings["args"], *extra, settings["target"]]
+    if values:
+        cmd += ["--", *values]
+    p = subprocess.run(cmd, capture_output=True, text=True, timeout=settings["timeout_ms"] / 1000 + 10)
+    return p.returncode, p.stdout, p.stderr
+
+
+def failed(rc: int, stdout: str, stderr: str) -> dict:
+    m = re.search(r"failed: (.+)", stderr)
+    text = m.group(1).strip() if m else (stderr.strip().splitlines() or [f"exit code {rc}"])[-1]
+    if text in EXCEPTION_OF_TEXT:
+        return {"ok": True, "result": "exception", "code": f"{EXCEPTION_OF_TEXT[text]:02X}", "message": text}
+    kind = KIND_OF_TEXT.get(text, "other")
+    return {"ok": True, "result": "error", "kind": kind, "message": f"{text} (exit code {rc})"}
+
+
+def common(req: dict) -> list[str]:
+    return ["-a", str(int(req["unit"])), "-0", "-1"]
+
+
+def op_read(req: dict) -> dict:
+    count = int(req["count"])
+    rc, out, err = run(common(req) + ["-t", "4:hex", "-r", str(int(req["start"], 16)), "-c", str(count)])
+    if rc != 0:
+        return failed(rc, out, err)
+    values = re.findall(r"^\[\d+\]:\s*0x([0-9A-Fa-f]{4})\s*$", out, re.M)
+    if not values:
+        return {"ok": True, "result": "raised", "type": "exit 0",
+                "message": f"mbpoll exited 0 with no values: {out.strip()[-200:]!r}"}
+    return {"ok": True, "result": "values", "values": [v.upper() for v in values]}
+
+
+def written(rc: int, out: str, err: str) -> dict:
+    if rc != 0:
+        return failed(rc, out, err)
+    m = re.search(r"Written (\d+) references", out)
+    return {"ok": True, "result": "done", **({"echo": {"count": int(m.group(1))}} if m else {})}
+
+
+def op_write_single(req: dict) -> dict:
+    rc, out, err = run(common(req) + ["-t", "4", "-r", str(int(req["register"], 16))],
+                       [str(int(req["value"], 16))])
+    return written(rc, out, err)
+
+
+def op_write_multiple(req: dict) -> dict:
+    rc, out, err = run(common(req) + ["-t", "4", "-r", str(int(req["start"], 16))],
+                       [str(int(v, 16)) for v in req["values"]])
+    return written(rc, out, err)
+
+
+def op_loop_back(_req: dict) -> dict:
+    return {"ok": False, "error": "unsupported", "detail": "mbpoll has no 08H"}
+
+
+def op_close(_req: dict) -> dict:
+    global settings
+    settings = None
+    return {"ok": True}
+
+
+OPS = {"hello": op_hello, "open": op_open, "read": op_read, "write-single": op_write_single,
+       "write-multiple": op_write_multiple, "loop-back": op_loop_back, "close": op_close}
+
+
+def main() -> int:
+    for raw in sys.stdin.buffer:
+        line = raw.decode("utf-8", "replace").strip()
+        if not line:
+            continue
+        try:
+            req = json.loads(line)
+            if not isinstance(req, dict):
+                raise ValueError("not a JSON object")
+        except ValueError as exc:
+            answer = {"id": None, "ok": False, "error": f"bad request: {exc}"}
+        else:
+            fn = OPS.get(req.get("op"))
+            try:
+                answer = fn(req) if fn else {"ok": False, "error": "unsupported",
+                                             "detail": f"op {req.get('op')!r}"}
+            except (KeyError, ValueError, TypeError) as exc:
+                answer = {"ok": False, "error": f"bad request: {type(exc).__name__}: {exc}"}
+            except Exception as exc:  # noqa: BLE001
+                print(f"[{ADAPTER}] id={req.get('id')}: {type(exc).__name__}: {exc}", file=sys.stderr)
+                answer = {"ok": False, "error": f"{type(exc).__name__}: {exc}"}
+            answer = {"id": req.get("id"), **answer}
+        try:
+            OUT.write(json.dumps(answer, separators=(",", ":")) + "\n")
+            OUT.flush()
+        except BrokenPipeError:
+            return 0
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

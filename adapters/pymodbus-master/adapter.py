@@ -1,0 +1,249 @@
+#!/usr/bin/env python3
+"""Master adapter for pymodbus's synchronous client (the master adapter protocol,
+role "master", of ../PROTOCOL.md).
+
+One JSON request per line on stdin, one JSON answer per line on stdout (flushed per line);
+logs on stderr. The adapter calls pymodbus's own client API and reports what it returned:
+it never builds or parses a frame.
+
+* open: ``ModbusSerialClient(path, framer=FramerType.RTU|ASCII, baudrate, bytesize, parity,
+  stopbits, timeout=timeout_ms/1000, retries=retries)`` on a pty;
+  ``ModbusTcpClient(host, port=..., framer=FramerType.RTU, ...)`` for ``tcp-rtu``;
+  ``ModbusTcpClient(host, port=..., framer=FramerType.SOCKET, ...)`` for ``mbap``.
+* read: ``read_holding_registers(start, count=count, device_id=unit)``
+* write-single: ``write_register(register, value, device_id=unit)``
+* write-multiple: ``write_registers(start, values, device_id=unit)``
+* loop-back: ``diag_query_data(data, device_id=unit)`` (sub-function 0000H only)
+* broadcast (unit 0): the same write calls with ``no_response_expected=True``, as pymodbus
+  asks a caller to do for a request nobody answers (set PYMODBUS_MASTER_BROADCAST_WAIT=1 to
+  call them as for a unicast instead, and see pymodbus wait for a reply to a broadcast).
+
+Set PYMODBUS_MASTER_DEBUG=1 to copy pymodbus's debug log to stderr.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import sys
+
+if sys.path and os.path.abspath(sys.path[0] or ".") == os.path.dirname(os.path.abspath(__file__)):
+    del sys.path[0]
+
+import pymodbus  # noqa: E402
+from pymodbus import FramerType  # noqa: E402
+from pymodbus.client import ModbusSerialClient, ModbusTcpClient  # noqa: E402
+from pymodbus.exceptions import ConnectionException, ModbusIOException, ModbusException  # noqa: E402
+
+ADAPTER = "pymodbus-master"
+OUT = sys.stdout
+sys.stdout = sys.stderr  # anything pymodbus prints goes to stderr, never into the protocol
+
+if os.environ.get("PYMODBUS_MASTER_DEBUG"):
+    pymodbus.pymodbus_apply_logging_config(logging.DEBUG)
+else:
+    logging.getLogger("pymodbus").setLevel(logging.CRITICAL)
+
+
+def log(msg: str) -> None:
+    print(f"[{ADAPTER}] {msg}", file=sys.stderr, flush=True)
+
+
+class Unsupported(Exception):
+    pass
+
+
+client = None
+broadcast_wait = bool(os.environ.get("PYMODBUS_MASTER_BROADCAST_WAIT"))
+
+
+def h4(v: int) -> str:
+    return f"{v & 0xFFFF:04X}"
+
+
+def hx(data: bytes) -> str:
+    return " ".join(f"{b:02X}" for b in data)
+
+
+def op_open(req: dict) -> dict:
+    global client
+    if client is not None:
+        client.close()
+        client = None
+    line = req.get("line") or {}
+    mode = req.get("mode", "rtu")
+    timeout = float(req.get("timeout_ms", 1000)) / 1000.0
+    retries = int(req.get("retries", 0))
+    kind = line.get("kind")
+    framer = {"rtu": FramerType.RTU, "ascii": FramerType.ASCII}.get(mode)
+    if framer is None:
+        raise Unsupported(f"mode {mode}")
+    if kind == "pty":
+        client = ModbusSerialClient(
+            line["path"],
+            framer=framer,
+            baudrate=int(req.get("baud", 19200)),
+            bytesize=int(req.get("data_bits", 8)),
+            parity=str(req.get("parity", "N"))[:1].upper(),
+            stopbits=int(req.get("stop_bits", 1)),
+            timeout=timeout,
+            retries=retries,
+        )
+    elif kind in ("tcp-rtu", "mbap"):
+        if kind == "mbap":
+            if mode != "rtu":
+                raise Unsupported("mbap carries no ASCII")
+            framer = FramerType.SOCKET
+        client = ModbusTcpClient(
+            line["host"], port=int(line["port"]), framer=framer, timeout=timeout, retries=retries
+        )
+    else:
+        raise Unsupported(f"line {kind}")
+    if not client.connect():
+        return {"ok": False, "error": f"pymodbus could not open {line}"}
+    return {"ok": True, "timeout_ms": int(timeout * 1000), "retries": retries}
+
+
+def outcome(call, on_ok) -> dict:
+    """Runs one pymodbus call; maps what it returned or raised to an answer."""
+    try:
+        rr = call()
+    except ModbusIOException as exc:
+        text = str(exc)
+        # sync_execute raises this after its retries are spent ("No response received
+        # after N retries"); every CRC/LRC error, short frame or frame of another node is
+        # dropped by the framer and ends the same way, so a timeout is all pymodbus tells.
+        if "No response received" in text:
+            return {"ok": True, "result": "error", "kind": "timeout", "message": text}
+        return {"ok": True, "result": "error", "kind": "other", "message": text}
+    except ConnectionException as exc:
+        return {"ok": True, "result": "error", "kind": "other", "message": str(exc)}
+    except ModbusException as exc:
+        return {"ok": True, "result": "error", "kind": "other", "message": f"{type(exc).__name__}: {exc}"}
+    except Exception as exc:  # noqa: BLE001 - the call crashed: report it as raised
+        return {"ok": True, "result": "raised", "type": type(exc).__name__, "message": str(exc)}
+    if rr is None:
+        return {"ok": True, "result": "done"}
+    if rr.isError():
+        return {"ok": True, "result": "exception", "code": f"{rr.exception_code:02X}",
+                "note": type(rr).__name__}
+    answer = on_ok(rr)
+    answer.setdefault("note", type(rr).__name__)
+    return answer
+
+
+def need_client():
+    if client is None:
+        raise RuntimeError("not open")
+    return client
+
+
+def op_read(req: dict) -> dict:
+    c = need_client()
+    start, count, unit = int(req["start"], 16), int(req["count"]), int(req["unit"])
+    return outcome(
+        lambda: c.read_holding_registers(start, count=count, device_id=unit),
+        lambda rr: {"ok": True, "result": "values", "values": [h4(v) for v in rr.registers]},
+    )
+
+
+def _nre(unit: int) -> bool:
+    return unit == 0 and not broadcast_wait
+
+
+def op_write_single(req: dict) -> dict:
+    c = need_client()
+    reg, value, unit = int(req["register"], 16), int(req["value"], 16), int(req["unit"])
+    return outcome(
+        lambda: c.write_register(reg, value, device_id=unit, no_response_expected=_nre(unit)),
+        lambda rr: {"ok": True, "result": "done",
+                    "echo": {"register": h4(rr.address),
+                             "value": h4(rr.registers[0]) if rr.registers else None}},
+    )
+
+
+def op_write_multiple(req: dict) -> dict:
+    c = need_client()
+    start, unit = int(req["start"], 16), int(req["unit"])
+    values = [int(v, 16) for v in req["values"]]
+    return outcome(
+        lambda: c.write_registers(start, values, device_id=unit, no_response_expected=_nre(unit)),
+        lambda rr: {"ok": True, "result": "done", "echo": {"start": h4(rr.address), "count": rr.count}},
+    )
+
+
+def op_loop_back(req: dict) -> dict:
+    c = need_client()
+    if int(req.get("test_code", "0000"), 16) != 0:
+        raise Unsupported("pymodbus's client offers loop-back 08H only as diag_query_data (0000H)")
+    data = bytes(int(t, 16) for t in str(req.get("data", "")).split())
+    unit = int(req["unit"])
+
+    def echo(rr):
+        msg = rr.message if isinstance(rr.message, (bytes, bytearray)) else b""
+        if isinstance(rr.message, int):
+            msg = rr.message.to_bytes(2, "big")
+        return {"ok": True, "result": "echo", "test_code": h4(getattr(rr, "sub_function_code", 0)),
+                "data": hx(msg)}
+
+    return outcome(lambda: c.diag_query_data(data, device_id=unit), echo)
+
+
+def op_close(_req: dict) -> dict:
+    global client
+    if client is not None:
+        client.close()
+        client = None
+    return {"ok": True}
+
+
+def op_hello(req: dict) -> dict:
+    if req.get("protocol") != 1 or req.get("role") != "master":
+        return {"ok": False, "error": "this adapter speaks protocol 1, role master"}
+    return {"ok": True, "protocol": 1, "role": "master", "adapter": ADAPTER,
+            "implementation": "pymodbus", "version": pymodbus.__version__,
+            "supports": ["read", "write-single", "write-multiple", "loop-back", "broadcast"],
+            "lines": ["pty", "tcp-rtu", "mbap"], "modes": ["rtu", "ascii"]}
+
+
+OPS = {"hello": op_hello, "open": op_open, "read": op_read, "write-single": op_write_single,
+       "write-multiple": op_write_multiple, "loop-back": op_loop_back, "close": op_close}
+
+
+def main() -> int:
+    for raw in sys.stdin.buffer:
+        line = raw.decode("utf-8", "replace").strip()
+        if not line:
+            continue
+        try:
+            req = json.loads(line)
+            if not isinstance(req, dict):
+                raise ValueError("not a JSON object")
+        except ValueError as exc:
+            answer = {"id": None, "ok": False, "error": f"bad request: {exc}"}
+        else:
+            fn = OPS.get(req.get("op"))
+            try:
+                answer = fn(req) if fn else {"ok": False, "error": "unsupported",
+                                             "detail": f"op {req.get('op')!r}"}
+            except Unsupported as exc:
+                answer = {"ok": False, "error": "unsupported", "detail": str(exc)}
+            except (KeyError, ValueError, TypeError) as exc:
+                answer = {"ok": False, "error": f"bad request: {type(exc).__name__}: {exc}"}
+            except Exception as exc:  # noqa: BLE001
+                log(f"id={req.get('id')}: {type(exc).__name__}: {exc}")
+                answer = {"ok": False, "error": f"{type(exc).__name__}: {exc}"}
+            answer = {"id": req.get("id"), **answer}
+        try:
+            OUT.write(json.dumps(answer, separators=(",", ":")) + "\n")
+            OUT.flush()
+        except BrokenPipeError:
+            return 0
+    if client is not None:
+        client.close()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

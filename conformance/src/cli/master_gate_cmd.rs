@@ -1,0 +1,253 @@
+//! `conformance gate --master CMD`: judge a Modbus master through a master adapter.
+
+use std::io::{IsTerminal, Write};
+use std::path::PathBuf;
+use std::process::ExitCode;
+use std::time::{Duration, SystemTime};
+
+use anyhow::Context;
+use clap::Args;
+use conformance::codec::Mode;
+use conformance::gate::master::{
+    self, MasterAdapter, MasterCase, MasterOptions, MasterProgress, MasterSettings,
+};
+use conformance::report::{Codec, Report, ReportKind, RunOptions};
+use conformance::runner::CheckResult;
+
+use super::check_cmd::{finish, format_for, Format};
+use super::common::{load_model, ParityArg};
+use super::gate_cmd::{shell_quote, Progress};
+
+/// Modes to run.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum ModesArg {
+    /// RTU only.
+    Rtu,
+    /// ASCII only.
+    Ascii,
+    /// RTU, then ASCII.
+    Both,
+}
+
+/// The line the gate serves.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum LineArg {
+    /// A pseudo-terminal pair (the master opens it as a serial port).
+    Pty,
+    /// RTU or ASCII frames over TCP (the master connects to 127.0.0.1).
+    TcpRtu,
+}
+
+/// The options of `gate --master` (ignored with `--codec`).
+#[derive(Debug, Args)]
+pub struct MasterGateArgs {
+    /// With --master: the drive model the gate plays.
+    #[arg(long, default_value = "f510", value_name = "MODEL")]
+    model: String,
+    /// With --master: a model file instead of a built-in model.
+    #[arg(long, value_name = "FILE")]
+    model_file: Option<PathBuf>,
+    /// With --master: the drive's node address.
+    #[arg(long, default_value_t = 1, value_name = "N")]
+    node: u8,
+    /// With --master: the modes to run (the master's hello says which it speaks).
+    #[arg(long, value_enum, default_value = "both")]
+    mode: ModesArg,
+    /// With --master: the master's own response timeout, in ms (sent in `open`).
+    #[arg(long, value_name = "MS", default_value_t = 300)]
+    master_timeout: u64,
+    /// With --master: the master's own retries after a timeout (sent in `open`).
+    #[arg(long, value_name = "N", default_value_t = 0)]
+    retries: u32,
+    /// With --master: the baud rate given to the master (the line's timing: t3.5).
+    #[arg(short = 'b', long, default_value_t = 9600)]
+    baud: u32,
+    /// With --master: the parity given to the master.
+    #[arg(short = 'P', long, value_enum, default_value = "none")]
+    parity: ParityArg,
+    /// With --master: the line the gate serves (tcp-rtu has no line timing: no t3.5, no
+    /// gaps).
+    #[arg(long, value_enum, default_value = "pty")]
+    line: LineArg,
+}
+
+/// The options `gate` shares between codecs and masters.
+pub struct Common {
+    pub only: Vec<String>,
+    pub list: bool,
+    pub timeout: u64,
+    pub format: Option<Format>,
+    pub output: Option<PathBuf>,
+    pub verbose: bool,
+    pub quiet: bool,
+    /// `--expect FILE`: known findings by case id.
+    pub expect: super::expect_cmd::Loaded,
+}
+
+impl MasterProgress for Progress<'_> {
+    fn started(&mut self, case: &MasterCase) {
+        if let Some(b) = &self.bar {
+            b.set_message(case.id.clone());
+        }
+    }
+
+    fn finished(&mut self, result: &CheckResult) {
+        conformance::gate::GateProgress::finished(self, result);
+    }
+}
+
+pub fn run(
+    command: &str,
+    resolved: &str,
+    args: &MasterGateArgs,
+    common: Common,
+) -> anyhow::Result<ExitCode> {
+    let model = load_model(&args.model, args.model_file.as_deref(), args.node)?;
+    let parity = match args.parity {
+        ParityArg::None => conformance::codec::timing::Parity::None,
+        ParityArg::Even => conformance::codec::timing::Parity::Even,
+        ParityArg::Odd => conformance::codec::timing::Parity::Odd,
+    };
+    let line = conformance::codec::timing::LineSettings::new(args.baud, 8, parity, 1);
+    let modes = match args.mode {
+        ModesArg::Rtu => vec![Mode::Rtu],
+        ModesArg::Ascii => vec![Mode::Ascii],
+        ModesArg::Both => vec![Mode::Rtu, Mode::Ascii],
+    };
+    let mut repro = format!("conformance gate --master {}", shell_quote(command));
+    if args.model != "f510" || args.model_file.is_some() {
+        match &args.model_file {
+            Some(f) => repro.push_str(&format!(" --model-file {}", f.display())),
+            None => repro.push_str(&format!(" --model {}", args.model)),
+        }
+    }
+    if args.master_timeout != 300 {
+        repro.push_str(&format!(" --master-timeout {}", args.master_timeout));
+    }
+    if args.retries != 0 {
+        repro.push_str(&format!(" --retries {}", args.retries));
+    }
+    if args.baud != 9600 {
+        repro.push_str(&format!(" -b {}", args.baud));
+    }
+    let line_kind = match args.line {
+        LineArg::Pty => master::drive::LineKind::Pty,
+        LineArg::TcpRtu => {
+            repro.push_str(" --line tcp-rtu");
+            master::drive::LineKind::TcpRtu
+        }
+    };
+    let opts = MasterOptions {
+        model,
+        node: args.node,
+        modes,
+        only: common.only.clone(),
+        settings: MasterSettings {
+            timeout: Duration::from_millis(args.master_timeout),
+            retries: args.retries,
+        },
+        line,
+        repro,
+        line_kind,
+    };
+    let cases = master::cases(&opts);
+    if common.list {
+        let mut out = std::io::stdout().lock();
+        for c in &cases {
+            writeln!(out, "{:<40} {}", c.id, c.title)?;
+        }
+        writeln!(out, "{} cases", cases.len())?;
+        return Ok(ExitCode::SUCCESS);
+    }
+    if cases.is_empty() {
+        anyhow::bail!(
+            "no case matches --only {}; `--list` shows the case ids",
+            common.only.join(" --only ")
+        );
+    }
+    let stop = super::interrupt::stop_flag()?;
+    #[cfg(unix)]
+    // SAFETY: sets the disposition of one signal to ignore; no handler runs.
+    unsafe {
+        libc::signal(libc::SIGPIPE, libc::SIG_IGN);
+    }
+    let mut adapter = MasterAdapter::start(resolved, Duration::from_millis(common.timeout))?;
+    let hello = adapter.adapter.hello.clone();
+    let started = humantime::format_rfc3339_seconds(SystemTime::now()).to_string();
+    let report = Report {
+        kind: ReportKind::Gate,
+        codec: Some(Codec {
+            adapter: hello.adapter.clone(),
+            implementation: hello.implementation.clone(),
+            version: hello.version.clone(),
+            command: command.to_string(),
+            supports: hello.supports.clone(),
+            incidents: vec![],
+            seed: 0,
+            count: 0,
+        }),
+        started,
+        options: RunOptions {
+            timeout_ms: common.timeout,
+            only: common.only.clone(),
+            ..RunOptions::default()
+        },
+        ..Report::default()
+    };
+    let bar = (!common.quiet && std::io::stderr().is_terminal()).then(|| {
+        let b = indicatif::ProgressBar::new(cases.len() as u64);
+        b.set_style(
+            indicatif::ProgressStyle::with_template("{bar:30} {pos}/{len} eta {eta} {wide_msg}")
+                .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+        );
+        b
+    });
+    let mut progress = Progress {
+        report,
+        bar,
+        output: common.output.as_ref(),
+        format: format_for(common.format, common.output.as_deref()),
+        verbose: common.verbose,
+        error: None,
+    };
+    let run = master::run(&mut adapter, &opts, &cases, &stop, &mut progress)
+        .context("the master gate could not run")?;
+    if let Some(b) = &progress.bar {
+        b.finish_and_clear();
+    }
+    let mut report = progress.report;
+    if let Some(c) = report.codec.as_mut() {
+        c.incidents = adapter.adapter.incidents.clone();
+    }
+    report.master = Some(master::summary(&run, &hello.raw, line_kind));
+    let gone = report
+        .results
+        .iter()
+        .filter(|r| r.summary.contains("the adapter is gone"))
+        .count();
+    report.complete = gone == 0;
+    if gone > 0 {
+        report.stopped = Some(format!(
+            "the adapter exited twice; {gone} cases could not run"
+        ));
+    }
+    if stop.load(std::sync::atomic::Ordering::Relaxed) {
+        report.complete = false;
+        report.stopped = Some(format!(
+            "interrupted after {} of {} cases",
+            report.results.len(),
+            cases.len()
+        ));
+    }
+    report.finished = Some(humantime::format_rfc3339_seconds(SystemTime::now()).to_string());
+    if let Some(e) = progress.error {
+        return Err(e);
+    }
+    common.expect.apply(&mut report);
+    finish(
+        &report,
+        format_for(common.format, common.output.as_deref()),
+        common.verbose,
+        common.output.as_deref(),
+    )
+}

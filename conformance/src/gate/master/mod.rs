@@ -1,0 +1,673 @@
+//! The master gate: `conformance gate --master CMD` runs a Modbus master (a library
+//! behind an adapter, `adapters/PROTOCOL.md`, role "master") against the simulated drive
+//! on a pseudo-terminal pair, under a schedule of faults, and judges every request it
+//! puts on the line and every value it reports.
+//!
+//! - [`protocol`]: the gate's side of the master adapter protocol.
+//! - [`drive`]: the drive's end of the line, which answers as the model says and
+//!   misbehaves as each case says; its read replies carry tags, values no other frame of
+//!   the run carries.
+//! - [`cases`]: the schedule: each operation (read, write-single, write-multiple,
+//!   loop-back, broadcast) paired with each behaviour of the drive, followed by a normal
+//!   read (the recovery).
+//! - [`verdict`]: the judgement of each operation; requests through the monitor's judge
+//!   of a master's request, so that a request gets one verdict whoever heard it.
+//! - [`reference`]: this suite's own master, the test double (`conformance adapter
+//!   --master [--master-quirk Q]`), used in tests only.
+
+pub mod cases;
+pub mod drive;
+pub mod protocol;
+pub mod reference;
+pub mod verdict;
+
+use std::collections::BTreeMap;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+pub use cases::{MasterCase, Plan};
+pub use protocol::{MasterAdapter, MasterSettings, Operation, Reported};
+pub use verdict::MasterFinding;
+
+use crate::codec::hex::Hex;
+use crate::codec::timing::LineSettings;
+use crate::codec::Mode;
+use crate::gate::adapter::CallError;
+use crate::judge::{Finding, Severity};
+use crate::model::DriveModel;
+use crate::monitor::{Monitor, MonitorConfig};
+use crate::runner::{CheckResult, ExchangeRecord, Status};
+use drive::{Behaviour, DriveSide, Sent};
+use verdict::{OpRecord, Role};
+
+/// Options of a master gate run.
+#[derive(Debug, Clone)]
+pub struct MasterOptions {
+    /// The drive's model.
+    pub model: DriveModel,
+    /// The drive's node address.
+    pub node: u8,
+    /// The modes to run.
+    pub modes: Vec<Mode>,
+    /// Only cases whose id matches one of these.
+    pub only: Vec<String>,
+    /// The master's own timeout and retries (asked for in `open`).
+    pub settings: MasterSettings,
+    /// The line settings given to the master (their timing judges t3.5).
+    pub line: LineSettings,
+    /// The command line that reproduces a case, without `--only` (e.g. `conformance
+    /// gate --master 'python3 a.py'`).
+    pub repro: String,
+    /// The line the gate serves: a pty, or RTU/ASCII frames over TCP.
+    pub line_kind: drive::LineKind,
+}
+
+/// Told about each case as it runs.
+pub trait MasterProgress {
+    /// A case is about to run.
+    fn started(&mut self, case: &MasterCase);
+    /// A case ended.
+    fn finished(&mut self, result: &CheckResult);
+}
+
+/// Why a master gate run could not start.
+#[derive(Debug, thiserror::Error)]
+pub enum MasterGateError {
+    /// The pseudo-terminal pair could not be opened.
+    #[error("cannot open a pseudo-terminal pair for the master: {0}")]
+    Line(#[from] crate::transport::TransportError),
+    /// The settings make no sense (a node address out of range).
+    #[error("{0}")]
+    Config(String),
+}
+
+/// The outcome of a run.
+#[derive(Debug, Default)]
+pub struct MasterRun {
+    /// One result per case, in order.
+    pub results: Vec<CheckResult>,
+    /// Per kind of finding: the cases, in order, and the first one's text.
+    pub by_kind: BTreeMap<String, KindSummary>,
+    /// Per mode: the settings the master ran with (as it reported them in `open`).
+    pub settings: BTreeMap<String, MasterSettings>,
+}
+
+/// The cases that had one kind of finding.
+#[derive(Debug, Clone)]
+pub struct KindSummary {
+    /// The worst severity.
+    pub severity: Severity,
+    /// Case ids.
+    pub cases: Vec<String>,
+    /// The first finding's text.
+    pub example: String,
+    /// The one command that reproduces the first case.
+    pub repro: String,
+}
+
+fn mode_key(m: Mode) -> &'static str {
+    match m {
+        Mode::Rtu => "rtu",
+        Mode::Ascii => "ascii",
+    }
+}
+
+/// The cases of a run, selected by `only`.
+pub fn cases(opts: &MasterOptions) -> Vec<MasterCase> {
+    let plan = Plan::of(&opts.model, opts.node);
+    let mut all = cases::cases(&plan, &opts.settings, &opts.line, &opts.modes);
+    all.retain(|c| crate::runner::selected(&c.id, &opts.only));
+    all
+}
+
+/// The reproducer of a case.
+pub fn repro(opts: &MasterOptions, id: &str) -> String {
+    format!("{} --only {id}", opts.repro)
+}
+
+fn result(
+    case: &MasterCase,
+    status: Status,
+    summary: String,
+    findings: Vec<Finding>,
+    exchanges: Vec<ExchangeRecord>,
+    took: Duration,
+) -> CheckResult {
+    CheckResult {
+        id: case.id.clone(),
+        title: case.title.clone(),
+        mode: Some(case.mode),
+        source: case.fault.source.to_string(),
+        status,
+        summary,
+        findings,
+        exchanges,
+        duration: took,
+        node: None,
+    }
+}
+
+/// Runs `cases` through the master; stops before the next case once `stop` is set.
+pub fn run(
+    adapter: &mut MasterAdapter,
+    opts: &MasterOptions,
+    cases: &[MasterCase],
+    stop: &AtomicBool,
+    progress: &mut dyn MasterProgress,
+) -> Result<MasterRun, MasterGateError> {
+    let mut out = MasterRun::default();
+    let model = Arc::new(opts.model.clone());
+    for &mode in &opts.modes {
+        let mine: Vec<&MasterCase> = cases.iter().filter(|c| c.mode == mode).collect();
+        if mine.is_empty() {
+            continue;
+        }
+        if !adapter.speaks(mode) {
+            for case in mine {
+                progress.started(case);
+                let r = result(
+                    case,
+                    Status::Skip,
+                    format!(
+                        "the master does not speak {} (its hello's modes: {:?})",
+                        mode_key(mode),
+                        adapter.hello.modes
+                    ),
+                    vec![],
+                    vec![],
+                    Duration::ZERO,
+                );
+                progress.finished(&r);
+                out.results.push(r);
+            }
+            continue;
+        }
+        if !adapter.opens(opts.line_kind.key()) {
+            for case in mine {
+                progress.started(case);
+                let r = result(
+                    case,
+                    Status::Skip,
+                    format!(
+                        "the master cannot open a {} line (its hello's lines: {:?})",
+                        opts.line_kind.key(),
+                        adapter.hello.lines
+                    ),
+                    vec![],
+                    vec![],
+                    Duration::ZERO,
+                );
+                progress.finished(&r);
+                out.results.push(r);
+            }
+            continue;
+        }
+        let drive = DriveSide::start_on(model.clone(), opts.node, mode, opts.line, opts.line_kind)?;
+        let opened = adapter.open(drive.endpoint(), mode, opts.line, opts.settings);
+        let settings = match opened {
+            Ok(s) => s,
+            Err(e) => {
+                for case in mine {
+                    progress.started(case);
+                    let r = result(
+                        case,
+                        Status::Error,
+                        format!("the adapter could not open the line: {e}"),
+                        vec![],
+                        vec![],
+                        Duration::ZERO,
+                    );
+                    progress.finished(&r);
+                    out.results.push(r);
+                }
+                continue;
+            }
+        };
+        out.settings.insert(mode_key(mode).to_string(), settings);
+        let mut monitor_cfg = MonitorConfig {
+            mode,
+            line: opts.line,
+            nodes: vec![opts.node],
+            window: settings.timeout,
+            response_allowance: Duration::from_millis(5),
+            gap_allowance: Duration::from_millis(5),
+        };
+        if monitor_cfg.window.is_zero() {
+            monitor_cfg.window = Duration::from_millis(1);
+        }
+        let monitor = match Monitor::new(opts.model.clone(), monitor_cfg) {
+            Ok(m) => m,
+            Err(e) => return Err(MasterGateError::Config(e.to_string())),
+        };
+        let mut last_called = drive.now();
+        for case in mine {
+            if stop.load(Ordering::Relaxed) {
+                break;
+            }
+            progress.started(case);
+            // A case during which the gate's own drive was not scheduled is not judged
+            // (bytes waited unread, replies went late): it runs again, at most twice.
+            let mut r;
+            let mut attempt = 0;
+            loop {
+                let from = drive.now();
+                r = run_case(
+                    adapter,
+                    opts,
+                    &drive,
+                    &monitor,
+                    &settings,
+                    case,
+                    &mut last_called,
+                );
+                let stalled = drive.stalled_since(from);
+                if stalled.is_zero() || r.0.status == Status::Skip {
+                    break;
+                }
+                attempt += 1;
+                if attempt > 2 {
+                    r.0.status = Status::Error;
+                    r.0.summary = format!(
+                        "not judged: the gate's drive was not scheduled for {} ms during the case, three times (an overloaded host); run it again",
+                        stalled.as_millis()
+                    );
+                    r.1.clear();
+                    r.0.findings.clear();
+                    break;
+                }
+            }
+            for f in &r.1 {
+                let e = out
+                    .by_kind
+                    .entry(f.kind.clone())
+                    .or_insert_with(|| KindSummary {
+                        severity: f.severity,
+                        cases: Vec::new(),
+                        example: format!("{}: {}", case.id, f.text),
+                        repro: repro(opts, &case.id),
+                    });
+                e.severity = e.severity.max(f.severity);
+                if e.cases.last() != Some(&case.id) {
+                    e.cases.push(case.id.clone());
+                }
+            }
+            progress.finished(&r.0);
+            out.results.push(r.0);
+        }
+        adapter.close();
+    }
+    Ok(out)
+}
+
+/// Runs one case: the operation under the fault, then the recovery read.
+fn run_case(
+    adapter: &mut MasterAdapter,
+    opts: &MasterOptions,
+    drive: &DriveSide,
+    monitor: &Monitor,
+    settings: &MasterSettings,
+    case: &MasterCase,
+    last_called: &mut Duration,
+) -> (CheckResult, Vec<MasterFinding>) {
+    let t0 = Instant::now();
+    let quiet = drive::apart(&drive.line);
+    let timed = opts.line_kind == drive::LineKind::Pty;
+    if !timed && (case.fault.busy || matches!(case.fault.behaviour, Behaviour::Split(_))) {
+        return (
+            result(
+                case,
+                Status::Skip,
+                format!(
+                    "a {} line carries no line timing (t1.5, t3.5): run it on a pty",
+                    opts.line_kind.key()
+                ),
+                vec![],
+                vec![],
+                t0.elapsed(),
+            ),
+            vec![],
+        );
+    }
+    if !adapter.supports(case.op.name()) {
+        return (
+            result(
+                case,
+                Status::Skip,
+                format!("the master does not offer {}", case.op.name()),
+                vec![],
+                vec![],
+                t0.elapsed(),
+            ),
+            vec![],
+        );
+    }
+    drive.drop_held();
+    drive.arm(Behaviour::Normal);
+    drive.settle(quiet);
+    if case.fault.busy {
+        let n = (cases::BUSY_FOR.as_micros() / cases::BUSY_PACE.as_micros().max(1)) as usize;
+        let bytes = match drive.mode {
+            Mode::Rtu => vec![0xFF; n],
+            // ASCII: one long frame, ':' first and CR LF last, a character at a time.
+            Mode::Ascii => {
+                let mut b = vec![b'0'; n.max(3)];
+                b[0] = b':';
+                let k = b.len();
+                b[k - 2] = b'\r';
+                b[k - 1] = b'\n';
+                b
+            }
+        };
+        drive.busy(&bytes, cases::BUSY_PACE);
+        // The operation is asked while the drive is well into sending.
+        std::thread::sleep(cases::BUSY_FOR / 5);
+    }
+    let recent = *last_called;
+    let mark = drive.now();
+    drive.arm(case.fault.behaviour.clone());
+    let call = Instant::now();
+    let first = adapter.operate(&case.op);
+    let took = call.elapsed();
+    let ended = drive.now();
+    *last_called = mark;
+    if case.fault.behaviour == Behaviour::AfterTimeout {
+        // The master gave up: the reply comes now, stale, before its next request.
+        drive.release_held();
+    }
+    drive.arm(Behaviour::Normal);
+    drive.settle(quiet);
+    let reported = match first {
+        Ok(Some(r)) => r,
+        // The adapter died while the call was in the library: the call crashed
+        // (adapters/PROTOCOL.md, "Timeouts and crashes"); the gate restarted it.
+        Err(CallError::Crashed(why)) => Reported::Raised {
+            kind: "crash".into(),
+            message: format!("the adapter exited during the call ({why})"),
+        },
+        Ok(None) => {
+            return (
+                result(
+                    case,
+                    Status::Skip,
+                    format!("the adapter answered unsupported for {}", case.op.name()),
+                    vec![],
+                    vec![],
+                    t0.elapsed(),
+                ),
+                vec![],
+            )
+        }
+        Err(e) => {
+            return (
+                result(
+                    case,
+                    Status::Error,
+                    adapter_error(&e),
+                    vec![],
+                    vec![],
+                    t0.elapsed(),
+                ),
+                vec![],
+            )
+        }
+    };
+    let mark2 = drive.now();
+    let call2 = Instant::now();
+    let second = adapter.operate(&case.recovery);
+    let took2 = call2.elapsed();
+    let ended2 = drive.now();
+    *last_called = mark2;
+    drive.settle(quiet);
+    let (log, requests, _) = drive.since(mark.saturating_sub(Duration::from_secs(2)));
+    let sent = drive.all_sent();
+    let in_first: Vec<_> = requests
+        .iter()
+        .filter(|r| r.start >= mark && r.start < mark2)
+        .cloned()
+        .collect();
+    let in_second: Vec<_> = requests
+        .iter()
+        .filter(|r| r.start >= mark2)
+        .cloned()
+        .collect();
+    let rec = OpRecord {
+        op: &case.op,
+        behaviour: &case.fault.behaviour,
+        role: Role::Fault,
+        reported: &reported,
+        took,
+        requests: &in_first,
+        sent: &sent,
+        log: &log,
+        called: mark,
+        ended,
+        recent,
+        timed,
+    };
+    let mut found = verdict::judge_requests(&rec, monitor, settings);
+    found.extend(verdict::judge_report(&rec, settings));
+    let mut exchanges = records(&in_first, &sent, &case.fault.title, &reported);
+    let mut notes = Vec::new();
+    match second {
+        Ok(Some(reported2)) => {
+            let rec2 = OpRecord {
+                op: &case.recovery,
+                behaviour: &Behaviour::Normal,
+                role: Role::Recovery,
+                reported: &reported2,
+                took: took2,
+                requests: &in_second,
+                sent: &sent,
+                log: &log,
+                called: mark2,
+                ended: ended2,
+                recent: mark,
+                timed,
+            };
+            let mut more = verdict::judge_requests(&rec2, monitor, settings);
+            more.extend(verdict::judge_report(&rec2, settings));
+            for f in &mut more {
+                f.text = format!("in the read after the fault: {}", f.text);
+            }
+            found.extend(more);
+            exchanges.extend(records(
+                &in_second,
+                &sent,
+                "a normal reply (the read after the fault)",
+                &reported2,
+            ));
+        }
+        Ok(None) => notes.push("the recovery read is unsupported".to_string()),
+        Err(e) => notes.push(format!("the recovery read: {}", adapter_error(&e))),
+    }
+    // After a broadcast the master waits the turnaround delay before its next request
+    // (the drives are still acting on it): the monitor's rule, an observation (the TECO
+    // manuals give no delay).
+    if let (true, Some(b), Some(n)) = (
+        case.op.broadcast(),
+        in_first.iter().rev().find(|r| r.valid),
+        in_second.first(),
+    ) {
+        let gap = n.start.saturating_sub(b.end);
+        if gap < crate::monitor::BROADCAST_TURNAROUND {
+            found.push(MasterFinding {
+                kind: "broadcast-turnaround".into(),
+                severity: Severity::Observation,
+                text: format!(
+                    "its next request began {:.1} ms after the broadcast, under the turnaround delay of {} ms; Modbus over Serial Line V1.02, 2.4.1 (typically 100 to 200 ms; the TECO manuals give none)",
+                    gap.as_secs_f64() * 1000.0,
+                    crate::monitor::BROADCAST_TURNAROUND.as_millis()
+                ),
+            });
+        }
+    }
+    if let Some(e) = drive.error() {
+        notes.push(format!("the drive's line: {e}"));
+    }
+    // One finding of a kind per case is enough (a retry storm is one storm).
+    let mut seen = std::collections::BTreeSet::new();
+    found.retain(|f| seen.insert((f.kind.clone(), f.text.clone())));
+    let mut findings: Vec<Finding> = found
+        .iter()
+        .map(|f| Finding {
+            severity: f.severity,
+            text: format!("{}: {}", f.kind, f.text),
+        })
+        .collect();
+    findings.sort_by_key(|f| std::cmp::Reverse(f.severity));
+    if let Some(first) = findings.first_mut() {
+        first
+            .text
+            .push_str(&format!("; reproduce: {}", repro(opts, &case.id)));
+    }
+    let status = match findings.iter().map(|f| f.severity).max() {
+        Some(Severity::Deviation) => Status::Deviation,
+        Some(Severity::Observation) => Status::Observation,
+        None if !notes.is_empty() => Status::Error,
+        None => Status::Pass,
+    };
+    let summary = match findings.first() {
+        Some(f) => f.text.clone(),
+        None if !notes.is_empty() => notes.join("; "),
+        None => format!("the master reported {reported}, as the drive sent"),
+    };
+    (
+        result(case, status, summary, findings, exchanges, t0.elapsed()),
+        found,
+    )
+}
+
+fn adapter_error(e: &CallError) -> String {
+    format!("the adapter failed: {e}")
+}
+
+/// The exchanges of one operation, for the report.
+fn records(
+    requests: &[drive::Request],
+    sent: &[Sent],
+    behaviour: &str,
+    reported: &Reported,
+) -> Vec<ExchangeRecord> {
+    requests
+        .iter()
+        .map(|r| {
+            let mine: Vec<&Sent> = sent.iter().filter(|s| s.for_seq == r.seq).collect();
+            let received: Vec<u8> = mine.iter().flat_map(|s| s.bytes.clone()).collect();
+            let reply = mine
+                .iter()
+                .find(|s| s.class.valid())
+                .map(|s| s.bytes.clone());
+            let latency = mine
+                .iter()
+                .filter_map(|s| s.at)
+                .min()
+                .map(|t| t.saturating_sub(r.end));
+            ExchangeRecord {
+                request: r.bytes.clone(),
+                expected: None,
+                received,
+                reply,
+                predicted: format!("the drive: {behaviour}"),
+                actual: format!(
+                    "the master reported {reported}{}",
+                    if r.valid {
+                        String::new()
+                    } else {
+                        format!(" (its request {} is not a valid frame)", Hex(&r.bytes))
+                    }
+                ),
+                latency,
+            }
+        })
+        .collect()
+}
+
+/// What a master gate report says besides its results: the master's settings and its
+/// findings grouped by kind, each with the command that reproduces its first case.
+#[derive(Debug, Clone, Default)]
+pub struct MasterSummary {
+    /// The modes the master speaks, as its hello says.
+    pub modes: Vec<String>,
+    /// The lines it can open, as its hello says.
+    pub lines: Vec<String>,
+    /// Per mode: the timeout and retries it ran with.
+    pub settings: BTreeMap<String, MasterSettings>,
+    /// Findings by kind.
+    pub kinds: BTreeMap<String, KindSummary>,
+    /// The line the gate served (`pty`, `tcp-rtu`).
+    pub line: String,
+}
+
+impl MasterSummary {
+    /// As the report's JSON `master` object.
+    pub fn to_json(&self) -> serde_json::Value {
+        serde_json::json!({
+            "modes": self.modes,
+            "lines": self.lines,
+            "line": self.line,
+            "settings": self.settings.iter().map(|(m, s)| (m.clone(), serde_json::json!({
+                "timeout_ms": s.timeout.as_millis() as u64,
+                "retries": s.retries,
+            }))).collect::<serde_json::Map<String, serde_json::Value>>(),
+            "kinds": self.kinds.iter().map(|(k, v)| serde_json::json!({
+                "kind": k,
+                "severity": match v.severity { Severity::Deviation => "deviation", Severity::Observation => "observation" },
+                "cases": v.cases,
+                "example": v.example,
+                "reproduce": v.repro,
+            })).collect::<Vec<_>>(),
+        })
+    }
+}
+
+impl MasterSummary {
+    /// The summary in the text report: the settings, then each kind of finding with its
+    /// cases and the command that reproduces the first.
+    pub fn text_lines(&self) -> Vec<String> {
+        let mut out = Vec::new();
+        for (mode, s) in &self.settings {
+            out.push(format!(
+                "master:  {mode} on a {} line: its timeout {} ms, {} retries",
+                self.line,
+                s.timeout.as_millis(),
+                s.retries
+            ));
+        }
+        for (kind, k) in &self.kinds {
+            let sev = match k.severity {
+                Severity::Deviation => "deviation",
+                Severity::Observation => "observation",
+            };
+            out.push(format!(
+                "found:   {kind} ({sev}) in {} case{}: {}",
+                k.cases.len(),
+                if k.cases.len() == 1 { "" } else { "s" },
+                k.cases.join(" ")
+            ));
+            out.push(format!("         reproduce: {}", k.repro));
+        }
+        out
+    }
+}
+
+/// The summary of a run, with what the adapter's hello (`raw`) says of the master.
+pub fn summary(run: &MasterRun, raw: &serde_json::Value, line: drive::LineKind) -> MasterSummary {
+    let list = |k: &str| -> Vec<String> {
+        raw.get(k)
+            .and_then(serde_json::Value::as_array)
+            .map(|a| {
+                a.iter()
+                    .filter_map(|x| x.as_str().map(String::from))
+                    .collect()
+            })
+            .unwrap_or_default()
+    };
+    MasterSummary {
+        modes: list("modes"),
+        lines: list("lines"),
+        settings: run.settings.clone(),
+        kinds: run.by_kind.clone(),
+        line: line.key().to_string(),
+    }
+}

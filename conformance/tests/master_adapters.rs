@@ -1,0 +1,353 @@
+//! The master adapters of masters nobody here wrote (adapters/*-master) complete
+//! `conformance gate --master` on a few cases each, every case is judged, and the known
+//! findings of each library (adapters/MASTER-FINDINGS.md) appear as the kinds the gate
+//! names. Each test checks its peer first and skips with the reason when it is missing
+//! (tests/common/skip.rs). No timing is asserted: the cases chosen are decided by what the
+//! library does with the bytes, not by how fast it does it.
+//!
+//! One gate run serves each library, so its cases share one adapter process and one
+//! library state, as in an application: where a fault leaves the library in a bad state
+//! (libmodbus after a stale reply, jsmodbus after stray bytes), only the cases before it are
+//! asserted to pass.
+
+mod common;
+use common::{python, Peer};
+
+use std::path::{Path, PathBuf};
+use std::time::Duration;
+
+const LIMIT: Duration = Duration::from_secs(90);
+
+fn adapter(path: &str) -> String {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../adapters")
+        .join(path)
+        .display()
+        .to_string()
+}
+
+fn scratch(name: &str) -> PathBuf {
+    let d = Path::new(env!("CARGO_TARGET_TMPDIR")).join(format!("master_adapters-{name}"));
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+/// `conformance gate --master CMD --model MODEL --only ID ...`, bounded, its report checked
+/// against the schema; asserts the run completed, ran every case named and judged every
+/// case it ran.
+fn gate(name: &str, cmd: &str, model: &str, only: &[&str]) -> (Option<i32>, serde_json::Value) {
+    let mut args = vec!["--master", cmd, "--model", model];
+    for p in only {
+        args.extend(["--only", p]);
+    }
+    let (code, v) = common::report_of("gate", &scratch(name), &args, LIMIT);
+    assert_eq!(v["kind"], "gate");
+    assert_eq!(v["complete"], true, "the run did not complete: {v:#}");
+    assert_eq!(v["summary"]["error"], 0, "{:#}", v["checks"]);
+    let checks = v["checks"].as_array().unwrap();
+    // Each pattern is a case id (a pattern matches ids that contain it, so a later case
+    // whose id extends one of these may run too: it is judged like the others).
+    for id in only {
+        assert!(
+            checks.iter().any(|c| c["id"] == *id),
+            "no case {id} in the run"
+        );
+    }
+    for c in checks {
+        let status = c["status"].as_str().unwrap();
+        assert!(
+            ["pass", "deviation", "observation", "skip"].contains(&status),
+            "{} was not judged: {c:#}",
+            c["id"]
+        );
+    }
+    (code, v)
+}
+
+fn status<'a>(v: &'a serde_json::Value, id: &str) -> &'a str {
+    v["checks"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|c| c["id"] == id)
+        .unwrap_or_else(|| panic!("no case {id}"))["status"]
+        .as_str()
+        .unwrap()
+}
+
+/// Asserts that the gate names the finding `kind` for case `id`.
+fn finding(v: &serde_json::Value, kind: &str, id: &str) {
+    let kinds = v["master"]["kinds"].as_array().expect("master.kinds");
+    let hit = kinds
+        .iter()
+        .any(|k| k["kind"] == kind && k["cases"].as_array().unwrap().iter().any(|c| c == id));
+    assert!(
+        hit,
+        "expected the finding {kind} in {id}; the gate found: {}",
+        kinds
+            .iter()
+            .map(|k| format!("{} {}", k["kind"], k["cases"]))
+            .collect::<Vec<_>>()
+            .join("; ")
+    );
+}
+
+#[test]
+fn pymodbus_master_completes_and_loses_a_reply_behind_a_stray_byte() {
+    if !common::need(Peer::Pymodbus) {
+        return;
+    }
+    let cmd = format!("{} {}", python(), adapter("pymodbus-master/adapter.py"));
+    let (code, v) = gate(
+        "pymodbus",
+        &cmd,
+        "l510-legacy",
+        &[
+            "rtu.read.normal",
+            "rtu.read.exception-51",
+            "rtu.read.stale-reply",
+            "rtu.read.stale-in-flight",
+            "rtu.read.wrong-function",
+            "rtu.read.zero-before",
+            "rtu.loop-back.normal",
+            "rtu.broadcast-single.normal",
+            "ascii.read.normal",
+            "ascii.read.zero-before",
+        ],
+    );
+    assert_eq!(v["codec"]["implementation"], "pymodbus");
+    // The headline (pymodbus #2636): a reply that comes while its next request waits is
+    // taken as that request's, even with another register count.
+    finding(&v, "stale-reply-taken", "rtu.read.stale-in-flight");
+    // A 06H echo in place of a read's reply: its value is reported as the register's.
+    finding(&v, "accepted-wrong-function", "rtu.read.wrong-function");
+    assert_eq!(status(&v, "rtu.read.normal"), "pass");
+    // pymodbus reports any exception code, the legacy L510's 51H..55H included.
+    assert_ne!(status(&v, "rtu.read.exception-51"), "deviation");
+    // It drops a reply that comes after its timeout and before its next request (it
+    // empties its input before sending).
+    assert_eq!(status(&v, "rtu.read.stale-reply"), "pass");
+    assert_eq!(status(&v, "rtu.loop-back.normal"), "pass");
+    assert_eq!(status(&v, "ascii.read.normal"), "pass");
+    // RTU: a lone 00H before the reply makes its framer drop the good reply behind it.
+    finding(&v, "garbage-breaks-reply", "rtu.read.zero-before");
+    // (Its next request follows a broadcast at once, which the gate notes as the
+    // observation broadcast-turnaround: a matter of timing, so not asserted here.)
+    // ASCII: bytes before ':' are skipped.
+    assert_eq!(status(&v, "ascii.read.zero-before"), "pass");
+    assert_eq!(code, Some(1));
+}
+
+#[test]
+fn minimalmodbus_master_completes_skips_loop_back_and_loses_a_reply_behind_a_stray_byte() {
+    if !common::need(Peer::Minimalmodbus) {
+        return;
+    }
+    let cmd = format!(
+        "{} {}",
+        python(),
+        adapter("minimalmodbus-master/adapter.py")
+    );
+    let (code, v) = gate(
+        "minimalmodbus",
+        &cmd,
+        "l510-legacy",
+        &[
+            "rtu.read.normal",
+            "rtu.read.exception-53",
+            "rtu.read.stale-reply",
+            "rtu.read.zero-before",
+            "rtu.loop-back.normal",
+            "ascii.read.normal",
+            "ascii.read.garbage-before",
+        ],
+    );
+    assert_eq!(v["codec"]["implementation"], "minimalmodbus");
+    assert_eq!(status(&v, "rtu.read.normal"), "pass");
+    // "Slave reported error code 83" carries the legacy code. (It comes back only when its
+    // read timeout ends, which the gate may note as an observation, never a deviation.)
+    assert_ne!(status(&v, "rtu.read.exception-53"), "deviation");
+    // It clears its input before each request.
+    assert_eq!(status(&v, "rtu.read.stale-reply"), "pass");
+    // It reads a fixed number of bytes from the first one that comes.
+    finding(&v, "garbage-breaks-reply", "rtu.read.zero-before");
+    finding(&v, "garbage-breaks-reply", "ascii.read.garbage-before");
+    // minimalmodbus has no 08H call.
+    assert_eq!(status(&v, "rtu.loop-back.normal"), "skip");
+    assert_eq!(status(&v, "ascii.read.normal"), "pass");
+    assert_eq!(code, Some(1));
+}
+
+#[test]
+fn libmodbus_master_takes_the_stale_reply_and_waits_after_a_broadcast() {
+    if !common::need(Peer::Libmodbus) {
+        return;
+    }
+    let cmd = format!("{} {}", python(), adapter("libmodbus-master/adapter.py"));
+    let (code, v) = gate(
+        "libmodbus",
+        &cmd,
+        "l510-legacy",
+        &[
+            "rtu.read.normal",
+            "rtu.read.exception-52",
+            "rtu.write-single.normal",
+            "rtu.write-multiple.normal",
+            "rtu.broadcast-single.normal",
+            "ascii.read.normal",
+        ],
+    );
+    assert_eq!(v["codec"]["implementation"], "libmodbus");
+    assert_eq!(status(&v, "rtu.read.normal"), "pass");
+    assert_eq!(status(&v, "rtu.write-single.normal"), "pass");
+    assert_eq!(status(&v, "rtu.write-multiple.normal"), "pass");
+    // EMBBADEXC: a code at or above MODBUS_EXCEPTION_MAX is "Invalid exception code".
+    finding(&v, "exception-not-recognised", "rtu.read.exception-52");
+    // libmodbus 3.1.6 waits for a confirmation after a write to unit 0.
+    finding(&v, "waits-after-broadcast", "rtu.broadcast-single.normal");
+    // libmodbus has no ASCII.
+    assert_eq!(status(&v, "ascii.read.normal"), "skip");
+    assert_eq!(code, Some(1));
+    // The headline, in a run of its own (after it every answer is one request late): a
+    // reply after the timeout answers the next request.
+    let (_, v) = gate("libmodbus-stale", &cmd, "f510", &["rtu.read.stale-reply"]);
+    finding(&v, "stale-reply-taken", "rtu.read.stale-reply");
+}
+
+/// Builds the rmodbus master adapter (its own workspace, its own target folder) and
+/// returns its path, or None (skipped, with why) when it cannot be built here.
+fn rmodbus_master() -> Option<String> {
+    let manifest = adapter("rmodbus-master/Cargo.toml");
+    let target = adapter("rmodbus-master/target");
+    let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
+    let why = match std::process::Command::new(&cargo)
+        .args(["build", "--locked", "--quiet", "--manifest-path", &manifest])
+        .args(["--target-dir", &target])
+        .env_remove("CARGO_TARGET_DIR")
+        .output()
+    {
+        Ok(o) if o.status.success() => {
+            return Some(adapter(
+                "rmodbus-master/target/debug/rmodbus-master-adapter",
+            ))
+        }
+        Ok(o) => {
+            let err = String::from_utf8_lossy(&o.stderr).into_owned();
+            let last = err
+                .lines()
+                .rev()
+                .find(|l| !l.trim().is_empty())
+                .unwrap_or("");
+            format!(
+                "cargo build --manifest-path {manifest} failed: {}",
+                last.trim()
+            )
+        }
+        Err(e) => format!("cannot run {cargo}: {e}"),
+    };
+    common::missing(&format!("the rmodbus master adapter ({why})"));
+    None
+}
+
+#[test]
+fn rmodbus_master_takes_the_stale_reply_and_knows_no_legacy_exception() {
+    if common::peers_hidden() {
+        common::missing(
+            "the rmodbus master adapter, built with cargo (hidden by CONFORMANCE_PEERS=none)",
+        );
+        return;
+    }
+    let Some(cmd) = rmodbus_master() else { return };
+    let (code, v) = gate(
+        "rmodbus",
+        &cmd,
+        "l510-legacy",
+        &[
+            "rtu.read.normal",
+            "rtu.read.exception-54",
+            "rtu.write-single.normal",
+            "rtu.loop-back.normal",
+            "ascii.read.normal",
+        ],
+    );
+    assert_eq!(v["codec"]["implementation"], "rmodbus");
+    assert_eq!(status(&v, "rtu.read.normal"), "pass");
+    assert_eq!(status(&v, "rtu.write-single.normal"), "pass");
+    assert_eq!(status(&v, "ascii.read.normal"), "pass");
+    // ErrorKind::from_modbus_error knows 01H..09H and 10H only: 54H is UnknownError.
+    finding(&v, "exception-not-recognised", "rtu.read.exception-54");
+    // rmodbus's client has no 08H request.
+    assert_eq!(status(&v, "rtu.loop-back.normal"), "skip");
+    assert_eq!(code, Some(1));
+    // The loop of rmodbus's RTU example clears nothing before a request: the late reply
+    // answers the next one.
+    let (_, v) = gate("rmodbus-stale", &cmd, "f510", &["rtu.read.stale-reply"]);
+    finding(&v, "stale-reply-taken", "rtu.read.stale-reply");
+}
+
+#[test]
+fn jsmodbus_master_throws_on_a_legacy_exception_and_is_stuck_after_stray_bytes() {
+    if !common::need(Peer::Jsmodbus) {
+        return;
+    }
+    let cmd = format!("node {}", adapter("jsmodbus-master/adapter.js"));
+    let (code, v) = gate(
+        "jsmodbus",
+        &cmd,
+        "l510-legacy",
+        &[
+            "rtu.read.normal",
+            "rtu.read.exception-55",
+            "rtu.read.stale-reply",
+            "rtu.read.stale-in-flight",
+            "rtu.broadcast-single.normal",
+            "rtu.read.garbage-after",
+            "ascii.read.normal",
+        ],
+    );
+    assert_eq!(v["codec"]["implementation"], "jsmodbus");
+    assert_eq!(status(&v, "rtu.read.normal"), "pass");
+    // errorCodeToMessage throws inside the socket's data handler.
+    finding(&v, "raised", "rtu.read.exception-55");
+    // A reply with no request waiting for it is dropped; one that comes while the next
+    // request waits is given to that request.
+    assert_eq!(status(&v, "rtu.read.stale-reply"), "pass");
+    finding(&v, "stale-reply-taken", "rtu.read.stale-in-flight");
+    // No broadcast notion: the write to unit 0 waits for a reply.
+    finding(&v, "waits-after-broadcast", "rtu.broadcast-single.normal");
+    // Bytes that parse as no response stay at the head of its receive buffer.
+    finding(&v, "no-recovery", "rtu.read.garbage-after");
+    assert_eq!(status(&v, "ascii.read.normal"), "skip");
+    assert_eq!(code, Some(1));
+}
+
+#[test]
+fn mbpoll_master_runs_once_per_operation_and_takes_the_stale_reply() {
+    if !common::need(Peer::Mbpoll) {
+        return;
+    }
+    let cmd = format!("{} {}", python(), adapter("mbpoll-master/adapter.py"));
+    let (code, v) = gate(
+        "mbpoll",
+        &cmd,
+        "l510-legacy",
+        &[
+            "rtu.read.normal",
+            "rtu.read.exception-51",
+            "rtu.write-single.normal",
+            "rtu.write-multiple.normal",
+            "rtu.broadcast-single.normal",
+        ],
+    );
+    assert_eq!(v["codec"]["implementation"], "mbpoll");
+    assert_eq!(status(&v, "rtu.read.normal"), "pass");
+    assert_eq!(status(&v, "rtu.write-single.normal"), "pass");
+    assert_eq!(status(&v, "rtu.write-multiple.normal"), "pass");
+    finding(&v, "exception-not-recognised", "rtu.read.exception-51");
+    // mbpoll refuses address 0 in RTU: no broadcast.
+    assert_eq!(status(&v, "rtu.broadcast-single.normal"), "skip");
+    assert_eq!(code, Some(1));
+    // The next run opens the port and reads the previous run's late reply.
+    let (_, v) = gate("mbpoll-stale", &cmd, "f510", &["rtu.read.stale-reply"]);
+    finding(&v, "stale-reply-taken", "rtu.read.stale-reply");
+}

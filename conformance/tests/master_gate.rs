@@ -1,0 +1,283 @@
+//! The master gate (`conformance gate --master`): this suite's own master, the test
+//! double (`conformance adapter --master`), gives no finding in RTU and in ASCII; each of
+//! its planted bugs (`--master-quirk`) is caught as the right kind of finding and as no
+//! other kind; an adapter that is not a master stops the gate with exit code 2.
+//!
+//! No test here asserts a time: the gate's timing judgements are bounds that a loaded
+//! host can only make more lenient, and the quirk that needs timing (no-t35) runs at 600
+//! baud, where t3.5 less one character (41 ms) is over the stall after which the gate
+//! runs a case again (40 ms): a host that stalls the gate's drive long enough to hide the
+//! quirk makes the case run again instead. In ASCII the same quirk is caught by the
+//! drive's frame under way, which no timing blurs.
+
+mod common;
+use common::bin;
+
+use std::collections::BTreeSet;
+use std::process::{Command, Output};
+
+fn gate_master(master: &str, extra: &[&str]) -> (Output, serde_json::Value) {
+    let mut args = vec!["gate", "--master", master, "--format", "json", "--quiet"];
+    args.extend_from_slice(extra);
+    let o = Command::new(bin()).args(&args).output().unwrap();
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap_or_else(|e| {
+        panic!(
+            "gate --master printed no JSON ({e}): {}\n{}",
+            String::from_utf8_lossy(&o.stdout),
+            String::from_utf8_lossy(&o.stderr)
+        )
+    });
+    (o, v)
+}
+
+fn schema_valid(v: &serde_json::Value) {
+    let text = include_str!("../../vectors/schema/report.schema.json");
+    let s = jsonschema::validator_for(&serde_json::from_str(text).unwrap()).unwrap();
+    let errors: Vec<String> = s
+        .iter_errors(v)
+        .map(|e| format!("{e} at {}", e.instance_path))
+        .collect();
+    assert!(errors.is_empty(), "{errors:#?}");
+}
+
+/// The kinds of deviation the report groups, with their cases.
+fn deviation_kinds(v: &serde_json::Value) -> BTreeSet<String> {
+    v["master"]["kinds"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter(|k| k["severity"] == "deviation")
+        .map(|k| k["kind"].as_str().unwrap().to_string())
+        .collect()
+}
+
+fn master(quirk: Option<&str>) -> String {
+    match quirk {
+        None => "conformance adapter --master".to_string(),
+        Some(q) => format!("conformance adapter --master --master-quirk {q}"),
+    }
+}
+
+fn status_of<'a>(v: &'a serde_json::Value, id: &str) -> &'a str {
+    v["checks"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|c| c["id"] == id)
+        .unwrap_or_else(|| panic!("no case {id}"))["status"]
+        .as_str()
+        .unwrap()
+}
+
+#[test]
+fn the_clean_master_gives_no_finding_in_rtu_and_ascii() {
+    let (o, v) = gate_master(&master(None), &["--mode", "both"]);
+    schema_valid(&v);
+    let kinds = deviation_kinds(&v);
+    assert!(kinds.is_empty(), "{kinds:?}: {:#}", v["master"]["kinds"]);
+    assert_eq!(
+        o.status.code(),
+        Some(0),
+        "{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    assert_eq!(v["summary"]["deviation"], 0);
+    assert_eq!(v["summary"]["error"], 0);
+    assert_eq!(v["summary"]["skip"], 0);
+    // Every fault ran in both modes, against every operation.
+    for id in [
+        "rtu.read.normal",
+        "rtu.read.stale-reply",
+        "rtu.read.stale-in-flight",
+        "rtu.read.wrong-function",
+        "rtu.read.exception-02",
+        "rtu.read.bad-checksum",
+        "rtu.read.other-node",
+        "rtu.read.zero-before",
+        "rtu.write-single.no-reply",
+        "rtu.write-multiple.twice",
+        "rtu.loop-back.exception-01",
+        "rtu.broadcast-single.reply-to-broadcast",
+        "ascii.read.stale-reply",
+        "ascii.read.exception-no-checksum",
+        "ascii.broadcast-multiple.normal",
+    ] {
+        let s = status_of(&v, id);
+        assert!(s == "pass" || s == "observation", "{id}: {s}");
+    }
+    assert_eq!(v["master"]["settings"]["rtu"]["timeout_ms"], 300);
+    assert_eq!(v["master"]["settings"]["ascii"]["retries"], 0);
+}
+
+#[test]
+fn a_clean_master_that_retries_as_its_setting_says_gives_no_finding() {
+    let (o, v) = gate_master(&master(None), &["--mode", "rtu", "--retries", "1"]);
+    schema_valid(&v);
+    let kinds = deviation_kinds(&v);
+    assert!(kinds.is_empty(), "{kinds:?}: {:#}", v["master"]["kinds"]);
+    assert_eq!(o.status.code(), Some(0));
+    assert_eq!(v["master"]["settings"]["rtu"]["retries"], 1);
+    // A second try after a reply split by a silence over t1.5 is right, not a storm (a
+    // loaded host may hand the master both parts at once: then it is an observation).
+    assert_ne!(status_of(&v, "rtu.read.split"), "deviation");
+}
+
+/// Runs the whole schedule of `mode` against the master with `quirk`; asserts that the
+/// gate found deviations of `kind` and of no other kind, and returns the report.
+fn caught_as(quirk: &str, mode: &str, kind: &str, extra: &[&str]) -> serde_json::Value {
+    let mut args = vec!["--mode", mode];
+    args.extend_from_slice(extra);
+    let (o, v) = gate_master(&master(Some(quirk)), &args);
+    schema_valid(&v);
+    let kinds = deviation_kinds(&v);
+    let want: BTreeSet<String> = [kind.to_string()].into();
+    assert_eq!(kinds, want, "{quirk} in {mode}: {:#}", v["master"]["kinds"]);
+    assert_eq!(o.status.code(), Some(1), "{quirk} in {mode}");
+    let k = v["master"]["kinds"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|k| k["kind"] == kind)
+        .unwrap();
+    let repro = k["reproduce"].as_str().unwrap();
+    assert!(
+        repro.starts_with("conformance gate --master ") && repro.contains("--only "),
+        "{repro}"
+    );
+    assert!(repro.contains(quirk), "{repro}");
+    v
+}
+
+#[test]
+fn a_master_that_takes_a_stale_reply_is_caught() {
+    for mode in ["rtu", "ascii"] {
+        let v = caught_as("takes-stale-reply", mode, "stale-reply-taken", &[]);
+        // The headline case: the reply that came after the master's timeout, taken as
+        // the answer to its next read.
+        assert_eq!(
+            status_of(&v, &format!("{mode}.read.stale-reply")),
+            "deviation"
+        );
+    }
+}
+
+#[test]
+fn a_master_that_does_not_keep_t35_is_caught() {
+    let v = caught_as("no-t35", "rtu", "no-t3.5", &["-b", "600"]);
+    assert_eq!(status_of(&v, "rtu.read.line-busy"), "deviation");
+    // ASCII has no t3.5: the same master is caught sending while the drive sends.
+    let v = caught_as("no-t35", "ascii", "talks-over-drive", &["-b", "600"]);
+    assert_eq!(status_of(&v, "ascii.read.line-busy"), "deviation");
+}
+
+#[test]
+fn a_master_that_accepts_a_bad_checksum_is_caught() {
+    for mode in ["rtu", "ascii"] {
+        let v = caught_as("accepts-bad-crc", mode, "accepted-bad-checksum", &[]);
+        assert_eq!(
+            status_of(&v, &format!("{mode}.read.bad-checksum")),
+            "deviation"
+        );
+        assert_eq!(status_of(&v, &format!("{mode}.read.normal")), "pass");
+    }
+}
+
+#[test]
+fn a_master_that_retries_without_pause_is_caught() {
+    for mode in ["rtu", "ascii"] {
+        let v = caught_as("retry-storm", mode, "retry-storm", &[]);
+        assert_eq!(status_of(&v, &format!("{mode}.read.no-reply")), "deviation");
+    }
+}
+
+#[test]
+fn a_master_that_ignores_exceptions_is_caught() {
+    for mode in ["rtu", "ascii"] {
+        let v = caught_as("ignores-exception", mode, "exception-ignored", &[]);
+        assert_eq!(
+            status_of(&v, &format!("{mode}.write-single.exception-03")),
+            "deviation"
+        );
+    }
+    // The legacy L510's own codes, 51H..55H.
+    let v = caught_as(
+        "ignores-exception",
+        "rtu",
+        "exception-ignored",
+        &["--model", "l510-legacy"],
+    );
+    assert_eq!(status_of(&v, "rtu.read.exception-52"), "deviation");
+}
+
+#[test]
+fn a_master_that_reads_over_the_limit_is_caught() {
+    for mode in ["rtu", "ascii"] {
+        let v = caught_as("reads-over-limit", mode, "request-over-limit", &[]);
+        assert_eq!(status_of(&v, &format!("{mode}.read.normal")), "deviation");
+    }
+}
+
+#[test]
+fn over_tcp_the_same_master_is_judged_without_line_timing() {
+    let (o, v) = gate_master(&master(None), &["--mode", "rtu", "--line", "tcp-rtu"]);
+    schema_valid(&v);
+    assert_eq!(o.status.code(), Some(0), "{:#}", v["master"]["kinds"]);
+    assert!(deviation_kinds(&v).is_empty(), "{:#}", v["master"]["kinds"]);
+    assert_eq!(v["master"]["line"], "tcp-rtu");
+    assert_eq!(status_of(&v, "rtu.read.stale-reply"), "pass");
+    // No t1.5 or t3.5 over TCP: the cases that need them are skipped, with the reason.
+    for id in ["rtu.read.split", "rtu.read.line-busy"] {
+        assert_eq!(status_of(&v, id), "skip", "{id}");
+    }
+    let v = caught_as(
+        "accepts-bad-crc",
+        "rtu",
+        "accepted-bad-checksum",
+        &["--line", "tcp-rtu"],
+    );
+    assert!(v["master"]["kinds"][0]["reproduce"]
+        .as_str()
+        .unwrap()
+        .contains("--line tcp-rtu"));
+}
+
+#[test]
+fn an_adapter_that_is_not_a_master_stops_the_gate() {
+    let o = Command::new(bin())
+        .args([
+            "gate",
+            "--master",
+            "conformance adapter",
+            "--only",
+            "rtu.read.normal",
+        ])
+        .output()
+        .unwrap();
+    assert_eq!(o.status.code(), Some(2));
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(err.contains("role"), "{err}");
+}
+
+#[test]
+fn the_cases_list_without_an_adapter() {
+    let o = Command::new(bin())
+        .args([
+            "gate",
+            "--master",
+            "/nonexistent/master",
+            "--list",
+            "--model",
+            "l510-legacy",
+        ])
+        .output()
+        .unwrap();
+    assert_eq!(o.status.code(), Some(0));
+    let out = String::from_utf8_lossy(&o.stdout);
+    for id in [
+        "rtu.read.exception-51",
+        "rtu.read.exception-55",
+        "ascii.read.stale-reply",
+    ] {
+        assert!(out.contains(id), "{id}: {out}");
+    }
+}
