@@ -262,7 +262,8 @@ pub fn run(
                     &mut last_called,
                 );
                 let stalled = drive.stalled_since(from);
-                if stalled.is_zero() || r.0.status == Status::Skip {
+                if stalled <= stall_limit(case, &opts.line, &settings) || r.0.status == Status::Skip
+                {
                     break;
                 }
                 attempt += 1;
@@ -298,6 +299,23 @@ pub fn run(
         adapter.close();
     }
     Ok(out)
+}
+
+/// The longest the gate's drive may go unscheduled during `case` before the case is run
+/// again: where the line is busy, what would let a master that does not wait for t3.5
+/// see a silence of t3.5 less one character (the tolerance of the judge); elsewhere a
+/// third of the master's timeout (requests read that late could be taken for the next
+/// operation's).
+fn stall_limit(case: &MasterCase, line: &LineSettings, settings: &MasterSettings) -> Duration {
+    if case.fault.busy {
+        let t35 = Duration::from_micros(line.t3_5_us());
+        let char_time = Duration::from_micros(line.char_time_us());
+        t35.saturating_sub(char_time)
+            .saturating_sub(Duration::from_millis(5))
+            .max(drive::STALL)
+    } else {
+        (settings.timeout / 3).max(drive::STALL)
+    }
 }
 
 /// Runs one case: the operation under the fault, then the recovery read.
