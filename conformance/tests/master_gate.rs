@@ -51,6 +51,17 @@ fn deviation_kinds(v: &serde_json::Value) -> BTreeSet<String> {
         .collect()
 }
 
+/// The cases that ended in ERROR, with why (for a failing assertion's message).
+fn errors(v: &serde_json::Value) -> Vec<String> {
+    v["checks"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter(|c| c["status"] == "error")
+        .map(|c| format!("{}: {}", c["id"], c["summary"]))
+        .collect()
+}
+
 fn master(quirk: Option<&str>) -> String {
     match quirk {
         None => "conformance adapter --master".to_string(),
@@ -78,7 +89,8 @@ fn the_clean_master_gives_no_finding_in_rtu_and_ascii() {
     assert_eq!(
         o.status.code(),
         Some(0),
-        "{}",
+        "{:?} {}",
+        errors(&v),
         String::from_utf8_lossy(&o.stderr)
     );
     assert_eq!(v["summary"]["deviation"], 0);
@@ -115,7 +127,7 @@ fn a_clean_master_that_retries_as_its_setting_says_gives_no_finding() {
     schema_valid(&v);
     let kinds = deviation_kinds(&v);
     assert!(kinds.is_empty(), "{kinds:?}: {:#}", v["master"]["kinds"]);
-    assert_eq!(o.status.code(), Some(0));
+    assert_eq!(o.status.code(), Some(0), "{:?}", errors(&v));
     assert_eq!(v["master"]["settings"]["rtu"]["retries"], 1);
     // A second try after a reply split by a silence over t1.5 is right, not a storm (a
     // loaded host may hand the master both parts at once: then it is an observation).
@@ -132,7 +144,12 @@ fn caught_as(quirk: &str, mode: &str, kind: &str, extra: &[&str]) -> serde_json:
     let kinds = deviation_kinds(&v);
     let want: BTreeSet<String> = [kind.to_string()].into();
     assert_eq!(kinds, want, "{quirk} in {mode}: {:#}", v["master"]["kinds"]);
-    assert_eq!(o.status.code(), Some(1), "{quirk} in {mode}");
+    assert_eq!(
+        o.status.code(),
+        Some(1),
+        "{quirk} in {mode}: {:?}",
+        errors(&v)
+    );
     let k = v["master"]["kinds"]
         .as_array()
         .unwrap()
@@ -233,7 +250,7 @@ fn a_master_that_reads_over_the_limit_is_caught() {
 fn over_tcp_the_same_master_is_judged_without_line_timing() {
     let (o, v) = gate_master(&master(None), &["--mode", "rtu", "--line", "tcp-rtu"]);
     schema_valid(&v);
-    assert_eq!(o.status.code(), Some(0), "{:#}", v["master"]["kinds"]);
+    assert_eq!(o.status.code(), Some(0), "{:?}", errors(&v));
     assert!(deviation_kinds(&v).is_empty(), "{:#}", v["master"]["kinds"]);
     assert_eq!(v["master"]["line"], "tcp-rtu");
     assert_eq!(status_of(&v, "rtu.read.stale-reply"), "pass");
