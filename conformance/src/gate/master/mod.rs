@@ -669,6 +669,89 @@ impl MasterSummary {
     }
 }
 
+impl MasterSummary {
+    /// Reads the report's JSON `master` object back (`conformance report` of a saved
+    /// master gate report).
+    pub fn from_json(v: &serde_json::Value) -> Result<Self, String> {
+        use serde_json::Value;
+        let strings = |k: &str| -> Vec<String> {
+            v.get(k)
+                .and_then(Value::as_array)
+                .map(|a| {
+                    a.iter()
+                        .filter_map(|x| x.as_str().map(String::from))
+                        .collect()
+                })
+                .unwrap_or_default()
+        };
+        let mut settings = BTreeMap::new();
+        if let Some(m) = v.get("settings").and_then(Value::as_object) {
+            for (mode, s) in m {
+                let n = |k: &str| {
+                    s.get(k)
+                        .and_then(Value::as_u64)
+                        .ok_or_else(|| format!("settings.{mode}.{k}: not a number"))
+                };
+                settings.insert(
+                    mode.clone(),
+                    MasterSettings {
+                        timeout: Duration::from_millis(n("timeout_ms")?),
+                        retries: u32::try_from(n("retries")?)
+                            .map_err(|_| format!("settings.{mode}.retries: too large"))?,
+                    },
+                );
+            }
+        }
+        let mut kinds = BTreeMap::new();
+        for (i, k) in v
+            .get("kinds")
+            .and_then(Value::as_array)
+            .into_iter()
+            .flatten()
+            .enumerate()
+        {
+            let text = |f: &str| {
+                k.get(f)
+                    .and_then(Value::as_str)
+                    .map(String::from)
+                    .ok_or_else(|| format!("kinds[{i}].{f}: not a string"))
+            };
+            kinds.insert(
+                text("kind")?,
+                KindSummary {
+                    severity: match text("severity")?.as_str() {
+                        "deviation" => Severity::Deviation,
+                        "observation" => Severity::Observation,
+                        other => return Err(format!("kinds[{i}].severity: {other:?}")),
+                    },
+                    cases: k
+                        .get("cases")
+                        .and_then(Value::as_array)
+                        .map(|a| {
+                            a.iter()
+                                .filter_map(|x| x.as_str().map(String::from))
+                                .collect()
+                        })
+                        .unwrap_or_default(),
+                    example: text("example")?,
+                    repro: text("reproduce")?,
+                },
+            );
+        }
+        Ok(MasterSummary {
+            modes: strings("modes"),
+            lines: strings("lines"),
+            settings,
+            kinds,
+            line: v
+                .get("line")
+                .and_then(Value::as_str)
+                .unwrap_or("pty")
+                .to_string(),
+        })
+    }
+}
+
 /// The summary of a run, with what the adapter's hello (`raw`) says of the master.
 pub fn summary(run: &MasterRun, raw: &serde_json::Value, line: drive::LineKind) -> MasterSummary {
     let list = |k: &str| -> Vec<String> {
@@ -687,5 +770,43 @@ pub fn summary(run: &MasterRun, raw: &serde_json::Value, line: drive::LineKind) 
         settings: run.settings.clone(),
         kinds: run.by_kind.clone(),
         line: line.key().to_string(),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_summary_reads_back_as_it_was_written() {
+        let mut s = MasterSummary {
+            modes: vec!["rtu".into()],
+            lines: vec!["pty".into(), "tcp-rtu".into()],
+            line: "tcp-rtu".into(),
+            ..MasterSummary::default()
+        };
+        s.settings.insert(
+            "rtu".into(),
+            MasterSettings {
+                timeout: Duration::from_millis(300),
+                retries: 1,
+            },
+        );
+        s.kinds.insert(
+            "stale-reply-taken".into(),
+            KindSummary {
+                severity: Severity::Deviation,
+                cases: vec!["rtu.read.stale-reply".into()],
+                example: "rtu.read.stale-reply: ...".into(),
+                repro: "conformance gate --master 'x' --only rtu.read.stale-reply".into(),
+            },
+        );
+        let back = MasterSummary::from_json(&s.to_json()).unwrap();
+        assert_eq!(back.to_json(), s.to_json());
+        assert!(MasterSummary::from_json(&serde_json::json!({
+            "kinds": [{"kind": "x", "severity": "grave", "cases": [], "example": "", "reproduce": ""}]
+        }))
+        .unwrap_err()
+        .contains("severity"));
     }
 }
