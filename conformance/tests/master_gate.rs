@@ -228,14 +228,15 @@ fn a_master_that_ignores_exceptions_is_caught() {
             "deviation"
         );
     }
-    // The legacy L510's own codes, 51H..55H.
+    // The legacy L510's own codes, 51H..55H, and a code of another device (0BH).
     let v = caught_as(
         "ignores-exception",
         "rtu",
         "exception-ignored",
-        &["--model", "l510-legacy"],
+        &["--model", "l510-legacy", "--exception-code", "0B"],
     );
     assert_eq!(status_of(&v, "rtu.read.exception-52"), "deviation");
+    assert_eq!(status_of(&v, "rtu.read.exception-0b"), "deviation");
 }
 
 #[test]

@@ -61,6 +61,9 @@ pub struct MasterOptions {
     pub repro: String,
     /// The line the gate serves: a pty, or RTU/ASCII frames over TCP.
     pub line_kind: drive::LineKind,
+    /// Exception codes to answer with besides the model's (`--exception-code`): codes
+    /// other devices on the bus use (05H, 07H, 0AH, 0BH), to see a master handle them.
+    pub extra_exceptions: Vec<u8>,
 }
 
 /// Told about each case as it runs.
@@ -115,7 +118,10 @@ fn mode_key(m: Mode) -> &'static str {
 
 /// The cases of a run, selected by `only`.
 pub fn cases(opts: &MasterOptions) -> Vec<MasterCase> {
-    let plan = Plan::of(&opts.model, opts.node);
+    let mut plan = Plan::of(&opts.model, opts.node);
+    plan.exception_codes.extend(&opts.extra_exceptions);
+    plan.exception_codes.sort_unstable();
+    plan.exception_codes.dedup();
     let mut all = cases::cases(&plan, &opts.settings, &opts.line, &opts.modes);
     all.retain(|c| crate::runner::selected(&c.id, &opts.only));
     all
