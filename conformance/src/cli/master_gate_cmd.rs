@@ -69,6 +69,19 @@ pub struct MasterGateArgs {
     /// gaps).
     #[arg(long, value_enum, default_value = "pty")]
     line: LineArg,
+    /// With --master: also answer with this exception code (hex, e.g. 05, 07, 0A, 0B)
+    /// besides the model's own codes. Repeatable.
+    #[arg(long, value_name = "HEX", value_parser = parse_code)]
+    exception_code: Vec<u8>,
+}
+
+fn parse_code(s: &str) -> Result<u8, String> {
+    let t = s.trim().trim_end_matches(['h', 'H']);
+    let t = t.strip_prefix("0x").unwrap_or(t);
+    match u8::from_str_radix(t, 16) {
+        Ok(c) if (1..0x80).contains(&c) => Ok(c),
+        _ => Err(format!("{s:?} is not an exception code (hex 01..7F)")),
+    }
 }
 
 /// The options `gate` shares between codecs and masters.
@@ -130,6 +143,9 @@ pub fn run(
     if args.baud != 9600 {
         repro.push_str(&format!(" -b {}", args.baud));
     }
+    for c in &args.exception_code {
+        repro.push_str(&format!(" --exception-code {c:02X}"));
+    }
     let line_kind = match args.line {
         LineArg::Pty => master::drive::LineKind::Pty,
         LineArg::TcpRtu => {
@@ -149,6 +165,7 @@ pub fn run(
         line,
         repro,
         line_kind,
+        extra_exceptions: args.exception_code.clone(),
     };
     let cases = master::cases(&opts);
     if common.list {

@@ -410,8 +410,13 @@ impl Report {
             // Nor the monitor's statistics: its results are.
             monitor: None,
             expect,
-            // Nor the master gate's summary by kind: its results are.
-            master: None,
+            master: match v.get("master") {
+                Some(m) if !m.is_null() => Some(
+                    crate::gate::master::MasterSummary::from_json(m)
+                        .map_err(|e| field(".master", e))?,
+                ),
+                _ => None,
+            },
         })
     }
 }

@@ -175,8 +175,9 @@ struct State {
 }
 
 /// A gap between two turns of the drive's loop (which turns at least every 5 ms) over
-/// this is the host's doing: bytes waited unread, replies went out late.
-pub const STALL: Duration = Duration::from_millis(40);
+/// this is the host's doing: bytes waited unread, replies went out late. Recorded; the
+/// run decides per case how long a stall it tolerates.
+pub const STALL: Duration = Duration::from_millis(20);
 
 /// The drive's end of the line.
 pub struct DriveSide {

@@ -61,6 +61,9 @@ pub struct MasterOptions {
     pub repro: String,
     /// The line the gate serves: a pty, or RTU/ASCII frames over TCP.
     pub line_kind: drive::LineKind,
+    /// Exception codes to answer with besides the model's (`--exception-code`): codes
+    /// other devices on the bus use (05H, 07H, 0AH, 0BH), to see a master handle them.
+    pub extra_exceptions: Vec<u8>,
 }
 
 /// Told about each case as it runs.
@@ -115,7 +118,10 @@ fn mode_key(m: Mode) -> &'static str {
 
 /// The cases of a run, selected by `only`.
 pub fn cases(opts: &MasterOptions) -> Vec<MasterCase> {
-    let plan = Plan::of(&opts.model, opts.node);
+    let mut plan = Plan::of(&opts.model, opts.node);
+    plan.exception_codes.extend(&opts.extra_exceptions);
+    plan.exception_codes.sort_unstable();
+    plan.exception_codes.dedup();
     let mut all = cases::cases(&plan, &opts.settings, &opts.line, &opts.modes);
     all.retain(|c| crate::runner::selected(&c.id, &opts.only));
     all
@@ -262,7 +268,8 @@ pub fn run(
                     &mut last_called,
                 );
                 let stalled = drive.stalled_since(from);
-                if stalled.is_zero() || r.0.status == Status::Skip {
+                if stalled <= stall_limit(case, &opts.line, &settings) || r.0.status == Status::Skip
+                {
                     break;
                 }
                 attempt += 1;
@@ -298,6 +305,23 @@ pub fn run(
         adapter.close();
     }
     Ok(out)
+}
+
+/// The longest the gate's drive may go unscheduled during `case` before the case is run
+/// again: where the line is busy, what would let a master that does not wait for t3.5
+/// see a silence of t3.5 less one character (the tolerance of the judge); elsewhere a
+/// third of the master's timeout (requests read that late could be taken for the next
+/// operation's).
+fn stall_limit(case: &MasterCase, line: &LineSettings, settings: &MasterSettings) -> Duration {
+    if case.fault.busy {
+        let t35 = Duration::from_micros(line.t3_5_us());
+        let char_time = Duration::from_micros(line.char_time_us());
+        t35.saturating_sub(char_time)
+            .saturating_sub(Duration::from_millis(5))
+            .max(drive::STALL)
+    } else {
+        (settings.timeout / 3).max(drive::STALL)
+    }
 }
 
 /// Runs one case: the operation under the fault, then the recovery read.
@@ -651,6 +675,89 @@ impl MasterSummary {
     }
 }
 
+impl MasterSummary {
+    /// Reads the report's JSON `master` object back (`conformance report` of a saved
+    /// master gate report).
+    pub fn from_json(v: &serde_json::Value) -> Result<Self, String> {
+        use serde_json::Value;
+        let strings = |k: &str| -> Vec<String> {
+            v.get(k)
+                .and_then(Value::as_array)
+                .map(|a| {
+                    a.iter()
+                        .filter_map(|x| x.as_str().map(String::from))
+                        .collect()
+                })
+                .unwrap_or_default()
+        };
+        let mut settings = BTreeMap::new();
+        if let Some(m) = v.get("settings").and_then(Value::as_object) {
+            for (mode, s) in m {
+                let n = |k: &str| {
+                    s.get(k)
+                        .and_then(Value::as_u64)
+                        .ok_or_else(|| format!("settings.{mode}.{k}: not a number"))
+                };
+                settings.insert(
+                    mode.clone(),
+                    MasterSettings {
+                        timeout: Duration::from_millis(n("timeout_ms")?),
+                        retries: u32::try_from(n("retries")?)
+                            .map_err(|_| format!("settings.{mode}.retries: too large"))?,
+                    },
+                );
+            }
+        }
+        let mut kinds = BTreeMap::new();
+        for (i, k) in v
+            .get("kinds")
+            .and_then(Value::as_array)
+            .into_iter()
+            .flatten()
+            .enumerate()
+        {
+            let text = |f: &str| {
+                k.get(f)
+                    .and_then(Value::as_str)
+                    .map(String::from)
+                    .ok_or_else(|| format!("kinds[{i}].{f}: not a string"))
+            };
+            kinds.insert(
+                text("kind")?,
+                KindSummary {
+                    severity: match text("severity")?.as_str() {
+                        "deviation" => Severity::Deviation,
+                        "observation" => Severity::Observation,
+                        other => return Err(format!("kinds[{i}].severity: {other:?}")),
+                    },
+                    cases: k
+                        .get("cases")
+                        .and_then(Value::as_array)
+                        .map(|a| {
+                            a.iter()
+                                .filter_map(|x| x.as_str().map(String::from))
+                                .collect()
+                        })
+                        .unwrap_or_default(),
+                    example: text("example")?,
+                    repro: text("reproduce")?,
+                },
+            );
+        }
+        Ok(MasterSummary {
+            modes: strings("modes"),
+            lines: strings("lines"),
+            settings,
+            kinds,
+            line: v
+                .get("line")
+                .and_then(Value::as_str)
+                .unwrap_or("pty")
+                .to_string(),
+        })
+    }
+}
+
 /// The summary of a run, with what the adapter's hello (`raw`) says of the master.
 pub fn summary(run: &MasterRun, raw: &serde_json::Value, line: drive::LineKind) -> MasterSummary {
     let list = |k: &str| -> Vec<String> {
@@ -669,5 +776,43 @@ pub fn summary(run: &MasterRun, raw: &serde_json::Value, line: drive::LineKind) 
         settings: run.settings.clone(),
         kinds: run.by_kind.clone(),
         line: line.key().to_string(),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_summary_reads_back_as_it_was_written() {
+        let mut s = MasterSummary {
+            modes: vec!["rtu".into()],
+            lines: vec!["pty".into(), "tcp-rtu".into()],
+            line: "tcp-rtu".into(),
+            ..MasterSummary::default()
+        };
+        s.settings.insert(
+            "rtu".into(),
+            MasterSettings {
+                timeout: Duration::from_millis(300),
+                retries: 1,
+            },
+        );
+        s.kinds.insert(
+            "stale-reply-taken".into(),
+            KindSummary {
+                severity: Severity::Deviation,
+                cases: vec!["rtu.read.stale-reply".into()],
+                example: "rtu.read.stale-reply: ...".into(),
+                repro: "conformance gate --master 'x' --only rtu.read.stale-reply".into(),
+            },
+        );
+        let back = MasterSummary::from_json(&s.to_json()).unwrap();
+        assert_eq!(back.to_json(), s.to_json());
+        assert!(MasterSummary::from_json(&serde_json::json!({
+            "kinds": [{"kind": "x", "severity": "grave", "cases": [], "example": "", "reproduce": ""}]
+        }))
+        .unwrap_err()
+        .contains("severity"));
     }
 }
