@@ -351,3 +351,42 @@ fn mbpoll_master_runs_once_per_operation_and_takes_the_stale_reply() {
     let (_, v) = gate("mbpoll-stale", &cmd, "f510", &["rtu.read.stale-reply"]);
     finding(&v, "stale-reply-taken", "rtu.read.stale-reply");
 }
+
+/// `--reopen-each-case`: libmodbus, after a stale reply, answers every later read one
+/// request late (its queue is never flushed). In one run without the option, the case
+/// after the stale reply inherits it and deviates; with the option each case gets a new
+/// line, and only the stale-reply case deviates.
+#[test]
+fn libmodbus_state_after_a_stale_reply_stays_in_its_case_with_reopen_each_case() {
+    if !common::need(Peer::Libmodbus) {
+        return;
+    }
+    let cmd = format!("{} {}", python(), adapter("libmodbus-master/adapter.py"));
+    let only = ["rtu.read.normal", "rtu.read.stale-reply", "rtu.read.late"];
+    let run = |name: &str, reopen: bool| {
+        let mut args = vec!["--master", cmd.as_str(), "--mode", "rtu"];
+        if reopen {
+            args.push("--reopen-each-case");
+        }
+        for p in &only {
+            args.extend(["--only", p]);
+        }
+        let (_, v) = common::report_of("gate", &scratch(name), &args, LIMIT);
+        assert_eq!(v["complete"], true, "{v:#}");
+        v
+    };
+    let kept = run("libmodbus-kept", false);
+    assert_eq!(status(&kept, "rtu.read.normal"), "pass");
+    finding(&kept, "stale-reply-taken", "rtu.read.stale-reply");
+    // The late case runs after the stale reply: its read gets the reply of the one before.
+    assert_eq!(status(&kept, "rtu.read.late"), "deviation");
+    let fresh = run("libmodbus-reopened", true);
+    assert_eq!(status(&fresh, "rtu.read.normal"), "pass");
+    finding(&fresh, "stale-reply-taken", "rtu.read.stale-reply");
+    assert_eq!(
+        status(&fresh, "rtu.read.late"),
+        "pass",
+        "{:#}",
+        fresh["checks"]
+    );
+}

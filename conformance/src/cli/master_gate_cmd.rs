@@ -73,6 +73,12 @@ pub struct MasterGateArgs {
     /// besides the model's own codes. Repeatable.
     #[arg(long, value_name = "HEX", value_parser = parse_code)]
     exception_code: Vec<u8>,
+    /// With --master: close and open the master's line again before each case, so that
+    /// what a fault leaves in a library (a reply one request late, bytes stuck in its
+    /// buffer) is found in the case that caused it only. Without it a run shows what a
+    /// master that never reopens does: the state is carried into the next cases.
+    #[arg(long)]
+    reopen_each_case: bool,
 }
 
 fn parse_code(s: &str) -> Result<u8, String> {
@@ -166,6 +172,7 @@ pub fn run(
         repro,
         line_kind,
         extra_exceptions: args.exception_code.clone(),
+        reopen: args.reopen_each_case,
     };
     let cases = master::cases(&opts);
     if common.list {

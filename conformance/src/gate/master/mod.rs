@@ -64,6 +64,13 @@ pub struct MasterOptions {
     /// Exception codes to answer with besides the model's (`--exception-code`): codes
     /// other devices on the bus use (05H, 07H, 0AH, 0BH), to see a master handle them.
     pub extra_exceptions: Vec<u8>,
+    /// Give the master a new line (a new pseudo-terminal pair or TCP port) and open it
+    /// again before each case after the first (`--reopen-each-case`), so that what a fault
+    /// left behind (a reply one request late, bytes queued in the kernel or stuck in the
+    /// library's buffer) is not blamed on the next case. Off, a run shows what a master
+    /// that never reopens does: a state a fault leaves is carried on (found as
+    /// `no-recovery` in the case that left it, and in the cases after it).
+    pub reopen: bool,
 }
 
 /// Told about each case as it runs.
@@ -209,7 +216,8 @@ pub fn run(
             }
             continue;
         }
-        let drive = DriveSide::start_on(model.clone(), opts.node, mode, opts.line, opts.line_kind)?;
+        let mut drive =
+            DriveSide::start_on(model.clone(), opts.node, mode, opts.line, opts.line_kind)?;
         let opened = adapter.open(drive.endpoint(), mode, opts.line, opts.settings);
         let settings = match opened {
             Ok(s) => s,
@@ -247,11 +255,44 @@ pub fn run(
             Err(e) => return Err(MasterGateError::Config(e.to_string())),
         };
         let mut last_called = drive.now();
+        let mut first = true;
         for case in mine {
             if stop.load(Ordering::Relaxed) {
                 break;
             }
             progress.started(case);
+            if opts.reopen && !std::mem::take(&mut first) {
+                // The master's line closed, and a new line (a new pseudo-terminal pair, or
+                // a new TCP port) opened: nothing a fault left queued on the old one, in
+                // the kernel or in the library, reaches this case.
+                adapter.close();
+                drive = match DriveSide::start_on(
+                    model.clone(),
+                    opts.node,
+                    mode,
+                    opts.line,
+                    opts.line_kind,
+                ) {
+                    Ok(d) => d,
+                    Err(e) => return Err(e.into()),
+                };
+                if let Err(e) = adapter.open(drive.endpoint(), mode, opts.line, opts.settings) {
+                    let r = result(
+                        case,
+                        Status::Error,
+                        format!(
+                            "the adapter could not open the line again (--reopen-each-case): {e}"
+                        ),
+                        vec![],
+                        vec![],
+                        Duration::ZERO,
+                    );
+                    progress.finished(&r);
+                    out.results.push(r);
+                    continue;
+                }
+                last_called = drive.now();
+            }
             // A case during which the gate's own drive was not scheduled is not judged
             // (bytes waited unread, replies went late): it runs again, at most twice.
             let mut r;
