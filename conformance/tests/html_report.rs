@@ -131,11 +131,30 @@ fn html_csv_and_diff_of_a_clean_and_a_quirky_run() {
         .iter()
         .filter(|id| !clean_devs.contains(id))
         .collect();
+    // Exit 1; or 2 where only this host stalled sending a request (a busy machine: an
+    // ERROR that judges nothing), never for anything else.
+    let stalls_only = |v: &Value| {
+        v["checks"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .filter(|c| c["status"] == "error")
+            .all(|c| {
+                c["summary"]
+                    .as_str()
+                    .is_some_and(|s| s.contains("could not send the request"))
+            })
+    };
     assert!(
-        clean_code == Some(0) || !clean_devs.is_empty(),
+        clean_code == Some(0)
+            || !clean_devs.is_empty()
+            || (clean_code == Some(2) && stalls_only(&clean)),
         "{clean_code:?}"
     );
-    assert_eq!(quirk_code, Some(1));
+    assert!(
+        quirk_code == Some(1) || (quirk_code == Some(2) && stalls_only(&quirk)),
+        "{quirk_code:?}"
+    );
     assert!(added.len() >= 30, "{added:?}");
     assert!(quirk_devs.contains(&"rtu.map.group-0.past-end".to_string()));
     assert!(clean["options"]["response_time_ms"].as_f64().unwrap() >= 10.0);
