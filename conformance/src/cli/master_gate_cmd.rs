@@ -36,6 +36,9 @@ pub enum LineArg {
     Pty,
     /// RTU or ASCII frames over TCP (the master connects to 127.0.0.1).
     TcpRtu,
+    /// Modbus TCP (MBAP): the gate plays a Modbus TCP gateway with the drive behind it
+    /// (RTU only; the faults that need a serial line are skipped).
+    Mbap,
 }
 
 /// The options of `gate --master` (ignored with `--codec`).
@@ -157,6 +160,10 @@ pub fn run(
         LineArg::TcpRtu => {
             repro.push_str(" --line tcp-rtu");
             master::drive::LineKind::TcpRtu
+        }
+        LineArg::Mbap => {
+            repro.push_str(" --line mbap");
+            master::drive::LineKind::Mbap
         }
     };
     let opts = MasterOptions {

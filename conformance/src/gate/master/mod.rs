@@ -176,6 +176,23 @@ pub fn run(
         if mine.is_empty() {
             continue;
         }
+        if opts.line_kind == drive::LineKind::Mbap && mode == Mode::Ascii {
+            for case in mine {
+                progress.started(case);
+                let r = result(
+                    case,
+                    Status::Skip,
+                    "there is no ASCII over Modbus TCP (MBAP carries the RTU-equivalent PDU)"
+                        .to_string(),
+                    vec![],
+                    vec![],
+                    Duration::ZERO,
+                );
+                progress.finished(&r);
+                out.results.push(r);
+            }
+            continue;
+        }
         if !adapter.speaks(mode) {
             for case in mine {
                 progress.started(case);
@@ -266,16 +283,8 @@ pub fn run(
                 // a new TCP port) opened: nothing a fault left queued on the old one, in
                 // the kernel or in the library, reaches this case.
                 adapter.close();
-                drive = match DriveSide::start_on(
-                    model.clone(),
-                    opts.node,
-                    mode,
-                    opts.line,
-                    opts.line_kind,
-                ) {
-                    Ok(d) => d,
-                    Err(e) => return Err(e.into()),
-                };
+                drive =
+                    DriveSide::start_on(model.clone(), opts.node, mode, opts.line, opts.line_kind)?;
                 if let Err(e) = adapter.open(drive.endpoint(), mode, opts.line, opts.settings) {
                     let r = result(
                         case,
@@ -378,6 +387,31 @@ fn run_case(
     let t0 = Instant::now();
     let quiet = drive::apart(&drive.line);
     let timed = opts.line_kind == drive::LineKind::Pty;
+    // Through a Modbus TCP gateway only whole frames with a right CRC cross, as PDUs: a
+    // fault made of a serial line's bytes does not exist there.
+    if opts.line_kind == drive::LineKind::Mbap
+        && matches!(
+            case.fault.behaviour,
+            Behaviour::Truncated
+                | Behaviour::BadChecksum
+                | Behaviour::GarbageBefore(_)
+                | Behaviour::GarbageAfter(_)
+                | Behaviour::ExceptionNoChecksum(_)
+                | Behaviour::Split(_)
+        )
+    {
+        return (
+            result(
+                case,
+                Status::Skip,
+                "a Modbus TCP gateway passes whole frames with a right CRC only, as PDUs: this fault is a serial line's (run it on a pty)".to_string(),
+                vec![],
+                vec![],
+                t0.elapsed(),
+            ),
+            vec![],
+        );
+    }
     if !timed && (case.fault.busy || matches!(case.fault.behaviour, Behaviour::Split(_))) {
         return (
             result(

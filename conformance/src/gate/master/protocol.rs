@@ -395,6 +395,9 @@ impl MasterAdapter {
             super::drive::Endpoint::TcpRtu(addr) => {
                 json!({"kind": "tcp-rtu", "host": addr.ip().to_string(), "port": addr.port()})
             }
+            super::drive::Endpoint::Mbap(addr) => {
+                json!({"kind": "mbap", "host": addr.ip().to_string(), "port": addr.port()})
+            }
         };
         let request = json!({
             "op": "open",
