@@ -393,9 +393,10 @@ fn libmodbus_state_after_a_stale_reply_stays_in_its_case_with_reopen_each_case()
 
 /// `--line mbap`: the gate plays a Modbus TCP gateway. pymodbus's TCP client checks the
 /// transaction id, so the stale reply (the old id) is never taken; it still takes a 06H
-/// echo as a read's values. libmodbus's TCP client takes another unit's reply, and a stale
-/// reply ahead of the right one makes it report "Invalid data" for the read that follows
-/// (libmodbus #255). The faults of a serial line's bytes are skipped.
+/// echo as a read's values. libmodbus's TCP client takes another unit's reply, and never a
+/// stale one's values (a stale reply read ahead of the right one makes it report "Invalid
+/// data" for the read that follows, libmodbus #255; how often depends on the host's
+/// timing, so that is not asserted). The faults of a serial line's bytes are skipped.
 #[test]
 fn over_modbus_tcp_pymodbus_checks_the_transaction_and_libmodbus_not_the_unit() {
     if !common::need(Peer::Pymodbus) || !common::need(Peer::Libmodbus) {
@@ -432,5 +433,24 @@ fn over_modbus_tcp_pymodbus_checks_the_transaction_and_libmodbus_not_the_unit() 
         &format!("{} {}", python(), adapter("libmodbus-master/adapter.py")),
     );
     finding(&lm, "accepted-other-node", "rtu.read.other-node");
-    finding(&lm, "no-recovery", "rtu.read.stale-reply");
+    // The stale frame (its old transaction id) is never taken as values. Where it is
+    // read ahead of the right reply, the read after it fails ("Invalid data",
+    // no-recovery); where the host's timing lets it be read apart, nothing is found.
+    let kinds: Vec<&str> = lm["master"]["kinds"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter(|k| {
+            k["cases"]
+                .as_array()
+                .unwrap()
+                .iter()
+                .any(|c| c == "rtu.read.stale-reply")
+        })
+        .map(|k| k["kind"].as_str().unwrap())
+        .collect();
+    assert!(
+        kinds.iter().all(|k| *k == "no-recovery"),
+        "libmodbus over MBAP: {kinds:?}"
+    );
 }
