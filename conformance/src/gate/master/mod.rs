@@ -161,6 +161,30 @@ fn result(
     }
 }
 
+/// Gives every case of `cases` the same `status` and summary `why` (a mode the master
+/// does not speak, a line it cannot open, a line that could not be opened).
+fn settle_all(
+    cases: &[&MasterCase],
+    status: Status,
+    why: &str,
+    progress: &mut dyn MasterProgress,
+    out: &mut MasterRun,
+) {
+    for case in cases {
+        progress.started(case);
+        let r = result(
+            case,
+            status,
+            why.to_string(),
+            vec![],
+            vec![],
+            Duration::ZERO,
+        );
+        progress.finished(&r);
+        out.results.push(r);
+    }
+}
+
 /// Runs `cases` through the master; stops before the next case once `stop` is set.
 pub fn run(
     adapter: &mut MasterAdapter,
@@ -177,60 +201,27 @@ pub fn run(
             continue;
         }
         if opts.line_kind == drive::LineKind::Mbap && mode == Mode::Ascii {
-            for case in mine {
-                progress.started(case);
-                let r = result(
-                    case,
-                    Status::Skip,
-                    "there is no ASCII over Modbus TCP (MBAP carries the RTU-equivalent PDU)"
-                        .to_string(),
-                    vec![],
-                    vec![],
-                    Duration::ZERO,
-                );
-                progress.finished(&r);
-                out.results.push(r);
-            }
+            let why = "there is no ASCII over Modbus TCP (MBAP carries the RTU-equivalent PDU)"
+                .to_string();
+            settle_all(&mine, Status::Skip, &why, progress, &mut out);
             continue;
         }
         if !adapter.speaks(mode) {
-            for case in mine {
-                progress.started(case);
-                let r = result(
-                    case,
-                    Status::Skip,
-                    format!(
-                        "the master does not speak {} (its hello's modes: {:?})",
-                        mode_key(mode),
-                        adapter.hello.modes
-                    ),
-                    vec![],
-                    vec![],
-                    Duration::ZERO,
-                );
-                progress.finished(&r);
-                out.results.push(r);
-            }
+            let why = format!(
+                "the master does not speak {} (its hello's modes: {:?})",
+                mode_key(mode),
+                adapter.hello.modes
+            );
+            settle_all(&mine, Status::Skip, &why, progress, &mut out);
             continue;
         }
         if !adapter.opens(opts.line_kind.key()) {
-            for case in mine {
-                progress.started(case);
-                let r = result(
-                    case,
-                    Status::Skip,
-                    format!(
-                        "the master cannot open a {} line (its hello's lines: {:?})",
-                        opts.line_kind.key(),
-                        adapter.hello.lines
-                    ),
-                    vec![],
-                    vec![],
-                    Duration::ZERO,
-                );
-                progress.finished(&r);
-                out.results.push(r);
-            }
+            let why = format!(
+                "the master cannot open a {} line (its hello's lines: {:?})",
+                opts.line_kind.key(),
+                adapter.hello.lines
+            );
+            settle_all(&mine, Status::Skip, &why, progress, &mut out);
             continue;
         }
         let mut drive =
@@ -239,19 +230,8 @@ pub fn run(
         let settings = match opened {
             Ok(s) => s,
             Err(e) => {
-                for case in mine {
-                    progress.started(case);
-                    let r = result(
-                        case,
-                        Status::Error,
-                        format!("the adapter could not open the line: {e}"),
-                        vec![],
-                        vec![],
-                        Duration::ZERO,
-                    );
-                    progress.finished(&r);
-                    out.results.push(r);
-                }
+                let why = format!("the adapter could not open the line: {e}");
+                settle_all(&mine, Status::Error, &why, progress, &mut out);
                 continue;
             }
         };
