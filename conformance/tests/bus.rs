@@ -562,3 +562,114 @@ fn links_are_removed_on_sigterm() {
         b.display()
     );
 }
+
+/// With --emulate-line a port set to other settings hears what a UART at them reads, and
+/// `monitor` with no -b finds the line's baud rate and parity by listening: it tries 9600
+/// (even, odd, none) and 19200 even, each of which hears garbage, then 19200 odd, the
+/// line's, and judges the exchanges it hears there. The master is the suite's `send`,
+/// polling node 1 until the monitor ends.
+#[test]
+fn a_monitor_with_no_baud_rate_finds_the_lines_settings_on_an_emulated_line() {
+    let d = dir("search");
+    eprintln!("{}", d.display());
+    let (m, t, log) = (d.join("master"), d.join("tap"), d.join("line.jsonl"));
+    let (mut bus, _) = start(
+        &[
+            "--link",
+            &format!("master={}", m.display()),
+            "--link",
+            &format!("tap={}", t.display()),
+            "--model",
+            "f510",
+            "-a",
+            "1",
+            "-b",
+            "19200",
+            "-P",
+            "odd",
+            "--emulate-line",
+            "--log",
+            log.to_str().unwrap(),
+        ],
+        2,
+    );
+    common::wait_for(&m);
+    common::wait_for(&t);
+    let report = d.join("monitor.json");
+    let mut monitor = Kill::spawn(
+        Command::new(bin())
+            .args(["monitor", "--model", "f510", "-a", "1", "--quiet", "--log"])
+            .arg(d.join("heard.jsonl"))
+            .args(["--duration", "30", "--format", "json", "--port"])
+            .arg(&t)
+            .arg("-o")
+            .arg(&report)
+            .stdin(Stdio::null())
+            .stdout(Stdio::null())
+            .stderr(Stdio::inherit()),
+    );
+    let frame = READ_252F
+        .iter()
+        .map(|b| format!("{b:02X}"))
+        .collect::<Vec<_>>()
+        .join(" ");
+    let t0 = Instant::now();
+    let status = loop {
+        if let Some(st) = monitor.0.try_wait().unwrap() {
+            break st;
+        }
+        assert!(
+            t0.elapsed() < Duration::from_secs(120),
+            "the monitor did not end"
+        );
+        let out = Command::new(bin())
+            .args(["send", "--model", "f510", "--mode", "rtu", "-b", "19200"])
+            .args(["-P", "odd", "--port"])
+            .arg(&m)
+            .args(std::iter::repeat_n(frame.as_str(), 10))
+            .stdin(Stdio::null())
+            .output()
+            .unwrap();
+        assert!(out.status.success(), "{out:?}");
+    };
+    let v: Value = serde_json::from_str(&std::fs::read_to_string(&report).unwrap()).unwrap();
+    assert_eq!(status.code(), Some(0), "{:#}", v["monitor"]);
+    assert_eq!(v["device"]["line"], "19200 8O1", "{:#}", v["monitor"]);
+    let notices = v["monitor"]["notices"].to_string();
+    assert!(
+        notices.contains("19200 8O1 rtu found by listening")
+            && notices.contains("after 4 other settings"),
+        "{notices}"
+    );
+    let node = v["monitor"]["nodes"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|n| n["address"] == "01")
+        .unwrap_or_else(|| panic!("{:#}", v["monitor"]));
+    assert!(node["exchanges"].as_u64().unwrap() >= 2, "{node:#}");
+    assert_eq!(v["summary"]["deviation"], 0, "{:#}", v["summary"]);
+    terminate(&mut bus);
+    // The bus read each setting the monitor set, and gave the wrong ones their own UART.
+    let settings: Vec<(String, String)> = events(&log_of(&log), "settings")
+        .iter()
+        .filter(|r| r["endpoint"] == "tap")
+        .map(|r| {
+            (
+                r["line"].as_str().unwrap().to_string(),
+                r["hears"].as_str().unwrap().to_string(),
+            )
+        })
+        .collect();
+    for (line, hears) in [
+        ("9600 8E1", "its own UART"),
+        ("9600 8O1", "its own UART"),
+        ("19200 8E1", "its own UART"),
+        ("19200 8O1", "the line"),
+    ] {
+        assert!(
+            settings.contains(&(line.to_string(), hears.to_string())),
+            "{line}: {settings:?}"
+        );
+    }
+}

@@ -743,6 +743,8 @@ fn a_monitor_on_a_bus_records_what_the_line_carried_and_tshark_decodes_it() {
             "f510",
             "-a",
             "1",
+            "-b",
+            "9600",
             "--duration",
             "8",
             "--port",

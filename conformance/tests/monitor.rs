@@ -98,6 +98,12 @@ fn listen(args: &[&str], steps: &[Step]) -> Heard {
             "monitor", "--port", &port, "--model", "f510", "--format", "json", "-o",
         ])
         .arg(&out)
+        // The line is given: the search without -b has its own test.
+        .args(if args.contains(&"-b") {
+            &[][..]
+        } else {
+            &["-b", "9600"][..]
+        })
         .args(args)
         .stdin(Stdio::null())
         .stdout(Stdio::null())

@@ -112,6 +112,12 @@ impl Listening {
         let mut monitor = Kill::spawn(
             Command::new(bin())
                 .args(["monitor", "--model", "f510"])
+                // The bus's line is given (the search without -b has its own test).
+                .args(if monitor.contains(&"-b") {
+                    &[][..]
+                } else {
+                    &["-b", "9600"][..]
+                })
                 .args(monitor)
                 .arg("--port")
                 .arg(&tap)

@@ -33,6 +33,9 @@ fn bus_help() -> String {
          (other bytes, parity and framing errors), and the log records who collided and\n\
          for how long. --noise flips bits driven on the line, reproducibly by --seed.\n\
          --no-pace: bytes go through at once (a plain N-way bridge, no collisions).\n\
+         --emulate-line: each pseudo-terminal endpoint hears the line as a UART at the\n\
+         settings its program set would (a listener at another baud rate or parity hears\n\
+         garbage; `monitor` with no -b finds the line's settings this way, as on copper).\n\
          An endpoint nobody reads keeps what it was sent (the pseudo-terminal buffers it)\n\
          until its buffer is full; then bytes for it are dropped (logged as an overrun).\n\n",
     );
@@ -50,13 +53,16 @@ fn bus_help() -> String {
          conformance bus --link m=/tmp/m --model f510 -a 1,2,5 --quirk answer-every-address@2\n    \
          (nodes 1 and 5 and 2 answer at once: a collision on every request)\n  \
          conformance bus -n 2 --noise 1e-3 --seed 7 --log noisy.jsonl\n  \
-         conformance bus -n 2 --no-pace   (a bridge, like socat pty pty)\n",
+         conformance bus -n 2 --no-pace   (a bridge, like socat pty pty)\n  \
+         conformance bus --link m=/tmp/m --link tap=/tmp/tap -a 1 -b 19200 -P odd --emulate-line\n    \
+         then `conformance monitor --port /tmp/tap --model f510` finds 19200 8O1 by listening\n",
     );
     s.push_str(
         "\nLog (--log FILE, JSON lines): start (line, endpoints), tx (from, hex, t_us and each\n\
          character's at_us: the line's schedule, us since start), collision (endpoints, t_us,\n\
          end_us, chars, line_hex), noise (from, byte, bit), damaged (a character read with a\n\
-         flipped bit or an error), overrun (to), stop (totals).\n",
+         flipped bit or an error), overrun (to), settings (--emulate-line: endpoint, line,\n\
+         hears), stop (totals).\n",
     );
     s.push_str(
         "\nExit codes: 0 stopped by Ctrl-C, SIGTERM or --duration (links removed); 2 could not\n\
@@ -115,6 +121,14 @@ pub struct BusArgs {
     /// Bytes go through at once: no character time, no collisions.
     #[arg(long)]
     no_pace: bool,
+    /// Each pseudo-terminal endpoint hears the line through a UART at the settings its
+    /// program set on its port, as a real one would: a listener at another baud rate or
+    /// parity hears garbage and errors. A pty carries the baud rate, stop bits, PARODD and
+    /// the input flags, not PARENB or the data bits: even parity is read from INPCK (set
+    /// with parity by serialport-rs and libmodbus, not by pyserial), and the data bits
+    /// are the line's. Endpoints send at the line's settings.
+    #[arg(long, conflicts_with = "no_pace")]
+    emulate_line: bool,
     /// Stop after this long (a bare number is seconds: 90; or 30s, 5min); default: until
     /// Ctrl-C or SIGTERM.
     #[arg(long, value_name = "T", value_parser = super::common::parse_duration)]
@@ -233,11 +247,17 @@ pub fn run(args: BusArgs) -> anyhow::Result<ExitCode> {
         paced,
         noise: args.noise,
         seed: args.seed,
+        emulate: args.emulate_line,
     };
     let names = name_endpoints(args.endpoints, &args.links)?;
     let mut endpoints = Vec::new();
     for (name, _) in &names {
-        endpoints.push(Endpoint::pty(name)?);
+        let e = Endpoint::pty(name)?;
+        endpoints.push(if args.emulate_line {
+            e.with_line_emulation(line)?
+        } else {
+            e
+        });
     }
 
     // Simulated drives: one endpoint each, so that two of them answering at once collide.

@@ -26,11 +26,21 @@ Examples:
   conformance monitor --port /dev/ttyUSB1 --model a510 --mode ascii -d 7 --duration 1h --format html -o bus.html
   conformance monitor --port /dev/pts/7 --model f510 --quiet --format json -o bus.json   (a bus's third end)
   conformance monitor --port /dev/ttyUSB1 --model e510 --mode auto   RTU or ASCII, told from the traffic
+  conformance monitor --port /dev/ttyUSB1 --model f510   no -b: the baud rate and parity found by listening
   conformance monitor --capture-in run.pcapng --model f510 -b 9600 -P even   (a capture, offline)
 
 Nothing is ever written to the port: it is read, and only read. Put a third adapter on the
 RS-485 pair (or a third end of `conformance bus`) and leave the master and the drives as
 they are.
+
+Line settings: with no -b, the monitor finds them by listening. It sets the port to one
+setting after another (each baud rate: 9600, 19200, 38400, 57600, 115200, 4800, 2400,
+1200; even parity, then odd, then none, as a receiver without parity reads a line with
+parity whole; 8 data bits, then 7 where the mode may be ASCII; -P and -d narrow it) until
+the traffic at one is two valid frames in a row, and judges from there what it heard at
+it. Stop bits cannot be told by listening (a UART checks only its first): -s is kept. On
+`conformance bus`, give the bus --emulate-line, so that a port at other settings hears
+what a UART at them would.
 
 Frames: RTU frames end at t3.5 of silence, or by their length (a request's length follows
 from its function and byte count, a reply's from its own), and each live line's frame
@@ -98,15 +108,17 @@ pub struct MonitorArgs {
     /// the master addresses.
     #[arg(short = 'a', long = "address", value_name = "N[,N..]", value_parser = parse_nodes)]
     nodes: Option<NodeList>,
-    /// Baud rate.
-    #[arg(short = 'b', long = "baud", default_value_t = 9600)]
-    baud: u32,
-    /// Parity.
-    #[arg(short = 'P', long = "parity", value_enum, default_value = "even")]
-    parity: ParityArg,
-    /// Data bits (7 or 8; RTU needs 8).
-    #[arg(short = 'd', long = "data-bits", default_value_t = 8, value_parser = clap::value_parser!(u8).range(7..=8))]
-    data_bits: u8,
+    /// Baud rate. Default: found by listening (with --port; see "Line settings" below),
+    /// 9600 with --capture-in.
+    #[arg(short = 'b', long = "baud")]
+    baud: Option<u32>,
+    /// Parity. Default: with no -b, found by listening; even otherwise.
+    #[arg(short = 'P', long = "parity", value_enum)]
+    parity: Option<ParityArg>,
+    /// Data bits (7 or 8; RTU needs 8). Default 8; with no -b, 8 then 7 where the mode may
+    /// be ASCII.
+    #[arg(short = 'd', long = "data-bits", value_parser = clap::value_parser!(u8).range(7..=8))]
+    data_bits: Option<u8>,
     /// Stop bits (1 or 2).
     #[arg(short = 's', long = "stop-bits", default_value_t = 1, value_parser = clap::value_parser!(u8).range(1..=2))]
     stop_bits: u8,
@@ -169,7 +181,7 @@ pub fn run(args: MonitorArgs) -> anyhow::Result<ExitCode> {
         ModeArg::Ascii => Some(Mode::Ascii),
         ModeArg::Auto => None,
     };
-    if asked == Some(Mode::Rtu) && args.data_bits != 8 {
+    if asked == Some(Mode::Rtu) && args.data_bits.is_some_and(|d| d != 8) {
         anyhow::bail!("RTU needs 8 data bits (-d 8)");
     }
     let nodes = args.nodes.as_ref().map(|n| n.0.clone()).unwrap_or_default();
@@ -178,16 +190,22 @@ pub fn run(args: MonitorArgs) -> anyhow::Result<ExitCode> {
         args.model_file.as_deref(),
         nodes.first().copied().unwrap_or(1),
     )?;
-    let parity = match args.parity {
+    let parity = args.parity.map(|p| match p {
         ParityArg::None => Parity::None,
         ParityArg::Even => Parity::Even,
         ParityArg::Odd => Parity::Odd,
-    };
-    let line = LineSettings::new(args.baud, args.data_bits, parity, args.stop_bits);
+    });
+    // The line given; with no -b on a port, a starting point the search replaces.
+    let line = LineSettings::new(
+        args.baud.unwrap_or(9600),
+        args.data_bits.unwrap_or(8),
+        parity.unwrap_or(Parity::Even),
+        args.stop_bits,
+    );
     let started = humantime::format_rfc3339_seconds(SystemTime::now()).to_string();
     let mut out = Out::new(&args)?;
-    let new_monitor = |mode: Mode| -> anyhow::Result<Monitor> {
-        if mode == Mode::Rtu && args.data_bits != 8 {
+    let new_monitor = |mode: Mode, line: LineSettings| -> anyhow::Result<Monitor> {
+        if mode == Mode::Rtu && line.data_bits != 8 {
             anyhow::bail!("RTU needs 8 data bits (-d 8)");
         }
         let mut mon = Monitor::new(
@@ -205,7 +223,7 @@ pub fn run(args: MonitorArgs) -> anyhow::Result<ExitCode> {
         mon.set_live(!args.quiet || args.log.is_some());
         Ok(mon)
     };
-    let (mode, mon, source, ended) = match (&args.port, &args.capture_in) {
+    let (mode, mon, line, source, ended) = match (&args.port, &args.capture_in) {
         (_, Some(path)) => {
             let data = std::fs::read(path)
                 .with_context(|| format!("cannot read the capture {}", path.display()))?;
@@ -219,7 +237,12 @@ pub fn run(args: MonitorArgs) -> anyhow::Result<ExitCode> {
                     m
                 }
             };
-            let mut mon = new_monitor(mode)?;
+            if args.baud.is_none() {
+                out.say(monitor::Said::Notice(&format!(
+                    "no -b: the capture's timing is judged at {line} (a capture does not say its line's settings; give -b and -P)"
+                )));
+            }
+            let mut mon = new_monitor(mode, line)?;
             let r = monitor::replay::replay(&data, &mut mon, |l| out.say(monitor::Said::Line(l)))
                 .with_context(|| format!("cannot judge the capture {}", path.display()))?;
             let ended = match &r.stopped {
@@ -235,7 +258,13 @@ pub fn run(args: MonitorArgs) -> anyhow::Result<ExitCode> {
                 }
                 None => format!("end of the capture ({} packets)", r.packets),
             };
-            (mode, mon, format!("capture {}", path.display()), ended)
+            (
+                mode,
+                mon,
+                line,
+                format!("capture {}", path.display()),
+                ended,
+            )
         }
         (Some(port), None) => listen(&args, port, line, asked, &new_monitor, &mut out)?,
         (None, None) => anyhow::bail!("say what to listen to: --port PATH or --capture-in FILE"),
@@ -338,27 +367,81 @@ impl<'a> Out<'a> {
     }
 }
 
-/// Listens on `port` (telling the mode first with `--mode auto`) until Ctrl-C, SIGTERM,
-/// `--duration` or the end of the input: the mode, the monitor, the port's description
-/// and why listening ended.
+/// Listens on `port` (finding the line's settings first with no `-b`, and telling the
+/// mode with `--mode auto`) until Ctrl-C, SIGTERM, `--duration` or the end of the input:
+/// the mode, the monitor, the line, the port's description and why listening ended.
 fn listen(
     args: &MonitorArgs,
     port: &str,
     line: LineSettings,
     asked: Option<Mode>,
-    new_monitor: &dyn Fn(Mode) -> anyhow::Result<Monitor>,
+    new_monitor: &dyn Fn(Mode, LineSettings) -> anyhow::Result<Monitor>,
     out: &mut Out<'_>,
-) -> anyhow::Result<(Mode, Monitor, String, String)> {
-    let port = SerialTransport::open(port, line, serial_kind(port))
+) -> anyhow::Result<(Mode, Monitor, LineSettings, String, String)> {
+    let serial = SerialTransport::open(port, line, serial_kind(port))
         .with_context(|| format!("cannot listen on {port}"))?;
     // The one handler of every long command: Ctrl-C, SIGTERM and SIGHUP end the listening
     // and write the report.
     let stop = super::interrupt::stop_flag()?;
     let origin = Instant::now();
-    let port: Box<dyn conformance::transport::Transport> = Box::new(port);
-    let (mode, before, port) = match asked {
-        Some(m) => (m, Vec::new(), port),
-        None => {
+    let mut found_notice = None;
+    let (line, told, serial) = if args.baud.is_some() {
+        (line, None, serial)
+    } else {
+        let settings = monitor::line_search::candidates(
+            &[],
+            &args
+                .parity
+                .map(|_| line.parity)
+                .into_iter()
+                .collect::<Vec<_>>(),
+            args.data_bits,
+            args.stop_bits,
+            asked,
+        );
+        let mut probe = monitor::ReadOnlySerial::new(serial);
+        if !args.quiet {
+            eprintln!(
+                "no -b: finding the line's settings by listening on {} ({} settings to try); nothing is sent.",
+                probe.describe(),
+                settings.len()
+            );
+        }
+        let quiet = args.quiet;
+        let r = monitor::line_search::listen_for_line(
+            &mut probe,
+            &settings,
+            asked,
+            &stop,
+            args.duration,
+            origin,
+            |s| {
+                if !quiet {
+                    eprintln!("  {s}");
+                }
+            },
+        )
+        .map_err(|e| anyhow::anyhow!("finding the line's settings: {e}"))?;
+        match r {
+            Ok(found) => {
+                let said = found.describe();
+                out.say(monitor::Said::Notice(&said));
+                found_notice = Some(said);
+                (
+                    found.line,
+                    Some((found.mode, found.heard)),
+                    probe.into_inner(),
+                )
+            }
+            Err(nf) => anyhow::bail!("{}; nothing was judged (give -b and -P)", nf.describe()),
+        }
+    };
+    let port: Box<dyn conformance::transport::Transport> = Box::new(serial);
+    let (mode, before, port) = match (asked, told) {
+        // The search found the mode too (it looks for either unless one is asked).
+        (_, Some((m, heard))) => (m, heard, port),
+        (Some(m), None) => (m, Vec::new(), port),
+        (None, None) => {
             let mut probe = ReadOnlyPort::new(port);
             if !args.quiet {
                 eprintln!(
@@ -384,7 +467,12 @@ fn listen(
             }
         }
     };
-    let mut mon = new_monitor(mode)?;
+    let mut mon = new_monitor(mode, line)?;
+    if let Some(n) = found_notice {
+        mon.notice(n);
+        // Said above already, as soon as it was found.
+        mon.take_notices();
+    }
     let capture = args
         .capture
         .as_deref()
@@ -418,7 +506,7 @@ fn listen(
     if let (Some(path), Some(rec)) = (&args.capture, &capture) {
         super::link::close_capture(path, rec);
     }
-    Ok((mode, mon, described, ended))
+    Ok((mode, mon, line, described, ended))
 }
 
 /// The report of what `mon` heard on `source`.

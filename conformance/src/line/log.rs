@@ -109,6 +109,20 @@ pub enum Record {
         /// How many in this write.
         dropped: u64,
     },
+    /// An endpoint's program set its port (`bus --emulate-line`): what it hears from
+    /// now on.
+    Settings {
+        /// When it was seen.
+        t_us: u64,
+        /// The endpoint.
+        endpoint: String,
+        /// The settings read from its port ("19200 8O1"; "unknown" where they cannot be
+        /// read).
+        line: String,
+        /// "the line" (its UART reads the line's characters) or "its own UART" (other
+        /// settings: it reads what a UART at them makes of the line).
+        hears: &'static str,
+    },
     /// The line stopped.
     Stop {
         /// When.
@@ -180,6 +194,15 @@ impl Record {
             ),
             Record::Overrun { t_us, to, dropped } => format!(
                 "{:>12.3} ms {to} does not read: {dropped} bytes for it dropped",
+                ms(*t_us)
+            ),
+            Record::Settings {
+                t_us,
+                endpoint,
+                line,
+                hears,
+            } => format!(
+                "{:>12.3} ms {endpoint} set its port to {line}: it hears {hears}",
                 ms(*t_us)
             ),
             Record::Stop {

@@ -41,6 +41,7 @@
 //!   no timing, no collisions (noise still applies, character by character).
 
 pub mod log;
+mod own_rx;
 pub mod run;
 pub mod station;
 pub mod wire;
@@ -48,7 +49,7 @@ pub mod wire;
 pub use log::LineLog;
 pub use run::{EmulatedLine, Endpoint, LineConfig, LineStats};
 pub use station::Station;
-pub use wire::{Collision, Event, Flip, LineChar, Wire};
+pub use wire::{Collision, Event, Flip, Heard, LineChar, Wire};
 
 /// Why the line cannot be built or run.
 #[derive(Debug, thiserror::Error)]

@@ -24,8 +24,8 @@ use super::station::Station;
 use super::wire::{Event, Wire};
 use super::LineError;
 use crate::codec::timing::LineSettings;
-use crate::transport::pty::PtyMaster;
-use crate::transport::uart::CharError;
+use crate::transport::pty::{PeerLine, PtyMaster};
+use crate::transport::uart::{self, CharError, ErrorPolicy, Received};
 use crate::transport::LineTags;
 
 /// Longest wait for input when nothing is due: how soon a stop is seen.
@@ -43,10 +43,17 @@ pub struct LineConfig {
     pub noise: f64,
     /// Seed of the noise.
     pub seed: u64,
+    /// Whether each pseudo-terminal endpoint hears the line through a UART at the
+    /// settings its program set on its port (paced only; see [`Endpoint::pty`]).
+    pub emulate: bool,
 }
 
 enum Port {
-    Pty(PtyMaster),
+    Pty {
+        pty: PtyMaster,
+        // With line emulation: the settings its program set, as last read.
+        peer: Option<PeerLine>,
+    },
     Station {
         sock: UnixStream,
         tags: LineTags,
@@ -84,7 +91,7 @@ impl Endpoint {
             .map_err(|e| io_err(name, "fcntl O_NONBLOCK", e))?;
         Ok(Endpoint {
             name: name.to_string(),
-            port: Port::Pty(pty),
+            port: Port::Pty { pty, peer: None },
             echo: false,
             device: None,
         })
@@ -115,6 +122,47 @@ impl Endpoint {
         ))
     }
 
+    /// With line emulation at `line` (a pseudo-terminal only; a station is a drive set to
+    /// the line): its program's port settings are read as `simulate --emulate-line` reads
+    /// them ([`PtyMaster::with_line_emulation`]: the baud rate, PARODD, CSTOPB and the
+    /// input flags; a pty carries neither PARENB nor the data bits, so the parity is
+    /// inferred from INPCK and PARODD and the data bits are the line's), and where they
+    /// differ from the line's it hears what a UART at those settings reads off the pair,
+    /// characters with errors handled as its input flags say.
+    pub fn with_line_emulation(self, line: LineSettings) -> Result<Self, LineError> {
+        let Endpoint {
+            name,
+            port,
+            echo,
+            device,
+        } = self;
+        let port = match port {
+            Port::Pty { pty, .. } => Port::Pty {
+                pty: pty.with_line_emulation(line).map_err(|e| LineError::Io {
+                    name: name.clone(),
+                    what: "opening the pseudo-terminal to read its settings",
+                    source: std::io::Error::other(e.to_string()),
+                })?,
+                peer: None,
+            },
+            station => station,
+        };
+        Ok(Endpoint {
+            name,
+            port,
+            echo,
+            device,
+        })
+    }
+
+    /// The settings its program set, as last read, with line emulation.
+    fn peer(&self) -> Option<PeerLine> {
+        match &self.port {
+            Port::Pty { peer, .. } => *peer,
+            Port::Station { .. } => None,
+        }
+    }
+
     /// With local echo: the endpoint hears the line while it drives it (its own bytes,
     /// or the damage of a collision), as on a two-wire adapter whose receiver stays on.
     pub fn with_echo(mut self, echo: bool) -> Self {
@@ -130,14 +178,14 @@ impl Endpoint {
     /// The path a program opens, for a pseudo-terminal.
     pub fn path(&self) -> Option<&Path> {
         match &self.port {
-            Port::Pty(p) => Some(p.slave_path()),
+            Port::Pty { pty, .. } => Some(pty.slave_path()),
             Port::Station { .. } => None,
         }
     }
 
     fn fd(&self) -> BorrowedFd<'_> {
         match &self.port {
-            Port::Pty(p) => p.as_fd(),
+            Port::Pty { pty, .. } => pty.as_fd(),
             Port::Station { sock, .. } => sock.as_fd(),
         }
     }
@@ -171,7 +219,7 @@ impl Endpoint {
             Ok(done)
         };
         match &self.port {
-            Port::Pty(p) => Ok(bytes.len() - put(p.as_fd())?),
+            Port::Pty { pty, .. } => Ok(bytes.len() - put(pty.as_fd())?),
             Port::Station { sock, tags, .. } => {
                 // The silences go first, under the lock the station drains under.
                 let mut told = tags.lock().ok();
@@ -312,7 +360,11 @@ impl EmulatedLine {
             if let Some(u) = until {
                 wait = wait.min(u.saturating_duration_since(now));
             }
-            for i in self.ready(wait)? {
+            let ready = self.ready(wait)?;
+            if self.config.emulate && self.config.paced {
+                self.sync_receivers(log)?;
+            }
+            for i in ready {
                 match self.endpoints[i].read(&mut buf)? {
                     None => self.closed[i] = true,
                     Some(0) => {}
@@ -345,6 +397,39 @@ impl EmulatedLine {
         })?;
         log.flush()?;
         Ok(s)
+    }
+
+    /// Reads each emulated endpoint's port settings; gives an endpoint whose settings
+    /// its UART could not read the line with a receiver of its own (logged when they
+    /// change).
+    fn sync_receivers(&mut self, log: &mut LineLog) -> Result<(), LineError> {
+        let line = self.config.line;
+        let t_us = self.t_us(self.wire.now());
+        for i in 0..self.endpoints.len() {
+            let Port::Pty { pty, peer } = &mut self.endpoints[i].port else {
+                continue;
+            };
+            let now = pty.peer_line();
+            if now == *peer {
+                continue;
+            }
+            *peer = now;
+            let own = now
+                .filter(|p| !uart::compatible(&p.line, &line))
+                .map(|p| p.line);
+            self.wire.set_receiver(i, own)?;
+            log.record(&Record::Settings {
+                t_us,
+                endpoint: self.endpoints[i].name.clone(),
+                line: now.map_or_else(|| "unknown".to_string(), |p| p.line.to_string()),
+                hears: if own.is_some() {
+                    "its own UART"
+                } else {
+                    "the line"
+                },
+            })?;
+        }
+        Ok(())
     }
 
     /// The endpoints with input, after waiting at most `wait` for one.
@@ -419,6 +504,28 @@ impl EmulatedLine {
         }
     }
 
+    /// Queues a character that started at line bit `start` for endpoint `i`, with the
+    /// silence before it; one read with an error goes as its input flags say (with line
+    /// emulation; as read otherwise).
+    fn hand(&mut self, i: usize, start: u64, byte: u8, error: Option<CharError>) {
+        let bpc = self.wire.bits_per_char();
+        let silence = self.last_end[i].map_or(u32::MAX, |end| {
+            let bits = start.saturating_sub(end);
+            let baud = u64::from(self.config.line.baud.max(1));
+            u32::try_from(bits.saturating_mul(1_000_000) / baud).unwrap_or(u32::MAX)
+        });
+        self.last_end[i] = Some(start + bpc);
+        let policy = self.endpoints[i]
+            .peer()
+            .map_or(ErrorPolicy::Pass, |p| p.policy);
+        let out = &mut self.out[i];
+        let before = out.0.len();
+        uart::deliver_into(Received { byte, error }, policy, &mut out.0);
+        for k in before..out.0.len() {
+            out.1.push(if k == before { silence } else { 0 });
+        }
+    }
+
     /// Hands the characters read off the line to their listeners; logs the rest.
     fn deliver(&mut self, events: &mut Vec<Event>, log: &mut LineLog) -> Result<(), LineError> {
         let names = |mask: u64, eps: &[Endpoint]| -> Vec<String> {
@@ -428,23 +535,19 @@ impl EmulatedLine {
                 .map(|(_, e)| e.name.clone())
                 .collect()
         };
-        let bpc = self.wire.bits_per_char();
         for e in events.drain(..) {
             match e {
                 Event::Char(c) => {
                     self.stats.chars += 1;
-                    for (i, ep) in self.endpoints.iter().enumerate() {
-                        if self.closed[i] || (c.drivers >> i & 1 == 1 && !ep.echo) {
+                    for i in 0..self.endpoints.len() {
+                        let ep = &self.endpoints[i];
+                        if self.closed[i]
+                            || (c.drivers >> i & 1 == 1 && !ep.echo)
+                            || self.wire.receiver(i).is_some()
+                        {
                             continue;
                         }
-                        let silence = self.last_end[i].map_or(u32::MAX, |end| {
-                            let bits = c.start.saturating_sub(end);
-                            let baud = u64::from(self.config.line.baud.max(1));
-                            u32::try_from(bits.saturating_mul(1_000_000) / baud).unwrap_or(u32::MAX)
-                        });
-                        self.last_end[i] = Some(c.start + bpc);
-                        self.out[i].0.push(c.byte);
-                        self.out[i].1.push(silence);
+                        self.hand(i, c.start, c.byte, c.error);
                     }
                     if c.damaged && !c.collided {
                         let t_us = self.t_us(c.start);
@@ -456,6 +559,16 @@ impl EmulatedLine {
                                 CharError::Framing => "framing",
                             }),
                         })?;
+                    }
+                }
+                Event::Heard(h) => {
+                    let i = h.endpoint;
+                    let hears = self
+                        .endpoints
+                        .get(i)
+                        .is_some_and(|ep| !self.closed[i] && (h.drivers >> i & 1 == 0 || ep.echo));
+                    if hears {
+                        self.hand(i, h.start, h.byte, h.error);
                     }
                 }
                 Event::Collision(c) => {

@@ -10,7 +10,10 @@
 //! the noise, if any, flips it. One receiver (every listener hears the same pair) reads
 //! the level as a UART does at bit resolution: a low level in idle is a start bit; the
 //! data, the parity and the first stop bit are the following bits; a low stop bit is a
-//! framing error, a wrong parity bit a parity error; then it hunts again.
+//! framing error, a wrong parity bit a parity error; then it hunts again. An endpoint
+//! can be given its own receiver at other settings ([`Wire::set_receiver`]): it reads the
+//! same level on its own bit clock ([`super::own_rx`]), as the UART of a listener set to
+//! another baud rate or parity does, and what it reads is its alone ([`Event::Heard`]).
 
 use std::collections::VecDeque;
 
@@ -18,6 +21,7 @@ use crate::codec::timing::{LineSettings, Parity};
 use crate::rng::Rng;
 use crate::transport::uart::{parity_bit, waveform, CharError};
 
+use super::own_rx::OwnRx;
 use super::LineError;
 
 /// Most endpoints a line carries (each is one bit of a driver mask).
@@ -48,6 +52,24 @@ pub struct LineChar {
     pub damaged: bool,
     /// Whether two endpoints drove the line during it.
     pub collided: bool,
+}
+
+/// One character as an endpoint's own receiver ([`Wire::set_receiver`]) read it: for
+/// that endpoint only.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Heard {
+    /// The endpoint.
+    pub endpoint: usize,
+    /// The line bit in which its start bit began.
+    pub start: u64,
+    /// The data bits read.
+    pub byte: u8,
+    /// A parity or framing error.
+    pub error: Option<CharError>,
+    /// Who drove the line during it.
+    pub drivers: Drivers,
+    /// Read from a collision or a flipped bit, or with an error.
+    pub damaged: bool,
 }
 
 /// Two or more endpoints drove the line at once.
@@ -81,8 +103,11 @@ pub struct Flip {
 /// What the line did, in bit order.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub enum Event {
-    /// A character read (deliver it to every endpoint not among its drivers).
+    /// A character read (deliver it to every endpoint not among its drivers that has no
+    /// receiver of its own).
     Char(LineChar),
+    /// A character an endpoint's own receiver read.
+    Heard(Heard),
     /// A collision ended (reported once its last character is read).
     Collision(Collision),
     /// A bit flipped by the noise.
@@ -138,6 +163,7 @@ pub struct Wire {
     rx: Option<Rx>,
     open: Option<Open>,
     noise: Option<Noise>,
+    own: Vec<Option<OwnRx>>,
 }
 
 impl Wire {
@@ -160,6 +186,7 @@ impl Wire {
             rx: None,
             open: None,
             noise: None,
+            own: (0..endpoints).map(|_| None).collect(),
         })
     }
 
@@ -189,6 +216,30 @@ impl Wire {
     /// Bits from one start bit to the next, characters back to back.
     pub fn bits_per_char(&self) -> u64 {
         self.bits_per_char
+    }
+
+    /// Gives `endpoint` a receiver of its own at `line` (None: it hears the line's
+    /// receiver, at the line's settings), starting from the present: a character it was
+    /// in the middle of is lost, as when a program sets its port.
+    pub fn set_receiver(
+        &mut self,
+        endpoint: usize,
+        line: Option<LineSettings>,
+    ) -> Result<(), LineError> {
+        let count = self.own.len();
+        let baud = self.line.baud;
+        let cur = self.cur;
+        let slot = self
+            .own
+            .get_mut(endpoint)
+            .ok_or(LineError::NoSuchEndpoint { endpoint, count })?;
+        *slot = line.map(|l| OwnRx::new(endpoint, l, baud, cur));
+        Ok(())
+    }
+
+    /// The settings of `endpoint`'s own receiver, if it has one.
+    pub fn receiver(&self, endpoint: usize) -> Option<LineSettings> {
+        self.own.get(endpoint)?.as_ref().map(|r| r.line())
     }
 
     /// Bits before this one are decided: nothing written now can start before it.
@@ -238,12 +289,19 @@ impl Wire {
                 .filter_map(|s| s.queue.front().map(|c| c.start + self.rx_len))
                 .min(),
         };
-        due.map(|d| d.max(self.cur + 1))
+        let own = self.own.iter().flatten().filter_map(|r| r.due()).min();
+        due.into_iter()
+            .chain(own)
+            .min()
+            .map(|d| d.max(self.cur + 1))
     }
 
     /// Whether anything is on the line or queued for it.
     pub fn busy(&self) -> bool {
-        self.rx.is_some() || self.open.is_some() || self.senders.iter().any(|s| !s.queue.is_empty())
+        self.rx.is_some()
+            || self.open.is_some()
+            || self.senders.iter().any(|s| !s.queue.is_empty())
+            || self.own.iter().flatten().any(|r| r.reading())
     }
 
     /// Runs the line up to bit `to` (exclusive), pushing what happened onto `out`.
@@ -278,7 +336,11 @@ impl Wire {
                 }
                 self.close_collision(out);
                 // Idle: nothing happens until the next character starts.
-                self.cur = next_start.min(to);
+                let next = next_start.min(to);
+                for r in self.own.iter_mut().flatten() {
+                    r.idle(next, out);
+                }
+                self.cur = next;
                 continue;
             }
             let mut flipped = false;
@@ -306,6 +368,9 @@ impl Wire {
                 o.endpoints |= drivers;
             } else if let Some(o) = self.open.as_mut() {
                 o.end.get_or_insert(b);
+            }
+            for r in self.own.iter_mut().flatten() {
+                r.bit(b, level, drivers, count >= 2, flipped, out);
             }
             self.receive(b, level, drivers, count >= 2, flipped, out);
             self.cur = b + 1;

@@ -18,6 +18,7 @@
 pub mod frames;
 pub mod guess;
 mod judge_master;
+pub mod line_search;
 mod live;
 pub mod replay;
 mod report;
@@ -31,7 +32,7 @@ pub use frames::{EndedBy, FrameStatus, TapFrame};
 pub use live::Line;
 pub use report::MonitorSummary;
 pub use stats::NodeStats;
-pub use tap::{listen_for_mode, run, run_from, Ended, ReadOnlyPort, Said, Tap};
+pub use tap::{listen_for_mode, run, run_from, Ended, ReadOnlyPort, ReadOnlySerial, Said, Tap};
 
 use crate::codec::pdu::{function, Direction, Message};
 use crate::codec::timing::LineSettings;
@@ -318,7 +319,22 @@ impl Monitor {
         for f in out {
             self.on_frame(f);
         }
-        if self.pending.is_some() {
+        if let Some(p) = &self.pending {
+            // Listening ended before the reply to the last request was due: nothing to
+            // judge it by.
+            let heard_for = self
+                .last_at
+                .map_or(Duration::ZERO, |l| l.saturating_sub(p.end));
+            if p.judgement.expect.replies() && heard_for < self.cfg.window && p.leading.is_empty() {
+                self.notices.push(format!(
+                    "listening ended {:.1} ms after the last request ({}), before its window of {} ms was over: it was not judged",
+                    ms(heard_for),
+                    judge::show(self.cfg.mode, &p.bytes),
+                    self.cfg.window.as_millis()
+                ));
+                self.pending = None;
+                return;
+            }
             self.close_unanswered(None);
         }
     }
@@ -341,6 +357,12 @@ impl Monitor {
                 self.blurred + self.timed
             ));
         }
+    }
+
+    /// Adds a notice about the listening (in the report, and said as it goes): how the
+    /// line's settings were found, for one.
+    pub fn notice(&mut self, text: String) {
+        self.notices.push(text);
     }
 
     /// Notices made since the last call (each is made once).
@@ -490,6 +512,14 @@ impl Monitor {
                     || Message::parse_body(b, Direction::Request).is_err()
                         && Message::parse_body(b, Direction::Response).is_ok()
                 {
+                    if since_previous.is_none() {
+                        // Its request, if any, came before listening began.
+                        self.notices.push(format!(
+                            "the first frame heard was a reply ({}): its request came before listening began, so it was not judged",
+                            judge::show(mode, &f.bytes)
+                        ));
+                        return;
+                    }
                     self.unsolicited(f, since_previous, address);
                     return;
                 }

@@ -45,6 +45,42 @@ impl Tap for ReadOnlyPort {
     }
 }
 
+/// A serial port used for listening only, whose line settings can be changed (to find
+/// the line's by listening: [`super::line_search`]). Nothing is ever written to it: it
+/// calls nothing on the port but reading, setting the line and dropping what was read.
+pub struct ReadOnlySerial {
+    port: crate::transport::serial::SerialTransport,
+}
+
+impl ReadOnlySerial {
+    /// Listens on `port`.
+    pub fn new(port: crate::transport::serial::SerialTransport) -> Self {
+        ReadOnlySerial { port }
+    }
+
+    /// The port back, at the settings last set.
+    pub fn into_inner(self) -> crate::transport::serial::SerialTransport {
+        self.port
+    }
+}
+
+impl Tap for ReadOnlySerial {
+    fn listen(&mut self, buf: &mut [u8], timeout: Duration) -> Result<usize, TransportError> {
+        self.port.recv(buf, timeout)
+    }
+
+    fn describe(&self) -> String {
+        self.port.describe()
+    }
+}
+
+impl super::line_search::Tunable for ReadOnlySerial {
+    fn set_line(&mut self, line: crate::codec::timing::LineSettings) -> Result<(), TransportError> {
+        self.port.set_line(line)?;
+        self.port.discard_input()
+    }
+}
+
 /// Why listening ended.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub enum Ended {
@@ -93,6 +129,10 @@ pub enum Said<'a> {
     Summary(&'a [String]),
 }
 
+/// How long listening goes on, at most, after `--duration` or a signal, for the frame
+/// under way to end.
+pub const DRAIN_AT_MOST: Duration = Duration::from_millis(250);
+
 /// How often [`Said::Summary`] comes.
 pub const SUMMARY_EVERY: Duration = Duration::from_secs(10);
 
@@ -115,6 +155,17 @@ pub fn poll_interval(line: crate::codec::timing::LineSettings) -> Duration {
 /// What the listener read, with its time since the origin: bytes, or none (a read that
 /// came back empty at that time).
 pub type Heard = Vec<(Duration, Vec<u8>)>;
+
+/// Notes in `heard` that a read at `at` came back empty. Of a run of empty reads, the
+/// first and the last are kept: the first says since when the line was quiet (t3.5 of
+/// it before a frame says that the frame began in silence), the last the earliest the
+/// next bytes came.
+pub(super) fn quiet(heard: &mut Heard, at: Duration) {
+    match heard.as_mut_slice() {
+        [.., (_, a), (t, b)] if a.is_empty() && b.is_empty() => *t = at,
+        _ => heard.push((at, Vec::new())),
+    }
+}
 
 /// Listens on `tap` (since `origin`) until the traffic tells RTU from ASCII
 /// ([`guess::guess`](super::guess::guess)): the mode and everything read so far, to be
@@ -147,11 +198,7 @@ pub fn listen_for_mode(
         };
         let at = origin.elapsed();
         if n == 0 {
-            // Only the last empty read before bytes matters (the earliest they came).
-            match heard.last_mut() {
-                Some((t, b)) if b.is_empty() => *t = at,
-                _ => heard.push((at, Vec::new())),
-            }
+            quiet(&mut heard, at);
         } else {
             heard.push((at, buf[..n].to_vec()));
             bytes.extend_from_slice(&buf[..n]);
@@ -171,8 +218,86 @@ pub fn listen_for_mode(
     }
 }
 
+/// Listening that begins while the line is busy hears the tail of a frame first, which
+/// is no frame of either side: it is not judged. RTU: bytes read before any read came
+/// back empty go, up to the first silence of t3.5 (a read that came back empty waited a
+/// poll, at least t1.5, and a frame whose characters are that far apart is broken: what
+/// follows begins a frame); ASCII: those before the first `:`. Said once, with the
+/// bytes, as a notice.
+struct Entry {
+    mode: crate::codec::Mode,
+    t3_5: Duration,
+    // When the last byte dropped was read.
+    last: Option<Duration>,
+    synced: bool,
+    dropped: usize,
+    first: Vec<u8>,
+}
+
+impl Entry {
+    fn new(mode: crate::codec::Mode, line: crate::codec::timing::LineSettings) -> Self {
+        Entry {
+            mode,
+            t3_5: Duration::from_micros(line.t3_5_us()),
+            last: None,
+            synced: false,
+            dropped: 0,
+            first: Vec::new(),
+        }
+    }
+
+    /// The line was quiet up to `at`.
+    fn idle(&mut self, at: Duration) {
+        if self.synced || self.mode == crate::codec::Mode::Ascii {
+            return;
+        }
+        match self.last {
+            // Quiet before anything was heard.
+            None => self.synced = true,
+            Some(l) if at.saturating_sub(l) >= self.t3_5 => self.synced = true,
+            Some(_) => {}
+        }
+    }
+
+    /// Of `bytes` read at `at`, those to judge.
+    fn take<'a>(&mut self, at: Duration, bytes: &'a [u8]) -> &'a [u8] {
+        if self.synced {
+            return bytes;
+        }
+        let keep = match self.mode {
+            crate::codec::Mode::Ascii => bytes.iter().position(|&b| b == b':'),
+            crate::codec::Mode::Rtu => None,
+        };
+        let drop = keep.unwrap_or(bytes.len());
+        self.dropped += drop;
+        let room = 16usize.saturating_sub(self.first.len());
+        self.first.extend_from_slice(&bytes[..drop.min(room)]);
+        self.last = Some(at);
+        self.synced = keep.is_some();
+        &bytes[drop..]
+    }
+
+    /// The notice, once bytes were dropped and judging began (or listening ended).
+    fn notice(&mut self, ended: bool) -> Option<String> {
+        if self.dropped == 0 || !(self.synced || ended) {
+            return None;
+        }
+        let n = std::mem::take(&mut self.dropped);
+        Some(format!(
+            "listening began in the middle of the traffic: the first {n} bytes, before {}, were not judged (the tail of a frame): {}{}",
+            match self.mode {
+                crate::codec::Mode::Rtu => "a silence of t3.5",
+                crate::codec::Mode::Ascii => "a ':'",
+            },
+            crate::codec::hex::Hex(&self.first),
+            if n > self.first.len() { " ..." } else { "" }
+        ))
+    }
+}
+
 /// [`run`] with the clock started at `origin`, and what was read before (by
-/// [`listen_for_mode`]) fed first.
+/// [`listen_for_mode`] or [`super::line_search::listen_for_line`]) fed first. What came
+/// before the first frame began is not judged (see [`Entry`]).
 pub fn run_from(
     tap: &mut dyn Tap,
     monitor: &mut Monitor,
@@ -182,12 +307,25 @@ pub fn run_from(
     before: Heard,
     mut say: impl FnMut(Said<'_>),
 ) -> Result<Ended, MonitorError> {
-    for (at, bytes) in before {
+    let mut entry = Entry::new(monitor.config().mode, monitor.config().line);
+    let mut hear = |monitor: &mut Monitor, at: Duration, bytes: &[u8]| {
         if bytes.is_empty() {
+            entry.idle(at);
             monitor.idle(at);
         } else {
-            monitor.feed(at, &bytes);
+            let bytes = entry.take(at, bytes);
+            if bytes.is_empty() {
+                monitor.idle(at);
+            } else {
+                monitor.feed(at, bytes);
+            }
         }
+        if let Some(n) = entry.notice(false) {
+            monitor.notice(n);
+        }
+    };
+    for (at, bytes) in before {
+        hear(monitor, at, &bytes);
         say_new(monitor, &mut say);
     }
     let poll = poll_interval(monitor.config().line);
@@ -202,8 +340,7 @@ pub fn run_from(
             break Ended::Duration;
         }
         match tap.listen(&mut buf, poll) {
-            Ok(0) => monitor.idle(origin.elapsed()),
-            Ok(n) => monitor.feed(origin.elapsed(), &buf[..n]),
+            Ok(n) => hear(monitor, origin.elapsed(), &buf[..n]),
             Err(e) => break Ended::EndOfInput(e.to_string()),
         }
         say_new(monitor, &mut say);
@@ -215,6 +352,34 @@ pub fn run_from(
             }
         }
     };
+    // Stopped by the clock or a signal while a frame may be arriving: listen on until the
+    // line is quiet for t3.5 (at most DRAIN_AT_MOST), so that the last frame is heard
+    // whole rather than judged cut.
+    if matches!(ended, Ended::Duration | Ended::Interrupted) {
+        let quiet = Duration::from_micros(monitor.config().line.t3_5_us());
+        let until = origin.elapsed() + DRAIN_AT_MOST;
+        let mut last = origin.elapsed();
+        while origin.elapsed() < until {
+            match tap.listen(&mut buf, poll) {
+                Ok(0) => {
+                    let at = origin.elapsed();
+                    hear(monitor, at, &[]);
+                    if at.saturating_sub(last) >= quiet {
+                        break;
+                    }
+                }
+                Ok(n) => {
+                    last = origin.elapsed();
+                    hear(monitor, last, &buf[..n]);
+                }
+                Err(_) => break,
+            }
+        }
+        say_new(monitor, &mut say);
+    }
+    if let Some(n) = entry.notice(true) {
+        monitor.notice(n);
+    }
     monitor.finish();
     say_new(monitor, &mut say);
     Ok(ended)

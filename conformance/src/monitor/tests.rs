@@ -611,10 +611,48 @@ fn a_copy_later_than_a_reply_is_due_is_a_resend_and_the_exception_its_reply() {
         last.reply.as_deref().unwrap_or("").contains("exception"),
         "{lines:#?}"
     );
-    // An exception frame with no request under way is a reply nobody asked for.
+    // An exception frame with no request under way is a reply nobody asked for; as the
+    // first frame heard, its request may have come before listening began: not judged.
+    let mut m = monitor(Mode::Rtu, &[1]);
+    let ok = write(1, 0x2502, 100);
+    run(
+        &mut m,
+        &[(0, &ok), (12, &ok), (100, &exception(1, 0x06, 0x03))],
+    );
+    assert_eq!(kinds(&m, 1), ["drive.unexpected-reply"]);
     let mut m = monitor(Mode::Rtu, &[1]);
     run(&mut m, &[(0, &exception(1, 0x06, 0x03))]);
-    assert_eq!(kinds(&m, 1), ["drive.unexpected-reply"]);
+    assert!(kinds(&m, 1).is_empty(), "{:?}", kinds(&m, 1));
+    assert!(
+        m.notices()
+            .iter()
+            .any(|n| n.starts_with("the first frame heard was a reply")),
+        "{:?}",
+        m.notices()
+    );
+}
+
+/// Listening that ends before the last request's reply is due does not call it
+/// unanswered; one that ends after the window does.
+#[test]
+fn a_request_cut_off_by_the_end_of_listening_is_not_judged() {
+    let r = read(1, 0x2520, 1);
+    let mut m = monitor(Mode::Rtu, &[1]);
+    m.idle(ms(0));
+    m.feed(ms(0), &r);
+    m.idle(ms(3));
+    m.finish();
+    assert!(kinds(&m, 1).is_empty(), "{:?}", kinds(&m, 1));
+    assert!(
+        m.notices()
+            .iter()
+            .any(|n| n.starts_with("listening ended") && n.contains("not judged")),
+        "{:?}",
+        m.notices()
+    );
+    let mut m = monitor(Mode::Rtu, &[1]);
+    run(&mut m, &[(0, &r)]);
+    assert_eq!(kinds(&m, 1), ["drive.no-reply"]);
 }
 
 /// A capture with directions settles what order and time cannot: a copy from the

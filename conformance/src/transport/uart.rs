@@ -147,15 +147,20 @@ pub fn transcode(bytes: &[u8], sender: &LineSettings, receiver: &LineSettings) -
 /// The bytes a receiver with `policy` delivers from `chars`.
 pub fn deliver(chars: &[Received], policy: ErrorPolicy) -> Vec<u8> {
     let mut out = Vec::with_capacity(chars.len());
-    for c in chars {
-        match (c.error, policy) {
-            (None, _) | (Some(_), ErrorPolicy::Pass) => out.push(c.byte),
-            (Some(_), ErrorPolicy::Drop) => {}
-            (Some(_), ErrorPolicy::Zero) => out.push(0),
-            (Some(_), ErrorPolicy::Mark) => out.extend_from_slice(&[0xFF, 0x00, c.byte]),
-        }
+    for &c in chars {
+        deliver_into(c, policy, &mut out);
     }
     out
+}
+
+/// What a receiver with `policy` delivers of one character, appended to `out`.
+pub fn deliver_into(c: Received, policy: ErrorPolicy, out: &mut Vec<u8>) {
+    match (c.error, policy) {
+        (None, _) | (Some(_), ErrorPolicy::Pass) => out.push(c.byte),
+        (Some(_), ErrorPolicy::Drop) => {}
+        (Some(_), ErrorPolicy::Zero) => out.push(0),
+        (Some(_), ErrorPolicy::Mark) => out.extend_from_slice(&[0xFF, 0x00, c.byte]),
+    }
 }
 
 /// Whether two ends at `a` and `b` understand each other's characters: same baud rate,

@@ -1,0 +1,501 @@
+//! `monitor` with no `-b`: the line's baud rate and parity, found by listening.
+//!
+//! `scan` finds a drive's settings from its replies to requests it sends; the monitor
+//! sends nothing, so it sets its own port to one setting after another and listens. At
+//! the line's settings the traffic is Modbus frames whose CRC or LRC holds
+//! ([`super::guess`]: two in a row); at any other, its UART reads something else. A
+//! setting is left after [`SETTING_BYTES`] bytes with no verdict, [`SETTING_WAIT`] after
+//! its first byte, or [`SILENT_WAIT`] of silence; the search goes round again until the
+//! traffic settles it, `--duration` passes or Ctrl-C.
+//!
+//! What a UART at the wrong settings reads, and why the order matters:
+//!
+//! - **Another baud rate**: other bytes, with framing errors. Two valid frames in a row
+//!   do not come out of that.
+//! - **Parity**: a receiver without parity reads a line with parity with the right bytes
+//!   (it takes the parity bit for its stop bit, a framing error whenever that bit is
+//!   0), and with INPCK off, as serial libraries set no parity, those errors are not
+//!   even flagged: 8N1 hears an 8E1 or 8O1 line's frames whole. A receiver with parity
+//!   checks it (the libraries set INPCK with it, and a character with an error arrives
+//!   as 00H or not at all): even parity on an odd line fails on every character, and on
+//!   a line without parity it reads the next start bit or the stop bit as parity and
+//!   fails on about half. So each baud rate is tried with even parity, then odd, then
+//!   none: the first that gives valid frames is the line's.
+//! - **Stop bits** cannot be told: a UART checks only its first stop bit, so 8N1 and 8N2
+//!   read each other's characters alike. The search keeps the stop bits it was given.
+//! - **Data bits**: ASCII lines may have 7; they are tried after 8 at each parity when
+//!   the mode may be ASCII.
+
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::{Duration, Instant};
+
+use super::guess::{guess, Guess};
+use super::tap::{poll_interval, Ended, Heard, Tap};
+use super::MonitorError;
+use crate::codec::hex::Hex;
+use crate::codec::timing::{LineSettings, Parity};
+use crate::codec::Mode;
+use crate::transport::TransportError;
+
+/// Bytes heard at one setting with no valid frames before the next is tried.
+pub const SETTING_BYTES: usize = 512;
+
+/// How long after its first byte a setting that gives no valid frames is kept.
+pub const SETTING_WAIT: Duration = Duration::from_secs(2);
+
+/// How long a setting that hears nothing is kept (the traffic may start later: the
+/// search comes back to it).
+pub const SILENT_WAIT: Duration = Duration::from_secs(2);
+
+/// Baud rates tried, most likely first (those `scan` tries).
+pub const BAUDS: [u32; 8] = crate::scan::settings::BAUDS;
+
+/// Parities tried at each baud rate: those that check first (see the module notes).
+pub const PARITIES: [Parity; 3] = [Parity::Even, Parity::Odd, Parity::None];
+
+/// A port whose line settings can be changed, for listening only.
+pub trait Tunable: Tap {
+    /// Sets the port to `line` and drops what it read before.
+    fn set_line(&mut self, line: LineSettings) -> Result<(), TransportError>;
+}
+
+/// The settings to try, most likely first: each of `bauds` (default [`BAUDS`]) with
+/// each of `parities` (default [`PARITIES`]), 8 data bits then, where `mode` may be
+/// ASCII, 7 (unless `data_bits` is given), with `stop_bits`.
+pub fn candidates(
+    bauds: &[u32],
+    parities: &[Parity],
+    data_bits: Option<u8>,
+    stop_bits: u8,
+    mode: Option<Mode>,
+) -> Vec<LineSettings> {
+    let bauds = if bauds.is_empty() { &BAUDS[..] } else { bauds };
+    let parities = if parities.is_empty() {
+        &PARITIES[..]
+    } else {
+        parities
+    };
+    let data: &[u8] = match (data_bits, mode) {
+        (Some(d), _) => &[d][..],
+        (None, Some(Mode::Rtu)) => &[8],
+        (None, _) => &[8, 7],
+    };
+    let mut out = Vec::new();
+    for &baud in bauds {
+        for &parity in parities {
+            for &d in data {
+                out.push(LineSettings::new(baud, d, parity, stop_bits));
+            }
+        }
+    }
+    out
+}
+
+/// What was heard at one setting that gave no valid frames.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Tried {
+    /// The setting.
+    pub line: LineSettings,
+    /// Bytes heard at it (over every round).
+    pub bytes: usize,
+    /// The first of them (at most 16).
+    pub first: Vec<u8>,
+    /// Valid frames of the other mode than the one asked for, if any.
+    pub other_mode: Option<Mode>,
+}
+
+impl std::fmt::Display for Tried {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match (self.bytes, self.other_mode) {
+            (0, _) => write!(f, "{}: silence", self.line),
+            (n, Some(m)) => write!(
+                f,
+                "{}: {n} bytes, valid {m} frames (not the mode asked for)",
+                self.line
+            ),
+            (n, None) => write!(
+                f,
+                "{}: {n} bytes, no valid frame: {}{}",
+                self.line,
+                Hex(&self.first),
+                if n > self.first.len() { " ..." } else { "" }
+            ),
+        }
+    }
+}
+
+/// The line's settings and mode, as the traffic told them.
+#[derive(Debug, Clone)]
+pub struct Found {
+    /// The settings (the stop bits are those given).
+    pub line: LineSettings,
+    /// RTU or ASCII.
+    pub mode: Mode,
+    /// What was heard at them, to be replayed to the monitor.
+    pub heard: Heard,
+    /// The settings tried before, with what they gave.
+    pub tried: Vec<Tried>,
+    /// Rounds over the settings (1: found in the first).
+    pub rounds: usize,
+    /// Settings set before this one (over every round).
+    pub before: usize,
+}
+
+impl Found {
+    /// In words, for the user and the report.
+    pub fn describe(&self) -> String {
+        format!(
+            "{} {} found by listening (two valid frames in a row, after {} other setting{}{}); stop bits cannot be told by listening (a UART checks only its first): {} as given",
+            self.line,
+            self.mode,
+            self.before,
+            if self.before == 1 { "" } else { "s" },
+            if self.rounds > 1 {
+                format!(", in round {}", self.rounds)
+            } else {
+                String::new()
+            },
+            self.line.stop_bits
+        )
+    }
+}
+
+/// Why the search ended without settings, and what it heard.
+#[derive(Debug, Clone)]
+pub struct NotFound {
+    /// Why listening ended; None: every setting heard traffic and none gave valid frames.
+    pub ended: Option<Ended>,
+    /// Every setting, with what it gave.
+    pub tried: Vec<Tried>,
+}
+
+impl NotFound {
+    /// In words, for the user.
+    pub fn describe(&self) -> String {
+        let why = match &self.ended {
+            None => {
+                "every setting heard traffic and none gave two valid frames in a row".to_string()
+            }
+            Some(Ended::Duration) => "--duration passed first".into(),
+            Some(Ended::Interrupted) => "interrupted first".into(),
+            Some(Ended::EndOfInput(e)) => format!("the input ended first ({e})"),
+        };
+        let heard: Vec<String> = self
+            .tried
+            .iter()
+            .filter(|t| t.bytes > 0)
+            .map(|t| t.to_string())
+            .collect();
+        format!(
+            "no line setting found by listening: {why}; {} of {} settings heard bytes{}{}",
+            heard.len(),
+            self.tried.len(),
+            if heard.is_empty() { "" } else { ":\n  " },
+            heard.join("\n  ")
+        )
+    }
+}
+
+/// Listens on `tap` at each of `settings` in turn, round after round, until the traffic
+/// at one of them is two valid frames in a row of `mode` (any mode if None), `stop` is
+/// set, `duration` (since `origin`) passes or the input ends; `say` is told each setting
+/// as it is tried in the first round.
+pub fn listen_for_line(
+    tap: &mut dyn Tunable,
+    settings: &[LineSettings],
+    mode: Option<Mode>,
+    stop: &AtomicBool,
+    duration: Option<Duration>,
+    origin: Instant,
+    mut say: impl FnMut(&str),
+) -> Result<Result<Found, NotFound>, MonitorError> {
+    let mut tried: Vec<Tried> = settings
+        .iter()
+        .map(|&line| Tried {
+            line,
+            bytes: 0,
+            first: Vec::new(),
+            other_mode: None,
+        })
+        .collect();
+    let not_found = |ended: Option<Ended>, tried: Vec<Tried>| Ok(Err(NotFound { ended, tried }));
+    if settings.is_empty() {
+        return not_found(None, tried);
+    }
+    let mut buf = [0u8; 512];
+    for round in 1.. {
+        for (i, &line) in settings.iter().enumerate() {
+            if round == 1 {
+                say(&format!("trying {line}"));
+            }
+            if let Err(e) = tap.set_line(line) {
+                return Err(MonitorError::Transport(e));
+            }
+            let poll = poll_interval(line);
+            let since = Instant::now();
+            let mut first_byte: Option<Instant> = None;
+            let mut heard: Heard = Vec::new();
+            let mut bytes: Vec<u8> = Vec::new();
+            loop {
+                if stop.load(Ordering::Relaxed) {
+                    return not_found(Some(Ended::Interrupted), tried);
+                }
+                if duration.is_some_and(|d| origin.elapsed() >= d) {
+                    return not_found(Some(Ended::Duration), tried);
+                }
+                let n = match tap.listen(&mut buf, poll) {
+                    Ok(n) => n,
+                    Err(e) => return not_found(Some(Ended::EndOfInput(e.to_string())), tried),
+                };
+                let at = origin.elapsed();
+                if n == 0 {
+                    super::tap::quiet(&mut heard, at);
+                } else {
+                    first_byte.get_or_insert_with(Instant::now);
+                    heard.push((at, buf[..n].to_vec()));
+                    bytes.extend_from_slice(&buf[..n]);
+                    let t = &mut tried[i];
+                    t.bytes += n;
+                    let room = 16usize.saturating_sub(t.first.len());
+                    t.first.extend_from_slice(&buf[..n.min(room)]);
+                    // Judged at the end of a burst (a read that came back empty) or when
+                    // the setting is about to be left.
+                    if bytes.len() < SETTING_BYTES {
+                        continue;
+                    }
+                }
+                if !bytes.is_empty() {
+                    if let Guess::Mode(m, _) = guess(&bytes) {
+                        if mode.is_none_or(|want| want == m) {
+                            return Ok(Ok(Found {
+                                line,
+                                mode: m,
+                                heard,
+                                tried,
+                                rounds: round,
+                                before: (round - 1) * settings.len() + i,
+                            }));
+                        }
+                        tried[i].other_mode = Some(m);
+                    }
+                }
+                let leave = match first_byte {
+                    Some(t) => bytes.len() >= SETTING_BYTES || t.elapsed() >= SETTING_WAIT,
+                    None => since.elapsed() >= SILENT_WAIT,
+                };
+                if leave {
+                    break;
+                }
+            }
+        }
+        if tried.iter().all(|t| t.bytes > 0) {
+            return not_found(None, tried);
+        }
+    }
+    not_found(None, tried)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::codec::pdu::{Message, Pdu, Registers};
+    use crate::transport::uart::{deliver, transcode, ErrorPolicy};
+
+    /// A tap on a line at `line` that carries `traffic` over and over; a port set to
+    /// other settings reads what its UART would (parity errors and framing errors as
+    /// the serialport crate's flags make them: 00H with parity, passed without).
+    struct UartTap {
+        line: LineSettings,
+        own: LineSettings,
+        traffic: Vec<u8>,
+        sets: Vec<LineSettings>,
+        budget: usize,
+    }
+
+    impl Tap for UartTap {
+        fn listen(&mut self, buf: &mut [u8], _timeout: Duration) -> Result<usize, TransportError> {
+            if self.budget == 0 {
+                return Err(TransportError::Closed {
+                    link: "test".into(),
+                });
+            }
+            self.budget -= 1;
+            let policy = if self.own.parity == Parity::None {
+                ErrorPolicy::Pass
+            } else {
+                ErrorPolicy::Zero
+            };
+            let got = deliver(&transcode(&self.traffic, &self.line, &self.own), policy);
+            let n = got.len().min(buf.len());
+            buf[..n].copy_from_slice(&got[..n]);
+            Ok(n)
+        }
+
+        fn describe(&self) -> String {
+            "a simulated UART".into()
+        }
+    }
+
+    impl Tunable for UartTap {
+        fn set_line(&mut self, line: LineSettings) -> Result<(), TransportError> {
+            self.own = line;
+            self.sets.push(line);
+            Ok(())
+        }
+    }
+
+    fn poll(mode: Mode) -> Vec<u8> {
+        let req = Message {
+            address: 1,
+            pdu: Pdu::ReadRequest {
+                start: 0x2520,
+                count: 2,
+            },
+        };
+        let rep = Message {
+            address: 1,
+            pdu: Pdu::ReadResponse {
+                values: Registers::new(&[0x00, 0x03, 0x11, 0x94]).unwrap(),
+            },
+        };
+        let mut out = req.to_frame_vec(mode).unwrap();
+        out.extend(rep.to_frame_vec(mode).unwrap());
+        out
+    }
+
+    fn search(
+        line: LineSettings,
+        mode: Mode,
+        asked: Option<Mode>,
+    ) -> (Result<Found, NotFound>, Vec<LineSettings>) {
+        let mut tap = UartTap {
+            line,
+            own: LineSettings::new(1, 8, Parity::None, 1),
+            traffic: poll(mode),
+            sets: Vec::new(),
+            budget: 10_000,
+        };
+        let settings = candidates(&[], &[], None, line.stop_bits, asked);
+        let r = listen_for_line(
+            &mut tap,
+            &settings,
+            asked,
+            &AtomicBool::new(false),
+            None,
+            Instant::now(),
+            |_| {},
+        )
+        .unwrap();
+        (r, tap.sets)
+    }
+
+    #[test]
+    fn each_line_is_found_at_its_baud_rate_and_parity() {
+        for (line, mode) in [
+            (LineSettings::new(9600, 8, Parity::Even, 1), Mode::Rtu),
+            (LineSettings::new(19_200, 8, Parity::Odd, 1), Mode::Rtu),
+            (LineSettings::new(38_400, 8, Parity::None, 1), Mode::Rtu),
+            (LineSettings::new(115_200, 8, Parity::None, 2), Mode::Rtu),
+            (LineSettings::new(2400, 8, Parity::Odd, 1), Mode::Rtu),
+            (LineSettings::new(4800, 7, Parity::Even, 1), Mode::Ascii),
+            (LineSettings::new(19_200, 8, Parity::None, 1), Mode::Ascii),
+        ] {
+            let (r, sets) = search(line, mode, None);
+            let found = r.unwrap_or_else(|e| panic!("{line}: {}", e.describe()));
+            assert_eq!(
+                (found.line, found.mode),
+                (line, mode),
+                "{}",
+                found.describe()
+            );
+            assert_eq!(found.rounds, 1);
+            assert_eq!(found.before, sets.len() - 1);
+            assert_eq!(sets.last(), Some(&line));
+            assert!(!found.heard.is_empty());
+            // Every setting before it was tried and heard something else.
+            let before = sets.iter().position(|s| *s == line).unwrap();
+            assert_eq!(
+                found.tried[..before].iter().filter(|t| t.bytes > 0).count(),
+                before
+            );
+        }
+    }
+
+    #[test]
+    fn eight_n_one_is_not_taken_for_a_line_with_parity() {
+        // Without parity checking 8N1 reads an 8O1 line's frames whole: odd parity must be
+        // tried, and found, before none at the same baud rate.
+        let line = LineSettings::new(9600, 8, Parity::Odd, 1);
+        let (r, sets) = search(line, Mode::Rtu, Some(Mode::Rtu));
+        assert_eq!(r.unwrap().line, line);
+        assert!(!sets.contains(&LineSettings::new(9600, 8, Parity::None, 1)));
+    }
+
+    #[test]
+    fn a_mode_that_is_not_the_line_s_is_named_and_never_found() {
+        let line = LineSettings::new(9600, 8, Parity::Even, 1);
+        let (r, _) = search(line, Mode::Ascii, Some(Mode::Rtu));
+        let nf = r.unwrap_err();
+        // Every setting heard the traffic: the search gives up after one round.
+        assert_eq!(nf.ended, None, "{nf:?}");
+        let t = nf.tried.iter().find(|t| t.line == line).unwrap();
+        assert_eq!(t.other_mode, Some(Mode::Ascii));
+        assert!(
+            nf.describe().contains("valid ascii frames"),
+            "{}",
+            nf.describe()
+        );
+    }
+
+    #[test]
+    fn traffic_no_setting_reads_ends_the_search_with_what_each_heard() {
+        let mut tap = UartTap {
+            line: LineSettings::new(9600, 8, Parity::Even, 1),
+            own: LineSettings::new(9600, 8, Parity::Even, 1),
+            traffic: vec![0x55; 64],
+            sets: Vec::new(),
+            budget: 100_000,
+        };
+        let settings = candidates(&[9600, 19_200], &[], None, 1, Some(Mode::Rtu));
+        assert_eq!(settings.len(), 6);
+        let nf = listen_for_line(
+            &mut tap,
+            &settings,
+            Some(Mode::Rtu),
+            &AtomicBool::new(false),
+            None,
+            Instant::now(),
+            |_| {},
+        )
+        .unwrap()
+        .unwrap_err();
+        assert_eq!(nf.ended, None);
+        assert!(nf.tried.iter().all(|t| t.bytes > 0));
+        assert!(nf.describe().contains("9600 8E1: "), "{}", nf.describe());
+        assert!(nf.describe().contains("55 55"), "{}", nf.describe());
+    }
+
+    #[test]
+    fn the_order_is_baud_rate_then_checking_parities_then_data_bits() {
+        let c = candidates(&[], &[], None, 1, None);
+        let names: Vec<String> = c.iter().take(7).map(|l| l.to_string()).collect();
+        assert_eq!(
+            names,
+            [
+                "9600 8E1",
+                "9600 7E1",
+                "9600 8O1",
+                "9600 7O1",
+                "9600 8N1",
+                "9600 7N1",
+                "19200 8E1"
+            ]
+        );
+        assert_eq!(c.len(), 8 * 3 * 2);
+        assert_eq!(candidates(&[], &[], None, 2, Some(Mode::Rtu)).len(), 8 * 3);
+        assert_eq!(
+            candidates(&[4800], &[Parity::None], Some(8), 2, None),
+            [LineSettings::new(4800, 8, Parity::None, 2)]
+        );
+    }
+}
