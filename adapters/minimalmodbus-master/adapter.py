@@ -174,9 +174,5 @@ OPS = {"hello": op_hello, "open": op_open, "read": op_read, "write-single": op_w
        "write-multiple": op_write_multiple, "loop-back": op_loop_back, "close": op_close}
 
 
-def main() -> int:
-    return serve(OPS, ADAPTER, OUT)
-
-
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(serve(OPS, ADAPTER, OUT))
