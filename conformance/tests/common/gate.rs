@@ -1,5 +1,6 @@
-//! What the gate's tests share (tests/gate.rs, tests/master_gate.rs): `conformance gate`
-//! run for its JSON report, and that report read.
+//! What the gate's tests share (tests/gate.rs, tests/master_gate.rs,
+//! tests/master_adapters.rs): `conformance gate` run for its JSON report, and that report
+//! read.
 
 use std::process::{Command, Output};
 
