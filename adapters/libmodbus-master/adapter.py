@@ -17,6 +17,10 @@ reports their return value and errno; no frame is built or parsed here.
 * loop-back: not offered (libmodbus has no 08H call; only the raw request API).
 
 A call that returns -1 is mapped from errno (see README.md).
+
+The protocol's loop (reading requests, dispatching them, writing answers), the hello and
+the shapes of the answers are ../master_common.py's, shared by the Python master
+adapters; this file keeps what is libmodbus's own.
 """
 
 from __future__ import annotations
@@ -24,13 +28,19 @@ from __future__ import annotations
 import ctypes
 import ctypes.util
 import errno as E
-import json
 import os
 import sys
 
 ADAPTER = "libmodbus-master"
 OUT = sys.stdout
 sys.stdout = sys.stderr
+
+# The loop, hello and answers the Python master adapters share (adapters/master_common.py);
+# appended, so that this folder's neighbours never shadow an installed package.
+sys.path.append(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+from master_common import (  # noqa: E402
+    Unsupported, done, error, exception, hello_answer, refuse_hello, serve, values,
+)
 
 lib = ctypes.CDLL(ctypes.util.find_library("modbus") or "libmodbus.so.5", use_errno=True)
 lib.modbus_new_rtu.restype = ctypes.c_void_p
@@ -65,15 +75,7 @@ def version() -> str:
     return ".".join(parts)
 
 
-class Unsupported(Exception):
-    pass
-
-
 ctx = None
-
-
-def h4(v: int) -> str:
-    return f"{v & 0xFFFF:04X}"
 
 
 def close_ctx() -> None:
@@ -123,7 +125,7 @@ def failure() -> dict:
     err = ctypes.get_errno()
     text = lib.modbus_strerror(err).decode(errors="replace")
     if MODBUS_ENOBASE < err <= EMBXGTAR:
-        return {"ok": True, "result": "exception", "code": f"{err - MODBUS_ENOBASE:02X}", "message": text}
+        return exception(err - MODBUS_ENOBASE, message=text)
     if err in (E.ETIMEDOUT,):
         kind = "timeout"
     elif err == EMBBADCRC:
@@ -132,7 +134,7 @@ def failure() -> dict:
         kind = "invalid-frame"
     else:
         kind = "other"
-    return {"ok": True, "result": "error", "kind": kind, "message": text, "errno": err}
+    return error(kind, text, errno=err)
 
 
 def need(unit: int):
@@ -151,7 +153,7 @@ def op_read(req: dict) -> dict:
     rc = lib.modbus_read_registers(c, start, count, dest)
     if rc == -1:
         return failure()
-    return {"ok": True, "result": "values", "values": [h4(dest[i]) for i in range(rc)]}
+    return values(dest[i] for i in range(rc))
 
 
 def op_write_single(req: dict) -> dict:
@@ -160,18 +162,18 @@ def op_write_single(req: dict) -> dict:
     rc = lib.modbus_write_register(c, int(req["register"], 16), int(req["value"], 16))
     if rc == -1:
         return failure()
-    return {"ok": True, "result": "done"}
+    return done()
 
 
 def op_write_multiple(req: dict) -> dict:
     c = need(int(req["unit"]))
-    values = [int(v, 16) for v in req["values"]]
-    src = (ctypes.c_uint16 * len(values))(*values)
+    registers = [int(v, 16) for v in req["values"]]
+    src = (ctypes.c_uint16 * len(registers))(*registers)
     ctypes.set_errno(0)
-    rc = lib.modbus_write_registers(c, int(req["start"], 16), len(values), src)
+    rc = lib.modbus_write_registers(c, int(req["start"], 16), len(registers), src)
     if rc == -1:
         return failure()
-    return {"ok": True, "result": "done", "echo": {"count": rc}}
+    return done(echo={"count": rc})
 
 
 def op_loop_back(_req: dict) -> dict:
@@ -184,50 +186,15 @@ def op_close(_req: dict) -> dict:
 
 
 def op_hello(req: dict) -> dict:
-    if req.get("protocol") != 1 or req.get("role") != "master":
-        return {"ok": False, "error": "this adapter speaks protocol 1, role master"}
-    return {"ok": True, "protocol": 1, "role": "master", "adapter": ADAPTER,
-            "implementation": "libmodbus", "version": version(),
-            "supports": ["read", "write-single", "write-multiple", "broadcast"],
-            "lines": ["pty", "mbap"], "modes": ["rtu"]}
+    return refuse_hello(req) or hello_answer(
+        ADAPTER, "libmodbus", version(),
+        supports=["read", "write-single", "write-multiple", "broadcast"],
+        lines=["pty", "mbap"], modes=["rtu"])
 
 
 OPS = {"hello": op_hello, "open": op_open, "read": op_read, "write-single": op_write_single,
        "write-multiple": op_write_multiple, "loop-back": op_loop_back, "close": op_close}
 
 
-def main() -> int:
-    for raw in sys.stdin.buffer:
-        line = raw.decode("utf-8", "replace").strip()
-        if not line:
-            continue
-        try:
-            req = json.loads(line)
-            if not isinstance(req, dict):
-                raise ValueError("not a JSON object")
-        except ValueError as exc:
-            answer = {"id": None, "ok": False, "error": f"bad request: {exc}"}
-        else:
-            fn = OPS.get(req.get("op"))
-            try:
-                answer = fn(req) if fn else {"ok": False, "error": "unsupported",
-                                             "detail": f"op {req.get('op')!r}"}
-            except Unsupported as exc:
-                answer = {"ok": False, "error": "unsupported", "detail": str(exc)}
-            except (KeyError, ValueError, TypeError) as exc:
-                answer = {"ok": False, "error": f"bad request: {type(exc).__name__}: {exc}"}
-            except Exception as exc:  # noqa: BLE001
-                print(f"[{ADAPTER}] id={req.get('id')}: {type(exc).__name__}: {exc}", file=sys.stderr)
-                answer = {"ok": False, "error": f"{type(exc).__name__}: {exc}"}
-            answer = {"id": req.get("id"), **answer}
-        try:
-            OUT.write(json.dumps(answer, separators=(",", ":")) + "\n")
-            OUT.flush()
-        except BrokenPipeError:
-            return 0
-    close_ctx()
-    return 0
-
-
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(serve(OPS, ADAPTER, OUT, at_end=close_ctx))

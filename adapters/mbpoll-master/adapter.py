@@ -18,11 +18,15 @@ its output and exit code. The adapter never touches the line itself.
 A failed call exits 1 with ``Read output (holding) register failed: <libmodbus's
 modbus_strerror text>`` (or ``Write ...``) on stderr; the text is mapped back to the
 exception code or error kind as libmodbus words them.
+
+The protocol's loop (reading requests, dispatching them, writing answers), the hello and
+the shapes of the answers are ../master_common.py's, shared by the Python master
+adapters; this file keeps what is mbpoll's own.
 """
 
 from __future__ import annotations
 
-import json
+import os
 import re
 import shutil
 import subprocess
@@ -31,6 +35,11 @@ import sys
 ADAPTER = "mbpoll-master"
 OUT = sys.stdout
 sys.stdout = sys.stderr
+
+# The loop, hello and answers the Python master adapters share (adapters/master_common.py);
+# appended, so that this folder's neighbours never shadow an installed package.
+sys.path.append(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+from master_common import done, error, exception, hello_answer, raised, refuse_hello, serve, values  # noqa: E402
 
 # libmodbus 3.1.6 modbus_strerror texts (src/modbus.c) back to the exception code.
 EXCEPTION_OF_TEXT = {
@@ -67,14 +76,13 @@ def mbpoll_version() -> str:
 
 
 def op_hello(req: dict) -> dict:
-    if req.get("protocol") != 1 or req.get("role") != "master":
-        return {"ok": False, "error": "this adapter speaks protocol 1, role master"}
-    if shutil.which("mbpoll") is None:
-        return {"ok": False, "error": "mbpoll is not on the PATH (Debian package mbpoll)"}
-    return {"ok": True, "protocol": 1, "role": "master", "adapter": ADAPTER,
-            "implementation": "mbpoll", "version": mbpoll_version(),
-            "supports": ["read", "write-single", "write-multiple"],
-            "lines": ["pty", "mbap"], "modes": ["rtu"]}
+    refused = refuse_hello(req)
+    if refused is None and shutil.which("mbpoll") is None:
+        refused = {"ok": False, "error": "mbpoll is not on the PATH (Debian package mbpoll)"}
+    return refused or hello_answer(
+        ADAPTER, "mbpoll", mbpoll_version(),
+        supports=["read", "write-single", "write-multiple"],
+        lines=["pty", "mbap"], modes=["rtu"])
 
 
 def op_open(req: dict) -> dict:
@@ -115,9 +123,8 @@ def failed(rc: int, stdout: str, stderr: str) -> dict:
     m = re.search(r"failed: (.+)", stderr)
     text = m.group(1).strip() if m else (stderr.strip().splitlines() or [f"exit code {rc}"])[-1]
     if text in EXCEPTION_OF_TEXT:
-        return {"ok": True, "result": "exception", "code": f"{EXCEPTION_OF_TEXT[text]:02X}", "message": text}
-    kind = KIND_OF_TEXT.get(text, "other")
-    return {"ok": True, "result": "error", "kind": kind, "message": f"{text} (exit code {rc})"}
+        return exception(EXCEPTION_OF_TEXT[text], message=text)
+    return error(KIND_OF_TEXT.get(text, "other"), f"{text} (exit code {rc})")
 
 
 def common(req: dict) -> list[str]:
@@ -129,18 +136,17 @@ def op_read(req: dict) -> dict:
     rc, out, err = run(common(req) + ["-t", "4:hex", "-r", str(int(req["start"], 16)), "-c", str(count)])
     if rc != 0:
         return failed(rc, out, err)
-    values = re.findall(r"^\[\d+\]:\s*0x([0-9A-Fa-f]{4})\s*$", out, re.M)
-    if not values:
-        return {"ok": True, "result": "raised", "type": "exit 0",
-                "message": f"mbpoll exited 0 with no values: {out.strip()[-200:]!r}"}
-    return {"ok": True, "result": "values", "values": [v.upper() for v in values]}
+    registers = re.findall(r"^\[\d+\]:\s*0x([0-9A-Fa-f]{4})\s*$", out, re.M)
+    if not registers:
+        return raised("exit 0", f"mbpoll exited 0 with no values: {out.strip()[-200:]!r}")
+    return values(int(v, 16) for v in registers)
 
 
 def written(rc: int, out: str, err: str) -> dict:
     if rc != 0:
         return failed(rc, out, err)
     m = re.search(r"Written (\d+) references", out)
-    return {"ok": True, "result": "done", **({"echo": {"count": int(m.group(1))}} if m else {})}
+    return done(echo={"count": int(m.group(1))}) if m else done()
 
 
 def op_write_single(req: dict) -> dict:
@@ -169,35 +175,5 @@ OPS = {"hello": op_hello, "open": op_open, "read": op_read, "write-single": op_w
        "write-multiple": op_write_multiple, "loop-back": op_loop_back, "close": op_close}
 
 
-def main() -> int:
-    for raw in sys.stdin.buffer:
-        line = raw.decode("utf-8", "replace").strip()
-        if not line:
-            continue
-        try:
-            req = json.loads(line)
-            if not isinstance(req, dict):
-                raise ValueError("not a JSON object")
-        except ValueError as exc:
-            answer = {"id": None, "ok": False, "error": f"bad request: {exc}"}
-        else:
-            fn = OPS.get(req.get("op"))
-            try:
-                answer = fn(req) if fn else {"ok": False, "error": "unsupported",
-                                             "detail": f"op {req.get('op')!r}"}
-            except (KeyError, ValueError, TypeError) as exc:
-                answer = {"ok": False, "error": f"bad request: {type(exc).__name__}: {exc}"}
-            except Exception as exc:  # noqa: BLE001
-                print(f"[{ADAPTER}] id={req.get('id')}: {type(exc).__name__}: {exc}", file=sys.stderr)
-                answer = {"ok": False, "error": f"{type(exc).__name__}: {exc}"}
-            answer = {"id": req.get("id"), **answer}
-        try:
-            OUT.write(json.dumps(answer, separators=(",", ":")) + "\n")
-            OUT.flush()
-        except BrokenPipeError:
-            return 0
-    return 0
-
-
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(serve(OPS, ADAPTER, OUT))

@@ -19,11 +19,14 @@ returned or raised:
 * loop-back: not offered (minimalmodbus has no 08H call in its API): unsupported.
 
 Set MINIMALMODBUS_MASTER_DEBUG=1 for minimalmodbus's own debug prints (on stderr).
+
+The protocol's loop (reading requests, dispatching them, writing answers), the hello and
+the shapes of the answers are ../master_common.py's, shared by the Python master
+adapters; this file keeps what is minimalmodbus's own.
 """
 
 from __future__ import annotations
 
-import json
 import os
 import re
 import sys
@@ -38,10 +41,12 @@ ADAPTER = "minimalmodbus-master"
 OUT = sys.stdout
 sys.stdout = sys.stderr  # minimalmodbus's debug prints go to stderr, never into the protocol
 
-
-class Unsupported(Exception):
-    pass
-
+# The loop, hello and answers the Python master adapters share (adapters/master_common.py);
+# appended, so that this folder's neighbours never shadow an installed package.
+sys.path.append(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+from master_common import (  # noqa: E402
+    Unsupported, done, error, exception, hello_answer, raised, refuse_hello, serve, values,
+)
 
 instrument = None
 
@@ -59,15 +64,16 @@ CODE_OF_MESSAGE = {
 }
 
 
-def h4(v: int) -> str:
-    return f"{v & 0xFFFF:04X}"
-
-
-def op_open(req: dict) -> dict:
+def close_instrument() -> None:
     global instrument
     if instrument is not None:
         instrument.serial.close()
         instrument = None
+
+
+def op_open(req: dict) -> dict:
+    global instrument
+    close_instrument()
     line = req.get("line") or {}
     mode = {"rtu": minimalmodbus.MODE_RTU, "ascii": minimalmodbus.MODE_ASCII}.get(req.get("mode", "rtu"))
     if mode is None:
@@ -103,21 +109,19 @@ def outcome(call, on_ok) -> dict:
         if m:
             code = int(m.group(1))
         if code is None:
-            return {"ok": True, "result": "error", "kind": "other", "message": text}
-        return {"ok": True, "result": "exception", "code": f"{code:02X}", "message": text,
-                "note": type(exc).__name__}
+            return error("other", text)
+        return exception(code, message=text, note=type(exc).__name__)
     except minimalmodbus.NoResponseError as exc:
-        return {"ok": True, "result": "error", "kind": "timeout", "message": str(exc)}
+        return error("timeout", str(exc))
     except minimalmodbus.InvalidResponseError as exc:
         text = str(exc)
-        kind = "checksum" if text.startswith("Checksum error") else "invalid-frame"
-        return {"ok": True, "result": "error", "kind": kind, "message": text}
+        return error("checksum" if text.startswith("Checksum error") else "invalid-frame", text)
     except minimalmodbus.ModbusException as exc:  # LocalEchoError, MasterReportedException
-        return {"ok": True, "result": "error", "kind": "other", "message": f"{type(exc).__name__}: {exc}"}
+        return error("other", f"{type(exc).__name__}: {exc}")
     except serial.SerialException as exc:
-        return {"ok": True, "result": "error", "kind": "other", "message": f"SerialException: {exc}"}
+        return error("other", f"SerialException: {exc}")
     except Exception as exc:  # noqa: BLE001 - undocumented for these calls: the call crashed
-        return {"ok": True, "result": "raised", "type": type(exc).__name__, "message": str(exc)}
+        return raised(type(exc).__name__, str(exc))
     return on_ok(value)
 
 
@@ -131,8 +135,7 @@ def need(unit: int):
 def op_read(req: dict) -> dict:
     ins = need(int(req["unit"]))
     start, count = int(req["start"], 16), int(req["count"])
-    return outcome(lambda: ins.read_registers(start, count, functioncode=3),
-                   lambda v: {"ok": True, "result": "values", "values": [h4(x) for x in v]})
+    return outcome(lambda: ins.read_registers(start, count, functioncode=3), values)
 
 
 def op_write_single(req: dict) -> dict:
@@ -141,14 +144,14 @@ def op_write_single(req: dict) -> dict:
     # write_register checks the echo itself (InvalidResponseError on a mismatch) and
     # returns None: there is no echo to report.
     return outcome(lambda: ins.write_register(reg, value, 0, functioncode=6),
-                   lambda _v: {"ok": True, "result": "done"})
+                   lambda _v: done())
 
 
 def op_write_multiple(req: dict) -> dict:
     ins = need(int(req["unit"]))
-    start, values = int(req["start"], 16), [int(v, 16) for v in req["values"]]
-    return outcome(lambda: ins.write_registers(start, values),
-                   lambda _v: {"ok": True, "result": "done"})
+    start, registers = int(req["start"], 16), [int(v, 16) for v in req["values"]]
+    return outcome(lambda: ins.write_registers(start, registers),
+                   lambda _v: done())
 
 
 def op_loop_back(_req: dict) -> dict:
@@ -156,57 +159,20 @@ def op_loop_back(_req: dict) -> dict:
 
 
 def op_close(_req: dict) -> dict:
-    global instrument
-    if instrument is not None:
-        instrument.serial.close()
-        instrument = None
+    close_instrument()
     return {"ok": True}
 
 
 def op_hello(req: dict) -> dict:
-    if req.get("protocol") != 1 or req.get("role") != "master":
-        return {"ok": False, "error": "this adapter speaks protocol 1, role master"}
-    return {"ok": True, "protocol": 1, "role": "master", "adapter": ADAPTER,
-            "implementation": "minimalmodbus", "version": minimalmodbus.__version__,
-            "supports": ["read", "write-single", "write-multiple", "broadcast"],
-            "lines": ["pty", "tcp-rtu"], "modes": ["rtu", "ascii"]}
+    return refuse_hello(req) or hello_answer(
+        ADAPTER, "minimalmodbus", minimalmodbus.__version__,
+        supports=["read", "write-single", "write-multiple", "broadcast"],
+        lines=["pty", "tcp-rtu"], modes=["rtu", "ascii"])
 
 
 OPS = {"hello": op_hello, "open": op_open, "read": op_read, "write-single": op_write_single,
        "write-multiple": op_write_multiple, "loop-back": op_loop_back, "close": op_close}
 
 
-def main() -> int:
-    for raw in sys.stdin.buffer:
-        line = raw.decode("utf-8", "replace").strip()
-        if not line:
-            continue
-        try:
-            req = json.loads(line)
-            if not isinstance(req, dict):
-                raise ValueError("not a JSON object")
-        except ValueError as exc:
-            answer = {"id": None, "ok": False, "error": f"bad request: {exc}"}
-        else:
-            fn = OPS.get(req.get("op"))
-            try:
-                answer = fn(req) if fn else {"ok": False, "error": "unsupported",
-                                             "detail": f"op {req.get('op')!r}"}
-            except Unsupported as exc:
-                answer = {"ok": False, "error": "unsupported", "detail": str(exc)}
-            except (KeyError, ValueError, TypeError) as exc:
-                answer = {"ok": False, "error": f"bad request: {type(exc).__name__}: {exc}"}
-            except Exception as exc:  # noqa: BLE001
-                print(f"[{ADAPTER}] id={req.get('id')}: {type(exc).__name__}: {exc}", file=sys.stderr)
-                answer = {"ok": False, "error": f"{type(exc).__name__}: {exc}"}
-            answer = {"id": req.get("id"), **answer}
-        try:
-            OUT.write(json.dumps(answer, separators=(",", ":")) + "\n")
-            OUT.flush()
-        except BrokenPipeError:
-            return 0
-    return 0
-
-
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(serve(OPS, ADAPTER, OUT))

@@ -19,11 +19,14 @@ it never builds or parses a frame.
   call them as for a unicast instead, and see pymodbus wait for a reply to a broadcast).
 
 Set PYMODBUS_MASTER_DEBUG=1 to copy pymodbus's debug log to stderr.
+
+The protocol's loop (reading requests, dispatching them, writing answers), the hello and
+the shapes of the answers are ../master_common.py's, shared by the Python master
+adapters; this file keeps what is pymodbus's own.
 """
 
 from __future__ import annotations
 
-import json
 import logging
 import os
 import sys
@@ -40,37 +43,33 @@ ADAPTER = "pymodbus-master"
 OUT = sys.stdout
 sys.stdout = sys.stderr  # anything pymodbus prints goes to stderr, never into the protocol
 
+# The loop, hello and answers the Python master adapters share (adapters/master_common.py);
+# appended, so that this folder's neighbours never shadow an installed package.
+sys.path.append(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+from master_common import (  # noqa: E402
+    Unsupported, done, echo, error, exception, h4, hello_answer, raised, refuse_hello, serve, values,
+)
+
 if os.environ.get("PYMODBUS_MASTER_DEBUG"):
     pymodbus.pymodbus_apply_logging_config(logging.DEBUG)
 else:
     logging.getLogger("pymodbus").setLevel(logging.CRITICAL)
 
 
-def log(msg: str) -> None:
-    print(f"[{ADAPTER}] {msg}", file=sys.stderr, flush=True)
-
-
-class Unsupported(Exception):
-    pass
-
-
 client = None
 broadcast_wait = bool(os.environ.get("PYMODBUS_MASTER_BROADCAST_WAIT"))
 
 
-def h4(v: int) -> str:
-    return f"{v & 0xFFFF:04X}"
-
-
-def hx(data: bytes) -> str:
-    return " ".join(f"{b:02X}" for b in data)
-
-
-def op_open(req: dict) -> dict:
+def close_client() -> None:
     global client
     if client is not None:
         client.close()
         client = None
+
+
+def op_open(req: dict) -> dict:
+    global client
+    close_client()
     line = req.get("line") or {}
     mode = req.get("mode", "rtu")
     timeout = float(req.get("timeout_ms", 1000)) / 1000.0
@@ -115,19 +114,18 @@ def outcome(call, on_ok) -> dict:
         # after N retries"); every CRC/LRC error, short frame or frame of another node is
         # dropped by the framer and ends the same way, so a timeout is all pymodbus tells.
         if "No response received" in text:
-            return {"ok": True, "result": "error", "kind": "timeout", "message": text}
-        return {"ok": True, "result": "error", "kind": "other", "message": text}
+            return error("timeout", text)
+        return error("other", text)
     except ConnectionException as exc:
-        return {"ok": True, "result": "error", "kind": "other", "message": str(exc)}
+        return error("other", str(exc))
     except ModbusException as exc:
-        return {"ok": True, "result": "error", "kind": "other", "message": f"{type(exc).__name__}: {exc}"}
+        return error("other", f"{type(exc).__name__}: {exc}")
     except Exception as exc:  # noqa: BLE001 - the call crashed: report it as raised
-        return {"ok": True, "result": "raised", "type": type(exc).__name__, "message": str(exc)}
+        return raised(type(exc).__name__, str(exc))
     if rr is None:
-        return {"ok": True, "result": "done"}
+        return done()
     if rr.isError():
-        return {"ok": True, "result": "exception", "code": f"{rr.exception_code:02X}",
-                "note": type(rr).__name__}
+        return exception(rr.exception_code, note=type(rr).__name__)
     answer = on_ok(rr)
     answer.setdefault("note", type(rr).__name__)
     return answer
@@ -144,7 +142,7 @@ def op_read(req: dict) -> dict:
     start, count, unit = int(req["start"], 16), int(req["count"]), int(req["unit"])
     return outcome(
         lambda: c.read_holding_registers(start, count=count, device_id=unit),
-        lambda rr: {"ok": True, "result": "values", "values": [h4(v) for v in rr.registers]},
+        lambda rr: values(rr.registers),
     )
 
 
@@ -157,19 +155,18 @@ def op_write_single(req: dict) -> dict:
     reg, value, unit = int(req["register"], 16), int(req["value"], 16), int(req["unit"])
     return outcome(
         lambda: c.write_register(reg, value, device_id=unit, no_response_expected=_nre(unit)),
-        lambda rr: {"ok": True, "result": "done",
-                    "echo": {"register": h4(rr.address),
-                             "value": h4(rr.registers[0]) if rr.registers else None}},
+        lambda rr: done(echo={"register": h4(rr.address),
+                              "value": h4(rr.registers[0]) if rr.registers else None}),
     )
 
 
 def op_write_multiple(req: dict) -> dict:
     c = need_client()
     start, unit = int(req["start"], 16), int(req["unit"])
-    values = [int(v, 16) for v in req["values"]]
+    registers = [int(v, 16) for v in req["values"]]
     return outcome(
-        lambda: c.write_registers(start, values, device_id=unit, no_response_expected=_nre(unit)),
-        lambda rr: {"ok": True, "result": "done", "echo": {"start": h4(rr.address), "count": rr.count}},
+        lambda: c.write_registers(start, registers, device_id=unit, no_response_expected=_nre(unit)),
+        lambda rr: done(echo={"start": h4(rr.address), "count": rr.count}),
     )
 
 
@@ -180,70 +177,30 @@ def op_loop_back(req: dict) -> dict:
     data = bytes(int(t, 16) for t in str(req.get("data", "")).split())
     unit = int(req["unit"])
 
-    def echo(rr):
+    def on_echo(rr):
         msg = rr.message if isinstance(rr.message, (bytes, bytearray)) else b""
         if isinstance(rr.message, int):
             msg = rr.message.to_bytes(2, "big")
-        return {"ok": True, "result": "echo", "test_code": h4(getattr(rr, "sub_function_code", 0)),
-                "data": hx(msg)}
+        return echo(getattr(rr, "sub_function_code", 0), msg)
 
-    return outcome(lambda: c.diag_query_data(data, device_id=unit), echo)
+    return outcome(lambda: c.diag_query_data(data, device_id=unit), on_echo)
 
 
 def op_close(_req: dict) -> dict:
-    global client
-    if client is not None:
-        client.close()
-        client = None
+    close_client()
     return {"ok": True}
 
 
 def op_hello(req: dict) -> dict:
-    if req.get("protocol") != 1 or req.get("role") != "master":
-        return {"ok": False, "error": "this adapter speaks protocol 1, role master"}
-    return {"ok": True, "protocol": 1, "role": "master", "adapter": ADAPTER,
-            "implementation": "pymodbus", "version": pymodbus.__version__,
-            "supports": ["read", "write-single", "write-multiple", "loop-back", "broadcast"],
-            "lines": ["pty", "tcp-rtu", "mbap"], "modes": ["rtu", "ascii"]}
+    return refuse_hello(req) or hello_answer(
+        ADAPTER, "pymodbus", pymodbus.__version__,
+        supports=["read", "write-single", "write-multiple", "loop-back", "broadcast"],
+        lines=["pty", "tcp-rtu", "mbap"], modes=["rtu", "ascii"])
 
 
 OPS = {"hello": op_hello, "open": op_open, "read": op_read, "write-single": op_write_single,
        "write-multiple": op_write_multiple, "loop-back": op_loop_back, "close": op_close}
 
 
-def main() -> int:
-    for raw in sys.stdin.buffer:
-        line = raw.decode("utf-8", "replace").strip()
-        if not line:
-            continue
-        try:
-            req = json.loads(line)
-            if not isinstance(req, dict):
-                raise ValueError("not a JSON object")
-        except ValueError as exc:
-            answer = {"id": None, "ok": False, "error": f"bad request: {exc}"}
-        else:
-            fn = OPS.get(req.get("op"))
-            try:
-                answer = fn(req) if fn else {"ok": False, "error": "unsupported",
-                                             "detail": f"op {req.get('op')!r}"}
-            except Unsupported as exc:
-                answer = {"ok": False, "error": "unsupported", "detail": str(exc)}
-            except (KeyError, ValueError, TypeError) as exc:
-                answer = {"ok": False, "error": f"bad request: {type(exc).__name__}: {exc}"}
-            except Exception as exc:  # noqa: BLE001
-                log(f"id={req.get('id')}: {type(exc).__name__}: {exc}")
-                answer = {"ok": False, "error": f"{type(exc).__name__}: {exc}"}
-            answer = {"id": req.get("id"), **answer}
-        try:
-            OUT.write(json.dumps(answer, separators=(",", ":")) + "\n")
-            OUT.flush()
-        except BrokenPipeError:
-            return 0
-    if client is not None:
-        client.close()
-    return 0
-
-
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(serve(OPS, ADAPTER, OUT, at_end=close_client))

@@ -5,43 +5,13 @@
 //! answers no valid request may be refused.
 
 mod common;
+use common::gate::{gate_json, schema_valid, status_of};
 use common::{bin, python, Peer};
 
 use std::process::{Command, Output};
 
 fn gate(codec: &str, extra: &[&str]) -> (Output, serde_json::Value) {
-    let mut args = vec!["gate", "--codec", codec, "--format", "json", "--quiet"];
-    args.extend_from_slice(extra);
-    let o = Command::new(bin()).args(&args).output().unwrap();
-    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap_or_else(|e| {
-        panic!(
-            "gate printed no JSON ({e}): {}\n{}",
-            String::from_utf8_lossy(&o.stdout),
-            String::from_utf8_lossy(&o.stderr)
-        )
-    });
-    (o, v)
-}
-
-fn schema_valid(v: &serde_json::Value) {
-    let text = include_str!("../../vectors/schema/report.schema.json");
-    let s = jsonschema::validator_for(&serde_json::from_str(text).unwrap()).unwrap();
-    let errors: Vec<String> = s
-        .iter_errors(v)
-        .map(|e| format!("{e} at {}", e.instance_path))
-        .collect();
-    assert!(errors.is_empty(), "{errors:#?}");
-}
-
-fn status_of<'a>(v: &'a serde_json::Value, id: &str) -> &'a str {
-    v["checks"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .find(|c| c["id"] == id)
-        .unwrap_or_else(|| panic!("no case {id}"))["status"]
-        .as_str()
-        .unwrap()
+    gate_json("--codec", codec, extra)
 }
 
 fn reference() -> String {

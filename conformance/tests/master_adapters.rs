@@ -11,6 +11,7 @@
 //! asserted to pass.
 
 mod common;
+use common::gate::status_of;
 use common::{python, Peer};
 
 use std::path::{Path, PathBuf};
@@ -64,17 +65,6 @@ fn gate(name: &str, cmd: &str, model: &str, only: &[&str]) -> (Option<i32>, serd
     (code, v)
 }
 
-fn status<'a>(v: &'a serde_json::Value, id: &str) -> &'a str {
-    v["checks"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .find(|c| c["id"] == id)
-        .unwrap_or_else(|| panic!("no case {id}"))["status"]
-        .as_str()
-        .unwrap()
-}
-
 /// Asserts that the gate names the finding `kind` for case `id`.
 fn finding(v: &serde_json::Value, kind: &str, id: &str) {
     let kinds = v["master"]["kinds"].as_array().expect("master.kinds");
@@ -121,20 +111,20 @@ fn pymodbus_master_completes_and_loses_a_reply_behind_a_stray_byte() {
     finding(&v, "stale-reply-taken", "rtu.read.stale-in-flight");
     // A 06H echo in place of a read's reply: its value is reported as the register's.
     finding(&v, "accepted-wrong-function", "rtu.read.wrong-function");
-    assert_eq!(status(&v, "rtu.read.normal"), "pass");
+    assert_eq!(status_of(&v, "rtu.read.normal"), "pass");
     // pymodbus reports any exception code, the legacy L510's 51H..55H included.
-    assert_ne!(status(&v, "rtu.read.exception-51"), "deviation");
+    assert_ne!(status_of(&v, "rtu.read.exception-51"), "deviation");
     // It drops a reply that comes after its timeout and before its next request (it
     // empties its input before sending).
-    assert_eq!(status(&v, "rtu.read.stale-reply"), "pass");
-    assert_eq!(status(&v, "rtu.loop-back.normal"), "pass");
-    assert_eq!(status(&v, "ascii.read.normal"), "pass");
+    assert_eq!(status_of(&v, "rtu.read.stale-reply"), "pass");
+    assert_eq!(status_of(&v, "rtu.loop-back.normal"), "pass");
+    assert_eq!(status_of(&v, "ascii.read.normal"), "pass");
     // RTU: a lone 00H before the reply makes its framer drop the good reply behind it.
     finding(&v, "garbage-breaks-reply", "rtu.read.zero-before");
     // (Its next request follows a broadcast at once, which the gate notes as the
     // observation broadcast-turnaround: a matter of timing, so not asserted here.)
     // ASCII: bytes before ':' are skipped.
-    assert_eq!(status(&v, "ascii.read.zero-before"), "pass");
+    assert_eq!(status_of(&v, "ascii.read.zero-before"), "pass");
     assert_eq!(code, Some(1));
 }
 
@@ -163,18 +153,18 @@ fn minimalmodbus_master_completes_skips_loop_back_and_loses_a_reply_behind_a_str
         ],
     );
     assert_eq!(v["codec"]["implementation"], "minimalmodbus");
-    assert_eq!(status(&v, "rtu.read.normal"), "pass");
+    assert_eq!(status_of(&v, "rtu.read.normal"), "pass");
     // "Slave reported error code 83" carries the legacy code. (It comes back only when its
     // read timeout ends, which the gate may note as an observation, never a deviation.)
-    assert_ne!(status(&v, "rtu.read.exception-53"), "deviation");
+    assert_ne!(status_of(&v, "rtu.read.exception-53"), "deviation");
     // It clears its input before each request.
-    assert_eq!(status(&v, "rtu.read.stale-reply"), "pass");
+    assert_eq!(status_of(&v, "rtu.read.stale-reply"), "pass");
     // It reads a fixed number of bytes from the first one that comes.
     finding(&v, "garbage-breaks-reply", "rtu.read.zero-before");
     finding(&v, "garbage-breaks-reply", "ascii.read.garbage-before");
     // minimalmodbus has no 08H call.
-    assert_eq!(status(&v, "rtu.loop-back.normal"), "skip");
-    assert_eq!(status(&v, "ascii.read.normal"), "pass");
+    assert_eq!(status_of(&v, "rtu.loop-back.normal"), "skip");
+    assert_eq!(status_of(&v, "ascii.read.normal"), "pass");
     assert_eq!(code, Some(1));
 }
 
@@ -198,15 +188,15 @@ fn libmodbus_master_takes_the_stale_reply_and_waits_after_a_broadcast() {
         ],
     );
     assert_eq!(v["codec"]["implementation"], "libmodbus");
-    assert_eq!(status(&v, "rtu.read.normal"), "pass");
-    assert_eq!(status(&v, "rtu.write-single.normal"), "pass");
-    assert_eq!(status(&v, "rtu.write-multiple.normal"), "pass");
+    assert_eq!(status_of(&v, "rtu.read.normal"), "pass");
+    assert_eq!(status_of(&v, "rtu.write-single.normal"), "pass");
+    assert_eq!(status_of(&v, "rtu.write-multiple.normal"), "pass");
     // EMBBADEXC: a code at or above MODBUS_EXCEPTION_MAX is "Invalid exception code".
     finding(&v, "exception-not-recognised", "rtu.read.exception-52");
     // libmodbus 3.1.6 waits for a confirmation after a write to unit 0.
     finding(&v, "waits-after-broadcast", "rtu.broadcast-single.normal");
     // libmodbus has no ASCII.
-    assert_eq!(status(&v, "ascii.read.normal"), "skip");
+    assert_eq!(status_of(&v, "ascii.read.normal"), "skip");
     assert_eq!(code, Some(1));
     // The headline, in a run of its own (after it every answer is one request late): a
     // reply after the timeout answers the next request.
@@ -271,13 +261,13 @@ fn rmodbus_master_takes_the_stale_reply_and_knows_no_legacy_exception() {
         ],
     );
     assert_eq!(v["codec"]["implementation"], "rmodbus");
-    assert_eq!(status(&v, "rtu.read.normal"), "pass");
-    assert_eq!(status(&v, "rtu.write-single.normal"), "pass");
-    assert_eq!(status(&v, "ascii.read.normal"), "pass");
+    assert_eq!(status_of(&v, "rtu.read.normal"), "pass");
+    assert_eq!(status_of(&v, "rtu.write-single.normal"), "pass");
+    assert_eq!(status_of(&v, "ascii.read.normal"), "pass");
     // ErrorKind::from_modbus_error knows 01H..09H and 10H only: 54H is UnknownError.
     finding(&v, "exception-not-recognised", "rtu.read.exception-54");
     // rmodbus's client has no 08H request.
-    assert_eq!(status(&v, "rtu.loop-back.normal"), "skip");
+    assert_eq!(status_of(&v, "rtu.loop-back.normal"), "skip");
     assert_eq!(code, Some(1));
     // The loop of rmodbus's RTU example clears nothing before a request: the late reply
     // answers the next one.
@@ -306,18 +296,18 @@ fn jsmodbus_master_throws_on_a_legacy_exception_and_is_stuck_after_stray_bytes()
         ],
     );
     assert_eq!(v["codec"]["implementation"], "jsmodbus");
-    assert_eq!(status(&v, "rtu.read.normal"), "pass");
+    assert_eq!(status_of(&v, "rtu.read.normal"), "pass");
     // errorCodeToMessage throws inside the socket's data handler.
     finding(&v, "raised", "rtu.read.exception-55");
     // A reply with no request waiting for it is dropped; one that comes while the next
     // request waits is given to that request.
-    assert_eq!(status(&v, "rtu.read.stale-reply"), "pass");
+    assert_eq!(status_of(&v, "rtu.read.stale-reply"), "pass");
     finding(&v, "stale-reply-taken", "rtu.read.stale-in-flight");
     // No broadcast notion: the write to unit 0 waits for a reply.
     finding(&v, "waits-after-broadcast", "rtu.broadcast-single.normal");
     // Bytes that parse as no response stay at the head of its receive buffer.
     finding(&v, "no-recovery", "rtu.read.garbage-after");
-    assert_eq!(status(&v, "ascii.read.normal"), "skip");
+    assert_eq!(status_of(&v, "ascii.read.normal"), "skip");
     assert_eq!(code, Some(1));
 }
 
@@ -340,12 +330,12 @@ fn mbpoll_master_runs_once_per_operation_and_takes_the_stale_reply() {
         ],
     );
     assert_eq!(v["codec"]["implementation"], "mbpoll");
-    assert_eq!(status(&v, "rtu.read.normal"), "pass");
-    assert_eq!(status(&v, "rtu.write-single.normal"), "pass");
-    assert_eq!(status(&v, "rtu.write-multiple.normal"), "pass");
+    assert_eq!(status_of(&v, "rtu.read.normal"), "pass");
+    assert_eq!(status_of(&v, "rtu.write-single.normal"), "pass");
+    assert_eq!(status_of(&v, "rtu.write-multiple.normal"), "pass");
     finding(&v, "exception-not-recognised", "rtu.read.exception-51");
     // mbpoll refuses address 0 in RTU: no broadcast.
-    assert_eq!(status(&v, "rtu.broadcast-single.normal"), "skip");
+    assert_eq!(status_of(&v, "rtu.broadcast-single.normal"), "skip");
     assert_eq!(code, Some(1));
     // The next run opens the port and reads the previous run's late reply.
     let (_, v) = gate("mbpoll-stale", &cmd, "f510", &["rtu.read.stale-reply"]);
@@ -376,15 +366,15 @@ fn libmodbus_state_after_a_stale_reply_stays_in_its_case_with_reopen_each_case()
         v
     };
     let kept = run("libmodbus-kept", false);
-    assert_eq!(status(&kept, "rtu.read.normal"), "pass");
+    assert_eq!(status_of(&kept, "rtu.read.normal"), "pass");
     finding(&kept, "stale-reply-taken", "rtu.read.stale-reply");
     // The late case runs after the stale reply: its read gets the reply of the one before.
-    assert_eq!(status(&kept, "rtu.read.late"), "deviation");
+    assert_eq!(status_of(&kept, "rtu.read.late"), "deviation");
     let fresh = run("libmodbus-reopened", true);
-    assert_eq!(status(&fresh, "rtu.read.normal"), "pass");
+    assert_eq!(status_of(&fresh, "rtu.read.normal"), "pass");
     finding(&fresh, "stale-reply-taken", "rtu.read.stale-reply");
     assert_eq!(
-        status(&fresh, "rtu.read.late"),
+        status_of(&fresh, "rtu.read.late"),
         "pass",
         "{:#}",
         fresh["checks"]
@@ -417,16 +407,21 @@ fn over_modbus_tcp_pymodbus_checks_the_transaction_and_libmodbus_not_the_unit() 
         }
         let (_, v) = common::report_of("gate", &scratch(name), &args, LIMIT);
         assert_eq!(v["complete"], true, "{v:#}");
-        assert_eq!(status(&v, "rtu.read.normal"), "pass", "{:#}", v["checks"]);
-        assert_eq!(status(&v, "rtu.read.bad-checksum"), "skip");
+        assert_eq!(
+            status_of(&v, "rtu.read.normal"),
+            "pass",
+            "{:#}",
+            v["checks"]
+        );
+        assert_eq!(status_of(&v, "rtu.read.bad-checksum"), "skip");
         v
     };
     let py = run(
         "pymodbus-mbap",
         &format!("{} {}", python(), adapter("pymodbus-master/adapter.py")),
     );
-    assert_eq!(status(&py, "rtu.read.stale-reply"), "pass");
-    assert_eq!(status(&py, "rtu.read.other-node"), "pass");
+    assert_eq!(status_of(&py, "rtu.read.stale-reply"), "pass");
+    assert_eq!(status_of(&py, "rtu.read.other-node"), "pass");
     finding(&py, "accepted-wrong-function", "rtu.read.wrong-function");
     let lm = run(
         "libmodbus-mbap",

@@ -1,18 +1,16 @@
 //! `conformance gate`: check another Modbus codec through an adapter.
 
-use std::io::{IsTerminal, Write};
 use std::path::PathBuf;
 use std::process::ExitCode;
-use std::time::{Duration, SystemTime};
+use std::time::Duration;
 
 use anyhow::Context;
 use clap::Args;
-use conformance::gate::{self, Adapter, Case, GateOptions, GateProgress};
-use conformance::report::{Codec, Report, ReportKind, RunOptions};
-use conformance::runner::CheckResult;
+use conformance::gate::{self, Adapter, GateOptions};
 use conformance::vectors::VectorSet;
 
-use super::check_cmd::{finish, format_for, render, write_atomic, Format, FORMAT_DEFAULT};
+use super::check_cmd::{Format, FORMAT_DEFAULT};
+use super::gate_run::Common;
 
 const AFTER_HELP: &str = "\
 The adapter protocol (line-delimited JSON on the adapter's stdin/stdout) is documented in
@@ -122,57 +120,26 @@ fn parse_seed(s: &str) -> Result<u64, String> {
     .map_err(|e| format!("{s:?} is not a seed (decimal or 0x hex): {e}"))
 }
 
-pub(super) struct Progress<'a> {
-    pub(super) report: Report,
-    pub(super) bar: Option<indicatif::ProgressBar>,
-    pub(super) output: Option<&'a PathBuf>,
-    pub(super) format: Format,
-    pub(super) verbose: bool,
-    pub(super) error: Option<anyhow::Error>,
-}
-
-impl GateProgress for Progress<'_> {
-    fn started(&mut self, case: &Case) {
-        if let Some(b) = &self.bar {
-            b.set_message(case.id.clone());
-        }
-    }
-
-    fn finished(&mut self, result: &CheckResult) {
-        self.report.results.push(result.clone());
-        if let Some(b) = &self.bar {
-            b.inc(1);
-        }
-        if let (Some(path), None) = (self.output, &self.error) {
-            let res = render(&self.report, self.format, self.verbose).and_then(|s| {
-                write_atomic(path, &s).with_context(|| format!("cannot write {}", path.display()))
-            });
-            if let Err(e) = res {
-                self.error = Some(e);
-            }
-        }
-    }
+/// The options of `args` that codecs and masters share (`--expect` loaded).
+fn common(args: &GateArgs) -> anyhow::Result<Common> {
+    Ok(Common {
+        only: args.only.clone(),
+        list: args.list,
+        timeout: args.timeout,
+        format: args.format,
+        output: args.output.clone(),
+        verbose: args.verbose,
+        quiet: args.quiet,
+        expect: args.expect.load()?,
+    })
 }
 
 pub fn run(args: GateArgs) -> anyhow::Result<ExitCode> {
     if let Some(master) = args.master.clone() {
-        return super::master_gate_cmd::run(
-            &master,
-            &this_program(&master)?,
-            &args.master_opts,
-            super::master_gate_cmd::Common {
-                only: args.only.clone(),
-                list: args.list,
-                timeout: args.timeout,
-                format: args.format,
-                output: args.output.clone(),
-                verbose: args.verbose,
-                quiet: args.quiet,
-                expect: args.expect.load()?,
-            },
-        );
+        let resolved = this_program(&master)?;
+        return super::master_gate_cmd::run(&master, &resolved, &args.master_opts, common(&args)?);
     }
-    let expect = args.expect.load()?;
+    let common = common(&args)?;
     let codec = args.codec.clone().unwrap_or_default();
     let set = VectorSet::builtin()?;
     let opts = GateOptions {
@@ -183,107 +150,16 @@ pub fn run(args: GateArgs) -> anyhow::Result<ExitCode> {
         timeout: Duration::from_millis(args.timeout),
     };
     let cases = gate::cases(&set, &opts, &codec);
-    if args.list {
-        let mut out = std::io::stdout().lock();
-        for c in &cases {
-            writeln!(out, "{:<52} {}", c.id, c.title)?;
-        }
-        writeln!(out, "{} cases", cases.len())?;
-        return Ok(ExitCode::SUCCESS);
+    let rows = cases.iter().map(|c| (c.id.as_str(), c.title.as_str()));
+    if let Some(code) = common.before_run(rows, 52)? {
+        return Ok(code);
     }
-    if cases.is_empty() {
-        anyhow::bail!(
-            "no case matches --only {}; `--list` shows the case ids",
-            args.only.join(" --only ")
-        );
-    }
-    let stop = super::interrupt::stop_flag()?;
-    // An adapter that exits before it reads its hello (a missing module, a command not
-    // found) closes the pipe the gate writes to: that write must fail and be reported,
-    // not kill the gate with SIGPIPE (which main restores for `| head`).
-    #[cfg(unix)]
-    // SAFETY: sets the disposition of one signal to ignore; no handler runs.
-    unsafe {
-        libc::signal(libc::SIGPIPE, libc::SIG_IGN);
-    }
+    let stop = super::gate_run::stop_flag()?;
     let mut adapter = Adapter::start(&this_program(&codec)?, opts.timeout)?;
-    let hello = adapter.hello.clone();
-    let started = humantime::format_rfc3339_seconds(SystemTime::now()).to_string();
-    let report = Report {
-        kind: ReportKind::Gate,
-        codec: Some(Codec {
-            adapter: hello.adapter.clone(),
-            implementation: hello.implementation.clone(),
-            version: hello.version.clone(),
-            command: codec.clone(),
-            supports: hello.supports.clone(),
-            incidents: vec![],
-            seed: args.seed,
-            count: args.count,
-        }),
-        started,
-        options: RunOptions {
-            timeout_ms: args.timeout,
-            only: args.only.clone(),
-            ..RunOptions::default()
-        },
-        ..Report::default()
-    };
-    let bar = (!args.quiet && std::io::stderr().is_terminal()).then(|| {
-        let b = indicatif::ProgressBar::new(cases.len() as u64);
-        b.set_style(
-            indicatif::ProgressStyle::with_template("{bar:30} {pos}/{len} eta {eta} {wide_msg}")
-                .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
-        );
-        b
-    });
-    let mut progress = Progress {
-        report,
-        bar,
-        output: args.output.as_ref(),
-        format: format_for(args.format, args.output.as_deref()),
-        verbose: args.verbose,
-        error: None,
-    };
+    let report = common.report(&adapter.hello, &codec, args.seed, args.count);
+    let mut progress = common.progress(report, cases.len());
     gate::run(&mut adapter, &cases, &stop, &mut progress);
-    if let Some(b) = &progress.bar {
-        b.finish_and_clear();
-    }
-    let mut report = progress.report;
-    if let Some(c) = report.codec.as_mut() {
-        c.incidents = adapter.incidents.clone();
-    }
-    // An adapter that exited twice leaves the rest of the run undecided.
-    let gone = report
-        .results
-        .iter()
-        .filter(|r| r.summary.contains("the adapter is gone"))
-        .count();
-    report.complete = gone == 0;
-    if gone > 0 {
-        report.stopped = Some(format!(
-            "the adapter exited twice; {gone} cases could not run"
-        ));
-    }
-    if stop.load(std::sync::atomic::Ordering::Relaxed) {
-        report.complete = false;
-        report.stopped = Some(format!(
-            "interrupted after {} of {} cases",
-            report.results.len(),
-            cases.len()
-        ));
-    }
-    report.finished = Some(humantime::format_rfc3339_seconds(SystemTime::now()).to_string());
-    if let Some(e) = progress.error {
-        return Err(e);
-    }
-    expect.apply(&mut report);
-    finish(
-        &report,
-        format_for(args.format, args.output.as_deref()),
-        args.verbose,
-        args.output.as_deref(),
-    )
+    common.end(progress, &adapter.incidents, cases.len(), &stop, |_| {})
 }
 
 #[cfg(test)]

@@ -1,22 +1,17 @@
 //! `conformance gate --master CMD`: judge a Modbus master through a master adapter.
 
-use std::io::{IsTerminal, Write};
 use std::path::PathBuf;
 use std::process::ExitCode;
-use std::time::{Duration, SystemTime};
+use std::time::Duration;
 
 use anyhow::Context;
 use clap::Args;
 use conformance::codec::Mode;
-use conformance::gate::master::{
-    self, MasterAdapter, MasterCase, MasterOptions, MasterProgress, MasterSettings,
-};
-use conformance::report::{Codec, Report, ReportKind, RunOptions};
-use conformance::runner::CheckResult;
+use conformance::gate::master::{self, MasterAdapter, MasterOptions, MasterSettings};
 
-use super::check_cmd::{finish, format_for, Format};
 use super::common::{load_model, ParityArg};
-use super::gate_cmd::{shell_quote, Progress};
+use super::gate_cmd::shell_quote;
+use super::gate_run::Common;
 
 /// Modes to run.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
@@ -93,31 +88,6 @@ fn parse_code(s: &str) -> Result<u8, String> {
     }
 }
 
-/// The options `gate` shares between codecs and masters.
-pub struct Common {
-    pub only: Vec<String>,
-    pub list: bool,
-    pub timeout: u64,
-    pub format: Option<Format>,
-    pub output: Option<PathBuf>,
-    pub verbose: bool,
-    pub quiet: bool,
-    /// `--expect FILE`: known findings by case id.
-    pub expect: super::expect_cmd::Loaded,
-}
-
-impl MasterProgress for Progress<'_> {
-    fn started(&mut self, case: &MasterCase) {
-        if let Some(b) = &self.bar {
-            b.set_message(case.id.clone());
-        }
-    }
-
-    fn finished(&mut self, result: &CheckResult) {
-        conformance::gate::GateProgress::finished(self, result);
-    }
-}
-
 pub fn run(
     command: &str,
     resolved: &str,
@@ -182,103 +152,22 @@ pub fn run(
         reopen: args.reopen_each_case,
     };
     let cases = master::cases(&opts);
-    if common.list {
-        let mut out = std::io::stdout().lock();
-        for c in &cases {
-            writeln!(out, "{:<40} {}", c.id, c.title)?;
-        }
-        writeln!(out, "{} cases", cases.len())?;
-        return Ok(ExitCode::SUCCESS);
+    let rows = cases.iter().map(|c| (c.id.as_str(), c.title.as_str()));
+    if let Some(code) = common.before_run(rows, 40)? {
+        return Ok(code);
     }
-    if cases.is_empty() {
-        anyhow::bail!(
-            "no case matches --only {}; `--list` shows the case ids",
-            common.only.join(" --only ")
-        );
-    }
-    let stop = super::interrupt::stop_flag()?;
-    #[cfg(unix)]
-    // SAFETY: sets the disposition of one signal to ignore; no handler runs.
-    unsafe {
-        libc::signal(libc::SIGPIPE, libc::SIG_IGN);
-    }
+    let stop = super::gate_run::stop_flag()?;
     let mut adapter = MasterAdapter::start(resolved, Duration::from_millis(common.timeout))?;
     let hello = adapter.adapter.hello.clone();
-    let started = humantime::format_rfc3339_seconds(SystemTime::now()).to_string();
-    let report = Report {
-        kind: ReportKind::Gate,
-        codec: Some(Codec {
-            adapter: hello.adapter.clone(),
-            implementation: hello.implementation.clone(),
-            version: hello.version.clone(),
-            command: command.to_string(),
-            supports: hello.supports.clone(),
-            incidents: vec![],
-            seed: 0,
-            count: 0,
-        }),
-        started,
-        options: RunOptions {
-            timeout_ms: common.timeout,
-            only: common.only.clone(),
-            ..RunOptions::default()
-        },
-        ..Report::default()
-    };
-    let bar = (!common.quiet && std::io::stderr().is_terminal()).then(|| {
-        let b = indicatif::ProgressBar::new(cases.len() as u64);
-        b.set_style(
-            indicatif::ProgressStyle::with_template("{bar:30} {pos}/{len} eta {eta} {wide_msg}")
-                .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
-        );
-        b
-    });
-    let mut progress = Progress {
-        report,
-        bar,
-        output: common.output.as_ref(),
-        format: format_for(common.format, common.output.as_deref()),
-        verbose: common.verbose,
-        error: None,
-    };
+    let report = common.report(&hello, command, 0, 0);
+    let mut progress = common.progress(report, cases.len());
     let run = master::run(&mut adapter, &opts, &cases, &stop, &mut progress)
         .context("the master gate could not run")?;
-    if let Some(b) = &progress.bar {
-        b.finish_and_clear();
-    }
-    let mut report = progress.report;
-    if let Some(c) = report.codec.as_mut() {
-        c.incidents = adapter.adapter.incidents.clone();
-    }
-    report.master = Some(master::summary(&run, &hello.raw, line_kind));
-    let gone = report
-        .results
-        .iter()
-        .filter(|r| r.summary.contains("the adapter is gone"))
-        .count();
-    report.complete = gone == 0;
-    if gone > 0 {
-        report.stopped = Some(format!(
-            "the adapter exited twice; {gone} cases could not run"
-        ));
-    }
-    if stop.load(std::sync::atomic::Ordering::Relaxed) {
-        report.complete = false;
-        report.stopped = Some(format!(
-            "interrupted after {} of {} cases",
-            report.results.len(),
-            cases.len()
-        ));
-    }
-    report.finished = Some(humantime::format_rfc3339_seconds(SystemTime::now()).to_string());
-    if let Some(e) = progress.error {
-        return Err(e);
-    }
-    common.expect.apply(&mut report);
-    finish(
-        &report,
-        format_for(common.format, common.output.as_deref()),
-        common.verbose,
-        common.output.as_deref(),
+    common.end(
+        progress,
+        &adapter.adapter.incidents,
+        cases.len(),
+        &stop,
+        |report| report.master = Some(master::summary(&run, &hello.raw, line_kind)),
     )
 }

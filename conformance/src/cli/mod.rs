@@ -8,6 +8,7 @@ mod common;
 mod expect_cmd;
 mod fuzz_cmd;
 mod gate_cmd;
+mod gate_run;
 mod identify_cmd;
 mod interrupt;
 mod link;

@@ -336,24 +336,9 @@ pub fn for_check(model: &str, check_id: &str) -> Vec<&'static str> {
 }
 
 /// Whether a link pattern names `id`: '*' matches any run of characters; a pattern
-/// without one names exactly that id.
+/// without one names exactly that id ([`crate::runner::id_matches`] with whole ids).
 pub fn matches(pattern: &str, id: &str) -> bool {
-    let mut parts = pattern.split('*');
-    let first = parts.next().unwrap_or("");
-    let Some(mut rest) = id.strip_prefix(first) else {
-        return false;
-    };
-    let parts: Vec<&str> = parts.collect();
-    let Some((last, middle)) = parts.split_last() else {
-        return rest.is_empty();
-    };
-    for part in middle {
-        match rest.find(part) {
-            Some(at) => rest = &rest[at + part.len()..],
-            None => return false,
-        }
-    }
-    rest.len() >= last.len() && rest.ends_with(last)
+    crate::runner::id_matches(pattern, id, crate::runner::Plain::WholeId)
 }
 
 /// Whitespace runs (line breaks included) folded to one space, ends trimmed.

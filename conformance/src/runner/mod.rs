@@ -32,7 +32,7 @@ use crate::judge::{self, Judge};
 pub use crate::judge::{Finding, Severity};
 pub use checks::{plan, Check};
 pub use master::{EchoMode, Exchange, LineBudget, Master, MasterTiming};
-pub use run::{run_mode, run_section, selected, Progress, Section};
+pub use run::{id_matches, run_mode, run_section, selected, Plain, Progress, Section};
 
 use crate::codec::pdu::{Direction, Message, Pdu};
 use crate::codec::Mode;

@@ -245,33 +245,45 @@ pub(crate) fn result_of(
     }
 }
 
-/// Whether check `id` is selected by `only` (every check when empty).
+/// Whether check `id` is selected by `only` (every check when empty): a pattern without
+/// '*' selects the ids that contain it (see [`id_matches`]).
 pub fn selected(id: &str, only: &[String]) -> bool {
-    only.is_empty() || only.iter().any(|p| glob(p, id))
+    only.is_empty() || only.iter().any(|p| id_matches(p, id, Plain::WithinId))
 }
 
-fn glob(pattern: &str, text: &str) -> bool {
-    if !pattern.contains('*') {
-        return text.contains(pattern);
-    }
-    let parts: Vec<&str> = pattern.split('*').collect();
-    let mut rest = text;
-    for (i, part) in parts.iter().enumerate() {
-        if i == 0 {
-            match rest.strip_prefix(part) {
-                Some(r) => rest = r,
-                None => return false,
-            }
-        } else if i == parts.len() - 1 {
-            return rest.ends_with(part);
-        } else {
-            match rest.find(part) {
-                Some(at) => rest = &rest[at + part.len()..],
-                None => return false,
-            }
+/// What a pattern without '*' names (see [`id_matches`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Plain {
+    /// The id equal to it (a requirement's link to a check).
+    WholeId,
+    /// Every id that contains it (`--only`).
+    WithinId,
+}
+
+/// Whether `pattern` names `id`, the one matcher of ids against patterns (`--only`, a
+/// requirement's links). '*' matches any run of characters, and a pattern with one spans
+/// the whole id (`rtu.*` names the ids that start with `rtu.`, `*first` those that end
+/// with `first`); a pattern without one names ids as `plain` says.
+pub fn id_matches(pattern: &str, id: &str, plain: Plain) -> bool {
+    let mut parts = pattern.split('*');
+    let first = parts.next().unwrap_or("");
+    let parts: Vec<&str> = parts.collect();
+    let Some((last, middle)) = parts.split_last() else {
+        return match plain {
+            Plain::WholeId => id == pattern,
+            Plain::WithinId => id.contains(pattern),
+        };
+    };
+    let Some(mut rest) = id.strip_prefix(first) else {
+        return false;
+    };
+    for part in middle {
+        match rest.find(part) {
+            Some(at) => rest = &rest[at + part.len()..],
+            None => return false,
         }
     }
-    true
+    rest.ends_with(last)
 }
 
 #[cfg(test)]
@@ -286,5 +298,28 @@ mod tests {
         assert!(!selected("ascii.map.group-0.first", &["rtu.*".into()]));
         assert!(selected("ascii.map.group-0.first", &["*first".into()]));
         assert!(!selected("ascii.map.group-0.last", &["*first".into()]));
+    }
+
+    #[test]
+    fn a_pattern_without_a_star_names_the_whole_id_or_what_contains_it() {
+        use Plain::{WholeId, WithinId};
+        assert!(id_matches("map.group-0", "rtu.map.group-0.first", WithinId));
+        assert!(!id_matches("map.group-0", "rtu.map.group-0.first", WholeId));
+        assert!(id_matches("rtu.map.first", "rtu.map.first", WholeId));
+        assert!(id_matches("rtu.map.first", "rtu.map.first", WithinId));
+        assert!(!id_matches("rtu.map.first.x", "rtu.map.first", WithinId));
+        assert!(id_matches("", "anything", WithinId));
+        assert!(!id_matches("", "anything", WholeId));
+        // With a '*' the two are one: the pattern spans the whole id.
+        for plain in [WholeId, WithinId] {
+            assert!(id_matches("rtu.*.first", "rtu.map.group-0.first", plain));
+            assert!(!id_matches("map.*", "rtu.map.group-0.first", plain));
+            assert!(!id_matches("*.group-0", "rtu.map.group-0.first", plain));
+            assert!(id_matches("*", "", plain));
+            assert!(id_matches("a*a", "aa", plain));
+            assert!(!id_matches("a*a", "a", plain));
+            assert!(!id_matches("ab*ba", "aba", plain));
+            assert!(id_matches("a**b", "ab", plain));
+        }
     }
 }
