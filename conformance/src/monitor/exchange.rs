@@ -2,6 +2,8 @@
 //! judge, counted in the node's statistics, its findings' first examples kept, and its
 //! live line made where anyone reads it.
 
+use std::borrow::Cow;
+use std::sync::Arc;
 use std::time::Duration;
 
 use super::{
@@ -10,8 +12,8 @@ use super::{
 };
 use crate::codec::pdu::Direction;
 use crate::codec::Mode;
-use crate::judge::{self, Conversation, Judge, Severity, Timing, VerdictStatus};
-use crate::model::{Expectation, Fact};
+use crate::judge::{self, Conversation, Judge, Severity, Timing, Verdict, VerdictStatus};
+use crate::model::Expectation;
 use crate::runner::ExchangeRecord;
 
 impl Monitor {
@@ -20,8 +22,13 @@ impl Monitor {
             return;
         };
         self.watch_slices(f.start.is_none());
-        let mut received = p.leading.clone();
-        received.extend_from_slice(&f.bytes);
+        let received: Cow<'_, [u8]> = if p.leading.is_empty() {
+            Cow::Borrowed(&f.bytes)
+        } else {
+            let mut r = p.leading.clone();
+            r.extend_from_slice(&f.bytes);
+            Cow::Owned(r)
+        };
         let first_byte = if p.leading.is_empty() {
             f.start
         } else {
@@ -37,7 +44,8 @@ impl Monitor {
             listened: f.end.saturating_sub(p.end),
         };
         let mut extra = Vec::new();
-        if is_copy(&p.bytes, &f.bytes) {
+        // The notes are for the live line only.
+        if self.live && is_copy(&p.bytes, &f.bytes) {
             extra.push(format!(
                 "a copy of the request, taken as its reply by order and time ({} after it, within the {} ms window)",
                 first_byte.map_or("in the same piece from the tap".to_string(), |t| format!("{:.1} ms", ms(t.saturating_sub(p.end)))),
@@ -103,7 +111,7 @@ impl Monitor {
     #[allow(clippy::too_many_arguments)]
     pub(super) fn judge_exchange(
         &mut self,
-        p: Pending,
+        mut p: Pending,
         received: &[u8],
         reply: Option<&[u8]>,
         timing: Timing,
@@ -125,28 +133,40 @@ impl Monitor {
             retries: 0,
             link_notes: &[],
         };
-        let known = self.known_values(&p);
-        let judge = Judge::new(&self.model).with_timing(self.timing_rule());
         // As `check` judges: where the drive did what a decision of the model says (the
-        // manual is silent), that is an observation.
-        let verdict = judge.verdict_on(
-            &p.judgement,
-            &conv,
-            known.as_ref().map(|(v, f)| (v.as_slice(), f)),
-        );
-        let mut issues = p.issues.clone();
-        for (kind, f) in verdict.found().filter(|_| judge_drive) {
-            issues.push(Issue {
-                side: Side::Drive,
-                kind: kind.key(),
-                severity: f.severity,
-                text: f.text.clone(),
-            });
+        // manual is silent), that is an observation. The part that does not depend on
+        // timing comes from the memo where the same exchange was judged before; the
+        // timing is judged here, its findings after the others (as `verdict_on` lists
+        // them).
+        let verdict = self.untimed_verdict(&p, &conv);
+        let mut timed = Vec::new();
+        Judge::new(&self.model)
+            .with_timing(self.timing_rule())
+            .timing_findings(&p.judgement, &conv, |kind, f| timed.push((kind, f)));
+        let mut issues = std::mem::take(&mut p.issues);
+        if judge_drive {
+            for (kind, f) in verdict.found() {
+                issues.push(Issue {
+                    side: Side::Drive,
+                    kind: kind.key(),
+                    severity: f.severity,
+                    text: f.text.clone(),
+                });
+            }
+            for (kind, f) in timed {
+                issues.push(Issue {
+                    side: Side::Drive,
+                    kind: kind.key(),
+                    severity: f.severity,
+                    text: f.text,
+                });
+            }
         }
         let (node, status) = {
             let status = worst(&issues);
             (p.address, status)
         };
+        let bad_checksum = verdict.kinds.contains(&judge::Kind::BadChecksum);
         {
             let stats = self.nodes.entry(node).or_default();
             stats.exchanges += 1;
@@ -156,10 +176,8 @@ impl Monitor {
             if received.is_empty() && p.judgement.expect.replies() && judge_drive {
                 stats.timeouts += 1;
             }
-            if reply_status != FrameStatus::Valid
-                || verdict.kinds.contains(&judge::Kind::BadChecksum)
-            {
-                stats.crc_errors += u64::from(verdict.kinds.contains(&judge::Kind::BadChecksum));
+            if reply_status != FrameStatus::Valid || bad_checksum {
+                stats.crc_errors += u64::from(bad_checksum);
             }
             if let (Some(rt), true) = (timing.response_time(), reply.is_some()) {
                 stats.response.record(rt);
@@ -171,7 +189,9 @@ impl Monitor {
             }
         }
         self.learn(&p, reply, status);
-        let record = ExchangeRecord {
+        // The exchange as an example keeps it: made only where a finding is the first of
+        // its kind on its node.
+        let record = || ExchangeRecord {
             request: p.bytes.clone(),
             expected: verdict.expected.clone(),
             received: received.to_vec(),
@@ -180,6 +200,10 @@ impl Monitor {
             actual: verdict.actual.clone(),
             latency: timing.response_time().filter(|_| !received.is_empty()),
         };
+        if !self.live {
+            self.account(node, &issues, record, &verdict.citations, status);
+            return;
+        }
         let rt = timing.response_time().filter(|_| !received.is_empty());
         let checksum = match (p.valid, reply_status, received.is_empty()) {
             (false, _, _) => "CRC bad (request)",
@@ -206,10 +230,6 @@ impl Monitor {
             max_gap: None,
             side: p.side,
         };
-        if !self.live {
-            self.account(node, &issues, &record, &verdict.citations, status);
-            return;
-        }
         let mut line = self.line_for(
             &req_frame,
             p.silence_before,
@@ -230,7 +250,7 @@ impl Monitor {
             line.notes
                 .push(format!("resend, {:.1} ms after the first try", ms(after)));
         }
-        self.account(node, &issues, &record, &verdict.citations, status);
+        self.account(node, &issues, record, &verdict.citations, status);
         self.lines.push(line);
     }
 
@@ -272,10 +292,13 @@ impl Monitor {
         &mut self,
         node: u8,
         issues: &[Issue],
-        record: &ExchangeRecord,
+        record: impl Fn() -> ExchangeRecord,
         citations: &[String],
         status: VerdictStatus,
     ) {
+        #[cfg(test)]
+        self.trail
+            .push((node, status, issues.to_vec(), citations.to_vec(), record()));
         let stats = self.nodes.entry(node).or_default();
         match status {
             VerdictStatus::Deviation => stats.deviations += 1,
@@ -295,7 +318,7 @@ impl Monitor {
                     count: 0,
                     text: i.text.clone(),
                     citations: citations.to_vec(),
-                    exchange: record.clone(),
+                    exchange: record(),
                 });
             e.count += 1;
             e.severity = e.severity.max(i.severity);
@@ -303,24 +326,56 @@ impl Monitor {
     }
 
     /// Values a read must return because a write seen on the bus set them (and nothing
-    /// else is known): never assumed, learnt from the traffic.
-    fn known_values(&self, p: &Pending) -> Option<(Vec<Option<u16>>, Fact)> {
+    /// else is known): never assumed, learnt from the traffic. Into `into`; whether any is
+    /// known.
+    fn known_values(&self, p: &Pending, into: &mut Vec<Option<u16>>) -> bool {
+        into.clear();
         let Expectation::Read(plan) = &p.judgement.expect else {
-            return None;
+            return false;
         };
-        let values: Vec<Option<u16>> = plan
-            .registers
-            .iter()
-            .map(|r| self.written.get(&(p.address, *r)).copied())
-            .collect();
-        values.iter().any(Option::is_some).then(|| {
-            (
-                values,
-                Fact::documented(
-                    "a write seen on the bus set it, and a parameter holds what was written (the manual's 06H/10H)",
-                ),
-            )
-        })
+        if self.written.is_empty() {
+            return false;
+        }
+        into.extend(
+            plan.registers
+                .iter()
+                .map(|r| self.written.get(&(p.address, *r)).copied()),
+        );
+        into.iter().any(Option::is_some)
+    }
+
+    /// The drive's side of the exchange `conv` of the request `p`, without its timing:
+    /// from the memo where the same exchange was judged before (see the `memo` module:
+    /// the key holds everything this depends on).
+    fn untimed_verdict(&mut self, p: &Pending, conv: &Conversation<'_>) -> Arc<Verdict> {
+        let mut known = std::mem::take(&mut self.known);
+        let any_known = self.known_values(p, &mut known);
+        let fact = &self.written_fact;
+        let judge = || {
+            Arc::new(Judge::new(&self.model).untimed_verdict_on(
+                &p.judgement,
+                conv,
+                any_known.then_some((known.as_slice(), fact)),
+            ))
+        };
+        let verdict = if self.memo {
+            let mut key = std::mem::take(&mut self.key);
+            exchange_key(&mut key, p.judged_as, conv, any_known.then_some(&known[..]));
+            let verdict = match self.verdicts_memo.get(&key) {
+                Some(v) => v.clone(),
+                None => {
+                    let v = judge();
+                    self.verdicts_memo.insert(&key, v.clone());
+                    v
+                }
+            };
+            self.key = key;
+            verdict
+        } else {
+            judge()
+        };
+        self.known = known;
+        verdict
     }
 
     /// Learns register values from writes the drive confirmed (or broadcast writes).
@@ -335,19 +390,65 @@ impl Monitor {
         }
         // Values the drive changes itself (status, monitor registers) are not learnt:
         // only writable parameters and commands keep what was written.
-        let targets: Vec<u8> = if broadcast {
-            self.nodes.keys().copied().filter(|n| *n != 0).collect()
-        } else {
-            vec![p.address]
-        };
         for (r, v) in &plan.writes {
             if self
                 .model
                 .lookup(*r)
                 .is_some_and(|i| i.access == crate::model::Access::ReadWrite)
             {
-                for n in &targets {
-                    self.written.insert((*n, *r), *v);
+                if broadcast {
+                    for n in self.nodes.keys().copied().filter(|n| *n != 0) {
+                        self.written.insert((n, *r), *v);
+                    }
+                } else {
+                    self.written.insert((p.address, *r), *v);
+                }
+            }
+        }
+    }
+}
+
+/// The memo key of an exchange's drive side without timing: everything
+/// [`Judge::untimed_verdict_on`] depends on in the monitor (the model, the mode and the
+/// monitor's settings are the memo's own). Each part with its length, so that no two
+/// exchanges share a key.
+fn exchange_key(
+    key: &mut Vec<u8>,
+    judged_as: u8,
+    conv: &Conversation<'_>,
+    known: Option<&[Option<u16>]>,
+) {
+    let len = |n: usize| u32::try_from(n).unwrap_or(u32::MAX).to_le_bytes();
+    key.clear();
+    key.push(judged_as);
+    key.extend_from_slice(&len(conv.request.len()));
+    key.extend_from_slice(conv.request);
+    key.extend_from_slice(&len(conv.received.len()));
+    key.extend_from_slice(conv.received);
+    match conv.reply {
+        Some(r) => {
+            key.push(1);
+            key.extend_from_slice(&len(r.len()));
+        }
+        None => key.push(0),
+    }
+    // Where nothing came back, the finding says how long the monitor listened.
+    if conv.received.is_empty() {
+        let listened = u64::try_from(conv.timing.listened.as_nanos()).unwrap_or(u64::MAX);
+        key.extend_from_slice(&listened.to_le_bytes());
+    }
+    match known {
+        None => key.push(0),
+        Some(values) => {
+            key.push(1);
+            key.extend_from_slice(&len(values.len()));
+            for v in values {
+                match v {
+                    None => key.push(0),
+                    Some(v) => {
+                        key.push(1);
+                        key.extend_from_slice(&v.to_le_bytes());
+                    }
                 }
             }
         }

@@ -12,6 +12,7 @@
 //! A silence is measured between two pieces only (less the character times of the bytes
 //! of the later piece); between two frames delivered in one piece it is unknown.
 
+use std::borrow::Cow;
 use std::time::Duration;
 
 use crate::codec::crc::crc16;
@@ -150,6 +151,10 @@ pub struct TapFramer {
     /// ASCII: when the ':' of the frame under way came, whether it began its piece, and
     /// the silence before that piece.
     colon: Option<(Duration, bool, Option<Duration>)>,
+    /// The deframer's blocks of one call, end to end, and where each ends (kept between
+    /// calls: no allocation per block).
+    blocks: Vec<u8>,
+    block_ends: Vec<usize>,
 }
 
 impl TapFramer {
@@ -170,7 +175,30 @@ impl TapFramer {
             last_poll: None,
             carry: None,
             colon: None,
+            blocks: Vec::new(),
+            block_ends: Vec::new(),
         }
+    }
+
+    /// Closes each block the deframer reported into `blocks`/`block_ends` (see
+    /// [`TapFramer::close_held`]), then keeps the buffers for the next call.
+    fn close_blocks(
+        &mut self,
+        blocks: Vec<u8>,
+        mut ends: Vec<usize>,
+        by: EndedBy,
+        out: &mut Vec<TapFrame>,
+    ) {
+        let mut from = 0;
+        for &to in &ends {
+            self.close_held(&blocks[from..to], by, out);
+            from = to;
+        }
+        ends.clear();
+        let mut blocks = blocks;
+        blocks.clear();
+        self.blocks = blocks;
+        self.block_ends = ends;
     }
 
     /// The side the next pieces come from (`None`: unknown, a tap).
@@ -200,11 +228,10 @@ impl TapFramer {
     pub fn idle(&mut self, now: Duration, out: &mut Vec<TapFrame>) {
         self.last_poll = Some(self.last_poll.map_or(now, |p| p.max(now)));
         if self.mode == Mode::Rtu {
-            let mut blocks = Vec::new();
-            self.rtu.idle(us(now), |e| blocks.push(block_of(e)));
-            for b in blocks {
-                self.close_held(b, EndedBy::Silence, out);
-            }
+            let (mut blocks, mut ends) = self.take_blocks();
+            self.rtu
+                .idle(us(now), |e| add_block(&mut blocks, &mut ends, e));
+            self.close_blocks(blocks, ends, EndedBy::Silence, out);
             if self.rtu.pending() == 0 {
                 self.expire_carry(now, out);
             }
@@ -220,7 +247,7 @@ impl TapFramer {
             .as_ref()
             .is_some_and(|c| proven.saturating_sub(c.last) > CARRY_HOLD)
         {
-            self.close_block(Vec::new(), Vec::new(), None, EndedBy::Silence, false, out);
+            self.close_block(&[], &[], None, EndedBy::Silence, false, out);
         }
     }
 
@@ -234,17 +261,10 @@ impl TapFramer {
                     let pieces = std::mem::take(&mut self.pieces);
                     let before = self.before_block.take();
                     self.held = 0;
-                    self.close_block(b, pieces, before, EndedBy::EndOfInput, false, out);
+                    self.close_block(&b, &pieces, before, EndedBy::EndOfInput, false, out);
                 }
                 if self.carry.is_some() {
-                    self.close_block(
-                        Vec::new(),
-                        Vec::new(),
-                        None,
-                        EndedBy::EndOfInput,
-                        false,
-                        out,
-                    );
+                    self.close_block(&[], &[], None, EndedBy::EndOfInput, false, out);
                 }
             }
             Mode::Ascii => {
@@ -269,18 +289,16 @@ impl TapFramer {
         if self.rtu.pending() == 0 {
             self.expire_carry(since, out);
         }
-        let mut blocks = Vec::new();
+        let (mut blocks, mut ends) = self.take_blocks();
         self.rtu
-            .push_at(us(at), bytes, |e| blocks.push(block_of(e)));
+            .push_at(us(at), bytes, |e| add_block(&mut blocks, &mut ends, e));
         // Events during a push are the block the silence before these bytes closed
         // (or, past any frame's length, the block with these bytes: then nothing of it
         // is left held). Where no read proves that silence (the host read these bytes
         // late), a block that is no frame is held to be joined with them.
         let t35 = Duration::from_micros(self.line.t3_5_us());
         self.end_unproven = self.last_at.is_some_and(|l| since.saturating_sub(l) < t35);
-        for b in blocks {
-            self.close_held(b, EndedBy::Silence, out);
-        }
+        self.close_blocks(blocks, ends, EndedBy::Silence, out);
         self.end_unproven = false;
         if self.held == 0 {
             self.before_block = self.last_low;
@@ -301,17 +319,25 @@ impl TapFramer {
         }
     }
 
-    /// Closes the block the deframer held, with the pieces recorded for it.
-    fn close_held(
-        &mut self,
-        (block, _): (Vec<u8>, FrameStatus),
-        by: EndedBy,
-        out: &mut Vec<TapFrame>,
-    ) {
-        let pieces = std::mem::take(&mut self.pieces);
+    /// The buffers for the deframer's blocks of one call, empty.
+    fn take_blocks(&mut self) -> (Vec<u8>, Vec<usize>) {
+        (
+            std::mem::take(&mut self.blocks),
+            std::mem::take(&mut self.block_ends),
+        )
+    }
+
+    /// Closes the block the deframer held, with the pieces recorded for it (which are
+    /// then let go; their buffer is kept).
+    fn close_held(&mut self, block: &[u8], by: EndedBy, out: &mut Vec<TapFrame>) {
+        let mut pieces = std::mem::take(&mut self.pieces);
         let before = self.before_block.take();
         self.held = 0;
-        self.close_block(block, pieces, before, by, true, out);
+        self.close_block(block, &pieces, before, by, true, out);
+        pieces.clear();
+        if self.pieces.is_empty() {
+            self.pieces = pieces;
+        }
     }
 
     /// Splits a silence-delimited block into frames (after the start of a frame cut short
@@ -319,27 +345,28 @@ impl TapFramer {
     /// is held for its rest.
     fn close_block(
         &mut self,
-        block: Vec<u8>,
-        pieces: Vec<Piece>,
+        block: &[u8],
+        pieces: &[Piece],
         before: Option<Duration>,
         by: EndedBy,
         may_carry: bool,
         out: &mut Vec<TapFrame>,
     ) {
-        let (block, pieces, before, shared0) = match self.carry.take() {
-            None => (block, pieces, before, false),
-            Some(c) => {
-                let n = c.bytes.len();
-                let mut joined = c.bytes;
-                joined.extend_from_slice(&block);
-                let mut ps = c.pieces;
-                ps.extend(pieces.iter().map(|p| Piece {
-                    end: p.end + n,
-                    ..*p
-                }));
-                (joined, ps, c.before, !c.begins)
-            }
-        };
+        let (block, pieces, before, shared0): (Cow<'_, [u8]>, Cow<'_, [Piece]>, _, _) =
+            match self.carry.take() {
+                None => (Cow::Borrowed(block), Cow::Borrowed(pieces), before, false),
+                Some(c) => {
+                    let n = c.bytes.len();
+                    let mut joined = c.bytes;
+                    joined.extend_from_slice(block);
+                    let mut ps = c.pieces;
+                    ps.extend(pieces.iter().map(|p| Piece {
+                        end: p.end + n,
+                        ..*p
+                    }));
+                    (Cow::Owned(joined), Cow::Owned(ps), c.before, !c.begins)
+                }
+            };
         let char_us = self.line.char_time_us();
         // The arrival time of the piece holding byte `i`, and whether byte `i` begins it.
         let piece_of = |i: usize| -> (usize, bool) {
@@ -512,6 +539,12 @@ fn us(d: Duration) -> u64 {
     u64::try_from(d.as_micros()).unwrap_or(u64::MAX)
 }
 
+/// Adds the deframer's block `e` to `blocks`, its end to `ends`.
+fn add_block(blocks: &mut Vec<u8>, ends: &mut Vec<usize>, e: Event<'_>) {
+    blocks.extend_from_slice(e.bytes());
+    ends.push(blocks.len());
+}
+
 fn block_of(e: Event<'_>) -> (Vec<u8>, FrameStatus) {
     let status = match e {
         Event::Frame(_) => FrameStatus::Valid,
@@ -537,7 +570,7 @@ fn starts_frame(bytes: &[u8]) -> bool {
 /// direction with a valid CRC, or is the whole rest with a valid CRC; bytes where no
 /// frame starts are skipped one at a time, as the codec's by-length deframer does.
 fn split_next(rest: &[u8]) -> (usize, usize, FrameStatus) {
-    let whole_ok = rest.len() >= 4 && crc16(rest) == 0;
+    let whole_ok = || rest.len() >= 4 && crc16(rest) == 0;
     for skip in 0..rest.len() {
         let head = &rest[skip..];
         for dir in [Direction::Response, Direction::Request] {
@@ -547,7 +580,7 @@ fn split_next(rest: &[u8]) -> (usize, usize, FrameStatus) {
                 }
             }
         }
-        if skip == 0 && whole_ok {
+        if skip == 0 && whole_ok() {
             return (0, rest.len(), FrameStatus::Valid);
         }
         if head.len() >= 4 && crc16(head) == 0 {

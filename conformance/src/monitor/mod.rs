@@ -12,14 +12,17 @@
 //! - [`stats`]: per-node counters and response-time histograms, in fixed memory.
 //!
 //! State is bounded: the request under way, per node its statistics, one example of each
-//! kind of finding, and the register values the traffic has set (at most the model's
-//! map per node).
+//! kind of finding, the register values the traffic has set (at most the model's map per
+//! node), and the memos of exchanges judged (the `memo` module: a fixed number of
+//! entries, emptied when full), from which the same exchange seen again is judged without
+//! redoing the work (its timing is judged each time).
 
 mod exchange;
 pub mod frames;
 pub mod guess;
 mod judge_master;
 mod live;
+mod memo;
 pub mod replay;
 mod report;
 mod request;
@@ -27,6 +30,7 @@ pub mod stats;
 pub mod tap;
 
 use std::collections::{BTreeMap, HashMap};
+use std::sync::Arc;
 use std::time::Duration;
 
 pub use frames::{EndedBy, FrameStatus, TapFrame};
@@ -39,7 +43,7 @@ use crate::codec::pdu::{function, Direction, Message};
 use crate::codec::timing::LineSettings;
 use crate::codec::Mode;
 use crate::judge::{self, Severity, TimingRule, VerdictStatus};
-use crate::model::{DriveModel, Judgement};
+use crate::model::{DriveModel, Fact, Judgement};
 use crate::runner::ExchangeRecord;
 use crate::transport::TransportError;
 
@@ -138,7 +142,7 @@ struct Pending {
     /// The side it came from, where the source knows.
     side: Option<bool>,
     silence_before: Option<Duration>,
-    judgement: Judgement,
+    judgement: Arc<Judgement>,
     /// Bytes that came after it and are no frame (garbage before a reply).
     leading: Vec<u8>,
     leading_start: Option<Duration>,
@@ -194,9 +198,20 @@ pub struct Monitor {
     /// The earliest the last broadcast heard can have ended, until the next request.
     last_broadcast_end: Option<Duration>,
     /// Per node: the last request's bytes and whether it was answered (retries).
-    last_request: HashMap<u8, (Vec<u8>, Duration, bool)>,
+    last_request: HashMap<u8, (Vec<u8>, Duration, bool), memo::FastHash>,
     /// Register values that writes seen on the bus set, per node.
-    written: HashMap<(u8, u16), u16>,
+    written: HashMap<(u8, u16), u16, memo::FastHash>,
+    /// The fact values learnt from writes rest on.
+    written_fact: Fact,
+    /// Whether the memos below are used (see [`Monitor::set_memo`]).
+    memo: bool,
+    /// Requests judged: the model's judgement and the master's findings not on timing.
+    requests_memo: memo::Memo<(Arc<Judgement>, Vec<Issue>)>,
+    /// Exchanges judged: the drive's side, without timing.
+    verdicts_memo: memo::Memo<Arc<judge::Verdict>>,
+    /// Scratch: a memo key, the values known for a read.
+    key: Vec<u8>,
+    known: Vec<Option<u16>>,
     nodes: BTreeMap<u8, NodeStats>,
     examples: BTreeMap<(u8, Side, &'static str), Example>,
     frames: u64,
@@ -215,7 +230,16 @@ pub struct Monitor {
     notices_taken: usize,
     /// Whether live lines are made (nobody reads them with `--quiet` and no `--log`).
     live: bool,
+    /// The framer's output buffer, kept between calls.
+    framed: Vec<TapFrame>,
+    /// Tests: every exchange as counted.
+    #[cfg(test)]
+    trail: Vec<Counted>,
 }
+
+/// Tests: one exchange as counted (node, status, findings, citations, exchange).
+#[cfg(test)]
+type Counted = (u8, VerdictStatus, Vec<Issue>, Vec<String>, ExchangeRecord);
 
 /// Replies read together with their request, at least, before the monitor says the tap
 /// delivers bytes in slices (a USB adapter's latency timer), when half or more are.
@@ -237,8 +261,16 @@ impl Monitor {
             pending: None,
             last_frame_end: None,
             last_broadcast_end: None,
-            last_request: HashMap::new(),
-            written: HashMap::new(),
+            last_request: HashMap::with_hasher(memo::FastHash::random()),
+            written: HashMap::with_hasher(memo::FastHash::random()),
+            written_fact: Fact::documented(
+                "a write seen on the bus set it, and a parameter holds what was written (the manual's 06H/10H)",
+            ),
+            memo: true,
+            requests_memo: memo::Memo::new(),
+            verdicts_memo: memo::Memo::new(),
+            key: Vec::new(),
+            known: Vec::new(),
             nodes: BTreeMap::new(),
             examples: BTreeMap::new(),
             frames: 0,
@@ -251,6 +283,9 @@ impl Monitor {
             notices: Vec::new(),
             notices_taken: 0,
             live: true,
+            framed: Vec::new(),
+            #[cfg(test)]
+            trail: Vec::new(),
         })
     }
 
@@ -270,6 +305,13 @@ impl Monitor {
         self.live = live;
     }
 
+    /// Whether to keep what judging an exchange found, to judge the same exchange again
+    /// from it (default: yes; see the `memo` module). The verdicts are the same either
+    /// way: off, every exchange is judged from scratch (differential tests, measurements).
+    pub fn set_memo(&mut self, on: bool) {
+        self.memo = on;
+    }
+
     /// The side the next bytes come from, where the source knows it (a capture's
     /// direction flags; `None`, a tap, the default): frames from the side of a request
     /// are never its reply, frames from the other side are.
@@ -284,26 +326,32 @@ impl Monitor {
         }
         self.tick(at);
         self.bytes += bytes.len() as u64;
-        let mut out = Vec::new();
+        let mut out = std::mem::take(&mut self.framed);
         self.framer.push(at, bytes, &mut out);
-        for f in out {
-            self.on_frame(f);
-        }
+        self.on_frames(out);
     }
 
     /// Nothing came up to `now`: frames followed by t3.5 end, and a request whose window
     /// has passed is judged.
     pub fn idle(&mut self, now: Duration) {
         self.tick(now);
-        let mut out = Vec::new();
+        let mut out = std::mem::take(&mut self.framed);
         self.framer.idle(now, &mut out);
-        for f in out {
-            self.on_frame(f);
-        }
+        self.on_frames(out);
         if let Some(p) = &self.pending {
             if now.saturating_sub(p.end) > self.cfg.window {
                 self.close_unanswered(None);
             }
+        }
+    }
+
+    /// Judges the frames the framer gave, then keeps their buffer for the next call.
+    fn on_frames(&mut self, mut frames: Vec<TapFrame>) {
+        for f in frames.drain(..) {
+            self.on_frame(f);
+        }
+        if self.framed.is_empty() {
+            self.framed = frames;
         }
     }
 
@@ -484,7 +532,7 @@ impl Monitor {
 /// Whether `frame` answers `request`: the same address or not, the request's function
 /// (or its exception), and a reply's shape.
 fn is_reply_to(mode: Mode, request: &[u8], frame: &[u8]) -> bool {
-    let (Some(req), Some(rep)) = (judge::body_of(mode, request), judge::body_of(mode, frame))
+    let (Some(req), Some(rep)) = (judge::body_cow(mode, request), judge::body_cow(mode, frame))
     else {
         return false;
     };

@@ -2,6 +2,7 @@
 //! judgement of it, the findings on the request and its timing), held as the request under
 //! way until its reply or its silence; replies with no request under way.
 
+use std::sync::Arc;
 use std::time::Duration;
 
 use super::{
@@ -9,14 +10,16 @@ use super::{
 };
 use crate::codec::pdu::{function, Direction, Message};
 use crate::judge::{self, Severity, VerdictStatus};
+use crate::model::Judgement;
 use crate::monitor::FrameStatus;
 use crate::runner::ExchangeRecord;
 
 impl Monitor {
     pub(super) fn on_request(&mut self, f: TapFrame, since_previous: Option<Duration>) {
         let mode = self.cfg.mode;
-        let body = judge::body_of(mode, &f.bytes);
+        let body = judge::body_cow(mode, &f.bytes);
         let address = body.as_ref().map_or(0, |b| b[0]);
+        let has_body = body.is_some();
         if f.status == FrameStatus::Valid {
             if let Some(b) = &body {
                 // Functions 80H..FFH are exceptions: no master sends one.
@@ -30,12 +33,12 @@ impl Monitor {
                 }
             }
         }
+        drop(body);
         let judged_as = self.judged_as(address);
-        let judgement = self.model.judge(judged_as, mode, &f.bytes);
-        let mut issues = judge_master::judge_request(self, &f, &judgement);
+        let (judgement, mut issues) = self.judge_request(&f, judged_as);
         let stats = self.nodes.entry(address).or_default();
         stats.requests += 1;
-        let crc_error = f.status != FrameStatus::Valid && body.is_some();
+        let crc_error = f.status != FrameStatus::Valid && has_body;
         if crc_error {
             stats.crc_errors += 1;
         }
@@ -79,8 +82,15 @@ impl Monitor {
             }
         }
         if f.bytes.len() <= crate::codec::MAX_ASCII_FRAME {
-            self.last_request
-                .insert(address, (f.bytes.clone(), f.end, false));
+            // The entry's buffer is reused: no allocation per request.
+            let e = self
+                .last_request
+                .entry(address)
+                .or_insert_with(|| (Vec::new(), f.end, false));
+            e.0.clear();
+            e.0.extend_from_slice(&f.bytes);
+            e.1 = f.end;
+            e.2 = false;
         }
         self.pending = Some(Pending {
             address,
@@ -98,6 +108,45 @@ impl Monitor {
             issues,
             retry_after,
         });
+    }
+
+    /// The model's judgement of the request `f` as node `judged_as` and the master's
+    /// findings on it ([`judge_master::judge_request`]), from the memo where the same
+    /// request was judged before (the t3.5 before it is judged each time).
+    fn judge_request(&mut self, f: &TapFrame, judged_as: u8) -> (Arc<Judgement>, Vec<Issue>) {
+        let mut issues = Vec::new();
+        if f.status == FrameStatus::Valid {
+            issues.extend(judge_master::t35_before(self, f));
+        }
+        let fresh = |m: &Monitor| {
+            let judgement = m.model.judge(judged_as, m.cfg.mode, &f.bytes);
+            let issues = judge_master::request_issues(m, &f.bytes, f.status, &judgement);
+            (Arc::new(judgement), issues)
+        };
+        if !self.memo {
+            let (judgement, rest) = fresh(self);
+            issues.extend(rest);
+            return (judgement, issues);
+        }
+        let mut key = std::mem::take(&mut self.key);
+        key.clear();
+        key.push(judged_as);
+        key.push(f.status as u8);
+        key.extend_from_slice(&f.bytes);
+        let judgement = match self.requests_memo.get(&key) {
+            Some((judgement, rest)) => {
+                issues.extend(rest.iter().cloned());
+                judgement.clone()
+            }
+            None => {
+                let (judgement, rest) = fresh(self);
+                issues.extend(rest.iter().cloned());
+                self.requests_memo.insert(&key, (judgement.clone(), rest));
+                judgement
+            }
+        };
+        self.key = key;
+        (judgement, issues)
     }
 
     /// A reply with no request under way: after the window, a second reply, or a reply
@@ -141,7 +190,13 @@ impl Monitor {
             request: Vec::new(),
             ..line
         };
-        self.account(address, &[issue], &record, &[], VerdictStatus::Deviation);
+        self.account(
+            address,
+            &[issue],
+            || record.clone(),
+            &[],
+            VerdictStatus::Deviation,
+        );
         self.lines.push(line);
     }
 }
