@@ -126,7 +126,6 @@ struct Carry {
 /// Splits the tap's stream into frames.
 pub struct TapFramer {
     mode: Mode,
-    line: LineSettings,
     rtu: RtuDeframer,
     ascii: AsciiDeframer,
     /// Pieces of the RTU block the deframer holds (at most one per byte of a frame).
@@ -155,6 +154,13 @@ pub struct TapFramer {
     /// calls: no allocation per block).
     blocks: Vec<u8>,
     block_ends: Vec<usize>,
+    /// The buffers of the last carry given up or joined, for the next one.
+    spare_bytes: Vec<u8>,
+    spare_pieces: Vec<Piece>,
+    /// The line's character time, t1.5 and t3.5 (us), worked out once.
+    char_us: u64,
+    t15_us: u64,
+    t35_us: u64,
 }
 
 impl TapFramer {
@@ -162,7 +168,6 @@ impl TapFramer {
     pub fn new(mode: Mode, line: LineSettings) -> Self {
         TapFramer {
             mode,
-            line,
             rtu: RtuDeframer::new(Direction::Request, RtuFraming::BySilence(line)),
             ascii: AsciiDeframer::default(),
             pieces: Vec::new(),
@@ -177,6 +182,11 @@ impl TapFramer {
             colon: None,
             blocks: Vec::new(),
             block_ends: Vec::new(),
+            spare_bytes: Vec::new(),
+            spare_pieces: Vec::new(),
+            char_us: line.char_time_us(),
+            t15_us: line.t1_5_us(),
+            t35_us: line.t3_5_us(),
         }
     }
 
@@ -211,7 +221,7 @@ impl TapFramer {
         if bytes.is_empty() {
             return;
         }
-        let chars = Duration::from_micros(self.line.char_time_us() * bytes.len() as u64);
+        let chars = Duration::from_micros(self.char_us * bytes.len() as u64);
         let low = self.last_poll.map_or(at, |p| (p + chars).min(at));
         let since = self.last_poll.map_or(at, |p| p.min(at));
         match self.mode {
@@ -296,7 +306,7 @@ impl TapFramer {
         // (or, past any frame's length, the block with these bytes: then nothing of it
         // is left held). Where no read proves that silence (the host read these bytes
         // late), a block that is no frame is held to be joined with them.
-        let t35 = Duration::from_micros(self.line.t3_5_us());
+        let t35 = Duration::from_micros(self.t35_us);
         self.end_unproven = self.last_at.is_some_and(|l| since.saturating_sub(l) < t35);
         self.close_blocks(blocks, ends, EndedBy::Silence, out);
         self.end_unproven = false;
@@ -367,7 +377,7 @@ impl TapFramer {
                     (Cow::Owned(joined), Cow::Owned(ps), c.before, !c.begins)
                 }
             };
-        let char_us = self.line.char_time_us();
+        let char_us = self.char_us;
         // The arrival time of the piece holding byte `i`, and whether byte `i` begins it.
         let piece_of = |i: usize| -> (usize, bool) {
             let k = pieces
@@ -420,16 +430,19 @@ impl TapFramer {
                     && (starts_frame(&block[from..]) || self.end_unproven)
                 {
                     let prev = if k0 == 0 { before } else { Some(low(k0 - 1)) };
+                    // In the buffers of the carry before (no allocation per carry).
+                    let mut bytes = std::mem::take(&mut self.spare_bytes);
+                    bytes.clear();
+                    bytes.extend_from_slice(&block[from..]);
+                    let mut held = std::mem::take(&mut self.spare_pieces);
+                    held.clear();
+                    held.extend(pieces.iter().filter(|p| p.end > from).map(|p| Piece {
+                        end: p.end - from,
+                        ..*p
+                    }));
                     self.carry = Some(Carry {
-                        bytes: block[from..].to_vec(),
-                        pieces: pieces
-                            .iter()
-                            .filter(|p| p.end > from)
-                            .map(|p| Piece {
-                                end: p.end - from,
-                                ..*p
-                            })
-                            .collect(),
+                        bytes,
+                        pieces: held,
                         before: prev,
                         begins,
                         last: at(piece_of(to - 1).0),
@@ -450,8 +463,7 @@ impl TapFramer {
                             .saturating_sub(Duration::from_micros(char_us))
                     })
                     .max();
-                let gap_broken =
-                    max_gap.is_some_and(|g| g.as_micros() > u128::from(self.line.t1_5_us()));
+                let gap_broken = max_gap.is_some_and(|g| g.as_micros() > u128::from(self.t15_us));
                 let status = if status == FrameStatus::Valid || !gap_broken {
                     status
                 } else {
@@ -475,10 +487,21 @@ impl TapFramer {
             }
             pos += s + n;
         }
+        // A carry's buffers are kept for the next one.
+        if let Cow::Owned(b) = block {
+            if self.spare_bytes.capacity() == 0 {
+                self.spare_bytes = b;
+            }
+        }
+        if let Cow::Owned(p) = pieces {
+            if self.spare_pieces.capacity() == 0 {
+                self.spare_pieces = p;
+            }
+        }
     }
 
     fn push_ascii(&mut self, at: Duration, bytes: &[u8], out: &mut Vec<TapFrame>) {
-        let chars = Duration::from_micros(self.line.char_time_us() * bytes.len() as u64);
+        let chars = Duration::from_micros(self.char_us * bytes.len() as u64);
         let mut first = true;
         let mut rest = bytes;
         while !rest.is_empty() {
