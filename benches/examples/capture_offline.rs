@@ -14,6 +14,10 @@
 //! cargo run --release -p conformance-benches --example capture_offline            # 1M frames
 //! cargo run --release -p conformance-benches --example capture_offline -- 200000  # fewer
 //! ```
+//!
+//! With `CAPTURE_OFFLINE_KEEP=1` in the environment the capture is kept (its path is
+//! printed), to time the CLI on the same file:
+//! `conformance monitor --capture-in FILE --model f510 -a 1 --quiet -o /dev/null`.
 use std::io::BufWriter;
 use std::path::Path;
 use std::process::{Command, Stdio};
@@ -178,5 +182,10 @@ fn main() {
     } else {
         println!("tshark: not on the PATH (Debian package tshark); not measured");
     }
-    let _ = std::fs::remove_dir_all(&dir);
+    if std::env::var_os("CAPTURE_OFFLINE_KEEP").is_some() {
+        // To time the CLI on the same file: `conformance monitor --capture-in FILE ...`.
+        println!("kept: {}", path.display());
+    } else {
+        let _ = std::fs::remove_dir_all(&dir);
+    }
 }

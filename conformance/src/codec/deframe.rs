@@ -144,6 +144,9 @@ pub struct RtuDeframer {
     last_rx_us: Option<u64>,
     broken: bool,
     overflow: bool,
+    /// By silence: the line's t1.5 and t3.5 (us), worked out once.
+    t15_us: u64,
+    t35_us: u64,
 }
 
 impl RtuDeframer {
@@ -158,6 +161,14 @@ impl RtuDeframer {
             last_rx_us: None,
             broken: false,
             overflow: false,
+            t15_us: match framing {
+                RtuFraming::BySilence(line) => line.t1_5_us(),
+                RtuFraming::ByLength => 0,
+            },
+            t35_us: match framing {
+                RtuFraming::BySilence(line) => line.t3_5_us(),
+                RtuFraming::ByLength => 0,
+            },
         }
     }
 
@@ -212,7 +223,7 @@ impl RtuDeframer {
     /// [`RtuFraming::BySilence`] the gap since the previous bytes decides whether they
     /// continue a frame; with [`RtuFraming::ByLength`] the time is ignored.
     pub fn push_at(&mut self, now_us: u64, input: &[u8], mut emit: impl FnMut(Event<'_>)) {
-        let RtuFraming::BySilence(line) = self.framing else {
+        let RtuFraming::BySilence(_) = self.framing else {
             return self.push_by_length(input, &mut emit);
         };
         if input.is_empty() {
@@ -220,9 +231,9 @@ impl RtuDeframer {
         }
         if self.end > 0 || self.overflow {
             let gap = now_us.saturating_sub(self.last_rx_us.unwrap_or(now_us));
-            if gap >= line.t3_5_us() {
+            if gap >= self.t35_us {
                 self.close_silent_frame(&mut emit);
-            } else if gap > line.t1_5_us() {
+            } else if gap > self.t15_us {
                 self.broken = true;
             }
         }
@@ -249,10 +260,10 @@ impl RtuDeframer {
     /// Tells the deframer that the line has been quiet up to `now_us`: with
     /// [`RtuFraming::BySilence`] a frame followed by t3.5 of silence is reported.
     pub fn idle(&mut self, now_us: u64, mut emit: impl FnMut(Event<'_>)) {
-        if let RtuFraming::BySilence(line) = self.framing {
+        if let RtuFraming::BySilence(_) = self.framing {
             if self.end > 0 || self.overflow {
                 let gap = now_us.saturating_sub(self.last_rx_us.unwrap_or(now_us));
-                if gap >= line.t3_5_us() {
+                if gap >= self.t35_us {
                     self.close_silent_frame(&mut emit);
                 }
             }

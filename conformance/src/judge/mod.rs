@@ -20,7 +20,7 @@ mod show;
 use std::time::Duration;
 
 pub use compare::{diff_positions, Known};
-pub use show::{body_of, describe_reply, explain_invalid, show};
+pub use show::{body_cow, body_of, describe_reply, explain_invalid, show};
 
 use crate::codec::timing::LineSettings;
 use crate::codec::Mode;
@@ -320,22 +320,29 @@ pub const ASCII_CHARACTER_TIMEOUT: Duration = Duration::from_secs(1);
 /// The longest silence inside a frame of `mode` on `line` before it counts: t1.5 plus
 /// `allowance` in RTU, [`ASCII_CHARACTER_TIMEOUT`] in ASCII; with the rule it breaks.
 pub fn gap_limit(mode: Mode, line: &LineSettings, allowance: Duration) -> (Duration, String) {
+    (
+        gap_limit_only(mode, line, allowance),
+        gap_rule(mode, line, allowance),
+    )
+}
+
+/// The limit of [`gap_limit`] alone (no words made).
+fn gap_limit_only(mode: Mode, line: &LineSettings, allowance: Duration) -> Duration {
     match mode {
-        Mode::Rtu => {
-            let t15 = Duration::from_micros(line.t1_5_us());
-            (
-                t15 + allowance,
-                format!(
-                    "over t1.5 ({} us + allowance {} us); Modbus over Serial Line V1.02, 2.5.1.1",
-                    t15.as_micros(),
-                    allowance.as_micros()
-                ),
-            )
-        }
-        Mode::Ascii => (
-            ASCII_CHARACTER_TIMEOUT,
-            "over the 1 s that may elapse between the characters of an ASCII frame; Modbus over Serial Line V1.02, 2.5.2.1".to_string(),
+        Mode::Rtu => Duration::from_micros(line.t1_5_us()) + allowance,
+        Mode::Ascii => ASCII_CHARACTER_TIMEOUT,
+    }
+}
+
+/// The rule of [`gap_limit`], in words.
+fn gap_rule(mode: Mode, line: &LineSettings, allowance: Duration) -> String {
+    match mode {
+        Mode::Rtu => format!(
+            "over t1.5 ({} us + allowance {} us); Modbus over Serial Line V1.02, 2.5.1.1",
+            line.t1_5_us(),
+            allowance.as_micros()
         ),
+        Mode::Ascii => "over the 1 s that may elapse between the characters of an ASCII frame; Modbus over Serial Line V1.02, 2.5.2.1".to_string(),
     }
 }
 
@@ -414,9 +421,24 @@ impl<'m> Judge<'m> {
         conv: &Conversation<'_>,
         known: Option<Known<'_>>,
     ) -> Verdict {
-        let mut v = compare::compare(self.model, judgement, conv, known, true);
-        self.judge_timing(judgement, conv, &mut v);
+        let mut v = self.untimed_verdict_on(judgement, conv, known);
+        self.timing_findings(judgement, conv, |k, f| v.push(k, f));
         v
+    }
+
+    /// [`Judge::verdict_on`] without the findings on timing (response time, t3.5, gaps):
+    /// what depends only on the bytes, the values known and, where nothing came back, how
+    /// long the listener waited (`conv.timing.listened`). With
+    /// [`Judge::timing_findings`] after it, the same findings in the same order as
+    /// `verdict_on`: a listener that sees the same exchanges again may keep this part and
+    /// judge the timing of each.
+    pub fn untimed_verdict_on(
+        &self,
+        judgement: &Judgement,
+        conv: &Conversation<'_>,
+        known: Option<Known<'_>>,
+    ) -> Verdict {
+        compare::compare(self.model, judgement, conv, known, true)
     }
 
     /// Only the differences between `conv` and the judgement: [`Judge::verdict_on`]
@@ -429,11 +451,19 @@ impl<'m> Judge<'m> {
         known: Option<Known<'_>>,
     ) -> Verdict {
         let mut v = compare::compare(self.model, judgement, conv, known, false);
-        self.judge_timing(judgement, conv, &mut v);
+        self.timing_findings(judgement, conv, |k, f| v.push(k, f));
         v
     }
 
-    fn judge_timing(&self, judgement: &Judgement, conv: &Conversation<'_>, v: &mut Verdict) {
+    /// The findings on `conv`'s timing by the judge's rule (none without one), each
+    /// handed to `out` in the order [`Judge::verdict_on`] lists them: a late or early
+    /// reply, a gap inside it. Words are made only for findings.
+    pub fn timing_findings(
+        &self,
+        judgement: &Judgement,
+        conv: &Conversation<'_>,
+        mut out: impl FnMut(Kind, Finding),
+    ) {
         let Some(rule) = self.timing else {
             return;
         };
@@ -445,7 +475,7 @@ impl<'m> Judge<'m> {
         if let Some(rt) = conv.timing.response_time() {
             let limit = rule.response_limit(self.model);
             if rt > limit {
-                v.push(
+                out(
                     Kind::LateReply,
                     Finding {
                         severity: Severity::of(source.basis),
@@ -476,7 +506,7 @@ impl<'m> Judge<'m> {
                     .zip(conv.timing.request_end_earliest)
                     .map_or(rt, |(first, end)| first.saturating_sub(end).max(rt));
                 if longest + tolerance < t35 {
-                    v.push(
+                    out(
                         Kind::EarlyReply,
                         Finding::deviation(format!(
                             "the reply began {} us after the request, sooner than t3.5 ({} us, less one character of tolerance); Modbus over Serial Line V1.02, 2.5.1.1",
@@ -488,13 +518,13 @@ impl<'m> Judge<'m> {
             }
         }
         if let (Some(gap), Some(line)) = (conv.timing.max_gap, rule.line) {
-            let (limit, why) = gap_limit(conv.mode, &line, rule.gap_allowance);
-            if gap > limit {
-                v.push(
+            if gap > gap_limit_only(conv.mode, &line, rule.gap_allowance) {
+                out(
                     Kind::GapInReply,
                     Finding::deviation(format!(
-                        "a silence of {} us inside the reply, {why}",
+                        "a silence of {} us inside the reply, {}",
                         gap.as_micros(),
+                        gap_rule(conv.mode, &line, rule.gap_allowance)
                     )),
                 );
             }

@@ -79,6 +79,16 @@ pub fn body_of(mode: Mode, frame: &[u8]) -> Option<Vec<u8>> {
     codec::frame_parts(mode, frame).ok().map(|p| p.body)
 }
 
+/// [`body_of`], borrowed from `frame` where it can be (RTU); decoded (ASCII).
+pub fn body_cow(mode: Mode, frame: &[u8]) -> Option<std::borrow::Cow<'_, [u8]>> {
+    match mode {
+        Mode::Rtu => RtuFrame::new_checked(frame)
+            .ok()
+            .map(|_| std::borrow::Cow::Borrowed(&frame[..frame.len() - 2])),
+        Mode::Ascii => body_of(mode, frame).map(std::borrow::Cow::Owned),
+    }
+}
+
 /// Bytes for a report line: hex in RTU, the characters in ASCII.
 pub fn show(mode: Mode, bytes: &[u8]) -> String {
     match mode {

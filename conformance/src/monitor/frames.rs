@@ -12,6 +12,7 @@
 //! A silence is measured between two pieces only (less the character times of the bytes
 //! of the later piece); between two frames delivered in one piece it is unknown.
 
+use std::borrow::Cow;
 use std::time::Duration;
 
 use crate::codec::crc::crc16;
@@ -125,7 +126,6 @@ struct Carry {
 /// Splits the tap's stream into frames.
 pub struct TapFramer {
     mode: Mode,
-    line: LineSettings,
     rtu: RtuDeframer,
     ascii: AsciiDeframer,
     /// Pieces of the RTU block the deframer holds (at most one per byte of a frame).
@@ -150,6 +150,17 @@ pub struct TapFramer {
     /// ASCII: when the ':' of the frame under way came, whether it began its piece, and
     /// the silence before that piece.
     colon: Option<(Duration, bool, Option<Duration>)>,
+    /// The deframer's blocks of one call, end to end, and where each ends (kept between
+    /// calls: no allocation per block).
+    blocks: Vec<u8>,
+    block_ends: Vec<usize>,
+    /// The buffers of the last carry given up or joined, for the next one.
+    spare_bytes: Vec<u8>,
+    spare_pieces: Vec<Piece>,
+    /// The line's character time, t1.5 and t3.5 (us), worked out once.
+    char_us: u64,
+    t15_us: u64,
+    t35_us: u64,
 }
 
 impl TapFramer {
@@ -157,7 +168,6 @@ impl TapFramer {
     pub fn new(mode: Mode, line: LineSettings) -> Self {
         TapFramer {
             mode,
-            line,
             rtu: RtuDeframer::new(Direction::Request, RtuFraming::BySilence(line)),
             ascii: AsciiDeframer::default(),
             pieces: Vec::new(),
@@ -170,7 +180,35 @@ impl TapFramer {
             last_poll: None,
             carry: None,
             colon: None,
+            blocks: Vec::new(),
+            block_ends: Vec::new(),
+            spare_bytes: Vec::new(),
+            spare_pieces: Vec::new(),
+            char_us: line.char_time_us(),
+            t15_us: line.t1_5_us(),
+            t35_us: line.t3_5_us(),
         }
+    }
+
+    /// Closes each block the deframer reported into `blocks`/`block_ends` (see
+    /// [`TapFramer::close_held`]), then keeps the buffers for the next call.
+    fn close_blocks(
+        &mut self,
+        blocks: Vec<u8>,
+        mut ends: Vec<usize>,
+        by: EndedBy,
+        out: &mut Vec<TapFrame>,
+    ) {
+        let mut from = 0;
+        for &to in &ends {
+            self.close_held(&blocks[from..to], by, out);
+            from = to;
+        }
+        ends.clear();
+        let mut blocks = blocks;
+        blocks.clear();
+        self.blocks = blocks;
+        self.block_ends = ends;
     }
 
     /// The side the next pieces come from (`None`: unknown, a tap).
@@ -183,7 +221,7 @@ impl TapFramer {
         if bytes.is_empty() {
             return;
         }
-        let chars = Duration::from_micros(self.line.char_time_us() * bytes.len() as u64);
+        let chars = Duration::from_micros(self.char_us * bytes.len() as u64);
         let low = self.last_poll.map_or(at, |p| (p + chars).min(at));
         let since = self.last_poll.map_or(at, |p| p.min(at));
         match self.mode {
@@ -200,11 +238,10 @@ impl TapFramer {
     pub fn idle(&mut self, now: Duration, out: &mut Vec<TapFrame>) {
         self.last_poll = Some(self.last_poll.map_or(now, |p| p.max(now)));
         if self.mode == Mode::Rtu {
-            let mut blocks = Vec::new();
-            self.rtu.idle(us(now), |e| blocks.push(block_of(e)));
-            for b in blocks {
-                self.close_held(b, EndedBy::Silence, out);
-            }
+            let (mut blocks, mut ends) = self.take_blocks();
+            self.rtu
+                .idle(us(now), |e| add_block(&mut blocks, &mut ends, e));
+            self.close_blocks(blocks, ends, EndedBy::Silence, out);
             if self.rtu.pending() == 0 {
                 self.expire_carry(now, out);
             }
@@ -220,7 +257,7 @@ impl TapFramer {
             .as_ref()
             .is_some_and(|c| proven.saturating_sub(c.last) > CARRY_HOLD)
         {
-            self.close_block(Vec::new(), Vec::new(), None, EndedBy::Silence, false, out);
+            self.close_block(&[], &[], None, EndedBy::Silence, false, out);
         }
     }
 
@@ -234,17 +271,10 @@ impl TapFramer {
                     let pieces = std::mem::take(&mut self.pieces);
                     let before = self.before_block.take();
                     self.held = 0;
-                    self.close_block(b, pieces, before, EndedBy::EndOfInput, false, out);
+                    self.close_block(&b, &pieces, before, EndedBy::EndOfInput, false, out);
                 }
                 if self.carry.is_some() {
-                    self.close_block(
-                        Vec::new(),
-                        Vec::new(),
-                        None,
-                        EndedBy::EndOfInput,
-                        false,
-                        out,
-                    );
+                    self.close_block(&[], &[], None, EndedBy::EndOfInput, false, out);
                 }
             }
             Mode::Ascii => {
@@ -269,18 +299,16 @@ impl TapFramer {
         if self.rtu.pending() == 0 {
             self.expire_carry(since, out);
         }
-        let mut blocks = Vec::new();
+        let (mut blocks, mut ends) = self.take_blocks();
         self.rtu
-            .push_at(us(at), bytes, |e| blocks.push(block_of(e)));
+            .push_at(us(at), bytes, |e| add_block(&mut blocks, &mut ends, e));
         // Events during a push are the block the silence before these bytes closed
         // (or, past any frame's length, the block with these bytes: then nothing of it
         // is left held). Where no read proves that silence (the host read these bytes
         // late), a block that is no frame is held to be joined with them.
-        let t35 = Duration::from_micros(self.line.t3_5_us());
+        let t35 = Duration::from_micros(self.t35_us);
         self.end_unproven = self.last_at.is_some_and(|l| since.saturating_sub(l) < t35);
-        for b in blocks {
-            self.close_held(b, EndedBy::Silence, out);
-        }
+        self.close_blocks(blocks, ends, EndedBy::Silence, out);
         self.end_unproven = false;
         if self.held == 0 {
             self.before_block = self.last_low;
@@ -301,17 +329,25 @@ impl TapFramer {
         }
     }
 
-    /// Closes the block the deframer held, with the pieces recorded for it.
-    fn close_held(
-        &mut self,
-        (block, _): (Vec<u8>, FrameStatus),
-        by: EndedBy,
-        out: &mut Vec<TapFrame>,
-    ) {
-        let pieces = std::mem::take(&mut self.pieces);
+    /// The buffers for the deframer's blocks of one call, empty.
+    fn take_blocks(&mut self) -> (Vec<u8>, Vec<usize>) {
+        (
+            std::mem::take(&mut self.blocks),
+            std::mem::take(&mut self.block_ends),
+        )
+    }
+
+    /// Closes the block the deframer held, with the pieces recorded for it (which are
+    /// then let go; their buffer is kept).
+    fn close_held(&mut self, block: &[u8], by: EndedBy, out: &mut Vec<TapFrame>) {
+        let mut pieces = std::mem::take(&mut self.pieces);
         let before = self.before_block.take();
         self.held = 0;
-        self.close_block(block, pieces, before, by, true, out);
+        self.close_block(block, &pieces, before, by, true, out);
+        pieces.clear();
+        if self.pieces.is_empty() {
+            self.pieces = pieces;
+        }
     }
 
     /// Splits a silence-delimited block into frames (after the start of a frame cut short
@@ -319,28 +355,29 @@ impl TapFramer {
     /// is held for its rest.
     fn close_block(
         &mut self,
-        block: Vec<u8>,
-        pieces: Vec<Piece>,
+        block: &[u8],
+        pieces: &[Piece],
         before: Option<Duration>,
         by: EndedBy,
         may_carry: bool,
         out: &mut Vec<TapFrame>,
     ) {
-        let (block, pieces, before, shared0) = match self.carry.take() {
-            None => (block, pieces, before, false),
-            Some(c) => {
-                let n = c.bytes.len();
-                let mut joined = c.bytes;
-                joined.extend_from_slice(&block);
-                let mut ps = c.pieces;
-                ps.extend(pieces.iter().map(|p| Piece {
-                    end: p.end + n,
-                    ..*p
-                }));
-                (joined, ps, c.before, !c.begins)
-            }
-        };
-        let char_us = self.line.char_time_us();
+        let (block, pieces, before, shared0): (Cow<'_, [u8]>, Cow<'_, [Piece]>, _, _) =
+            match self.carry.take() {
+                None => (Cow::Borrowed(block), Cow::Borrowed(pieces), before, false),
+                Some(c) => {
+                    let n = c.bytes.len();
+                    let mut joined = c.bytes;
+                    joined.extend_from_slice(block);
+                    let mut ps = c.pieces;
+                    ps.extend(pieces.iter().map(|p| Piece {
+                        end: p.end + n,
+                        ..*p
+                    }));
+                    (Cow::Owned(joined), Cow::Owned(ps), c.before, !c.begins)
+                }
+            };
+        let char_us = self.char_us;
         // The arrival time of the piece holding byte `i`, and whether byte `i` begins it.
         let piece_of = |i: usize| -> (usize, bool) {
             let k = pieces
@@ -393,16 +430,19 @@ impl TapFramer {
                     && (starts_frame(&block[from..]) || self.end_unproven)
                 {
                     let prev = if k0 == 0 { before } else { Some(low(k0 - 1)) };
+                    // In the buffers of the carry before (no allocation per carry).
+                    let mut bytes = std::mem::take(&mut self.spare_bytes);
+                    bytes.clear();
+                    bytes.extend_from_slice(&block[from..]);
+                    let mut held = std::mem::take(&mut self.spare_pieces);
+                    held.clear();
+                    held.extend(pieces.iter().filter(|p| p.end > from).map(|p| Piece {
+                        end: p.end - from,
+                        ..*p
+                    }));
                     self.carry = Some(Carry {
-                        bytes: block[from..].to_vec(),
-                        pieces: pieces
-                            .iter()
-                            .filter(|p| p.end > from)
-                            .map(|p| Piece {
-                                end: p.end - from,
-                                ..*p
-                            })
-                            .collect(),
+                        bytes,
+                        pieces: held,
                         before: prev,
                         begins,
                         last: at(piece_of(to - 1).0),
@@ -423,8 +463,7 @@ impl TapFramer {
                             .saturating_sub(Duration::from_micros(char_us))
                     })
                     .max();
-                let gap_broken =
-                    max_gap.is_some_and(|g| g.as_micros() > u128::from(self.line.t1_5_us()));
+                let gap_broken = max_gap.is_some_and(|g| g.as_micros() > u128::from(self.t15_us));
                 let status = if status == FrameStatus::Valid || !gap_broken {
                     status
                 } else {
@@ -448,10 +487,21 @@ impl TapFramer {
             }
             pos += s + n;
         }
+        // A carry's buffers are kept for the next one.
+        if let Cow::Owned(b) = block {
+            if self.spare_bytes.capacity() == 0 {
+                self.spare_bytes = b;
+            }
+        }
+        if let Cow::Owned(p) = pieces {
+            if self.spare_pieces.capacity() == 0 {
+                self.spare_pieces = p;
+            }
+        }
     }
 
     fn push_ascii(&mut self, at: Duration, bytes: &[u8], out: &mut Vec<TapFrame>) {
-        let chars = Duration::from_micros(self.line.char_time_us() * bytes.len() as u64);
+        let chars = Duration::from_micros(self.char_us * bytes.len() as u64);
         let mut first = true;
         let mut rest = bytes;
         while !rest.is_empty() {
@@ -512,6 +562,12 @@ fn us(d: Duration) -> u64 {
     u64::try_from(d.as_micros()).unwrap_or(u64::MAX)
 }
 
+/// Adds the deframer's block `e` to `blocks`, its end to `ends`.
+fn add_block(blocks: &mut Vec<u8>, ends: &mut Vec<usize>, e: Event<'_>) {
+    blocks.extend_from_slice(e.bytes());
+    ends.push(blocks.len());
+}
+
 fn block_of(e: Event<'_>) -> (Vec<u8>, FrameStatus) {
     let status = match e {
         Event::Frame(_) => FrameStatus::Valid,
@@ -537,7 +593,7 @@ fn starts_frame(bytes: &[u8]) -> bool {
 /// direction with a valid CRC, or is the whole rest with a valid CRC; bytes where no
 /// frame starts are skipped one at a time, as the codec's by-length deframer does.
 fn split_next(rest: &[u8]) -> (usize, usize, FrameStatus) {
-    let whole_ok = rest.len() >= 4 && crc16(rest) == 0;
+    let whole_ok = || rest.len() >= 4 && crc16(rest) == 0;
     for skip in 0..rest.len() {
         let head = &rest[skip..];
         for dir in [Direction::Response, Direction::Request] {
@@ -547,7 +603,7 @@ fn split_next(rest: &[u8]) -> (usize, usize, FrameStatus) {
                 }
             }
         }
-        if skip == 0 && whole_ok {
+        if skip == 0 && whole_ok() {
             return (0, rest.len(), FrameStatus::Valid);
         }
         if head.len() >= 4 && crc16(head) == 0 {

@@ -28,6 +28,44 @@ fn fault_kind(fault: Fault) -> &'static str {
 /// The findings on the master's request `f`; `judgement` is the model's on it as the
 /// drive the monitor judges it by.
 pub(super) fn judge_request(m: &Monitor, f: &TapFrame, judgement: &Judgement) -> Vec<Issue> {
+    let mut out = Vec::new();
+    if f.status == FrameStatus::Valid {
+        out.extend(t35_before(m, f));
+    }
+    out.extend(request_issues(m, &f.bytes, f.status, judgement));
+    out
+}
+
+/// The master's finding on the silence before the valid request `f`: t3.5 (RTU).
+pub(super) fn t35_before(m: &Monitor, f: &TapFrame) -> Option<Issue> {
+    if m.cfg.mode != Mode::Rtu {
+        return None;
+    }
+    let s = f.silence_before?;
+    let line = m.cfg.line;
+    let t35 = Duration::from_micros(line.t3_5_us());
+    // One character of tolerance: the tap's clock reads the pieces a little late.
+    let tolerance = Duration::from_micros(line.char_time_us());
+    (s + tolerance < t35).then(|| Issue {
+        side: Side::Master,
+        kind: "no-t3.5",
+        severity: Severity::Deviation,
+        text: format!(
+            "the request began {} us after the previous frame, sooner than t3.5 ({} us, less one character of tolerance); Modbus over Serial Line V1.02, 2.5.1.1",
+            s.as_micros(),
+            t35.as_micros()
+        ),
+    })
+}
+
+/// The master's findings on a request of `bytes` with `status` that do not depend on
+/// its timing: after [`t35_before`] (for a valid frame), in [`judge_request`]'s order.
+pub(super) fn request_issues(
+    m: &Monitor,
+    bytes: &[u8],
+    status: FrameStatus,
+    judgement: &Judgement,
+) -> Vec<Issue> {
     let mode = m.cfg.mode;
     let check = if mode == Mode::Rtu { "CRC" } else { "LRC" };
     let mut out = Vec::new();
@@ -37,19 +75,19 @@ pub(super) fn judge_request(m: &Monitor, f: &TapFrame, judgement: &Judgement) ->
         severity,
         text,
     };
-    if f.status != FrameStatus::Valid {
-        let (kind, what) = match f.status {
+    if status != FrameStatus::Valid {
+        let (kind, what) = match status {
             FrameStatus::Incomplete => (
                 "incomplete-request",
                 "a frame with a silence over t1.5 inside it (or abandoned)".to_string(),
             ),
             _ => (
-                if judge::body_of(mode, &f.bytes).is_some() {
+                if judge::body_of(mode, bytes).is_some() {
                     "bad-checksum"
                 } else {
                     "malformed"
                 },
-                judge::explain_invalid(mode, &f.bytes),
+                judge::explain_invalid(mode, bytes),
             ),
         };
         out.push(master(
@@ -57,31 +95,12 @@ pub(super) fn judge_request(m: &Monitor, f: &TapFrame, judgement: &Judgement) ->
             Severity::Deviation,
             format!(
                 "the master sent {}: {what}; Modbus over Serial Line V1.02, 2.5.1.2 ({check})",
-                judge::show(mode, &f.bytes)
+                judge::show(mode, bytes)
             ),
         ));
         return out;
     }
-    if mode == Mode::Rtu {
-        if let Some(s) = f.silence_before {
-            let line = m.cfg.line;
-            let t35 = Duration::from_micros(line.t3_5_us());
-            // One character of tolerance: the tap's clock reads the pieces a little late.
-            let tolerance = Duration::from_micros(line.char_time_us());
-            if s + tolerance < t35 {
-                out.push(master(
-                    "no-t3.5",
-                    Severity::Deviation,
-                    format!(
-                        "the request began {} us after the previous frame, sooner than t3.5 ({} us, less one character of tolerance); Modbus over Serial Line V1.02, 2.5.1.1",
-                        s.as_micros(),
-                        t35.as_micros()
-                    ),
-                ));
-            }
-        }
-    }
-    let Some(body) = judge::body_of(mode, &f.bytes) else {
+    let Some(body) = judge::body_of(mode, bytes) else {
         return out;
     };
     let (address, fc) = (body[0], body[1]);
@@ -97,13 +116,17 @@ pub(super) fn judge_request(m: &Monitor, f: &TapFrame, judgement: &Judgement) ->
     // What a drive of the bus answers to this request addressed to itself: a broadcast or
     // a request to another node is judged as if it were addressed to one.
     let node = m.judged_as(address);
+    let other;
     let as_addressed = if address == node {
-        judgement.clone()
+        judgement
     } else {
         let mut b = body.clone();
         b[0] = node;
         match codec::frame_of_body(mode, &b) {
-            Ok(frame) => m.model.judge(node, mode, &frame),
+            Ok(frame) => {
+                other = m.model.judge(node, mode, &frame);
+                &other
+            }
             Err(_) => return out,
         }
     };

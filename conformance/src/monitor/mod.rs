@@ -12,20 +12,26 @@
 //! - [`stats`]: per-node counters and response-time histograms, in fixed memory.
 //!
 //! State is bounded: the request under way, per node its statistics, one example of each
-//! kind of finding, and the register values the traffic has set (at most the model's
-//! map per node).
+//! kind of finding, the register values the traffic has set (at most the model's map per
+//! node), and the memos of exchanges judged (the `memo` module: a fixed number of
+//! entries, emptied when full), from which the same exchange seen again is judged without
+//! redoing the work (its timing is judged each time).
 
+mod exchange;
 pub mod frames;
 pub mod guess;
 mod judge_master;
 pub mod line_search;
 mod live;
+mod memo;
 pub mod replay;
 mod report;
+mod request;
 pub mod stats;
 pub mod tap;
 
 use std::collections::{BTreeMap, HashMap};
+use std::sync::Arc;
 use std::time::Duration;
 
 pub use frames::{EndedBy, FrameStatus, TapFrame};
@@ -37,8 +43,8 @@ pub use tap::{listen_for_mode, run, run_from, Ended, ReadOnlyPort, ReadOnlySeria
 use crate::codec::pdu::{function, Direction, Message};
 use crate::codec::timing::LineSettings;
 use crate::codec::Mode;
-use crate::judge::{self, Conversation, Judge, Severity, Timing, TimingRule, VerdictStatus};
-use crate::model::{DriveModel, Expectation, Fact, Judgement};
+use crate::judge::{self, Severity, TimingRule, VerdictStatus};
+use crate::model::{DriveModel, Fact, Judgement};
 use crate::runner::ExchangeRecord;
 use crate::transport::TransportError;
 
@@ -137,7 +143,7 @@ struct Pending {
     /// The side it came from, where the source knows.
     side: Option<bool>,
     silence_before: Option<Duration>,
-    judgement: Judgement,
+    judgement: Arc<Judgement>,
     /// Bytes that came after it and are no frame (garbage before a reply).
     leading: Vec<u8>,
     leading_start: Option<Duration>,
@@ -193,9 +199,20 @@ pub struct Monitor {
     /// The earliest the last broadcast heard can have ended, until the next request.
     last_broadcast_end: Option<Duration>,
     /// Per node: the last request's bytes and whether it was answered (retries).
-    last_request: HashMap<u8, (Vec<u8>, Duration, bool)>,
+    last_request: HashMap<u8, (Vec<u8>, Duration, bool), memo::FastHash>,
     /// Register values that writes seen on the bus set, per node.
-    written: HashMap<(u8, u16), u16>,
+    written: HashMap<(u8, u16), u16, memo::FastHash>,
+    /// The fact values learnt from writes rest on.
+    written_fact: Fact,
+    /// Whether the memos below are used (see [`Monitor::set_memo`]).
+    memo: bool,
+    /// Requests judged: the model's judgement and the master's findings not on timing.
+    requests_memo: memo::Memo<(Arc<Judgement>, Vec<Issue>)>,
+    /// Exchanges judged: the drive's side, without timing.
+    verdicts_memo: memo::Memo<Arc<judge::Verdict>>,
+    /// Scratch: a memo key, the values known for a read.
+    key: Vec<u8>,
+    known: Vec<Option<u16>>,
     nodes: BTreeMap<u8, NodeStats>,
     examples: BTreeMap<(u8, Side, &'static str), Example>,
     frames: u64,
@@ -214,7 +231,16 @@ pub struct Monitor {
     notices_taken: usize,
     /// Whether live lines are made (nobody reads them with `--quiet` and no `--log`).
     live: bool,
+    /// The framer's output buffer, kept between calls.
+    framed: Vec<TapFrame>,
+    /// Tests: every exchange as counted.
+    #[cfg(test)]
+    trail: Vec<Counted>,
 }
+
+/// Tests: one exchange as counted (node, status, findings, citations, exchange).
+#[cfg(test)]
+type Counted = (u8, VerdictStatus, Vec<Issue>, Vec<String>, ExchangeRecord);
 
 /// Replies read together with their request, at least, before the monitor says the tap
 /// delivers bytes in slices (a USB adapter's latency timer), when half or more are.
@@ -236,8 +262,16 @@ impl Monitor {
             pending: None,
             last_frame_end: None,
             last_broadcast_end: None,
-            last_request: HashMap::new(),
-            written: HashMap::new(),
+            last_request: HashMap::with_hasher(memo::FastHash::random()),
+            written: HashMap::with_hasher(memo::FastHash::random()),
+            written_fact: Fact::documented(
+                "a write seen on the bus set it, and a parameter holds what was written (the manual's 06H/10H)",
+            ),
+            memo: true,
+            requests_memo: memo::Memo::new(),
+            verdicts_memo: memo::Memo::new(),
+            key: Vec::new(),
+            known: Vec::new(),
             nodes: BTreeMap::new(),
             examples: BTreeMap::new(),
             frames: 0,
@@ -250,6 +284,9 @@ impl Monitor {
             notices: Vec::new(),
             notices_taken: 0,
             live: true,
+            framed: Vec::new(),
+            #[cfg(test)]
+            trail: Vec::new(),
         })
     }
 
@@ -269,6 +306,13 @@ impl Monitor {
         self.live = live;
     }
 
+    /// Whether to keep what judging an exchange found, to judge the same exchange again
+    /// from it (default: yes; see the `memo` module). The verdicts are the same either
+    /// way: off, every exchange is judged from scratch (differential tests, measurements).
+    pub fn set_memo(&mut self, on: bool) {
+        self.memo = on;
+    }
+
     /// The side the next bytes come from, where the source knows it (a capture's
     /// direction flags; `None`, a tap, the default): frames from the side of a request
     /// are never its reply, frames from the other side are.
@@ -283,26 +327,32 @@ impl Monitor {
         }
         self.tick(at);
         self.bytes += bytes.len() as u64;
-        let mut out = Vec::new();
+        let mut out = std::mem::take(&mut self.framed);
         self.framer.push(at, bytes, &mut out);
-        for f in out {
-            self.on_frame(f);
-        }
+        self.on_frames(out);
     }
 
     /// Nothing came up to `now`: frames followed by t3.5 end, and a request whose window
     /// has passed is judged.
     pub fn idle(&mut self, now: Duration) {
         self.tick(now);
-        let mut out = Vec::new();
+        let mut out = std::mem::take(&mut self.framed);
         self.framer.idle(now, &mut out);
-        for f in out {
-            self.on_frame(f);
-        }
+        self.on_frames(out);
         if let Some(p) = &self.pending {
             if now.saturating_sub(p.end) > self.cfg.window {
                 self.close_unanswered(None);
             }
+        }
+    }
+
+    /// Judges the frames the framer gave, then keeps their buffer for the next call.
+    fn on_frames(&mut self, mut frames: Vec<TapFrame>) {
+        for f in frames.drain(..) {
+            self.on_frame(f);
+        }
+        if self.framed.is_empty() {
+            self.framed = frames;
         }
     }
 
@@ -499,490 +549,12 @@ impl Monitor {
         }
         self.on_request(f, since_previous);
     }
-
-    fn on_request(&mut self, f: TapFrame, since_previous: Option<Duration>) {
-        let mode = self.cfg.mode;
-        let body = judge::body_of(mode, &f.bytes);
-        let address = body.as_ref().map_or(0, |b| b[0]);
-        if f.status == FrameStatus::Valid {
-            if let Some(b) = &body {
-                // Functions 80H..FFH are exceptions: no master sends one.
-                let exception = b.len() >= 2 && b[1] & function::EXCEPTION_BIT != 0;
-                if exception
-                    || Message::parse_body(b, Direction::Request).is_err()
-                        && Message::parse_body(b, Direction::Response).is_ok()
-                {
-                    if since_previous.is_none() {
-                        // Its request, if any, came before listening began.
-                        self.notices.push(format!(
-                            "the first frame heard was a reply ({}): its request came before listening began, so it was not judged",
-                            judge::show(mode, &f.bytes)
-                        ));
-                        return;
-                    }
-                    self.unsolicited(f, since_previous, address);
-                    return;
-                }
-            }
-        }
-        let judged_as = self.judged_as(address);
-        let judgement = self.model.judge(judged_as, mode, &f.bytes);
-        let mut issues = judge_master::judge_request(self, &f, &judgement);
-        let stats = self.nodes.entry(address).or_default();
-        stats.requests += 1;
-        let crc_error = f.status != FrameStatus::Valid && body.is_some();
-        if crc_error {
-            stats.crc_errors += 1;
-        }
-        // After a broadcast the master waits the turnaround delay before its next
-        // request: the drives are still acting on it, and none answers to say so. The
-        // silence is the longest the reads allow (from the earliest the broadcast can
-        // have ended).
-        if let Some(broadcast_end) = self.last_broadcast_end.take() {
-            let gap = f.start.unwrap_or(f.end).saturating_sub(broadcast_end);
-            if gap < BROADCAST_TURNAROUND {
-                issues.push(Issue {
-                    side: Side::Master,
-                    kind: "broadcast-turnaround",
-                    severity: Severity::Observation,
-                    text: format!(
-                        "the next request began {:.1} ms after a broadcast, under the turnaround delay of {} ms; Modbus over Serial Line V1.02, 2.4.1 (the master waits a turnaround delay after a broadcast, typically 100 to 200 ms; the TECO manuals give none)",
-                        ms(gap),
-                        BROADCAST_TURNAROUND.as_millis()
-                    ),
-                });
-            }
-        }
-        if address == 0 && f.status == FrameStatus::Valid {
-            self.last_broadcast_end = Some(f.end_low);
-        }
-        let stats = self.nodes.entry(address).or_default();
-        let mut retry_after = None;
-        if let Some((last, at, answered)) = self.last_request.get(&address) {
-            if *last == f.bytes && !answered {
-                stats.retries += 1;
-                retry_after = Some(f.start.unwrap_or(f.end).saturating_sub(*at));
-                issues.push(Issue {
-                    side: Side::Master,
-                    kind: "retry",
-                    severity: Severity::Observation,
-                    text: format!(
-                        "sent again {:.1} ms after the first try, which got no reply",
-                        ms(retry_after.unwrap_or_default())
-                    ),
-                });
-            }
-        }
-        if f.bytes.len() <= crate::codec::MAX_ASCII_FRAME {
-            self.last_request
-                .insert(address, (f.bytes.clone(), f.end, false));
-        }
-        self.pending = Some(Pending {
-            address,
-            judged_as,
-            valid: f.status == FrameStatus::Valid,
-            bytes: f.bytes,
-            start: f.start,
-            end: f.end,
-            end_low: f.end_low,
-            side: f.side,
-            silence_before: f.silence_before,
-            judgement,
-            leading: Vec::new(),
-            leading_start: None,
-            issues,
-            retry_after,
-        });
-    }
-
-    /// A reply with no request under way: after the window, a second reply, or a reply
-    /// where none was asked for.
-    fn unsolicited(&mut self, f: TapFrame, since_previous: Option<Duration>, address: u8) {
-        let text = format!(
-            "a reply from node {address:02X} with no request under way ({}): {} = {}",
-            match since_previous {
-                Some(d) => format!("{:.1} ms after the previous frame", ms(d)),
-                None => "the first frame heard".to_string(),
-            },
-            judge::show(self.cfg.mode, &f.bytes),
-            judge::describe_reply(self.cfg.mode, &f.bytes)
-        );
-        let issue = Issue {
-            side: Side::Drive,
-            kind: judge::Kind::UnexpectedReply.key(),
-            severity: Severity::Deviation,
-            text,
-        };
-        let record = ExchangeRecord {
-            request: Vec::new(),
-            expected: None,
-            received: f.bytes.clone(),
-            reply: Some(f.bytes.clone()),
-            predicted: "no reply (no request under way)".to_string(),
-            actual: judge::describe_reply(self.cfg.mode, &f.bytes),
-            latency: None,
-        };
-        let line = self.line_for(
-            &f,
-            since_previous,
-            address,
-            None,
-            "-",
-            VerdictStatus::Deviation,
-            std::slice::from_ref(&issue),
-        );
-        let line = Line {
-            received: line.request.clone(),
-            request: Vec::new(),
-            ..line
-        };
-        self.account(address, &[issue], &record, &[], VerdictStatus::Deviation);
-        self.lines.push(line);
-    }
-
-    fn close_with_reply(&mut self, f: TapFrame, _since: Option<Duration>) {
-        let Some(p) = self.pending.take() else {
-            return;
-        };
-        self.watch_slices(f.start.is_none());
-        let mut received = p.leading.clone();
-        received.extend_from_slice(&f.bytes);
-        let first_byte = if p.leading.is_empty() {
-            f.start
-        } else {
-            p.leading_start
-        };
-        let timing = Timing {
-            request_end: Some(p.end),
-            request_end_earliest: Some(p.end_low),
-            first_byte,
-            last_byte: Some(f.end),
-            max_gap: f.max_gap,
-            silence_before: p.silence_before,
-            listened: f.end.saturating_sub(p.end),
-        };
-        let mut extra = Vec::new();
-        if is_copy(&p.bytes, &f.bytes) {
-            extra.push(format!(
-                "a copy of the request, taken as its reply by order and time ({} after it, within the {} ms window)",
-                first_byte.map_or("in the same piece from the tap".to_string(), |t| format!("{:.1} ms", ms(t.saturating_sub(p.end)))),
-                self.cfg.window.as_millis()
-            ));
-        }
-        let reply = &received[received.len() - f.bytes.len()..];
-        self.judge_exchange(p, &received, Some(reply), timing, f.status, extra, true);
-    }
-
-    /// Closes the request under way with nothing (valid) after it: `early` is set where
-    /// the master's next request cut the window short.
-    fn close_unanswered(&mut self, early: Option<Duration>) {
-        let Some(mut p) = self.pending.take() else {
-            return;
-        };
-        let limit = self.timing_rule().response_limit(&self.model);
-        let mut cut_short = false;
-        if let Some(after) = early {
-            if p.judgement.expect.replies() && after < limit && p.leading.is_empty() {
-                cut_short = true;
-                p.issues.push(Issue {
-                    side: Side::Master,
-                    kind: "request-before-reply",
-                    severity: Severity::Deviation,
-                    text: format!(
-                        "the next request began {:.1} ms after this one, before the drive's reply was due (manual: {} ms; limit {:.1} ms): the master did not wait for the reply",
-                        ms(after),
-                        self.model.limits.response_time_ms,
-                        ms(limit)
-                    ),
-                });
-            }
-        }
-        let listened = early.unwrap_or(self.cfg.window);
-        let timing = Timing {
-            request_end: Some(p.end),
-            request_end_earliest: Some(p.end_low),
-            first_byte: if p.leading.is_empty() {
-                None
-            } else {
-                p.leading_start
-            },
-            last_byte: None,
-            max_gap: None,
-            silence_before: p.silence_before,
-            listened,
-        };
-        let leading = std::mem::take(&mut p.leading);
-        let status = if leading.is_empty() {
-            FrameStatus::Valid
-        } else {
-            FrameStatus::Corrupt
-        };
-        let notes = if cut_short {
-            vec!["the drive's reply not judged: the master did not leave it time".to_string()]
-        } else {
-            Vec::new()
-        };
-        self.judge_exchange(p, &leading, None, timing, status, notes, !cut_short);
-    }
-
-    #[allow(clippy::too_many_arguments)]
-    fn judge_exchange(
-        &mut self,
-        p: Pending,
-        received: &[u8],
-        reply: Option<&[u8]>,
-        timing: Timing,
-        reply_status: FrameStatus,
-        notes: Vec<String>,
-        judge_drive: bool,
-    ) {
-        let mode = self.cfg.mode;
-        let leading_len = reply.map_or(received.len(), |r| received.len() - r.len());
-        let conv = Conversation {
-            mode,
-            node: p.judged_as,
-            request: &p.bytes,
-            received,
-            leading: &received[..leading_len.min(received.len())],
-            reply,
-            trailing: &[],
-            timing,
-            retries: 0,
-            link_notes: &[],
-        };
-        let known = self.known_values(&p);
-        let judge = Judge::new(&self.model).with_timing(self.timing_rule());
-        // As `check` judges: where the drive did what a decision of the model says (the
-        // manual is silent), that is an observation.
-        let verdict = judge.verdict_on(
-            &p.judgement,
-            &conv,
-            known.as_ref().map(|(v, f)| (v.as_slice(), f)),
-        );
-        let mut issues = p.issues.clone();
-        for (kind, f) in verdict.found().filter(|_| judge_drive) {
-            issues.push(Issue {
-                side: Side::Drive,
-                kind: kind.key(),
-                severity: f.severity,
-                text: f.text.clone(),
-            });
-        }
-        let (node, status) = {
-            let status = worst(&issues);
-            (p.address, status)
-        };
-        {
-            let stats = self.nodes.entry(node).or_default();
-            stats.exchanges += 1;
-            if !received.is_empty() {
-                stats.replies += u64::from(reply.is_some());
-            }
-            if received.is_empty() && p.judgement.expect.replies() && judge_drive {
-                stats.timeouts += 1;
-            }
-            if reply_status != FrameStatus::Valid
-                || verdict.kinds.contains(&judge::Kind::BadChecksum)
-            {
-                stats.crc_errors += u64::from(verdict.kinds.contains(&judge::Kind::BadChecksum));
-            }
-            if let (Some(rt), true) = (timing.response_time(), reply.is_some()) {
-                stats.response.record(rt);
-            }
-        }
-        if reply.is_some() || received.is_empty() {
-            if let Some(e) = self.last_request.get_mut(&p.address) {
-                e.2 = reply.is_some() || !p.judgement.expect.replies();
-            }
-        }
-        self.learn(&p, reply, status);
-        let record = ExchangeRecord {
-            request: p.bytes.clone(),
-            expected: verdict.expected.clone(),
-            received: received.to_vec(),
-            reply: reply.map(<[u8]>::to_vec),
-            predicted: verdict.predicted.clone(),
-            actual: verdict.actual.clone(),
-            latency: timing.response_time().filter(|_| !received.is_empty()),
-        };
-        let rt = timing.response_time().filter(|_| !received.is_empty());
-        let checksum = match (p.valid, reply_status, received.is_empty()) {
-            (false, _, _) => "CRC bad (request)",
-            (true, FrameStatus::Valid, _) => "CRC ok",
-            (true, _, _) => "CRC bad (reply)",
-        };
-        let checksum = if mode == Mode::Ascii {
-            checksum.replace("CRC", "LRC")
-        } else {
-            checksum.to_string()
-        };
-        let req_frame = TapFrame {
-            bytes: p.bytes.clone(),
-            status: if p.valid {
-                FrameStatus::Valid
-            } else {
-                FrameStatus::Corrupt
-            },
-            ended_by: EndedBy::Silence,
-            start: p.start,
-            end: p.end,
-            end_low: p.end_low,
-            silence_before: p.silence_before,
-            max_gap: None,
-            side: p.side,
-        };
-        if !self.live {
-            self.account(node, &issues, &record, &verdict.citations, status);
-            return;
-        }
-        let mut line = self.line_for(
-            &req_frame,
-            p.silence_before,
-            p.address,
-            rt,
-            &checksum,
-            status,
-            &issues,
-        );
-        line.received = received.to_vec();
-        if let Some(r) = reply {
-            line.reply = Some(live::meaning(&self.model, mode, r, Direction::Response));
-        } else if !received.is_empty() {
-            line.reply = Some(judge::explain_invalid(mode, received));
-        }
-        line.notes.extend(notes);
-        if let Some(after) = p.retry_after {
-            line.notes
-                .push(format!("resend, {:.1} ms after the first try", ms(after)));
-        }
-        self.account(node, &issues, &record, &verdict.citations, status);
-        self.lines.push(line);
-    }
-
-    #[allow(clippy::too_many_arguments)]
-    fn line_for(
-        &self,
-        f: &TapFrame,
-        since_previous: Option<Duration>,
-        node: u8,
-        response: Option<Duration>,
-        checksum: &str,
-        status: VerdictStatus,
-        issues: &[Issue],
-    ) -> Line {
-        let mode = self.cfg.mode;
-        let function = judge::body_of(mode, &f.bytes).map_or(0, |b| b[1]);
-        Line {
-            at: f.start.unwrap_or(f.end),
-            since_previous,
-            node,
-            function,
-            meaning: live::meaning(&self.model, mode, &f.bytes, Direction::Request),
-            reply: None,
-            checksum: checksum.to_string(),
-            response,
-            status,
-            issues: issues
-                .iter()
-                .map(|i| format!("{}.{}", i.side.key(), i.kind))
-                .collect(),
-            notes: Vec::new(),
-            request: f.bytes.clone(),
-            received: Vec::new(),
-        }
-    }
-
-    /// Counts an exchange's findings on `node`, keeping the first example of each kind.
-    fn account(
-        &mut self,
-        node: u8,
-        issues: &[Issue],
-        record: &ExchangeRecord,
-        citations: &[String],
-        status: VerdictStatus,
-    ) {
-        let stats = self.nodes.entry(node).or_default();
-        match status {
-            VerdictStatus::Deviation => stats.deviations += 1,
-            VerdictStatus::Observation => stats.observations += 1,
-            VerdictStatus::Pass => {}
-        }
-        for i in issues {
-            *stats
-                .errors
-                .entry(format!("{}.{}", i.side.key(), i.kind))
-                .or_default() += 1;
-            let e = self
-                .examples
-                .entry((node, i.side, i.kind))
-                .or_insert_with(|| Example {
-                    severity: i.severity,
-                    count: 0,
-                    text: i.text.clone(),
-                    citations: citations.to_vec(),
-                    exchange: record.clone(),
-                });
-            e.count += 1;
-            e.severity = e.severity.max(i.severity);
-        }
-    }
-
-    /// Values a read must return because a write seen on the bus set them (and nothing
-    /// else is known): never assumed, learnt from the traffic.
-    fn known_values(&self, p: &Pending) -> Option<(Vec<Option<u16>>, Fact)> {
-        let Expectation::Read(plan) = &p.judgement.expect else {
-            return None;
-        };
-        let values: Vec<Option<u16>> = plan
-            .registers
-            .iter()
-            .map(|r| self.written.get(&(p.address, *r)).copied())
-            .collect();
-        values.iter().any(Option::is_some).then(|| {
-            (
-                values,
-                Fact::documented(
-                    "a write seen on the bus set it, and a parameter holds what was written (the manual's 06H/10H)",
-                ),
-            )
-        })
-    }
-
-    /// Learns register values from writes the drive confirmed (or broadcast writes).
-    fn learn(&mut self, p: &Pending, reply: Option<&[u8]>, status: VerdictStatus) {
-        let Some(plan) = &p.judgement.write else {
-            return;
-        };
-        let confirmed = reply.is_some() && status != VerdictStatus::Deviation;
-        let broadcast = p.address == 0;
-        if !(confirmed || broadcast) {
-            return;
-        }
-        // Values the drive changes itself (status, monitor registers) are not learnt:
-        // only writable parameters and commands keep what was written.
-        let targets: Vec<u8> = if broadcast {
-            self.nodes.keys().copied().filter(|n| *n != 0).collect()
-        } else {
-            vec![p.address]
-        };
-        for (r, v) in &plan.writes {
-            if self
-                .model
-                .lookup(*r)
-                .is_some_and(|i| i.access == crate::model::Access::ReadWrite)
-            {
-                for n in &targets {
-                    self.written.insert((*n, *r), *v);
-                }
-            }
-        }
-    }
 }
 
 /// Whether `frame` answers `request`: the same address or not, the request's function
 /// (or its exception), and a reply's shape.
 fn is_reply_to(mode: Mode, request: &[u8], frame: &[u8]) -> bool {
-    let (Some(req), Some(rep)) = (judge::body_of(mode, request), judge::body_of(mode, frame))
+    let (Some(req), Some(rep)) = (judge::body_cow(mode, request), judge::body_cow(mode, frame))
     else {
         return false;
     };

@@ -6,7 +6,7 @@ use std::time::Duration;
 use super::*;
 use crate::codec::pdu::{Pdu, Registers};
 use crate::codec::timing::Parity;
-use crate::model::Access;
+use crate::model::{Access, Expectation};
 
 fn ms(n: u64) -> Duration {
     Duration::from_millis(n)
@@ -714,4 +714,216 @@ fn without_live_lines_the_verdicts_are_the_same() {
         "{k:?}"
     );
     assert_eq!(heard(false), (k, n, d, 0));
+}
+
+/// Every kind of traffic the monitor judges, `cycles` times over (the same exchanges
+/// again, as a bus polls them; the values written change from cycle to cycle, so that the
+/// reads after them are judged against other known values): normal polling, writes that
+/// change later reads, right and wrong exceptions, wrong values, late replies, bad CRCs on
+/// either side, garbage before a reply, gaps inside a reply, replies to broadcasts, from
+/// the wrong node and for a node not on the bus, no reply (within the window and cut
+/// short by the next request) and a retry, a request before the reply was due, no t3.5,
+/// an unserved function, a reply with no request.
+fn varied_traffic(cycles: u64) -> Vec<(u64, Vec<u8>)> {
+    let mut out = Vec::new();
+    for c in 0..cycles {
+        let t = c * 6000;
+        let v = 100 + (c % 3) as u16;
+        let mut bad_reply = values(1, &[7]);
+        let n = bad_reply.len();
+        bad_reply.swap(n - 1, n - 2);
+        let mut bad_request = read(1, 0x2520, 1);
+        bad_request[7] ^= 0xFF;
+        let mut garbage = vec![0xFF, 0x00];
+        garbage.extend(values(1, &[7]));
+        let gappy = values(1, &[0x0102, 0x0304]);
+        let steps: Vec<(u64, Vec<u8>)> = vec![
+            (0, read(1, 0x2520, 1)),
+            (15, values(1, &[0])),
+            (100, write(1, 0x2502, v)),
+            (112, write(1, 0x2502, v)),
+            (200, read(1, 0x2502, 1)),
+            // Right in one cycle of two, wrong in the other.
+            (215, values(1, &[if c % 2 == 0 { v } else { v + 1 }])),
+            (300, read(1, 0x2530, 1)),
+            (315, exception(1, 3, if c % 2 == 0 { 2 } else { 3 })),
+            (400, read(1, 0x2520, 1)),
+            (700, values(1, &[0])),
+            (1000, read(1, 0x2520, 1)),
+            (1015, bad_reply),
+            (1100, read(1, 0x2520, 1)),
+            (1115, garbage),
+            (1200, write(0, 0x2502, v)),
+            (1212, write(0, 0x2502, v)),
+            (1500, read(1, 0x2520, 1)),
+            (1515, values(2, &[1])),
+            (1700, read(3, 0x2520, 1)),
+            (1715, values(3, &[1])),
+            (1900, read(1, 0x2521, 1)),
+            (2950, read(1, 0x2521, 1)),
+            (2965, values(1, &[1])),
+            (3500, read(1, 0x2520, 1)),
+            (3502, write(1, 0x2502, v)),
+            (3514, write(1, 0x2502, v)),
+            (3600, read(1, 0x2520, 1)),
+            (3615, values(1, &[0])),
+            (3616, read(1, 0x2520, 1)),
+            (3631, values(1, &[0])),
+            (3800, bad_request),
+            (4000, values(1, &[5])),
+            (
+                4200,
+                frame(
+                    Mode::Rtu,
+                    1,
+                    Pdu::Other {
+                        function: 0x04,
+                        data: &[0, 0, 0, 1],
+                    },
+                ),
+            ),
+            (4215, exception(1, 4, 1)),
+            (4400, read(1, 0x2520, 2)),
+            (4415, gappy[..3].to_vec()),
+            (4423, gappy[3..].to_vec()),
+            (4600, read(1, 0x251F, 2)),
+            (4615, exception(1, 3, 2)),
+            // No reply, and the next request after the reply was due but within the
+            // window: how long the monitor listened differs from cycle to cycle.
+            (5000, read(1, 0x2521, 1)),
+            (5300 + 10 * (c % 2), read(1, 0x2520, 1)),
+            (5315 + 10 * (c % 2), values(1, &[0])),
+        ];
+        out.extend(steps.into_iter().map(|(dt, f)| (t + dt, f)));
+    }
+    out
+}
+
+/// Everything a monitor reports, for comparing two: the live lines, every exchange as
+/// counted (its findings with their texts, its citations, the exchange as an example
+/// would keep it), the per-node statistics, the examples, the notices and the results.
+fn everything(m: &Monitor, lines: &[Line]) -> String {
+    format!(
+        "{lines:#?}\n{:#?}\n{:#?}\n{:#?}\n{:#?}\n{:#?}\n{}",
+        m.trail,
+        m.nodes(),
+        m.examples(),
+        m.notices(),
+        m.results(),
+        m.deviations()
+    )
+}
+
+/// The memo changes no verdict: the same traffic judged with it and without gives the
+/// same lines, statistics, findings, citations, examples and results.
+#[test]
+fn the_memo_changes_no_verdict() {
+    let steps = varied_traffic(6);
+    let frames: Vec<(u64, &[u8])> = steps.iter().map(|(t, f)| (*t, &f[..])).collect();
+    for live in [true, false] {
+        let judged = |memo: bool| {
+            let mut m = monitor(Mode::Rtu, &[1]);
+            m.set_live(live);
+            m.set_memo(memo);
+            let lines = run(&mut m, &frames);
+            let held = (m.requests_memo.len(), m.verdicts_memo.len());
+            (
+                everything(&m, &lines),
+                kinds(&m, 1),
+                held,
+                m.nodes()[&1].exchanges,
+            )
+        };
+        let (with, k, held, exchanges) = judged(true);
+        let (without, _, none, _) = judged(false);
+        assert_eq!(none, (0, 0));
+        // The memo was used: far fewer kinds of exchange than exchanges.
+        assert!(held.0 > 0 && held.1 > 0, "{held:?}");
+        assert!((held.1 as u64) < exchanges / 2, "{held:?} {exchanges}");
+        // The traffic is as varied as it says.
+        for want in [
+            "drive.wrong-value",
+            "drive.wrong-exception",
+            "drive.wrong-address",
+            "drive.late-reply",
+            "drive.bad-checksum",
+            "drive.extra-bytes",
+            "drive.no-reply",
+            "drive.unexpected-reply",
+            "drive.decision",
+            "master.no-t3.5",
+            "master.retry",
+            "master.request-before-reply",
+            "master.bad-checksum",
+            "master.function-not-served",
+        ] {
+            assert!(k.contains(&want.to_string()), "{want} not in {k:?}");
+        }
+        assert!(with == without, "live {live}:\n{with}\n---\n{without}");
+    }
+    // ASCII too.
+    let req = frame(
+        Mode::Ascii,
+        1,
+        Pdu::ReadRequest {
+            start: 0x2530,
+            count: 1,
+        },
+    );
+    let ok = frame(
+        Mode::Ascii,
+        1,
+        Pdu::Exception {
+            function: 3,
+            code: 2,
+        },
+    );
+    let wrong = frame(
+        Mode::Ascii,
+        1,
+        Pdu::Exception {
+            function: 3,
+            code: 3,
+        },
+    );
+    let mut bad = ok.clone();
+    let n = bad.len();
+    bad.swap(n - 3, n - 4);
+    let ascii: Vec<(u64, &[u8])> = (0..5u64)
+        .flat_map(|c| {
+            [
+                (c * 1000, &req[..]),
+                (c * 1000 + 40, &ok[..]),
+                (c * 1000 + 200, &req[..]),
+                (c * 1000 + 240, &wrong[..]),
+                (c * 1000 + 400, &req[..]),
+                (c * 1000 + 440, &bad[..]),
+            ]
+        })
+        .collect();
+    let judged = |memo: bool| {
+        let mut m = monitor(Mode::Ascii, &[1]);
+        m.set_memo(memo);
+        let lines = run(&mut m, &ascii);
+        everything(&m, &lines)
+    };
+    assert!(judged(true) == judged(false));
+}
+
+/// The memos stay bounded however many kinds of exchange the bus carries.
+#[test]
+fn the_memo_stays_bounded() {
+    let mut m = monitor(Mode::Rtu, &[1]);
+    let r = read(1, 0x2520, 1);
+    let n = memo::MEMO_ENTRIES as u64 + 500;
+    for i in 0..n {
+        m.feed(ms(i * 50), &r);
+        // A different value each time: a different exchange.
+        m.feed(ms(i * 50 + 15), &values(1, &[i as u16]));
+        assert!(m.verdicts_memo.len() <= memo::MEMO_ENTRIES);
+    }
+    m.finish();
+    assert_eq!(m.nodes()[&1].exchanges, n);
+    assert!(m.verdicts_memo.len() <= memo::MEMO_ENTRIES);
+    assert_eq!(m.requests_memo.len(), 1);
 }
