@@ -83,7 +83,27 @@ pub fn guess_mode(data: &[u8]) -> Result<super::guess::Guess, ReplayError> {
 pub fn replay(
     data: &[u8],
     monitor: &mut Monitor,
+    on_line: impl FnMut(&Line),
+) -> Result<Replayed, ReplayError> {
+    replay_with(data, monitor, on_line, true)
+}
+
+/// [`replay`] feeding each packet in two pieces (the first byte, then the rest), as it
+/// did before [`Monitor::feed_packet`]: the tests hold the two to the same verdicts.
+#[cfg(test)]
+pub(crate) fn replay_in_two_pieces(
+    data: &[u8],
+    monitor: &mut Monitor,
+    on_line: impl FnMut(&Line),
+) -> Result<Replayed, ReplayError> {
+    replay_with(data, monitor, on_line, false)
+}
+
+fn replay_with(
+    data: &[u8],
+    monitor: &mut Monitor,
     mut on_line: impl FnMut(&Line),
+    whole: bool,
 ) -> Result<Replayed, ReplayError> {
     let reader = Reader::new(data)?;
     let char = Duration::from_micros(monitor.config().line.char_time_us());
@@ -116,9 +136,13 @@ pub fn replay(
         // measured to it), the rest when the packet's last byte did: no silence inside a
         // packet can be proven, and the framer needs no byte-by-byte clock for that.
         let end = first + char * bytes.len() as u32;
-        let (head, rest) = bytes.split_at(1.min(bytes.len()));
-        monitor.feed(first + char, head);
-        monitor.feed(end, rest);
+        if whole {
+            monitor.feed_packet(first + char, end, bytes);
+        } else {
+            let (head, rest) = bytes.split_at(1.min(bytes.len()));
+            monitor.feed(first + char, head);
+            monitor.feed(end, rest);
+        }
         for l in monitor.take_lines() {
             on_line(&l);
         }
