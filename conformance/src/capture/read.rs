@@ -226,7 +226,7 @@ pub struct Reader<'a> {
 }
 
 fn u16_at(d: &[u8], at: usize, big: bool) -> u16 {
-    let b = [d[at], d[at + 1]];
+    let b: [u8; 2] = d[at..at + 2].try_into().unwrap_or_default();
     if big {
         u16::from_be_bytes(b)
     } else {
@@ -235,7 +235,7 @@ fn u16_at(d: &[u8], at: usize, big: bool) -> u16 {
 }
 
 fn u32_at(d: &[u8], at: usize, big: bool) -> u32 {
-    let b = [d[at], d[at + 1], d[at + 2], d[at + 3]];
+    let b: [u8; 4] = d[at..at + 4].try_into().unwrap_or_default();
     if big {
         u32::from_be_bytes(b)
     } else {
@@ -249,6 +249,10 @@ fn pad4(n: u64) -> u64 {
 
 /// `ts` in units of `tsresol` (pcapng: bit 7 clear, 10^-n s; set, 2^-n s) to ns.
 fn to_nanos(ts: u64, tsresol: u8, tsoffset: i64) -> u64 {
+    // The usual case (a power of ten up to ns, no offset) in u64: the same, saturated.
+    if tsoffset == 0 && tsresol <= 9 {
+        return ts.saturating_mul(10u64.pow(9 - u32::from(tsresol)));
+    }
     let n = u32::from(tsresol & 0x7F);
     let ns: u128 = if tsresol & 0x80 == 0 {
         if n <= 9 {
