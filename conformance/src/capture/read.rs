@@ -334,6 +334,39 @@ fn options(
     Ok(o)
 }
 
+/// A reader's knowledge of its file, between two parts of it (see
+/// [`Reader::into_state`]).
+#[derive(Debug)]
+pub struct ReaderState {
+    format: Format,
+}
+
+impl ReadError {
+    /// Whether the bytes ended inside a block, record or header (more of the file may
+    /// hold the rest).
+    pub fn is_truncated(&self) -> bool {
+        matches!(self, ReadError::Truncated { .. })
+    }
+
+    /// The same fault in a part of the file that begins `base` bytes into it: its
+    /// offset counted from the file's start.
+    pub fn at_base(self, base: u64) -> ReadError {
+        let mut e = self;
+        match &mut e {
+            ReadError::NotACapture { .. } => {}
+            ReadError::Truncated { offset, .. }
+            | ReadError::BadLength { offset, .. }
+            | ReadError::LengthMismatch { offset, .. }
+            | ReadError::BadByteOrder { offset, .. }
+            | ReadError::Version { offset, .. }
+            | ReadError::UnknownInterface { offset, .. }
+            | ReadError::PacketTooLong { offset, .. }
+            | ReadError::BadOption { offset, .. } => *offset = offset.saturating_add(base),
+        }
+        e
+    }
+}
+
 impl<'a> Reader<'a> {
     /// Reads the file header of `data`, a whole pcap or pcapng file.
     pub fn new(data: &'a [u8]) -> Result<Self, ReadError> {
@@ -401,6 +434,26 @@ impl<'a> Reader<'a> {
             format,
             done: false,
         })
+    }
+
+    /// What the reader knows of the file (its format, byte order, interfaces), to go
+    /// on in a later part of it ([`Reader::resume`]) from the next block or record,
+    /// which is at this reader's [`offset`](Reader::offset) in its bytes.
+    pub fn into_state(self) -> ReaderState {
+        ReaderState {
+            format: self.format,
+        }
+    }
+
+    /// Reads on in `data`, the part of the file that begins at the next block or record
+    /// of the reader `state` came from.
+    pub fn resume(data: &'a [u8], state: ReaderState) -> Self {
+        Reader {
+            data,
+            pos: 0,
+            format: state.format,
+            done: false,
+        }
     }
 
     /// Whether the file is pcapng (else classic pcap).

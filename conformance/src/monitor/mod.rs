@@ -635,3 +635,5 @@ pub(crate) fn is_write(fc: u8) -> bool {
 mod tests;
 #[cfg(test)]
 mod tests_packet;
+#[cfg(test)]
+mod tests_stream;
