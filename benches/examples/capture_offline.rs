@@ -121,7 +121,7 @@ fn main() {
 
     // Ours: read the file and judge every exchange.
     let t0 = Instant::now();
-    let data = std::fs::read(&path).unwrap();
+    let file = std::fs::File::open(&path).unwrap();
     let mut mon = Monitor::new(
         DriveModel::builtin("f510").unwrap(),
         MonitorConfig {
@@ -136,7 +136,8 @@ fn main() {
     .unwrap();
     // As `monitor --capture-in --quiet` without --log: no live lines to make.
     mon.set_live(false);
-    let r = replay::replay(&data, &mut mon, |_| {}).unwrap();
+    // Read a part at a time, as `monitor --capture-in` does.
+    let r = replay::replay_from(file, &mut mon, |_| {}).unwrap();
     let ours = t0.elapsed();
     assert_eq!(r.packets, frames);
     let node = &mon.nodes()[&1];

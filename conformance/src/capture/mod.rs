@@ -33,7 +33,7 @@ pub mod write;
 #[cfg(test)]
 mod tests;
 
-pub use read::{Packet, ReadError, Reader};
+pub use read::{Packet, ReadError, Reader, ReaderState};
 pub use write::{Interface, PacketMeta, PcapngWriter, WriteError};
 
 /// Private-use link type 147 ("User 0"): RTU frames, as the open serial sniffers write

@@ -226,7 +226,7 @@ pub struct Reader<'a> {
 }
 
 fn u16_at(d: &[u8], at: usize, big: bool) -> u16 {
-    let b = [d[at], d[at + 1]];
+    let b: [u8; 2] = d[at..at + 2].try_into().unwrap_or_default();
     if big {
         u16::from_be_bytes(b)
     } else {
@@ -235,7 +235,7 @@ fn u16_at(d: &[u8], at: usize, big: bool) -> u16 {
 }
 
 fn u32_at(d: &[u8], at: usize, big: bool) -> u32 {
-    let b = [d[at], d[at + 1], d[at + 2], d[at + 3]];
+    let b: [u8; 4] = d[at..at + 4].try_into().unwrap_or_default();
     if big {
         u32::from_be_bytes(b)
     } else {
@@ -249,6 +249,10 @@ fn pad4(n: u64) -> u64 {
 
 /// `ts` in units of `tsresol` (pcapng: bit 7 clear, 10^-n s; set, 2^-n s) to ns.
 fn to_nanos(ts: u64, tsresol: u8, tsoffset: i64) -> u64 {
+    // The usual case (a power of ten up to ns, no offset) in u64: the same, saturated.
+    if tsoffset == 0 && tsresol <= 9 {
+        return ts.saturating_mul(10u64.pow(9 - u32::from(tsresol)));
+    }
     let n = u32::from(tsresol & 0x7F);
     let ns: u128 = if tsresol & 0x80 == 0 {
         if n <= 9 {
@@ -330,6 +334,39 @@ fn options(
     Ok(o)
 }
 
+/// A reader's knowledge of its file, between two parts of it (see
+/// [`Reader::into_state`]).
+#[derive(Debug)]
+pub struct ReaderState {
+    format: Format,
+}
+
+impl ReadError {
+    /// Whether the bytes ended inside a block, record or header (more of the file may
+    /// hold the rest).
+    pub fn is_truncated(&self) -> bool {
+        matches!(self, ReadError::Truncated { .. })
+    }
+
+    /// The same fault in a part of the file that begins `base` bytes into it: its
+    /// offset counted from the file's start.
+    pub fn at_base(self, base: u64) -> ReadError {
+        let mut e = self;
+        match &mut e {
+            ReadError::NotACapture { .. } => {}
+            ReadError::Truncated { offset, .. }
+            | ReadError::BadLength { offset, .. }
+            | ReadError::LengthMismatch { offset, .. }
+            | ReadError::BadByteOrder { offset, .. }
+            | ReadError::Version { offset, .. }
+            | ReadError::UnknownInterface { offset, .. }
+            | ReadError::PacketTooLong { offset, .. }
+            | ReadError::BadOption { offset, .. } => *offset = offset.saturating_add(base),
+        }
+        e
+    }
+}
+
 impl<'a> Reader<'a> {
     /// Reads the file header of `data`, a whole pcap or pcapng file.
     pub fn new(data: &'a [u8]) -> Result<Self, ReadError> {
@@ -397,6 +434,26 @@ impl<'a> Reader<'a> {
             format,
             done: false,
         })
+    }
+
+    /// What the reader knows of the file (its format, byte order, interfaces), to go
+    /// on in a later part of it ([`Reader::resume`]) from the next block or record,
+    /// which is at this reader's [`offset`](Reader::offset) in its bytes.
+    pub fn into_state(self) -> ReaderState {
+        ReaderState {
+            format: self.format,
+        }
+    }
+
+    /// Reads on in `data`, the part of the file that begins at the next block or record
+    /// of the reader `state` came from.
+    pub fn resume(data: &'a [u8], state: ReaderState) -> Self {
+        Reader {
+            data,
+            pos: 0,
+            format: state.format,
+            done: false,
+        }
     }
 
     /// Whether the file is pcapng (else classic pcap).

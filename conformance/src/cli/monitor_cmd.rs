@@ -225,12 +225,15 @@ pub fn run(args: MonitorArgs) -> anyhow::Result<ExitCode> {
     };
     let (mode, mon, line, source, ended) = match (&args.port, &args.capture_in) {
         (_, Some(path)) => {
-            let data = std::fs::read(path)
-                .with_context(|| format!("cannot read the capture {}", path.display()))?;
+            // Read a part at a time (a buffer that stays in the cache), not whole.
+            let open = || {
+                std::fs::File::open(path)
+                    .with_context(|| format!("cannot read the capture {}", path.display()))
+            };
             let mode = match asked {
                 Some(m) => m,
                 None => {
-                    let m = told(monitor::replay::guess_mode(&data)?, line)?;
+                    let m = told(monitor::replay::guess_mode_from(open()?)?, line)?;
                     out.say(monitor::Said::Notice(&format!(
                         "--mode auto: {m} (two valid {m} frames at the start of the capture)"
                     )));
@@ -243,8 +246,10 @@ pub fn run(args: MonitorArgs) -> anyhow::Result<ExitCode> {
                 )));
             }
             let mut mon = new_monitor(mode, line)?;
-            let r = monitor::replay::replay(&data, &mut mon, |l| out.say(monitor::Said::Line(l)))
-                .with_context(|| format!("cannot judge the capture {}", path.display()))?;
+            let r = monitor::replay::replay_from(open()?, &mut mon, |l| {
+                out.say(monitor::Said::Line(l))
+            })
+            .with_context(|| format!("cannot judge the capture {}", path.display()))?;
             let ended = match &r.stopped {
                 Some(e) => {
                     eprintln!(

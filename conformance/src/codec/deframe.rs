@@ -177,6 +177,12 @@ impl RtuDeframer {
         self.end + self.garbage.len
     }
 
+    /// Whether nothing is held and no burst or broken frame is under way: the next bytes
+    /// start afresh whatever their time.
+    pub fn is_clear(&self) -> bool {
+        self.end == 0 && self.garbage.len == 0 && !self.overflow && !self.broken
+    }
+
     /// With [`RtuFraming::ByLength`]: whether the buffered bytes begin a frame whose length
     /// the function code gives (or will give) and whose rest has not arrived yet, so that
     /// the deframer is waiting for bytes rather than for a silence.

@@ -161,6 +161,12 @@ pub struct TapFramer {
     char_us: u64,
     t15_us: u64,
     t35_us: u64,
+    /// Set by [`TapFramer::push_packet`] where feeding its packet in two pieces would
+    /// have cut the first byte off as a block of its own (the rest came over t3.5 after
+    /// it) and held it as a carry: the deframer holds the whole packet instead, read at
+    /// this time (us). Until the block is closed, or bytes join it (see
+    /// [`TapFramer::split_first_byte`]), both ways give the same frames.
+    split_first: Option<u64>,
 }
 
 impl TapFramer {
@@ -187,6 +193,7 @@ impl TapFramer {
             char_us: line.char_time_us(),
             t15_us: line.t1_5_us(),
             t35_us: line.t3_5_us(),
+            split_first: None,
         }
     }
 
@@ -233,6 +240,126 @@ impl TapFramer {
         self.last_poll = Some(self.last_poll.map_or(at, |p| p.max(at)));
     }
 
+    /// Feeds one whole packet from a capture: its first byte arrived at `first_at`, its
+    /// last at `end_at`. The frames are those of `push(first_at, &bytes[..1])` then
+    /// `push(end_at, &bytes[1..])` (response times are measured to the first byte, the
+    /// packet ends when its last byte came), without cutting the packet in two and
+    /// joining it again where nothing is held before it.
+    pub fn push_packet(
+        &mut self,
+        first_at: Duration,
+        end_at: Duration,
+        bytes: &[u8],
+        out: &mut Vec<TapFrame>,
+    ) {
+        if !self.takes_whole(bytes) {
+            let (head, rest) = bytes.split_at(1.min(bytes.len()));
+            self.push(first_at, head, out);
+            self.push(end_at, rest, out);
+            return;
+        }
+        // The first byte as `push` takes it (nothing is held: it closes nothing, expires
+        // no carry and starts the block).
+        let char = Duration::from_micros(self.char_us);
+        let low0 = self
+            .last_poll
+            .map_or(first_at, |p| (p + char).min(first_at));
+        let since0 = self.last_poll.map_or(first_at, |p| p.min(first_at));
+        let poll0 = self.last_poll.map_or(first_at, |p| p.max(first_at));
+        let n = bytes.len();
+        // The rest as `push` takes it.
+        let chars = Duration::from_micros(self.char_us * (n - 1) as u64);
+        let low1 = (poll0 + chars).min(end_at);
+        let since1 = poll0.min(end_at);
+        let (first_us, end_us) = (us(first_at), us(end_at));
+        let split = end_us.saturating_sub(first_us) >= self.t35_us;
+        if split {
+            // The deframer would close the first byte as a block of its own, and
+            // `close_block` would hold it as a carry (`starts_frame`: its address is one
+            // of a node, checked in `takes_whole`). Held whole instead.
+            self.rtu.push_at(end_us, bytes, |_| {});
+            self.split_first = Some(end_us);
+        } else {
+            self.rtu.push_at(first_us, &bytes[..1], |_| {});
+            self.rtu.push_at(end_us, &bytes[1..], |_| {});
+        }
+        self.before_block = self.last_low;
+        self.pieces.push(Piece {
+            end: 1,
+            at: first_at,
+            low: low0,
+            since: since0,
+            side: self.side,
+        });
+        self.pieces.push(Piece {
+            end: n,
+            at: end_at,
+            low: low1,
+            since: since1,
+            side: self.side,
+        });
+        self.held = n;
+        self.last_at = Some(end_at);
+        self.last_low = Some(low1);
+        self.last_poll = Some(poll0.max(end_at));
+    }
+
+    /// Whether [`TapFramer::push_packet`] takes `bytes` whole: RTU, nothing held (no
+    /// block, no carry), a packet of 2 to [`MAX_RTU_FRAME`] bytes whose first byte is a
+    /// node's address (or the broadcast address). Otherwise it feeds two pieces.
+    pub fn takes_whole(&self, bytes: &[u8]) -> bool {
+        self.mode == Mode::Rtu
+            && (2..=MAX_RTU_FRAME).contains(&bytes.len())
+            && bytes[0] <= 247
+            && self.rtu.is_clear()
+            && self.carry.is_none()
+            && self.held == 0
+            && self.pieces.is_empty()
+            && self.split_first.is_none()
+    }
+
+    /// Where [`TapFramer::push_packet`] held a packet whole that two pieces would have
+    /// left as a carried first byte and a block of the rest, and bytes now join that
+    /// block: the state two pieces leave is made, so that what follows (a block past a
+    /// frame's length, above all) goes as it would have.
+    fn split_first_byte(&mut self) {
+        let Some(end_us) = self.split_first.take() else {
+            return;
+        };
+        let mut whole = std::mem::take(&mut self.blocks);
+        whole.clear();
+        self.rtu.flush(|e| whole.extend_from_slice(e.bytes()));
+        if whole.is_empty() || self.pieces.len() != 2 {
+            // Not the state `push_packet` left (cannot happen): nothing to undo.
+            self.rtu.push_at(end_us, &whole, |_| {});
+            whole.clear();
+            self.blocks = whole;
+            return;
+        }
+        self.rtu.push_at(end_us, &whole[1..], |_| {});
+        let p0 = self.pieces.remove(0);
+        for p in &mut self.pieces {
+            p.end -= 1;
+        }
+        self.held = self.held.saturating_sub(1);
+        let mut bytes = std::mem::take(&mut self.spare_bytes);
+        bytes.clear();
+        bytes.push(whole[0]);
+        let mut pieces = std::mem::take(&mut self.spare_pieces);
+        pieces.clear();
+        pieces.push(p0);
+        self.carry = Some(Carry {
+            bytes,
+            pieces,
+            before: self.before_block,
+            begins: true,
+            last: p0.at,
+        });
+        self.before_block = Some(p0.low);
+        whole.clear();
+        self.blocks = whole;
+    }
+
     /// Tells the framer that nothing came up to `now`: an RTU block followed by t3.5 of
     /// silence ends.
     pub fn idle(&mut self, now: Duration, out: &mut Vec<TapFrame>) {
@@ -271,6 +398,7 @@ impl TapFramer {
                     let pieces = std::mem::take(&mut self.pieces);
                     let before = self.before_block.take();
                     self.held = 0;
+                    self.split_first = None;
                     self.close_block(&b, &pieces, before, EndedBy::EndOfInput, false, out);
                 }
                 if self.carry.is_some() {
@@ -298,6 +426,11 @@ impl TapFramer {
     ) {
         if self.rtu.pending() == 0 {
             self.expire_carry(since, out);
+        }
+        if let Some(end_us) = self.split_first {
+            if us(at).saturating_sub(end_us) < self.t35_us {
+                self.split_first_byte();
+            }
         }
         let (mut blocks, mut ends) = self.take_blocks();
         self.rtu
@@ -343,6 +476,7 @@ impl TapFramer {
         let mut pieces = std::mem::take(&mut self.pieces);
         let before = self.before_block.take();
         self.held = 0;
+        self.split_first = None;
         self.close_block(block, &pieces, before, by, true, out);
         pieces.clear();
         if self.pieces.is_empty() {

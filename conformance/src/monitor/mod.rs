@@ -332,6 +332,26 @@ impl Monitor {
         self.on_frames(out);
     }
 
+    /// One whole packet from a capture: its first byte arrived at `first_byte_at`, its
+    /// last at `end_at`. The same as `feed(first_byte_at, &bytes[..1])` then
+    /// `feed(end_at, &bytes[1..])` (response times measured to the first byte, the
+    /// packet's end at its last byte), framed whole where nothing is held before it.
+    pub fn feed_packet(&mut self, first_byte_at: Duration, end_at: Duration, bytes: &[u8]) {
+        if !self.framer.takes_whole(bytes) {
+            let (head, rest) = bytes.split_at(1.min(bytes.len()));
+            self.feed(first_byte_at, head);
+            self.feed(end_at, rest);
+            return;
+        }
+        self.tick(first_byte_at);
+        self.tick(end_at);
+        self.bytes += bytes.len() as u64;
+        let mut out = std::mem::take(&mut self.framed);
+        self.framer
+            .push_packet(first_byte_at, end_at, bytes, &mut out);
+        self.on_frames(out);
+    }
+
     /// Nothing came up to `now`: frames followed by t3.5 end, and a request whose window
     /// has passed is judged.
     pub fn idle(&mut self, now: Duration) {
@@ -613,3 +633,7 @@ pub(crate) fn is_write(fc: u8) -> bool {
 
 #[cfg(test)]
 mod tests;
+#[cfg(test)]
+mod tests_packet;
+#[cfg(test)]
+mod tests_stream;

@@ -13,7 +13,7 @@
 use std::time::Duration;
 
 use super::{Line, Monitor};
-use crate::capture::{self, ReadError, Reader};
+use crate::capture::{self, Packet, ReadError, Reader};
 
 /// Why a capture cannot be judged.
 #[derive(Debug, thiserror::Error)]
@@ -21,6 +21,9 @@ pub enum ReplayError {
     /// The file is not a capture, or is corrupt before its first packet.
     #[error(transparent)]
     Read(#[from] ReadError),
+    /// The file could not be read.
+    #[error("reading the capture: {0}")]
+    Io(#[from] std::io::Error),
     /// A packet under a link type that carries no serial line's bytes.
     #[error("packet {index} is on interface {interface} of link type {link_type}: expected a serial line's bytes under a user link type (147..=162) or SEL RTAC serial (250)")]
     LinkType {
@@ -85,29 +88,215 @@ pub fn replay(
     monitor: &mut Monitor,
     mut on_line: impl FnMut(&Line),
 ) -> Result<Replayed, ReplayError> {
-    let reader = Reader::new(data)?;
-    let char = Duration::from_micros(monitor.config().line.char_time_us());
-    let mut out = Replayed::default();
-    let mut origin: Option<u64> = None;
-    let mut last = 0u64;
-    for item in reader {
-        let p = match item {
-            Ok(p) => p,
+    let mut feeder = Feeder::new(monitor, true);
+    for item in Reader::new(data)? {
+        match item {
+            Ok(p) => feeder.packet(monitor, &p, &mut on_line)?,
             Err(e) => {
-                out.stopped = Some(e);
+                feeder.out.stopped = Some(e);
                 break;
             }
+        }
+    }
+    Ok(feeder.finish(monitor, &mut on_line))
+}
+
+/// [`replay`] feeding each packet in two pieces (the first byte, then the rest), as it
+/// did before [`Monitor::feed_packet`]: the tests hold the two to the same verdicts.
+#[cfg(test)]
+pub(crate) fn replay_in_two_pieces(
+    data: &[u8],
+    monitor: &mut Monitor,
+    mut on_line: impl FnMut(&Line),
+) -> Result<Replayed, ReplayError> {
+    let mut feeder = Feeder::new(monitor, false);
+    for item in Reader::new(data)? {
+        match item {
+            Ok(p) => feeder.packet(monitor, &p, &mut on_line)?,
+            Err(e) => {
+                feeder.out.stopped = Some(e);
+                break;
+            }
+        }
+    }
+    Ok(feeder.finish(monitor, &mut on_line))
+}
+
+/// The bytes [`replay_from`] reads from its source at a time (the buffer grows past it
+/// only for a block longer than that, as far as the file holds its bytes).
+pub const READ_CHUNK: usize = 256 * 1024;
+
+/// [`replay`] of a capture read from `source` (a file) a part at a time, rather than
+/// read whole first: the same packets, the same verdicts and the same fault where one
+/// is found (its offset counted from the start of the file), with a buffer of about
+/// [`READ_CHUNK`] bytes that stays in the cache.
+pub fn replay_from(
+    source: impl std::io::Read,
+    monitor: &mut Monitor,
+    on_line: impl FnMut(&Line),
+) -> Result<Replayed, ReplayError> {
+    replay_chunked(source, READ_CHUNK, monitor, on_line)
+}
+
+/// [`replay_from`], reading `chunk` bytes at a time (the tests cut files everywhere).
+pub(crate) fn replay_chunked(
+    source: impl std::io::Read,
+    chunk: usize,
+    monitor: &mut Monitor,
+    mut on_line: impl FnMut(&Line),
+) -> Result<Replayed, ReplayError> {
+    let mut feeder = Feeder::new(monitor, true);
+    let stopped = stream_packets(source, chunk, |p| {
+        feeder.packet(monitor, p, &mut on_line).map(|()| true)
+    })?;
+    feeder.out.stopped = stopped;
+    Ok(feeder.finish(monitor, &mut on_line))
+}
+
+/// [`guess_mode`] of a capture read from `source` a part at a time (only as far as it
+/// takes to decide).
+pub fn guess_mode_from(source: impl std::io::Read) -> Result<super::guess::Guess, ReplayError> {
+    guess_mode_chunked(source, READ_CHUNK)
+}
+
+pub(crate) fn guess_mode_chunked(
+    source: impl std::io::Read,
+    chunk: usize,
+) -> Result<super::guess::Guess, ReplayError> {
+    use super::guess::{guess, Guess, GIVE_UP_AFTER};
+    let mut bytes = Vec::new();
+    let mut decided = None;
+    stream_packets(source, chunk, |p| {
+        let Some(b) = payload(p.link_type, p.data) else {
+            return Ok(true);
         };
+        let room = GIVE_UP_AFTER.saturating_sub(bytes.len());
+        bytes.extend_from_slice(&b[..b.len().min(room)]);
+        let g = guess(&bytes);
+        if g != Guess::Undecided {
+            decided = Some(g);
+            return Ok(false);
+        }
+        Ok(true)
+    })?;
+    Ok(decided.unwrap_or_else(|| guess(&bytes)))
+}
+
+/// Each packet of the capture read from `source` (`chunk` bytes at a time) to `each`,
+/// in file order, until it says to stop (`false`) or fails; the read fault that ended
+/// the packets, if one did (its offset from the start of the file), as [`Reader`] gives
+/// it over the whole file.
+fn stream_packets(
+    mut source: impl std::io::Read,
+    chunk: usize,
+    mut each: impl FnMut(&Packet<'_>) -> Result<bool, ReplayError>,
+) -> Result<Option<ReadError>, ReplayError> {
+    let chunk = chunk.max(1);
+    let mut buf: Vec<u8> = Vec::new();
+    let mut eof = fill(&mut source, &mut buf, chunk)?;
+    // Where the buffer begins in the file.
+    let mut base = 0u64;
+    let mut state = None;
+    loop {
+        let mut reader = match state.take() {
+            Some(s) => Reader::resume(&buf, s),
+            None => match Reader::new(&buf) {
+                Ok(r) => r,
+                Err(e) if e.is_truncated() && !eof => {
+                    eof = fill(&mut source, &mut buf, chunk)?;
+                    continue;
+                }
+                Err(e) => return Err(e.into()),
+            },
+        };
+        loop {
+            match reader.next() {
+                Some(Ok(p)) => {
+                    if !each(&p)? {
+                        return Ok(None);
+                    }
+                }
+                // The buffer ends before the file does: read on from this block.
+                None if !eof => break,
+                Some(Err(e)) if e.is_truncated() && !eof => break,
+                None => return Ok(None),
+                Some(Err(e)) => return Ok(Some(e.at_base(base))),
+            }
+        }
+        let used = usize::try_from(reader.offset())
+            .unwrap_or(buf.len())
+            .min(buf.len());
+        state = Some(reader.into_state());
+        buf.drain(..used);
+        base += used as u64;
+        eof = fill(&mut source, &mut buf, chunk)?;
+    }
+}
+
+/// Reads up to `chunk` more bytes of `source` onto `buf`; whether the source ended.
+fn fill(
+    source: &mut impl std::io::Read,
+    buf: &mut Vec<u8>,
+    chunk: usize,
+) -> Result<bool, std::io::Error> {
+    let want = buf.len() + chunk;
+    buf.reserve(chunk);
+    while buf.len() < want {
+        let n = buf.len();
+        buf.resize(want, 0);
+        match source.read(&mut buf[n..]) {
+            Ok(0) => {
+                buf.truncate(n);
+                return Ok(true);
+            }
+            Ok(k) => buf.truncate(n + k),
+            Err(e) if e.kind() == std::io::ErrorKind::Interrupted => buf.truncate(n),
+            Err(e) => {
+                buf.truncate(n);
+                return Err(e);
+            }
+        }
+    }
+    Ok(false)
+}
+
+/// Feeds packets to a monitor as [`replay`] does, one at a time.
+struct Feeder {
+    char: Duration,
+    out: Replayed,
+    origin: Option<u64>,
+    last: u64,
+    /// Each packet whole ([`Monitor::feed_packet`]), or in two pieces (tests).
+    whole: bool,
+}
+
+impl Feeder {
+    fn new(monitor: &Monitor, whole: bool) -> Self {
+        Feeder {
+            char: Duration::from_micros(monitor.config().line.char_time_us()),
+            out: Replayed::default(),
+            origin: None,
+            last: 0,
+            whole,
+        }
+    }
+
+    fn packet(
+        &mut self,
+        monitor: &mut Monitor,
+        p: &Packet<'_>,
+        on_line: &mut impl FnMut(&Line),
+    ) -> Result<(), ReplayError> {
         let Some(bytes) = payload(p.link_type, p.data) else {
             return Err(ReplayError::LinkType {
-                index: out.packets,
+                index: self.out.packets,
                 interface: p.interface,
                 link_type: p.link_type,
             });
         };
         // A packet without a time (a Simple Packet Block) came after the one before.
-        let ts = p.timestamp_ns.unwrap_or(last).max(last);
-        let t0 = *origin.get_or_insert(ts);
+        let ts = p.timestamp_ns.unwrap_or(self.last).max(self.last);
+        let t0 = *self.origin.get_or_insert(ts);
         let first = Duration::from_nanos(ts - t0);
         monitor.idle(first);
         // Where the capture gives directions, they settle which frame answers which.
@@ -115,21 +304,30 @@ pub fn replay(
         // The first byte when its last bit arrived (response times and silences are
         // measured to it), the rest when the packet's last byte did: no silence inside a
         // packet can be proven, and the framer needs no byte-by-byte clock for that.
+        let char = self.char;
         let end = first + char * bytes.len() as u32;
-        let (head, rest) = bytes.split_at(1.min(bytes.len()));
-        monitor.feed(first + char, head);
-        monitor.feed(end, rest);
+        if self.whole {
+            monitor.feed_packet(first + char, end, bytes);
+        } else {
+            let (head, rest) = bytes.split_at(1.min(bytes.len()));
+            monitor.feed(first + char, head);
+            monitor.feed(end, rest);
+        }
         for l in monitor.take_lines() {
             on_line(&l);
         }
-        last = ts;
-        out.packets += 1;
-        out.bytes += bytes.len() as u64;
-        out.span = end;
+        self.last = ts;
+        self.out.packets += 1;
+        self.out.bytes += bytes.len() as u64;
+        self.out.span = end;
+        Ok(())
     }
-    monitor.finish();
-    for l in monitor.take_lines() {
-        on_line(&l);
+
+    fn finish(self, monitor: &mut Monitor, on_line: &mut impl FnMut(&Line)) -> Replayed {
+        monitor.finish();
+        for l in monitor.take_lines() {
+            on_line(&l);
+        }
+        self.out
     }
-    Ok(out)
 }

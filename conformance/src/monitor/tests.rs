@@ -12,7 +12,7 @@ fn ms(n: u64) -> Duration {
     Duration::from_millis(n)
 }
 
-fn monitor(mode: Mode, nodes: &[u8]) -> Monitor {
+pub(super) fn monitor(mode: Mode, nodes: &[u8]) -> Monitor {
     let data_bits = if mode == Mode::Rtu { 8 } else { 7 };
     Monitor::new(
         DriveModel::builtin("f510").unwrap(),
@@ -68,7 +68,7 @@ fn run(m: &mut Monitor, frames: &[(u64, &[u8])]) -> Vec<Line> {
 }
 
 /// The (side.kind) of every finding on `node`.
-fn kinds(m: &Monitor, node: u8) -> Vec<String> {
+pub(super) fn kinds(m: &Monitor, node: u8) -> Vec<String> {
     m.nodes()
         .get(&node)
         .map(|s| s.errors.keys().cloned().collect())
@@ -724,7 +724,7 @@ fn without_live_lines_the_verdicts_are_the_same() {
 /// the wrong node and for a node not on the bus, no reply (within the window and cut
 /// short by the next request) and a retry, a request before the reply was due, no t3.5,
 /// an unserved function, a reply with no request.
-fn varied_traffic(cycles: u64) -> Vec<(u64, Vec<u8>)> {
+pub(super) fn varied_traffic(cycles: u64) -> Vec<(u64, Vec<u8>)> {
     let mut out = Vec::new();
     for c in 0..cycles {
         let t = c * 6000;
@@ -802,7 +802,7 @@ fn varied_traffic(cycles: u64) -> Vec<(u64, Vec<u8>)> {
 /// Everything a monitor reports, for comparing two: the live lines, every exchange as
 /// counted (its findings with their texts, its citations, the exchange as an example
 /// would keep it), the per-node statistics, the examples, the notices and the results.
-fn everything(m: &Monitor, lines: &[Line]) -> String {
+pub(super) fn everything(m: &Monitor, lines: &[Line]) -> String {
     format!(
         "{lines:#?}\n{:#?}\n{:#?}\n{:#?}\n{:#?}\n{:#?}\n{}",
         m.trail,
