@@ -711,6 +711,27 @@ fn block_of(e: Event<'_>) -> (Vec<u8>, FrameStatus) {
     (e.bytes().to_vec(), status)
 }
 
+/// The length of the RTU frame at the start of `head` in `direction`, by the codec's
+/// rule ([`rtu_frame_len`]: the functions the drives serve) or, for the Modbus
+/// Application Protocol's other fixed-shape functions a master may send a drive anyway
+/// (01H, 02H and 04H reads, 05H, 0FH; answered with an exception, or by another
+/// device on the bus), by theirs: so that a request of one of them read together with
+/// its reply (a stalled host, a tap's latency timer) is still told apart from it.
+fn frame_len(direction: Direction, head: &[u8]) -> Option<usize> {
+    if let Some(n) = rtu_frame_len(direction, head) {
+        return Some(n);
+    }
+    let &fc = head.get(1)?;
+    match (direction, fc) {
+        (Direction::Request, 0x01 | 0x02 | 0x04 | 0x05) | (Direction::Response, 0x05 | 0x0F) => {
+            Some(8)
+        }
+        (Direction::Request, 0x0F) => head.get(6).map(|&n| 9 + usize::from(n)),
+        (Direction::Response, 0x01 | 0x02 | 0x04) => head.get(2).map(|&n| 5 + usize::from(n)),
+        _ => None,
+    }
+}
+
 /// Whether `bytes` are the start of a frame whose length (by either direction's rule)
 /// says more bytes are due.
 fn starts_frame(bytes: &[u8]) -> bool {
@@ -719,7 +740,7 @@ fn starts_frame(bytes: &[u8]) -> bool {
     }
     [Direction::Request, Direction::Response]
         .into_iter()
-        .any(|d| rtu_frame_len(d, bytes).is_some_and(|n| n > bytes.len() && n <= MAX_RTU_FRAME))
+        .any(|d| frame_len(d, bytes).is_some_and(|n| n > bytes.len() && n <= MAX_RTU_FRAME))
 }
 
 /// The next frame in `rest` of a silence-delimited block: (bytes before it that are
@@ -731,7 +752,7 @@ fn split_next(rest: &[u8]) -> (usize, usize, FrameStatus) {
     for skip in 0..rest.len() {
         let head = &rest[skip..];
         for dir in [Direction::Response, Direction::Request] {
-            if let Some(n) = rtu_frame_len(dir, head) {
+            if let Some(n) = frame_len(dir, head) {
                 if n <= head.len() && n >= 4 && crc16(&head[..n]) == 0 {
                     return (skip, n, FrameStatus::Valid);
                 }
@@ -813,6 +834,42 @@ mod tests {
         assert_eq!(out[1].start, None);
     }
 
+    /// A 04H request (not served by the drives: answered with exception 01H or 02H) read
+    /// together with the start of its reply, the rest in the next read, no silence seen
+    /// between (a stalled host, a tap's latency timer): still two frames, both valid.
+    #[test]
+    fn a_request_of_a_function_the_drives_do_not_serve_is_split_from_its_reply() {
+        let req = [0x01, 0x04, 0x25, 0x20, 0x00, 0x01, 0x3B, 0x0C];
+        let rep = [0x01, 0x84, 0x02, 0xC2, 0xC1];
+        assert_eq!(crc16(&req), 0);
+        assert_eq!(crc16(&rep), 0);
+        for cut in [8, 9, 10, 12] {
+            let all = [&req[..], &rep[..]].concat();
+            let mut f = framer();
+            let mut out = Vec::new();
+            f.push(ms(0), &all[..cut], &mut out);
+            f.push(Duration::from_micros(1500), &all[cut..], &mut out);
+            f.idle(ms(100), &mut out);
+            let got: Vec<(&[u8], FrameStatus)> =
+                out.iter().map(|t| (&t.bytes[..], t.status)).collect();
+            assert_eq!(
+                got,
+                [
+                    (&req[..], FrameStatus::Valid),
+                    (&rep[..], FrameStatus::Valid)
+                ],
+                "cut at {cut}: {out:?}"
+            );
+        }
+        // Replies of those functions by their byte count, requests of 0FH by theirs.
+        assert_eq!(frame_len(Direction::Response, &[1, 4, 6]), Some(11));
+        assert_eq!(
+            frame_len(Direction::Request, &[1, 0x0F, 0, 0, 0, 9, 2]),
+            Some(11)
+        );
+        assert_eq!(frame_len(Direction::Request, &[1, 0x2B]), None);
+    }
+
     #[test]
     fn a_gap_over_t15_inside_makes_a_corrupt_block_incomplete() {
         let mut f = framer();
@@ -890,15 +947,23 @@ mod tests {
     }
 
     /// Seen with pymodbus's server under load: the listener read the first 3 bytes of a
-    /// 04H request (a function of unknown length), then nothing for 30 ms (the host
+    /// request of a function of unknown length, then nothing for 30 ms (the host
     /// was busy), then the rest with the reply. No read proved a silence after the 3
     /// bytes: they are joined with the rest, not called a malformed request.
     #[test]
     fn a_frame_of_unknown_length_read_in_two_late_pieces_is_one_frame() {
         let mut f = framer();
         let mut out = Vec::new();
-        let request = [0x01, 0x04, 0x25, 0x20, 0x00, 0x01, 0x3B, 0x0C];
-        let reply = [0x01, 0x84, 0x02, 0xC2, 0xC1];
+        // Function 41H (user-defined: no length rule knows it; 04H, first seen here,
+        // now has one) and its exception reply.
+        let with_crc = |body: &[u8]| {
+            let mut v = body.to_vec();
+            v.extend_from_slice(&crc16(body).to_le_bytes());
+            v
+        };
+        let request = with_crc(&[0x01, 0x41, 0x25, 0x20, 0x00, 0x01]);
+        let reply = with_crc(&[0x01, 0xC1, 0x01]);
+        assert!(frame_len(Direction::Request, &request).is_none());
         f.idle(ms(9), &mut out);
         f.push(ms(10), &request[..3], &mut out);
         f.push(ms(40), &[&request[3..], &reply[..]].concat(), &mut out);

@@ -549,8 +549,11 @@ impl Monitor {
                     self.close_with_reply(f, since_previous);
                     return;
                 }
+                // (Not a frame from the request's side, nor a copy of the request later
+                // than a reply is due: the master sending it again, damaged or not.)
                 FrameStatus::Corrupt | FrameStatus::Incomplete
-                    if p.leading.len() + f.bytes.len() <= 2 * crate::codec::MAX_ASCII_FRAME =>
+                    if !resend
+                        && p.leading.len() + f.bytes.len() <= 2 * crate::codec::MAX_ASCII_FRAME =>
                 {
                     // Bytes that are no frame after a request: the reply, damaged, or
                     // garbage before it; the next frame or the window tells.

@@ -684,6 +684,39 @@ fn directions_from_a_capture_tell_a_resend_from_a_late_echo() {
     assert!(!k.contains(&"master.retry".to_string()), "{k:?}");
 }
 
+/// A request with a bad CRC sent twice (the runner sends its bad-CRC request again when a
+/// stalled host broke the first): the second is the master's again, never taken for the
+/// first one's damaged reply: from the request's side (a capture), or without sides,
+/// later than a reply is due.
+#[test]
+fn a_damaged_request_sent_again_is_no_reply_to_the_first() {
+    let mut bad = read(1, 0x2520, 1);
+    let n = bad.len();
+    bad[n - 1] ^= 0xFF;
+    for sides in [true, false] {
+        let mut m = monitor(Mode::Rtu, &[1]);
+        for t in [0u64, 100] {
+            m.idle(ms(t));
+            m.set_side(sides.then_some(true));
+            m.feed(ms(t), &bad);
+        }
+        m.idle(ms(5000));
+        m.finish();
+        let lines = m.take_lines();
+        let k = kinds(&m, 1);
+        assert!(
+            !k.contains(&"drive.unexpected-reply".to_string()),
+            "{k:?}\n{lines:#?}"
+        );
+        assert_eq!(lines.len(), 2, "sides {sides}: {lines:#?}");
+        assert!(
+            lines.iter().all(|l| l.received.is_empty()),
+            "sides {sides}: {lines:#?}"
+        );
+        assert_eq!(m.nodes()[&1].crc_errors, 2, "sides {sides}");
+    }
+}
+
 /// Without live lines (`--quiet` and no `--log`) the verdicts and statistics are the
 /// same; only the lines are not made.
 #[test]
