@@ -17,7 +17,6 @@
 
 use super::wire::{Drivers, Event, Heard};
 use crate::codec::timing::{LineSettings, Parity};
-use crate::transport::uart::{parity_bit, CharError};
 
 #[derive(Debug, Clone, Copy)]
 enum State {
@@ -176,22 +175,7 @@ impl OwnRx {
             };
             return;
         }
-        let data_bits = self.line.data_bits;
-        let mask = if data_bits >= 8 {
-            0xFF
-        } else {
-            (1u16 << data_bits) - 1
-        };
-        let byte = (sampled >> 1 & mask) as u8;
-        let mut error = None;
-        if let Some(p) = parity_bit(byte, data_bits, self.line.parity) {
-            if (sampled >> (1 + data_bits) & 1 == 1) != p {
-                error = Some(CharError::Parity);
-            }
-        }
-        if sampled >> k & 1 == 0 {
-            error = Some(CharError::Framing);
-        }
+        let (byte, error) = super::wire::read_char(sampled, &self.line);
         out.push(Event::Heard(Heard {
             endpoint: self.endpoint,
             start: u64::try_from(start / self.line_bit).unwrap_or(u64::MAX),

@@ -100,6 +100,30 @@ pub struct Flip {
     pub bit: u8,
 }
 
+/// The character in `sampled` (bit k: the level sampled at bit k of the character,
+/// from its start bit to its first stop bit) at `line`'s settings: its data bits, and
+/// a parity error or (a low stop bit) a framing error.
+pub(super) fn read_char(sampled: u16, line: &LineSettings) -> (u8, Option<CharError>) {
+    let data_bits = line.data_bits;
+    let mask = if data_bits >= 8 {
+        0xFF
+    } else {
+        (1u16 << data_bits) - 1
+    };
+    let byte = (sampled >> 1 & mask) as u8;
+    let mut error = None;
+    if let Some(p) = parity_bit(byte, data_bits, line.parity) {
+        if (sampled >> (1 + data_bits) & 1 == 1) != p {
+            error = Some(CharError::Parity);
+        }
+    }
+    let stop = 1 + u32::from(data_bits) + u32::from(line.parity != Parity::None);
+    if sampled >> stop & 1 == 0 {
+        error = Some(CharError::Framing);
+    }
+    (byte, error)
+}
+
 /// What the line did, in bit order.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub enum Event {
@@ -413,22 +437,7 @@ impl Wire {
         if off + 1 < self.rx_len {
             return;
         }
-        let data_bits = self.line.data_bits;
-        let mask = if data_bits >= 8 {
-            0xFF
-        } else {
-            (1u16 << data_bits) - 1
-        };
-        let byte = (r.sampled >> 1 & mask) as u8;
-        let mut error = None;
-        if let Some(p) = parity_bit(byte, data_bits, self.line.parity) {
-            if (r.sampled >> (1 + data_bits) & 1 == 1) != p {
-                error = Some(CharError::Parity);
-            }
-        }
-        if r.sampled >> off & 1 == 0 {
-            error = Some(CharError::Framing);
-        }
+        let (byte, error) = read_char(r.sampled, &self.line);
         let c = LineChar {
             start: r.start,
             end: b + 1,

@@ -86,19 +86,9 @@ pub fn guess_mode(data: &[u8]) -> Result<super::guess::Guess, ReplayError> {
 pub fn replay(
     data: &[u8],
     monitor: &mut Monitor,
-    mut on_line: impl FnMut(&Line),
+    on_line: impl FnMut(&Line),
 ) -> Result<Replayed, ReplayError> {
-    let mut feeder = Feeder::new(monitor, true);
-    for item in Reader::new(data)? {
-        match item {
-            Ok(p) => feeder.packet(monitor, &p, &mut on_line)?,
-            Err(e) => {
-                feeder.out.stopped = Some(e);
-                break;
-            }
-        }
-    }
-    Ok(feeder.finish(monitor, &mut on_line))
+    replay_with(data, monitor, true, on_line)
 }
 
 /// [`replay`] feeding each packet in two pieces (the first byte, then the rest), as it
@@ -107,9 +97,19 @@ pub fn replay(
 pub(crate) fn replay_in_two_pieces(
     data: &[u8],
     monitor: &mut Monitor,
+    on_line: impl FnMut(&Line),
+) -> Result<Replayed, ReplayError> {
+    replay_with(data, monitor, false, on_line)
+}
+
+/// [`replay`], each packet whole or in two pieces.
+fn replay_with(
+    data: &[u8],
+    monitor: &mut Monitor,
+    whole: bool,
     mut on_line: impl FnMut(&Line),
 ) -> Result<Replayed, ReplayError> {
-    let mut feeder = Feeder::new(monitor, false);
+    let mut feeder = Feeder::new(monitor, whole);
     for item in Reader::new(data)? {
         match item {
             Ok(p) => feeder.packet(monitor, &p, &mut on_line)?,
