@@ -240,12 +240,16 @@ pub fn run(args: MonitorArgs) -> anyhow::Result<ExitCode> {
                     m
                 }
             };
-            if args.baud.is_none() {
-                out.say(monitor::Said::Notice(&format!(
-                    "no -b: the capture's timing is judged at {line} (a capture does not say its line's settings; give -b and -P)"
-                )));
-            }
             let mut mon = new_monitor(mode, line)?;
+            if args.baud.is_none() {
+                // In the report too, as the settings found by listening are.
+                let n = format!(
+                    "no -b: the capture's timing is judged at {line} (a capture does not say its line's settings; give -b and -P)"
+                );
+                out.say(monitor::Said::Notice(&n));
+                mon.notice(n);
+                mon.take_notices();
+            }
             let r = monitor::replay::replay_from(open()?, &mut mon, |l| {
                 out.say(monitor::Said::Line(l))
             })

@@ -16,8 +16,18 @@ pub(super) fn section(m: &MonitorSummary) -> String {
     };
     let _ = write!(
         out,
-        "<h2 id=\"heard\">Heard on the bus</h2><p class=\"muted\">{}</p><table class=\"budget\"><thead><tr><th>node</th><th class=\"num\">requests</th><th class=\"num\">exchanges</th><th class=\"num\">replies</th><th class=\"num\">timeouts</th><th class=\"num\">CRC errors</th><th class=\"num\">retries</th><th class=\"num\">p50 ms</th><th class=\"num\">p95 ms</th><th class=\"num\">p99 ms</th><th class=\"num\">max ms</th><th>findings</th></tr></thead><tbody>",
-        esc(&m.text_lines()[0])
+        "<h2 id=\"heard\">Heard on the bus</h2><p class=\"muted\">{}</p>{}<table class=\"budget\"><thead><tr><th>node</th><th class=\"num\">requests</th><th class=\"num\">exchanges</th><th class=\"num\">replies</th><th class=\"num\">timeouts</th><th class=\"num\">CRC errors</th><th class=\"num\">retries</th><th class=\"num\">p50 ms</th><th class=\"num\">p95 ms</th><th class=\"num\">p99 ms</th><th class=\"num\">max ms</th><th>findings</th></tr></thead><tbody>",
+        esc(&m.text_lines()[0]),
+        if m.notices.is_empty() {
+            String::new()
+        } else {
+            let items: Vec<String> = m
+                .notices
+                .iter()
+                .map(|n| format!("<li>notice: {}</li>", esc(n)))
+                .collect();
+            format!("<ul class=\"notices\">{}</ul>", items.concat())
+        }
     );
     for (a, s) in &m.nodes {
         let h = &s.response;
