@@ -446,20 +446,22 @@ fn listen(
         }
     };
     let port: Box<dyn conformance::transport::Transport> = Box::new(serial);
-    let (mode, before, port) = match (asked, told) {
+    let (mode, mut before, port) = match (asked, told) {
         // The search found the mode too (it looks for either unless one is asked).
         (_, Some((m, heard))) => (m, heard, port),
         (Some(m), None) => (m, Vec::new(), port),
         (None, None) => {
             let mut probe = ReadOnlyPort::new(port);
+            let first = read_before_announcing(&mut probe, origin, line)?;
             if !args.quiet {
                 eprintln!(
                     "listening on {} ({line}) to tell RTU from ASCII; nothing is sent.",
                     probe.describe()
                 );
             }
-            let told = monitor::listen_for_mode(&mut probe, &stop, args.duration, origin, line)
-                .map_err(|e| anyhow::anyhow!("--mode auto: {e}"))?;
+            let told =
+                monitor::listen_for_mode(&mut probe, &stop, args.duration, origin, line, first)
+                    .map_err(|e| anyhow::anyhow!("--mode auto: {e}"))?;
             match told {
                 Ok((m, heard)) => {
                     if !args.quiet {
@@ -493,6 +495,12 @@ fn listen(
         )),
         None => ReadOnlyPort::new(port),
     };
+    // Unless the port was read already (the mode or the line told by listening), one read
+    // before saying "listening": what is sent after the announcement is then not taken
+    // for the tail of a frame under way when listening began.
+    if before.is_empty() {
+        before = read_before_announcing(&mut tap, origin, line)?;
+    }
     if !args.quiet {
         eprintln!(
             "listening on {} ({mode}, {line}); nothing is sent. Ctrl-C ends and reports.",
@@ -516,6 +524,16 @@ fn listen(
         super::link::close_capture(path, rec);
     }
     Ok((mode, mon, line, described, ended))
+}
+
+/// The port read once, for a poll, before listening is announced.
+fn read_before_announcing(
+    tap: &mut dyn monitor::Tap,
+    origin: Instant,
+    line: LineSettings,
+) -> anyhow::Result<monitor::tap::Heard> {
+    monitor::first_read(tap, origin, line)
+        .map_err(|e| anyhow::anyhow!("cannot read {}: {e}", tap.describe()))
 }
 
 /// The report of what `mon` heard on `source`.

@@ -38,7 +38,9 @@ pub use frames::{EndedBy, FrameStatus, TapFrame};
 pub use live::Line;
 pub use report::MonitorSummary;
 pub use stats::NodeStats;
-pub use tap::{listen_for_mode, run, run_from, Ended, ReadOnlyPort, ReadOnlySerial, Said, Tap};
+pub use tap::{
+    first_read, listen_for_mode, run, run_from, Ended, ReadOnlyPort, ReadOnlySerial, Said, Tap,
+};
 
 use crate::codec::pdu::{function, Direction, Message};
 use crate::codec::timing::LineSettings;

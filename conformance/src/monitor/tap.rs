@@ -167,24 +167,40 @@ pub(super) fn quiet(heard: &mut Heard, at: Duration) {
     }
 }
 
+/// Reads `tap` once, for one poll of `line`, before listening is announced: what was
+/// read, at its time since `origin` (an empty read is kept: it says the line was quiet
+/// when listening began). Whoever is told "listening" then knows that the port has been
+/// read, and that what it sends after is not taken for a frame already under way (see
+/// `Entry`).
+pub fn first_read(
+    tap: &mut dyn Tap,
+    origin: Instant,
+    line: crate::codec::timing::LineSettings,
+) -> Result<Heard, TransportError> {
+    let mut buf = [0u8; 512];
+    let n = tap.listen(&mut buf, poll_interval(line))?;
+    Ok(vec![(origin.elapsed(), buf[..n].to_vec())])
+}
+
 /// Listens on `tap` (since `origin`) until the traffic tells RTU from ASCII
-/// ([`guess::guess`](super::guess::guess)): the mode and everything read so far, to be
-/// replayed to the monitor; or why listening ended first.
+/// ([`guess::guess`](super::guess::guess)), after what was read `before`: the mode and
+/// everything read so far, to be replayed to the monitor; or why listening ended first.
 pub fn listen_for_mode(
     tap: &mut dyn Tap,
     stop: &AtomicBool,
     duration: Option<Duration>,
     origin: Instant,
     line: crate::codec::timing::LineSettings,
+    before: Heard,
 ) -> Result<Result<(crate::codec::Mode, Heard), Ended>, MonitorError> {
     use super::guess::{guess, why_not, Guess, GIVE_UP_AFTER};
     let poll = poll_interval(line);
     let mut buf = [0u8; 512];
-    let mut heard: Heard = Vec::new();
-    let mut bytes: Vec<u8> = Vec::new();
+    let mut bytes: Vec<u8> = before.iter().flat_map(|(_, b)| b.iter().copied()).collect();
     // Bytes since the last guess: guessed at the end of a burst (a read that came back
     // empty), or once enough are held to give up, not on every read.
-    let mut fresh = false;
+    let mut fresh = !bytes.is_empty();
+    let mut heard: Heard = before;
     loop {
         if stop.load(Ordering::Relaxed) {
             return Ok(Err(Ended::Interrupted));
