@@ -299,3 +299,49 @@ fn the_coverage_section_says_what_a_read_only_run_skipped() {
     assert!(section.contains(">not selected</span>"), "{section}");
     assert!(!section.contains(">verified</span>"), "{section}");
 }
+
+/// A run of one mode says of the other mode's requirements that this run did not speak
+/// it, not that they were not selected.
+#[test]
+fn the_coverage_section_names_the_mode_a_run_did_not_speak() {
+    let dir = dir("rtu-only");
+    let (code, report) = common::check_device(
+        &dir,
+        &[
+            "--sim",
+            "f510",
+            "--mode",
+            "rtu",
+            "--only",
+            "rtu.map.group-0.*",
+        ],
+        Duration::from_secs(120),
+    );
+    assert_eq!(code, Some(0), "{:#}", report["summary"]);
+    let html = dir.join("check.html");
+    let json = dir.join("check.json");
+    let (code, _, err) = conformance(&[
+        "report",
+        json.to_str().unwrap(),
+        "-o",
+        html.to_str().unwrap(),
+    ]);
+    assert_eq!(code, 0, "{err}");
+    let html = std::fs::read_to_string(html).unwrap();
+    let at = html.find("id=\"coverage\"").unwrap();
+    let end = html[at..].find("id=\"all\"").unwrap() + at;
+    let section = &html[at..end];
+    assert!(section.contains(">other mode</span>"), "{section}");
+    assert!(
+        section.contains("its checks are ASCII's; this run did not speak ASCII"),
+        "{section}"
+    );
+    assert!(!section.contains("this run did not speak RTU"), "{section}");
+    assert!(section.contains(">verified</span>"), "{section}");
+    // The count in the sentence is the rows'.
+    let rows = section.matches(">other mode</span>").count();
+    assert!(
+        section.contains(&format!("<b>{rows}</b> of a mode this run did not speak")),
+        "{section}"
+    );
+}

@@ -311,6 +311,9 @@ pub enum RunCoverage {
     Error(String),
     /// None of its checks was selected (`--only`).
     NotRun,
+    /// Its checks are of a mode the run did not speak (`--mode`): that mode, "RTU" or
+    /// "ASCII".
+    OtherMode(&'static str),
 }
 
 impl RunCoverage {
@@ -322,16 +325,43 @@ impl RunCoverage {
             RunCoverage::Skipped(_) => "skipped",
             RunCoverage::Error(_) => "error",
             RunCoverage::NotRun => "not-run",
+            RunCoverage::OtherMode(_) => "other-mode",
         }
     }
 }
 
 /// For each requirement of `cat` that a check verifies: what the run's `results` did for
-/// it. `results` are (check id, status key, summary) of a run of `cat`'s model.
+/// it. `results` are (check id, status key, summary) of a run of `cat`'s model, which
+/// spoke the modes `spoken` (none known: no requirement is put down to a mode).
 pub fn of_run<'c>(
     cat: &'c Catalogue,
+    spoken: &[crate::codec::Mode],
     results: &[(&str, &str, &str)],
 ) -> Vec<(&'c Requirement, RunCoverage)> {
+    use crate::codec::Mode;
+    // A check's id begins with its mode ("rtu.map...", "ascii.write...").
+    let mode_of = |id: &str| match id.split('.').next() {
+        Some("rtu") => Some(Mode::Rtu),
+        Some("ascii") => Some(Mode::Ascii),
+        _ => None,
+    };
+    // The one mode all of `r`'s checks are of, when the run did not speak it.
+    let other_mode = |r: &Requirement| {
+        let modes: Vec<Option<Mode>> = r.verified_by.checks.iter().map(|p| mode_of(p)).collect();
+        match modes.first() {
+            Some(Some(m))
+                if !spoken.is_empty()
+                    && !spoken.contains(m)
+                    && modes.iter().all(|x| *x == Some(*m)) =>
+            {
+                Some(match m {
+                    Mode::Rtu => "RTU",
+                    Mode::Ascii => "ASCII",
+                })
+            }
+            _ => None,
+        }
+    };
     cat.current()
         .filter(|r| !r.verified_by.checks.is_empty())
         .map(|r| {
@@ -350,6 +380,8 @@ pub fn of_run<'c>(
                 RunCoverage::Error(why.to_string())
             } else if let Some((_, _, why)) = mine.first() {
                 RunCoverage::Skipped(why.to_string())
+            } else if let Some(m) = other_mode(r) {
+                RunCoverage::OtherMode(m)
             } else {
                 RunCoverage::NotRun
             };
@@ -362,6 +394,52 @@ pub fn of_run<'c>(
 mod tests {
     use super::*;
     use serde_json::json;
+
+    /// A requirement whose checks are all of the mode a run did not speak is said to be
+    /// of that mode, not "not selected"; one whose checks are of either mode, or of the
+    /// mode spoken, is not.
+    #[test]
+    fn a_requirement_of_the_mode_not_run_is_named_so() {
+        let cat = crate::requirements::of_model("f510").unwrap();
+        let only_rtu = [("rtu.map.group-0.first", "pass", "")];
+        let rows = of_run(cat, &[crate::codec::Mode::Rtu], &only_rtu);
+        let of = |m: &str| {
+            rows.iter()
+                .filter(|(r, _)| {
+                    r.verified_by
+                        .checks
+                        .iter()
+                        .all(|p| p.starts_with(&format!("{m}.")))
+                })
+                .map(|(_, c)| c.clone())
+                .collect::<Vec<_>>()
+        };
+        let ascii = of("ascii");
+        assert!(!ascii.is_empty());
+        assert!(
+            ascii.iter().all(|c| *c == RunCoverage::OtherMode("ASCII")),
+            "{ascii:?}"
+        );
+        let rtu = of("rtu");
+        assert!(!rtu.is_empty());
+        assert!(
+            rtu.iter().all(|c| !matches!(c, RunCoverage::OtherMode(_))),
+            "{rtu:?}"
+        );
+        // Checks of either mode ("*."), not selected: not the other mode's.
+        assert!(rows
+            .iter()
+            .filter(|(r, _)| r.verified_by.checks.iter().all(|p| p.starts_with("*.")))
+            .all(|(_, c)| !matches!(c, RunCoverage::OtherMode(_))));
+        // A run of both modes whose --only kept RTU checks: the ASCII requirements were
+        // not selected; and with the modes not known, nothing is put down to one.
+        use crate::codec::Mode;
+        for spoken in [&[Mode::Rtu, Mode::Ascii][..], &[]] {
+            assert!(of_run(cat, spoken, &only_rtu)
+                .iter()
+                .all(|(_, c)| !matches!(c, RunCoverage::OtherMode(_))));
+        }
+    }
 
     #[test]
     fn pointers_select_list_elements_by_their_key() {

@@ -56,13 +56,13 @@ pub(super) fn section(report: &Report) -> String {
         .iter()
         .map(|(a, b, c)| (*a, b.as_str(), *c))
         .collect();
-    let rows = trace::of_run(cat, &results);
+    let rows = trace::of_run(cat, &report.options.modes, &results);
     let count = |k: &str| rows.iter().filter(|(_, c)| c.key() == k).count();
     let counts = trace::counts(cat);
     let mut out = String::new();
     w!(
         out,
-        "<h2 id=\"coverage\">Requirements coverage</h2><p>Of the {total} requirements of the {doc} manual (<code>conformance requirements --doc {doc}</code>), {checked} are verified by a check. This run: <b>{v}</b> verified, <b>{d}</b> deviating, <b>{s}</b> skipped, <b>{e}</b> could not tell, <b>{n}</b> not selected. The other {rest} are covered by the vectors, the model or the fuzz oracle ({o}), only passively ({p}), not on the wire ({nw}), or not at all ({u}).</p>",
+        "<h2 id=\"coverage\">Requirements coverage</h2><p>Of the {total} requirements of the {doc} manual (<code>conformance requirements --doc {doc}</code>), {checked} are verified by a check. This run: <b>{v}</b> verified, <b>{d}</b> deviating, <b>{s}</b> skipped, <b>{e}</b> could not tell, <b>{n}</b> not selected, <b>{m}</b> of a mode this run did not speak. The other {rest} are covered by the vectors, the model or the fuzz oracle ({o}), only passively ({p}), not on the wire ({nw}), or not at all ({u}).</p>",
         total = counts.values().sum::<usize>(),
         doc = esc(&cat.document),
         checked = counts[&Coverage::Check],
@@ -71,6 +71,7 @@ pub(super) fn section(report: &Report) -> String {
         s = count("skipped"),
         e = count("error"),
         n = count("not-run"),
+        m = count("other-mode"),
         rest = counts.values().sum::<usize>() - counts[&Coverage::Check],
         o = counts[&Coverage::Otherwise],
         p = counts[&Coverage::Passive],
@@ -85,10 +86,14 @@ pub(super) fn section(report: &Report) -> String {
             RunCoverage::Skipped(_) => ("skip", "skipped"),
             RunCoverage::Error(_) => ("error", "could not tell"),
             RunCoverage::NotRun => ("skip", "not selected"),
+            RunCoverage::OtherMode(_) => ("skip", "other mode"),
         };
         let why = match got {
             RunCoverage::Skipped(w) | RunCoverage::Error(w) => {
                 format!("<div class=\"muted\">{}</div>", esc(w))
+            }
+            RunCoverage::OtherMode(m) => {
+                format!("<div class=\"muted\">its checks are {m}'s; this run did not speak {m} (--mode)</div>")
             }
             _ => String::new(),
         };

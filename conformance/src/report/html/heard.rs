@@ -91,3 +91,44 @@ fn histogram(s: &NodeStats) -> String {
     );
     out
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn summary(notices: &[&str]) -> MonitorSummary {
+        MonitorSummary {
+            mode: "rtu".into(),
+            port: "pty /dev/pts/9".into(),
+            line: "19200 8O1".into(),
+            window_ms: 1000,
+            frames: 0,
+            bytes: 0,
+            listened: std::time::Duration::from_secs(2),
+            ended: "end of input".into(),
+            nodes: Vec::new(),
+            notices: notices.iter().map(|n| n.to_string()).collect(),
+        }
+    }
+
+    /// What the report can be trusted for (the settings found by listening, a latency
+    /// timer, bytes not judged at the start) is in the HTML as in the text and JSON:
+    /// each notice once, escaped, before the table.
+    #[test]
+    fn the_notices_are_listed_before_the_table_escaped() {
+        let html = section(&summary(&[
+            "19200 8O1 rtu found by listening (two valid frames in a row, after 4 other settings)",
+            "the first 3 bytes <01 03 25> were not judged",
+        ]));
+        let list = html.find("<ul class=\"notices\">").expect(&html);
+        assert!(list < html.find("<table").unwrap(), "{html}");
+        assert!(html.contains("<li>notice: 19200 8O1 rtu found by listening (two valid frames in a row, after 4 other settings)</li>"), "{html}");
+        assert!(
+            html.contains("<li>notice: the first 3 bytes &lt;01 03 25&gt; were not judged</li>"),
+            "{html}"
+        );
+        assert_eq!(html.matches("<li>notice: ").count(), 2);
+        // None: no empty list.
+        assert!(!section(&summary(&[])).contains("notices"));
+    }
+}
