@@ -9,6 +9,7 @@
 
 mod coverage;
 mod heard;
+mod master;
 mod nodes;
 mod svg;
 
@@ -59,7 +60,8 @@ code,.hex,td.id{font-family:ui-monospace,"DejaVu Sans Mono",Menlo,Consolas,monos
 .tile{border:1px solid var(--line);border-left:6px solid var(--skip);border-radius:4px;padding:6px 14px;min-width:110px}
 .tile b{display:block;font-size:22px}
 .tile.pass{border-left-color:var(--pass)}.tile.deviation{border-left-color:var(--dev)}.tile.observation{border-left-color:var(--obs)}.tile.error{border-left-color:var(--err)}
-.facts{display:grid;grid-template-columns:repeat(auto-fit,minmax(340px,1fr));gap:4px 28px}
+.facts{display:grid;grid-template-columns:repeat(auto-fit,minmax(340px,1fr));gap:4px 28px;align-items:start}
+table.found td.id{white-space:nowrap}table.found code.repro{font-size:11.5px;overflow-wrap:anywhere}
 .facts table td:first-child{color:var(--muted);white-space:nowrap;padding-right:12px;vertical-align:top}
 table{border-collapse:collapse;width:100%}
 th,td{text-align:left;padding:4px 8px;border-bottom:1px solid var(--line);vertical-align:top}
@@ -350,12 +352,19 @@ fn header(out: &mut String, report: &Report) {
                 row(out, "command", &format!("<code>{}</code>", esc(&c.command)));
                 row(out, "supports", &esc(&c.supports.join(", ")));
                 match &report.master {
-                    // A master: its settings and what was found, by kind, each with the
-                    // command that reproduces it.
+                    // A master: its settings (what was found has a section of its own).
                     Some(m) => {
-                        for l in m.text_lines() {
-                            let (k, v) = l.split_once(':').unwrap_or(("", &l));
-                            row(out, k.trim(), &esc(v.trim()));
+                        for (mode, st) in &m.settings {
+                            row(
+                                out,
+                                "master",
+                                &esc(&format!(
+                                    "{mode} on a {} line: its timeout {} ms, {} retries",
+                                    m.line,
+                                    st.timeout.as_millis(),
+                                    st.retries
+                                )),
+                            );
                         }
                     }
                     None => row(
@@ -405,9 +414,8 @@ fn header(out: &mut String, report: &Report) {
         out,
         "options",
         &esc(&format!(
-            "timeout {} ms, {} retries{}{}",
-            o.timeout_ms,
-            o.retries,
+            "{}{}{}",
+            report.timeout_phrase(),
             if flags.is_empty() { "" } else { ", " },
             flags.join(", ")
         )),
@@ -520,9 +528,15 @@ pub fn html(report: &Report) -> String {
     if several {
         out.push_str("<a href=\"#nodes-h\">Nodes</a> · ");
     }
-    out.push_str(
-        "<a href=\"#deviations\">Deviations</a> · <a href=\"#observations\">Observations</a> · ",
-    );
+    let s = report.summary();
+    if report.master.as_ref().is_some_and(|m| !m.kinds.is_empty()) {
+        out.push_str("<a href=\"#found\">Found by kind</a> · ");
+    }
+    out.push_str("<a href=\"#deviations\">Deviations</a> · ");
+    // The section is there only when there are observations.
+    if s.observation > 0 {
+        out.push_str("<a href=\"#observations\">Observations</a> · ");
+    }
     if drive {
         out.push_str("<a href=\"#plots\">Response time</a> · <a href=\"#timeline\">Timeline</a> · <a href=\"#map\">Register map</a> · <a href=\"#coverage\">Requirements</a> · ");
     }
@@ -534,9 +548,20 @@ pub fn html(report: &Report) -> String {
         nodes::table(&mut out, report);
     }
 
+    if let Some(m) = &report.master {
+        out.push_str(&master::section(m, |id| {
+            report.results.iter().any(|r| {
+                r.id == id
+                    && matches!(
+                        r.status,
+                        Status::Deviation | Status::Error | Status::Observation
+                    )
+            })
+        }));
+    }
+
     // Deviations first, then what the run could not tell; observations (the manual is
     // silent) after them, folded.
-    let s = report.summary();
     // With an expectations file, the results it accepts have a section of their own.
     let mut notable: Vec<&CheckResult> = report
         .results

@@ -195,6 +195,22 @@ impl Summary {
 }
 
 impl Report {
+    /// The run's timeout as what it means for the kind of run: a drive's response timeout
+    /// and retries; for a master gate, the gate's allowance beyond the master's own worst
+    /// case (its retries are the master's, in its settings); for a codec gate, how long an
+    /// adapter may take over a case.
+    pub fn timeout_phrase(&self) -> String {
+        let o = &self.options;
+        match (self.kind, &self.master) {
+            (ReportKind::Gate, Some(_)) => format!(
+                "allowance {} ms beyond the master's worst case (its timeout × (retries + 1))",
+                o.timeout_ms
+            ),
+            (ReportKind::Gate, None) => format!("adapter timeout {} ms a case", o.timeout_ms),
+            _ => format!("timeout {} ms, {} retries", o.timeout_ms, o.retries),
+        }
+    }
+
     /// Counts per status.
     pub fn summary(&self) -> Summary {
         let mut s = Summary {

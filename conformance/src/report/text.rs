@@ -122,7 +122,7 @@ pub fn text(r: &Report, verbose: bool) -> String {
     }
     let _ = writeln!(
         o,
-        "run:     {} .. {}; {}{}{}; timeout {} ms, {} retries{}",
+        "run:     {} .. {}; {}{}{}; {}{}",
         r.started,
         r.finished.as_deref().unwrap_or("(running)"),
         if r.complete { "complete" } else { "INCOMPLETE" },
@@ -137,8 +137,7 @@ pub fn text(r: &Report, verbose: bool) -> String {
         } else {
             ""
         },
-        r.options.timeout_ms,
-        r.options.retries,
+        r.timeout_phrase(),
         if r.options.only.is_empty() {
             String::new()
         } else {
