@@ -272,51 +272,11 @@ fn reports_name_the_requirements_each_check_verifies() {
     assert!(html.contains("id=\"coverage\""));
 }
 
-#[test]
-fn the_coverage_section_says_what_a_read_only_run_skipped() {
-    let dir = dir("read-only");
-    let (code, _) = common::check_device(
-        &dir,
-        &["--sim", "f510", "--only", "rtu.write.*", "--read-only"],
-        Duration::from_secs(120),
-    );
-    assert_eq!(code, Some(0));
-    let html = dir.join("check.html");
-    let json = dir.join("check.json");
-    let (code, _, err) = conformance(&[
-        "report",
-        json.to_str().unwrap(),
-        "-o",
-        html.to_str().unwrap(),
-    ]);
-    assert_eq!(code, 0, "{err}");
-    let html = std::fs::read_to_string(html).unwrap();
-    let at = html.find("id=\"coverage\"").unwrap();
-    let end = html[at..].find("id=\"all\"").unwrap() + at;
-    let section = &html[at..end];
-    assert!(section.contains(">skipped</span>"), "{section}");
-    assert!(section.contains("read-only"), "{section}");
-    assert!(section.contains(">not selected</span>"), "{section}");
-    assert!(!section.contains(">verified</span>"), "{section}");
-}
-
-/// A run of one mode says of the other mode's requirements that this run did not speak
-/// it, not that they were not selected.
-#[test]
-fn the_coverage_section_names_the_mode_a_run_did_not_speak() {
-    let dir = dir("rtu-only");
-    let (code, report) = common::check_device(
-        &dir,
-        &[
-            "--sim",
-            "f510",
-            "--mode",
-            "rtu",
-            "--only",
-            "rtu.map.group-0.*",
-        ],
-        Duration::from_secs(120),
-    );
+/// The requirements coverage section of the HTML report (`conformance report`) of a
+/// `check` run with `args`, which must exit 0.
+fn coverage_section(tag: &str, args: &[&str]) -> String {
+    let dir = dir(tag);
+    let (code, report) = common::check_device(&dir, args, Duration::from_secs(120));
     assert_eq!(code, Some(0), "{:#}", report["summary"]);
     let html = dir.join("check.html");
     let json = dir.join("check.json");
@@ -330,7 +290,36 @@ fn the_coverage_section_names_the_mode_a_run_did_not_speak() {
     let html = std::fs::read_to_string(html).unwrap();
     let at = html.find("id=\"coverage\"").unwrap();
     let end = html[at..].find("id=\"all\"").unwrap() + at;
-    let section = &html[at..end];
+    html[at..end].to_string()
+}
+
+#[test]
+fn the_coverage_section_says_what_a_read_only_run_skipped() {
+    let section = coverage_section(
+        "read-only",
+        &["--sim", "f510", "--only", "rtu.write.*", "--read-only"],
+    );
+    assert!(section.contains(">skipped</span>"), "{section}");
+    assert!(section.contains("read-only"), "{section}");
+    assert!(section.contains(">not selected</span>"), "{section}");
+    assert!(!section.contains(">verified</span>"), "{section}");
+}
+
+/// A run of one mode says of the other mode's requirements that this run did not speak
+/// it, not that they were not selected.
+#[test]
+fn the_coverage_section_names_the_mode_a_run_did_not_speak() {
+    let section = coverage_section(
+        "rtu-only",
+        &[
+            "--sim",
+            "f510",
+            "--mode",
+            "rtu",
+            "--only",
+            "rtu.map.group-0.*",
+        ],
+    );
     assert!(section.contains(">other mode</span>"), "{section}");
     assert!(
         section.contains("its checks are ASCII's; this run did not speak ASCII"),
