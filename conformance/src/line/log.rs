@@ -109,6 +109,18 @@ pub enum Record {
         /// How many in this write.
         dropped: u64,
     },
+    /// The host did not run the line's loop in time (a busy machine): characters reached
+    /// their listeners more than t1.5 after the line carried them, so what an endpoint
+    /// measures of the silences around them is not the line's. One record per run of
+    /// such characters.
+    Late {
+        /// When the first of them ended on the line.
+        t_us: u64,
+        /// How many.
+        chars: u64,
+        /// The most any of them was late, in microseconds.
+        by_us: u64,
+    },
     /// An endpoint's program set its port (`bus --emulate-line`): what it hears from
     /// now on.
     Settings {
@@ -135,7 +147,14 @@ pub enum Record {
         flips: u64,
         /// Bytes dropped for endpoints that did not read.
         dropped: u64,
+        /// Runs of characters handed to their listeners late (`late` records).
+        #[serde(skip_serializing_if = "is_zero")]
+        late: u64,
     },
+}
+
+fn is_zero(n: &u64) -> bool {
+    *n == 0
 }
 
 impl Record {
@@ -196,6 +215,11 @@ impl Record {
                 "{:>12.3} ms {to} does not read: {dropped} bytes for it dropped",
                 ms(*t_us)
             ),
+            Record::Late { t_us, chars, by_us } => format!(
+                "{:>12.3} ms the host ran late: {chars} characters reached their listeners up to {:.3} ms after the line carried them (silences measured on the endpoints then are not the line's)",
+                ms(*t_us),
+                ms(*by_us)
+            ),
             Record::Settings {
                 t_us,
                 endpoint,
@@ -211,9 +235,15 @@ impl Record {
                 collisions,
                 flips,
                 dropped,
+                late,
             } => format!(
-                "stopped after {:.3} s: {chars} characters, {collisions} collisions, {flips} bits flipped, {dropped} bytes dropped",
-                *t_us as f64 / 1e6
+                "stopped after {:.3} s: {chars} characters, {collisions} collisions, {flips} bits flipped, {dropped} bytes dropped{}",
+                *t_us as f64 / 1e6,
+                if *late > 0 {
+                    format!("; the host ran late {late} times (see the `late` records)")
+                } else {
+                    String::new()
+                }
             ),
         }
     }

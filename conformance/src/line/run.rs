@@ -250,6 +250,17 @@ pub struct LineStats {
     pub flips: u64,
     /// Bytes dropped for endpoints that did not read.
     pub dropped: u64,
+    /// Runs of characters handed to their listeners more than t1.5 late (a busy host).
+    pub late: u64,
+}
+
+/// A run of characters handed to their listeners late: when the first ended on the
+/// line (µs), how many, and the most one was late (µs).
+#[derive(Debug, Clone, Copy)]
+struct LateRun {
+    t_us: u64,
+    chars: u64,
+    by_us: u64,
 }
 
 /// An emulated multi-drop RS-485 line and its endpoints (see the module notes).
@@ -264,6 +275,7 @@ pub struct EmulatedLine {
     closed: Vec<bool>,
     out: Vec<(Vec<u8>, Vec<u32>)>,
     stats: LineStats,
+    late: Option<LateRun>,
 }
 
 impl EmulatedLine {
@@ -287,6 +299,7 @@ impl EmulatedLine {
             closed: vec![false; n],
             out: vec![(Vec::new(), Vec::new()); n],
             stats: LineStats::default(),
+            late: None,
         })
     }
 
@@ -386,6 +399,7 @@ impl EmulatedLine {
                 log.flush()?;
             }
         }
+        self.end_late_run(log)?;
         let t_us = u64::try_from(self.epoch.elapsed().as_micros()).unwrap_or(u64::MAX);
         let s = self.stats;
         log.record(&Record::Stop {
@@ -394,6 +408,7 @@ impl EmulatedLine {
             collisions: s.collisions,
             flips: s.flips,
             dropped: s.dropped,
+            late: s.late,
         })?;
         log.flush()?;
         Ok(s)
@@ -526,8 +541,51 @@ impl EmulatedLine {
         }
     }
 
+    /// Logs the run of late characters, if one is open.
+    fn end_late_run(&mut self, log: &mut LineLog) -> Result<(), LineError> {
+        if let Some(r) = self.late.take() {
+            self.stats.late += 1;
+            log.record(&Record::Late {
+                t_us: r.t_us,
+                chars: r.chars,
+                by_us: r.by_us,
+            })?;
+        }
+        Ok(())
+    }
+
+    /// Paced: notes whether the character that ended on the line at bit `end` reaches
+    /// its listeners (`now`) more than t1.5 after that; a run of such characters is
+    /// logged once, when one comes in time again (or the line stops).
+    fn note_lateness(
+        &mut self,
+        end: u64,
+        now: Instant,
+        log: &mut LineLog,
+    ) -> Result<(), LineError> {
+        if !self.config.paced {
+            return Ok(());
+        }
+        let late = now.saturating_duration_since(self.instant_of(end));
+        let by_us = u64::try_from(late.as_micros()).unwrap_or(u64::MAX);
+        if by_us <= self.config.line.t1_5_us() {
+            return self.end_late_run(log);
+        }
+        let t_us = self.us_of(end);
+        let r = self.late.get_or_insert(LateRun {
+            t_us,
+            chars: 0,
+            by_us: 0,
+        });
+        r.chars += 1;
+        r.by_us = r.by_us.max(by_us);
+        Ok(())
+    }
+
     /// Hands the characters read off the line to their listeners; logs the rest.
     fn deliver(&mut self, events: &mut Vec<Event>, log: &mut LineLog) -> Result<(), LineError> {
+        let now = Instant::now();
+        let bpc = self.wire.bits_per_char();
         let names = |mask: u64, eps: &[Endpoint]| -> Vec<String> {
             eps.iter()
                 .enumerate()
@@ -539,6 +597,7 @@ impl EmulatedLine {
             match e {
                 Event::Char(c) => {
                     self.stats.chars += 1;
+                    self.note_lateness(c.start + bpc, now, log)?;
                     for i in 0..self.endpoints.len() {
                         let ep = &self.endpoints[i];
                         if self.closed[i]
@@ -616,5 +675,84 @@ impl EmulatedLine {
             self.out[i].1.clear();
         }
         Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::codec::timing::Parity;
+    use std::sync::{Arc, Mutex};
+
+    /// A writer the test reads back.
+    #[derive(Clone, Default)]
+    struct Shared(Arc<Mutex<Vec<u8>>>);
+
+    impl std::io::Write for Shared {
+        fn write(&mut self, b: &[u8]) -> std::io::Result<usize> {
+            self.0.lock().unwrap().extend_from_slice(b);
+            Ok(b.len())
+        }
+        fn flush(&mut self) -> std::io::Result<()> {
+            Ok(())
+        }
+    }
+
+    /// Characters handed over more than t1.5 after they ended on the line make one `late`
+    /// record per run of them (with how many and the worst), written when one comes in
+    /// time again or the line stops; characters in time make none; unpaced, none.
+    #[test]
+    fn characters_handed_over_late_are_logged_once_per_run() {
+        // 9600 8E1: a character is 11 bits, 1146 us; t1.5 is 1719 us.
+        let line = LineSettings::new(9600, 8, Parity::Even, 1);
+        let config = |paced| LineConfig {
+            line,
+            paced,
+            noise: 0.0,
+            seed: 1,
+            emulate: false,
+        };
+        let out = Shared::default();
+        let mut log = LineLog::new().with_json(Box::new(out.clone()));
+        let mut l = EmulatedLine::new(config(true), Vec::new()).unwrap();
+        let at = |l: &EmulatedLine, bit: u64, late_us: u64| {
+            l.instant_of(bit) + Duration::from_micros(late_us)
+        };
+        // In time, then two late (2 ms and 5 ms), then in time again, then one late left
+        // open when the line stops.
+        for (bit, late) in [
+            (11, 100),
+            (22, 2_000),
+            (33, 5_000),
+            (44, 1_700),
+            (55, 9_000),
+        ] {
+            let now = at(&l, bit, late);
+            l.note_lateness(bit, now, &mut log).unwrap();
+        }
+        l.end_late_run(&mut log).unwrap();
+        let text = String::from_utf8(out.0.lock().unwrap().clone()).unwrap();
+        let records: Vec<serde_json::Value> = text
+            .lines()
+            .map(|r| serde_json::from_str(r).unwrap())
+            .collect();
+        assert_eq!(records.len(), 2, "{text}");
+        assert_eq!(records[0]["event"], "late");
+        assert_eq!(records[0]["chars"], 2);
+        assert_eq!(records[0]["t_us"], l.us_of(22));
+        assert!(
+            (4_999..=5_001).contains(&records[0]["by_us"].as_u64().unwrap()),
+            "{text}"
+        );
+        assert_eq!(records[1]["chars"], 1);
+        assert_eq!(l.stats.late, 2);
+        // Unpaced: bytes go at once, there is no schedule to be late for.
+        let out = Shared::default();
+        let mut log = LineLog::new().with_json(Box::new(out.clone()));
+        let mut u = EmulatedLine::new(config(false), Vec::new()).unwrap();
+        let now = at(&u, 11, 50_000);
+        u.note_lateness(11, now, &mut log).unwrap();
+        u.end_late_run(&mut log).unwrap();
+        assert!(out.0.lock().unwrap().is_empty());
     }
 }

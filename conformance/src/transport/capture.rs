@@ -450,7 +450,7 @@ impl<T: Transport> Transport for Captured<T> {
         let n = self.inner.recv(buf, timeout)?;
         let now = Instant::now();
         if let Some(t) = self.last_read {
-            let silence = now.saturating_duration_since(t);
+            let silence = line_silence(now.saturating_duration_since(t), n, self.char_time);
             if !self.inbound.is_empty()
                 && silence >= self.gap
                 && (silence >= HOST_STALL || !self.holds_part_of_a_frame())
@@ -552,6 +552,18 @@ impl<T: Transport> Transport for Captured<T> {
     fn take_notes(&mut self) -> Vec<String> {
         self.inner.take_notes()
     }
+}
+
+/// The most the line can have been silent between two reads `between` apart, the second
+/// of which returned `n` characters of `char_time` each (unknown: the time between the
+/// reads): those characters took their time on the line before the read returned, so a
+/// reader that was late (descheduled) and got at once what came meanwhile does not take
+/// that for a silence.
+fn line_silence(between: Duration, n: usize, char_time: Option<Duration>) -> Duration {
+    let on_line = char_time.map_or(Duration::ZERO, |c| {
+        c.saturating_mul(u32::try_from(n).unwrap_or(u32::MAX))
+    });
+    between.saturating_sub(on_line)
 }
 
 #[cfg(test)]
@@ -657,6 +669,28 @@ mod tests {
         assert!(t[2] - t[1] >= 40_000_000, "{t:?}");
         assert_eq!(rec.lock().unwrap().packets(), 6);
         assert_eq!(rec.lock().unwrap().error(), None);
+    }
+
+    /// 9600 8E1 (1146 us a character, a 5 ms frame gap): four characters read 7 ms after
+    /// the read before came within the last 4.6 ms, so the line was silent 2.4 ms at most
+    /// (no frame gap); one character 7 ms later leaves 5.9 ms (a frame gap); with the
+    /// host's timing only, the time between reads is all there is.
+    #[test]
+    fn the_silence_between_reads_leaves_out_the_time_the_characters_took() {
+        let c = Some(Duration::from_micros(1146));
+        let ms = Duration::from_millis;
+        assert_eq!(
+            line_silence(ms(7), 4, c),
+            Duration::from_micros(7000 - 4584)
+        );
+        assert_eq!(
+            line_silence(ms(7), 1, c),
+            Duration::from_micros(7000 - 1146)
+        );
+        assert_eq!(line_silence(ms(7), 0, c), ms(7));
+        assert_eq!(line_silence(ms(3), 10, c), Duration::ZERO);
+        assert_eq!(line_silence(ms(7), 4, None), ms(7));
+        assert_eq!(line_silence(ms(7), usize::MAX, c), Duration::ZERO);
     }
 
     #[test]

@@ -115,3 +115,49 @@ pub fn findings(v: &serde_json::Value) -> Vec<serde_json::Value> {
         .flat_map(|m| m["findings"].as_array().unwrap().clone())
         .collect()
 }
+
+/// The monitor's kinds of finding that rest on when bytes were read: a silence, a gap, a
+/// response time. On an emulated bus these measure the host as well as the line.
+pub const TIMING_KINDS: &[&str] = &[
+    "master.no-t3.5",
+    "master.request-before-reply",
+    "master.broadcast-turnaround",
+    "drive.late-reply",
+    "drive.gap-in-reply",
+];
+
+/// Of a node's findings (`errors`: kind to count, from a monitor report), those a busy
+/// host does not explain, as "kind xN": a timing finding ([`TIMING_KINDS`]) is explained
+/// where the bus's log (`bus_log`, its records) has a `late` record of at least t3.5 of
+/// its line (a silence misjudged on that scale needs lateness on that scale); every
+/// other finding is unexplained. Explained ones are noted with that record.
+pub fn unexplained(errors: &serde_json::Value, bus_log: &[serde_json::Value]) -> Vec<String> {
+    // As the codec's rule: 3.5 characters, 1750 us above 19200 baud.
+    let t3_5_us = bus_log
+        .iter()
+        .find(|r| r["event"] == "start")
+        .and_then(|r| {
+            let baud: u32 = r["line"].as_str()?.split(' ').next()?.parse().ok()?;
+            let char_us = r["char_us"].as_u64()?;
+            Some(if baud > 19_200 {
+                1_750
+            } else {
+                char_us * 7 / 2
+            })
+        })
+        .expect("the bus log has no start record with its line");
+    let late = bus_log
+        .iter()
+        .filter(|r| r["event"] == "late")
+        .find(|r| r["by_us"].as_u64().is_some_and(|b| b >= t3_5_us));
+    let mut out = Vec::new();
+    for (k, n) in errors.as_object().into_iter().flatten() {
+        match late {
+            Some(l) if TIMING_KINDS.contains(&k.as_str()) => note(&format!(
+                "{k} x{n}: the bus ran late by t3.5 ({t3_5_us} us) or more ({l}), so the listener's timing was the host's"
+            )),
+            _ => out.push(format!("{k} x{n}")),
+        }
+    }
+    out
+}
