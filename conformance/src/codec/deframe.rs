@@ -111,6 +111,26 @@ pub fn rtu_frame_len(direction: Direction, head: &[u8]) -> Option<usize> {
     }
 }
 
+/// As [`rtu_frame_len`], and for the Modbus Application Protocol's other fixed-shape
+/// functions a master may send a drive anyway (01H, 02H and 04H reads, 05H, 0FH; the
+/// drives answer them with an exception, another device on the bus may serve them): the
+/// rule of a listener that hears a whole bus, so that such a request read together with
+/// its reply is still told apart from it. The deframer keeps to the drives' functions.
+pub fn bus_rtu_frame_len(direction: Direction, head: &[u8]) -> Option<usize> {
+    if let Some(n) = rtu_frame_len(direction, head) {
+        return Some(n);
+    }
+    let &fc = head.get(1)?;
+    match (direction, fc) {
+        (Direction::Request, 0x01 | 0x02 | 0x04 | 0x05) | (Direction::Response, 0x05 | 0x0F) => {
+            Some(8)
+        }
+        (Direction::Request, 0x0F) => head.get(6).map(|&n| 9 + usize::from(n)),
+        (Direction::Response, 0x01 | 0x02 | 0x04) => head.get(2).map(|&n| 5 + usize::from(n)),
+        _ => None,
+    }
+}
+
 fn implied_len(direction: Direction, head: &[u8]) -> Implied {
     let Some(&fc) = head.get(1) else {
         return Implied::NeedMore;

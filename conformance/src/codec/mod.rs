@@ -44,6 +44,18 @@ pub enum Mode {
     Ascii,
 }
 
+impl Mode {
+    /// The mode as files and check ids spell it (`rtu`, `ascii`: what `Display` writes);
+    /// None for anything else.
+    pub fn from_key(key: &str) -> Option<Mode> {
+        match key {
+            "rtu" => Some(Mode::Rtu),
+            "ascii" => Some(Mode::Ascii),
+            _ => None,
+        }
+    }
+}
+
 impl std::fmt::Display for Mode {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.write_str(match self {

@@ -364,17 +364,13 @@ impl Expectations {
             };
             let mode = match e.mode {
                 None => None,
-                Some(m) => Some(match m.get_ref().as_str() {
-                    "rtu" => Mode::Rtu,
-                    "ascii" => Mode::Ascii,
-                    other => {
-                        return Err(invalid(
-                            m.span().start,
-                            "mode",
-                            format!("{other:?} is not \"rtu\" or \"ascii\""),
-                        ))
-                    }
-                }),
+                Some(m) => Some(Mode::from_key(m.get_ref()).ok_or_else(|| {
+                    invalid(
+                        m.span().start,
+                        "mode",
+                        format!("{:?} is not \"rtu\" or \"ascii\"", m.get_ref()),
+                    )
+                })?),
             };
             let expires = match e.expires {
                 None => None,

@@ -100,11 +100,9 @@ pub fn body_from_message(m: &Value) -> Result<Vec<u8>, String> {
 }
 
 fn mode_of(v: &Value) -> Result<Mode, String> {
-    match v.get("mode").and_then(Value::as_str) {
-        Some("rtu") => Ok(Mode::Rtu),
-        Some("ascii") => Ok(Mode::Ascii),
-        other => Err(format!("mode {other:?} is not rtu or ascii")),
-    }
+    let m = v.get("mode").and_then(Value::as_str);
+    m.and_then(Mode::from_key)
+        .ok_or_else(|| format!("mode {m:?} is not rtu or ascii"))
 }
 
 fn direction_of(v: &Value) -> Result<Direction, String> {

@@ -3,7 +3,7 @@
 //!
 //! RTU: the codec's deframer ([`RtuDeframer`] with [`RtuFraming::BySilence`]) cuts the
 //! stream at t3.5 of silence; inside such a block the length rule of the codec
-//! ([`rtu_frame_len`]: a request's length follows from its function and byte count, a
+//! ([`bus_rtu_frame_len`]: a request's length follows from its function and byte count, a
 //! reply's from its function and byte count too) splits frames that came without t3.5
 //! between them, or that a tap adapter delivered together. ASCII: the codec's
 //! [`AsciiDeframer`], ':' to CR LF.
@@ -16,7 +16,7 @@ use std::borrow::Cow;
 use std::time::Duration;
 
 use crate::codec::crc::crc16;
-use crate::codec::deframe::{rtu_frame_len, AsciiDeframer, Event, RtuDeframer, RtuFraming};
+use crate::codec::deframe::{bus_rtu_frame_len, AsciiDeframer, Event, RtuDeframer, RtuFraming};
 use crate::codec::pdu::Direction;
 use crate::codec::timing::LineSettings;
 use crate::codec::{Mode, MAX_RTU_FRAME};
@@ -711,27 +711,6 @@ fn block_of(e: Event<'_>) -> (Vec<u8>, FrameStatus) {
     (e.bytes().to_vec(), status)
 }
 
-/// The length of the RTU frame at the start of `head` in `direction`, by the codec's
-/// rule ([`rtu_frame_len`]: the functions the drives serve) or, for the Modbus
-/// Application Protocol's other fixed-shape functions a master may send a drive anyway
-/// (01H, 02H and 04H reads, 05H, 0FH; answered with an exception, or by another
-/// device on the bus), by theirs: so that a request of one of them read together with
-/// its reply (a stalled host, a tap's latency timer) is still told apart from it.
-fn frame_len(direction: Direction, head: &[u8]) -> Option<usize> {
-    if let Some(n) = rtu_frame_len(direction, head) {
-        return Some(n);
-    }
-    let &fc = head.get(1)?;
-    match (direction, fc) {
-        (Direction::Request, 0x01 | 0x02 | 0x04 | 0x05) | (Direction::Response, 0x05 | 0x0F) => {
-            Some(8)
-        }
-        (Direction::Request, 0x0F) => head.get(6).map(|&n| 9 + usize::from(n)),
-        (Direction::Response, 0x01 | 0x02 | 0x04) => head.get(2).map(|&n| 5 + usize::from(n)),
-        _ => None,
-    }
-}
-
 /// Whether `bytes` are the start of a frame whose length (by either direction's rule)
 /// says more bytes are due.
 fn starts_frame(bytes: &[u8]) -> bool {
@@ -740,7 +719,7 @@ fn starts_frame(bytes: &[u8]) -> bool {
     }
     [Direction::Request, Direction::Response]
         .into_iter()
-        .any(|d| frame_len(d, bytes).is_some_and(|n| n > bytes.len() && n <= MAX_RTU_FRAME))
+        .any(|d| bus_rtu_frame_len(d, bytes).is_some_and(|n| n > bytes.len() && n <= MAX_RTU_FRAME))
 }
 
 /// The next frame in `rest` of a silence-delimited block: (bytes before it that are
@@ -752,7 +731,7 @@ fn split_next(rest: &[u8]) -> (usize, usize, FrameStatus) {
     for skip in 0..rest.len() {
         let head = &rest[skip..];
         for dir in [Direction::Response, Direction::Request] {
-            if let Some(n) = frame_len(dir, head) {
+            if let Some(n) = bus_rtu_frame_len(dir, head) {
                 if n <= head.len() && n >= 4 && crc16(&head[..n]) == 0 {
                     return (skip, n, FrameStatus::Valid);
                 }
@@ -862,12 +841,12 @@ mod tests {
             );
         }
         // Replies of those functions by their byte count, requests of 0FH by theirs.
-        assert_eq!(frame_len(Direction::Response, &[1, 4, 6]), Some(11));
+        assert_eq!(bus_rtu_frame_len(Direction::Response, &[1, 4, 6]), Some(11));
         assert_eq!(
-            frame_len(Direction::Request, &[1, 0x0F, 0, 0, 0, 9, 2]),
+            bus_rtu_frame_len(Direction::Request, &[1, 0x0F, 0, 0, 0, 9, 2]),
             Some(11)
         );
-        assert_eq!(frame_len(Direction::Request, &[1, 0x2B]), None);
+        assert_eq!(bus_rtu_frame_len(Direction::Request, &[1, 0x2B]), None);
     }
 
     #[test]
@@ -963,7 +942,7 @@ mod tests {
         };
         let request = with_crc(&[0x01, 0x41, 0x25, 0x20, 0x00, 0x01]);
         let reply = with_crc(&[0x01, 0xC1, 0x01]);
-        assert!(frame_len(Direction::Request, &request).is_none());
+        assert!(bus_rtu_frame_len(Direction::Request, &request).is_none());
         f.idle(ms(9), &mut out);
         f.push(ms(10), &request[..3], &mut out);
         f.push(ms(40), &[&request[3..], &reply[..]].concat(), &mut out);

@@ -132,11 +132,7 @@ fn bytes(s: &str, path: &str) -> Result<Vec<u8>, ReportError> {
 }
 
 fn mode(s: &str, path: &str) -> Result<Mode, ReportError> {
-    match s {
-        "rtu" => Ok(Mode::Rtu),
-        "ascii" => Ok(Mode::Ascii),
-        _ => Err(field(path, format!("{s:?} is not rtu or ascii"))),
-    }
+    Mode::from_key(s).ok_or_else(|| field(path, format!("{s:?} is not rtu or ascii")))
 }
 
 fn status(s: &str, path: &str) -> Result<Status, ReportError> {

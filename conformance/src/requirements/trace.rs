@@ -311,9 +311,8 @@ pub enum RunCoverage {
     Error(String),
     /// None of its checks was selected (`--only`).
     NotRun,
-    /// Its checks are of a mode the run did not speak (`--mode`): that mode, "RTU" or
-    /// "ASCII".
-    OtherMode(&'static str),
+    /// Its checks are all of a mode the run did not speak (`--mode`): that mode.
+    OtherMode(crate::codec::Mode),
 }
 
 impl RunCoverage {
@@ -339,28 +338,17 @@ pub fn of_run<'c>(
     results: &[(&str, &str, &str)],
 ) -> Vec<(&'c Requirement, RunCoverage)> {
     use crate::codec::Mode;
-    // A check's id begins with its mode ("rtu.map...", "ascii.write...").
-    let mode_of = |id: &str| match id.split('.').next() {
-        Some("rtu") => Some(Mode::Rtu),
-        Some("ascii") => Some(Mode::Ascii),
-        _ => None,
-    };
+    // A check's id begins with its mode ("rtu.map...", "ascii.write...", "*.write...").
+    let mode_of = |id: &str| id.split('.').next().and_then(Mode::from_key);
     // The one mode all of `r`'s checks are of, when the run did not speak it.
     let other_mode = |r: &Requirement| {
-        let modes: Vec<Option<Mode>> = r.verified_by.checks.iter().map(|p| mode_of(p)).collect();
-        match modes.first() {
-            Some(Some(m))
-                if !spoken.is_empty()
-                    && !spoken.contains(m)
-                    && modes.iter().all(|x| *x == Some(*m)) =>
-            {
-                Some(match m {
-                    Mode::Rtu => "RTU",
-                    Mode::Ascii => "ASCII",
-                })
-            }
-            _ => None,
-        }
+        let first = mode_of(r.verified_by.checks.first()?)?;
+        let all = r
+            .verified_by
+            .checks
+            .iter()
+            .all(|p| mode_of(p) == Some(first));
+        (all && !spoken.is_empty() && !spoken.contains(&first)).then_some(first)
     };
     cat.current()
         .filter(|r| !r.verified_by.checks.is_empty())
@@ -417,7 +405,9 @@ mod tests {
         let ascii = of("ascii");
         assert!(!ascii.is_empty());
         assert!(
-            ascii.iter().all(|c| *c == RunCoverage::OtherMode("ASCII")),
+            ascii
+                .iter()
+                .all(|c| *c == RunCoverage::OtherMode(crate::codec::Mode::Ascii)),
             "{ascii:?}"
         );
         let rtu = of("rtu");

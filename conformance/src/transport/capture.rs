@@ -398,7 +398,7 @@ impl<T: Transport> Captured<T> {
                     .into_iter()
                     .any(|d| {
                         matches!(
-                            crate::codec::deframe::rtu_frame_len(d, &self.inbound),
+                            crate::codec::deframe::bus_rtu_frame_len(d, &self.inbound),
                             Some(n) if len < n
                         )
                     })

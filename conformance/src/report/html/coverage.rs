@@ -93,6 +93,7 @@ pub(super) fn section(report: &Report) -> String {
                 format!("<div class=\"muted\">{}</div>", esc(w))
             }
             RunCoverage::OtherMode(m) => {
+                let m = m.to_string().to_uppercase();
                 format!("<div class=\"muted\">its checks are {m}'s; this run did not speak {m} (--mode)</div>")
             }
             _ => String::new(),
