@@ -247,26 +247,15 @@ fn reports_name_the_requirements_each_check_verifies() {
             .all(|r| r.as_str().unwrap().starts_with("f510.REQ-")));
     }
     let json = dir.join("check.json");
-    let html = dir.join("check.html");
-    let xml = dir.join("check.xml");
-    for out in [&html, &xml] {
-        let (code, _, err) = conformance(&[
-            "report",
-            json.to_str().unwrap(),
-            "-o",
-            out.to_str().unwrap(),
-        ]);
-        assert_eq!(code, 0, "{err}");
-    }
+    let html = common::rendered(&json, &dir.join("check.html"));
+    let xml = common::rendered(&json, &dir.join("check.xml"));
     let first = checks[0]["requirements"][0].as_str().unwrap();
-    let xml = std::fs::read_to_string(xml).unwrap();
     assert!(
         xml.contains(&format!(
             "<property name=\"requirement\" value=\"{first}\"/>"
         )),
         "{xml}"
     );
-    let html = std::fs::read_to_string(html).unwrap();
     assert!(html.contains(&format!("href=\"#req-{first}\"")));
     assert!(html.contains(&format!("<tr id=\"req-{first}\">")));
     assert!(html.contains("id=\"coverage\""));
@@ -278,16 +267,7 @@ fn coverage_section(tag: &str, args: &[&str]) -> String {
     let dir = dir(tag);
     let (code, report) = common::check_device(&dir, args, Duration::from_secs(120));
     assert_eq!(code, Some(0), "{:#}", report["summary"]);
-    let html = dir.join("check.html");
-    let json = dir.join("check.json");
-    let (code, _, err) = conformance(&[
-        "report",
-        json.to_str().unwrap(),
-        "-o",
-        html.to_str().unwrap(),
-    ]);
-    assert_eq!(code, 0, "{err}");
-    let html = std::fs::read_to_string(html).unwrap();
+    let html = common::rendered(&dir.join("check.json"), &dir.join("check.html"));
     let at = html.find("id=\"coverage\"").unwrap();
     let end = html[at..].find("id=\"all\"").unwrap() + at;
     html[at..end].to_string()

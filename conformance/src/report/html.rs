@@ -750,11 +750,48 @@ pub fn html(report: &Report) -> String {
     out
 }
 
+/// The in-page links of `page` (`href="#x"`) that land on no element (`id="x"`), in
+/// order: a check that a rendered report's table of contents and cross-links hold. A
+/// fragment `key=value` (`#node=05&status=deviation`) is a filter the page's script
+/// reads, not an anchor, and is left out.
+pub fn unresolved_links(page: &str) -> Vec<String> {
+    let after = |pat: &'static str| page.split(pat).skip(1).filter_map(|s| s.split('"').next());
+    let ids: std::collections::BTreeSet<&str> = after("id=\"").collect();
+    after("href=\"#")
+        .filter(|h| !h.contains('=') && !ids.contains(h))
+        .map(str::to_string)
+        .collect()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
     use crate::codec::Mode;
     use crate::runner::{Finding, Severity};
+
+    /// Every in-page link of a rendered report lands on its section or row: one node, several
+    /// nodes, and a run with no observations (whose table of contents has no link to them).
+    #[test]
+    fn every_in_page_link_lands() {
+        use crate::report::fixtures::{one_node, several_nodes};
+        let mut quiet = one_node();
+        quiet.results.retain(|r| r.status != Status::Observation);
+        for (name, r) in [
+            ("one node", one_node()),
+            ("several", several_nodes()),
+            ("no observations", quiet),
+        ] {
+            let page = html(&r);
+            assert!(page.contains("href=\"#"), "{name}");
+            assert_eq!(unresolved_links(&page), Vec::<String>::new(), "{name}");
+        }
+        assert_eq!(
+            unresolved_links(
+                "<a href=\"#a\"></a><h2 id=\"a\"></h2><a href=\"#b\"></a><a href=\"#node=05\"></a>"
+            ),
+            ["b"]
+        );
+    }
 
     fn hostile() -> Report {
         let evil = "<script>alert(1)</script>";

@@ -21,7 +21,7 @@ use std::collections::BTreeMap;
 use serde_json::{json, Value};
 
 pub use csv::csv;
-pub use html::html;
+pub use html::{html, unresolved_links};
 pub use junit::junit;
 pub use parse::ReportError;
 pub use text::text;

@@ -161,3 +161,23 @@ pub fn unexplained(errors: &serde_json::Value, bus_log: &[serde_json::Value]) ->
     }
     out
 }
+
+/// `conformance report JSON -o OUT` (the format from OUT's extension), which must exit 0:
+/// what it wrote.
+pub fn rendered(json: &std::path::Path, out: &std::path::Path) -> String {
+    let o = std::process::Command::new(bin())
+        .arg("report")
+        .arg(json)
+        .arg("-o")
+        .arg(out)
+        .output()
+        .unwrap();
+    assert_eq!(
+        o.status.code(),
+        Some(0),
+        "report {}: {}",
+        json.display(),
+        String::from_utf8_lossy(&o.stderr)
+    );
+    std::fs::read_to_string(out).unwrap()
+}
