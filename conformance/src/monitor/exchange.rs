@@ -188,7 +188,7 @@ impl Monitor {
                 e.2 = reply.is_some() || !p.judgement.expect.replies();
             }
         }
-        self.learn(&p, reply, status);
+        self.learn(&p, reply);
         // The exchange as an example keeps it: made only where a finding is the first of
         // its kind on its node.
         let record = || ExchangeRecord {
@@ -379,11 +379,19 @@ impl Monitor {
     }
 
     /// Learns register values from writes the drive confirmed (or broadcast writes).
-    fn learn(&mut self, p: &Pending, reply: Option<&[u8]>, status: VerdictStatus) {
+    ///
+    /// A write is confirmed by its normal reply (06H: the copy of the request; 10H: its
+    /// start and count), whatever else was found on the exchange: a reply that came early,
+    /// a master that did not keep t3.5, or a drive that took a value the manual says it
+    /// refuses (that finding is the write's; the value read back later is the one the
+    /// drive took). An exception, a reply that is no confirmation, or none, teaches
+    /// nothing.
+    fn learn(&mut self, p: &Pending, reply: Option<&[u8]>) {
         let Some(plan) = &p.judgement.write else {
             return;
         };
-        let confirmed = reply.is_some() && status != VerdictStatus::Deviation;
+        let mode = self.cfg.mode;
+        let confirmed = reply.is_some_and(|r| confirms_write(mode, &p.bytes, r));
         let broadcast = p.address == 0;
         if !(confirmed || broadcast) {
             return;
@@ -405,6 +413,19 @@ impl Monitor {
                 }
             }
         }
+    }
+}
+
+/// Whether `reply` is the normal reply that confirms the write `request`: for 06H a copy
+/// of it, for 10H its address, function, start and count.
+fn confirms_write(mode: Mode, request: &[u8], reply: &[u8]) -> bool {
+    let (Some(q), Some(r)) = (judge::body_cow(mode, request), judge::body_cow(mode, reply)) else {
+        return false;
+    };
+    match q.get(1) {
+        Some(0x06) => q == r,
+        Some(0x10) => q.len() >= 6 && r.len() == 6 && q[..6] == r[..],
+        _ => false,
     }
 }
 

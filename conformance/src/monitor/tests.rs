@@ -301,18 +301,8 @@ fn no_reply_and_a_retry_are_counted() {
 fn values_are_judged_only_after_a_write_seen_on_the_bus_set_them() {
     let model = DriveModel::builtin("f510").unwrap();
     // A writable parameter (not a command register, which the drive may change itself).
-    let (reg, value) = model
-        .registers()
-        .filter(|(r, a)| *a == Access::ReadWrite && model.named(*r).is_none())
-        .find_map(|(r, _)| {
-            let w = write(1, r, 1);
-            matches!(
-                model.judge(1, Mode::Rtu, &w).expect,
-                Expectation::WriteSingle
-            )
-            .then_some((r, 1u16))
-        })
-        .expect("a writable parameter");
+    let value = 1u16;
+    let reg = writable_parameter(&model, value);
     let mut m = monitor(Mode::Rtu, &[1]);
     let w = write(1, reg, value);
     run(
@@ -330,6 +320,67 @@ fn values_are_judged_only_after_a_write_seen_on_the_bus_set_them() {
     let k = kinds(&m, 1);
     assert_eq!(k, ["drive.wrong-value"], "{reg:04X}H");
     assert_eq!(m.nodes()[&1].deviations, 1);
+}
+
+/// A writable parameter the model takes `value` for with a normal reply.
+fn writable_parameter(model: &DriveModel, value: u16) -> u16 {
+    model
+        .registers()
+        .filter(|(r, a)| *a == Access::ReadWrite && model.named(*r).is_none())
+        .find(|(r, _)| {
+            matches!(
+                model.judge(1, Mode::Rtu, &write(1, *r, value)).expect,
+                Expectation::WriteSingle
+            )
+        })
+        .expect("a writable parameter")
+        .0
+}
+
+#[test]
+fn a_write_the_drive_confirmed_early_sets_the_value_all_the_same() {
+    // pymodbus's server echoes a write 1.5 ms after it at 9600 baud: an early reply, a
+    // finding on timing, yet the drive took the value, and a read of it later returns it.
+    let model = DriveModel::builtin("f510").unwrap();
+    let reg = writable_parameter(&model, 1);
+    let w = write(1, reg, 1);
+    let mut m = monitor(Mode::Rtu, &[1]);
+    let lines = run(
+        &mut m,
+        &[
+            (0, &write(1, reg, 2)),
+            (12, &write(1, reg, 2)),
+            (100, &w),
+            (101, &w),
+            (200, &read(1, reg, 1)),
+            (215, &values(1, &[1])),
+        ],
+    );
+    assert!(
+        lines[1].issues.contains(&"drive.early-reply".to_string()),
+        "{:?}",
+        lines[1]
+    );
+    assert_eq!(lines[1].status, VerdictStatus::Deviation);
+    assert_eq!(lines[2].issues, Vec::<String>::new(), "{:?}", lines[2]);
+    // The same write refused (an exception) teaches nothing: the value set before holds.
+    let mut m = monitor(Mode::Rtu, &[1]);
+    let lines = run(
+        &mut m,
+        &[
+            (0, &write(1, reg, 2)),
+            (12, &write(1, reg, 2)),
+            (100, &w),
+            (112, &exception(1, 0x06, 3)),
+            (200, &read(1, reg, 1)),
+            (215, &values(1, &[1])),
+        ],
+    );
+    assert!(
+        lines[2].issues.contains(&"drive.wrong-value".to_string()),
+        "{:?}",
+        lines[2]
+    );
 }
 
 #[test]
