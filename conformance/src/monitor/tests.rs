@@ -344,18 +344,23 @@ fn a_write_the_drive_confirmed_early_sets_the_value_all_the_same() {
     let model = DriveModel::builtin("f510").unwrap();
     let reg = writable_parameter(&model, 1);
     let w = write(1, reg, 1);
-    let mut m = monitor(Mode::Rtu, &[1]);
-    let lines = run(
-        &mut m,
-        &[
-            (0, &write(1, reg, 2)),
-            (12, &write(1, reg, 2)),
-            (100, &w),
-            (101, &w),
-            (200, &read(1, reg, 1)),
-            (215, &values(1, &[1])),
-        ],
-    );
+    // 2 set and confirmed, then 1 written and answered with `answer` (ms, bytes), then
+    // a read that returns 1.
+    let after = |answer: (u64, &[u8])| {
+        let mut m = monitor(Mode::Rtu, &[1]);
+        run(
+            &mut m,
+            &[
+                (0, &write(1, reg, 2)),
+                (12, &write(1, reg, 2)),
+                (100, &w),
+                answer,
+                (200, &read(1, reg, 1)),
+                (215, &values(1, &[1])),
+            ],
+        )
+    };
+    let lines = after((101, &w));
     assert!(
         lines[1].issues.contains(&"drive.early-reply".to_string()),
         "{:?}",
@@ -364,18 +369,7 @@ fn a_write_the_drive_confirmed_early_sets_the_value_all_the_same() {
     assert_eq!(lines[1].status, VerdictStatus::Deviation);
     assert_eq!(lines[2].issues, Vec::<String>::new(), "{:?}", lines[2]);
     // The same write refused (an exception) teaches nothing: the value set before holds.
-    let mut m = monitor(Mode::Rtu, &[1]);
-    let lines = run(
-        &mut m,
-        &[
-            (0, &write(1, reg, 2)),
-            (12, &write(1, reg, 2)),
-            (100, &w),
-            (112, &exception(1, 0x06, 3)),
-            (200, &read(1, reg, 1)),
-            (215, &values(1, &[1])),
-        ],
-    );
+    let lines = after((112, &exception(1, 0x06, 3)));
     assert!(
         lines[2].issues.contains(&"drive.wrong-value".to_string()),
         "{:?}",
