@@ -11,7 +11,7 @@ use super::{
     TapFrame,
 };
 use crate::codec::pdu::Direction;
-use crate::codec::Mode;
+use crate::codec::{self, Mode};
 use crate::judge::{self, Conversation, Judge, Severity, Timing, Verdict, VerdictStatus};
 use crate::model::Expectation;
 use crate::runner::ExchangeRecord;
@@ -176,9 +176,7 @@ impl Monitor {
             if received.is_empty() && p.judgement.expect.replies() && judge_drive {
                 stats.timeouts += 1;
             }
-            if reply_status != FrameStatus::Valid || bad_checksum {
-                stats.crc_errors += u64::from(bad_checksum);
-            }
+            stats.crc_errors += u64::from(bad_checksum);
             if let (Some(rt), true) = (timing.response_time(), reply.is_some()) {
                 stats.response.record(rt);
             }
@@ -416,10 +414,18 @@ impl Monitor {
     }
 }
 
-/// Whether `reply` is the normal reply that confirms the write `request`: for 06H a copy
-/// of it, for 10H its address, function, start and count.
-fn confirms_write(mode: Mode, request: &[u8], reply: &[u8]) -> bool {
-    let (Some(q), Some(r)) = (judge::body_cow(mode, request), judge::body_cow(mode, reply)) else {
+/// Whether `reply` is the normal reply that confirms the write `request`: both frames
+/// whole with their CRC or LRC holding, and for 06H the same message, for 10H its address,
+/// function, start and count (in ASCII the messages are compared, not the characters:
+/// an echo in upper case confirms a request in lower case).
+pub(super) fn confirms_write(mode: Mode, request: &[u8], reply: &[u8]) -> bool {
+    let body = |frame| {
+        codec::frame_parts(mode, frame)
+            .ok()
+            .filter(|p| p.checksum.verify().is_ok())
+            .map(|p| p.body)
+    };
+    let (Some(q), Some(r)) = (body(request), body(reply)) else {
         return false;
     };
     match q.get(1) {

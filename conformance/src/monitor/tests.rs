@@ -368,13 +368,65 @@ fn a_write_the_drive_confirmed_early_sets_the_value_all_the_same() {
     );
     assert_eq!(lines[1].status, VerdictStatus::Deviation);
     assert_eq!(lines[2].issues, Vec::<String>::new(), "{:?}", lines[2]);
-    // The same write refused (an exception) teaches nothing: the value set before holds.
-    let lines = after((112, &exception(1, 0x06, 3)));
-    assert!(
-        lines[2].issues.contains(&"drive.wrong-value".to_string()),
-        "{:?}",
-        lines[2]
+    // The same write refused (an exception), or echoed with a bad CRC, teaches nothing:
+    // the value set before holds.
+    let mut damaged = w.clone();
+    *damaged.last_mut().unwrap() ^= 1;
+    for answer in [exception(1, 0x06, 3), damaged] {
+        let lines = after((112, &answer));
+        assert!(
+            lines[2].issues.contains(&"drive.wrong-value".to_string()),
+            "{answer:02X?}: {:?}",
+            lines[2]
+        );
+    }
+}
+
+#[test]
+fn a_write_is_confirmed_by_its_normal_reply_only() {
+    use super::exchange::confirms_write;
+    let w = write(1, 0x2502, 0x04D2);
+    assert!(confirms_write(Mode::Rtu, &w, &w));
+    assert!(!confirms_write(Mode::Rtu, &w, &write(1, 0x2502, 0x04D3)));
+    assert!(!confirms_write(Mode::Rtu, &w, &exception(1, 0x06, 3)));
+    let mut bad = w.clone();
+    *bad.last_mut().unwrap() ^= 1;
+    assert!(!confirms_write(Mode::Rtu, &w, &bad));
+    // 10H: the reply carries the start and the count.
+    let values = Registers::new(&[0, 1, 0, 2]).unwrap();
+    let q = frame(
+        Mode::Rtu,
+        1,
+        Pdu::WriteMultipleRequest {
+            start: 0x2501,
+            values,
+        },
     );
+    let ack = |count| {
+        frame(
+            Mode::Rtu,
+            1,
+            Pdu::WriteMultipleResponse {
+                start: 0x2501,
+                count,
+            },
+        )
+    };
+    assert!(confirms_write(Mode::Rtu, &q, &ack(2)));
+    assert!(!confirms_write(Mode::Rtu, &q, &ack(1)));
+    // ASCII: a request in lower case is confirmed by the echo in upper case, as the
+    // judge expects it (the characters differ, the message is the same).
+    let upper = frame(
+        Mode::Ascii,
+        1,
+        Pdu::WriteSingle {
+            register: 0x250A,
+            value: 0x00AB,
+        },
+    );
+    let lower = upper.to_ascii_lowercase();
+    assert_ne!(lower, upper);
+    assert!(confirms_write(Mode::Ascii, &lower, &upper));
 }
 
 #[test]
