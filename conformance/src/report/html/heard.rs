@@ -105,6 +105,7 @@ mod tests {
             frames: 0,
             bytes: 0,
             listened: std::time::Duration::from_secs(2),
+            searched: None,
             ended: "end of input".into(),
             nodes: Vec::new(),
             notices: notices.iter().map(|n| n.to_string()).collect(),

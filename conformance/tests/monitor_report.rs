@@ -1,0 +1,167 @@
+//! The monitor's report in every form a user gets it: written by `monitor` itself, and read
+//! back from its JSON by `conformance report` (text and HTML). The bus is a capture the
+//! test writes, each frame at a time it chooses, so every figure (response times, the
+//! capture's first and last packet) is the same on every run and on any host.
+#![cfg(unix)]
+
+mod common;
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+use conformance::capture::write::{Interface, PacketMeta, PcapngWriter};
+use conformance::capture::LINKTYPE_USER0;
+use conformance::codec::pdu::{Message, Pdu, Registers};
+use conformance::codec::Mode;
+
+/// 2026-11-27T10:00:00Z, the capture's first packet, in microseconds since the epoch.
+const T0_US: u64 = 1_795_773_600_000_000;
+
+fn rtu(address: u8, pdu: Pdu<'_>) -> Vec<u8> {
+    Message { address, pdu }.to_frame_vec(Mode::Rtu).unwrap()
+}
+
+fn read(address: u8, start: u16, count: u16) -> Vec<u8> {
+    rtu(address, Pdu::ReadRequest { start, count })
+}
+
+fn values(address: u8, v: &[u16]) -> Vec<u8> {
+    let bytes: Vec<u8> = v.iter().flat_map(|x| x.to_be_bytes()).collect();
+    rtu(
+        address,
+        Pdu::ReadResponse {
+            values: Registers::new(&bytes).unwrap(),
+        },
+    )
+}
+
+fn dir(name: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("monitor-report-{}-{name}", std::process::id()));
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+/// A pcapng capture of an RTU bus at `path`: each frame at `T0_US` + its offset in ms.
+fn capture(path: &Path, frames: &[(u64, Vec<u8>)]) {
+    let mut w = PcapngWriter::new(std::fs::File::create(path).unwrap(), "test").unwrap();
+    w.add_interface(&Interface {
+        link_type: LINKTYPE_USER0,
+        name: "tap".into(),
+        description: "rtu 9600 8E1".into(),
+    })
+    .unwrap();
+    for (ms, bytes) in frames {
+        let meta = PacketMeta {
+            timestamp_us: T0_US + ms * 1000,
+            ..PacketMeta::default()
+        };
+        w.write_packet(&meta, bytes).unwrap();
+    }
+}
+
+/// Two drives polled: 01 and 02 answer at once (11 ms after the request began, 2 ms after
+/// it ended), except one reply of 02 that comes 60 ms late; the master asks 01 for 2530H,
+/// past the F510's map, and 01 answers exception 02H as the manual says.
+fn polled_bus(path: &Path) {
+    capture(
+        path,
+        &[
+            (0, read(1, 0x252F, 1)),
+            (11, values(1, &[0x0510])),
+            (100, read(2, 0x2520, 2)),
+            (111, values(2, &[4, 0])),
+            (200, read(1, 0x2530, 1)),
+            (
+                211,
+                rtu(
+                    1,
+                    Pdu::Exception {
+                        function: 3,
+                        code: 2,
+                    },
+                ),
+            ),
+            (300, read(2, 0x2521, 1)),
+            (370, values(2, &[0])),
+            (400, read(1, 0x252F, 1)),
+            (411, values(1, &[0x0510])),
+        ],
+    );
+}
+
+/// `conformance ARGS`, which must not panic or fail to run: its exit code and stdout.
+fn run(args: &[&str]) -> (i32, String) {
+    let o = Command::new(common::bin()).args(args).output().unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!err.contains("panicked"), "{args:?}: {err}");
+    let code = o.status.code().unwrap_or(-1);
+    assert!(code == 0 || code == 1, "{args:?} exited {code}: {err}");
+    (code, String::from_utf8_lossy(&o.stdout).into_owned())
+}
+
+/// `monitor --capture-in CAP -a 1,2 -b 9600 -P even` writing its report to `out` (the
+/// format from its extension), and the report.
+fn monitor(cap: &Path, out: &Path) -> String {
+    run(&[
+        "monitor",
+        "--model",
+        "f510",
+        "--quiet",
+        "-a",
+        "1,2",
+        "-b",
+        "9600",
+        "-P",
+        "even",
+        "--capture-in",
+        cap.to_str().unwrap(),
+        "-o",
+        out.to_str().unwrap(),
+    ]);
+    std::fs::read_to_string(out).unwrap()
+}
+
+/// The HTML's "Heard on the bus" section: from its heading to the next section's.
+fn heard_section(html: &str) -> &str {
+    let at = html
+        .find("<h2 id=\"heard\">")
+        .unwrap_or_else(|| panic!("no Heard on the bus section in {html}"));
+    let rest = &html[at..];
+    &rest[..rest[4..].find("<h2").map_or(rest.len(), |e| e + 4)]
+}
+
+/// Issue 33, item 4: `conformance report` of a monitor's JSON gives what the monitor's
+/// own report gives under "heard:" (text) and "Heard on the bus" (HTML): the per-node
+/// counts, the percentiles, the findings by kind, the histograms and the notices.
+#[test]
+fn a_monitor_report_read_back_keeps_what_was_heard() {
+    let d = dir("readback");
+    let cap = d.join("bus.pcapng");
+    polled_bus(&cap);
+    let json = d.join("m.json");
+    monitor(&cap, &json);
+    let own_text = monitor(&cap, &d.join("m.txt"));
+    let own_html = monitor(&cap, &d.join("m.html"));
+
+    let heard = |text: &str| -> Vec<String> {
+        text.lines()
+            .filter(|l| l.starts_with("heard:"))
+            .map(str::to_string)
+            .collect()
+    };
+    let (_, read_back) = run(&["report", json.to_str().unwrap()]);
+    let own = heard(&own_text);
+    assert!(
+        own.iter().any(|l| l.contains("node 02: 2 requests"))
+            && own.iter().any(|l| l.contains("p50")),
+        "{own_text}"
+    );
+    assert_eq!(heard(&read_back), own, "{read_back}");
+
+    let html = common::rendered(&json, &d.join("r.html"));
+    let section = heard_section(&html);
+    assert_eq!(section, heard_section(&own_html));
+    // A histogram for each node that answered.
+    assert_eq!(section.matches("<svg").count(), 2, "{section}");
+    let _ = std::fs::remove_dir_all(&d);
+}
