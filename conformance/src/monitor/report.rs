@@ -9,7 +9,7 @@ use serde_json::{json, Value};
 use super::stats::count_of;
 use super::{Monitor, NodeStats, Side};
 use crate::judge::{Finding, Severity};
-use crate::runner::{CheckResult, Status};
+use crate::runner::{CheckResult, ExchangeRecord, Status};
 
 /// The monitor section of a report.
 #[derive(Debug, Clone, Default)]
@@ -236,7 +236,10 @@ impl Monitor {
                             severity: e.severity,
                             text: format!("{} (seen {} time(s))", e.text, e.count),
                         }],
-                        exchanges: vec![e.exchange.clone()],
+                        exchanges: vec![match side {
+                            Side::Drive => e.exchange.clone(),
+                            Side::Master => as_master_finding(&e.exchange),
+                        }],
                         duration: Duration::ZERO,
                         node: Some(node),
                     });
@@ -271,6 +274,18 @@ impl Monitor {
     }
 }
 
+/// The exchange of a finding on the master's side as its result shows it: the request
+/// is what deviates, and the drive's reply (often the very one the model predicts) is
+/// only its context, so no predicted frame is set beside it to compare with (the same
+/// bytes twice, under "expected" and "received", told a reader nothing).
+fn as_master_finding(x: &ExchangeRecord) -> ExchangeRecord {
+    ExchangeRecord {
+        expected: None,
+        predicted: format!("what a drive answers to this request: {}", x.predicted),
+        ..x.clone()
+    }
+}
+
 fn title(side: Side) -> &'static str {
     match side {
         Side::Drive => "What the drive answered, heard on the bus",
@@ -290,5 +305,39 @@ fn source(m: &Monitor, side: Side, citations: &[String]) -> String {
         base
     } else {
         format!("{base}: {}", citations.join("; "))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Issue 33, item 9: a session that began by finding the line's settings says how
+    /// long it listened in all and how much of it went to the search, in the text, the
+    /// HTML (which shows the same line) and the JSON, which reads back.
+    #[test]
+    fn the_search_is_part_of_the_time_listened() {
+        let mut m = MonitorSummary {
+            mode: "rtu".into(),
+            port: "pty /tmp/tap".into(),
+            line: "19200 8O1".into(),
+            listened: Duration::from_millis(15_000),
+            searched: Some(Duration::from_millis(8_700)),
+            ended: "--duration passed".into(),
+            ..MonitorSummary::default()
+        };
+        assert!(
+            m.text_lines()[0].starts_with(
+                "listened 15.0 s (8.7 s finding the line's settings, then 6.3 s judging) on pty /tmp/tap"
+            ),
+            "{:?}",
+            m.text_lines()
+        );
+        let json = m.to_json();
+        assert_eq!(json["searched_s"], 8.7);
+        assert_eq!(MonitorSummary::from_json(&json).unwrap().to_json(), json);
+        m.searched = None;
+        assert!(m.text_lines()[0].starts_with("listened 15.0 s on "));
+        assert_eq!(m.to_json()["searched_s"], Value::Null);
     }
 }

@@ -110,6 +110,17 @@ impl Histogram {
         }
     }
 
+    /// The width in ms of the bucket whose lower edge is `lower_ms` (the last one, which
+    /// holds every slower reply, is given the width of the others beyond 100 ms).
+    pub fn bucket_width_ms(lower_ms: f64) -> f64 {
+        let us = if lower_ms * 1000.0 < FINE_LIMIT_US as f64 {
+            FINE_US
+        } else {
+            COARSE_US
+        };
+        us as f64 / 1000.0
+    }
+
     /// Non-empty buckets as (lower edge in ms, count), for plots.
     pub fn buckets(&self) -> Vec<(f64, u32)> {
         self.counts
