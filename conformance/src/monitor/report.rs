@@ -119,11 +119,12 @@ impl MonitorSummary {
     /// How long the bus was listened to, and the part of it the search took.
     pub fn listened_phrase(&self) -> String {
         match self.searched {
+            // What was heard at the setting found is judged too: the search's time is
+            // named, not taken off.
             Some(s) => format!(
-                "listened {:.1} s ({:.1} s finding the line's settings, then {:.1} s judging)",
+                "listened {:.1} s, of which {:.1} s finding the line's settings",
                 self.listened.as_secs_f64(),
                 s.as_secs_f64(),
-                self.listened.saturating_sub(s).as_secs_f64()
             ),
             None => format!("listened {:.1} s", self.listened.as_secs_f64()),
         }
@@ -145,8 +146,9 @@ impl MonitorSummary {
             })
         };
         let mut out = vec![format!(
-            "{} on {} ({}, {}): {} frames, {} bytes; {}",
+            "{}{} on {} ({}, {}): {} frames, {} bytes; {}",
             self.listened_phrase(),
+            if self.searched.is_some() { "," } else { "" },
             self.port,
             self.mode,
             self.line,
@@ -328,7 +330,7 @@ mod tests {
         };
         assert!(
             m.text_lines()[0].starts_with(
-                "listened 15.0 s (8.7 s finding the line's settings, then 6.3 s judging) on pty /tmp/tap"
+                "listened 15.0 s, of which 8.7 s finding the line's settings, on pty /tmp/tap"
             ),
             "{:?}",
             m.text_lines()

@@ -37,6 +37,8 @@ pub fn text(r: &Report, verbose: bool) -> String {
         "TECO Modbus {} ({} {})",
         if r.master.is_some() {
             "master gate report"
+        } else if r.kind == super::ReportKind::Monitor {
+            "bus monitor report"
         } else if gate {
             "codec gate report"
         } else {
