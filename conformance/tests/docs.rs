@@ -905,7 +905,8 @@ fn the_monitor_page_does_not_call_the_line_search_not_yet_done() {
         .split("\n\n")
         .filter(|p| {
             let p = p.to_lowercase();
-            p.contains("not yet") && (p.contains("baud") || p.contains("parity") || p.contains("`-b`"))
+            p.contains("not yet")
+                && (p.contains("baud") || p.contains("parity") || p.contains("`-b`"))
         })
         .collect();
     assert!(contradictions.is_empty(), "{contradictions:#?}");
