@@ -312,6 +312,16 @@ fn a_monitor_report_shows_why_the_master_deviates_and_names_its_nodes() {
     );
     assert!(!text.lines().any(|l| l.starts_with("bus:")), "{text}");
     assert!(html.contains("01H, 02H"), "{html}");
+    // The table of the nodes: a monitor reads no identification, and says which node
+    // it never heard.
+    let table = &html[html.find("<table id=\"nodes\">").unwrap()..];
+    let table = &table[..table.find("</table>").unwrap()];
+    assert_eq!(
+        table.matches("nothing heard to or from it").count(),
+        2,
+        "{table}"
+    );
+    assert!(!table.contains(">not read<"), "{table}");
 }
 
 /// Issue 33, item 12: each node's histogram of response times has its axes, its unit
