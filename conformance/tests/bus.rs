@@ -642,6 +642,15 @@ fn a_monitor_with_no_baud_rate_finds_the_lines_settings_on_an_emulated_line() {
             && notices.contains("after 4 other settings"),
         "{notices}"
     );
+    // The report's listening is the whole of --duration, the search a part of it (issue
+    // 33, item 9: it was the time from the first frame judged, the search left out).
+    let listened = v["monitor"]["listened_s"].as_f64().unwrap();
+    let searched = v["monitor"]["searched_s"].as_f64().unwrap_or(0.0);
+    assert!(
+        listened >= 30.0 && searched > 0.0 && searched < listened,
+        "{:#}",
+        v["monitor"]
+    );
     let node = v["monitor"]["nodes"]
         .as_array()
         .unwrap()

@@ -883,3 +883,31 @@ fn simulator_examples() {
 fn master_gate_examples() {
     check_page("docs/src/master-gate.md");
 }
+
+/// Issue 33, item 8: the monitor's page and the monitor agree on what it does with no
+/// `-b`. The monitor finds the baud rate and parity by listening (its help says so, and
+/// the page has a section on it), so no paragraph of the page may call that "not yet"
+/// done.
+#[test]
+fn the_monitor_page_does_not_call_the_line_search_not_yet_done() {
+    let help = Command::new(env!("CARGO_BIN_EXE_conformance"))
+        .args(["monitor", "--help"])
+        .output()
+        .unwrap();
+    let help = String::from_utf8_lossy(&help.stdout);
+    assert!(
+        help.contains("with no -b, the monitor finds them by listening"),
+        "{help}"
+    );
+    let page = std::fs::read_to_string(repo().join("docs/src/monitor.md")).unwrap();
+    assert!(page.contains("\n## Line settings found by listening\n"));
+    let contradictions: Vec<&str> = page
+        .split("\n\n")
+        .filter(|p| {
+            let p = p.to_lowercase();
+            p.contains("not yet")
+                && (p.contains("baud") || p.contains("parity") || p.contains("`-b`"))
+        })
+        .collect();
+    assert!(contradictions.is_empty(), "{contradictions:#?}");
+}

@@ -203,6 +203,7 @@ pub fn run(args: MonitorArgs) -> anyhow::Result<ExitCode> {
         args.stop_bits,
     );
     let started = humantime::format_rfc3339_seconds(SystemTime::now()).to_string();
+    let now = || humantime::format_rfc3339_seconds(SystemTime::now()).to_string();
     let mut out = Out::new(&args)?;
     let new_monitor = |mode: Mode, line: LineSettings| -> anyhow::Result<Monitor> {
         if mode == Mode::Rtu && line.data_bits != 8 {
@@ -223,7 +224,7 @@ pub fn run(args: MonitorArgs) -> anyhow::Result<ExitCode> {
         mon.set_live(!args.quiet || args.log.is_some());
         Ok(mon)
     };
-    let (mode, mon, line, source, ended) = match (&args.port, &args.capture_in) {
+    let (mode, mon, line, source, ended, when) = match (&args.port, &args.capture_in) {
         (_, Some(path)) => {
             // Read a part at a time (a buffer that stays in the cache), not whole.
             let open = || {
@@ -267,24 +268,77 @@ pub fn run(args: MonitorArgs) -> anyhow::Result<ExitCode> {
                 }
                 None => format!("end of the capture ({} packets)", r.packets),
             };
+            let when = match r.first_ns {
+                // The bus was heard when the capture was taken, not now.
+                Some(ns) => {
+                    let first = SystemTime::UNIX_EPOCH + Duration::from_nanos(ns);
+                    When {
+                        started: humantime::format_rfc3339_millis(first).to_string(),
+                        finished: humantime::format_rfc3339_millis(first + r.span).to_string(),
+                        listened: None,
+                        searched: None,
+                    }
+                }
+                None => {
+                    let n = format!(
+                        "the capture {}: the run's start and end are those of the analysis",
+                        if r.packets == 0 {
+                            "holds no packet"
+                        } else {
+                            "gives its packets no times"
+                        }
+                    );
+                    out.say(monitor::Said::Notice(&n));
+                    mon.notice(n);
+                    mon.take_notices();
+                    When {
+                        started,
+                        finished: now(),
+                        listened: None,
+                        searched: None,
+                    }
+                }
+            };
             (
                 mode,
                 mon,
                 line,
                 format!("capture {}", path.display()),
                 ended,
+                when,
             )
         }
-        (Some(port), None) => listen(&args, port, line, asked, &new_monitor, &mut out)?,
+        (Some(port), None) => {
+            let (mode, mon, line, source, ended, listened, searched) =
+                listen(&args, port, line, asked, &new_monitor, &mut out)?;
+            let when = When {
+                started,
+                finished: now(),
+                listened: Some(listened),
+                searched,
+            };
+            (mode, mon, line, source, ended, when)
+        }
         (None, None) => anyhow::bail!("say what to listen to: --port PATH or --capture-in FILE"),
     };
-    let code = report(&args, mode, line, started, &mon, &source, &ended)?;
+    let code = report(&args, mode, line, when, &mon, &source, &ended)?;
     // The report is written first: a log that failed loses no verdict.
     if let Some(e) = out.log_failed {
         eprintln!("error: {e:#}");
         return Ok(ExitCode::from(2));
     }
     Ok(code)
+}
+
+/// When the bus was heard, for the report: a port's listening (the search for its
+/// settings included), or a capture's first packet to the end of its last.
+struct When {
+    started: String,
+    finished: String,
+    /// On a port: from the start to the end of the listening.
+    listened: Option<Duration>,
+    /// Its first part, spent finding the line's settings or the mode.
+    searched: Option<Duration>,
 }
 
 /// The mode `--mode auto` was told, or why it was not.
@@ -378,7 +432,8 @@ impl<'a> Out<'a> {
 
 /// Listens on `port` (finding the line's settings first with no `-b`, and telling the
 /// mode with `--mode auto`) until Ctrl-C, SIGTERM, `--duration` or the end of the input:
-/// the mode, the monitor, the line, the port's description and why listening ended.
+/// the mode, the monitor, the line, the port's description, why listening ended, how long
+/// it listened and how long of that it took to find the settings or the mode.
 fn listen(
     args: &MonitorArgs,
     port: &str,
@@ -386,7 +441,7 @@ fn listen(
     asked: Option<Mode>,
     new_monitor: &dyn Fn(Mode, LineSettings) -> anyhow::Result<Monitor>,
     out: &mut Out<'_>,
-) -> anyhow::Result<(Mode, Monitor, LineSettings, String, String)> {
+) -> anyhow::Result<Listened> {
     let serial = SerialTransport::open(port, line, serial_kind(port))
         .with_context(|| format!("cannot listen on {port}"))?;
     // The one handler of every long command: Ctrl-C, SIGTERM and SIGHUP end the listening
@@ -394,6 +449,7 @@ fn listen(
     let stop = super::interrupt::stop_flag()?;
     let origin = Instant::now();
     let mut found_notice = None;
+    let mut searched = None;
     let (line, told, serial) = if args.baud.is_some() {
         (line, None, serial)
     } else {
@@ -433,6 +489,7 @@ fn listen(
         .map_err(|e| anyhow::anyhow!("finding the line's settings: {e}"))?;
         match r {
             Ok(found) => {
+                searched = Some(origin.elapsed());
                 let said = found.describe();
                 out.say(monitor::Said::Notice(&said));
                 found_notice = Some(said);
@@ -464,6 +521,7 @@ fn listen(
                     .map_err(|e| anyhow::anyhow!("--mode auto: {e}"))?;
             match told {
                 Ok((m, heard)) => {
+                    searched = Some(origin.elapsed());
                     if !args.quiet {
                         let n: usize = heard.iter().map(|(_, b)| b.len()).sum();
                         eprintln!("--mode auto: {m} (two valid {m} frames in the first {n} bytes)");
@@ -516,6 +574,7 @@ fn listen(
         before,
         |said| out.say(said),
     )?;
+    let listened = origin.elapsed();
     let ended = describe_end(&ended);
     let described = tap.describe();
     // The last frame heard is written when the port is let go.
@@ -523,8 +582,20 @@ fn listen(
     if let (Some(path), Some(rec)) = (&args.capture, &capture) {
         super::link::close_capture(path, rec);
     }
-    Ok((mode, mon, line, described, ended))
+    Ok((mode, mon, line, described, ended, listened, searched))
 }
+
+/// What [`listen`] heard: the mode, the monitor, the line, the port, why it ended, how
+/// long it listened and the part of that the search took.
+type Listened = (
+    Mode,
+    Monitor,
+    LineSettings,
+    String,
+    String,
+    Duration,
+    Option<Duration>,
+);
 
 /// The port read once, for a poll, before listening is announced.
 fn read_before_announcing(
@@ -541,19 +612,33 @@ fn report(
     args: &MonitorArgs,
     mode: Mode,
     line: LineSettings,
-    started: String,
+    when: When,
     mon: &Monitor,
     source: &str,
     ended: &str,
 ) -> anyhow::Result<ExitCode> {
     let nodes = args.nodes.as_ref().map(|n| n.0.clone()).unwrap_or_default();
-    let summary = mon.summary(source, ended);
+    let mut summary = mon.summary(source, ended);
+    if let Some(l) = when.listened {
+        summary.listened = l;
+    }
+    summary.searched = when.searched;
     let heard: Vec<u8> = mon.nodes().keys().copied().filter(|n| *n != 0).collect();
+    // The nodes of -a, heard or not (a node that never answered is news), and every node
+    // heard.
+    let mut on_bus: Vec<u8> = mon
+        .nodes()
+        .keys()
+        .copied()
+        .chain(nodes.iter().copied())
+        .collect();
+    on_bus.sort_unstable();
+    on_bus.dedup();
     let mut report = Report {
         kind: ReportKind::Monitor,
         codec: None,
-        started,
-        finished: Some(humantime::format_rfc3339_seconds(SystemTime::now()).to_string()),
+        started: when.started,
+        finished: Some(when.finished),
         complete: true,
         stopped: None,
         device: Device {
@@ -569,10 +654,9 @@ fn report(
             line: line.to_string(),
             identification: None,
             simulated: None,
-            nodes: mon
-                .nodes()
-                .keys()
-                .map(|&address| NodeInfo {
+            nodes: on_bus
+                .into_iter()
+                .map(|address| NodeInfo {
                     address,
                     ..NodeInfo::default()
                 })

@@ -43,8 +43,11 @@ pub struct Replayed {
     pub packets: u64,
     /// Bytes fed.
     pub bytes: u64,
-    /// The span from the first packet to the last.
+    /// The span from the first packet to the end of the last.
     pub span: Duration,
+    /// The first packet's time, nanoseconds since the Unix epoch, where the capture gives
+    /// it: with [`Replayed::span`], when the bus was heard (not when it was judged).
+    pub first_ns: Option<u64>,
     /// A fault after the first packets (a file cut short): what was read before it was
     /// judged.
     pub stopped: Option<ReadError>,
@@ -296,6 +299,9 @@ impl Feeder {
         };
         // A packet without a time (a Simple Packet Block) came after the one before.
         let ts = p.timestamp_ns.unwrap_or(self.last).max(self.last);
+        if self.origin.is_none() {
+            self.out.first_ns = p.timestamp_ns;
+        }
         let t0 = *self.origin.get_or_insert(ts);
         let first = Duration::from_nanos(ts - t0);
         monitor.idle(first);

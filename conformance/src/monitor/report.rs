@@ -6,9 +6,10 @@ use std::time::Duration;
 
 use serde_json::{json, Value};
 
+use super::stats::count_of;
 use super::{Monitor, NodeStats, Side};
 use crate::judge::{Finding, Severity};
-use crate::runner::{CheckResult, Status};
+use crate::runner::{CheckResult, ExchangeRecord, Status};
 
 /// The monitor section of a report.
 #[derive(Debug, Clone, Default)]
@@ -25,8 +26,14 @@ pub struct MonitorSummary {
     pub frames: u64,
     /// Bytes seen.
     pub bytes: u64,
-    /// How long the bus was listened to.
+    /// How long the bus was listened to: on a port, from the start to the end of the
+    /// listening, the search for its settings included; in a capture, from its first
+    /// packet to the end of its last.
     pub listened: Duration,
+    /// The first part of [`MonitorSummary::listened`] spent finding the line's settings
+    /// or its mode (with no `-b`, or `--mode auto`), before the judging began; `None`
+    /// where nothing was searched for.
+    pub searched: Option<Duration>,
     /// Why listening ended.
     pub ended: String,
     /// Per node (address 00 is the broadcast address), its statistics.
@@ -45,11 +52,82 @@ impl MonitorSummary {
             "window_ms": self.window_ms,
             "frames": self.frames,
             "bytes": self.bytes,
-            "listened_s": (self.listened.as_secs_f64() * 1000.0).round() / 1000.0,
+            "listened_s": secs(self.listened),
+            "searched_s": self.searched.map(secs),
             "ended": self.ended,
             "nodes": self.nodes.iter().map(|(a, s)| s.to_json(*a)).collect::<Vec<_>>(),
             "notices": self.notices,
         })
+    }
+
+    /// The section read back from [`MonitorSummary::to_json`] (`.monitor` of a saved
+    /// report), or what is wrong with it, by its path. Reports older than `searched_s`
+    /// searched nothing.
+    pub fn from_json(v: &Value) -> Result<MonitorSummary, String> {
+        let p = ".monitor";
+        let text = |key: &str| -> Result<String, String> {
+            v.get(key)
+                .and_then(Value::as_str)
+                .map(str::to_string)
+                .ok_or_else(|| format!("{p}.{key}: missing or not a string"))
+        };
+        let seconds = |key: &str| -> Result<Option<Duration>, String> {
+            match v.get(key) {
+                None | Some(Value::Null) => Ok(None),
+                Some(x) => x
+                    .as_f64()
+                    .filter(|s| s.is_finite() && *s >= 0.0 && *s < 1e9)
+                    .map(|s| Some(Duration::from_secs_f64(s)))
+                    .ok_or_else(|| format!("{p}.{key}: {x} is not a number of seconds")),
+            }
+        };
+        let list = |key: &str| -> Result<&Vec<Value>, String> {
+            v.get(key)
+                .and_then(Value::as_array)
+                .ok_or_else(|| format!("{p}.{key}: missing or not an array"))
+        };
+        Ok(MonitorSummary {
+            mode: text("mode")?,
+            port: text("port")?,
+            line: text("line")?,
+            window_ms: count_of(v, "window_ms", p)?,
+            frames: count_of(v, "frames", p)?,
+            bytes: count_of(v, "bytes", p)?,
+            listened: seconds("listened_s")?.ok_or_else(|| format!("{p}.listened_s: missing"))?,
+            searched: seconds("searched_s")?,
+            ended: text("ended")?,
+            nodes: list("nodes")?
+                .iter()
+                .enumerate()
+                .map(|(i, n)| NodeStats::from_json(n, &format!("{p}.nodes[{i}]")))
+                .collect::<Result<_, _>>()?,
+            notices: match v.get("notices") {
+                None | Some(Value::Null) => &[][..],
+                Some(_) => list("notices")?,
+            }
+            .iter()
+            .enumerate()
+            .map(|(i, n)| {
+                n.as_str()
+                    .map(str::to_string)
+                    .ok_or_else(|| format!("{p}.notices[{i}]: not a string"))
+            })
+            .collect::<Result<_, _>>()?,
+        })
+    }
+
+    /// How long the bus was listened to, and the part of it the search took.
+    pub fn listened_phrase(&self) -> String {
+        match self.searched {
+            // What was heard at the setting found is judged too: the search's time is
+            // named, not taken off.
+            Some(s) => format!(
+                "listened {:.1} s, of which {:.1} s finding the line's settings",
+                self.listened.as_secs_f64(),
+                s.as_secs_f64(),
+            ),
+            None => format!("listened {:.1} s", self.listened.as_secs_f64()),
+        }
     }
 
     /// One line per node: its counts, response times and findings so far.
@@ -68,8 +146,9 @@ impl MonitorSummary {
             })
         };
         let mut out = vec![format!(
-            "listened {:.1} s on {} ({}, {}): {} frames, {} bytes; {}",
-            self.listened.as_secs_f64(),
+            "{}{} on {} ({}, {}): {} frames, {} bytes; {}",
+            self.listened_phrase(),
+            if self.searched.is_some() { "," } else { "" },
             self.port,
             self.mode,
             self.line,
@@ -104,6 +183,11 @@ impl MonitorSummary {
     }
 }
 
+/// Seconds to the millisecond, as the JSON carries them.
+fn secs(d: Duration) -> f64 {
+    (d.as_secs_f64() * 1000.0).round() / 1000.0
+}
+
 impl Monitor {
     /// The session's summary: `port` listened to, `ended` why it stopped.
     pub fn summary(&self, port: &str, ended: &str) -> MonitorSummary {
@@ -118,6 +202,7 @@ impl Monitor {
                 .last_at
                 .zip(self.first_at)
                 .map_or(Duration::ZERO, |(l, f)| l.saturating_sub(f)),
+            searched: None,
             ended: ended.to_string(),
             nodes: self.nodes.iter().map(|(a, s)| (*a, s.clone())).collect(),
             notices: self.notices.clone(),
@@ -153,7 +238,10 @@ impl Monitor {
                             severity: e.severity,
                             text: format!("{} (seen {} time(s))", e.text, e.count),
                         }],
-                        exchanges: vec![e.exchange.clone()],
+                        exchanges: vec![match side {
+                            Side::Drive => e.exchange.clone(),
+                            Side::Master => as_master_finding(&e.exchange),
+                        }],
                         duration: Duration::ZERO,
                         node: Some(node),
                     });
@@ -188,6 +276,18 @@ impl Monitor {
     }
 }
 
+/// The exchange of a finding on the master's side as its result shows it: the request
+/// is what deviates, and the drive's reply (often the very one the model predicts) is
+/// only its context, so no predicted frame is set beside it to compare with (the same
+/// bytes twice, under "expected" and "received", told a reader nothing).
+fn as_master_finding(x: &ExchangeRecord) -> ExchangeRecord {
+    ExchangeRecord {
+        expected: None,
+        predicted: format!("what a drive answers to this request: {}", x.predicted),
+        ..x.clone()
+    }
+}
+
 fn title(side: Side) -> &'static str {
     match side {
         Side::Drive => "What the drive answered, heard on the bus",
@@ -207,5 +307,39 @@ fn source(m: &Monitor, side: Side, citations: &[String]) -> String {
         base
     } else {
         format!("{base}: {}", citations.join("; "))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Issue 33, item 9: a session that began by finding the line's settings says how
+    /// long it listened in all and how much of it went to the search, in the text, the
+    /// HTML (which shows the same line) and the JSON, which reads back.
+    #[test]
+    fn the_search_is_part_of_the_time_listened() {
+        let mut m = MonitorSummary {
+            mode: "rtu".into(),
+            port: "pty /tmp/tap".into(),
+            line: "19200 8O1".into(),
+            listened: Duration::from_millis(15_000),
+            searched: Some(Duration::from_millis(8_700)),
+            ended: "--duration passed".into(),
+            ..MonitorSummary::default()
+        };
+        assert!(
+            m.text_lines()[0].starts_with(
+                "listened 15.0 s, of which 8.7 s finding the line's settings, on pty /tmp/tap"
+            ),
+            "{:?}",
+            m.text_lines()
+        );
+        let json = m.to_json();
+        assert_eq!(json["searched_s"], 8.7);
+        assert_eq!(MonitorSummary::from_json(&json).unwrap().to_json(), json);
+        m.searched = None;
+        assert!(m.text_lines()[0].starts_with("listened 15.0 s on "));
+        assert_eq!(m.to_json()["searched_s"], Value::Null);
     }
 }

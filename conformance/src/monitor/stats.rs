@@ -39,11 +39,7 @@ impl Histogram {
     /// Counts one response time.
     pub fn record(&mut self, d: Duration) {
         let us = u64::try_from(d.as_micros()).unwrap_or(u64::MAX);
-        let i = if us < FINE_LIMIT_US {
-            (us / FINE_US) as usize
-        } else {
-            (FINE + ((us - FINE_LIMIT_US) / COARSE_US) as usize).min(BUCKETS - 1)
-        };
+        let i = Histogram::index(us);
         self.counts[i] = self.counts[i].saturating_add(1);
         self.total += 1;
         self.max = self.max.max(d);
@@ -82,6 +78,47 @@ impl Histogram {
             }
         }
         Some(self.max)
+    }
+
+    /// The histogram [`Histogram::buckets`] and [`Histogram::max`] describe, as a saved
+    /// report gives them back: each bucket found by its lower edge (in ms), the counts of
+    /// one bucket added up. Fixed memory whatever the list's length. `None` where an edge
+    /// is not a number of milliseconds at or above 0.
+    pub fn from_buckets(buckets: &[(f64, u32)], max: Option<Duration>) -> Option<Histogram> {
+        let mut h = Histogram::default();
+        for &(lower_ms, c) in buckets {
+            if !(lower_ms.is_finite() && lower_ms >= 0.0) {
+                return None;
+            }
+            // The edge was written in ms with at most three decimals; the middle of its
+            // first 100 us finds the bucket whatever the rounding did.
+            let us = (lower_ms * 1000.0).round().min(u64::MAX as f64) as u64;
+            let i = Histogram::index(us.saturating_add(FINE_US / 2));
+            h.counts[i] = h.counts[i].saturating_add(c);
+            h.total += u64::from(c);
+        }
+        h.max = max.unwrap_or_default();
+        Some(h)
+    }
+
+    /// The bucket of a time of `us` microseconds.
+    fn index(us: u64) -> usize {
+        if us < FINE_LIMIT_US {
+            (us / FINE_US) as usize
+        } else {
+            (FINE + ((us - FINE_LIMIT_US) / COARSE_US) as usize).min(BUCKETS - 1)
+        }
+    }
+
+    /// The width in ms of the bucket whose lower edge is `lower_ms` (the last one, which
+    /// holds every slower reply, is given the width of the others beyond 100 ms).
+    pub fn bucket_width_ms(lower_ms: f64) -> f64 {
+        let us = if lower_ms * 1000.0 < FINE_LIMIT_US as f64 {
+            FINE_US
+        } else {
+            COARSE_US
+        };
+        us as f64 / 1000.0
     }
 
     /// Non-empty buckets as (lower edge in ms, count), for plots.
@@ -161,6 +198,91 @@ impl NodeStats {
     }
 }
 
+/// `v[key]` as a whole number, or what is wrong with it (`path` names `v`).
+pub(crate) fn count_of(v: &Value, key: &str, path: &str) -> Result<u64, String> {
+    v.get(key)
+        .and_then(Value::as_u64)
+        .ok_or_else(|| format!("{path}.{key}: missing or not a whole number"))
+}
+
+/// `v[key]` as a duration written in ms, `None` where it is null or missing.
+pub(crate) fn opt_ms_of(v: &Value, key: &str, path: &str) -> Result<Option<Duration>, String> {
+    match v.get(key) {
+        None | Some(Value::Null) => Ok(None),
+        Some(x) => x
+            .as_f64()
+            .filter(|ms| ms.is_finite() && *ms >= 0.0 && *ms < 1e12)
+            .map(|ms| Some(Duration::from_secs_f64(ms / 1000.0)))
+            .ok_or_else(|| format!("{path}.{key}: {x} is not a number of milliseconds")),
+    }
+}
+
+impl NodeStats {
+    /// A node's statistics read back from [`NodeStats::to_json`]: its address and its
+    /// statistics. The percentiles are not read: they follow from the histogram.
+    pub fn from_json(v: &Value, path: &str) -> Result<(u8, NodeStats), String> {
+        let address = v
+            .get("address")
+            .and_then(Value::as_str)
+            .and_then(|a| u8::from_str_radix(a, 16).ok())
+            .ok_or_else(|| format!("{path}.address: missing or not a node address in hex"))?;
+        let errors = match v.get("errors") {
+            None | Some(Value::Null) => BTreeMap::new(),
+            Some(Value::Object(m)) => m
+                .iter()
+                .map(|(k, n)| {
+                    n.as_u64()
+                        .map(|n| (k.clone(), n))
+                        .ok_or_else(|| format!("{path}.errors.{k}: not a whole number"))
+                })
+                .collect::<Result<_, _>>()?,
+            Some(x) => return Err(format!("{path}.errors: {x} is not an object")),
+        };
+        let rp = format!("{path}.response_ms");
+        let r = v
+            .get("response_ms")
+            .ok_or_else(|| format!("{rp}: missing"))?;
+        let buckets = r
+            .get("histogram")
+            .and_then(Value::as_array)
+            .ok_or_else(|| format!("{rp}.histogram: missing or not an array"))?
+            .iter()
+            .enumerate()
+            .map(|(i, b)| {
+                let pair = b.as_array().filter(|p| p.len() == 2);
+                pair.and_then(|p| Some((p[0].as_f64()?, u32::try_from(p[1].as_u64()?).ok()?)))
+                    .ok_or_else(|| {
+                        format!("{rp}.histogram[{i}]: {b} is not [lower edge in ms, count]")
+                    })
+            })
+            .collect::<Result<Vec<_>, _>>()?;
+        let response = Histogram::from_buckets(&buckets, opt_ms_of(r, "max", &rp)?)
+            .ok_or_else(|| format!("{rp}.histogram: a lower edge below 0 or not a number"))?;
+        if response.count() != count_of(r, "count", &rp)? {
+            return Err(format!(
+                "{rp}.count: {} where the histogram holds {}",
+                count_of(r, "count", &rp)?,
+                response.count()
+            ));
+        }
+        Ok((
+            address,
+            NodeStats {
+                requests: count_of(v, "requests", path)?,
+                exchanges: count_of(v, "exchanges", path)?,
+                replies: count_of(v, "replies", path)?,
+                timeouts: count_of(v, "timeouts", path)?,
+                crc_errors: count_of(v, "crc_errors", path)?,
+                retries: count_of(v, "retries", path)?,
+                deviations: count_of(v, "deviations", path)?,
+                observations: count_of(v, "observations", path)?,
+                errors,
+                response,
+            },
+        ))
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -182,5 +304,60 @@ mod tests {
         );
         assert_eq!(h.percentile(100), Some(Duration::from_secs(60)));
         assert_eq!(h.buckets().len(), 101);
+    }
+
+    /// A node's statistics written to JSON and read back give the same JSON: the same
+    /// counts, findings, percentiles and histogram (fine and coarse buckets, and the last
+    /// one that holds every slower reply).
+    #[test]
+    fn statistics_read_back_as_they_were_written() {
+        let mut s = NodeStats {
+            requests: 9,
+            exchanges: 8,
+            replies: 7,
+            timeouts: 1,
+            crc_errors: 2,
+            retries: 3,
+            deviations: 4,
+            observations: 5,
+            errors: [("drive.late-reply".to_string(), 2)].into(),
+            response: Histogram::default(),
+        };
+        for us in [
+            0, 99, 100, 9_870, 12_345, 99_999, 100_000, 250_500, 4_999_999, 7_000_000,
+        ] {
+            s.response.record(Duration::from_micros(us));
+        }
+        let json = s.to_json(0x3A);
+        let (a, back) = NodeStats::from_json(&json, "x").unwrap();
+        assert_eq!(a, 0x3A);
+        assert_eq!(back.to_json(0x3A), json);
+        assert_eq!(back.response.buckets(), s.response.buckets());
+        // Nothing heard: no histogram, no percentiles.
+        let quiet = NodeStats::default().to_json(1);
+        assert_eq!(
+            NodeStats::from_json(&quiet, "x").unwrap().1.to_json(1),
+            quiet
+        );
+    }
+
+    #[test]
+    fn a_broken_histogram_is_named() {
+        let mut json = NodeStats::default().to_json(1);
+        json["response_ms"]["histogram"] = serde_json::json!([[-1.0, 2]]);
+        json["response_ms"]["count"] = 2.into();
+        let e = NodeStats::from_json(&json, ".monitor.nodes[0]").unwrap_err();
+        assert!(
+            e.starts_with(".monitor.nodes[0].response_ms.histogram"),
+            "{e}"
+        );
+        json["response_ms"]["histogram"] = serde_json::json!([[1.0, 2]]);
+        json["response_ms"]["count"] = 3.into();
+        let e = NodeStats::from_json(&json, ".monitor.nodes[0]").unwrap_err();
+        assert!(e.contains("count: 3 where the histogram holds 2"), "{e}");
+        json["address"] = "zz".into();
+        assert!(NodeStats::from_json(&json, "n")
+            .unwrap_err()
+            .starts_with("n.address"));
     }
 }

@@ -243,16 +243,20 @@ fn finding_block(out: &mut String, r: &CheckResult, folded: bool, several: bool)
 fn header(out: &mut String, report: &Report) {
     let s = report.summary();
     let what = match report.kind {
-        ReportKind::Drive | ReportKind::Fuzz | ReportKind::Monitor => {
-            format!("TECO {} drive", report.device.model)
-        }
+        ReportKind::Drive | ReportKind::Fuzz => format!("TECO {} drive", report.device.model),
+        ReportKind::Monitor => format!("TECO {} drives, heard on the bus", report.device.model),
         ReportKind::Gate => match (&report.codec, report.master.is_some()) {
             (Some(c), true) => format!("master {} {}", c.implementation, c.version),
             (Some(c), false) => format!("codec {} {}", c.implementation, c.version),
             (None, _) => "codec".into(),
         },
     };
-    w!(out, "<h1>Modbus conformance report: {}</h1>", esc(&what));
+    let report_of = match report.kind {
+        ReportKind::Monitor => "Modbus bus monitor report",
+        ReportKind::Gate if report.master.is_some() => "Modbus master gate report",
+        _ => "Modbus conformance report",
+    };
+    w!(out, "<h1>{report_of}: {}</h1>", esc(&what));
     let (cls, verdict) = if !report.complete {
         (
             "incomplete",
@@ -301,7 +305,9 @@ fn header(out: &mut String, report: &Report) {
             let d = &report.device;
             row(out, "model", &esc(&d.model));
             row(out, "manual", &esc(&d.manual));
-            if d.nodes.is_empty() {
+            if d.nodes.is_empty() && report.kind == ReportKind::Monitor {
+                row(out, "node addresses", "<i>no node heard</i>");
+            } else if d.nodes.is_empty() {
                 row(out, "node address", &format!("{:02X}H", d.address));
                 if let Some(id) = d.identification {
                     row(out, "identification", &format!("{id:04X}H"));
@@ -311,13 +317,14 @@ fn header(out: &mut String, report: &Report) {
                     out,
                     "node addresses",
                     &format!(
-                        "{} (<a href=\"#nodes-h\">{} nodes on one bus</a>)",
+                        "{} (<a href=\"#nodes-h\">{} node{} on one bus</a>)",
                         d.nodes
                             .iter()
                             .map(|n| format!("{:02X}H", n.address))
                             .collect::<Vec<_>>()
                             .join(", "),
-                        d.nodes.len()
+                        d.nodes.len(),
+                        if d.nodes.len() == 1 { "" } else { "s" }
                     ),
                 );
             }
@@ -509,12 +516,14 @@ pub fn html(report: &Report) -> String {
     let mut out = String::with_capacity(64 * 1024 + report.results.len() * 600);
     let several = !report.device.nodes.is_empty();
     let title = match report.kind {
-        ReportKind::Drive | ReportKind::Fuzz | ReportKind::Monitor => {
+        ReportKind::Drive | ReportKind::Fuzz => {
             format!("Conformance report: {}", report.device.model)
         }
-        ReportKind::Gate if report.master.is_some() => {
-            "Conformance report: master gate".to_string()
-        }
+        ReportKind::Monitor => format!("Bus monitor report: {}", report.device.model),
+        ReportKind::Gate if report.master.is_some() => match &report.codec {
+            Some(c) => format!("Master gate report: {}", c.implementation),
+            None => "Master gate report".to_string(),
+        },
         ReportKind::Gate => "Conformance report: codec gate".to_string(),
     };
     w!(
@@ -540,9 +549,11 @@ pub fn html(report: &Report) -> String {
     if drive {
         out.push_str("<a href=\"#plots\">Response time</a> · <a href=\"#timeline\">Timeline</a> · <a href=\"#map\">Register map</a> · <a href=\"#coverage\">Requirements</a> · ");
     }
-    out.push_str(
-        "<a href=\"#all\">Every check</a> · <a href=\"#restore\">Restore journal</a></nav>",
-    );
+    out.push_str("<a href=\"#all\">Every check</a>");
+    if report.writes() {
+        out.push_str(" · <a href=\"#restore\">Restore journal</a>");
+    }
+    out.push_str("</nav>");
     header(&mut out, report);
     if several {
         nodes::table(&mut out, report);
@@ -608,7 +619,12 @@ pub fn html(report: &Report) -> String {
     }
 
     if let Some(m) = &report.monitor {
-        out.push_str(&heard::section(m));
+        let o = &report.options;
+        let late = o
+            .response_time_ms
+            .zip(o.response_allowance_ms)
+            .map(|(m, a)| m + a as f64);
+        out.push_str(&heard::section(m, (o.response_time_ms, late)));
     }
 
     // A gate's cases are not timed exchanges with a device: no plots.
@@ -704,6 +720,24 @@ pub fn html(report: &Report) -> String {
     }
     out.push_str("</tbody></table>");
 
+    // A monitor only listens and a gate talks to no drive: no register to restore, and
+    // no section saying so.
+    if report.writes() {
+        restore_section(&mut out, report, several);
+    }
+    w!(
+        out,
+        "<footer>Generated by {} {} from the run's report data (the same as its JSON report). Offline and self-contained.</footer></main><script>{}</script></body></html>\n",
+        env!("CARGO_PKG_NAME"),
+        env!("CARGO_PKG_VERSION"),
+        if several { nodes::SCRIPT } else { SCRIPT }
+    );
+    out
+}
+
+/// The restore journal: each register the run changed, its original value and whether it
+/// was restored.
+fn restore_section(out: &mut String, report: &Report, several: bool) {
     out.push_str("<h2 id=\"restore\">Restore journal</h2>");
     if report.restore.is_empty() {
         out.push_str("<p>No register was changed, so none needed restoring.</p>");
@@ -740,14 +774,6 @@ pub fn html(report: &Report) -> String {
         }
         out.push_str("</tbody></table>");
     }
-    w!(
-        out,
-        "<footer>Generated by {} {} from the run's report data (the same as its JSON report). Offline and self-contained.</footer></main><script>{}</script></body></html>\n",
-        env!("CARGO_PKG_NAME"),
-        env!("CARGO_PKG_VERSION"),
-        if several { nodes::SCRIPT } else { SCRIPT }
-    );
-    out
 }
 
 /// The in-page links of `page` (`href="#x"`) that land on no element (`id="x"`), in
@@ -868,6 +894,45 @@ mod tests {
         for plot in ["plot-latency", "plot-timeline", "plot-map"] {
             assert!(drive.contains(&format!("<svg id=\"{plot}\"")), "{plot}");
         }
+    }
+
+    /// Issue 33, item 9: a run that never writes (a master gate, a monitor) has no
+    /// restore journal, nor a link to one, and its page is titled by what it is; a drive's
+    /// run keeps both.
+    #[test]
+    fn a_run_that_never_writes_has_no_restore_journal_and_its_own_title() {
+        let mut gate = hostile();
+        gate.kind = ReportKind::Gate;
+        gate.codec = Some(crate::report::Codec {
+            implementation: "pymodbus".into(),
+            version: "3.16.1".into(),
+            ..Default::default()
+        });
+        gate.master = Some(crate::gate::master::MasterSummary::default());
+        let mut monitor = hostile();
+        monitor.kind = ReportKind::Monitor;
+        monitor.device.model = "f510".into();
+        for (r, title, h1) in [
+            (
+                &gate,
+                "Master gate report: pymodbus",
+                "Modbus master gate report: master pymodbus 3.16.1",
+            ),
+            (
+                &monitor,
+                "Bus monitor report: f510",
+                "Modbus bus monitor report: TECO f510 drives, heard on the bus",
+            ),
+        ] {
+            let page = html(r);
+            assert!(!page.contains("Restore journal"), "{title}");
+            assert!(!page.contains("#restore"), "{title}");
+            assert!(page.contains(&format!("<title>{title}</title>")), "{title}");
+            assert!(page.contains(&format!("<h1>{h1}</h1>")), "{title}");
+        }
+        let drive = html(&hostile());
+        assert!(drive.contains("<h2 id=\"restore\">Restore journal</h2>"));
+        assert!(drive.contains("href=\"#restore\""));
     }
 
     #[test]

@@ -196,7 +196,7 @@ impl Summary {
 
 impl Report {
     /// The run's timeout as what it means for the kind of run: a drive's response timeout
-    /// and retries; for a master gate, the gate's allowance beyond the master's own worst
+    /// and retries; for a monitor, how long it waits for a reply; for a master gate, the gate's allowance beyond the master's own worst
     /// case (its retries are the master's, in its settings); for a codec gate, how long an
     /// adapter may take over a case.
     pub fn timeout_phrase(&self) -> String {
@@ -207,6 +207,9 @@ impl Report {
                 o.timeout_ms
             ),
             (ReportKind::Gate, None) => format!("adapter timeout {} ms a case", o.timeout_ms),
+            // A monitor sends nothing, so it neither times out nor retries: it waits this
+            // long for a reply before it counts the request unanswered.
+            (ReportKind::Monitor, _) => format!("reply window {} ms", o.timeout_ms),
             _ => format!("timeout {} ms, {} retries", o.timeout_ms, o.retries),
         }
     }
@@ -224,7 +227,8 @@ impl Report {
     }
 
     /// The nodes of a run of several nodes, with their results' counts; the last entry,
-    /// with `None`, counts the checks of the whole bus. Empty for a run of one node.
+    /// with `None`, counts the checks of the whole bus, where there are any (a monitor has
+    /// none, nor a check run whose `--only` left them out). Empty for a run of one node.
     pub fn node_summaries(&self) -> Vec<(Option<u8>, Summary)> {
         if self.device.nodes.is_empty() {
             return Vec::new();
@@ -247,7 +251,14 @@ impl Report {
             out[at].1.total += 1;
             out[at].1.count(r.status);
         }
+        out.retain(|(n, c)| n.is_some() || c.total > 0);
         out
+    }
+
+    /// Whether the run may have written to the device, so that its report has a restore
+    /// journal: a monitor only listens and a gate talks to no drive.
+    pub fn writes(&self) -> bool {
+        matches!(self.kind, ReportKind::Drive | ReportKind::Fuzz) || !self.restore.is_empty()
     }
 
     /// Registers that could not be restored.

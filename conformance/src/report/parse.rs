@@ -403,8 +403,17 @@ impl Report {
             budget,
             // The campaign summary of a fuzz report is not read back: its checks are.
             fuzz: None,
-            // Nor the monitor's statistics: its results are.
-            monitor: None,
+            // What the monitor heard: its per-node statistics, histograms and notices.
+            monitor: match v.get("monitor") {
+                Some(m) if !m.is_null() => {
+                    Some(crate::monitor::MonitorSummary::from_json(m).map_err(|e| {
+                        // The error names its own path (".monitor.nodes[2].address: ...").
+                        let (path, problem) = e.split_once(": ").unwrap_or((".monitor", &e));
+                        field(path, problem)
+                    })?)
+                }
+                _ => None,
+            },
             expect,
             master: match v.get("master") {
                 Some(m) if !m.is_null() => Some(

@@ -37,6 +37,8 @@ pub fn text(r: &Report, verbose: bool) -> String {
         "TECO Modbus {} ({} {})",
         if r.master.is_some() {
             "master gate report"
+        } else if r.kind == super::ReportKind::Monitor {
+            "bus monitor report"
         } else if gate {
             "codec gate report"
         } else {
@@ -91,12 +93,16 @@ pub fn text(r: &Report, verbose: bool) -> String {
             "device:  {} ({}), {}{}{}",
             d.model,
             d.manual,
-            if d.nodes.is_empty() {
+            if d.nodes.is_empty() && r.kind == super::ReportKind::Monitor {
+                // Nothing heard and no -a: there is no node to name.
+                "no node heard".to_string()
+            } else if d.nodes.is_empty() {
                 format!("node {:02X}", d.address)
             } else {
                 format!(
-                    "{} nodes on one bus: {}",
+                    "{} node{} on one bus: {}",
                     d.nodes.len(),
+                    plural(d.nodes.len()),
                     d.nodes
                         .iter()
                         .map(|n| format!("{:02X}", n.address))
@@ -189,7 +195,9 @@ pub fn text(r: &Report, verbose: bool) -> String {
         results(&mut o, r, &all, verbose);
     }
     for (node, c) in &sections {
-        if node.is_none() && c.total == 0 {
+        // A node of a monitor's -a that was never heard has its line above, and nothing
+        // to list.
+        if c.total == 0 && (node.is_none() || r.kind == super::ReportKind::Monitor) {
             continue;
         }
         let stopped = node
@@ -498,7 +506,21 @@ fn node_lines(o: &mut String, r: &Report) {
     for (node, c) in r.node_summaries() {
         let info = node.and_then(|n| r.device.nodes.iter().find(|x| x.address == n));
         let mut facts = Vec::new();
-        if let Some(i) = info {
+        if r.kind == super::ReportKind::Monitor {
+            // A monitor reads no identification; a node of -a may not have been heard.
+            let heard = r
+                .monitor
+                .as_ref()
+                .is_some_and(|m| m.nodes.iter().any(|(a, _)| Some(*a) == node));
+            if !heard {
+                let _ = writeln!(
+                    o,
+                    "{:<10}nothing heard to or from it",
+                    node.map(|n| format!("node {n:02X}H:")).unwrap_or_default()
+                );
+                continue;
+            }
+        } else if let Some(i) = info {
             facts.push(match i.identification {
                 Some(v) => format!("identification {v:04X}H"),
                 None => "identification not read".to_string(),

@@ -3,11 +3,13 @@
 
 use std::fmt::Write as _;
 
-use super::esc;
+use super::{esc, svg};
+use crate::monitor::stats::Histogram;
 use crate::monitor::{MonitorSummary, NodeStats};
 
-/// The section: a table of the nodes, then one histogram per node with replies.
-pub(super) fn section(m: &MonitorSummary) -> String {
+/// The section: a table of the nodes, then one histogram per node with replies, against
+/// `limits`.
+pub(super) fn section(m: &MonitorSummary, limits: Limits) -> String {
     let mut out = String::new();
     let ms = |d: Option<std::time::Duration>| {
         d.map_or("-".to_string(), |d| {
@@ -52,41 +54,104 @@ pub(super) fn section(m: &MonitorSummary) -> String {
     for (a, s) in &m.nodes {
         if s.response.count() > 0 {
             let _ = write!(out, "<h3>Node {a:02X}: response times</h3>");
-            out.push_str(&histogram(s));
+            out.push_str(&histogram(*a, s, limits));
         }
     }
     out
 }
 
-/// Bars of the non-empty buckets, in order, with their lower edge in ms.
-fn histogram(s: &NodeStats) -> String {
+/// The manual's response time and the time beyond which a reply counts as late, in ms,
+/// from the report's options (the limits the monitor judged by).
+pub(super) type Limits = (Option<f64>, Option<f64>);
+
+/// A node's response times: a bar per non-empty bucket on a time axis in ms from 0, the
+/// count of replies up the side, and the manual's response time and the late limit as
+/// lines, so that a reader sees where the replies fall against what the manual allows.
+fn histogram(a: u8, s: &NodeStats, (manual, late): Limits) -> String {
     let buckets = s.response.buckets();
-    let top = buckets.iter().map(|b| b.1).max().unwrap_or(1).max(1);
-    let (w, h, pad) = (640.0_f64, 160.0_f64, 30.0_f64);
-    let bw = ((w - 2.0 * pad) / buckets.len().max(1) as f64).min(24.0);
+    let peak = buckets.iter().map(|b| b.1).max().unwrap_or(1).max(1);
+    let longest = buckets
+        .last()
+        .map_or(0.0, |(lo, _)| lo + Histogram::bucket_width_ms(*lo));
+    let top = longest.max(late.unwrap_or(0.0)).max(1.0) * 1.08;
+    let tick = svg::step(top, 8.0);
+    let x_max = (top / tick).ceil() * tick;
+    let (left, right, top_y, plot_h) = (60.0_f64, 20.0_f64, 24.0_f64, 110.0_f64);
+    let (width, height) = (900.0_f64, top_y + plot_h + 40.0);
+    let plot_w = width - left - right;
+    let base = top_y + plot_h;
+    let x = |v: f64| left + v / x_max * plot_w;
     let mut out = format!(
-        "<svg xmlns=\"http://www.w3.org/2000/svg\" width=\"{w}\" height=\"{h}\" role=\"img\"><title>response times, ms</title>"
+        "<svg id=\"hist-{a:02X}\" class=\"plot\" viewBox=\"0 0 {width} {height}\" role=\"img\" aria-label=\"Response times of node {a:02X}, ms\" xmlns=\"http://www.w3.org/2000/svg\">"
     );
-    for (i, (lo, c)) in buckets.iter().enumerate() {
-        let bh = (h - 2.0 * pad) * f64::from(*c) / f64::from(top);
-        let x = pad + i as f64 * bw;
+    for (lo, c) in &buckets {
+        let w = Histogram::bucket_width_ms(*lo);
+        let h = plot_h * f64::from(*c) / f64::from(peak);
         let _ = write!(
             out,
-            "<rect x=\"{x:.1}\" y=\"{:.1}\" width=\"{:.1}\" height=\"{bh:.1}\" fill=\"#4a7\"><title>{lo:.1} ms: {c}</title></rect>",
-            h - pad - bh,
-            (bw - 1.0).max(1.0)
+            "<rect class=\"bar{}\" x=\"{:.1}\" y=\"{:.1}\" width=\"{:.1}\" height=\"{h:.1}\"><title>{lo:.1}–{:.1} ms: {c} repl{}</title></rect>",
+            if late.is_some_and(|l| *lo >= l) { " late" } else { "" },
+            x(*lo),
+            base - h,
+            (x(lo + w) - x(*lo)).max(1.5),
+            lo + w,
+            if *c == 1 { "y" } else { "ies" }
         );
-        if i == 0 || i + 1 == buckets.len() {
+    }
+    // The axes: time along the bottom, replies up the side.
+    let _ = write!(
+        out,
+        "<line class=\"axis\" x1=\"{left}\" y1=\"{base}\" x2=\"{}\" y2=\"{base}\"/><line class=\"axis\" x1=\"{left}\" y1=\"{top_y}\" x2=\"{left}\" y2=\"{base}\"/>",
+        left + plot_w
+    );
+    let mut t = 0.0;
+    while t <= x_max + 1e-9 {
+        let _ = write!(
+            out,
+            "<line class=\"tick\" x1=\"{0:.1}\" y1=\"{base}\" x2=\"{0:.1}\" y2=\"{1}\"/><text class=\"small\" x=\"{0:.1}\" y=\"{2}\" text-anchor=\"middle\">{3}</text>",
+            x(t),
+            base + 4.0,
+            base + 16.0,
+            svg::trim(t)
+        );
+        t += tick;
+    }
+    for (v, y) in [(0, base), (peak, top_y)] {
+        let _ = write!(
+            out,
+            "<line class=\"tick\" x1=\"{}\" y1=\"{y}\" x2=\"{left}\" y2=\"{y}\"/><text class=\"small\" x=\"{}\" y=\"{}\" text-anchor=\"end\">{v}</text>",
+            left - 4.0,
+            left - 6.0,
+            y + 4.0
+        );
+    }
+    let _ = write!(
+        out,
+        "<text class=\"small\" x=\"14\" y=\"{0}\" text-anchor=\"middle\" transform=\"rotate(-90 14 {0})\">replies</text>",
+        top_y + plot_h / 2.0
+    );
+    for (class, label, at) in [
+        ("limit", "manual", manual),
+        ("limit late", "late beyond", late),
+    ] {
+        if let Some(v) = at {
             let _ = write!(
                 out,
-                "<text x=\"{x:.1}\" y=\"{:.1}\" font-size=\"10\">{lo:.1}</text>",
-                h - pad + 12.0
+                "<line class=\"{class}\" x1=\"{0:.1}\" y1=\"{1}\" x2=\"{0:.1}\" y2=\"{base}\"/><text class=\"small {2}\" x=\"{3:.1}\" y=\"{4}\">{label} {5} ms</text>",
+                x(v),
+                top_y - 10.0,
+                if class == "limit" { "limit-t" } else { "late-t" },
+                x(v) + 3.0,
+                top_y - 2.0 - if class == "limit" { 0.0 } else { 10.0 },
+                svg::trim(v)
             );
         }
     }
     let _ = write!(
         out,
-        "<text x=\"{pad}\" y=\"14\" font-size=\"10\">{} replies; most in one bucket {top}</text></svg>",
+        "<text class=\"small\" x=\"{}\" y=\"{}\" text-anchor=\"middle\">from the request's last byte to the reply's first (ms); {} replies</text></svg>",
+        left + plot_w / 2.0,
+        height - 6.0,
         s.response.count()
     );
     out
@@ -105,6 +170,7 @@ mod tests {
             frames: 0,
             bytes: 0,
             listened: std::time::Duration::from_secs(2),
+            searched: None,
             ended: "end of input".into(),
             nodes: Vec::new(),
             notices: notices.iter().map(|n| n.to_string()).collect(),
@@ -119,7 +185,7 @@ mod tests {
         let html = section(&summary(&[
             "19200 8O1 rtu found by listening (two valid frames in a row, after 4 other settings)",
             "the first 3 bytes <01 03 25> were not judged",
-        ]));
+        ]), (None, None));
         let list = html.find("<ul class=\"notices\">").expect(&html);
         assert!(list < html.find("<table").unwrap(), "{html}");
         assert!(html.contains("<li>notice: 19200 8O1 rtu found by listening (two valid frames in a row, after 4 other settings)</li>"), "{html}");
@@ -129,6 +195,6 @@ mod tests {
         );
         assert_eq!(html.matches("<li>notice: ").count(), 2);
         // None: no empty list.
-        assert!(!section(&summary(&[])).contains("notices"));
+        assert!(!section(&summary(&[]), (None, None)).contains("notices"));
     }
 }

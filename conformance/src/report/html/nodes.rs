@@ -50,7 +50,8 @@ pub(super) fn node_label(node: Option<u8>) -> String {
 
 /// The table of the nodes and of the checks of the whole bus.
 pub(super) fn table(out: &mut String, report: &Report) {
-    let intro = if report.kind == super::super::ReportKind::Monitor {
+    let monitor = report.kind == super::super::ReportKind::Monitor;
+    let intro = if monitor {
         "Each node heard on the bus, its drive's side and its master's side judged on every exchange; address 00 is the broadcasts. A link filters the table of every check to the node."
     } else {
         "Each node was checked in turn; the checks of the whole bus (broadcasts, another address) ran once. A link filters the table of every check to the node."
@@ -78,6 +79,16 @@ pub(super) fn table(out: &mut String, report: &Report) {
         } else if node.is_none() {
             notes.push("broadcast and other-address checks, run once".into());
         }
+        // A node a monitor was told of (-a) but never heard: no frame to or from it.
+        if monitor
+            && node.is_some()
+            && !report
+                .monitor
+                .as_ref()
+                .is_some_and(|m| m.nodes.iter().any(|(a, _)| Some(*a) == node))
+        {
+            notes.push("nothing heard to or from it".into());
+        }
         w!(
             out,
             "<tr class=\"{cls}\" data-node=\"{value}\"><td class=\"id\"><a href=\"#node={value}\">{label}</a></td><td class=\"id\">{ident}</td><td class=\"num\">{}</td><td class=\"num\">{}</td><td class=\"num\">{}</td><td class=\"num\">{}</td><td class=\"num\">{}</td><td class=\"num\">{}</td><td>{notes}</td></tr>",
@@ -96,6 +107,8 @@ pub(super) fn table(out: &mut String, report: &Report) {
             },
             label = esc(&node_label(node)),
             ident = match info {
+                // A monitor only listens: it reads no identification register.
+                Some(_) if monitor => "<i class=\"muted\">not asked (listened only)</i>".into(),
                 Some(i) => i
                     .identification
                     .map(|v| format!("{v:04X}H"))

@@ -38,7 +38,7 @@ fn rank(s: Status) -> u8 {
 }
 
 /// A round step for an axis of `span` units with about `ticks` ticks.
-fn step(span: f64, ticks: f64) -> f64 {
+pub(super) fn step(span: f64, ticks: f64) -> f64 {
     let raw = (span / ticks).max(1e-9);
     let mag = 10f64.powf(raw.log10().floor());
     let n = raw / mag;
@@ -223,7 +223,8 @@ pub(super) fn latency_plot(report: &Report) -> String {
     s
 }
 
-fn trim(v: f64) -> String {
+/// A number for an axis or a label: at most two decimals, no trailing zeros.
+pub(super) fn trim(v: f64) -> String {
     let s = format!("{v:.2}");
     s.trim_end_matches('0').trim_end_matches('.').to_string()
 }
