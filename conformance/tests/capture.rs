@@ -1168,3 +1168,138 @@ fn a_simulator_served_over_tcp_records_what_it_received_and_sent() {
         }
     }
 }
+
+/// Kinds of finding per node of a monitor report, leaving out the drive's timing (a
+/// capture made by a program on a busy host has its host's timing, not the line's).
+fn kinds_by_node(r: &Value) -> Vec<(String, u64, Vec<String>)> {
+    r["monitor"]["nodes"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|n| {
+            let mut kinds: Vec<String> = n["errors"]
+                .as_object()
+                .map(|o| o.keys().cloned().collect())
+                .unwrap_or_default();
+            kinds.retain(|k| !common::agree::TIMING_KINDS.contains(&k.as_str()));
+            (
+                n["address"].as_str().unwrap().to_string(),
+                n["replies"].as_u64().unwrap_or(0),
+                kinds,
+            )
+        })
+        .collect()
+}
+
+/// Issue 33: one run of `check` on a `bus` of two F510s, recorded three ways (the bus's
+/// own capture, one interface per endpoint, every frame outbound on its sender's; a tap's
+/// `monitor --port --capture`, no directions; the master's `check --capture`), is judged
+/// by `monitor --capture-in` the same way from each file, and as the live monitor and
+/// `check` judged it: every exchange of the report found, with the verdict check gave.
+/// The bus's file was read as "every frame from the master's side", so each reply was a
+/// new request (`drive.unexpected-reply`, `master.request-before-reply`).
+#[test]
+fn a_bus_a_tap_and_a_check_capture_of_one_run_are_judged_alike() {
+    use std::io::{BufRead, BufReader};
+    let d = dir().join("alike");
+    std::fs::create_dir_all(&d).unwrap();
+    let (m, tap) = (d.join("m"), d.join("tap"));
+    let mut bus = Command::new(common::bin())
+        .args(["bus", "--model", "f510", "-a", "1,2", "--quiet", "--link"])
+        .arg(format!("m={}", m.display()))
+        .arg("--link")
+        .arg(format!("tap={}", tap.display()))
+        .arg("--capture")
+        .arg(d.join("bus.pcapng"))
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    let mut lines = BufReader::new(bus.stdout.take().unwrap()).lines();
+    for _ in 0..2 {
+        lines.next().unwrap().unwrap();
+    }
+    let mut monitor = Command::new(common::bin())
+        .args(["monitor", "--model", "f510", "-a", "1,2", "-b", "9600"])
+        .args(["--duration", "10", "--port"])
+        .arg(&tap)
+        .arg("--capture")
+        .arg(d.join("tap.pcapng"))
+        .args(["--format", "json", "-o"])
+        .arg(d.join("live.json"))
+        .stderr(std::process::Stdio::piped())
+        .stdout(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    let mut heard = BufReader::new(monitor.stderr.take().unwrap()).lines();
+    let first = heard.next().unwrap().unwrap();
+    assert!(first.starts_with("listening on"), "{first}");
+    let drain = std::thread::spawn(move || heard.map_while(Result::ok).collect::<Vec<_>>());
+    let out = Command::new(common::bin())
+        .args(["check", "--model", "f510", "--mode", "rtu", "-a", "1,2"])
+        .args(["--quiet", "--port"])
+        .arg(&m)
+        .args(["--only", "rtu.map.group-0.*", "--capture"])
+        .arg(d.join("check.pcapng"))
+        .args(["--format", "json", "-o"])
+        .arg(d.join("check.json"))
+        .output()
+        .unwrap();
+    let status = monitor.wait().unwrap();
+    let stderr = drain.join().unwrap().join("\n");
+    bus.kill().unwrap();
+    bus.wait().unwrap();
+    assert_eq!(
+        out.status.code(),
+        Some(0),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(matches!(status.code(), Some(0 | 1)), "{stderr}");
+    let check: Value =
+        serde_json::from_str(&std::fs::read_to_string(d.join("check.json")).unwrap()).unwrap();
+    let live: Value =
+        serde_json::from_str(&std::fs::read_to_string(d.join("live.json")).unwrap()).unwrap();
+    let mut judged = Vec::new();
+    for name in ["bus", "tap", "check"] {
+        let log = d.join(format!("{name}.heard.jsonl"));
+        let (code, report, stderr) = monitor_capture(
+            &d.join(format!("{name}.pcapng")),
+            &format!("alike-{name}"),
+            &["-a", "1,2", "-b", "9600", "--log", log.to_str().unwrap()],
+        );
+        assert!(matches!(code, Some(0 | 1)), "{name}: {stderr}");
+        let heard: Vec<Value> = std::fs::read_to_string(&log)
+            .unwrap()
+            .lines()
+            .map(|l| serde_json::from_str(l).unwrap())
+            .collect();
+        let (agree, _) = common::agree::exchanges(&format!("{name} capture"), &check, &heard, &[]);
+        assert!(agree >= 8, "{name}: only {agree} exchanges compared");
+        judged.push((name, kinds_by_node(&report)));
+    }
+    // Each node answered every request it was sent, and the three files, the live
+    // monitor and one another agree on what was found on whose side.
+    let live = kinds_by_node(&live);
+    for (name, nodes) in &judged {
+        assert_eq!(nodes.len(), 2, "{name}: {nodes:?}");
+        for (address, replies, kinds) in nodes {
+            assert!(*replies >= 4, "{name}: node {address}: {replies} replies");
+            assert!(
+                kinds.iter().all(|k| k.starts_with("master.")),
+                "{name}: node {address}: {kinds:?}"
+            );
+        }
+        assert_eq!(nodes, &judged[0].1, "{name} against {}", judged[0].0);
+        let without_counts = |n: &[(String, u64, Vec<String>)]| {
+            n.iter()
+                .map(|(a, _, k)| (a.clone(), k.clone()))
+                .collect::<Vec<_>>()
+        };
+        assert_eq!(
+            without_counts(nodes),
+            without_counts(&live),
+            "{name} against the live monitor"
+        );
+    }
+}

@@ -299,8 +299,9 @@ impl Feeder {
         let t0 = *self.origin.get_or_insert(ts);
         let first = Duration::from_nanos(ts - t0);
         monitor.idle(first);
-        // Where the capture gives directions, they settle which frame answers which.
-        monitor.set_side(p.direction.map(|d| d == capture::Direction::Outbound));
+        // Where the capture gives directions, they settle which frame answers which: a
+        // direction is the packet's on its own interface (a bus capture's endpoints).
+        monitor.set_side(super::capture_side(p.interface, p.direction));
         // The first byte when its last bit arrived (response times and silences are
         // measured to it), the rest when the packet's last byte did: no silence inside a
         // packet can be proven, and the framer needs no byte-by-byte clock for that.
