@@ -254,6 +254,15 @@ pub fn run(args: MonitorArgs) -> anyhow::Result<ExitCode> {
                 out.say(monitor::Said::Line(l))
             })
             .with_context(|| format!("cannot judge the capture {}", path.display()))?;
+            if r.broken_by_host > 0 {
+                let n = format!(
+                    "{} frame(s) marked in the capture as broken by its writer's host as they left (a stall inside them; sent again): not judged",
+                    r.broken_by_host
+                );
+                out.say(monitor::Said::Notice(&n));
+                mon.notice(n);
+                mon.take_notices();
+            }
             let ended = match &r.stopped {
                 Some(e) => {
                     eprintln!(

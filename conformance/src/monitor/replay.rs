@@ -48,6 +48,9 @@ pub struct Replayed {
     /// A fault after the first packets (a file cut short): what was read before it was
     /// judged.
     pub stopped: Option<ReadError>,
+    /// Packets its writer marked as broken by its own host as they left, and sent again
+    /// ([`capture::broken_by_host`]): read, not judged.
+    pub broken_by_host: u64,
 }
 
 /// The line's bytes in a packet of `link_type`, if it carries them.
@@ -296,6 +299,16 @@ impl Feeder {
         };
         // A packet without a time (a Simple Packet Block) came after the one before.
         let ts = p.timestamp_ns.unwrap_or(self.last).max(self.last);
+        // A frame the writer's host broke as it sent it (a stall inside it) was dropped
+        // by its receiver and sent again: the copy that follows is the request the
+        // device answered, as the writer (`check`) judged it. Judged, this one would be
+        // a request left unanswered and the copy a retry.
+        if capture::broken_by_host(p.flags, p.comment) {
+            self.out.broken_by_host += 1;
+            self.out.packets += 1;
+            self.out.bytes += bytes.len() as u64;
+            return Ok(());
+        }
         let t0 = *self.origin.get_or_insert(ts);
         let first = Duration::from_nanos(ts - t0);
         monitor.idle(first);

@@ -150,6 +150,14 @@ pub fn text(r: &Report, verbose: bool) -> String {
         }
     }
     for (mode, b) in &r.budget {
+        if b.line.broken_sends > 0 {
+            // Not the device's: each was sent again (a capture marks them).
+            let _ = writeln!(
+                o,
+                "host:    {mode}: {} send(s) broken by this host as they left (it stalled while pacing them: a silence over t1.5 inside), sent again",
+                b.line.broken_sends
+            );
+        }
         if let Some(why) = b.no_bound {
             // Behind a Modbus TCP gateway, or on a pseudo-terminal: no line to bound by.
             let _ = writeln!(
