@@ -600,7 +600,10 @@ fn a_monitor_with_no_baud_rate_finds_the_lines_settings_on_an_emulated_line() {
         Command::new(bin())
             .args(["monitor", "--model", "f510", "-a", "1", "--quiet", "--log"])
             .arg(d.join("heard.jsonl"))
-            .args(["--duration", "30", "--format", "json", "--port"])
+            // The search takes about a second now: 12 s leaves some 10 s of exchanges
+            // (30 s, sized for the old 2 s a setting, only gave a loaded host more
+            // exchanges to split late).
+            .args(["--duration", "12", "--format", "json", "--port"])
             .arg(&t)
             .arg("-o")
             .arg(&report)
