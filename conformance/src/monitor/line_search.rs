@@ -260,7 +260,7 @@ pub fn slower_line(baud: u32, bytes: &[u8]) -> Option<u32> {
     };
     [8u32, 4, 2].into_iter().find_map(|k| {
         let good = telling.iter().filter(|&&b| fits(b, k)).count();
-        (baud % k == 0 && good * 10 >= telling.len() * 9).then_some(baud / k)
+        (baud.is_multiple_of(k) && good * 10 >= telling.len() * 9).then_some(baud / k)
     })
 }
 
