@@ -600,7 +600,10 @@ fn a_monitor_with_no_baud_rate_finds_the_lines_settings_on_an_emulated_line() {
         Command::new(bin())
             .args(["monitor", "--model", "f510", "-a", "1", "--quiet", "--log"])
             .arg(d.join("heard.jsonl"))
-            .args(["--duration", "30", "--format", "json", "--port"])
+            // The search takes about a second now: 12 s leaves some 10 s of exchanges
+            // (30 s, sized for the old 2 s a setting, only gave a loaded host more
+            // exchanges to split late).
+            .args(["--duration", "12", "--format", "json", "--port"])
             .arg(&t)
             .arg("-o")
             .arg(&report)
@@ -694,4 +697,78 @@ fn a_monitor_with_no_baud_rate_finds_the_lines_settings_on_an_emulated_line() {
             "{line}: {settings:?}"
         );
     }
+}
+
+/// Issue 33: with `-o`, a search for the line's settings that finds none still writes
+/// its report (incomplete, why it stopped, what each setting heard), and exits 2: on a
+/// silent bus, once ended by `--duration` and once interrupted (SIGINT) while it tries
+/// the first setting. It wrote nothing.
+#[test]
+fn a_line_search_that_finds_nothing_still_writes_its_report() {
+    let d = dir("search-fails");
+    let t = d.join("tap");
+    let (mut bus, _) = start(
+        &[
+            "--link",
+            &format!("tap={}", t.display()),
+            "--model",
+            "f510",
+            "-a",
+            "1",
+            "--emulate-line",
+        ],
+        1,
+    );
+    common::wait_for(&t);
+    for (name, interrupt) in [("duration", false), ("interrupted", true)] {
+        let report = d.join(format!("{name}.json"));
+        let mut monitor = Kill::spawn(
+            Command::new(bin())
+                .args(["monitor", "--model", "f510", "-a", "1", "--mode", "rtu"])
+                .args(["--duration", "3", "--format", "json", "--port"])
+                .arg(&t)
+                .arg("-o")
+                .arg(&report)
+                .stdin(Stdio::null())
+                .stdout(Stdio::null())
+                .stderr(Stdio::piped()),
+        );
+        if interrupt {
+            // Once it says it tries the first setting, it is searching.
+            let mut err = BufReader::new(monitor.0.stderr.take().unwrap());
+            let mut line = String::new();
+            while !line.contains("trying 9600 8E1") {
+                line.clear();
+                assert!(err.read_line(&mut line).unwrap() > 0, "no search began");
+            }
+            let pid = nix::unistd::Pid::from_raw(i32::try_from(monitor.0.id()).unwrap());
+            nix::sys::signal::kill(pid, nix::sys::signal::Signal::SIGINT).unwrap();
+            std::thread::spawn(move || std::io::copy(&mut err, &mut std::io::sink()));
+        }
+        let status = monitor.wait_within(Duration::from_secs(30), "the monitor's search");
+        assert_eq!(status.code(), Some(2), "{name}");
+        let v: Value = serde_json::from_str(
+            &std::fs::read_to_string(&report)
+                .unwrap_or_else(|e| panic!("{name}: no report {}: {e}", report.display())),
+        )
+        .unwrap();
+        assert_eq!(v["complete"], false, "{name}");
+        let stopped = v["stopped"].as_str().unwrap();
+        let why = if interrupt {
+            "interrupted first"
+        } else {
+            "--duration passed first"
+        };
+        assert!(
+            stopped.starts_with("no line setting found by listening") && stopped.contains(why),
+            "{name}: {stopped}"
+        );
+        assert_eq!(v["device"]["line"], "none found by listening", "{name}");
+        assert!(
+            v["monitor"]["notices"].to_string().contains(why),
+            "{name}: {}",
+            v["monitor"]["notices"]
+        );
+    }
+    terminate(&mut bus);
 }

@@ -66,6 +66,21 @@ pub const FLAG_CRC_ERROR: u32 = 1 << 24;
 /// or less than t3.5 before it).
 pub const FLAG_WRONG_GAP: u32 = 1 << 27;
 
+/// The words that begin the comment (after the label of the check, if any) of a frame
+/// that the host writing the capture broke as it sent it: it stalled while pacing the
+/// frame onto an emulated line (a silence over t1.5 inside it), so a receiver that frames
+/// by silence dropped it, and the frame was sent again. Such a packet also carries
+/// [`FLAG_WRONG_GAP`]. A reader judging the line takes it as its writer says: not a
+/// request that was due a reply (see [`broken_by_host`]).
+pub const BROKEN_BY_HOST: &str = "broken by the host as it left";
+
+/// Whether a packet with `flags` and `comment` is one its writer marked as broken by its
+/// own host as it sent it ([`BROKEN_BY_HOST`]).
+pub fn broken_by_host(flags: Option<u32>, comment: Option<&str>) -> bool {
+    flags.is_some_and(|f| f & FLAG_WRONG_GAP != 0 && f & 0b11 == FLAG_OUTBOUND)
+        && comment.is_some_and(|c| c.contains(BROKEN_BY_HOST))
+}
+
 impl Direction {
     /// The `epb_flags` bits of this direction.
     pub fn flag(self) -> u32 {

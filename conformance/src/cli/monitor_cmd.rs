@@ -255,6 +255,15 @@ pub fn run(args: MonitorArgs) -> anyhow::Result<ExitCode> {
                 out.say(monitor::Said::Line(l))
             })
             .with_context(|| format!("cannot judge the capture {}", path.display()))?;
+            if r.broken_by_host > 0 {
+                let n = format!(
+                    "{} frame(s) marked in the capture as broken by its writer's host as they left (a stall inside them; sent again): not judged",
+                    r.broken_by_host
+                );
+                out.say(monitor::Said::Notice(&n));
+                mon.notice(n);
+                mon.take_notices();
+            }
             let ended = match &r.stopped {
                 Some(e) => {
                     eprintln!(
@@ -308,17 +317,45 @@ pub fn run(args: MonitorArgs) -> anyhow::Result<ExitCode> {
                 when,
             )
         }
-        (Some(port), None) => {
-            let (mode, mon, line, source, ended, listened, searched) =
-                listen(&args, port, line, asked, &new_monitor, &mut out)?;
-            let when = When {
-                started,
-                finished: now(),
-                listened: Some(listened),
-                searched,
-            };
-            (mode, mon, line, source, ended, when)
-        }
+        (Some(port), None) => match listen(&args, port, line, asked, &new_monitor, &mut out) {
+            Ok((mode, mon, line, source, ended, listened, searched)) => {
+                let when = When {
+                    started,
+                    finished: now(),
+                    listened: Some(listened),
+                    searched,
+                };
+                (mode, mon, line, source, ended, when)
+            }
+            // With -o, a search that found no setting (interrupted, --duration, or none
+            // gave frames) still writes its report: what each setting heard, and why it
+            // stopped; then the error, exit 2 (issue 33: it wrote nothing).
+            Err(e) => {
+                if let (Some(nf), Some(_)) = (e.downcast_ref::<SearchFailed>(), &args.output) {
+                    let mode = asked.unwrap_or(Mode::Rtu);
+                    let mut mon = new_monitor(mode, line)?;
+                    mon.notice(nf.0.clone());
+                    let source = format!("port {port}");
+                    let when = When {
+                        started,
+                        finished: now(),
+                        listened: None,
+                        searched: None,
+                    };
+                    report_stopped(
+                        &args,
+                        mode,
+                        line,
+                        when,
+                        &mon,
+                        &source,
+                        "no line setting found by listening",
+                        Some(&nf.0),
+                    )?;
+                }
+                return Err(e);
+            }
+        },
         (None, None) => anyhow::bail!("say what to listen to: --port PATH or --capture-in FILE"),
     };
     let code = report(&args, mode, line, when, &mon, &source, &ended)?;
@@ -499,7 +536,13 @@ fn listen(
                     probe.into_inner(),
                 )
             }
-            Err(nf) => anyhow::bail!("{}; nothing was judged (give -b and -P)", nf.describe()),
+            Err(nf) => {
+                return Err(SearchFailed(format!(
+                    "{}; nothing was judged (give -b and -P)",
+                    nf.describe()
+                ))
+                .into())
+            }
         }
     };
     let port: Box<dyn conformance::transport::Transport> = Box::new(serial);
@@ -607,6 +650,18 @@ fn read_before_announcing(
         .map_err(|e| anyhow::anyhow!("cannot read {}: {e}", tap.describe()))
 }
 
+/// A search for the line's settings that found none: why, with what each setting heard.
+#[derive(Debug)]
+struct SearchFailed(String);
+
+impl std::fmt::Display for SearchFailed {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(&self.0)
+    }
+}
+
+impl std::error::Error for SearchFailed {}
+
 /// The report of what `mon` heard on `source`.
 fn report(
     args: &MonitorArgs,
@@ -616,6 +671,22 @@ fn report(
     mon: &Monitor,
     source: &str,
     ended: &str,
+) -> anyhow::Result<ExitCode> {
+    report_stopped(args, mode, line, when, mon, source, ended, None)
+}
+
+/// [`report`] of a listening that stopped before it could judge (`stopped`: why): the
+/// report says so, and its line is the one it was given, or none found.
+#[allow(clippy::too_many_arguments)]
+fn report_stopped(
+    args: &MonitorArgs,
+    mode: Mode,
+    line: LineSettings,
+    when: When,
+    mon: &Monitor,
+    source: &str,
+    ended: &str,
+    stopped: Option<&str>,
 ) -> anyhow::Result<ExitCode> {
     let nodes = args.nodes.as_ref().map(|n| n.0.clone()).unwrap_or_default();
     let mut summary = mon.summary(source, ended);
@@ -639,8 +710,8 @@ fn report(
         codec: None,
         started: when.started,
         finished: Some(when.finished),
-        complete: true,
-        stopped: None,
+        complete: stopped.is_none(),
+        stopped: stopped.map(str::to_string),
         device: Device {
             model: mon.model().id.clone(),
             manual: mon.model().manual.clone(),
@@ -651,7 +722,10 @@ fn report(
             )]
             .into_iter()
             .collect(),
-            line: line.to_string(),
+            line: match (stopped, args.baud) {
+                (Some(_), None) => "none found by listening".to_string(),
+                _ => line.to_string(),
+            },
             identification: None,
             simulated: None,
             nodes: on_bus

@@ -78,10 +78,10 @@ pub struct TapFrame {
     pub silence_before: Option<Duration>,
     /// The largest silence between two of its bytes that came in different pieces.
     pub max_gap: Option<Duration>,
-    /// The side its first byte came from, where the source knows (a capture's direction
-    /// flags: `true` for one side, `false` for the other; which is which does not
-    /// matter, only whether two frames came from the same side).
-    pub side: Option<bool>,
+    /// The sender its first byte came from, where the source knows (a capture's
+    /// interface and direction flags): an opaque id, of which only whether two frames
+    /// share it matters (see [`Monitor::set_side`](super::Monitor::set_side)).
+    pub side: Option<u64>,
 }
 
 /// A piece of bytes from the tap: where it ends in the block, when it was read, and the
@@ -105,7 +105,7 @@ struct Piece {
     low: Duration,
     since: Duration,
     /// The side it came from, where the source knows (a capture's direction flags).
-    side: Option<bool>,
+    side: Option<u64>,
 }
 
 /// How long the start of a frame cut short waits for its rest.
@@ -138,7 +138,7 @@ pub struct TapFramer {
     /// The earliest the last byte read so far can have come.
     last_low: Option<Duration>,
     /// The side of the bytes being pushed, where known.
-    side: Option<bool>,
+    side: Option<u64>,
     /// The block being closed ended at a silence no read proves (a late read).
     end_unproven: bool,
     /// When the last read returned, with bytes or without.
@@ -219,7 +219,7 @@ impl TapFramer {
     }
 
     /// The side the next pieces come from (`None`: unknown, a tap).
-    pub fn set_side(&mut self, side: Option<bool>) {
+    pub fn set_side(&mut self, side: Option<u64>) {
         self.side = side;
     }
 

@@ -5,8 +5,17 @@
 //! the line's settings the traffic is Modbus frames whose CRC or LRC holds
 //! ([`super::guess`]: two in a row); at any other, its UART reads something else. A
 //! setting is left after [`SETTING_BYTES`] bytes with no verdict, [`SETTING_WAIT`] after
-//! its first byte, or [`SILENT_WAIT`] of silence; the search goes round again until the
+//! its first byte, or [`SILENT_WAIT`] of silence; and as soon as its bytes cannot be
+//! frames: after [`LEAVE_BURSTS`] bursts (bytes between two silences) in which no frame
+//! with a valid CRC or LRC starts anywhere. The search goes round again until the
 //! traffic settles it, `--duration` passes or Ctrl-C.
+//!
+//! What a wrong setting heard ranks the settings still to try: a port k times faster
+//! than the line (k = 2, 4, 8) reads each line bit as k of its own, so the bits of the
+//! bytes it reads come in runs of k, aligned on its start bit ([`slower_line`]); where
+//! nearly all bytes show that, the line's baud rate is the port's over k and its
+//! settings are tried next. At 9600 on a 1200 line every byte is 00H or 80H (at 8N1; at
+//! 8E1 most fail their parity or stop bit).
 //!
 //! What a UART at the wrong settings reads, and why the order matters:
 //!
@@ -46,6 +55,11 @@ pub const SETTING_WAIT: Duration = Duration::from_secs(2);
 /// How long a setting that hears nothing is kept (the traffic may start later: the
 /// search comes back to it).
 pub const SILENT_WAIT: Duration = Duration::from_secs(2);
+
+/// Bursts (bytes between two silences) with no valid frame anywhere in them after which
+/// a setting is left: the first may be the end of a frame under way, and a busy host can
+/// split one frame in two.
+pub const LEAVE_BURSTS: usize = 3;
 
 /// Baud rates tried, most likely first (those `scan` tries).
 pub const BAUDS: [u32; 8] = crate::scan::settings::BAUDS;
@@ -102,6 +116,8 @@ pub struct Tried {
     pub first: Vec<u8>,
     /// Valid frames of the other mode than the one asked for, if any.
     pub other_mode: Option<Mode>,
+    /// Left before its time because its bytes could not be frames ([`LEAVE_BURSTS`]).
+    pub left_early: bool,
 }
 
 impl std::fmt::Display for Tried {
@@ -196,6 +212,58 @@ impl NotFound {
     }
 }
 
+/// Whether a valid frame (RTU with its CRC, its length from its header as a request or a
+/// reply; or ASCII, ':' to CR LF with its LRC) starts anywhere in `bytes`.
+pub fn holds_a_frame(bytes: &[u8]) -> bool {
+    use crate::codec::deframe::bus_rtu_frame_len;
+    use crate::codec::Direction;
+    (0..bytes.len()).any(|s| {
+        let rest = &bytes[s..];
+        let rtu = [Direction::Request, Direction::Response]
+            .into_iter()
+            .any(|d| {
+                matches!(bus_rtu_frame_len(d, rest), Some(n) if n <= rest.len()
+                && crate::codec::crc::crc16_frame_ok(&rest[..n]))
+            });
+        let ascii = rest.first() == Some(&b':')
+            && rest
+                .iter()
+                .take(crate::codec::MAX_ASCII_FRAME)
+                .position(|&b| b == b'\n')
+                .is_some_and(|e| crate::codec::ascii::is_valid_frame(&rest[..=e]));
+        rtu || ascii
+    })
+}
+
+/// The baud rate of the line, where the bytes a port at `baud` read show it is `baud` / k
+/// for k of 2, 4 or 8: each line bit lasts k of the port's, so the port's data bits come
+/// in runs of k, on boundaries that depend on where in a line bit its start bit fell (at
+/// a line edge after idle, anywhere when the port's character ended inside a 0 bit).
+/// 00H and FFH fit any k and say nothing (and a port with parity turns a character with
+/// an error into 00H); at least 4 others are needed, and 9 in 10 of them must fit. The
+/// largest k that fits is the one.
+pub fn slower_line(baud: u32, bytes: &[u8]) -> Option<u32> {
+    let telling: Vec<u8> = bytes
+        .iter()
+        .copied()
+        .filter(|&b| b != 0x00 && b != 0xFF)
+        .collect();
+    if telling.len() < 4 {
+        return None;
+    }
+    // Data bit i is slot i + 1 of the port's character; with the line's bit boundaries
+    // `o` slots off, it is in line bit (i + 1 + o) / k, and equals every bit there.
+    let fits = |b: u8, k: u32| {
+        (0..k).any(|o| {
+            (1..8u32).all(|i| (i + 1 + o) / k != (i + o) / k || (b >> i) & 1 == (b >> (i - 1)) & 1)
+        })
+    };
+    [8u32, 4, 2].into_iter().find_map(|k| {
+        let good = telling.iter().filter(|&&b| fits(b, k)).count();
+        (baud.is_multiple_of(k) && good * 10 >= telling.len() * 9).then_some(baud / k)
+    })
+}
+
 /// Listens on `tap` at each of `settings` in turn, round after round, until the traffic
 /// at one of them is two valid frames in a row of `mode` (any mode if None), `stop` is
 /// set, `duration` (since `origin`) passes or the input ends; `say` is told each setting
@@ -216,6 +284,7 @@ pub fn listen_for_line(
             bytes: 0,
             first: Vec::new(),
             other_mode: None,
+            left_early: false,
         })
         .collect();
     let not_found = |ended: Option<Ended>, tried: Vec<Tried>| Ok(Err(NotFound { ended, tried }));
@@ -224,7 +293,11 @@ pub fn listen_for_line(
     }
     let mut buf = [0u8; 512];
     for round in 1.. {
-        for (i, &line) in settings.iter().enumerate() {
+        // This round's order, which what the settings tried hear can change.
+        let mut order: Vec<usize> = (0..settings.len()).collect();
+        for pos in 0..order.len() {
+            let i = order[pos];
+            let line = settings[i];
             if round == 1 {
                 say(&format!("trying {line}"));
             }
@@ -236,6 +309,7 @@ pub fn listen_for_line(
             let mut first_byte: Option<Instant> = None;
             let mut heard: Heard = Vec::new();
             let mut bytes: Vec<u8> = Vec::new();
+            let (mut bursts, mut in_burst) = (0usize, false);
             loop {
                 if stop.load(Ordering::Relaxed) {
                     return not_found(Some(Ended::Interrupted), tried);
@@ -250,7 +324,11 @@ pub fn listen_for_line(
                 let at = origin.elapsed();
                 if n == 0 {
                     super::tap::quiet(&mut heard, at);
+                    if std::mem::take(&mut in_burst) {
+                        bursts += 1;
+                    }
                 } else {
+                    in_burst = true;
                     first_byte.get_or_insert_with(Instant::now);
                     heard.push((at, buf[..n].to_vec()));
                     bytes.extend_from_slice(&buf[..n]);
@@ -273,17 +351,25 @@ pub fn listen_for_line(
                                 heard,
                                 tried,
                                 rounds: round,
-                                before: (round - 1) * settings.len() + i,
+                                before: (round - 1) * settings.len() + pos,
                             }));
                         }
                         tried[i].other_mode = Some(m);
                     }
                 }
+                let hopeless = bursts >= LEAVE_BURSTS && !holds_a_frame(&bytes);
                 let leave = match first_byte {
-                    Some(t) => bytes.len() >= SETTING_BYTES || t.elapsed() >= SETTING_WAIT,
+                    Some(t) => {
+                        hopeless || bytes.len() >= SETTING_BYTES || t.elapsed() >= SETTING_WAIT
+                    }
                     None => since.elapsed() >= SILENT_WAIT,
                 };
                 if leave {
+                    tried[i].left_early |= hopeless;
+                    // A port faster than the line says which: its settings go next.
+                    if let Some(baud) = slower_line(line.baud, &bytes) {
+                        order[pos + 1..].sort_by_key(|&j| settings[j].baud != baud);
+                    }
                     break;
                 }
             }
@@ -310,6 +396,10 @@ mod tests {
         traffic: Vec<u8>,
         sets: Vec<LineSettings>,
         budget: usize,
+        /// Reads at each setting set, in order.
+        reads: Vec<usize>,
+        /// Whether the next read finds the line silent (the traffic comes in bursts).
+        quiet: bool,
     }
 
     impl Tap for UartTap {
@@ -320,6 +410,13 @@ mod tests {
                 });
             }
             self.budget -= 1;
+            if let Some(r) = self.reads.last_mut() {
+                *r += 1;
+            }
+            self.quiet = !self.quiet;
+            if !self.quiet {
+                return Ok(0);
+            }
             let policy = if self.own.parity == Parity::None {
                 ErrorPolicy::Pass
             } else {
@@ -340,6 +437,7 @@ mod tests {
         fn set_line(&mut self, line: LineSettings) -> Result<(), TransportError> {
             self.own = line;
             self.sets.push(line);
+            self.reads.push(0);
             Ok(())
         }
     }
@@ -368,12 +466,23 @@ mod tests {
         mode: Mode,
         asked: Option<Mode>,
     ) -> (Result<Found, NotFound>, Vec<LineSettings>) {
+        let (r, tap) = search_on(line, mode, asked);
+        (r, tap.sets)
+    }
+
+    fn search_on(
+        line: LineSettings,
+        mode: Mode,
+        asked: Option<Mode>,
+    ) -> (Result<Found, NotFound>, UartTap) {
         let mut tap = UartTap {
             line,
             own: LineSettings::new(1, 8, Parity::None, 1),
             traffic: poll(mode),
             sets: Vec::new(),
             budget: 10_000,
+            reads: Vec::new(),
+            quiet: false,
         };
         let settings = candidates(&[], &[], None, line.stop_bits, asked);
         let r = listen_for_line(
@@ -386,7 +495,106 @@ mod tests {
             |_| {},
         )
         .unwrap();
-        (r, tap.sets)
+        (r, tap)
+    }
+
+    /// Issue 33: a setting that hears bytes which cannot be frames is left after a few
+    /// bursts, not after 512 bytes or 2 s: each wrong setting before the line's is read a
+    /// few times only.
+    #[test]
+    fn a_setting_whose_bytes_cannot_be_frames_is_left_after_a_few_bursts() {
+        for (line, mode, asked) in [
+            (
+                LineSettings::new(19_200, 8, Parity::Odd, 1),
+                Mode::Rtu,
+                None,
+            ),
+            (
+                LineSettings::new(19_200, 8, Parity::Odd, 1),
+                Mode::Rtu,
+                Some(Mode::Rtu),
+            ),
+            (
+                LineSettings::new(38_400, 7, Parity::Even, 1),
+                Mode::Ascii,
+                None,
+            ),
+        ] {
+            let (r, tap) = search_on(line, mode, asked);
+            let found = r.unwrap_or_else(|e| panic!("{line}: {}", e.describe()));
+            assert_eq!(found.line, line);
+            let before = &tap.reads[..tap.reads.len() - 1];
+            assert!(!before.is_empty());
+            assert!(
+                before.iter().all(|&n| n <= 2 * LEAVE_BURSTS + 2),
+                "{line}: reads at each setting {:?} over {:?}",
+                tap.reads,
+                tap.sets
+            );
+            assert!(found
+                .tried
+                .iter()
+                .filter(|t| t.bytes > 0 && t.line != line)
+                .all(|t| t.left_early));
+        }
+    }
+
+    /// Issue 33: a port faster than the line by 2, 4 or 8 reads bytes whose bits come in
+    /// runs, and the line's baud rate is tried next: 1200 8E1 is found after one or two
+    /// other settings, not after 21 (every faster one with every parity first).
+    #[test]
+    fn a_line_slower_than_the_port_is_tried_next() {
+        for (line, most) in [
+            (LineSettings::new(1200, 8, Parity::Even, 1), 3),
+            (LineSettings::new(2400, 8, Parity::None, 1), 5),
+            (LineSettings::new(4800, 8, Parity::Odd, 1), 4),
+        ] {
+            let (r, sets) = search(line, Mode::Rtu, Some(Mode::Rtu));
+            let found = r.unwrap_or_else(|e| panic!("{line}: {}", e.describe()));
+            assert_eq!(found.line, line);
+            assert!(found.before <= most, "{line}: after {:?}", sets);
+        }
+    }
+
+    #[test]
+    fn the_runs_of_bits_of_a_slower_line_name_its_baud_rate() {
+        let traffic = poll(Mode::Rtu);
+        let heard = |line: LineSettings, own: LineSettings| {
+            deliver(
+                &transcode(&traffic.repeat(4), &line, &own),
+                ErrorPolicy::Pass,
+            )
+        };
+        for slow in [1200u32, 2400, 4800] {
+            let line = LineSettings::new(slow, 8, Parity::None, 1);
+            for k in [2u32, 4, 8] {
+                let own = LineSettings::new(slow * k, 8, Parity::None, 1);
+                assert_eq!(
+                    slower_line(own.baud, &heard(line, own)),
+                    Some(slow),
+                    "{slow} at {own}"
+                );
+            }
+        }
+        // At its own baud rate, or on a faster line: nothing to say.
+        let line = LineSettings::new(19_200, 8, Parity::Even, 1);
+        assert_eq!(slower_line(19_200, &heard(line, line)), None);
+        let own = LineSettings::new(9600, 8, Parity::None, 1);
+        assert_eq!(slower_line(9600, &heard(line, own)), None);
+    }
+
+    #[test]
+    fn a_frame_anywhere_in_the_bytes_is_found_and_garbage_holds_none() {
+        let mut bytes = vec![0x13, 0x00, 0x80];
+        bytes.extend(poll(Mode::Rtu));
+        assert!(holds_a_frame(&bytes));
+        assert!(holds_a_frame(&poll(Mode::Ascii)));
+        assert!(!holds_a_frame(&[
+            0x00, 0x80, 0x80, 0x00, 0xF8, 0x80, 0x00, 0x00
+        ]));
+        let mut cut = poll(Mode::Rtu);
+        cut.truncate(7);
+        assert!(!holds_a_frame(&cut));
     }
 
     #[test]
@@ -414,10 +622,10 @@ mod tests {
             assert!(!found.heard.is_empty());
             // Every setting before it was tried and heard something else.
             let before = sets.iter().position(|s| *s == line).unwrap();
-            assert_eq!(
-                found.tried[..before].iter().filter(|t| t.bytes > 0).count(),
-                before
-            );
+            for s in &sets[..before] {
+                let t = found.tried.iter().find(|t| t.line == *s).unwrap();
+                assert!(t.bytes > 0, "{s}");
+            }
         }
     }
 
@@ -455,6 +663,8 @@ mod tests {
             traffic: vec![0x55; 64],
             sets: Vec::new(),
             budget: 100_000,
+            reads: Vec::new(),
+            quiet: false,
         };
         let settings = candidates(&[9600, 19_200], &[], None, 1, Some(Mode::Rtu));
         assert_eq!(settings.len(), 6);

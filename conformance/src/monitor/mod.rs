@@ -143,7 +143,7 @@ struct Pending {
     /// The earliest its last byte can have come.
     end_low: Duration,
     /// The side it came from, where the source knows.
-    side: Option<bool>,
+    side: Option<u64>,
     silence_before: Option<Duration>,
     judgement: Arc<Judgement>,
     /// Bytes that came after it and are no frame (garbage before a reply).
@@ -315,13 +315,25 @@ impl Monitor {
         self.memo = on;
     }
 
-    /// The side the next bytes come from, where the source knows it (a capture's
-    /// direction flags; `None`, a tap, the default): frames from the side of a request
-    /// are never its reply, frames from the other side are.
-    pub fn set_side(&mut self, side: Option<bool>) {
+    /// The sender the next bytes come from, where the source knows it (`None`, a tap,
+    /// the default): frames from the sender of a request are never its reply, frames
+    /// from another sender are. An opaque id: a capture's direction flag says which way
+    /// a packet went *on its interface*, so the id is the interface with the direction
+    /// ([`capture_side`]); a `bus` capture has one interface per endpoint, each frame
+    /// outbound on its sender's, and a master's and a drive's frames differ by interface.
+    pub fn set_side(&mut self, side: Option<u64>) {
         self.framer.set_side(side);
     }
+}
 
+/// The sender id ([`Monitor::set_side`]) of a capture's packet on `interface` that went
+/// `direction` on it, where its flags give one.
+pub fn capture_side(interface: u32, direction: Option<crate::capture::Direction>) -> Option<u64> {
+    direction
+        .map(|d| u64::from(interface) << 1 | u64::from(d == crate::capture::Direction::Outbound))
+}
+
+impl Monitor {
     /// Bytes that arrived at `at` (since the listener's origin).
     pub fn feed(&mut self, at: Duration, bytes: &[u8]) {
         if bytes.is_empty() {

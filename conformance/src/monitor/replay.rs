@@ -51,6 +51,9 @@ pub struct Replayed {
     /// A fault after the first packets (a file cut short): what was read before it was
     /// judged.
     pub stopped: Option<ReadError>,
+    /// Packets its writer marked as broken by its own host as they left, and sent again
+    /// ([`capture::broken_by_host`]): read, not judged.
+    pub broken_by_host: u64,
 }
 
 /// The line's bytes in a packet of `link_type`, if it carries them.
@@ -299,14 +302,25 @@ impl Feeder {
         };
         // A packet without a time (a Simple Packet Block) came after the one before.
         let ts = p.timestamp_ns.unwrap_or(self.last).max(self.last);
-        if self.origin.is_none() {
+        if self.origin.is_none() && self.out.first_ns.is_none() {
             self.out.first_ns = p.timestamp_ns;
+        }
+        // A frame the writer's host broke as it sent it (a stall inside it) was dropped
+        // by its receiver and sent again: the copy that follows is the request the
+        // device answered, as the writer (`check`) judged it. Judged, this one would be
+        // a request left unanswered and the copy a retry.
+        if capture::broken_by_host(p.flags, p.comment) {
+            self.out.broken_by_host += 1;
+            self.out.packets += 1;
+            self.out.bytes += bytes.len() as u64;
+            return Ok(());
         }
         let t0 = *self.origin.get_or_insert(ts);
         let first = Duration::from_nanos(ts - t0);
         monitor.idle(first);
-        // Where the capture gives directions, they settle which frame answers which.
-        monitor.set_side(p.direction.map(|d| d == capture::Direction::Outbound));
+        // Where the capture gives directions, they settle which frame answers which: a
+        // direction is the packet's on its own interface (a bus capture's endpoints).
+        monitor.set_side(super::capture_side(p.interface, p.direction));
         // The first byte when its last bit arrived (response times and silences are
         // measured to it), the rest when the packet's last byte did: no silence inside a
         // packet can be proven, and the framer needs no byte-by-byte clock for that.

@@ -762,7 +762,7 @@ fn directions_from_a_capture_tell_a_resend_from_a_late_echo() {
         let mut m = monitor(Mode::Rtu, &[1]);
         for (t, side) in steps {
             m.idle(ms(*t));
-            m.set_side(Some(*side));
+            m.set_side(Some(u64::from(*side)));
             m.feed(ms(*t), &w);
         }
         m.idle(ms(5000));
@@ -794,7 +794,7 @@ fn a_damaged_request_sent_again_is_no_reply_to_the_first() {
         let mut m = monitor(Mode::Rtu, &[1]);
         for t in [0u64, 100] {
             m.idle(ms(t));
-            m.set_side(sides.then_some(true));
+            m.set_side(sides.then_some(1));
             m.feed(ms(t), &bad);
         }
         m.idle(ms(5000));

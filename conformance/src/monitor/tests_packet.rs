@@ -96,7 +96,7 @@ fn framed(line: LineSettings, packets: &[Packet], whole: bool) -> (Vec<Vec<TapFr
         let mut out = Vec::new();
         f.idle(first, &mut out);
         calls.push(std::mem::take(&mut out));
-        f.set_side(*side);
+        f.set_side(side.map(u64::from));
         let end = first + char * bytes.len() as u32;
         taken += usize::from(f.takes_whole(bytes));
         if whole {

@@ -487,6 +487,9 @@ fn budget_json(b: &ModeBudget) -> Value {
     if let Some(why) = b.no_bound {
         v["no_bound"] = json!(why.key());
     }
+    if b.line.broken_sends > 0 {
+        v["broken_sends"] = json!(b.line.broken_sends);
+    }
     v
 }
 

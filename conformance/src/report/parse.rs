@@ -236,6 +236,11 @@ fn budget(b: &Value, path: &str) -> Result<ModeBudget, ReportError> {
             silences: uint(b, "silences", path)?,
             max_response: millis(b, "max_response_ms", path)?,
             busy: Duration::ZERO,
+            // Absent: none (and from reports older than the field).
+            broken_sends: match b.get("broken_sends") {
+                None => 0,
+                Some(_) => uint(b, "broken_sends", path)?,
+            },
         },
     })
 }

@@ -156,11 +156,17 @@ pub fn text(r: &Report, verbose: bool) -> String {
         }
     }
     for (mode, b) in &r.budget {
+        // Not the device's: each was sent again (a capture marks them). At the end of the
+        // line, so that a page's example with the line's tail elided still matches.
+        let broken = match b.line.broken_sends {
+            0 => String::new(),
+            n => format!("; {n} send(s) broken by this host as they left (it stalled while pacing them: a silence over t1.5 inside), sent again"),
+        };
         if let Some(why) = b.no_bound {
             // Behind a Modbus TCP gateway, or on a pseudo-terminal: no line to bound by.
             let _ = writeln!(
                 o,
-                "budget:  {mode}: {:.1} s for {} frames; no line bound: {}",
+                "budget:  {mode}: {:.1} s for {} frames; no line bound: {}{broken}",
                 b.wall.as_secs_f64(),
                 b.line.frames,
                 why.reason()
@@ -169,7 +175,7 @@ pub fn text(r: &Report, verbose: bool) -> String {
         }
         let _ = writeln!(
             o,
-            "budget:  {mode}: {:.1} s for {} frames; the line and the device need {:.1} s ({:.0}%: bytes at the character time, t3.5 before each frame, the device's response delays, its longest delay for each of {} silences)",
+            "budget:  {mode}: {:.1} s for {} frames; the line and the device need {:.1} s ({:.0}%: bytes at the character time, t3.5 before each frame, the device's response delays, its longest delay for each of {} silences){broken}",
             b.wall.as_secs_f64(),
             b.line.frames,
             b.bound.as_secs_f64(),

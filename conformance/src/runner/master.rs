@@ -149,6 +149,10 @@ pub struct LineBudget {
     pub max_response: Duration,
     /// Wall time of the exchanges (waiting for the gap, sending, listening).
     pub busy: Duration,
+    /// Sends this host broke as they left (it stalled while pacing them: a silence over
+    /// t1.5 inside), each sent again or, the last of a request never sent whole, given up:
+    /// a capture marks each ([`crate::capture::BROKEN_BY_HOST`]).
+    pub broken_sends: u64,
 }
 
 impl LineBudget {
@@ -490,6 +494,9 @@ impl<T: Transport + ?Sized> Master<T> {
             // error of this host, never the device's silence to judge (the exchange was
             // listened to for a silence window only, so its "no reply" means nothing).
             let drifted = self.split.as_ref().is_some_and(|s| s.drifted);
+            if self.send_broken() {
+                self.budget.broken_sends += 1;
+            }
             if self.send_broken() || drifted {
                 broken += 1;
                 if broken >= MAX_BROKEN_SENDS {

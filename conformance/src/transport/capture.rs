@@ -442,7 +442,19 @@ impl<T: Transport> Transport for Captured<T> {
         let r = self.inner.send(bytes);
         let at = self.sent_start(before, bytes.len());
         self.last_sent = Some(self.inner.sent_at().unwrap_or_else(Instant::now));
-        self.record_sent(at, bytes, 0, None);
+        // A send this host stalled inside is not the frame the line carried, and the
+        // master sends it again: marked so, a reader of the file does not take it for a
+        // request the device left unanswered (issue 33). ASCII is not broken by a silence
+        // under its 1 s timeout (as `Master` judges it).
+        if r.is_ok() && self.mode == Mode::Rtu && self.inner.send_was_broken() {
+            let why = format!(
+                "{}: this host stalled while pacing it (a silence over t1.5 inside it), so a receiver that frames by silence dropped it; sent again",
+                capture::BROKEN_BY_HOST
+            );
+            self.record_sent(at, bytes, capture::FLAG_WRONG_GAP, Some(why));
+        } else {
+            self.record_sent(at, bytes, 0, None);
+        }
         r
     }
 

@@ -210,7 +210,7 @@ pub fn judge_requests(
             end_low: r.end,
             silence_before: silence,
             max_gap: None,
-            side: Some(true),
+            side: Some(1),
         };
         // ASCII has no t3.5 (a frame begins with ':' and may pause up to a second
         // between characters), but a master still must not send while the drive's frame
