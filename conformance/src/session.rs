@@ -262,12 +262,11 @@ pub fn open(
     }
     let (sim, transport) = open_link(config, mode)?;
     let transport: Box<dyn Transport> = match &config.capture {
-        Some(rec) => Box::new(crate::transport::capture::Captured::new(
-            transport,
-            rec.clone(),
-            mode,
-            config.line,
-        )),
+        // The capture holds a reply's parts together as long as the runner waits for them.
+        Some(rec) => Box::new(
+            crate::transport::capture::Captured::new(transport, rec.clone(), mode, config.line)
+                .holding_frames_for(config.options.timing.timeout),
+        ),
         None => transport,
     };
     Ok((sim, transport))

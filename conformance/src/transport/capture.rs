@@ -13,7 +13,7 @@
 //!   sends. On a link whose timing is the host's (a pseudo-terminal, TCP) a silence
 //!   inside a frame whose length its function tells (and whose checksum is not right
 //!   yet) is the host's delivery, not the line's: the frame is held whole unless the
-//!   silence passes [`HOST_STALL`]. A
+//!   silence passes the master's timeout ([`Captured::holding_frames_for`]; [`HOST_STALL`] by default). A
 //!   packet's time is that of the read that brought its first bytes, less their
 //!   transmission time where the line's timing is known, and never before the end of the
 //!   last frame sent (a reply cannot begin before its request ended).
@@ -268,6 +268,9 @@ pub struct Captured<T: Transport> {
     last_read: Option<Instant>,
     last_sent: Option<Instant>,
     host_timing: bool,
+    /// How long a part of a frame is held for its rest on a link with the host's timing
+    /// ([`Captured::holding_frames_for`]).
+    hold: Duration,
     inbound_flag: u32,
 }
 
@@ -297,6 +300,7 @@ impl<T: Transport> Captured<T> {
             last_read: None,
             last_sent: None,
             host_timing: inner.kind() != LinkKind::Serial,
+            hold: HOST_STALL,
             inner,
             inbound_flag: capture::FLAG_INBOUND,
         }
@@ -335,6 +339,17 @@ impl<T: Transport> Captured<T> {
     /// For a tap that hears both sides of a bus (`monitor`): what it receives is written
     /// without a direction (flags bits 0-1 `00`, "not known"), as a single-direction
     /// sniffer's file is.
+    /// Holds a part of a frame for its rest as long as `wait` (the master's timeout: how
+    /// long it waits after a byte for the next one of an unfinished reply), not only
+    /// [`HOST_STALL`], on a link with the host's timing. A master starved by a busy host
+    /// reads a reply's rest long after the line carried it and takes the reply whole: the
+    /// capture must too, or `monitor --capture-in` judges two damaged frames where the
+    /// master judged one good one.
+    pub fn holding_frames_for(mut self, wait: Duration) -> Self {
+        self.hold = wait.max(HOST_STALL);
+        self
+    }
+
     pub fn as_tap(mut self) -> Self {
         self.inbound_flag = 0;
         self
@@ -465,7 +480,7 @@ impl<T: Transport> Transport for Captured<T> {
             let silence = line_silence(now.saturating_duration_since(t), n, self.char_time);
             if !self.inbound.is_empty()
                 && silence >= self.gap
-                && (silence >= HOST_STALL || !self.holds_part_of_a_frame())
+                && (silence >= self.hold || !self.holds_part_of_a_frame())
             {
                 self.flush_inbound();
             }
@@ -730,6 +745,42 @@ mod tests {
             .unwrap();
         let seen: Vec<(&[u8], Option<u32>)> = packets.iter().map(|p| (p.data, p.flags)).collect();
         assert_eq!(seen, vec![(&request[..], None), (&REPLY[..], None)]);
+    }
+
+    /// The rest of a reply read long after its first part (the reading host stalled) is
+    /// the same packet, as the master that waits its timeout for it takes it whole.
+    #[test]
+    fn a_reply_read_in_two_parts_by_a_stalled_host_is_one_packet_while_the_master_waits() {
+        let sink = Sink::default();
+        let rec = Recorder::new(Box::new(sink.clone()), "test")
+            .unwrap()
+            .shared();
+        let (a, mut b) = memory::pair();
+        let line = LineSettings::new(9600, 8, Parity::Even, 1);
+        let mut a =
+            Captured::new(a, rec, Mode::Rtu, line).holding_frames_for(Duration::from_secs(30));
+        a.send(&REQUEST).unwrap();
+        b.send(&REPLY[..4]).unwrap();
+        let mut got = 0;
+        while got < 4 {
+            got += drain(&mut a, Duration::from_millis(100));
+        }
+        // Longer than HOST_STALL, far shorter than the hold.
+        std::thread::sleep(HOST_STALL + Duration::from_millis(100));
+        b.send(&REPLY[4..]).unwrap();
+        while got < REPLY.len() {
+            got += drain(&mut a, Duration::from_millis(100));
+        }
+        a.send(&REQUEST).unwrap();
+        drop(a);
+        let data = sink.0.lock().unwrap().clone();
+        let packets: Vec<_> = Reader::new(&data)
+            .unwrap()
+            .collect::<Result<_, _>>()
+            .unwrap();
+        let datas: Vec<&[u8]> = packets.iter().map(|p| p.data).collect();
+        assert_eq!(datas, [&REQUEST[..], &REPLY[..], &REQUEST[..]]);
+        assert_eq!(packets[1].flags.unwrap_or(0) & capture::FLAG_CRC_ERROR, 0);
     }
 
     #[test]
