@@ -354,17 +354,8 @@ fn header(out: &mut String, report: &Report) {
                 match &report.master {
                     // A master: its settings (what was found has a section of its own).
                     Some(m) => {
-                        for (mode, st) in &m.settings {
-                            row(
-                                out,
-                                "master",
-                                &esc(&format!(
-                                    "{mode} on a {} line: its timeout {} ms, {} retries",
-                                    m.line,
-                                    st.timeout.as_millis(),
-                                    st.retries
-                                )),
-                            );
+                        for l in m.settings_lines() {
+                            row(out, "master", &esc(&l));
                         }
                     }
                     None => row(

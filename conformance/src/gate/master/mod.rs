@@ -230,7 +230,7 @@ pub fn run(
         let settings = match opened {
             Ok(s) => s,
             Err(e) => {
-                let why = format!("the adapter could not open the line: {e}");
+                let why = open_failed("could not open the line", &e.to_string(), opts);
                 settle_all(&mine, Status::Error, &why, progress, &mut out);
                 continue;
             }
@@ -269,8 +269,10 @@ pub fn run(
                     let r = result(
                         case,
                         Status::Error,
-                        format!(
-                            "the adapter could not open the line again (--reopen-each-case): {e}"
+                        open_failed(
+                            "could not open the line again (--reopen-each-case)",
+                            &e.to_string(),
+                            opts,
                         ),
                         vec![],
                         vec![],
@@ -617,6 +619,36 @@ fn run_case(
     )
 }
 
+/// Why a case could not run because the master's `open` failed, with the cause where the
+/// gate knows it. A Linux pseudo-terminal has no parity bit: its driver clears PARENB on
+/// every tcsetattr (and says nothing), and glibc's tcsetattr reads the settings back and
+/// fails with EINVAL when none of the call took and PARENB is not as asked. pyserial
+/// applies all its settings in one call, and again whenever one changes: its first call
+/// on the gate's fresh pty also changes the baud rate and succeeds, but pymodbus sets a
+/// timeout right after opening, and that second call changes nothing but PARENB.
+/// The gate could give such a master no parity in `open` and keep the parity's timing
+/// for itself, but the master would then keep the silences of another character length
+/// (t3.5 of 10 bits, not 11) and be judged for them: the error says what to run instead.
+fn open_failed(what: &str, error: &str, opts: &MasterOptions) -> String {
+    let mut why = format!("the adapter {what}: {error}");
+    let einval = error.contains("Invalid argument") || error.contains("EINVAL");
+    if opts.line_kind == drive::LineKind::Pty
+        && opts.line.parity != crate::codec::timing::Parity::None
+        && einval
+    {
+        why.push_str(&format!(
+            " (a pseudo-terminal has no parity bit: Linux clears PARENB on every tcsetattr, \
+             and glibc then fails the call with EINVAL where nothing else of it took, as \
+             when pyserial applies its settings again after opening, which pymodbus does: \
+             a Python master cannot open the gate's pty with parity {}; run the gate with \
+             -P none, and -s 2 to keep the 11 bits a character of {})",
+            opts.line.parity.name(),
+            opts.line
+        ));
+    }
+    why
+}
+
 fn adapter_error(e: &CallError) -> String {
     format!("the adapter failed: {e}")
 }
@@ -676,6 +708,9 @@ pub struct MasterSummary {
     pub kinds: BTreeMap<String, KindSummary>,
     /// The line the gate served (`pty`, `tcp-rtu`).
     pub line: String,
+    /// The baud rate, data bits, parity and stop bits given to the master in `open` (the
+    /// timing the gate judges); None in a report written before they were recorded.
+    pub serial: Option<LineSettings>,
 }
 
 impl MasterSummary {
@@ -685,6 +720,12 @@ impl MasterSummary {
             "modes": self.modes,
             "lines": self.lines,
             "line": self.line,
+            "serial": self.serial.map(|l| serde_json::json!({
+                "baud": l.baud,
+                "data_bits": l.data_bits,
+                "parity": l.parity.name(),
+                "stop_bits": l.stop_bits,
+            })),
             "settings": self.settings.iter().map(|(m, s)| (m.clone(), serde_json::json!({
                 "timeout_ms": s.timeout.as_millis() as u64,
                 "retries": s.retries,
@@ -704,15 +745,11 @@ impl MasterSummary {
     /// The summary in the text report: the settings, then each kind of finding with its
     /// cases and the command that reproduces the first.
     pub fn text_lines(&self) -> Vec<String> {
-        let mut out = Vec::new();
-        for (mode, s) in &self.settings {
-            out.push(format!(
-                "master:  {mode} on a {} line: its timeout {} ms, {} retries",
-                self.line,
-                s.timeout.as_millis(),
-                s.retries
-            ));
-        }
+        let mut out: Vec<String> = self
+            .settings_lines()
+            .into_iter()
+            .map(|l| format!("master:  {l}"))
+            .collect();
         for (kind, k) in &self.kinds {
             let sev = match k.severity {
                 Severity::Deviation => "deviation",
@@ -727,6 +764,38 @@ impl MasterSummary {
             out.push(format!("         reproduce: {}", k.repro));
         }
         out
+    }
+}
+
+impl MasterSummary {
+    /// The line and the settings the master ran with, one line a mode (text and HTML
+    /// reports): `rtu on a pty line, 9600 baud 8E1: its timeout 300 ms, 0 retries`. A run
+    /// in which the master opened no line still says which line it was given.
+    pub fn settings_lines(&self) -> Vec<String> {
+        let serial = match self.serial {
+            Some(l) => format!(
+                ", {} baud {}{}{}",
+                l.baud, l.data_bits, l.parity, l.stop_bits
+            ),
+            None => String::new(),
+        };
+        if self.settings.is_empty() {
+            return vec![format!(
+                "a {} line{serial}, which it did not open",
+                self.line
+            )];
+        }
+        self.settings
+            .iter()
+            .map(|(mode, s)| {
+                format!(
+                    "{mode} on a {} line{serial}: its timeout {} ms, {} retries",
+                    self.line,
+                    s.timeout.as_millis(),
+                    s.retries
+                )
+            })
+            .collect()
     }
 }
 
@@ -809,12 +878,48 @@ impl MasterSummary {
                 .and_then(Value::as_str)
                 .unwrap_or("pty")
                 .to_string(),
+            serial: match v.get("serial") {
+                None | Some(Value::Null) => None,
+                Some(l) => Some(serial_from_json(l)?),
+            },
         })
     }
 }
 
-/// The summary of a run, with what the adapter's hello (`raw`) says of the master.
-pub fn summary(run: &MasterRun, raw: &serde_json::Value, line: drive::LineKind) -> MasterSummary {
+/// The `serial` object of a report's `master` (see [`MasterSummary::to_json`]).
+fn serial_from_json(v: &serde_json::Value) -> Result<LineSettings, String> {
+    use crate::codec::timing::Parity;
+    let n = |k: &str| {
+        v.get(k)
+            .and_then(serde_json::Value::as_u64)
+            .ok_or_else(|| format!("serial.{k}: not a number"))
+    };
+    let small = |k: &str| {
+        n(k).and_then(|x| u8::try_from(x).map_err(|_| format!("serial.{k}: {x} is too large")))
+    };
+    let parity = match v.get("parity").and_then(serde_json::Value::as_str) {
+        Some("none") => Parity::None,
+        Some("even") => Parity::Even,
+        Some("odd") => Parity::Odd,
+        other => return Err(format!("serial.parity: {other:?}, not none, even or odd")),
+    };
+    let baud = n("baud")?;
+    Ok(LineSettings::new(
+        u32::try_from(baud).map_err(|_| format!("serial.baud: {baud} is too large"))?,
+        small("data_bits")?,
+        parity,
+        small("stop_bits")?,
+    ))
+}
+
+/// The summary of a run, with what the adapter's hello (`raw`) says of the master, and
+/// `serial`, the line's settings given to it.
+pub fn summary(
+    run: &MasterRun,
+    raw: &serde_json::Value,
+    line: drive::LineKind,
+    serial: LineSettings,
+) -> MasterSummary {
     let list = |k: &str| -> Vec<String> {
         raw.get(k)
             .and_then(serde_json::Value::as_array)
@@ -831,6 +936,7 @@ pub fn summary(run: &MasterRun, raw: &serde_json::Value, line: drive::LineKind) 
         settings: run.settings.clone(),
         kinds: run.by_kind.clone(),
         line: line.key().to_string(),
+        serial: Some(serial),
     }
 }
 
@@ -869,5 +975,105 @@ mod tests {
         }))
         .unwrap_err()
         .contains("severity"));
+        // The line given to the master, read back too.
+        s.serial = Some(LineSettings::new(
+            19200,
+            8,
+            crate::codec::timing::Parity::Even,
+            1,
+        ));
+        let back = MasterSummary::from_json(&s.to_json()).unwrap();
+        assert_eq!(back.serial, s.serial);
+        assert!(MasterSummary::from_json(&serde_json::json!({"serial": {
+            "baud": 9600, "data_bits": 8, "parity": "mark", "stop_bits": 1
+        }}))
+        .unwrap_err()
+        .contains("serial.parity"));
+    }
+
+    #[test]
+    fn the_master_line_says_the_baud_rate_and_the_parity_also_when_nothing_opened() {
+        let mut s = MasterSummary {
+            line: "pty".into(),
+            serial: Some(LineSettings::new(
+                9600,
+                8,
+                crate::codec::timing::Parity::Even,
+                1,
+            )),
+            ..MasterSummary::default()
+        };
+        assert_eq!(
+            s.text_lines(),
+            ["master:  a pty line, 9600 baud 8E1, which it did not open"]
+        );
+        s.settings.insert(
+            "rtu".into(),
+            MasterSettings {
+                timeout: Duration::from_millis(300),
+                retries: 0,
+            },
+        );
+        assert_eq!(
+            s.settings_lines(),
+            ["rtu on a pty line, 9600 baud 8E1: its timeout 300 ms, 0 retries"]
+        );
+    }
+
+    fn options(parity: crate::codec::timing::Parity, line_kind: drive::LineKind) -> MasterOptions {
+        MasterOptions {
+            model: DriveModel::builtin("f510").unwrap(),
+            node: 1,
+            modes: vec![Mode::Rtu],
+            only: vec![],
+            settings: MasterSettings {
+                timeout: Duration::from_millis(300),
+                retries: 0,
+            },
+            line: LineSettings::new(9600, 8, parity, 1),
+            repro: String::new(),
+            line_kind,
+            extra_exceptions: vec![],
+            reopen: false,
+        }
+    }
+
+    #[test]
+    fn a_parity_a_pty_refused_is_named_with_what_to_run_instead() {
+        use crate::codec::timing::Parity;
+        let einval =
+            "the adapter failed: pymodbus could not open /dev/pts/3: (22, 'Invalid argument')";
+        let why = open_failed(
+            "could not open the line",
+            einval,
+            &options(Parity::Even, drive::LineKind::Pty),
+        );
+        assert!(why.starts_with(&format!("the adapter could not open the line: {einval} (")));
+        for part in [
+            "no parity bit",
+            "PARENB",
+            "EINVAL",
+            "parity even",
+            "-P none",
+            "-s 2",
+            "9600 8E1",
+        ] {
+            assert!(why.contains(part), "{part:?} missing: {why}");
+        }
+        // No parity, another line or another cause: the error as the adapter gave it.
+        for (parity, kind, error) in [
+            (Parity::None, drive::LineKind::Pty, einval),
+            (Parity::Even, drive::LineKind::TcpRtu, einval),
+            (
+                Parity::Even,
+                drive::LineKind::Pty,
+                "the adapter failed: no such file",
+            ),
+        ] {
+            assert_eq!(
+                open_failed("could not open the line", error, &options(parity, kind)),
+                format!("the adapter could not open the line: {error}")
+            );
+        }
     }
 }

@@ -57,6 +57,7 @@ mod tests {
             settings: Default::default(),
             kinds: Default::default(),
             line: "pty".into(),
+            serial: None,
         };
         assert_eq!(section(&m, |_| true), "");
         m.kinds.insert(
