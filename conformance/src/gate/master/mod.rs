@@ -669,10 +669,16 @@ fn records(
                 .iter()
                 .find(|s| s.class.valid())
                 .map(|s| s.bytes.clone());
-            let latency = mine
-                .iter()
-                .filter_map(|s| s.at)
-                .min()
+            // The time to the reply where one went out (garbage sent before it is not
+            // the reply: the findings time the valid reply too); else to the first bytes.
+            let sent_at = |valid: bool| {
+                mine.iter()
+                    .filter(|s| !valid || s.class.valid())
+                    .filter_map(|s| s.at)
+                    .min()
+            };
+            let latency = sent_at(true)
+                .or_else(|| sent_at(false))
                 .map(|t| t.saturating_sub(r.end));
             ExchangeRecord {
                 request: r.bytes.clone(),
@@ -1018,6 +1024,55 @@ mod tests {
             s.settings_lines(),
             ["rtu on a pty line, 9600 baud 8E1: its timeout 300 ms, 0 retries"]
         );
+    }
+
+    /// A lone 00H 0.2 ms after the request, the reply 11 ms after it: the exchange's
+    /// latency is the reply's, as the finding's text says (not the garbage's); with no
+    /// valid reply it is the first bytes'.
+    #[test]
+    fn an_exchange_is_timed_to_its_reply_not_to_garbage_before_it() {
+        let ms = |n: f64| Duration::from_secs_f64(n / 1000.0);
+        let request = drive::Request {
+            seq: 1,
+            start: ms(1000.0),
+            end: ms(1008.0),
+            bytes: vec![0x01, 0x03, 0x00, 0x00, 0x00, 0x02, 0xC4, 0x0B],
+            valid: true,
+            address: 1,
+        };
+        let sent = |class, bytes: Vec<u8>, at| Sent {
+            for_seq: 1,
+            bytes,
+            class,
+            values: None,
+            exception: None,
+            at: Some(ms(at)),
+        };
+        let reply = vec![0x01, 0x03, 0x04, 0x80, 0x90, 0x80, 0x91, 0x73, 0xB2];
+        let both = [
+            sent(drive::SentClass::Garbage, vec![0x00], 1008.2),
+            sent(drive::SentClass::Reply, reply.clone(), 1019.0),
+        ];
+        let timeout = Reported::Error {
+            kind: protocol::ErrorKind::Timeout,
+            message: "no response".into(),
+        };
+        let r = records(
+            std::slice::from_ref(&request),
+            &both,
+            "a lone 00H",
+            &timeout,
+        );
+        assert_eq!(r[0].reply.as_deref(), Some(&reply[..]));
+        assert_eq!(r[0].latency, Some(ms(11.0)));
+        let r = records(
+            std::slice::from_ref(&request),
+            &both[..1],
+            "a lone 00H",
+            &timeout,
+        );
+        assert_eq!(r[0].reply, None);
+        assert_eq!(r[0].latency, Some(ms(1008.2) - ms(1008.0)));
     }
 
     fn options(parity: crate::codec::timing::Parity, line_kind: drive::LineKind) -> MasterOptions {
