@@ -35,6 +35,7 @@ if sys.path and os.path.abspath(sys.path[0] or ".") == os.path.dirname(os.path.a
     del sys.path[0]
 
 import pymodbus  # noqa: E402
+from pymodbus.logging import Log  # noqa: E402
 from pymodbus import FramerType  # noqa: E402
 from pymodbus.client import ModbusSerialClient, ModbusTcpClient  # noqa: E402
 from pymodbus.exceptions import ConnectionException, ModbusIOException, ModbusException  # noqa: E402
@@ -99,9 +100,43 @@ def op_open(req: dict) -> dict:
         )
     else:
         raise Unsupported(f"line {kind}")
-    if not client.connect():
-        return {"ok": False, "error": f"pymodbus could not open {line}"}
+    why = connect(client)
+    if why is not None:
+        where = line.get("path") or f"{line.get('host')}:{line.get('port')}"
+        return {"ok": False, "error": f"pymodbus could not open {kind} {where}: {why}"}
     return {"ok": True, "timeout_ms": int(timeout * 1000), "retries": retries}
+
+
+class _Kept(logging.Handler):
+    """Keeps the messages of the records it is handed."""
+
+    def __init__(self) -> None:
+        super().__init__(logging.ERROR)
+        self.messages: list[str] = []
+
+    def emit(self, record: logging.LogRecord) -> None:
+        self.messages.append(record.getMessage().strip())
+
+
+def connect(c) -> str | None:
+    """Connects the client; None when it did, else why not. pymodbus's connect() returns
+    False and only logs what pyserial or the socket raised (such as the EINVAL of a parity
+    on a pseudo-terminal), so its log is read for the call."""
+    log = logging.getLogger("pymodbus.logging")
+    kept = _Kept()
+    level = log.level
+    log.addHandler(kept)
+    log.setLevel(min(level or logging.ERROR, logging.ERROR))
+    # pymodbus writes a message that repeats the previous one as "Repeating....": forget it.
+    Log.last_log_text = ""
+    try:
+        ok = c.connect()
+    finally:
+        log.removeHandler(kept)
+        log.setLevel(level)
+    if ok:
+        return None
+    return "; ".join(m.splitlines()[0] for m in kept.messages if m) or "pymodbus gave no reason"
 
 
 def outcome(call, on_ok) -> dict:

@@ -82,6 +82,75 @@ fn finding(v: &serde_json::Value, kind: &str, id: &str) {
     );
 }
 
+/// `-P even` on the gate's pseudo-terminal: pymodbus cannot open it (Linux clears PARENB
+/// on a pty, glibc's tcsetattr then fails with EINVAL), and every case's error says so,
+/// with pyserial's own error and what to run instead; the report's master line says which
+/// line it was given. `-P none -s 2`, which the error proposes, opens, and the report says
+/// so too.
+#[test]
+fn pymodbus_master_with_a_parity_on_a_pty_is_told_why_it_cannot_open() {
+    if !common::need(Peer::Pymodbus) {
+        return;
+    }
+    let cmd = format!("{} {}", python(), adapter("pymodbus-master/adapter.py"));
+    let dir = scratch("pymodbus-parity");
+    let only = [
+        "--only",
+        "rtu.read.normal",
+        "--only",
+        "rtu.read.exception-02",
+    ];
+    let mut args = vec!["--master", cmd.as_str(), "--mode", "rtu", "-P", "even"];
+    args.extend(only);
+    let (code, v) = common::report_of("gate", &dir, &args, LIMIT);
+    assert_eq!(code, Some(2), "{v:#}");
+    let checks = v["checks"].as_array().unwrap();
+    assert_eq!(checks.len(), 2, "{v:#}");
+    for c in checks {
+        assert_eq!(c["status"], "error", "{c:#}");
+        let why = c["summary"].as_str().unwrap();
+        for part in [
+            "pymodbus could not open pty /dev/",
+            "Invalid argument",
+            "a pseudo-terminal has no parity bit",
+            "-P none",
+            "-s 2",
+        ] {
+            assert!(why.contains(part), "{part:?} not in {why}");
+        }
+    }
+    let serial = &v["master"]["serial"];
+    assert_eq!(serial["baud"], 9600, "{:#}", v["master"]);
+    assert_eq!(serial["parity"], "even");
+    let page = common::rendered(&dir.join("gate.json"), &dir.join("gate.html"));
+    assert!(
+        page.contains("a pty line, 9600 baud 8E1, which it did not open"),
+        "{page}"
+    );
+
+    let mut args = vec![
+        "--master",
+        cmd.as_str(),
+        "--mode",
+        "rtu",
+        "-P",
+        "none",
+        "-s",
+        "2",
+    ];
+    args.extend(only);
+    let (code, v) = common::report_of("gate", &dir, &args, LIMIT);
+    assert_eq!(v["summary"]["error"], 0, "{:#}", v["checks"]);
+    assert_eq!(code, Some(0), "{:#}", v["checks"]);
+    assert_eq!(v["master"]["serial"]["parity"], "none");
+    assert_eq!(v["master"]["serial"]["stop_bits"], 2);
+    let page = common::rendered(&dir.join("gate.json"), &dir.join("gate.html"));
+    assert!(
+        page.contains("rtu on a pty line, 9600 baud 8N2: its timeout 300 ms, 0 retries"),
+        "{page}"
+    );
+}
+
 #[test]
 fn pymodbus_master_completes_and_loses_a_reply_behind_a_stray_byte() {
     if !common::need(Peer::Pymodbus) {

@@ -179,6 +179,19 @@ fn html_lists_the_kinds(v: &serde_json::Value, kind: &str, case: &str) {
     );
     // The master's timeout is in its settings; the gate's is an allowance.
     assert!(page.contains("allowance "), "{page}");
+    // A master gate's words: cases, deviations in the master, sources that are no manual,
+    // and the stale reply shown as what came, not as no reply found.
+    assert!(page.contains("deviation in the master") || page.contains("deviations in the master"));
+    for wrong in [
+        "from the manual",
+        "Manual:",
+        "</b>checks</div>",
+        "no reply frame found",
+    ] {
+        assert!(!page.contains(wrong), "{wrong:?} in {page}");
+    }
+    assert!(page.contains("</b>cases</div>"), "{page}");
+    assert!(page.contains("none: what came (below) is no valid reply to this request"));
 }
 
 #[test]

@@ -178,6 +178,10 @@ fn sigterm_ends_the_simulator_and_removes_its_link() {
         "{stderr}"
     );
     assert!(
+        stderr.contains("interrupted: the simulator stops and removes its link"),
+        "{stderr}"
+    );
+    assert!(
         std::fs::symlink_metadata(&link).is_err(),
         "the link {} is left behind",
         link.display()
@@ -315,4 +319,104 @@ fn sigterm_ends_a_scan_with_the_tries_made() {
         serde_json::from_str(&std::fs::read_to_string(&out).unwrap()).unwrap();
     assert_eq!(v["stopped"], "interrupted");
     assert!(v["found"].as_array().unwrap().is_empty(), "{}", v["found"]);
+}
+
+/// monitor and bus say what they do when stopped, not what check does: SIGTERM ends the
+/// monitor's listening with its whole report (exit 0, nothing heard), and the bus with its
+/// links removed (exit 0).
+#[test]
+fn sigterm_ends_monitor_and_bus_each_in_its_own_words() {
+    let d = dir("monitor-bus");
+    let (master, tap) = (d.join("master"), d.join("tap"));
+    let mut bus = Kill::spawn(
+        Command::new(bin())
+            .args(["bus", "-q", "--link"])
+            .arg(format!("master={}", master.display()))
+            .arg("--link")
+            .arg(format!("tap={}", tap.display()))
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped()),
+    );
+    // The bus prints its endpoints once its handler is in place.
+    let mut lines = BufReader::new(bus.0.stdout.take().unwrap()).lines();
+    for name in ["master", "tap"] {
+        let line = lines.next().unwrap().unwrap();
+        assert!(line.starts_with(&format!("{name} /dev/")), "{line:?}");
+    }
+
+    let report = d.join("monitor.json");
+    let mut monitor = Kill::spawn(
+        Command::new(bin())
+            .args([
+                "monitor", "--model", "f510", "-a", "1", "--mode", "rtu", "-b", "9600",
+            ])
+            .args(["-P", "even", "--format", "json", "-o"])
+            .arg(&report)
+            .arg("--port")
+            .arg(&tap)
+            .stdout(Stdio::null())
+            .stderr(Stdio::piped()),
+    );
+    let mut err = BufReader::new(monitor.0.stderr.take().unwrap());
+    let mut said = String::new();
+    while !said.contains("listening on") {
+        let before = said.len();
+        err.read_line(&mut said).unwrap();
+        assert!(
+            said.len() > before,
+            "the monitor ended before listening: {said}"
+        );
+    }
+    term(&monitor);
+    std::io::Read::read_to_string(&mut err, &mut said).unwrap();
+    let status = monitor.wait_within(Duration::from_secs(60), "monitor after SIGTERM");
+    assert_eq!(status.code(), Some(0), "{said}");
+    assert!(
+        said.contains("interrupted: the monitor stops listening and writes its report"),
+        "{said}"
+    );
+    assert!(!said.contains("check, case or probe"), "{said}");
+    let v = whole_report(&report, &said);
+    assert_eq!(
+        v["monitor"]["ended"], "interrupted (Ctrl-C or SIGTERM)",
+        "{:#}",
+        v["monitor"]
+    );
+
+    term(&bus);
+    let status = bus.wait_within(Duration::from_secs(60), "bus after SIGTERM");
+    let stderr = bus.stderr_text();
+    assert_eq!(status.code(), Some(0), "{stderr}");
+    assert!(
+        stderr.contains("interrupted: the bus stops and removes its links"),
+        "{stderr}"
+    );
+    assert!(!stderr.contains("check, case or probe"), "{stderr}");
+    for l in [&master, &tap] {
+        assert!(
+            std::fs::symlink_metadata(l).is_err(),
+            "{} is left",
+            l.display()
+        );
+    }
+}
+
+/// The top-level help names monitor and bus under Ctrl-C and SIGTERM, with what each kind
+/// of command does then and its exit code.
+#[test]
+fn the_help_says_what_each_long_command_does_when_stopped() {
+    let o = Command::new(bin()).arg("--help").output().unwrap();
+    let help = String::from_utf8_lossy(&o.stdout);
+    let at = help
+        .find("Ctrl-C, SIGTERM and SIGHUP")
+        .expect("no word on signals");
+    let part = &help[at..];
+    for said in [
+        "check, fuzz, scan, identify and gate stop after their current check, case or probe",
+        "marked incomplete (exit 2)",
+        "monitor stops listening and writes its whole report (exit 0 or 1",
+        "bus and simulate stop and remove their links (exit 0)",
+    ] {
+        assert!(part.contains(said), "{said:?} not in {part}");
+    }
 }

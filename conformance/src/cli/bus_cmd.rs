@@ -319,7 +319,7 @@ pub fn run(args: BusArgs) -> anyhow::Result<ExitCode> {
 
     // Before the paths are printed: a script may signal the bus as soon as it has them.
     // (The one handler of every long command: Ctrl-C, SIGTERM and SIGHUP set this flag.)
-    let stop = super::interrupt::stop_flag()?;
+    let stop = super::interrupt::stop_flag_saying(super::interrupt::Stopping::Bus)?;
     let mut links = Links(Vec::new());
     let mut out = std::io::stdout();
     for (e, (_, link)) in emulated.endpoints().iter().zip(&names) {

@@ -60,9 +60,16 @@ pub struct MasterGateArgs {
     /// With --master: the baud rate given to the master (the line's timing: t3.5).
     #[arg(short = 'b', long, default_value_t = 9600)]
     baud: u32,
-    /// With --master: the parity given to the master.
+    /// With --master: the parity given to the master. None by default, where bus, monitor
+    /// and check take the TECO's 8E1: a pseudo-terminal has no parity bit, and pyserial
+    /// (pymodbus, minimalmodbus) cannot open one with a parity (Linux clears PARENB and
+    /// glibc's tcsetattr fails with EINVAL). `-P none -s 2` has the 11 bits a character of
+    /// 8E1, so the same t3.5.
     #[arg(short = 'P', long, value_enum, default_value = "none")]
     parity: ParityArg,
+    /// With --master: the stop bits given to the master (1 or 2).
+    #[arg(short = 's', long = "stop-bits", default_value_t = 1, value_parser = clap::value_parser!(u8).range(1..=2))]
+    stop_bits: u8,
     /// With --master: the line the gate serves (tcp-rtu has no line timing: no t3.5, no
     /// gaps).
     #[arg(long, value_enum, default_value = "pty")]
@@ -100,7 +107,7 @@ pub fn run(
         ParityArg::Even => conformance::codec::timing::Parity::Even,
         ParityArg::Odd => conformance::codec::timing::Parity::Odd,
     };
-    let line = conformance::codec::timing::LineSettings::new(args.baud, 8, parity, 1);
+    let line = conformance::codec::timing::LineSettings::new(args.baud, 8, parity, args.stop_bits);
     let modes = match args.mode {
         ModesArg::Rtu => vec![Mode::Rtu],
         ModesArg::Ascii => vec![Mode::Ascii],
@@ -121,6 +128,12 @@ pub fn run(
     }
     if args.baud != 9600 {
         repro.push_str(&format!(" -b {}", args.baud));
+    }
+    if parity != conformance::codec::timing::Parity::None {
+        repro.push_str(&format!(" -P {}", parity.name()));
+    }
+    if args.stop_bits != 1 {
+        repro.push_str(&format!(" -s {}", args.stop_bits));
     }
     for c in &args.exception_code {
         repro.push_str(&format!(" --exception-code {c:02X}"));
@@ -168,6 +181,6 @@ pub fn run(
         &adapter.adapter.incidents,
         cases.len(),
         &stop,
-        |report| report.master = Some(master::summary(&run, &hello.raw, line_kind)),
+        |report| report.master = Some(master::summary(&run, &hello.raw, line_kind, line)),
     )
 }

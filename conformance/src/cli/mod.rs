@@ -31,7 +31,7 @@ use clap::{Parser, Subcommand};
 #[derive(Debug, Parser)]
 #[command(name = "conformance", version, about, long_about = None)]
 #[command(
-    after_help = "Exit codes: 0 ok; 1 a problem was found (bad checksum, failing vector); 2 the command could not run.\n\nCtrl-C, SIGTERM and SIGHUP stop a long command (check, fuzz, scan, identify, simulate, gate) after its current check, case or probe: what it wrote is restored and its report is whole, marked incomplete (exit 2)."
+    after_help = "Exit codes: 0 ok; 1 a problem was found (bad checksum, failing vector); 2 the command could not run.\n\nCtrl-C, SIGTERM and SIGHUP stop a long command. check, fuzz, scan, identify and gate stop after their current check, case or probe: what they wrote is restored and the report is whole, marked incomplete (exit 2). monitor stops listening and writes its whole report (exit 0 or 1, by what it heard). bus and simulate stop and remove their links (exit 0)."
 )]
 pub struct Cli {
     #[command(subcommand)]

@@ -483,7 +483,7 @@ fn listen(
         .with_context(|| format!("cannot listen on {port}"))?;
     // The one handler of every long command: Ctrl-C, SIGTERM and SIGHUP end the listening
     // and write the report.
-    let stop = super::interrupt::stop_flag()?;
+    let stop = super::interrupt::stop_flag_saying(super::interrupt::Stopping::Listening)?;
     let origin = Instant::now();
     let mut found_notice = None;
     let mut searched = None;

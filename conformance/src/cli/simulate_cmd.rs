@@ -173,7 +173,7 @@ pub fn run(args: SimulateArgs) -> anyhow::Result<ExitCode> {
         log = log.with_sink(LogFormat::Json, Box::new(std::io::BufWriter::new(file)));
     }
 
-    let stop = super::interrupt::stop_flag()?;
+    let stop = super::interrupt::stop_flag_saying(super::interrupt::Stopping::Simulator)?;
     let quirks: Vec<String> = args.quirks.iter().map(|q| q.to_string()).collect();
     let banner = format!(
         "simulated {} ({}) at node{} {}, {mode}, response delay {:.1} ms{}",

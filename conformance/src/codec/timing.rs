@@ -18,6 +18,17 @@ pub enum Parity {
     Odd,
 }
 
+impl Parity {
+    /// The parity as the command line spells it (`-P none|even|odd`, as mbpoll does).
+    pub fn name(self) -> &'static str {
+        match self {
+            Parity::None => "none",
+            Parity::Even => "even",
+            Parity::Odd => "odd",
+        }
+    }
+}
+
 impl fmt::Display for Parity {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         f.write_str(match self {

@@ -172,6 +172,13 @@ fn exchange(out: &mut String, e: &ExchangeRecord) {
     }
     match &e.reply {
         Some(r) => row(out, "reply", &hex_marked(r, &diff)),
+        // Bytes came, but none of them is this request's reply (an echo of another
+        // function, a stale reply, garbage): say so, not that nothing was found.
+        None if !e.received.is_empty() => row(
+            out,
+            "reply",
+            "<i class=\"muted\">none: what came (below) is no valid reply to this request</i>",
+        ),
         None => row(out, "reply", "<i class=\"muted\">no reply frame found</i>"),
     }
     if e.reply.as_deref() != Some(&e.received[..]) {
@@ -197,7 +204,7 @@ fn exchange(out: &mut String, e: &ExchangeRecord) {
     out.push_str("</table></div>");
 }
 
-fn finding_block(out: &mut String, r: &CheckResult, folded: bool, several: bool) {
+fn finding_block(out: &mut String, r: &CheckResult, folded: bool, several: bool, cite: &str) {
     let (open, close) = if folded {
         ("<details><summary>", "</summary>")
     } else {
@@ -215,7 +222,7 @@ fn finding_block(out: &mut String, r: &CheckResult, folded: bool, several: bool)
     };
     w!(
         out,
-        "<article class=\"finding {0}\" id=\"f-{1}\">{open}<h3>{2} {node}<code>{6}</code></h3><div>{3}</div>{close}<div class=\"cite\">Manual: {4}</div><p>{5}</p>",
+        "<article class=\"finding {0}\" id=\"f-{1}\">{open}<h3>{2} {node}<code>{6}</code></h3><div>{3}</div>{close}<div class=\"cite\">{cite}: {4}</div><p>{5}</p>",
         class(r.status),
         esc(&r.key()),
         badge(r.status),
@@ -242,6 +249,7 @@ fn finding_block(out: &mut String, r: &CheckResult, folded: bool, several: bool)
 
 fn header(out: &mut String, report: &Report) {
     let s = report.summary();
+    let words = master::words(report);
     let what = match report.kind {
         ReportKind::Drive | ReportKind::Fuzz => format!("TECO {} drive", report.device.model),
         ReportKind::Monitor => format!("TECO {} drives, heard on the bus", report.device.model),
@@ -273,15 +281,23 @@ fn header(out: &mut String, report: &Report) {
         (
             "bad",
             format!(
-                "{} deviation{} from the manual",
+                "{} deviation{} {}",
                 s.deviation,
-                if s.deviation == 1 { "" } else { "s" }
+                if s.deviation == 1 { "" } else { "s" },
+                words.from
             ),
         )
     } else if s.error > 0 {
-        ("incomplete", format!("{} checks could not tell", s.error))
+        (
+            "incomplete",
+            format!(
+                "{} {} could not tell",
+                s.error,
+                if s.error == 1 { words.one } else { words.many }
+            ),
+        )
     } else {
-        ("ok", "No deviations from the manual".into())
+        ("ok", format!("No deviations {}", words.from))
     };
     w!(
         out,
@@ -290,7 +306,7 @@ fn header(out: &mut String, report: &Report) {
     );
     out.push_str("<div class=\"tiles\" id=\"summary\">");
     for (name, c, n) in [
-        ("checks", "", s.total),
+        (words.many, "", s.total),
         ("pass", "pass", s.pass),
         ("deviations", "deviation", s.deviation),
         ("observations", "observation", s.observation),
@@ -361,17 +377,8 @@ fn header(out: &mut String, report: &Report) {
                 match &report.master {
                     // A master: its settings (what was found has a section of its own).
                     Some(m) => {
-                        for (mode, st) in &m.settings {
-                            row(
-                                out,
-                                "master",
-                                &esc(&format!(
-                                    "{mode} on a {} line: its timeout {} ms, {} retries",
-                                    m.line,
-                                    st.timeout.as_millis(),
-                                    st.retries
-                                )),
-                            );
+                        for l in m.settings_lines() {
+                            row(out, "master", &esc(&l));
                         }
                     }
                     None => row(
@@ -549,7 +556,7 @@ pub fn html(report: &Report) -> String {
     if drive {
         out.push_str("<a href=\"#plots\">Response time</a> · <a href=\"#timeline\">Timeline</a> · <a href=\"#map\">Register map</a> · <a href=\"#coverage\">Requirements</a> · ");
     }
-    out.push_str("<a href=\"#all\">Every check</a>");
+    w!(out, "<a href=\"#all\">Every {}</a>", master::words(report).one);
     if report.writes() {
         out.push_str(" · <a href=\"#restore\">Restore journal</a>");
     }
@@ -592,15 +599,16 @@ pub fn html(report: &Report) -> String {
         s.error
     );
     notable.sort_by_key(|r| r.status != Status::Deviation);
+    let words = master::words(report);
     if notable.is_empty() {
-        out.push_str("<p>None: every check that ran agreed with the manual.</p>");
+        w!(out, "<p>{}</p>", words.none);
     }
     for r in notable {
-        finding_block(&mut out, r, false, several);
+        finding_block(&mut out, r, false, several, words.cite);
     }
     if let Some(e) = &report.expect {
         super::expect_html::section(&mut out, report, e, |out, r| {
-            finding_block(out, r, true, several)
+            finding_block(out, r, true, several, words.cite)
         });
     }
     if s.observation > 0 {
@@ -614,7 +622,7 @@ pub fn html(report: &Report) -> String {
             .iter()
             .filter(|r| r.status == Status::Observation)
         {
-            finding_block(&mut out, r, true, several);
+            finding_block(&mut out, r, true, several, words.cite);
         }
     }
 
@@ -654,7 +662,8 @@ pub fn html(report: &Report) -> String {
     modes.dedup();
     w!(
         out,
-        "<h2 id=\"all\">Every check ({})</h2><div class=\"controls\"><label>id contains <input id=\"q\" type=\"search\" placeholder=\"e.g. map.group\"></label><label>status <select id=\"fs\"><option value=\"\">any</option>",
+        "<h2 id=\"all\">Every {} ({})</h2><div class=\"controls\"><label>id contains <input id=\"q\" type=\"search\" placeholder=\"e.g. map.group\"></label><label>status <select id=\"fs\"><option value=\"\">any</option>",
+        master::words(report).one,
         report.results.len()
     );
     for st in [

@@ -12,6 +12,8 @@
 //!   read (the recovery).
 //! - [`verdict`]: the judgement of each operation; requests through the monitor's judge
 //!   of a master's request, so that a request gets one verdict whoever heard it.
+//! - [`summary`]: what the report says besides the results (the master's line and
+//!   settings, its findings by kind).
 //! - [`reference`]: this suite's own master, the test double (`conformance adapter
 //!   --master [--master-quirk Q]`), used in tests only.
 
@@ -19,6 +21,7 @@ pub mod cases;
 pub mod drive;
 pub mod protocol;
 pub mod reference;
+pub mod summary;
 pub mod verdict;
 
 use std::collections::BTreeMap;
@@ -28,6 +31,7 @@ use std::time::{Duration, Instant};
 
 pub use cases::{MasterCase, Plan};
 pub use protocol::{MasterAdapter, MasterSettings, Operation, Reported};
+pub use summary::{summary, KindSummary, MasterSummary};
 pub use verdict::MasterFinding;
 
 use crate::codec::hex::Hex;
@@ -101,19 +105,6 @@ pub struct MasterRun {
     pub by_kind: BTreeMap<String, KindSummary>,
     /// Per mode: the settings the master ran with (as it reported them in `open`).
     pub settings: BTreeMap<String, MasterSettings>,
-}
-
-/// The cases that had one kind of finding.
-#[derive(Debug, Clone)]
-pub struct KindSummary {
-    /// The worst severity.
-    pub severity: Severity,
-    /// Case ids.
-    pub cases: Vec<String>,
-    /// The first finding's text.
-    pub example: String,
-    /// The one command that reproduces the first case.
-    pub repro: String,
 }
 
 fn mode_key(m: Mode) -> &'static str {
@@ -230,7 +221,7 @@ pub fn run(
         let settings = match opened {
             Ok(s) => s,
             Err(e) => {
-                let why = format!("the adapter could not open the line: {e}");
+                let why = open_failed("could not open the line", &e.to_string(), opts);
                 settle_all(&mine, Status::Error, &why, progress, &mut out);
                 continue;
             }
@@ -269,8 +260,10 @@ pub fn run(
                     let r = result(
                         case,
                         Status::Error,
-                        format!(
-                            "the adapter could not open the line again (--reopen-each-case): {e}"
+                        open_failed(
+                            "could not open the line again (--reopen-each-case)",
+                            &e.to_string(),
+                            opts,
                         ),
                         vec![],
                         vec![],
@@ -617,6 +610,36 @@ fn run_case(
     )
 }
 
+/// Why a case could not run because the master's `open` failed, with the cause where the
+/// gate knows it. A Linux pseudo-terminal has no parity bit: its driver clears PARENB on
+/// every tcsetattr (and says nothing), and glibc's tcsetattr reads the settings back and
+/// fails with EINVAL when none of the call took and PARENB is not as asked. pyserial
+/// applies all its settings in one call, and again whenever one changes: its first call
+/// on the gate's fresh pty also changes the baud rate and succeeds, but pymodbus sets a
+/// timeout right after opening, and that second call changes nothing but PARENB.
+/// The gate could give such a master no parity in `open` and keep the parity's timing
+/// for itself, but the master would then keep the silences of another character length
+/// (t3.5 of 10 bits, not 11) and be judged for them: the error says what to run instead.
+fn open_failed(what: &str, error: &str, opts: &MasterOptions) -> String {
+    let mut why = format!("the adapter {what}: {error}");
+    let einval = error.contains("Invalid argument") || error.contains("EINVAL");
+    if opts.line_kind == drive::LineKind::Pty
+        && opts.line.parity != crate::codec::timing::Parity::None
+        && einval
+    {
+        why.push_str(&format!(
+            " (a pseudo-terminal has no parity bit: Linux clears PARENB on every tcsetattr, \
+             and glibc then fails the call with EINVAL where nothing else of it took, as \
+             when pyserial applies its settings again after opening, which pymodbus does: \
+             a Python master cannot open the gate's pty with parity {}; run the gate with \
+             -P none, and -s 2 to keep the 11 bits a character of {})",
+            opts.line.parity.name(),
+            opts.line
+        ));
+    }
+    why
+}
+
 fn adapter_error(e: &CallError) -> String {
     format!("the adapter failed: {e}")
 }
@@ -637,10 +660,16 @@ fn records(
                 .iter()
                 .find(|s| s.class.valid())
                 .map(|s| s.bytes.clone());
-            let latency = mine
-                .iter()
-                .filter_map(|s| s.at)
-                .min()
+            // The time to the reply where one went out (garbage sent before it is not
+            // the reply: the findings time the valid reply too); else to the first bytes.
+            let sent_at = |valid: bool| {
+                mine.iter()
+                    .filter(|s| !valid || s.class.valid())
+                    .filter_map(|s| s.at)
+                    .min()
+            };
+            let latency = sent_at(true)
+                .or_else(|| sent_at(false))
                 .map(|t| t.saturating_sub(r.end));
             ExchangeRecord {
                 request: r.bytes.clone(),
@@ -661,213 +690,113 @@ fn records(
         })
         .collect()
 }
-
-/// What a master gate report says besides its results: the master's settings and its
-/// findings grouped by kind, each with the command that reproduces its first case.
-#[derive(Debug, Clone, Default)]
-pub struct MasterSummary {
-    /// The modes the master speaks, as its hello says.
-    pub modes: Vec<String>,
-    /// The lines it can open, as its hello says.
-    pub lines: Vec<String>,
-    /// Per mode: the timeout and retries it ran with.
-    pub settings: BTreeMap<String, MasterSettings>,
-    /// Findings by kind.
-    pub kinds: BTreeMap<String, KindSummary>,
-    /// The line the gate served (`pty`, `tcp-rtu`).
-    pub line: String,
-}
-
-impl MasterSummary {
-    /// As the report's JSON `master` object.
-    pub fn to_json(&self) -> serde_json::Value {
-        serde_json::json!({
-            "modes": self.modes,
-            "lines": self.lines,
-            "line": self.line,
-            "settings": self.settings.iter().map(|(m, s)| (m.clone(), serde_json::json!({
-                "timeout_ms": s.timeout.as_millis() as u64,
-                "retries": s.retries,
-            }))).collect::<serde_json::Map<String, serde_json::Value>>(),
-            "kinds": self.kinds.iter().map(|(k, v)| serde_json::json!({
-                "kind": k,
-                "severity": match v.severity { Severity::Deviation => "deviation", Severity::Observation => "observation" },
-                "cases": v.cases,
-                "example": v.example,
-                "reproduce": v.repro,
-            })).collect::<Vec<_>>(),
-        })
-    }
-}
-
-impl MasterSummary {
-    /// The summary in the text report: the settings, then each kind of finding with its
-    /// cases and the command that reproduces the first.
-    pub fn text_lines(&self) -> Vec<String> {
-        let mut out = Vec::new();
-        for (mode, s) in &self.settings {
-            out.push(format!(
-                "master:  {mode} on a {} line: its timeout {} ms, {} retries",
-                self.line,
-                s.timeout.as_millis(),
-                s.retries
-            ));
-        }
-        for (kind, k) in &self.kinds {
-            let sev = match k.severity {
-                Severity::Deviation => "deviation",
-                Severity::Observation => "observation",
-            };
-            out.push(format!(
-                "found:   {kind} ({sev}) in {} case{}: {}",
-                k.cases.len(),
-                if k.cases.len() == 1 { "" } else { "s" },
-                k.cases.join(" ")
-            ));
-            out.push(format!("         reproduce: {}", k.repro));
-        }
-        out
-    }
-}
-
-impl MasterSummary {
-    /// Reads the report's JSON `master` object back (`conformance report` of a saved
-    /// master gate report).
-    pub fn from_json(v: &serde_json::Value) -> Result<Self, String> {
-        use serde_json::Value;
-        let strings = |k: &str| -> Vec<String> {
-            v.get(k)
-                .and_then(Value::as_array)
-                .map(|a| {
-                    a.iter()
-                        .filter_map(|x| x.as_str().map(String::from))
-                        .collect()
-                })
-                .unwrap_or_default()
-        };
-        let mut settings = BTreeMap::new();
-        if let Some(m) = v.get("settings").and_then(Value::as_object) {
-            for (mode, s) in m {
-                let n = |k: &str| {
-                    s.get(k)
-                        .and_then(Value::as_u64)
-                        .ok_or_else(|| format!("settings.{mode}.{k}: not a number"))
-                };
-                settings.insert(
-                    mode.clone(),
-                    MasterSettings {
-                        timeout: Duration::from_millis(n("timeout_ms")?),
-                        retries: u32::try_from(n("retries")?)
-                            .map_err(|_| format!("settings.{mode}.retries: too large"))?,
-                    },
-                );
-            }
-        }
-        let mut kinds = BTreeMap::new();
-        for (i, k) in v
-            .get("kinds")
-            .and_then(Value::as_array)
-            .into_iter()
-            .flatten()
-            .enumerate()
-        {
-            let text = |f: &str| {
-                k.get(f)
-                    .and_then(Value::as_str)
-                    .map(String::from)
-                    .ok_or_else(|| format!("kinds[{i}].{f}: not a string"))
-            };
-            kinds.insert(
-                text("kind")?,
-                KindSummary {
-                    severity: match text("severity")?.as_str() {
-                        "deviation" => Severity::Deviation,
-                        "observation" => Severity::Observation,
-                        other => return Err(format!("kinds[{i}].severity: {other:?}")),
-                    },
-                    cases: k
-                        .get("cases")
-                        .and_then(Value::as_array)
-                        .map(|a| {
-                            a.iter()
-                                .filter_map(|x| x.as_str().map(String::from))
-                                .collect()
-                        })
-                        .unwrap_or_default(),
-                    example: text("example")?,
-                    repro: text("reproduce")?,
-                },
-            );
-        }
-        Ok(MasterSummary {
-            modes: strings("modes"),
-            lines: strings("lines"),
-            settings,
-            kinds,
-            line: v
-                .get("line")
-                .and_then(Value::as_str)
-                .unwrap_or("pty")
-                .to_string(),
-        })
-    }
-}
-
-/// The summary of a run, with what the adapter's hello (`raw`) says of the master.
-pub fn summary(run: &MasterRun, raw: &serde_json::Value, line: drive::LineKind) -> MasterSummary {
-    let list = |k: &str| -> Vec<String> {
-        raw.get(k)
-            .and_then(serde_json::Value::as_array)
-            .map(|a| {
-                a.iter()
-                    .filter_map(|x| x.as_str().map(String::from))
-                    .collect()
-            })
-            .unwrap_or_default()
-    };
-    MasterSummary {
-        modes: list("modes"),
-        lines: list("lines"),
-        settings: run.settings.clone(),
-        kinds: run.by_kind.clone(),
-        line: line.key().to_string(),
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
 
+    /// A lone 00H 0.2 ms after the request, the reply 11 ms after it: the exchange's
+    /// latency is the reply's, as the finding's text says (not the garbage's); with no
+    /// valid reply it is the first bytes'.
     #[test]
-    fn the_summary_reads_back_as_it_was_written() {
-        let mut s = MasterSummary {
-            modes: vec!["rtu".into()],
-            lines: vec!["pty".into(), "tcp-rtu".into()],
-            line: "tcp-rtu".into(),
-            ..MasterSummary::default()
+    fn an_exchange_is_timed_to_its_reply_not_to_garbage_before_it() {
+        let ms = |n: f64| Duration::from_secs_f64(n / 1000.0);
+        let request = drive::Request {
+            seq: 1,
+            start: ms(1000.0),
+            end: ms(1008.0),
+            bytes: vec![0x01, 0x03, 0x00, 0x00, 0x00, 0x02, 0xC4, 0x0B],
+            valid: true,
+            address: 1,
         };
-        s.settings.insert(
-            "rtu".into(),
-            MasterSettings {
+        let sent = |class, bytes: Vec<u8>, at| Sent {
+            for_seq: 1,
+            bytes,
+            class,
+            values: None,
+            exception: None,
+            at: Some(ms(at)),
+        };
+        let reply = vec![0x01, 0x03, 0x04, 0x80, 0x90, 0x80, 0x91, 0x73, 0xB2];
+        let both = [
+            sent(drive::SentClass::Garbage, vec![0x00], 1008.2),
+            sent(drive::SentClass::Reply, reply.clone(), 1019.0),
+        ];
+        let timeout = Reported::Error {
+            kind: protocol::ErrorKind::Timeout,
+            message: "no response".into(),
+        };
+        let r = records(
+            std::slice::from_ref(&request),
+            &both,
+            "a lone 00H",
+            &timeout,
+        );
+        assert_eq!(r[0].reply.as_deref(), Some(&reply[..]));
+        assert_eq!(r[0].latency, Some(ms(11.0)));
+        let r = records(
+            std::slice::from_ref(&request),
+            &both[..1],
+            "a lone 00H",
+            &timeout,
+        );
+        assert_eq!(r[0].reply, None);
+        assert_eq!(r[0].latency, Some(ms(1008.2) - ms(1008.0)));
+    }
+
+    fn options(parity: crate::codec::timing::Parity, line_kind: drive::LineKind) -> MasterOptions {
+        MasterOptions {
+            model: DriveModel::builtin("f510").unwrap(),
+            node: 1,
+            modes: vec![Mode::Rtu],
+            only: vec![],
+            settings: MasterSettings {
                 timeout: Duration::from_millis(300),
-                retries: 1,
+                retries: 0,
             },
+            line: LineSettings::new(9600, 8, parity, 1),
+            repro: String::new(),
+            line_kind,
+            extra_exceptions: vec![],
+            reopen: false,
+        }
+    }
+
+    #[test]
+    fn a_parity_a_pty_refused_is_named_with_what_to_run_instead() {
+        use crate::codec::timing::Parity;
+        let einval =
+            "the adapter failed: pymodbus could not open /dev/pts/3: (22, 'Invalid argument')";
+        let why = open_failed(
+            "could not open the line",
+            einval,
+            &options(Parity::Even, drive::LineKind::Pty),
         );
-        s.kinds.insert(
-            "stale-reply-taken".into(),
-            KindSummary {
-                severity: Severity::Deviation,
-                cases: vec!["rtu.read.stale-reply".into()],
-                example: "rtu.read.stale-reply: ...".into(),
-                repro: "conformance gate --master 'x' --only rtu.read.stale-reply".into(),
-            },
-        );
-        let back = MasterSummary::from_json(&s.to_json()).unwrap();
-        assert_eq!(back.to_json(), s.to_json());
-        assert!(MasterSummary::from_json(&serde_json::json!({
-            "kinds": [{"kind": "x", "severity": "grave", "cases": [], "example": "", "reproduce": ""}]
-        }))
-        .unwrap_err()
-        .contains("severity"));
+        assert!(why.starts_with(&format!("the adapter could not open the line: {einval} (")));
+        for part in [
+            "no parity bit",
+            "PARENB",
+            "EINVAL",
+            "parity even",
+            "-P none",
+            "-s 2",
+            "9600 8E1",
+        ] {
+            assert!(why.contains(part), "{part:?} missing: {why}");
+        }
+        // No parity, another line or another cause: the error as the adapter gave it.
+        for (parity, kind, error) in [
+            (Parity::None, drive::LineKind::Pty, einval),
+            (Parity::Even, drive::LineKind::TcpRtu, einval),
+            (
+                Parity::Even,
+                drive::LineKind::Pty,
+                "the adapter failed: no such file",
+            ),
+        ] {
+            assert_eq!(
+                open_failed("could not open the line", error, &options(parity, kind)),
+                format!("the adapter could not open the line: {error}")
+            );
+        }
     }
 }
