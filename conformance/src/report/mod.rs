@@ -476,6 +476,9 @@ fn budget_json(b: &ModeBudget) -> Value {
     if let Some(why) = b.no_bound {
         v["no_bound"] = json!(why.key());
     }
+    if b.host_reruns > 0 {
+        v["host_reruns"] = json!(b.host_reruns);
+    }
     v
 }
 

@@ -150,6 +150,14 @@ pub fn text(r: &Report, verbose: bool) -> String {
         }
     }
     for (mode, b) in &r.budget {
+        if b.host_reruns > 0 {
+            let _ = writeln!(
+                o,
+                "stalls:  {mode}: {} run(s) of a check again, because this host stalled under it (up to {} runs each; their time is in the budget)",
+                b.host_reruns,
+                crate::runner::HOST_STALL_RUNS
+            );
+        }
         if let Some(why) = b.no_bound {
             // Behind a Modbus TCP gateway, or on a pseudo-terminal: no line to bound by.
             let _ = writeln!(

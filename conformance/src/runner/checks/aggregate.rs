@@ -287,6 +287,7 @@ mod tests {
             echo: EchoMode::Off,
             line: None,
             allow_restart: false,
+            injected_stalls: None,
         };
         let (a, _b) = memory::pair();
         let link = Emulated(a, kind, Duration::from_millis(2));
