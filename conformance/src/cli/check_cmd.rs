@@ -464,6 +464,17 @@ pub fn finish(
     Ok(ExitCode::from(report.exit_code()))
 }
 
+/// Parses `--inject-host-stall PATTERN:N`.
+fn injected_stall(s: &str) -> Result<(String, u32), String> {
+    let (pattern, n) = s
+        .rsplit_once(':')
+        .ok_or_else(|| format!("expected PATTERN:N, found {s:?}"))?;
+    let n = n
+        .parse()
+        .map_err(|e| format!("expected a count after ':' in {s:?}: {e}"))?;
+    Ok((pattern.to_string(), n))
+}
+
 #[cfg(test)]
 mod tests {
     use super::write_atomic;
@@ -498,15 +509,4 @@ mod tests {
         assert_eq!(std::fs::read_to_string(&file).unwrap(), "two");
         std::fs::remove_dir_all(&dir).unwrap();
     }
-}
-
-/// Parses `--inject-host-stall PATTERN:N`.
-fn injected_stall(s: &str) -> Result<(String, u32), String> {
-    let (pattern, n) = s
-        .rsplit_once(':')
-        .ok_or_else(|| format!("expected PATTERN:N, found {s:?}"))?;
-    let n = n
-        .parse()
-        .map_err(|e| format!("expected a count after ':' in {s:?}: {e}"))?;
-    Ok((pattern.to_string(), n))
 }
