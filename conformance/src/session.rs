@@ -565,6 +565,7 @@ fn run_bus(
         Master::new(transport, mode, config.options.timing).with_echo(config.options.echo);
     let mut wall = Duration::ZERO;
     let mut last_budget = ModeBudget::default();
+    let mut host_reruns = 0;
     let mut answering: Vec<u8> = Vec::new();
     let sections = config
         .options
@@ -615,6 +616,7 @@ fn run_bus(
         };
         master = m;
         wall += run.budget.wall;
+        host_reruns += run.budget.host_reruns;
         last_budget = run.budget;
         for r in &mut run.restore {
             r.node.get_or_insert(opts.address);
@@ -646,6 +648,7 @@ fn run_bus(
                     mode.to_string(),
                     ModeBudget {
                         wall,
+                        host_reruns,
                         ..last_budget
                     },
                 );
@@ -660,6 +663,7 @@ fn run_bus(
         mode.to_string(),
         ModeBudget {
             wall,
+            host_reruns,
             ..last_budget
         },
     );

@@ -379,3 +379,69 @@ fn late_answers_on_the_brisk_path_are_sent_again_with_full_windows() {
     assert!(g["sequenced"].as_u64().unwrap() > 0, "{g}");
     assert!(w["fuzz"]["modes"][0]["brisk"].is_null());
 }
+
+/// A hang the campaign knows is not triggered again and again (issue 33: 56 re-triggers
+/// of one planted hang in 3,581 cases, seconds each): once it is confirmed, cases of its
+/// minimized frame's shape are sent only within the re-trigger budget, then steered
+/// away from; the hang is still reported with its count, and the report says what the
+/// hangs cost.
+#[test]
+fn a_known_hang_is_steered_away_from_and_its_cost_reported() {
+    use conformance::fuzz::steer::HANG_RETRIGGERS;
+    let dir = tempdir("steer");
+    let (code, v) = fuzz(
+        &dir,
+        &[
+            "--sim",
+            "f510",
+            "--quirk",
+            "hang-on-byte-count",
+            "--mode",
+            "rtu",
+            "--no-pace",
+            "--cases",
+            "1000",
+            "--seed",
+            "11",
+        ],
+        Duration::from_secs(900),
+    );
+    assert_eq!(code, Some(1));
+    let m = &v["fuzz"]["modes"][0];
+    let f = confirmed_findings(&v);
+    assert_eq!(f.len(), 1, "{f:#?}");
+    let hang = &f[0];
+    assert_eq!(hang["signature"], "rtu.hang.10H.byte-count-over-data");
+    let count = hang["count"].as_u64().unwrap();
+    assert!(
+        count <= 1 + HANG_RETRIGGERS,
+        "{count} hangs: {:#}",
+        m["hangs"]
+    );
+    let hangs = &m["hangs"];
+    assert_eq!(hangs["count"].as_u64(), Some(count), "{hangs:#}");
+    assert!(hangs["cost_ms"].as_f64().unwrap() > 0.0, "{hangs:#}");
+    let known = &hangs["known"][0];
+    assert_eq!(known["shape"], "10H byte-count-over-data", "{hangs:#}");
+    assert_eq!(known["retriggers"].as_u64(), Some(count - 1), "{hangs:#}");
+    assert!(known["steered"].as_u64().unwrap() > 0, "{hangs:#}");
+    assert!(
+        m["skipped"][conformance::fuzz::steer::STEERED_AWAY].as_u64() == known["steered"].as_u64(),
+        "{:#}",
+        m["skipped"]
+    );
+    let campaign = v["checks"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|c| c["id"] == "fuzz.rtu.campaign")
+        .unwrap();
+    assert!(
+        campaign["summary"]
+            .as_str()
+            .unwrap()
+            .contains(&format!("{count} hang(s) cost ")),
+        "{}",
+        campaign["summary"]
+    );
+}

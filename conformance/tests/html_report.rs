@@ -615,3 +615,50 @@ fn a_report_of_several_nodes_renders_per_node_and_diffs_by_node() {
     no_console_errors(&log, &page);
     assert!(std::fs::metadata(d.join("bus.png")).unwrap().len() > 10_000);
 }
+
+/// A run with an ERROR and a deviation (issue 33): the HTML puts the ERROR first, since
+/// it is what makes the exit code 2, and its header gives the exit code with its reason.
+#[test]
+fn html_puts_errors_first_and_says_why_the_exit_code_is_what_it_is() {
+    let d = dir("errors-first");
+    let (code, _) = common::check_device(
+        &d,
+        &[
+            "--sim",
+            "f510",
+            "--mode",
+            "rtu",
+            "--quirk",
+            "wrong-exception",
+            "--only",
+            "rtu.map.group-0.past-end",
+            "--only",
+            "rtu.map.command.first",
+            "--inject-host-stall",
+            "rtu.map.command.first:3",
+        ],
+        Duration::from_secs(120),
+    );
+    assert_eq!(code, Some(2));
+    let page = common::rendered(&d.join("check.json"), &d.join("check.html"));
+    let error = page
+        .find("<article class=\"finding error\" id=\"f-rtu.map.command.first\"")
+        .expect("the ERROR's card");
+    let deviation = page
+        .find("<article class=\"finding deviation\" id=\"f-rtu.map.group-0.past-end\"")
+        .expect("the deviation's card");
+    assert!(error < deviation, "the ERROR comes after the deviation");
+    assert!(
+        page.contains("<h2 id=\"deviations\">Errors (1) and deviations (1)</h2>"),
+        "{}",
+        &page[page.find("id=\"deviations\"").unwrap_or(0)..][..80]
+    );
+    assert!(
+        page.contains(
+            "exit code 2: 1 check ended in ERROR (nothing could be judged from it)</span>"
+        ),
+        "{}",
+        &page[page.find("exit code").unwrap()..][..120]
+    );
+    let _ = std::fs::remove_dir_all(&d);
+}

@@ -44,6 +44,7 @@ fn options(only: &[&str]) -> Options {
         seed: 1,
         echo: conformance::runner::EchoMode::Auto,
         allow_restart: false,
+        injected_stalls: None,
         line: None,
     }
 }
@@ -981,4 +982,63 @@ fn a_restore_write_that_gets_no_reply_is_tried_again() {
         "{}",
         r.detail
     );
+}
+
+/// The status of check `id` in a report, with its summary.
+fn check_in<'a>(v: &'a serde_json::Value, id: &str) -> (&'a str, &'a str) {
+    let c = v["checks"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|c| c["id"] == id)
+        .unwrap_or_else(|| panic!("no check {id}"));
+    (
+        c["status"].as_str().unwrap(),
+        c["summary"].as_str().unwrap(),
+    )
+}
+
+/// A check under which this host stalled (issue 33: `rtu.write-count.limit` on a busy
+/// 2-core host made `check --sim f510` exit 2) runs again, as the master gate's cases
+/// do, and the report counts the runs again; three stalls in a row are an ERROR that
+/// says so. The stalls are planted (`--inject-host-stall`, hidden, for tests), so that
+/// no test needs a busy host; a real stall on top can only add runs (the check's request
+/// is 8 bytes, which a host seldom breaks).
+#[test]
+fn a_check_the_host_stalled_under_runs_again_and_is_counted() {
+    let id = "rtu.map.command.first";
+    let dir = std::env::temp_dir().join(format!("runner-stall-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let run = |n: u32| {
+        let inject = format!("{id}:{n}");
+        common::check_device(
+            &dir,
+            &[
+                "--sim",
+                "f510",
+                "--mode",
+                "rtu",
+                "--only",
+                id,
+                "--inject-host-stall",
+                &inject,
+            ],
+            Duration::from_secs(120),
+        )
+    };
+    let reruns = |v: &serde_json::Value| v["budget"]["rtu"]["host_reruns"].as_u64().unwrap_or(0);
+    // One stall: the second run judges the device.
+    let (code, v) = run(1);
+    let (status, summary) = check_in(&v, id);
+    assert_eq!(status, "pass", "{summary}");
+    assert_eq!(code, Some(0), "{summary}");
+    assert!(reruns(&v) >= 1, "{:#}", v["budget"]);
+    // Stalls every time: an ERROR after three runs, which says why.
+    let (code, v) = run(3);
+    let (status, summary) = check_in(&v, id);
+    assert_eq!(status, "error", "{summary}");
+    assert_eq!(code, Some(2));
+    assert!(summary.contains("the check ran 3 times"), "{summary}");
+    assert_eq!(reruns(&v), 2, "{:#}", v["budget"]);
+    let _ = std::fs::remove_dir_all(&dir);
 }

@@ -160,6 +160,7 @@ fn run(cell: Cell, quirk: Option<Quirk>) -> Report {
         seed: 1,
         echo: EchoMode::Auto,
         allow_restart: false,
+        injected_stalls: None,
         line: None,
     };
     let config = SessionConfig {

@@ -133,6 +133,10 @@ pub struct CheckArgs {
     /// Seed of the arbitrary data some checks send.
     #[arg(long, default_value_t = 0x7ECC0)]
     seed: u64,
+    /// For the suite's own tests: the first N runs of each check whose id matches
+    /// PATTERN end as if this host had stalled (PATTERN:N).
+    #[arg(long, value_name = "PATTERN:N", hide = true, value_parser = injected_stall)]
+    inject_host_stall: Option<(String, u32)>,
     /// List every passing check and every exchange in the text report.
     #[arg(short, long)]
     verbose: bool,
@@ -296,6 +300,7 @@ pub fn run(mut args: CheckArgs) -> anyhow::Result<ExitCode> {
         echo: args.target.echo,
         line: Some(args.target.line.settings()),
         allow_restart: args.safety.allow_restart,
+        injected_stalls: args.inject_host_stall.clone(),
     };
     let config = SessionConfig {
         model,
@@ -457,6 +462,17 @@ pub fn finish(
         }
     }
     Ok(ExitCode::from(report.exit_code()))
+}
+
+/// Parses `--inject-host-stall PATTERN:N`.
+fn injected_stall(s: &str) -> Result<(String, u32), String> {
+    let (pattern, n) = s
+        .rsplit_once(':')
+        .ok_or_else(|| format!("expected PATTERN:N, found {s:?}"))?;
+    let n = n
+        .parse()
+        .map_err(|e| format!("expected a count after ':' in {s:?}: {e}"))?;
+    Ok((pattern.to_string(), n))
 }
 
 #[cfg(test)]

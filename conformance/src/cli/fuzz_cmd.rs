@@ -256,6 +256,7 @@ pub fn run(args: FuzzArgs) -> anyhow::Result<ExitCode> {
         echo: args.target.echo,
         line: Some(args.target.line.settings()),
         allow_restart: args.safety.allow_restart,
+        injected_stalls: None,
     };
     let (cases, duration) = match (args.cases, args.duration) {
         (None, None) => (None, Some(DEFAULT_DURATION)),

@@ -121,6 +121,7 @@ pub fn config(
         echo: target.echo,
         line: Some(link.line),
         allow_restart: false,
+        injected_stalls: None,
     };
     Ok(IdentifyConfig {
         models,

@@ -132,6 +132,7 @@ pub fn run(args: SendArgs) -> anyhow::Result<ExitCode> {
         echo: args.target.echo,
         line: Some(args.target.line.settings()),
         allow_restart: false,
+        injected_stalls: None,
     };
     let config = SessionConfig {
         model: model.clone(),

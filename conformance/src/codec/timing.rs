@@ -6,6 +6,20 @@
 //! are used.
 
 use std::fmt;
+use std::time::{Duration, Instant};
+
+/// `at + d`, or the latest instant the clock can hold after `at` where the sum overflows:
+/// a deadline set from an option or a peer's answer (a timeout of years, "no limit") is
+/// only ever far away, never a panic.
+pub fn later(at: Instant, d: Duration) -> Instant {
+    let mut d = d;
+    loop {
+        if let Some(t) = at.checked_add(d) {
+            return t;
+        }
+        d /= 2;
+    }
+}
 
 /// Parity of the serial line.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
@@ -110,6 +124,18 @@ impl fmt::Display for LineSettings {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_deadline_beyond_the_clock_is_far_away_not_a_panic() {
+        let now = std::time::Instant::now();
+        assert_eq!(
+            later(now, Duration::from_millis(5)),
+            now + Duration::from_millis(5)
+        );
+        for d in [Duration::MAX, Duration::from_millis(u64::MAX)] {
+            assert!(later(now, d) > now + Duration::from_secs(3600 * 24 * 365));
+        }
+    }
 
     #[test]
     fn bits_per_char() {

@@ -506,7 +506,7 @@ fn every_format_shows_expected_results_apart() {
     assert!(rows[3].contains(",unexpected-pass,"), "{csv}");
 
     let html = crate::report::html(&r);
-    assert!(html.contains("<h2 id=\"deviations\">New deviations (1) and errors (0)</h2>"));
+    assert!(html.contains("<h2 id=\"deviations\">Errors (0) and new deviations (1)</h2>"));
     assert!(html.contains("<h2 id=\"expected\">Expected results (1)</h2>"));
     assert!(html.contains(">UNEXPECTED PASS</span>"));
 

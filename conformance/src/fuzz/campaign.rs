@@ -401,6 +401,12 @@ pub fn fuzz_mode(
                 continue;
             }
         }
+        // A case of the shape of a hang the campaign knows costs seconds and tells little
+        // more: sent only within the re-trigger budget (see `steer`).
+        if !out.hangs.admits(mode, &case.step) {
+            *out.skipped.entry(super::steer::STEERED_AWAY).or_default() += 1;
+            continue;
+        }
         ctx.current = format!("{mode}.fuzz.case-{}", case.index);
         let mut lost = None;
         let mut stalled = false;
@@ -439,7 +445,20 @@ pub fn fuzz_mode(
                     o
                 })
             }
-            (None, None) => observe(&mut ctx, &case.step, &mut state),
+            (None, None) => {
+                // A case this host stalled under (its request never left whole) is sent
+                // again, as `check` runs a check again, before it counts as not sent.
+                let mut runs = 1;
+                loop {
+                    match observe(&mut ctx, &case.step, &mut state) {
+                        Err(RunError::HostStalled(_)) if runs < crate::runner::HOST_STALL_RUNS => {
+                            runs += 1;
+                            out.host_reruns += 1;
+                        }
+                        r => break r,
+                    }
+                }
+            }
         };
         let result = match result {
             Ok(None) if (case.index + 1).is_multiple_of(cfg.probe_every.max(1)) => {
@@ -610,6 +629,7 @@ fn conclude(
             };
             let _ = ctx.master_mut().take_stray();
             *spent_minimizing += t.elapsed();
+            out.hangs.hung(mode, &case.step, sent_at.elapsed());
             Some((
                 Observed {
                     kind: Kind::Hang,
@@ -642,6 +662,8 @@ fn conclude(
         Some(&i) => {
             out.findings[i].count += 1;
             *out.findings[i].classes.entry(case.class).or_default() += 1;
+            // A hang seen again is confirmed, minimized or not.
+            out.hangs.confirm(mode, &out.findings[i]);
         }
         None => {
             let t = Instant::now();
@@ -656,6 +678,9 @@ fn conclude(
             }
             *spent_minimizing += t.elapsed();
             finding.replay = replay_line(&cfg.replay, mode, &finding);
+            if finding.reproduced {
+                out.hangs.confirm(mode, &finding);
+            }
             by_signature.insert(sig, out.findings.len());
             out.findings.push(finding);
         }

@@ -18,6 +18,7 @@
 //! - [`report`](self::report): findings grouped by signature, as the suite's report;
 //! - [`timing`]: timing damage (a silence inside a frame, frames without t3.5, a frame
 //!   split at every position), on links with line timing;
+//! - [`steer`]: steering away from a hang the campaign knows, and what hangs cost;
 //! - [`storm`]: the storm test, the device's own requests at line rate among other
 //!   nodes' traffic and broadcasts.
 
@@ -28,6 +29,7 @@ pub mod minimize;
 pub mod report;
 pub mod safety;
 pub mod signature;
+pub mod steer;
 pub mod storm;
 pub mod timing;
 
@@ -231,6 +233,12 @@ pub struct ModeOutcome {
     pub storm: Option<storm::StormOutcome>,
     /// What the brisk path did (None: full windows throughout).
     pub brisk: Option<brisk::GuardStats>,
+    /// The hangs: their cost, and the known ones steered away from.
+    pub hangs: steer::Steering,
+    /// Cases sent again because this host stalled under them (it could not put the
+    /// request on the emulated line whole): up to [`crate::runner::HOST_STALL_RUNS`]
+    /// sends in all before the case counts as not sent.
+    pub host_reruns: u64,
 }
 
 impl ModeOutcome {

@@ -124,6 +124,18 @@ pub fn campaign_result(m: &ModeOutcome) -> CheckResult {
         }
     );
     let summary = format!("{summary}; {}", m.timing.describe());
+    let summary = match m.hangs.describe() {
+        Some(h) => format!("{summary}; {h}"),
+        None => summary,
+    };
+    let summary = if m.host_reruns > 0 {
+        format!(
+            "{summary}; {} case(s) sent again because this host stalled under them",
+            m.host_reruns
+        )
+    } else {
+        summary
+    };
     let summary = match &m.brisk {
         Some(g) => format!("{summary}; {}", g.describe()),
         None => summary,
@@ -164,6 +176,8 @@ impl FuzzSummary {
                     "cases_per_s": (m.rate() * 10.0).round() / 10.0,
                     "bound_cases_per_s": m.bound_rate().map(|b| (b * 10.0).round() / 10.0),
                     "liveness_probes": m.probes,
+                    "hangs": m.hangs.to_json(),
+                    "host_reruns": m.host_reruns,
                     "timing": m.timing.to_json(),
                     "storm": m.storm.as_ref().map(|s| s.to_json()),
                     "brisk": m.brisk.map(|g| json!({

@@ -547,7 +547,7 @@ impl Adapter {
                 )));
             }
         }
-        let deadline = Instant::now() + self.timeout;
+        let deadline = crate::codec::timing::later(Instant::now(), self.timeout);
         loop {
             let left = deadline.saturating_duration_since(Instant::now());
             let p = self.process.as_mut().ok_or(CallError::Gone)?;

@@ -23,7 +23,7 @@ use super::log::{hex, EndpointInfo, LineLog, Record};
 use super::station::Station;
 use super::wire::{Event, Wire};
 use super::LineError;
-use crate::codec::timing::LineSettings;
+use crate::codec::timing::{later, LineSettings};
 use crate::transport::pty::{PeerLine, PtyMaster};
 use crate::transport::uart::{self, CharError, ErrorPolicy, Received};
 use crate::transport::LineTags;
@@ -331,7 +331,10 @@ impl EmulatedLine {
     fn instant_of(&self, bit: u64) -> Instant {
         let baud = u128::from(self.config.line.baud.max(1));
         let us = (u128::from(bit) * 1_000_000).div_ceil(baud);
-        self.epoch + Duration::from_micros(u64::try_from(us).unwrap_or(u64::MAX / 2))
+        later(
+            self.epoch,
+            Duration::from_micros(u64::try_from(us).unwrap_or(u64::MAX)),
+        )
     }
 
     /// Carries bytes until `stop` is set or `until` passes; writes the log as it goes.

@@ -20,7 +20,7 @@ use std::time::{Duration, Instant};
 use nix::errno::Errno;
 use nix::poll::{poll, PollFd, PollFlags, PollTimeout};
 
-use crate::codec::timing::LineSettings;
+use crate::codec::timing::{later, LineSettings};
 use crate::transport::{sleep_until, LineTags, LinkKind, Transport, TransportError};
 
 /// Longest a read waits past its timeout while the line is busy (so that a stop is
@@ -87,7 +87,10 @@ impl Transport for Station {
         // collision or a queue delayed them, which the line knows and this side does not).
         if let Some(l) = self.line {
             let n = u32::try_from(bytes.len()).unwrap_or(u32::MAX);
-            sleep_until(start + Duration::from_micros(l.char_time_us()) * n);
+            sleep_until(later(
+                start,
+                Duration::from_micros(l.char_time_us()).saturating_mul(n),
+            ));
         }
         Ok(())
     }
@@ -106,7 +109,7 @@ impl Transport for Station {
             // Nothing yet: quiet only if the line is (see the module notes).
             if self.line.is_none()
                 || !self.busy.load(Ordering::Acquire)
-                || t0.elapsed() >= timeout + BUSY_WAIT
+                || t0.elapsed() >= timeout.saturating_add(BUSY_WAIT)
             {
                 return Ok(0);
             }

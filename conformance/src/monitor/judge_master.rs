@@ -46,7 +46,8 @@ pub(super) fn t35_before(m: &Monitor, f: &TapFrame) -> Option<Issue> {
     let t35 = Duration::from_micros(line.t3_5_us());
     // One character of tolerance: the tap's clock reads the pieces a little late.
     let tolerance = Duration::from_micros(line.char_time_us());
-    (s + tolerance < t35).then(|| Issue {
+    // The silence before a first request is unbounded (`Duration::MAX`): saturate.
+    (s.saturating_add(tolerance) < t35).then(|| Issue {
         side: Side::Master,
         kind: "no-t3.5",
         severity: Severity::Deviation,

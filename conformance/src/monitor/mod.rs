@@ -537,9 +537,10 @@ impl Monitor {
         // A copy of a 06H/08H request is its normal reply, or the master sending it
         // again: by time, a copy later than any reply is due is the master's resend.
         let copy_limit = || {
-            self.model.response_time_on(Some(&self.cfg.line))
-                + self.cfg.response_allowance
-                + Duration::from_micros(self.cfg.line.char_time_us())
+            self.model
+                .response_time_on(Some(&self.cfg.line))
+                .saturating_add(self.cfg.response_allowance)
+                .saturating_add(Duration::from_micros(self.cfg.line.char_time_us()))
         };
         // Where the source knows the side each frame came from (a capture's direction
         // flags), that settles it: a frame from the request's side is never its reply.

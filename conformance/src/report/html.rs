@@ -301,8 +301,9 @@ fn header(out: &mut String, report: &Report) {
     };
     w!(
         out,
-        "<div class=\"verdict {cls}\" id=\"verdict\">{verdict}</div> <span class=\"muted\">exit code {}</span>",
-        report.exit_code()
+        "<div class=\"verdict {cls}\" id=\"verdict\">{verdict}</div> <span class=\"muted\" id=\"exit\">exit code {}: {}</span>",
+        report.exit_code(),
+        esc(&report.exit_reason())
     );
     out.push_str("<div class=\"tiles\" id=\"summary\">");
     for (name, c, n) in [
@@ -578,8 +579,9 @@ pub fn html(report: &Report) -> String {
         }));
     }
 
-    // Deviations first, then what the run could not tell; observations (the manual is
-    // silent) after them, folded.
+    // What the run could not tell first (an ERROR is what makes the exit code 2, and a
+    // reader looks for why before anything else), then deviations; observations (the
+    // manual is silent) after them, folded.
     // With an expectations file, the results it accepts have a section of their own.
     let mut notable: Vec<&CheckResult> = report
         .results
@@ -589,16 +591,16 @@ pub fn html(report: &Report) -> String {
         .collect();
     w!(
         out,
-        "<h2 id=\"deviations\">{} ({}) and errors ({})</h2>",
+        "<h2 id=\"deviations\">Errors ({}) and {} ({})</h2>",
+        s.error,
         if report.expect.is_some() {
-            "New deviations"
+            "new deviations"
         } else {
-            "Deviations"
+            "deviations"
         },
         notable.len() - s.error,
-        s.error
     );
-    notable.sort_by_key(|r| r.status != Status::Deviation);
+    notable.sort_by_key(|r| r.status != Status::Error);
     let words = master::words(report);
     if notable.is_empty() {
         w!(out, "<p>{}</p>", words.none);

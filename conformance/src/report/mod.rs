@@ -286,6 +286,59 @@ impl Report {
         }
     }
 
+    /// Why [`Report::exit_code`] is what it is, in a few words for a report's header
+    /// ("1 check ended in ERROR (it could not tell)"); every reason that applies.
+    pub fn exit_reason(&self) -> String {
+        let s = self.summary();
+        let plural = |n: usize, one: &str, many: &str| {
+            if n == 1 {
+                format!("1 {one}")
+            } else {
+                format!("{n} {many}")
+            }
+        };
+        let mut why = Vec::new();
+        if !self.complete {
+            why.push("the run did not complete".to_string());
+        }
+        if s.error > 0 {
+            why.push(format!(
+                "{} in ERROR (nothing could be judged from {})",
+                plural(s.error, "check ended", "checks ended"),
+                if s.error == 1 { "it" } else { "them" }
+            ));
+        }
+        let unrestored = self.unrestored().len();
+        if unrestored > 0 {
+            why.push(format!(
+                "{} not restored",
+                plural(unrestored, "register", "registers")
+            ));
+        }
+        if !why.is_empty() {
+            return why.join("; ");
+        }
+        let new = self.unexpected_findings().len();
+        if new > 0 {
+            return if self.expect.is_some() {
+                format!(
+                    "{} that no expectation accepts",
+                    plural(new, "finding", "findings")
+                )
+            } else {
+                plural(new, "finding", "findings")
+            };
+        }
+        let passes = self.unexpected_passes();
+        if self.expect.as_ref().is_some_and(|e| e.strict) && passes > 0 {
+            return format!(
+                "{} that the expectations call a finding (--strict-expect)",
+                plural(passes, "pass", "passes")
+            );
+        }
+        "no deviation that fails the run".to_string()
+    }
+
     /// Whether `r` is a result that fails a run: a deviation, or in a fuzz run a finding
     /// (an observation replayed and seen again, or never replayed).
     /// `unconfirmed`: [`Report::unconfirmed_ids`].
@@ -489,6 +542,9 @@ fn budget_json(b: &ModeBudget) -> Value {
     }
     if b.line.broken_sends > 0 {
         v["broken_sends"] = json!(b.line.broken_sends);
+    }
+    if b.host_reruns > 0 {
+        v["host_reruns"] = json!(b.host_reruns);
     }
     v
 }

@@ -225,6 +225,10 @@ fn budget(b: &Value, path: &str) -> Result<ModeBudget, ReportError> {
         ),
     };
     Ok(ModeBudget {
+        host_reruns: match b.get("host_reruns") {
+            None | Some(Value::Null) => 0,
+            Some(_) => u32::try_from(uint(b, "host_reruns", path)?).unwrap_or(u32::MAX),
+        },
         wall: millis(b, "wall_ms", path)?,
         bound,
         no_bound,

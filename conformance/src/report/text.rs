@@ -156,6 +156,14 @@ pub fn text(r: &Report, verbose: bool) -> String {
         }
     }
     for (mode, b) in &r.budget {
+        if b.host_reruns > 0 {
+            let _ = writeln!(
+                o,
+                "stalls:  {mode}: {} run(s) of a check again, because this host stalled under it (up to {} runs each; their time is in the budget)",
+                b.host_reruns,
+                crate::runner::HOST_STALL_RUNS
+            );
+        }
         // Not the device's: each was sent again (a capture marks them). At the end of the
         // line, so that a page's example with the line's tail elided still matches.
         let broken = match b.line.broken_sends {

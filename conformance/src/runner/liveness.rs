@@ -209,7 +209,7 @@ impl Ctx<'_> {
             });
         };
         let mut ex = self.master.exchange(&frame, true)?;
-        let mut sends = 1 + self.opts.timing.retries;
+        let mut sends = self.opts.timing.retries.saturating_add(1);
         // On a pseudo-terminal the other end is a program on this host (the simulator,
         // in this process or another), which a busy host can delay past the timeout: it
         // is not dead for that (issue 24: "no answer to the preflight" from the
@@ -222,7 +222,7 @@ impl Ctx<'_> {
             while ex.after_echo().is_empty() && late < LATE_ON_A_PTY {
                 late += 1;
                 ex = self.master.exchange(&frame, true)?;
-                sends += 1 + self.opts.timing.retries;
+                sends = sends.saturating_add(self.opts.timing.retries.saturating_add(1));
             }
             if late > 1 && !ex.after_echo().is_empty() {
                 self.settle_late_answers()?;

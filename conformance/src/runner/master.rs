@@ -12,6 +12,7 @@ use crate::codec::crc::crc16;
 use crate::codec::deframe::rtu_frame_len;
 use crate::codec::pdu::function;
 use crate::codec::pdu::Direction;
+use crate::codec::timing::later;
 use crate::codec::{ascii, Mode, MAX_ASCII_FRAME};
 use crate::judge::{Conversation, Timing};
 use crate::transport::{sleep_until, LinkKind, Transport, TransportError};
@@ -160,10 +161,13 @@ impl LineBudget {
     pub fn bound(&self, line: &crate::codec::timing::LineSettings) -> Duration {
         let ct = Duration::from_micros(line.char_time_us());
         let t35 = Duration::from_micros(line.t3_5_us());
-        let wire = ct * u32::try_from(self.bytes_sent + self.bytes_received).unwrap_or(u32::MAX);
-        let gaps = t35 * u32::try_from(self.frames).unwrap_or(u32::MAX);
-        let silences = (self.max_response + ct) * u32::try_from(self.silences).unwrap_or(u32::MAX);
-        wire + gaps + self.response + silences
+        let times = |d: Duration, n: u64| d.saturating_mul(u32::try_from(n).unwrap_or(u32::MAX));
+        let wire = times(ct, self.bytes_sent.saturating_add(self.bytes_received));
+        let gaps = times(t35, self.frames);
+        let silences = times(self.max_response.saturating_add(ct), self.silences);
+        wire.saturating_add(gaps)
+            .saturating_add(self.response)
+            .saturating_add(silences)
     }
 }
 
@@ -275,7 +279,9 @@ impl<T: Transport + ?Sized> Master<T> {
             .transport
             .line_timing()
             .map_or(Duration::ZERO, |l| Duration::from_micros(l.t3_5_us()));
-        (self.budget.max_response * 2 + t35 + Duration::from_millis(20))
+        (self.budget.max_response.saturating_mul(2))
+            .saturating_add(t35)
+            .saturating_add(Duration::from_millis(20))
             .max(SILENCE_FLOOR)
             .min(cap)
     }
@@ -458,7 +464,7 @@ impl<T: Transport + ?Sized> Master<T> {
                 .transport
                 .line_timing()
                 .map_or(Duration::ZERO, |l| Duration::from_micros(l.t3_5_us()));
-            sleep_until(t + self.timing.gap.max(t35));
+            sleep_until(later(t, self.timing.gap.max(t35)));
         }
     }
 
@@ -547,7 +553,7 @@ impl<T: Transport + ?Sized> Master<T> {
             None if expect_reply && !self.send_broken() => self.timing.timeout,
             None => self.silence_window(),
         };
-        let deadline = sent + wait;
+        let deadline = later(sent, wait);
         let mut raw = Vec::new();
         let mut chunks = Vec::new();
         let mut last_rx: Option<Instant> = None;
@@ -588,13 +594,13 @@ impl<T: Transport + ?Sized> Master<T> {
                 // stalls mid-frame, on a busy host or behind a USB adapter's latency timer,
                 // or a long reply at a low baud rate, is collected whole; the line-timing
                 // check reports any gap).
-                let after_last = last_rx.unwrap_or(now) + self.timing.timeout;
+                let after_last = later(last_rx.unwrap_or(now), self.timing.timeout);
                 deadline.max(after_last).saturating_duration_since(now)
             } else {
                 // Once a whole reply is in, a short settle catches trailing bytes; before
                 // that, the quiet window waits for the rest of a reply in pieces.
                 let quiet = if complete { settle } else { self.timing.quiet };
-                let quiet_end = last_rx.unwrap_or(now) + quiet;
+                let quiet_end = later(last_rx.unwrap_or(now), quiet);
                 quiet_end.saturating_duration_since(now)
             };
             if limit.is_zero() {

@@ -223,7 +223,17 @@ pub struct Options {
     /// node). The checks of the whole bus ([`Check::bus`]: broadcasts, another address)
     /// read back from each of them.
     pub bus: Vec<u8>,
+    /// For the suite's own tests (the hidden `--inject-host-stall PATTERN:N`): the first
+    /// N runs of each check whose id matches PATTERN end as if this host had stalled
+    /// while pacing its request, so that running a check again after a stall can be
+    /// tested without a busy host. `None` in every real run.
+    pub injected_stalls: Option<(String, u32)>,
 }
+
+/// How many times a check runs in all when this host stalls under it (it could not put
+/// a request on an emulated line whole, or delayed the other end past the timeout):
+/// as the master gate does, the check runs again twice before it is an ERROR.
+pub const HOST_STALL_RUNS: u32 = 3;
 
 impl Options {
     /// Options for listing a model's checks without running them (the requirements'
@@ -250,6 +260,7 @@ impl Options {
             line: None,
             allow_restart: true,
             bus: vec![1],
+            injected_stalls: None,
         }
     }
 }
@@ -305,6 +316,9 @@ pub struct ModeBudget {
     pub bound: Duration,
     /// Why there is no bound, where there is none.
     pub no_bound: Option<NoBound>,
+    /// Checks run again because this host stalled under them ([`HOST_STALL_RUNS`]):
+    /// their time is in the wall time.
+    pub host_reruns: u32,
 }
 
 /// Why a link has no line bound to measure a run against.

@@ -12,7 +12,7 @@ use super::{CheckResult, Ctx, ModeBudget, ModeRun, Options, RunError, Status, Ve
 use crate::codec::Mode;
 use crate::judge::Severity;
 use crate::model::DriveModel;
-use crate::transport::Transport;
+use crate::transport::{Transport, TransportError};
 use crate::vectors::VectorFile;
 
 /// Which checks of a mode a run takes.
@@ -96,6 +96,7 @@ pub fn run_section(
     let mode_started = Instant::now();
     let mut ctx = Ctx::on_master(model, vectors, mode, opts, master);
     let mut run = ModeRun::default();
+    let mut host_reruns = 0;
     // The preflight runs first, whatever --only selects: nothing can be judged on a line
     // where the device does not answer.
     let preflight = checks::preflight(model, mode);
@@ -121,12 +122,18 @@ pub fn run_section(
         } else if let (true, Some(why)) = (check.needs_line, ctx.frames_only()) {
             Ok(Verdict::skip(why))
         } else {
-            (check.run)(&mut ctx)
+            run_again_after_stalls(check, &mut ctx, opts, &mut host_reruns)
         };
         let (verdict, fatal) = match verdict {
             Ok(v) => (v, None),
             Err(RunError::DeviceLost(why)) => (Verdict::error(why), None),
-            Err(e @ RunError::HostStalled(_)) => (Verdict::error(e.to_string()), None),
+            Err(e @ RunError::HostStalled(_)) => (
+                Verdict::error(format!(
+                    "{e} (the check ran {} times, and this host stalled under it each time: an overloaded host; run it again)",
+                    super::HOST_STALL_RUNS
+                )),
+                None,
+            ),
             Err(RunError::Transport(e)) => {
                 let msg = e.to_string();
                 (Verdict::error(msg.clone()), Some(msg))
@@ -198,8 +205,39 @@ pub fn run_section(
                 .map_or(Duration::ZERO, |l| line.bound(&l)),
         },
         no_bound,
+        host_reruns,
     };
     (run, ctx.master)
+}
+
+/// Runs `check`, and again where this host stalled under it (nothing about the device
+/// can be judged from such a run), [`super::HOST_STALL_RUNS`] times in all before its
+/// ERROR stands; each run again is counted in `reruns`.
+fn run_again_after_stalls(
+    check: &Check,
+    ctx: &mut Ctx<'_>,
+    opts: &Options,
+    reruns: &mut u32,
+) -> Result<Verdict, RunError> {
+    let mut runs = 0;
+    loop {
+        runs += 1;
+        let injected = opts.injected_stalls.as_ref().filter(|(pattern, n)| {
+            runs <= *n && selected(&check.id, std::slice::from_ref(pattern))
+        });
+        let verdict = match injected {
+            Some(_) => Err(RunError::HostStalled(TransportError::Stalled {
+                link: "injected (--inject-host-stall)".into(),
+                request: "(planted)".into(),
+                sends: 1,
+            })),
+            None => (check.run)(ctx),
+        };
+        match verdict {
+            Err(RunError::HostStalled(_)) if runs < super::HOST_STALL_RUNS => *reruns += 1,
+            v => return v,
+        }
+    }
 }
 
 pub(crate) fn result_of(

@@ -336,9 +336,6 @@ impl<T: Transport> Captured<T> {
         self.gap = Duration::from_millis(5).max(Duration::from_micros(line.t3_5_us()));
     }
 
-    /// For a tap that hears both sides of a bus (`monitor`): what it receives is written
-    /// without a direction (flags bits 0-1 `00`, "not known"), as a single-direction
-    /// sniffer's file is.
     /// Holds a part of a frame for its rest as long as `wait` (the master's timeout: how
     /// long it waits after a byte for the next one of an unfinished reply), not only
     /// [`HOST_STALL`], on a link with the host's timing. A master starved by a busy host
@@ -350,6 +347,9 @@ impl<T: Transport> Captured<T> {
         self
     }
 
+    /// For a tap that hears both sides of a bus (`monitor`): what it receives is written
+    /// without a direction (flags bits 0-1 `00`, "not known"), as a single-direction
+    /// sniffer's file is.
     pub fn as_tap(mut self) -> Self {
         self.inbound_flag = 0;
         self

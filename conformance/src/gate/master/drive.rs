@@ -19,6 +19,7 @@ use crate::codec::ascii::Scratch;
 use crate::codec::deframe::{AsciiDeframer, Event, RtuDeframer, RtuFraming};
 use crate::codec::hex::Hex;
 use crate::codec::pdu::{Direction, Message, Pdu, Registers};
+use crate::codec::timing::later;
 use crate::codec::timing::LineSettings;
 use crate::codec::{self, Mode};
 use crate::model::{DriveModel, Expectation};
@@ -554,7 +555,13 @@ impl DriveSide {
                 exception: None,
                 at: None,
             });
-            s.queue.push((now + pace * k as u32, i));
+            s.queue.push((
+                later(
+                    now,
+                    pace.saturating_mul(u32::try_from(k).unwrap_or(u32::MAX)),
+                ),
+                i,
+            ));
         }
     }
 
@@ -789,7 +796,9 @@ impl Server {
             .iter()
             .map(|(t, _)| t.saturating_duration_since(Instant::now()))
             .max()
-            .map_or(Duration::ZERO, |d| d + Duration::from_millis(1));
+            .map_or(Duration::ZERO, |d| {
+                d.saturating_add(Duration::from_millis(1))
+            });
         let base = base.max(busy_for);
         {
             let now = Instant::now();
@@ -907,7 +916,7 @@ impl Server {
                 },
                 at: None,
             });
-            s.queue.push((now + base + after, i));
+            s.queue.push((later(now, base.saturating_add(after)), i));
             i
         };
         match behaviour {

@@ -431,11 +431,14 @@ impl MasterAdapter {
             retries: answer
                 .get("retries")
                 .and_then(Value::as_u64)
-                .map_or(want.retries, |r| r as u32),
+                .map_or(want.retries, |r| u32::try_from(r).unwrap_or(u32::MAX)),
         };
         // Its worst case, and the gate's allowance over it.
-        self.adapter
-            .set_timeout(got.timeout * (got.retries + 1) + self.slack);
+        self.adapter.set_timeout(
+            got.timeout
+                .saturating_mul(got.retries.saturating_add(1))
+                .saturating_add(self.slack),
+        );
         Ok(got)
     }
 

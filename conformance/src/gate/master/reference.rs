@@ -19,6 +19,7 @@ use crate::codec::ascii::Scratch;
 use crate::codec::deframe::{rtu_frame_len, AsciiDeframer, Event, RtuDeframer, RtuFraming};
 use crate::codec::hex::{parse_hex, Hex};
 use crate::codec::pdu::{Direction, Message, Pdu, Registers};
+use crate::codec::timing::later;
 use crate::codec::timing::{LineSettings, Parity};
 use crate::codec::{self, Mode};
 use crate::transport::serial::SerialTransport;
@@ -305,7 +306,7 @@ impl MasterState {
         let (tries, wait) = if quirk == Some(Quirk::RetryStorm) {
             (5, open.timeout / 10)
         } else {
-            (open.retries + 1, open.timeout)
+            (open.retries.saturating_add(1), open.timeout)
         };
         let mut outcome = Outcome::Failed("timeout", "no reply".into());
         for _ in 0..tries {
@@ -404,7 +405,7 @@ impl Open {
         wait: Duration,
         quirk: Option<Quirk>,
     ) -> Outcome {
-        let deadline = Instant::now() + wait;
+        let deadline = later(Instant::now(), wait);
         let mut rtu = RtuDeframer::new(Direction::Response, RtuFraming::ByLength);
         let mut ascii = AsciiDeframer::default();
         let mut raw: Vec<u8> = Vec::new();

@@ -896,4 +896,139 @@ mod tests {
         let cut: Vec<Chunk> = log[..30].to_vec();
         assert_eq!(open_ascii_frame(&cut, ms_(10), ms_(20)), None);
     }
+
+    // The gate's arithmetic over anything an option, an adapter or a stalled host can give
+    // it: timeouts of any length (none, years), any retries and baud rate, any fault, and
+    // requests and line chunks at any times, in any order. It returns findings or none;
+    // it never panics (issue 33: a first request's unbounded silence plus one character
+    // overflowed).
+    mod arithmetic {
+        use super::*;
+        use crate::codec::timing::{LineSettings, Parity};
+        use crate::codec::Mode;
+        use crate::model::DriveModel;
+        use crate::monitor::{Monitor, MonitorConfig};
+        use proptest::prelude::*;
+
+        fn any_duration() -> impl Strategy<Value = Duration> {
+            prop_oneof![
+                (0u64..2_000).prop_map(Duration::from_millis),
+                any::<u64>().prop_map(Duration::from_micros),
+                any::<u64>().prop_map(Duration::from_millis),
+                Just(Duration::ZERO),
+                Just(Duration::MAX),
+            ]
+        }
+
+        fn any_behaviour() -> impl Strategy<Value = Behaviour> {
+            prop_oneof![
+                Just(Behaviour::Normal),
+                Just(Behaviour::NoReply),
+                Just(Behaviour::AfterTimeout),
+                Just(Behaviour::InFlight),
+                Just(Behaviour::Twice),
+                Just(Behaviour::BadChecksum),
+                Just(Behaviour::Truncated),
+                Just(Behaviour::WrongFunction),
+                any_duration().prop_map(Behaviour::Late),
+                any_duration().prop_map(Behaviour::Split),
+                any::<u8>().prop_map(Behaviour::Exception),
+                proptest::collection::vec(any::<u8>(), 0..4).prop_map(Behaviour::GarbageBefore),
+            ]
+        }
+
+        fn any_reported() -> impl Strategy<Value = Reported> {
+            prop_oneof![
+                proptest::collection::vec(any::<u16>(), 0..3).prop_map(Reported::Values),
+                Just(Reported::Done),
+                any::<u8>().prop_map(Reported::Exception),
+                Just(Reported::Raised {
+                    kind: "timeout".into(),
+                    message: "no reply".into()
+                }),
+            ]
+        }
+
+        proptest! {
+            #![proptest_config(ProptestConfig::with_cases(2_000))]
+            #[test]
+            fn judging_an_operation_never_panics(
+                ascii in any::<bool>(),
+                baud in any::<u32>(),
+                timeout in any_duration(),
+                retries in any::<u32>(),
+                behaviour in any_behaviour(),
+                reported in any_reported(),
+                role_fault in any::<bool>(),
+                times in proptest::collection::vec(any_duration(), 6),
+                req_at in proptest::collection::vec((any_duration(), any_duration(), any::<bool>()), 0..4),
+                chunks in proptest::collection::vec((any_duration(), any_duration(), any::<bool>(), any::<u8>()), 0..6),
+                sent_at in proptest::collection::vec(proptest::option::of(any_duration()), 0..3),
+                timed in any::<bool>(),
+            ) {
+                let mode = if ascii { Mode::Ascii } else { Mode::Rtu };
+                let line = LineSettings::new(baud, if ascii { 7 } else { 8 }, Parity::Even, 1);
+                let settings = MasterSettings { timeout, retries };
+                let cfg = MonitorConfig {
+                    mode,
+                    line,
+                    nodes: vec![1],
+                    window: timeout.max(Duration::from_millis(1)),
+                    response_allowance: Duration::from_millis(5),
+                    gap_allowance: Duration::from_millis(5),
+                };
+                let monitor = Monitor::new(DriveModel::builtin("f510").unwrap(), cfg).unwrap();
+                let requests: Vec<Request> = req_at
+                    .iter()
+                    .enumerate()
+                    .map(|(i, (start, end, valid))| Request {
+                        seq: i as u32,
+                        start: *start,
+                        end: *end,
+                        bytes: vec![0x01, 0x03, 0x00, 0x00, 0x00, 0x02, 0xC4, 0x0B],
+                        valid: *valid,
+                        address: 1,
+                    })
+                    .collect();
+                let log: Vec<Chunk> = chunks
+                    .iter()
+                    .map(|(at, done, to_master, b)| Chunk {
+                        at: *at,
+                        done: *done,
+                        dir: if *to_master { Dir::ToMaster } else { Dir::FromMaster },
+                        bytes: vec![*b, b':', b'\n'],
+                    })
+                    .collect();
+                let frames: Vec<Sent> = sent_at
+                    .iter()
+                    .enumerate()
+                    .map(|(i, at)| Sent {
+                        for_seq: i as u32,
+                        bytes: vec![0x01, 0x03, 0x04],
+                        class: SentClass::Reply,
+                        values: Some(vec![1, 2]),
+                        exception: None,
+                        at: *at,
+                    })
+                    .collect();
+                let op = Operation::Read { unit: 1, start: 0, count: 2 };
+                let rec = OpRecord {
+                    op: &op,
+                    behaviour: &behaviour,
+                    role: if role_fault { Role::Fault } else { Role::Recovery },
+                    reported: &reported,
+                    took: times[0],
+                    requests: &requests,
+                    sent: &frames,
+                    log: &log,
+                    called: times[1],
+                    ended: times[2],
+                    recent: times[3],
+                    timed,
+                };
+                let _ = judge_requests(&rec, &monitor, &settings);
+                let _ = judge_report(&rec, &settings);
+            }
+        }
+    }
 }

@@ -161,7 +161,7 @@ pub(super) fn aggregates(model: &DriveModel, m: &str, out: &mut Vec<Check>) {
             let early: Vec<&Duration> = ctx
                 .latencies
                 .iter()
-                .filter(|l| **l + tolerance < t35)
+                .filter(|l| l.saturating_add(tolerance) < t35)
                 .collect();
             if let Some(first) = early.iter().min() {
                 v.findings.push(Finding::deviation(format!(
@@ -287,6 +287,7 @@ mod tests {
             echo: EchoMode::Off,
             line: None,
             allow_restart: false,
+            injected_stalls: None,
         };
         let (a, _b) = memory::pair();
         let link = Emulated(a, kind, Duration::from_millis(2));
