@@ -627,7 +627,10 @@ fn a_monitor_with_no_baud_rate_finds_the_lines_settings_on_an_emulated_line() {
         );
         let out = Command::new(bin())
             .args(["send", "--model", "f510", "--mode", "rtu", "-b", "19200"])
-            .args(["-P", "odd", "--port"])
+            // The master here only makes traffic: on a loaded host the bus's drive
+            // answered 1.0 s late (CI at load 10), which the default timeout took for no
+            // reply and failed the test on the master, not on what it tests.
+            .args(["-P", "odd", "--timeout", "5000", "--port"])
             .arg(&m)
             .args(std::iter::repeat_n(frame.as_str(), 10))
             .stdin(Stdio::null())

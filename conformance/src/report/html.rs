@@ -557,7 +557,11 @@ pub fn html(report: &Report) -> String {
     if drive {
         out.push_str("<a href=\"#plots\">Response time</a> · <a href=\"#timeline\">Timeline</a> · <a href=\"#map\">Register map</a> · <a href=\"#coverage\">Requirements</a> · ");
     }
-    w!(out, "<a href=\"#all\">Every {}</a>", master::words(report).one);
+    w!(
+        out,
+        "<a href=\"#all\">Every {}</a>",
+        master::words(report).one
+    );
     if report.writes() {
         out.push_str(" · <a href=\"#restore\">Restore journal</a>");
     }
