@@ -75,7 +75,7 @@ const fn build_tables() -> [[u16; 256]; 8] {
 ///
 /// The path is chosen by length and by the CPU's tier (its widest path, detected once, at
 /// the first call): the table (eight bytes a step) for short inputs, carry-less
-/// multiplication folding (PCLMULQDQ) from 64 bytes and, where the CPU has VPCLMULQDQ,
+/// multiplication folding (PCLMULQDQ) from 16 or 64 bytes and, where the CPU has VPCLMULQDQ,
 /// 256-bit (AVX2) or 512-bit (AVX-512) folding for longer ones, from thresholds measured
 /// per tier (`codec::crc_clmul::Thresholds`). `CONFORMANCE_CRC_PATH` caps the tier (see
 /// `codec::crc_clmul::PATH_ENV`). Every path equals [`crc16_reference`] on every input

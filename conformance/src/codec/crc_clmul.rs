@@ -132,15 +132,20 @@ impl Thresholds {
                 pclmul: usize::MAX,
                 wide: usize::MAX,
             },
-            // Measured on the AVX-512 CPU of issue 17 with the PCLMULQDQ kernel forced
-            // (its 128-bit code is the same on every tier).
+            // Measured on the AMD EPYC (Zen 3) of issue 39 with the kernels forced
+            // (`crc16-crossover`, 16..256 bytes): PCLMULQDQ beat the table at every size
+            // from 16 bytes (one fold and one table step against two table steps at 16).
+            // The same kernel runs on every tier; no PCLMULQDQ-only CPU was at hand.
             CrcPath::Pclmul => Thresholds {
-                pclmul: 64,
+                pclmul: 16,
                 wide: usize::MAX,
             },
-            // Measured on AMD EPYC (Zen 3: avx2 vpclmulqdq, no AVX-512), issue 39.
+            // Measured on AMD EPYC (Zen 3: avx2 vpclmulqdq, no AVX-512), issue 39: the
+            // table as above; the 256-bit kernel from 128 bytes, where its four
+            // accumulators start (below, the two kernels were within the noise of a
+            // loaded machine; from 160 bytes the 256-bit one was ahead at every size).
             CrcPath::Avx2 => Thresholds {
-                pclmul: 64,
+                pclmul: 16,
                 wide: 128,
             },
             // Measured on AMD EPYC (Zen 4, AVX-512), issue 17; not remeasured since (no
