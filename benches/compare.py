@@ -9,9 +9,13 @@ Reads target/criterion/**/{new,<baseline>}/{estimates,benchmark}.json. Prints on
 bench: mean time, throughput, and with --baseline the change of the mean; a slowdown over
 the threshold (default 10%) is flagged REGRESSION and makes the exit code 1.
 
---peers prints the comparisons of issue 17 from the latest run instead: CRC-16 per size
-(ours against crc-fast, crc Table<16> and crc16) and checked decode of the F510 03H
-request and response (ours RTU and ASCII against modbus-core and rmodbus), as ratios.
+--peers prints the comparisons of issues 17 and 39 from the latest run instead: CRC-16 per
+size (ours, with the path the dispatcher took, and each path forced, against crc-fast,
+crc Table<16> and crc16) and checked decode of the F510 03H request and response (ours
+RTU and ASCII against modbus-core and rmodbus), as ratios. The path is the one the bench
+asked of the dispatcher (bench id crc16/ours/SIZE:PATH), never inferred from the size.
+--crossover prints crc16-crossover/*: every path forced at the sizes around the
+dispatcher's thresholds, the fastest marked, from which each tier's thresholds are chosen.
 --stat median uses criterion's median instead of the mean (steadier on a shared machine).
 """
 import argparse
@@ -55,28 +59,53 @@ def fmt_thrpt(ns, thr):
     return ""
 
 
-def peers(new, markdown):
-    """Ratios of the issue-17 goals; a ratio > 1 means ours is faster."""
+def table_printer(markdown):
     def row(cells):
         if markdown:
             print("| " + " | ".join(cells) + " |")
         else:
-            print("  ".join(c.ljust(14) for c in cells).rstrip())
+            print("  ".join(c.ljust(12) for c in cells).rstrip())
 
     def head(cells):
         row(cells)
         if markdown:
             print("|" + "---|" * len(cells))
 
-    sizes = sorted({int(b.rsplit("/", 1)[1]) for b in new if b.startswith("crc16/ours/")})
+    return row, head
+
+
+# The CRC paths, narrowest first (CrcPath::ALL).
+CRC_PATHS = ["table", "pclmul", "avx2", "avx512"]
+
+
+def ours_crc(new):
+    """{size: (time, path)} of crc16/ours/SIZE:PATH, the path named by the bench."""
+    out = {}
+    for bid, (ns, _thr) in new.items():
+        if not bid.startswith("crc16/ours/"):
+            continue
+        size, _, path = bid.rsplit("/", 1)[1].partition(":")
+        out[int(size)] = (ns, path or "?")
+    return out
+
+
+def peers(new, markdown):
+    """Ratios of the issue-17 and issue-39 goals; a ratio > 1 means ours is faster."""
+    row, head = table_printer(markdown)
+    ours = ours_crc(new)
+    forced = [p for p in CRC_PATHS if any(b.startswith(f"crc16/ours-{p}/") for b in new)]
     peers_crc = ["crc-fast", "crc-table16", "crc16-crate"]
-    head(["size", "path", "ours"] + peers_crc + ["vs crc-fast", "vs Table<16>", "vs crc16"])
-    for size in sizes:
-        ours = new.get(f"crc16/ours/{size}", (None,))[0]
+    head(["size", "path ran", "ours"] + [f"ours-{p}" for p in forced] + peers_crc
+         + ["vs crc-fast", "vs Table<16>", "vs crc16"])
+    for size in sorted(ours):
+        t, path = ours[size]
         times = [new.get(f"crc16/{p}/{size}", (None,))[0] for p in peers_crc]
-        cells = [fmt_size(size), crc_path(size), fmt_time(ours)]
-        cells += [fmt_time(t) if t else "-" for t in times]
-        cells += [f"{t / ours:.2f}x" if t else "-" for t in times]
+        cells = [fmt_size(size), path, fmt_time(t)]
+        for p in forced:
+            x = new.get(f"crc16/ours-{p}/{size}")
+            cells.append(fmt_time(x[0]) if x else "-")
+        cells += [fmt_time(x) if x else "-" for x in times]
+        cells += [f"{x / t:.2f}x" if x else "-" for x in times]
         row(cells)
     print()
     head(["message", "ours RTU", "ours ASCII", "modbus-core", "rmodbus", "vs modbus-core", "ASCII/RTU"])
@@ -90,14 +119,28 @@ def peers(new, markdown):
         ])
 
 
+def crossover(new, markdown):
+    """crc16-crossover/PATH/SIZE: each forced path per size, the fastest starred."""
+    row, head = table_printer(markdown)
+    runs = {}
+    for bid, (ns, _thr) in new.items():
+        parts = bid.split("/")
+        if len(parts) == 3 and parts[0] == "crc16-crossover":
+            runs.setdefault(int(parts[2]), {})[parts[1]] = ns
+    if not runs:
+        sys.exit("no crc16-crossover results: run the crc bench with the filter crc16-crossover")
+    paths = [p for p in CRC_PATHS if any(p in r for r in runs.values())]
+    head(["size"] + paths + ["fastest"])
+    for size in sorted(runs):
+        r = runs[size]
+        best = min(r, key=r.get)
+        cells = [fmt_size(size)]
+        cells += [("*" if p == best else "") + fmt_time(r[p]) if p in r else "-" for p in paths]
+        row(cells + [best])
+
+
 def fmt_size(n):
     return f"{n // 1024} KiB" if n >= 1024 and n % 1024 == 0 else f"{n} B"
-
-
-def crc_path(n):
-    """The path `crc16` takes at this length on a CPU with AVX-512 and VPCLMULQDQ
-    (thresholds of conformance/src/codec/crc_clmul.rs)."""
-    return "table" if n < 64 else ("pclmul" if n < 256 else "avx512")
 
 
 def main():
@@ -113,7 +156,8 @@ def main():
     ap.add_argument("--threshold", type=float, default=10.0, help="regression threshold in percent")
     ap.add_argument("--filter", default="", help="only benches whose id contains this")
     ap.add_argument("--markdown", action="store_true", help="print a Markdown table")
-    ap.add_argument("--peers", action="store_true", help="print the issue-17 comparisons with ratios")
+    ap.add_argument("--peers", action="store_true", help="print the issue-17/39 comparisons with ratios")
+    ap.add_argument("--crossover", action="store_true", help="print the CRC paths forced around the thresholds")
     ap.add_argument("--stat", choices=["mean", "median"], default="mean", help="criterion estimate to use")
     args = ap.parse_args()
     STAT = args.stat
@@ -127,6 +171,9 @@ def main():
         sys.exit(f"no criterion results under {args.criterion_dir}: run cargo bench first")
     if args.peers:
         peers(new, args.markdown)
+        return
+    if args.crossover:
+        crossover(new, args.markdown)
         return
     base = load(args.criterion_dir, args.baseline) if args.baseline else {}
     if args.baseline and not base:

@@ -517,11 +517,12 @@ fn crc16_bytewise(data: &[u8]) -> u16 {
 const BITWISE_MAX: usize = 64;
 
 /// CRC differential: the fast CRC, and every path this CPU can run forced (table,
-/// PCLMULQDQ, AVX-512), equals the manuals' reference, whole and in pieces. The first two
-/// bytes choose the split; the input is also taken at every offset 0..64 of itself, so
-/// each SIMD path sees every alignment. Short inputs are checked against the manuals' bit
-/// loop itself; every input against the byte-at-a-time form of the same loop, which is
-/// proven equal to it exhaustively by a unit test, at an eighth of the cost.
+/// PCLMULQDQ, AVX2 and AVX-512 VPCLMULQDQ), equals the manuals' reference, whole and in
+/// pieces. The first two bytes choose the split; the input is also taken at every offset
+/// 0..64 of itself, so each SIMD path sees every alignment. Short inputs are checked
+/// against the manuals' bit loop itself; every input against the byte-at-a-time form of
+/// the same loop, which is proven equal to it exhaustively by a unit test, at an eighth of
+/// the cost.
 pub fn crc_differential(data: &[u8]) {
     let reference = crc16_bytewise(data);
     if data.len() <= BITWISE_MAX {

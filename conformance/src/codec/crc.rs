@@ -73,11 +73,13 @@ const fn build_tables() -> [[u16; 256]; 8] {
 
 /// CRC-16/MODBUS of `data`: the fast implementation used by the codec.
 ///
-/// The path is chosen by length and CPU (detected once, at the first call): the table
-/// (eight bytes a step) below 64 bytes, carry-less multiplication folding (PCLMULQDQ) from
-/// 64 bytes and, where the CPU has AVX-512 with VPCLMULQDQ, 512-bit folding from 256
-/// bytes. Every path equals [`crc16_reference`] on every input (unit- and property-tested
-/// path by path, and a differential fuzz target).
+/// The path is chosen by length and by the CPU's tier (its widest path, detected once, at
+/// the first call): the table (eight bytes a step) for short inputs, carry-less
+/// multiplication folding (PCLMULQDQ) from 16 or 64 bytes and, where the CPU has VPCLMULQDQ,
+/// 256-bit (AVX2) or 512-bit (AVX-512) folding for longer ones, from thresholds measured
+/// per tier (`codec::crc_clmul::Thresholds`). `CONFORMANCE_CRC_PATH` caps the tier (see
+/// `codec::crc_clmul::PATH_ENV`). Every path equals [`crc16_reference`] on every input
+/// (unit- and property-tested path by path, and a differential fuzz target).
 #[inline]
 pub fn crc16(data: &[u8]) -> u16 {
     crc16_update(0xFFFF, data)
@@ -184,27 +186,36 @@ pub(super) fn crc16_table_u64(crc: u16, word: u64) -> u16 {
 }
 
 /// One implementation of CRC-16/MODBUS, so tests, the fuzz target and benches can force
-/// each path this CPU supports; [`crc16`] chooses among them by itself.
+/// each path this CPU supports; [`crc16`] chooses among them by itself. Ordered from the
+/// narrowest to the widest, which is also the order of the dispatcher's tiers.
 #[doc(hidden)]
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash)]
 pub enum CrcPath {
     /// Slice-by-8 tables, any CPU.
     Table,
     /// PCLMULQDQ folding, 128-bit lanes (x86-64).
     Pclmul,
+    /// VPCLMULQDQ folding, 256-bit registers (x86-64 with AVX2, with or without AVX-512).
+    Avx2,
     /// VPCLMULQDQ folding, 512-bit registers (x86-64 with AVX-512).
     Avx512,
 }
 
 impl CrcPath {
-    /// Every path, supported here or not.
-    pub const ALL: [CrcPath; 3] = [CrcPath::Table, CrcPath::Pclmul, CrcPath::Avx512];
+    /// Every path, supported here or not, narrowest first.
+    pub const ALL: [CrcPath; 4] = [
+        CrcPath::Table,
+        CrcPath::Pclmul,
+        CrcPath::Avx2,
+        CrcPath::Avx512,
+    ];
 
     /// Whether this CPU can run the path.
     pub fn available(self) -> bool {
         match self {
             CrcPath::Table => true,
             CrcPath::Pclmul => super::crc_clmul::pclmul_available(),
+            CrcPath::Avx2 => super::crc_clmul::avx2_available(),
             CrcPath::Avx512 => super::crc_clmul::avx512_available(),
         }
     }
@@ -214,14 +225,45 @@ impl CrcPath {
         Self::ALL.into_iter().filter(|p| p.available())
     }
 
-    /// A short name, for test messages and bench ids.
-    pub fn name(self) -> &'static str {
+    /// A short name, for test messages, bench ids and `CONFORMANCE_CRC_PATH`.
+    pub const fn name(self) -> &'static str {
         match self {
             CrcPath::Table => "table",
             CrcPath::Pclmul => "pclmul",
+            CrcPath::Avx2 => "avx2",
             CrcPath::Avx512 => "avx512",
         }
     }
+
+    /// The path of a [`name`](Self::name), `None` for any other text.
+    pub fn from_name(name: &str) -> Option<CrcPath> {
+        Self::ALL.into_iter().find(|p| p.name() == name)
+    }
+
+    /// The shortest input this path's own kernel folds: [`crc16_update_with`] hands a
+    /// shorter one to a narrower path (the width of one register; 0 for the table).
+    pub const fn min_len(self) -> usize {
+        match self {
+            CrcPath::Table => 0,
+            CrcPath::Pclmul => 16,
+            CrcPath::Avx2 => 32,
+            CrcPath::Avx512 => 64,
+        }
+    }
+}
+
+/// The dispatcher's tier on this CPU: the widest path [`crc16`] takes for long inputs
+/// (detected, capped by `CONFORMANCE_CRC_PATH`).
+#[doc(hidden)]
+pub fn crc16_tier() -> CrcPath {
+    super::crc_clmul::tier()
+}
+
+/// The path [`crc16`] and [`crc16_update`] take for an input of `len` bytes on this CPU:
+/// what the benches report as the path that ran.
+#[doc(hidden)]
+pub fn crc16_path(len: usize) -> CrcPath {
+    super::crc_clmul::path_for(crc16_tier(), len)
 }
 
 /// [`crc16_update`] by the given path, on any length (a SIMD path hands inputs shorter
@@ -231,6 +273,7 @@ pub fn crc16_update_with(path: CrcPath, crc: u16, data: &[u8]) -> Option<u16> {
     match path {
         CrcPath::Table => Some(crc16_update_table(crc, data)),
         CrcPath::Pclmul => super::crc_clmul::crc16_pclmul(crc, data),
+        CrcPath::Avx2 => super::crc_clmul::crc16_avx2(crc, data),
         CrcPath::Avx512 => super::crc_clmul::crc16_avx512(crc, data),
     }
 }

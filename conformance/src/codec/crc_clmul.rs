@@ -1,5 +1,6 @@
 //! CRC-16/MODBUS by carry-less multiplication folding (x86-64): PCLMULQDQ on 128-bit
-//! lanes, and VPCLMULQDQ on 512-bit registers (AVX-512) for long inputs.
+//! lanes, VPCLMULQDQ on 256-bit registers (AVX2) and on 512-bit registers (AVX-512) for
+//! long inputs; and the dispatcher that chooses among them and the table by CPU and length.
 //!
 //! The one module of the crate with `unsafe` code: each kernel is called only after
 //! runtime detection of the CPU features it is compiled for, and every load reads from a
@@ -22,19 +23,48 @@
 //! # The paths
 //!
 //! - **PCLMULQDQ** (`pclmulqdq`, `sse4.1`): four 128-bit accumulators fold 64 bytes a step.
+//! - **AVX2** (`avx2`, `vpclmulqdq`): four 256-bit accumulators fold 128 bytes a step, each
+//!   instruction folding two 128-bit lanes; then one accumulator folds 32 bytes a step,
+//!   and its two lanes are folded into one 128-bit value, which the PCLMULQDQ code
+//!   finishes. This is the widest path of the many CPUs that have VPCLMULQDQ without
+//!   AVX-512 (AMD Zen 3, Intel client cores from Alder Lake on), where 128-bit lanes alone
+//!   leave half of each multiplier idle.
 //! - **AVX-512** (`avx512f`, `avx512vl`, `vpclmulqdq`): four 512-bit accumulators fold
 //!   256 bytes a step, each instruction folding four 128-bit lanes; then one accumulator
 //!   folds 64 bytes a step, and the four lanes are folded into one 128-bit value, which
 //!   the PCLMULQDQ code finishes.
 //!
-//! Both end the same way, without a loop over single bytes: the last 1..15 bytes are
+//! All end the same way, without a loop over single bytes: the last 1..15 bytes are
 //! taken with one 16-byte load that overlaps data already folded (the accumulator is
 //! shifted by the same number of bytes, and its top part folded over them), and the
 //! final 128-bit value is folded to 80 bits, whose remainder modulo P is one eight-byte
 //! step of the table-driven CRC.
+//!
+//! # The dispatcher
+//!
+//! A CPU belongs to one *tier*, named by the widest path it can run: table only,
+//! PCLMULQDQ, AVX2 with VPCLMULQDQ, or AVX-512 with VPCLMULQDQ. The tier is detected
+//! once, at the first call, and each tier has its own size thresholds ([`Thresholds`]),
+//! measured on a CPU of that tier (`benches/RESULTS.md`): where the setup of a wider path
+//! costs more than its folding saves differs from CPU to CPU. [`PATH_ENV`]
+//! (`CONFORMANCE_CRC_PATH=table|pclmul|avx2|avx512`) caps the tier, so that one machine
+//! can run and measure the dispatcher of every tier up to its own.
+//!
+//! # Other architectures
+//!
+//! The constants, the thresholds and the dispatcher are portable; only the kernels (the
+//! `x86` module) and the feature checks are not. An aarch64 path with PMULL (`pmull`,
+//! `neon`) would add a `CrcPath` variant, its check with
+//! `std::arch::is_aarch64_feature_detected!` beside [`pclmul_available`], a kernel module
+//! `#[cfg(target_arch = "aarch64")]` using the same `fold_constants` (the algebra does not
+//! depend on the instruction set) and a row in [`Thresholds::of`]. None is written: no
+//! aarch64 machine or toolchain is at hand to build, test and measure one, and until then
+//! such a CPU takes the table path, like any CPU without the x86 features.
 #![allow(unsafe_code)]
 
 use std::sync::atomic::{AtomicU8, Ordering};
+
+use crate::codec::crc::CrcPath;
 
 /// P(x) with its x^16 term.
 const POLY: u32 = 0x1_8005;
@@ -71,40 +101,138 @@ const FOLD_2048: (u64, u64) = fold_constants(2048);
 /// bits; see `x86::finish`).
 const FOLD_TO_80: u64 = xpow_mod(79).reverse_bits();
 
-/// Shortest input for which [`crc16_update`] takes a SIMD path (below it, the table
-/// wins): four 16-byte lanes.
-pub const MIN_LEN: usize = 64;
+/// The environment variable that caps the dispatcher's tier: `table`, `pclmul`, `avx2` or
+/// `avx512` ([`CrcPath::name`]). [`crc16_update`] then chooses as on a CPU whose widest
+/// path is the one named (or the widest this CPU has below it), with that tier's
+/// thresholds, so each tier can be measured and tested on one machine. Read once, with the
+/// CPU's features; an unknown name is ignored (the benches refuse it).
+pub const PATH_ENV: &str = "CONFORMANCE_CRC_PATH";
 
-/// Shortest input for which [`crc16_update`] takes the AVX-512 path rather than
-/// PCLMULQDQ, where the CPU has both.
-pub const AVX512_MIN_LEN: usize = 256;
+/// Where the dispatcher of one tier changes path: the table below `pclmul` bytes,
+/// PCLMULQDQ from `pclmul`, and the tier's own wide path (AVX2 or AVX-512) from `wide`.
+/// Each tier's values come from the forced-path benches run on a CPU of that tier
+/// (`crc16-crossover` in `benches/benches/crc.rs`; the figures are in
+/// `benches/RESULTS.md`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Thresholds {
+    /// Shortest input that PCLMULQDQ folds rather than the table.
+    pub pclmul: usize,
+    /// Shortest input that the tier's wide path folds rather than PCLMULQDQ
+    /// (`usize::MAX`: the tier has no wide path).
+    pub wide: usize,
+}
 
-/// The best SIMD level of this CPU, detected once: 0 not yet known, then one of the
-/// `LEVEL_*` values.
-static LEVEL: AtomicU8 = AtomicU8::new(0);
-const LEVEL_NONE: u8 = 1;
-const LEVEL_PCLMUL: u8 = 2;
-const LEVEL_AVX512: u8 = 3;
+impl Thresholds {
+    /// The thresholds of the dispatcher of tier `tier` (a CPU whose widest path is
+    /// `tier`).
+    pub const fn of(tier: CrcPath) -> Thresholds {
+        match tier {
+            // No SIMD at all: every length is the table's.
+            CrcPath::Table => Thresholds {
+                pclmul: usize::MAX,
+                wide: usize::MAX,
+            },
+            // Measured on the AMD EPYC (Zen 3) of issue 39 with the kernels forced
+            // (`crc16-crossover`, 16..256 bytes): PCLMULQDQ beat the table at every size
+            // from 16 bytes (one fold and one table step against two table steps at 16).
+            // The same kernel runs on every tier; no PCLMULQDQ-only CPU was at hand.
+            CrcPath::Pclmul => Thresholds {
+                pclmul: 16,
+                wide: usize::MAX,
+            },
+            // Measured on AMD EPYC (Zen 3: avx2 vpclmulqdq, no AVX-512), issue 39: the
+            // table as above; the 256-bit kernel from 128 bytes, where its four
+            // accumulators start (below, the two kernels were within the noise of a
+            // loaded machine; from 160 bytes the 256-bit one was ahead at every size).
+            CrcPath::Avx2 => Thresholds {
+                pclmul: 16,
+                wide: 128,
+            },
+            // Measured on AMD EPYC (Zen 4, AVX-512), issue 17; not remeasured since (no
+            // such CPU at hand for issue 39), so unchanged.
+            CrcPath::Avx512 => Thresholds {
+                pclmul: 64,
+                wide: 256,
+            },
+        }
+    }
+}
 
+/// The path the dispatcher of tier `tier` takes for an input of `len` bytes.
+pub const fn path_for(tier: CrcPath, len: usize) -> CrcPath {
+    let t = Thresholds::of(tier);
+    if len >= t.wide {
+        tier
+    } else if len >= t.pclmul {
+        CrcPath::Pclmul
+    } else {
+        CrcPath::Table
+    }
+}
+
+/// The shortest input that any tier hands to a SIMD path: below it, [`crc16_update`]
+/// answers `None` after one comparison, without looking at the CPU.
+pub const MIN_LEN: usize = {
+    let mut min = usize::MAX;
+    let mut i = 0;
+    while i < CrcPath::ALL.len() {
+        let t = Thresholds::of(CrcPath::ALL[i]).pclmul;
+        if t < min {
+            min = t;
+        }
+        i += 1;
+    }
+    min
+};
+
+/// The dispatcher's tier on this CPU, found once: 0 not yet known, else
+/// [`tier_code`] of a tier whose path this CPU can run (`detect` stores no other).
+static TIER: AtomicU8 = AtomicU8::new(0);
+
+const fn tier_code(tier: CrcPath) -> u8 {
+    match tier {
+        CrcPath::Table => 1,
+        CrcPath::Pclmul => 2,
+        CrcPath::Avx2 => 3,
+        CrcPath::Avx512 => 4,
+    }
+}
+
+/// The dispatcher's tier on this CPU: the widest path it can run, capped by
+/// [`PATH_ENV`].
 #[inline]
-fn level() -> u8 {
-    match LEVEL.load(Ordering::Relaxed) {
-        0 => detect(),
-        l => l,
+pub fn tier() -> CrcPath {
+    match TIER.load(Ordering::Relaxed) {
+        1 => CrcPath::Table,
+        2 => CrcPath::Pclmul,
+        3 => CrcPath::Avx2,
+        4 => CrcPath::Avx512,
+        _ => detect(),
     }
 }
 
 #[cold]
-fn detect() -> u8 {
-    let l = if avx512_available() {
-        LEVEL_AVX512
-    } else if pclmul_available() {
-        LEVEL_PCLMUL
-    } else {
-        LEVEL_NONE
-    };
-    LEVEL.store(l, Ordering::Relaxed);
-    l
+fn detect() -> CrcPath {
+    let requested = std::env::var(PATH_ENV).ok();
+    let tier = resolve_tier(requested.as_deref(), CrcPath::available);
+    TIER.store(tier_code(tier), Ordering::Relaxed);
+    tier
+}
+
+/// The tier of a CPU that can run the paths for which `available` holds, capped by the
+/// path named `requested` (the value of [`PATH_ENV`]; an unknown name caps nothing): the
+/// widest available path not wider than the cap. The table when nothing else is
+/// available, so a CPU (or a build for an architecture) without any of the features
+/// takes the table path.
+pub fn resolve_tier(requested: Option<&str>, available: impl Fn(CrcPath) -> bool) -> CrcPath {
+    let cap = requested
+        .and_then(CrcPath::from_name)
+        .unwrap_or(CrcPath::Avx512);
+    CrcPath::ALL
+        .into_iter()
+        .rev()
+        .find(|&p| p <= cap && available(p))
+        .unwrap_or(CrcPath::Table)
 }
 
 /// Whether this CPU can run the PCLMULQDQ path. `std` caches the detection.
@@ -113,6 +241,21 @@ pub fn pclmul_available() -> bool {
     {
         std::arch::is_x86_feature_detected!("pclmulqdq")
             && std::arch::is_x86_feature_detected!("sse4.1")
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        false
+    }
+}
+
+/// Whether this CPU can run the AVX2 (256-bit VPCLMULQDQ) path, which also needs
+/// PCLMULQDQ for its end.
+pub fn avx2_available() -> bool {
+    #[cfg(target_arch = "x86_64")]
+    {
+        pclmul_available()
+            && std::arch::is_x86_feature_detected!("avx2")
+            && std::arch::is_x86_feature_detected!("vpclmulqdq")
     }
     #[cfg(not(target_arch = "x86_64"))]
     {
@@ -136,17 +279,40 @@ pub fn avx512_available() -> bool {
     }
 }
 
-/// Continues a CRC-16/MODBUS from register `crc` over `data` with the fastest SIMD path
-/// for this CPU and length; `None` when the CPU has none or `data` is shorter than
-/// [`MIN_LEN`], where the table-driven CRC is the faster.
+/// Continues a CRC-16/MODBUS from register `crc` over `data` with the path the dispatcher
+/// chooses for this CPU's tier and this length ([`path_for`]); `None` where that is the
+/// table (the caller's own code).
 #[inline]
 pub fn crc16_update(crc: u16, data: &[u8]) -> Option<u16> {
     if data.len() < MIN_LEN {
         return None;
     }
-    match level() {
-        LEVEL_AVX512 if data.len() >= AVX512_MIN_LEN => crc16_avx512(crc, data),
-        LEVEL_AVX512 | LEVEL_PCLMUL => crc16_pclmul(crc, data),
+    match path_for(tier(), data.len()) {
+        CrcPath::Table => None,
+        #[cfg(target_arch = "x86_64")]
+        CrcPath::Pclmul => {
+            // SAFETY: `tier()` is a tier that `detect` found `CrcPath::available` on this
+            // CPU, and every tier above the table has `pclmul_available` in its check:
+            // `x86::crc16_pclmul` is compiled for `pclmulqdq` and `sse4.1`, which that
+            // function detects. It takes any length.
+            Some(unsafe { x86::crc16_pclmul(crc, data) })
+        }
+        #[cfg(target_arch = "x86_64")]
+        CrcPath::Avx2 => {
+            // SAFETY: `path_for` returns a wide path only for its own tier, so the tier is
+            // AVX2, which `detect` stores only where `avx2_available` held: `avx2`,
+            // `vpclmulqdq`, `pclmulqdq` and `sse4.1`, the features `x86::crc16_avx2` is
+            // compiled for. It takes any length.
+            Some(unsafe { x86::crc16_avx2(crc, data) })
+        }
+        #[cfg(target_arch = "x86_64")]
+        CrcPath::Avx512 => {
+            // SAFETY: as for AVX2, the tier is AVX-512, stored only where
+            // `avx512_available` held: `avx512f`, `avx512vl`, `vpclmulqdq`, `pclmulqdq`
+            // and `sse4.1`, the features `x86::crc16_avx512` is compiled for.
+            Some(unsafe { x86::crc16_avx512(crc, data) })
+        }
+        #[cfg(not(target_arch = "x86_64"))]
         _ => None,
     }
 }
@@ -160,6 +326,22 @@ pub fn crc16_pclmul(crc: u16, data: &[u8]) -> Option<u16> {
             // SAFETY: `x86::crc16_pclmul` is compiled for `pclmulqdq` and `sse4.1`, which
             // `pclmul_available` has just detected on this CPU; it takes any length.
             return Some(unsafe { x86::crc16_pclmul(crc, data) });
+        }
+    }
+    let _ = (crc, data);
+    None
+}
+
+/// The AVX2 path on any length (shorter inputs end in the PCLMULQDQ code or the table);
+/// `None` when the CPU lacks the instructions.
+pub fn crc16_avx2(crc: u16, data: &[u8]) -> Option<u16> {
+    #[cfg(target_arch = "x86_64")]
+    {
+        if avx2_available() {
+            // SAFETY: `x86::crc16_avx2` is compiled for `avx2`, `vpclmulqdq`, `pclmulqdq`
+            // and `sse4.1`, which `avx2_available` has just detected on this CPU; it
+            // takes any length.
+            return Some(unsafe { x86::crc16_avx2(crc, data) });
         }
     }
     let _ = (crc, data);
@@ -303,6 +485,88 @@ mod x86 {
         finish(fold_into(y0, constants(FOLD_256), y1), rest, last)
     }
 
+    /// A 128-bit lane's constants in both lanes of a 256-bit register.
+    #[inline]
+    #[target_feature(enable = "avx2")]
+    fn broadcast256(k: (u64, u64)) -> __m256i {
+        _mm256_broadcastsi128_si256(constants(k))
+    }
+
+    /// One fold of two lanes at once.
+    #[inline]
+    #[target_feature(enable = "avx2,vpclmulqdq")]
+    fn fold256(x: __m256i, k: __m256i, next: __m256i) -> __m256i {
+        let lo = _mm256_clmulepi64_epi128(x, k, 0x00);
+        let hi = _mm256_clmulepi64_epi128(x, k, 0x11);
+        _mm256_xor_si256(_mm256_xor_si256(lo, hi), next)
+    }
+
+    /// Thirty-two bytes as a register.
+    #[inline]
+    #[target_feature(enable = "avx")]
+    fn load256(bytes: &[u8; 32]) -> __m256i {
+        // SAFETY: `bytes` refers to 32 readable bytes, exactly what the load reads; the
+        // load is unaligned, so any address is valid.
+        unsafe { _mm256_loadu_si256(bytes.as_ptr().cast()) }
+    }
+
+    /// Register `I` (32 bytes at 32·I) of a 128-byte block.
+    #[inline]
+    #[target_feature(enable = "avx")]
+    fn lane256<const I: usize>(block: &[u8; 128]) -> __m256i {
+        const { assert!(I < 4) };
+        // SAFETY: I < 4 (checked at compile time), so the 32 bytes at 32·I lie inside
+        // the 128 that `block` refers to; the load is unaligned.
+        unsafe { _mm256_loadu_si256(block.as_ptr().add(32 * I).cast()) }
+    }
+
+    /// Folds 128-byte blocks with four 256-bit accumulators, then 32-byte blocks with one,
+    /// then folds its two lanes into one and lets [`finish`] end; the PCLMULQDQ kernel
+    /// below 32 bytes.
+    #[target_feature(enable = "avx2,vpclmulqdq,pclmulqdq,sse4.1")]
+    pub(super) fn crc16_avx2(crc: u16, data: &[u8]) -> u16 {
+        let (Some((first, after_first)), Some(last)) =
+            (data.split_first_chunk::<32>(), data.last_chunk::<16>())
+        else {
+            return crc16_pclmul(crc, data);
+        };
+        let init = _mm256_zextsi128_si256(_mm_cvtsi32_si128(i32::from(crc)));
+        let k256 = broadcast256(FOLD_256);
+        let (big, after_big) = data.as_chunks::<128>();
+        let (mut x, rest) = match big.split_first() {
+            None => (_mm256_xor_si256(load256(first), init), after_first),
+            Some((head, blocks)) => {
+                // Four independent chains: each fold waits for the multiplier's latency,
+                // four keep it busy.
+                let k1024 = broadcast256(FOLD_1024);
+                let mut x0 = _mm256_xor_si256(lane256::<0>(head), init);
+                let mut x1 = lane256::<1>(head);
+                let mut x2 = lane256::<2>(head);
+                let mut x3 = lane256::<3>(head);
+                for block in blocks {
+                    x0 = fold256(x0, k1024, lane256::<0>(block));
+                    x1 = fold256(x1, k1024, lane256::<1>(block));
+                    x2 = fold256(x2, k1024, lane256::<2>(block));
+                    x3 = fold256(x3, k1024, lane256::<3>(block));
+                }
+                // A tree, as in the PCLMULQDQ kernel: x0 and x1 stand 64 bytes before x2
+                // and x3, and the two sums 32 bytes apart.
+                let k512 = broadcast256(FOLD_512);
+                let y0 = fold256(x0, k512, x2);
+                let y1 = fold256(x1, k512, x3);
+                (fold256(y0, k256, y1), after_big)
+            }
+        };
+        let (blocks, rest) = rest.as_chunks::<32>();
+        for block in blocks {
+            x = fold256(x, k256, load256(block));
+        }
+        // The low lane stands 16 bytes before the high one.
+        let low = _mm256_castsi256_si128(x);
+        let high = _mm256_extracti128_si256::<1>(x);
+        finish(fold_into(low, constants(FOLD_128), high), rest, last)
+    }
+
     /// A 128-bit lane's constants in all four lanes of a 512-bit register.
     #[inline]
     #[target_feature(enable = "avx512f")]
@@ -423,14 +687,24 @@ mod tests {
         }
     }
 
+    /// Longest input of the every-length sweeps.
+    const SWEEP: usize = 4096;
+
+    /// A buffer aligned to 64 bytes, so that `data[a..]` starts at alignment `a` for every
+    /// `a` in 0..64 (the widest register is 64 bytes).
+    #[repr(align(64))]
+    struct Aligned([u8; SWEEP + 64]);
+
     fn check_path(name: &str, available: bool, f: fn(u16, &[u8]) -> Option<u16>) {
         if !available {
             eprintln!("{name} not available: that SIMD CRC is not tested on this CPU");
             assert_eq!(f(0xFFFF, &[0; 300]), None);
             return;
         }
+        // Every length, from a random register value and from FFFFH against the manuals'
+        // bit loop.
         let mut next = xorshift(0x2545_F491_4F6C_DD1D);
-        for len in 0..=2100 {
+        for len in 0..=SWEEP {
             let data: Vec<u8> = (0..len).map(|_| next() as u8).collect();
             let init = next() as u16;
             let want = crc16_update_table(init, &data);
@@ -445,27 +719,131 @@ mod tests {
                 "{name}: len {len}"
             );
         }
+        // Every length at every alignment: the reference for `data[a..a + len]` is
+        // carried forward a byte at a time, so each length costs only the path's own run.
+        let mut buf = Aligned([0; SWEEP + 64]);
+        buf.0.iter_mut().for_each(|b| *b = next() as u8);
+        for a in 0..64 {
+            let data = &buf.0[a..a + SWEEP];
+            assert_eq!(data.as_ptr() as usize % 64, a);
+            let mut want = 0xFFFF;
+            for len in 0..=SWEEP {
+                assert_eq!(
+                    f(0xFFFF, &data[..len]),
+                    Some(want),
+                    "{name}: alignment {a} len {len}"
+                );
+                if let Some(&b) = data.get(len) {
+                    want = crc16_update_table(want, &[b]);
+                }
+            }
+        }
         let data: Vec<u8> = (0..70_000).map(|_| next() as u8).collect();
         assert_eq!(f(0xFFFF, &data), Some(crc16_reference(&data)));
     }
 
     #[test]
-    fn pclmul_equals_reference_on_every_length_and_init() {
+    fn pclmul_equals_reference_on_every_length_init_and_alignment() {
         check_path("pclmulqdq", pclmul_available(), crc16_pclmul);
     }
 
     #[test]
-    fn avx512_equals_reference_on_every_length_and_init() {
+    fn avx2_equals_reference_on_every_length_init_and_alignment() {
+        check_path("avx2+vpclmulqdq", avx2_available(), crc16_avx2);
+    }
+
+    #[test]
+    fn avx512_equals_reference_on_every_length_init_and_alignment() {
         check_path("avx512+vpclmulqdq", avx512_available(), crc16_avx512);
     }
 
     #[test]
     fn automatic_choice_equals_reference() {
         let mut next = xorshift(0x9E37_79B9_7F4A_7C15);
-        for len in [0, 1, 63, 64, 65, 255, 256, 257, 1024, 4096, 4097] {
+        for len in [
+            0, 1, 63, 64, 65, 127, 128, 129, 255, 256, 257, 1024, 4096, 4097,
+        ] {
             let data: Vec<u8> = (0..len).map(|_| next() as u8).collect();
             let want = crc16_update_table(0x1234, &data);
             assert_eq!(crc16_update(0x1234, &data).unwrap_or(want), want);
+        }
+    }
+
+    #[test]
+    fn each_tier_chooses_by_its_thresholds() {
+        for tier in CrcPath::ALL {
+            let t = Thresholds::of(tier);
+            assert!(t.pclmul <= t.wide, "{tier:?}: {t:?}");
+            // A path's kernel must really fold from where the dispatcher hands it over.
+            assert!(t.pclmul >= CrcPath::Pclmul.min_len(), "{tier:?}");
+            assert!(t.wide == usize::MAX || t.wide >= tier.min_len(), "{tier:?}");
+            assert!(MIN_LEN <= t.pclmul);
+            for len in 0..=SWEEP {
+                let path = path_for(tier, len);
+                assert!(path <= tier, "{tier:?} at {len}: {path:?}");
+                let want = if len >= t.wide {
+                    tier
+                } else if len >= t.pclmul {
+                    CrcPath::Pclmul
+                } else {
+                    CrcPath::Table
+                };
+                assert_eq!(path, want, "{tier:?} at {len}");
+                if len < MIN_LEN {
+                    assert_eq!(path, CrcPath::Table, "{tier:?} at {len}");
+                }
+            }
+        }
+        // The tiers without a wide path never leave PCLMULQDQ, whatever the length.
+        assert_eq!(path_for(CrcPath::Table, usize::MAX - 1), CrcPath::Table);
+        assert_eq!(path_for(CrcPath::Pclmul, usize::MAX - 1), CrcPath::Pclmul);
+    }
+
+    #[test]
+    fn a_cpu_without_the_features_takes_the_table() {
+        assert_eq!(resolve_tier(None, |p| p == CrcPath::Table), CrcPath::Table);
+        // Even when asked for a wider path: it cannot run here.
+        for name in ["pclmul", "avx2", "avx512"] {
+            assert_eq!(
+                resolve_tier(Some(name), |p| p == CrcPath::Table),
+                CrcPath::Table
+            );
+        }
+        // And never a SIMD path at any length.
+        for len in [0, 64, 128, 256, 4096, 1 << 20] {
+            assert_eq!(path_for(CrcPath::Table, len), CrcPath::Table);
+        }
+    }
+
+    #[test]
+    fn the_tier_is_the_widest_path_available_under_the_cap() {
+        let all = |_: CrcPath| true;
+        let no_avx512 = |p: CrcPath| p != CrcPath::Avx512;
+        let pclmul_only = |p: CrcPath| p <= CrcPath::Pclmul;
+        assert_eq!(resolve_tier(None, all), CrcPath::Avx512);
+        assert_eq!(resolve_tier(None, no_avx512), CrcPath::Avx2);
+        assert_eq!(resolve_tier(None, pclmul_only), CrcPath::Pclmul);
+        assert_eq!(resolve_tier(Some("avx2"), all), CrcPath::Avx2);
+        assert_eq!(resolve_tier(Some("pclmul"), all), CrcPath::Pclmul);
+        assert_eq!(resolve_tier(Some("table"), all), CrcPath::Table);
+        // A cap above what the CPU has: the CPU's own tier.
+        assert_eq!(resolve_tier(Some("avx512"), no_avx512), CrcPath::Avx2);
+        assert_eq!(resolve_tier(Some("avx2"), pclmul_only), CrcPath::Pclmul);
+        // An unknown name caps nothing.
+        assert_eq!(resolve_tier(Some("AVX2"), no_avx512), CrcPath::Avx2);
+        assert_eq!(resolve_tier(Some(""), pclmul_only), CrcPath::Pclmul);
+    }
+
+    #[test]
+    fn this_cpus_tier_can_run_its_paths() {
+        let tier = tier();
+        assert!(tier.available(), "{tier:?}");
+        // The tier is the widest path here unless `CONFORMANCE_CRC_PATH` caps it.
+        if std::env::var_os(PATH_ENV).is_none() {
+            assert_eq!(Some(tier), CrcPath::supported().last());
+        }
+        for len in [0, 16, 64, 128, 256, 4096] {
+            assert!(path_for(tier, len).available());
         }
     }
 }
