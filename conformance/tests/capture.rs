@@ -1320,14 +1320,17 @@ fn a_bus_a_tap_and_a_check_capture_of_one_run_are_judged_alike() {
 
 /// Issue 33: a `check` run whose host stalls while it paces requests onto the simulator's
 /// line (the test stops the process, SIGSTOP, for 20 ms every 100 ms: a silence over t1.5
-/// inside many sends). Each send the host broke is flagged in the capture (bit 27, a
-/// comment saying so), followed by the same request sent again, and counted in the
-/// report; `monitor --capture-in` of the file takes the flagged ones as not sent
-/// (a notice) and judges every exchange as `check` did: no request the drive left
-/// unanswered, no retry of the master. Unmarked, the broken sends were judged
-/// `drive.no-reply` and their copies `master.retry`.
+/// inside many sends). The emulated line carries a request whole, as a real port's UART
+/// does (the sender tells the simulator the silences of the whole request before its first
+/// character leaves), so no send is broken, none is sent again or given up, and
+/// `monitor --capture-in` of the capture judges every exchange as `check` did: no request
+/// the drive left unanswered, no retry of the master. Before, each stall inside a request
+/// broke it on the line: the runner sent it again (or gave up, exit 2), and the
+/// capture's broken sends were judged `drive.no-reply` and their copies `master.retry`.
+/// (How a capture marks a send its host did break, on a line that is not told the
+/// silences: `transport::capture`'s unit tests.)
 #[test]
-fn a_send_the_host_broke_is_marked_counted_and_not_blamed_on_the_drive() {
+fn a_check_whose_host_stalls_keeps_its_requests_whole_and_its_capture_agrees() {
     use nix::sys::signal::{kill, Signal};
     use nix::unistd::Pid;
     let d = dir().join("stalled");
@@ -1358,72 +1361,33 @@ fn a_send_the_host_broke_is_marked_counted_and_not_blamed_on_the_drive() {
     }
     let out = check.wait_with_output().unwrap();
     let stderr = String::from_utf8_lossy(&out.stderr);
-    // 2 only where every send of a request was broken (an ERROR of this host).
+    // A stall may still delay a reply (the simulator's thread is stopped too): the runner
+    // runs such a check again, and gives an ERROR only where every run was disturbed.
     assert!(matches!(out.status.code(), Some(0 | 2)), "{stderr}");
     let report: Value = serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
     assert_eq!(report["summary"]["deviation"], 0, "{stderr}");
-    let counted = report["budget"]["rtu"]["broken_sends"]
+    assert!(stops >= 5, "only {stops} stops");
+    let broken = report["budget"]["rtu"]["broken_sends"]
         .as_u64()
         .unwrap_or(0);
-    assert!(
-        counted > 0,
-        "{stops} stops broke no send: {}",
-        report["budget"]
-    );
-    // Each broken send flagged, and the next thing the master sent is the same request,
-    // or the request was given up (an ERROR naming it: every send of it broken).
-    let given_up: Vec<String> = report["checks"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .filter(|c| c["status"] == "error")
-        .map(|c| c["summary"].as_str().unwrap().to_string())
-        .collect();
-    let frames = frames(&cap);
-    let broken: Vec<usize> = (0..frames.len())
-        .filter(|&i| {
-            conformance::capture::broken_by_host(
-                Some(frames[i].flags),
-                frames[i].comment.as_deref(),
-            )
-        })
-        .collect();
-    assert_eq!(broken.len() as u64, counted, "flagged against counted");
-    for &i in &broken {
-        let f = &frames[i];
-        assert_eq!(f.direction, Some(Direction::Outbound));
-        assert!(f.flags & conformance::capture::FLAG_WRONG_GAP != 0);
-        let next = frames[i + 1..]
-            .iter()
-            .find(|g| g.direction == Some(Direction::Outbound));
-        if next.is_some_and(|g| g.bytes == f.bytes) {
-            continue;
-        }
-        let shown = f
-            .bytes
-            .iter()
-            .map(|b| format!("{b:02X}"))
-            .collect::<Vec<_>>()
-            .join(" ");
-        assert!(
-            given_up
-                .iter()
-                .any(|why| why.contains(&format!("could not send the request {shown} whole"))),
-            "frame {i} ({shown}) was neither sent again nor given up: {given_up:?}"
-        );
+    assert_eq!(broken, 0, "{stops} stops broke sends: {}", report["budget"]);
+    for c in report["checks"].as_array().unwrap() {
+        let why = c["summary"].as_str().unwrap_or_default();
+        assert!(!why.contains("whole"), "{}: {why}", c["id"]);
     }
+    let frames = frames(&cap);
+    assert!(
+        !frames
+            .iter()
+            .any(|f| conformance::capture::broken_by_host(Some(f.flags), f.comment.as_deref())),
+        "a frame is marked broken"
+    );
     let (code, monitor, stderr) = monitor_capture(
         &cap,
         "stalled",
         &["-a", "1", "--log", log.to_str().unwrap()],
     );
     assert!(matches!(code, Some(0 | 1)), "{stderr}");
-    assert!(
-        stderr.contains(&format!(
-            "{counted} frame(s) marked in the capture as broken"
-        )),
-        "{stderr}"
-    );
     let errors = &node(&monitor, "01")["errors"];
     for kind in ["drive.no-reply", "master.retry"] {
         assert!(errors.get(kind).is_none(), "{kind}: {errors}");

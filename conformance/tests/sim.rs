@@ -393,6 +393,67 @@ fn a_frame_written_in_pieces_is_answered_on_a_pty() {
     assert!(replies == 4 || (resends > 0 && replies >= 4), "{t}");
 }
 
+/// Issue 33: the runner paces its requests on the emulated line one character at a
+/// time, and a host that stalls between two of them (a busy scheduler) left a silence over
+/// t1.5 inside the request, so the simulator dropped it and the runner sent it again or
+/// gave up with exit 2. A real port's UART sends a written frame whole; the emulated line
+/// now does too: the sender tells the silences of the whole frame before its first
+/// character leaves (none inside it), and the simulator holds the frame open while a told
+/// character is still in flight. Without the told silences the stall is on the line and
+/// the sender says the send was broken.
+#[cfg(unix)]
+#[test]
+fn a_host_stall_inside_a_paced_request_does_not_break_it_on_the_emulated_line() {
+    use conformance::codec::timing::{LineSettings, Parity};
+    use conformance::transport::pty::PtyMaster;
+    use conformance::transport::serial::SerialTransport;
+    use conformance::transport::LinkKind;
+    let line = LineSettings::new(19200, 8, Parity::Even, 1);
+    let request = read2520(Mode::Rtu, 1);
+    // A stall of 30 ms: 35 times t1.5 and 15 times t3.5 at 19200 baud.
+    let stall = Duration::from_millis(30);
+    let master = PtyMaster::open(Some(line)).unwrap();
+    let path = master.slave_path().to_str().unwrap().to_string();
+    let tags = master.line_tags();
+    let served = start(master, "f510", Mode::Rtu, &[]);
+    let mut client = SerialTransport::open(&path, line, LinkKind::Pty)
+        .unwrap()
+        .paced_peer()
+        .with_line_tags(tags);
+    for at in [1, 4, 7] {
+        client.stall_inside_next_send(at, stall);
+        client.send(&request).unwrap();
+        assert!(
+            !client.send_was_broken(),
+            "a stall before character {at} broke a send whose silences were told"
+        );
+        let reply = collect_reply(&mut client);
+        assert_eq!(
+            reply.get(..3),
+            Some(&[0x01, 0x03, 0x02][..]),
+            "stall before character {at}: the simulator did not take the request whole: {reply:02X?}\n{}",
+            String::from_utf8_lossy(&served.log.0.lock().unwrap())
+        );
+    }
+    drop(client);
+    drop(served);
+    // The same stall where the receiver is not told: the silence is on the line, and the
+    // sender knows it broke the frame (what the simulator makes of the bytes depends on
+    // when its thread woke, so it is not asserted here).
+    let master = PtyMaster::open(Some(line)).unwrap();
+    let path = master.slave_path().to_str().unwrap().to_string();
+    let _served = start(master, "f510", Mode::Rtu, &[]);
+    let mut untold = SerialTransport::open(&path, line, LinkKind::Pty)
+        .unwrap()
+        .paced_peer();
+    untold.stall_inside_next_send(4, stall);
+    untold.send(&request).unwrap();
+    assert!(
+        untold.send_was_broken(),
+        "a 30 ms stall inside an untold send"
+    );
+}
+
 #[test]
 fn the_command_line_serves_over_tcp() {
     use conformance::transport::tcp::TcpTransport;

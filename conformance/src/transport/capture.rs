@@ -855,4 +855,88 @@ mod tests {
             r.error()
         );
     }
+
+    /// A link whose host stalled inside a send (on a line whose receiver is not told the
+    /// silences, see [`Transport::send_was_broken`]): each broken send is its own outbound
+    /// packet flagged "wrong inter-frame gap" (bit 27) with a comment saying the host broke
+    /// it, which [`capture::broken_by_host`] reads back; the next, whole send is plain.
+    #[test]
+    fn a_send_the_host_broke_is_flagged_and_commented_and_the_next_one_is_not() {
+        struct Broke {
+            inner: memory::MemoryEnd,
+            broken: u32,
+            sends: u32,
+        }
+        impl Transport for Broke {
+            fn send(&mut self, bytes: &[u8]) -> Result<(), TransportError> {
+                self.sends += 1;
+                self.inner.send(bytes)
+            }
+            fn recv(&mut self, buf: &mut [u8], t: Duration) -> Result<usize, TransportError> {
+                self.inner.recv(buf, t)
+            }
+            fn discard_input(&mut self) -> Result<(), TransportError> {
+                self.inner.discard_input()
+            }
+            fn describe(&self) -> String {
+                "a link its host stalls on".into()
+            }
+            fn kind(&self) -> LinkKind {
+                LinkKind::Memory
+            }
+            fn send_was_broken(&self) -> bool {
+                self.sends <= self.broken
+            }
+        }
+        let sink = Sink::default();
+        let rec = Recorder::new(Box::new(sink.clone()), "test")
+            .unwrap()
+            .shared();
+        let (a, _b) = memory::pair();
+        let line = LineSettings::new(9600, 8, Parity::Even, 1);
+        let link = Broke {
+            inner: a,
+            broken: 2,
+            sends: 0,
+        };
+        let mut a = Captured::new(link, rec.clone(), Mode::Rtu, line);
+        for _ in 0..3 {
+            a.send(&REQUEST).unwrap();
+        }
+        drop(a);
+        let data = sink.0.lock().unwrap().clone();
+        let packets: Vec<_> = Reader::new(&data)
+            .unwrap()
+            .collect::<Result<_, _>>()
+            .unwrap();
+        let broken: Vec<bool> = packets
+            .iter()
+            .map(|p| capture::broken_by_host(p.flags, p.comment))
+            .collect();
+        assert_eq!(broken, [true, true, false]);
+        assert!(packets.iter().all(|p| p.data == REQUEST));
+        assert_eq!(packets[0].flags, Some(FLAG_OUTBOUND | FLAG_WRONG_GAP));
+        assert_eq!(packets[2].flags, Some(FLAG_OUTBOUND));
+        // ASCII is not broken by a silence under its 1 s timeout: nothing is flagged.
+        let sink = Sink::default();
+        let rec = Recorder::new(Box::new(sink.clone()), "test")
+            .unwrap()
+            .shared();
+        let (a, _b) = memory::pair();
+        let link = Broke {
+            inner: a,
+            broken: 1,
+            sends: 0,
+        };
+        let mut a = Captured::new(link, rec, Mode::Ascii, line);
+        a.send(b":010300000001FB\r\n").unwrap();
+        drop(a);
+        let data = sink.0.lock().unwrap().clone();
+        let p: Vec<_> = Reader::new(&data)
+            .unwrap()
+            .collect::<Result<_, _>>()
+            .unwrap();
+        assert_eq!(p.len(), 1);
+        assert!(!capture::broken_by_host(p[0].flags, p[0].comment));
+    }
 }

@@ -30,6 +30,7 @@ pub struct SerialTransport {
     rts: Option<RtsControl>,
     tags: Option<LineTags>,
     last_write: Option<std::time::Instant>,
+    stall_inside: Option<(usize, Duration)>,
 }
 
 /// RS-485 direction control by the RTS line.
@@ -143,6 +144,7 @@ impl SerialTransport {
             rts: None,
             tags: None,
             last_write: None,
+            stall_inside: None,
         })
     }
 
@@ -200,8 +202,16 @@ impl SerialTransport {
     }
 
     /// Sends `pieces` at the line's character time with `gap` of silence between
-    /// consecutive pieces; returns the gaps as written. A stall of the host inside a
-    /// piece (a silence over t1.5 between two of its characters) marks the send broken.
+    /// consecutive pieces; returns the gaps as written.
+    ///
+    /// Where the other end is told the silences ([`Self::with_line_tags`]), a piece is
+    /// one write to a UART: its characters' silences are queued before its first
+    /// character leaves, each 0 after the first, so a host stall inside the piece only
+    /// delays characters the receiver knows to be in flight, and the frame stays whole,
+    /// as a real port's transmitter keeps it (issue 33: a stall over t1.5 while pacing
+    /// broke the request on the emulated line, and the runner sent it again or gave up).
+    /// Without tags a stall inside a piece (a silence over t1.5 between two of its
+    /// characters) is on the line, and marks the send broken.
     fn paced_pieces(
         &mut self,
         pieces: &[&[u8]],
@@ -219,30 +229,35 @@ impl SerialTransport {
             }
             for (i, b) in piece.iter().enumerate() {
                 sleep_until(due);
+                if let Some((at, stall)) = self.stall_inside {
+                    if at == i && k == 0 {
+                        self.stall_inside = None;
+                        std::thread::sleep(stall);
+                    }
+                }
                 let now = std::time::Instant::now();
                 if let Some(p) = previous {
                     let silence = now.saturating_duration_since(p).saturating_sub(char_time);
                     if i == 0 {
                         gaps.push(silence);
-                    } else if silence > t15 {
+                    } else if silence > t15 && self.tags.is_none() {
                         self.broken = true;
                     }
                 }
                 previous = Some(now);
-                if let Some(tags) = &self.tags {
-                    let silence = self.last_write.map_or(u32::MAX, |w| {
-                        let us = now.saturating_duration_since(w).saturating_sub(char_time);
-                        u32::try_from(us.as_micros()).unwrap_or(u32::MAX)
-                    });
-                    if let Ok(mut q) = tags.lock() {
-                        q.push_back(silence);
-                    }
+                if i == 0 {
+                    self.tell_piece(now, char_time, piece.len());
                 }
-                self.last_write = Some(now);
-                self.port
+                self.last_write = Some(std::time::Instant::now());
+                if let Err(e) = self
+                    .port
                     .write_all(std::slice::from_ref(b))
                     .and_then(|_| self.port.flush())
-                    .map_err(|e| self.err("write", e))?;
+                {
+                    // The characters not written are not in flight.
+                    self.untell(piece.len() - i);
+                    return Err(self.err("write", e));
+                }
                 due += char_time;
             }
         }
@@ -252,6 +267,36 @@ impl SerialTransport {
         self.sent_at = Some(end);
         sleep_until(end);
         Ok(gaps)
+    }
+
+    /// Queues, for the receiver, the silences before the `n` characters of a piece whose
+    /// first character leaves at `now`: the silence since the last character written,
+    /// then none (a UART sends a piece's characters back to back).
+    fn tell_piece(&self, now: std::time::Instant, char_time: Duration, n: usize) {
+        let Some(tags) = &self.tags else { return };
+        let silence = self.last_write.map_or(u32::MAX, |w| {
+            let us = now.saturating_duration_since(w).saturating_sub(char_time);
+            u32::try_from(us.as_micros()).unwrap_or(u32::MAX)
+        });
+        if let Ok(mut q) = tags.lock() {
+            q.push_back(silence);
+            q.extend(std::iter::repeat_n(0, n.saturating_sub(1)));
+        }
+    }
+
+    /// Takes back the silences of the last `n` characters queued, which were not written.
+    fn untell(&self, n: usize) {
+        if let Some(Ok(mut q)) = self.tags.as_ref().map(|t| t.lock()) {
+            let keep = q.len().saturating_sub(n);
+            q.truncate(keep);
+        }
+    }
+
+    /// For the suite's own tests: the next send stalls this host for `stall` before the
+    /// character at index `at` of its first piece leaves, as a busy scheduler does.
+    #[doc(hidden)]
+    pub fn stall_inside_next_send(&mut self, at: usize, stall: Duration) {
+        self.stall_inside = Some((at, stall));
     }
 
     /// Says, for every character this paced end writes, the silence before it (as it
