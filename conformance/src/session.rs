@@ -157,6 +157,7 @@ fn start_sim(
     let path = master.slave_path().to_string_lossy().into_owned();
     let clock = master.pacing_clock();
     let tags = master.line_tags();
+    let starts = master.reply_start_queue();
     let delay = delay.unwrap_or_else(|| config.model.response_delay(&config.line));
     // One drive per node of the run, each with its own state, on one line.
     let nodes = bus_nodes(&config.options);
@@ -195,7 +196,8 @@ fn start_sim(
         client = client
             .paced_peer()
             .with_peer_clock(clock)
-            .with_line_tags(tags);
+            .with_line_tags(tags)
+            .with_reply_starts(starts);
     }
     Ok((
         SimThread {

@@ -81,6 +81,25 @@ pub fn broken_by_host(flags: Option<u32>, comment: Option<&str>) -> bool {
         && comment.is_some_and(|c| c.contains(BROKEN_BY_HOST))
 }
 
+/// The comment a capture of this suite's master side puts on a reply that the
+/// simulator at the other end of its emulated line began late because this host was busy
+/// (the simulator said when it began: `transport::ReplyStarts`), followed by ": N us".
+/// A reader judges such a reply at the time it was due ([`late_on_host`]).
+pub const LATE_ON_HOST: &str = "begun late by the host of the simulator";
+
+/// How late a packet's comment says its writer's host made the simulator begin it
+/// ([`LATE_ON_HOST`]); None for any other packet.
+pub fn late_on_host(comment: Option<&str>) -> Option<std::time::Duration> {
+    let c = comment?;
+    let rest = &c[c.find(LATE_ON_HOST)? + LATE_ON_HOST.len()..];
+    let digits = rest.strip_prefix(": ")?;
+    let end = digits.find(" us")?;
+    digits[..end]
+        .parse::<u64>()
+        .ok()
+        .map(std::time::Duration::from_micros)
+}
+
 impl Direction {
     /// The `epb_flags` bits of this direction.
     pub fn flag(self) -> u32 {

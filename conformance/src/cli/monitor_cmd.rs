@@ -264,6 +264,16 @@ pub fn run(args: MonitorArgs) -> anyhow::Result<ExitCode> {
                 mon.notice(n);
                 mon.take_notices();
             }
+            if r.late_on_host > 0 {
+                let n = format!(
+                    "{} repl(ies) marked in the capture as begun late by the host of the simulator its writer ran (a busy host; by up to {:.1} ms): judged at the time they were due",
+                    r.late_on_host,
+                    r.most_late_on_host.as_secs_f64() * 1000.0
+                );
+                out.say(monitor::Said::Notice(&n));
+                mon.notice(n);
+                mon.take_notices();
+            }
             let ended = match &r.stopped {
                 Some(e) => {
                     eprintln!(

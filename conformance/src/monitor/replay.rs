@@ -54,6 +54,11 @@ pub struct Replayed {
     /// Packets its writer marked as broken by its own host as they left, and sent again
     /// ([`capture::broken_by_host`]): read, not judged.
     pub broken_by_host: u64,
+    /// Replies its writer marked as begun late by its own host (the simulator it ran,
+    /// starved: [`capture::late_on_host`]), judged at the time they were due.
+    pub late_on_host: u64,
+    /// The most any of them was late.
+    pub most_late_on_host: Duration,
 }
 
 /// The line's bytes in a packet of `link_type`, if it carries them.
@@ -316,7 +321,15 @@ impl Feeder {
             return Ok(());
         }
         let t0 = *self.origin.get_or_insert(ts);
-        let first = Duration::from_nanos(ts - t0);
+        let mut first = Duration::from_nanos(ts - t0);
+        // A reply the writer's host made its simulator begin late is judged when it was
+        // due, as the writer (`check`) judged it: the lateness was the host's, not the
+        // drive's. Never before the end of what came before it.
+        if let Some(late) = capture::late_on_host(p.comment) {
+            self.out.late_on_host += 1;
+            self.out.most_late_on_host = self.out.most_late_on_host.max(late);
+            first = first.saturating_sub(late).max(self.out.span);
+        }
         monitor.idle(first);
         // Where the capture gives directions, they settle which frame answers which: a
         // direction is the packet's on its own interface (a bus capture's endpoints).

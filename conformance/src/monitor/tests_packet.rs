@@ -280,3 +280,59 @@ fn a_capture_judged_by_whole_packets_gets_the_verdicts_of_two_pieces() {
     assert!(w == p, "ascii:\n{w}\n---\n{p}");
     assert_eq!(checked, 6 + 16);
 }
+
+/// A reply its capture's writer marked as begun late by the host of the simulator it ran
+/// (`check --sim` on a busy host) is judged when it was due: no `drive.late-reply`, and the
+/// replay counts it. The same reply unmarked, 60 ms after its request, is a late reply.
+#[test]
+fn a_reply_marked_late_by_the_writers_host_is_judged_when_it_was_due() {
+    let line = LineSettings::new(9600, 8, Parity::Even, 1);
+    let request = [0x01, 0x03, 0x25, 0x20, 0x00, 0x01, 0x8E, 0xCC];
+    let reply = [0x01, 0x03, 0x02, 0x00, 0x04, 0xB9, 0x87];
+    let char_us = line.char_time_us();
+    let late = 50_000u64;
+    let mut judged = Vec::new();
+    for marked in [false, true] {
+        let mut w = PcapngWriter::new(Vec::new(), "tests_packet").unwrap();
+        w.add_interface(&Interface {
+            link_type: crate::capture::LINKTYPE_USER0,
+            name: "test".into(),
+            description: "test".into(),
+        })
+        .unwrap();
+        let t0 = 1_700_000_000_000_000u64;
+        let comment = format!(
+            "check rtu.map.monitor.first: {}: {late} us (the simulator on this host was due to begin it 10.0 ms after the request)",
+            crate::capture::LATE_ON_HOST
+        );
+        let packets = [
+            (t0, &request[..], CapDirection::Outbound, None),
+            (
+                t0 + 8 * char_us + 10_000 + late,
+                &reply[..],
+                CapDirection::Inbound,
+                marked.then(|| comment.clone()),
+            ),
+        ];
+        for (t, bytes, d, c) in packets {
+            let meta = PacketMeta {
+                interface: 0,
+                timestamp_us: t,
+                flags: d.flag(),
+                comment: c,
+            };
+            w.write_packet(&meta, bytes).unwrap();
+        }
+        let data = w.into_inner();
+        let mut m = monitor_on(Mode::Rtu, line, &[1]);
+        let r = replay(&data, &mut m, |_| {}).unwrap();
+        assert_eq!(r.late_on_host, u64::from(marked));
+        judged.push(kinds(&m, 1));
+    }
+    assert!(
+        judged[0].contains(&"drive.late-reply".to_string()),
+        "{:?}",
+        judged[0]
+    );
+    assert!(judged[1].is_empty(), "{:?}", judged[1]);
+}

@@ -111,6 +111,7 @@ pub fn serve_with_gap<T: Transport + ?Sized, R: Responder + ?Sized>(
     let ignore_t15 = drive.ignores_t15();
     // What the sender says it put on the line, where it says (this suite's runner).
     let tags = clock.as_ref().and_then(|_| transport.line_tags());
+    let reply_starts = transport.reply_starts();
     let mut deframer = match (mode, line) {
         (Mode::Rtu, Some(l)) => Deframer::Rtu(
             Box::new(RtuDeframer::new(
@@ -255,6 +256,15 @@ pub fn serve_with_gap<T: Transport + ?Sized, R: Responder + ?Sized>(
                     let end = ended_at.unwrap_or(now);
                     for s in outcome.sends {
                         sleep_until(end + s.after);
+                        if let (Some(q), SendKind::Reply) = (&reply_starts, &s.kind) {
+                            crate::transport::push_reply_start(
+                                q,
+                                crate::transport::ReplyStart {
+                                    at: Instant::now(),
+                                    after: s.after,
+                                },
+                            );
+                        }
                         transport.send(&s.bytes)?;
                         let kind = match s.kind {
                             SendKind::Echo => "echo",

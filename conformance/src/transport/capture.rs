@@ -35,8 +35,13 @@ use std::time::{Duration, Instant, SystemTime};
 
 use super::{LineTags, LinkKind, Transport, TransportError};
 use crate::capture::{self, Interface, PacketMeta, PcapngWriter};
+use crate::codec::timing::later;
 use crate::codec::timing::LineSettings;
 use crate::codec::Mode;
+
+/// A reply the simulator began this much later than due, or more, is marked in the
+/// capture as late by this host ([`capture::LATE_ON_HOST`]): less is the pacing's jitter.
+pub const LATE_NOTED: Duration = Duration::from_millis(1);
 
 /// The longest silence inside a frame that a host's delivery is taken to cause on a link
 /// without the line's timing.
@@ -265,6 +270,8 @@ pub struct Captured<T: Transport> {
     gap: Duration,
     inbound: Vec<u8>,
     inbound_at: Option<Instant>,
+    /// How late this host made the simulator begin the reply held, where it said so.
+    inbound_late: Option<(Duration, Duration)>,
     last_read: Option<Instant>,
     last_sent: Option<Instant>,
     host_timing: bool,
@@ -297,6 +304,7 @@ impl<T: Transport> Captured<T> {
             gap: Duration::from_millis(5).max(Duration::from_micros(line.t3_5_us())),
             inbound: Vec::new(),
             inbound_at: None,
+            inbound_late: None,
             last_read: None,
             last_sent: None,
             host_timing: inner.kind() != LinkKind::Serial,
@@ -433,11 +441,42 @@ impl<T: Transport> Captured<T> {
         }
     }
 
+    /// Where the other end says when it began its replies ([`Transport::peer_reply_starts`]):
+    /// when the reply whose first bytes were read at `now` began (never before the end of
+    /// the request), and, where this host made it begin [`LATE_NOTED`] or more after it
+    /// was due, how late and how long after the request it was due. Starts before the
+    /// last request are the replies to earlier ones, and are dropped; a start after `now`
+    /// is a later reply's (what was read is something else: an echo).
+    fn reply_start(&mut self, now: Instant) -> Option<(Instant, Option<(Duration, Duration)>)> {
+        let sent = self.last_sent?;
+        let queue = self.inner.peer_reply_starts()?;
+        let mut q = queue.lock().ok()?;
+        while q.front().is_some_and(|s| s.at < sent) {
+            q.pop_front();
+        }
+        let start = *q.front().filter(|s| s.at <= now)?;
+        q.pop_front();
+        let due = later(sent, start.after);
+        let late = start.at.saturating_duration_since(due);
+        Some((
+            start.at,
+            (late >= LATE_NOTED).then_some((late, start.after)),
+        ))
+    }
+
     /// Writes the inbound packet held, if any.
     fn flush_inbound(&mut self) {
         if let Some(at) = self.inbound_at.take() {
             let bytes = std::mem::take(&mut self.inbound);
-            self.record(at, &bytes, self.inbound_flag, None);
+            let late = self.inbound_late.take().map(|(late, after)| {
+                format!(
+                    "{}: {} us (the simulator on this host was due to begin it {:.1} ms after the request)",
+                    capture::LATE_ON_HOST,
+                    late.as_micros(),
+                    after.as_secs_f64() * 1000.0
+                )
+            });
+            self.record(at, &bytes, self.inbound_flag, late.as_deref());
             self.inbound = bytes;
             self.inbound.clear();
         }
@@ -491,6 +530,12 @@ impl<T: Transport> Transport for Captured<T> {
                 let mut at = now.checked_sub(on_line).unwrap_or(now);
                 if let Some(sent) = self.last_sent {
                     at = at.max(sent);
+                }
+                // The simulator at the other end of an emulated line says when it began
+                // the reply: that is when the line carried it, whenever this host read it.
+                if let Some((start, late)) = self.reply_start(now) {
+                    at = start;
+                    self.inbound_late = late;
                 }
                 self.inbound_at = Some(at);
             }
@@ -881,6 +926,9 @@ mod tests {
             fn describe(&self) -> String {
                 "a link its host stalls on".into()
             }
+            fn line_timing(&self) -> Option<LineSettings> {
+                None
+            }
             fn kind(&self) -> LinkKind {
                 LinkKind::Memory
             }
@@ -938,5 +986,107 @@ mod tests {
             .unwrap();
         assert_eq!(p.len(), 1);
         assert!(!capture::broken_by_host(p[0].flags, p[0].comment));
+    }
+
+    /// Where the simulator at the other end says when it began its replies, a reply is
+    /// recorded at that time (whenever this host read it); one it began 30 ms after it was
+    /// due carries a comment that says so, which [`capture::late_on_host`] reads back; one
+    /// on time carries none, and a start from before the request (an earlier reply's) is
+    /// not taken for this one's.
+    #[test]
+    fn a_reply_the_simulators_host_began_late_is_recorded_when_it_began_and_marked() {
+        struct Told {
+            inner: memory::MemoryEnd,
+            starts: crate::transport::ReplyStarts,
+        }
+        impl Transport for Told {
+            fn send(&mut self, bytes: &[u8]) -> Result<(), TransportError> {
+                self.inner.send(bytes)
+            }
+            fn recv(&mut self, buf: &mut [u8], t: Duration) -> Result<usize, TransportError> {
+                self.inner.recv(buf, t)
+            }
+            fn discard_input(&mut self) -> Result<(), TransportError> {
+                self.inner.discard_input()
+            }
+            fn describe(&self) -> String {
+                "an emulated line".into()
+            }
+            fn line_timing(&self) -> Option<LineSettings> {
+                None
+            }
+            fn kind(&self) -> LinkKind {
+                LinkKind::Pty
+            }
+            fn peer_reply_starts(&self) -> Option<crate::transport::ReplyStarts> {
+                Some(self.starts.clone())
+            }
+        }
+        let sink = Sink::default();
+        let rec = Recorder::new(Box::new(sink.clone()), "test")
+            .unwrap()
+            .shared();
+        let (a, mut b) = memory::pair();
+        let starts = crate::transport::ReplyStarts::default();
+        let line = LineSettings::new(9600, 8, Parity::Even, 1);
+        let link = Told {
+            inner: a,
+            starts: starts.clone(),
+        };
+        let mut a = Captured::new(link, rec, Mode::Rtu, line);
+        let after = Duration::from_millis(10);
+        let mut began = Vec::new();
+        let mut slack = Duration::ZERO;
+        for late in [Duration::from_millis(30), Duration::ZERO] {
+            // An earlier reply's start, before this request: not this reply's.
+            crate::transport::push_reply_start(
+                &starts,
+                crate::transport::ReplyStart {
+                    at: Instant::now(),
+                    after,
+                },
+            );
+            std::thread::sleep(Duration::from_millis(2));
+            let before = Instant::now();
+            a.send(&REQUEST).unwrap();
+            let sent = Instant::now();
+            slack = slack.max(sent - before);
+            let at = sent + after + late;
+            began.push((before, at));
+            crate::transport::push_reply_start(&starts, crate::transport::ReplyStart { at, after });
+            while Instant::now() < at {
+                std::thread::sleep(Duration::from_millis(1));
+            }
+            b.send(&REPLY).unwrap();
+            // Read well after it came (this host busy too).
+            std::thread::sleep(Duration::from_millis(40));
+            assert_eq!(drain(&mut a, Duration::from_millis(200)), 7);
+        }
+        drop(a);
+        let data = sink.0.lock().unwrap().clone();
+        let packets: Vec<_> = Reader::new(&data)
+            .unwrap()
+            .collect::<Result<_, _>>()
+            .unwrap();
+        assert_eq!(packets.len(), 4);
+        let late = capture::late_on_host(packets[1].comment).expect("the late reply is marked");
+        // Late by 30 ms from the end of the request as the recorder's clock read it (a
+        // little before this test's own reading of it).
+        assert!(
+            late >= Duration::from_millis(30)
+                && late <= Duration::from_millis(30) + slack + Duration::from_millis(1),
+            "{late:?}"
+        );
+        assert_eq!(packets[3].comment, None);
+        // Recorded when the simulator began, not when this host read them (40 ms later).
+        let t = |i: usize| Duration::from_nanos(packets[i].timestamp_ns.unwrap());
+        for (k, i) in [1usize, 3].into_iter().enumerate() {
+            let took = t(i) - t(i - 1);
+            let meant = began[k].1 - began[k].0;
+            assert!(
+                took.abs_diff(meant) < Duration::from_millis(1),
+                "packet {i}: {took:?} against {meant:?}"
+            );
+        }
     }
 }

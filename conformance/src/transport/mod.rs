@@ -147,6 +147,36 @@ pub enum TransportError {
 /// it writes the character, so a reader always finds it.
 pub type LineTags = std::sync::Arc<std::sync::Mutex<std::collections::VecDeque<u32>>>;
 
+/// When an emulated line's simulator began to write each reply, and how long after the
+/// end of the request it meant to begin (its drive's response time, planted lateness
+/// included), oldest first; at most [`REPLY_STARTS_KEPT`]. A simulator starved by a busy
+/// host begins late, and a master starved reads late: where the simulator says when it
+/// began, a capture of the master's side records the reply at the time the emulated line
+/// carried it, and how late this host made it (see `transport::capture`).
+pub type ReplyStarts = std::sync::Arc<std::sync::Mutex<std::collections::VecDeque<ReplyStart>>>;
+
+/// How many reply starts a [`ReplyStarts`] queue keeps (the oldest are dropped).
+pub const REPLY_STARTS_KEPT: usize = 64;
+
+/// One reply a simulator began to write (see [`ReplyStarts`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct ReplyStart {
+    /// When its first character was written.
+    pub at: std::time::Instant,
+    /// How long after the end of the request the simulator meant to begin it.
+    pub after: Duration,
+}
+
+/// Adds `start` to `queue`, dropping the oldest beyond [`REPLY_STARTS_KEPT`].
+pub fn push_reply_start(queue: &ReplyStarts, start: ReplyStart) {
+    if let Ok(mut q) = queue.lock() {
+        q.push_back(start);
+        while q.len() > REPLY_STARTS_KEPT {
+            q.pop_front();
+        }
+    }
+}
+
 /// A bidirectional byte link to a drive or a master.
 pub trait Transport: Send {
     /// Sends `bytes`; with pacing, returns after the line would have carried them.
@@ -193,6 +223,17 @@ pub trait Transport: Send {
     /// Where this is the receiving end of an emulated line whose sender says what
     /// silences it put on it (see [`LineTags`]): the queue to take them from.
     fn line_tags(&self) -> Option<LineTags> {
+        None
+    }
+
+    /// The end of an emulated line that a simulator writes its replies to: the queue in
+    /// which it says when it began each one (see [`ReplyStarts`]).
+    fn reply_starts(&self) -> Option<ReplyStarts> {
+        None
+    }
+
+    /// The other end of that line (the master's): the same queue, to read.
+    fn peer_reply_starts(&self) -> Option<ReplyStarts> {
         None
     }
 
@@ -274,6 +315,12 @@ impl<T: Transport + ?Sized> Transport for Box<T> {
     }
     fn line_tags(&self) -> Option<LineTags> {
         (**self).line_tags()
+    }
+    fn reply_starts(&self) -> Option<ReplyStarts> {
+        (**self).reply_starts()
+    }
+    fn peer_reply_starts(&self) -> Option<ReplyStarts> {
+        (**self).peer_reply_starts()
     }
     fn frames_only(&self) -> Option<&'static str> {
         (**self).frames_only()

@@ -40,6 +40,7 @@ pub struct PtyMaster {
     pace: Option<LineSettings>,
     late: PacingClock,
     tags: LineTags,
+    reply_starts: super::ReplyStarts,
     emulate: Option<LineSettings>,
     // A second handle on the slave, for its baud rate: masters that set any rate
     // (serialport) use BOTHER and termios2, which only TCGETS2 reads back.
@@ -137,6 +138,7 @@ impl PtyMaster {
             probe: None,
             pending: std::collections::VecDeque::new(),
             tags: LineTags::default(),
+            reply_starts: super::ReplyStarts::default(),
         })
     }
 
@@ -203,6 +205,12 @@ impl PtyMaster {
     /// its characters (see [`LineTags`]); read by this end's receiver when paced.
     pub fn line_tags(&self) -> LineTags {
         self.tags.clone()
+    }
+
+    /// The queue in which a simulator on this end says when it began each reply (see
+    /// [`super::ReplyStarts`]), for the master on the slave side; kept when paced.
+    pub fn reply_start_queue(&self) -> super::ReplyStarts {
+        self.reply_starts.clone()
     }
 
     /// The path another program opens as its serial port.
@@ -353,6 +361,10 @@ impl Transport for PtyMaster {
 
     fn line_timing(&self) -> Option<LineSettings> {
         self.pace
+    }
+
+    fn reply_starts(&self) -> Option<super::ReplyStarts> {
+        self.pace.map(|_| self.reply_starts.clone())
     }
 
     fn line_tags(&self) -> Option<LineTags> {

@@ -31,6 +31,7 @@ pub struct SerialTransport {
     tags: Option<LineTags>,
     last_write: Option<std::time::Instant>,
     stall_inside: Option<(usize, Duration)>,
+    reply_starts: Option<super::ReplyStarts>,
 }
 
 /// RS-485 direction control by the RTS line.
@@ -145,6 +146,7 @@ impl SerialTransport {
             tags: None,
             last_write: None,
             stall_inside: None,
+            reply_starts: None,
         })
     }
 
@@ -299,6 +301,13 @@ impl SerialTransport {
         self.stall_inside = Some((at, stall));
     }
 
+    /// Reads, from the simulator at the other end, when it began each reply (see
+    /// [`super::ReplyStarts`]).
+    pub fn with_reply_starts(mut self, starts: super::ReplyStarts) -> Self {
+        self.reply_starts = Some(starts);
+        self
+    }
+
     /// Says, for every character this paced end writes, the silence before it (as it
     /// left this host) to the simulator at the other end (see [`LineTags`]).
     pub fn with_line_tags(mut self, tags: LineTags) -> Self {
@@ -374,6 +383,10 @@ impl Transport for SerialTransport {
 
     fn send_was_broken(&self) -> bool {
         self.broken
+    }
+
+    fn peer_reply_starts(&self) -> Option<super::ReplyStarts> {
+        self.reply_starts.clone()
     }
 
     fn peer_lateness(&self) -> Option<Duration> {
