@@ -19,6 +19,7 @@
 
 pub mod cases;
 pub mod drive;
+pub mod fuzzing;
 pub mod protocol;
 pub mod reference;
 pub mod summary;

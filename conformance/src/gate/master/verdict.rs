@@ -57,6 +57,7 @@ pub enum Role {
 }
 
 /// What one operation put on the line and got back.
+#[derive(Debug)]
 pub struct OpRecord<'a> {
     /// The operation.
     pub op: &'a Operation,
