@@ -228,11 +228,20 @@ mod tests {
     fn edges_are_judged_without_a_panic() {
         judge_any(&[]);
         judge_any(&[0xFF; 300]);
+        // RTU at 9600 baud, timeout 200 ms, retries 1, allowances zero; a read of 2
+        // registers that got no reply and a timeout reported; one request read at 10..18 ms
+        // after a chunk of the drive at 5..6 ms, the call begun at 0 (so the line was
+        // silent "as long as it likes" before that chunk: Duration::MAX), on a timed line.
         let mut retries_one = vec![0u8];
         retries_one.extend(9600u32.to_le_bytes());
-        retries_one.extend([0, 0xC8, 0x00]); // timeout 200 ms
+        retries_one.extend([0, 200, 0]);
         retries_one.extend(1u32.to_le_bytes());
-        retries_one.extend([4, 4, 0, 0, 0, 0, 0, 0, 0, 6, 0, 0, 1]);
+        retries_one.extend([3, 3]);
+        retries_one.extend([0, 1, 0, 0, 2, 0, 6, 3, 1]);
+        retries_one.extend([1, 0, 10, 0, 0, 18, 0, 8, 1, 3, 0, 0, 0, 2, 0xC4, 0x0B, 1, 1]);
+        retries_one.extend([1, 0, 5, 0, 0, 6, 0, 1, 0]);
+        retries_one.extend([0, 3, 3, 3, 3, 1]);
+        judge_any(&retries_one);
         for cut in 0..retries_one.len() {
             judge_any(&retries_one[..cut]);
         }
