@@ -729,6 +729,7 @@ fn report_stopped(
             },
             identification: None,
             simulated: None,
+            description: Some(mon.model().source.clone()),
             nodes: on_bus
                 .into_iter()
                 .map(|address| NodeInfo {

@@ -311,6 +311,18 @@ impl Report {
                     } else {
                         None
                     },
+                    // Reports older than the description's record have none.
+                    description: match d.get("description") {
+                        None | Some(Value::Null) => None,
+                        Some(s) => {
+                            let p = format!("{p}.description");
+                            Some(crate::model::Source {
+                                file: opt_string(s, "file", &p)?,
+                                title: string(s, "title", &p)?,
+                                sha256: string(s, "sha256", &p)?,
+                            })
+                        }
+                    },
                     // Reports of one node (and reports older than several-node runs)
                     // have no list.
                     nodes: match d.get("nodes") {
