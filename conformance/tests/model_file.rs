@@ -230,3 +230,94 @@ fn reports_name_the_description_by_file_title_and_hash() {
     // The text names a built-in model by the suite's version only (the guide's examples).
     assert!(!render("text").contains("\nmodel:   "));
 }
+
+/// The built-in model `model`'s file under the id `id`, written to `dir`.
+fn renamed(dir: &Path, model: &str, id: &str) -> PathBuf {
+    let text =
+        std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join(format!(
+            "../vectors/models/{model}.json"
+        )))
+        .unwrap();
+    let mut m: serde_json::Value = serde_json::from_str(&text).unwrap();
+    m["model"] = id.into();
+    let path = dir.join(format!("{id}.json"));
+    std::fs::write(&path, serde_json::to_string_pretty(&m).unwrap()).unwrap();
+    path
+}
+
+/// `identify ARGS --format json -o DIR/identify.json`: exit code, report, stderr.
+fn identify(dir: &Path, args: &[&str]) -> (Option<i32>, serde_json::Value, String) {
+    let out = dir.join("identify.json");
+    let _ = std::fs::remove_file(&out);
+    let mut all = vec!["identify", "--format", "json", "--quiet", "-o"];
+    all.push(out.to_str().unwrap());
+    all.extend(args);
+    let (code, _, err) = run_bounded(&all, Duration::from_secs(120));
+    let v: serde_json::Value = std::fs::read(&out)
+        .ok()
+        .and_then(|b| serde_json::from_slice(&b).ok())
+        .unwrap_or_default();
+    if !v.is_null() {
+        let schema = jsonschema::validator_for(
+            &serde_json::from_str(include_str!("../../vectors/schema/identify.schema.json"))
+                .unwrap(),
+        )
+        .unwrap();
+        if let Err(e) = schema.validate(&v) {
+            panic!("the identify report does not match its schema: {e}");
+        }
+    }
+    (code, v, err)
+}
+
+#[test]
+fn identify_takes_descriptions_as_more_candidates() {
+    let d = dir("identify");
+    let a = renamed(&d, "a510", "acme-a");
+    let f = renamed(&d, "f510", "acme-f");
+    let (a, f) = (a.to_str().unwrap(), f.to_str().unwrap());
+
+    // Beside the five: a description that predicts what a510 predicts ties with it.
+    let (code, v, err) = identify(
+        &d,
+        &["--sim", "a510", "--mode", "rtu", "--model-file", a, "--model-file", f],
+    );
+    assert_eq!(code, Some(1), "{err}");
+    assert_eq!(v["verdict"]["result"], "ambiguous", "{}", v["verdict"]);
+    let named: Vec<&str> = v["verdict"]["models"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter_map(|m| m.as_str())
+        .collect();
+    assert_eq!(named, ["a510", "acme-a"], "{}", v["verdict"]);
+    let candidates = v["candidates"].as_array().unwrap();
+    assert_eq!(candidates.len(), 7, "{candidates:?}");
+    assert_eq!(candidates[5]["model"], "acme-a");
+    assert_eq!(candidates[5]["file"], a);
+    assert!(candidates[0]["file"].is_null());
+
+    // Only the descriptions: the one the device follows is named.
+    let (code, v, err) = identify(
+        &d,
+        &[
+            "--sim", "a510", "--mode", "rtu", "--model-file", a, "--model-file", f,
+            "--only-files",
+        ],
+    );
+    assert_eq!(code, Some(0), "{err}");
+    assert_eq!(v["verdict"]["models"], serde_json::json!(["acme-a"]));
+    assert_eq!(v["scores"].as_array().unwrap().len(), 2);
+
+    // A copy that keeps a built-in's id is refused beside the built-in.
+    let copy = renamed(&d, "f510", "f510");
+    let (code, _, err) = identify(
+        &d,
+        &["--sim", "a510", "--mode", "rtu", "--model-file", copy.to_str().unwrap()],
+    );
+    assert_eq!(code, Some(2), "{err}");
+    assert!(
+        err.contains("describes model \"f510\", as the built-in f510 does"),
+        "{err}"
+    );
+}

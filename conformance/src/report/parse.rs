@@ -466,6 +466,11 @@ mod tests {
                 identification: Some(0x0510),
                 simulated: Some(vec!["wrong-exception".into()]),
                 nodes: Vec::new(),
+                description: Some(crate::model::Source::of(
+                    Some("models/x100.json"),
+                    "Acme X100 user manual rev C",
+                    b"{}",
+                )),
             },
             options: RunOptions {
                 modes: vec![Mode::Rtu, Mode::Ascii],
