@@ -8,6 +8,9 @@
 //!   description's initial values, example registers and identification value; 0 else);
 //!   every other register is `invalid` (pymodbus answers exception 02H).
 //! - `write` lists the read-write registers; a write elsewhere gets 02H from pymodbus.
+//! - The server is a serial device at the description's first node address, silent to
+//!   other addresses (`ignore_missing_devices`) and executing broadcasts unanswered
+//!   (`broadcast_enable`), as Modbus over Serial Line V1.02 2.2 has it.
 //! - pymodbus has no value bounds, no read or write limits below the specification's, no
 //!   response time, no exception table of its own and no TECO command bits: what
 //!   [`PymodbusExport::lost`] lists is what the round trip cannot keep.
@@ -164,6 +167,10 @@ pub fn export_pymodbus_sim(model: &DriveModel) -> PymodbusExport {
                 "parity": "E",
                 "stopbits": 1,
                 "timeout": 0.05,
+                // A serial device: silent to other nodes (pymodbus's default answers them
+                // with 0BH, as a gateway), and a broadcast is executed, not answered.
+                "ignore_missing_devices": true,
+                "broadcast_enable": true,
                 "device_id": model.addresses.start(),
             },
         },
