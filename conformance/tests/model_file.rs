@@ -213,14 +213,24 @@ fn reports_name_the_description_by_file_title_and_hash() {
         "{junit}"
     );
     let html = render("html");
-    assert!(html.contains(&format!("sha256 {hash}")), "no hash in the page");
+    assert!(
+        html.contains(&format!("sha256 {hash}")),
+        "no hash in the page"
+    );
 
     // A built-in model: no file, the hash of the model as shipped.
     let builtin = Path::new(env!("CARGO_MANIFEST_DIR")).join("../vectors/models/f510.json");
     let hash = sha256sum(&builtin).unwrap();
     let (code, v) = common::check_device(
         &d,
-        &["--sim", "f510", "--mode", "rtu", "--only", "rtu.map.monitor.*"],
+        &[
+            "--sim",
+            "f510",
+            "--mode",
+            "rtu",
+            "--only",
+            "rtu.map.monitor.*",
+        ],
         Duration::from_secs(120),
     );
     assert_eq!(code, Some(0), "{v}");
@@ -233,11 +243,10 @@ fn reports_name_the_description_by_file_title_and_hash() {
 
 /// The built-in model `model`'s file under the id `id`, written to `dir`.
 fn renamed(dir: &Path, model: &str, id: &str) -> PathBuf {
-    let text =
-        std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join(format!(
-            "../vectors/models/{model}.json"
-        )))
-        .unwrap();
+    let text = std::fs::read_to_string(
+        Path::new(env!("CARGO_MANIFEST_DIR")).join(format!("../vectors/models/{model}.json")),
+    )
+    .unwrap();
     let mut m: serde_json::Value = serde_json::from_str(&text).unwrap();
     m["model"] = id.into();
     let path = dir.join(format!("{id}.json"));
@@ -280,7 +289,16 @@ fn identify_takes_descriptions_as_more_candidates() {
     // Beside the five: a description that predicts what a510 predicts ties with it.
     let (code, v, err) = identify(
         &d,
-        &["--sim", "a510", "--mode", "rtu", "--model-file", a, "--model-file", f],
+        &[
+            "--sim",
+            "a510",
+            "--mode",
+            "rtu",
+            "--model-file",
+            a,
+            "--model-file",
+            f,
+        ],
     );
     assert_eq!(code, Some(1), "{err}");
     assert_eq!(v["verdict"]["result"], "ambiguous", "{}", v["verdict"]);
@@ -301,7 +319,14 @@ fn identify_takes_descriptions_as_more_candidates() {
     let (code, v, err) = identify(
         &d,
         &[
-            "--sim", "a510", "--mode", "rtu", "--model-file", a, "--model-file", f,
+            "--sim",
+            "a510",
+            "--mode",
+            "rtu",
+            "--model-file",
+            a,
+            "--model-file",
+            f,
             "--only-files",
         ],
     );
@@ -313,7 +338,14 @@ fn identify_takes_descriptions_as_more_candidates() {
     let copy = renamed(&d, "f510", "f510");
     let (code, _, err) = identify(
         &d,
-        &["--sim", "a510", "--mode", "rtu", "--model-file", copy.to_str().unwrap()],
+        &[
+            "--sim",
+            "a510",
+            "--mode",
+            "rtu",
+            "--model-file",
+            copy.to_str().unwrap(),
+        ],
     );
     assert_eq!(code, Some(2), "{err}");
     assert!(

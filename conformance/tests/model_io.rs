@@ -73,8 +73,16 @@ fn an_exported_description_served_by_pymodbus_checks_clean() {
     assert_eq!(counts["unexpected"], 0, "{counts}");
     // pymodbus's own differences are there, each accepted by its entry; the rest passes.
     assert_eq!(counts["expected"], 8, "{counts}\n{}", deviations.join("\n"));
-    for id in ["rtu.broadcast.write", "rtu.other-address", "rtu.map.monitor.whole"] {
-        let c = v["checks"].as_array().unwrap().iter().find(|c| c["id"] == id);
+    for id in [
+        "rtu.broadcast.write",
+        "rtu.other-address",
+        "rtu.map.monitor.whole",
+    ] {
+        let c = v["checks"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .find(|c| c["id"] == id);
         assert_eq!(c.map(|c| &c["status"]), Some(&"pass".into()), "{id}: {c:?}");
     }
 }
@@ -115,7 +123,10 @@ fn a_register_map_imports_as_blocks_citing_its_rows() {
     );
     let text = std::fs::read_to_string(&out).unwrap();
     // Fields in the format's order, for the person who edits the file next.
-    assert!(text.starts_with("{\n  \"schema_version\": 2,\n  \"model\": \"x100\","), "{text}");
+    assert!(
+        text.starts_with("{\n  \"schema_version\": 2,\n  \"model\": \"x100\","),
+        "{text}"
+    );
     let v: serde_json::Value = serde_json::from_str(&text).unwrap();
     assert_eq!(v["title"], "Acme X100 register map");
     assert_eq!(v["modes"], serde_json::json!(["rtu"]));
@@ -149,7 +160,13 @@ fn a_bad_register_map_exits_1_naming_row_and_column_and_an_unreadable_one_2() {
         "{err}"
     );
     let (code, _, err) = run_bounded(
-        &["model", "import", "--from", "csv", d.join("none.csv").to_str().unwrap()],
+        &[
+            "model",
+            "import",
+            "--from",
+            "csv",
+            d.join("none.csv").to_str().unwrap(),
+        ],
         Duration::from_secs(30),
     );
     assert_eq!(code, Some(2), "{err}");
@@ -169,9 +186,23 @@ fn an_imported_map_served_by_pymodbus_checks_clean() {
     let description = description.to_str().unwrap();
     let sim = d.join("x100-sim.json");
     for args in [
-        vec!["model", "import", "--from", "csv", map.to_str().unwrap(), "-o", description],
         vec![
-            "model", "export", "--to", "pymodbus-sim", "--model-file", description, "-o",
+            "model",
+            "import",
+            "--from",
+            "csv",
+            map.to_str().unwrap(),
+            "-o",
+            description,
+        ],
+        vec![
+            "model",
+            "export",
+            "--to",
+            "pymodbus-sim",
+            "--model-file",
+            description,
+            "-o",
             sim.to_str().unwrap(),
         ],
     ] {

@@ -80,7 +80,12 @@ pub struct ImportArgs {
     #[arg(long, value_name = "TEXT")]
     title: Option<String>,
     /// The modes the device speaks: rtu, ascii or rtu,ascii.
-    #[arg(long, value_name = "MODES", default_value = "rtu", value_delimiter = ',')]
+    #[arg(
+        long,
+        value_name = "MODES",
+        default_value = "rtu",
+        value_delimiter = ','
+    )]
     modes: Vec<String>,
     /// The function codes the device serves, hex (03,06,10); a register map does not say.
     #[arg(long, value_name = "HEX,..", default_value = "03,06,10", value_delimiter = ',', value_parser = parse_function)]
@@ -98,7 +103,12 @@ pub struct ExportArgs {
     #[arg(long, value_enum)]
     to: To,
     /// A built-in model: f510, a510, l510, e510, l510-legacy.
-    #[arg(long, value_name = "MODEL", required_unless_present = "model_file", conflicts_with = "model_file")]
+    #[arg(
+        long,
+        value_name = "MODEL",
+        required_unless_present = "model_file",
+        conflicts_with = "model_file"
+    )]
     model: Option<String>,
     /// A description (model file).
     #[arg(long, value_name = "FILE")]
@@ -172,7 +182,11 @@ pub fn import(args: ImportArgs) -> anyhow::Result<ExitCode> {
             .clone()
             .unwrap_or_else(|| format!("register map {name}")),
         source_name: name,
-        modes: args.modes.iter().map(|m| m.trim().to_ascii_lowercase()).collect(),
+        modes: args
+            .modes
+            .iter()
+            .map(|m| m.trim().to_ascii_lowercase())
+            .collect(),
         functions: args.functions.clone(),
         hex_registers: args.hex_registers,
     };

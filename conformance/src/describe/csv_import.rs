@@ -97,7 +97,9 @@ pub struct Imported {
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
 pub enum CsvError {
     /// No header row.
-    #[error("{file}: empty: expected a header row (register, name, access, min, max, unit, scale)")]
+    #[error(
+        "{file}: empty: expected a header row (register, name, access, min, max, unit, scale)"
+    )]
     Empty {
         /// The file.
         file: String,
@@ -250,7 +252,9 @@ fn records(file: &str, text: &str) -> Result<Vec<(usize, Vec<String>)>, CsvError
         return Err(CsvError::Quoting {
             file: file.into(),
             row: start,
-            problem: "a quoted cell is not closed: expected a closing \" before the end of the file".into(),
+            problem:
+                "a quoted cell is not closed: expected a closing \" before the end of the file"
+                    .into(),
         });
     }
     if !cell.is_empty() || !cells.is_empty() {
@@ -274,7 +278,10 @@ fn number(text: &str, bare_hex: bool) -> Result<u16, String> {
         (t, 10)
     };
     if digits.is_empty() || !digits.chars().all(|c| c.is_digit(radix)) {
-        let hint = if radix == 10 && !digits.is_empty() && digits.chars().all(|c| c.is_ascii_hexdigit()) {
+        let hint = if radix == 10
+            && !digits.is_empty()
+            && digits.chars().all(|c| c.is_ascii_hexdigit())
+        {
             " (a bare number is decimal: write it 25FFH or 0x25FF, or import with --hex-registers where the sheet writes registers in bare hex)"
         } else {
             ""
@@ -342,8 +349,13 @@ pub fn import_csv(text: &str, options: &ImportOptions) -> Result<Imported, CsvEr
     let mut rows = rows
         .into_iter()
         .filter(|(_, cells)| cells.iter().any(|c| !c.trim().is_empty()));
-    let (_, header) = rows.next().ok_or_else(|| CsvError::Empty { file: file.into() })?;
-    let header: Vec<String> = header.iter().map(|h| h.trim().to_ascii_lowercase()).collect();
+    let (_, header) = rows
+        .next()
+        .ok_or_else(|| CsvError::Empty { file: file.into() })?;
+    let header: Vec<String> = header
+        .iter()
+        .map(|h| h.trim().to_ascii_lowercase())
+        .collect();
     let mut at = [None; COLUMNS.len()];
     let mut ignored = Vec::new();
     for (i, h) in header.iter().enumerate() {
@@ -384,9 +396,13 @@ pub fn import_csv(text: &str, options: &ImportOptions) -> Result<Imported, CsvEr
             problem,
         };
         if cell(0).is_empty() {
-            return Err(bad(0, "is empty: expected the row's register (2500H) or range (2500H-25FFH)".into()));
+            return Err(bad(
+                0,
+                "is empty: expected the row's register (2500H) or range (2500H-25FFH)".into(),
+            ));
         }
-        let (first, range_end) = registers(cell(0), options.hex_registers).map_err(|p| bad(0, p))?;
+        let (first, range_end) =
+            registers(cell(0), options.hex_registers).map_err(|p| bad(0, p))?;
         let last = match (range_end, cell(1)) {
             (Some(_), l) if !l.is_empty() => {
                 return Err(bad(1, "names a last register where the register column already holds a range: give one of them".into()))
@@ -424,7 +440,10 @@ pub fn import_csv(text: &str, options: &ImportOptions) -> Result<Imported, CsvEr
         }
         if let [Some(min), Some(max)] = bounds {
             if min > max {
-                return Err(bad(5, format!("is below min {min:04X}H: expected max >= min")));
+                return Err(bad(
+                    5,
+                    format!("is below min {min:04X}H: expected max >= min"),
+                ));
             }
         }
         b.min = bounds[0].map(|v| format!("{v:04X}"));
@@ -435,7 +454,13 @@ pub fn import_csv(text: &str, options: &ImportOptions) -> Result<Imported, CsvEr
                     .parse()
                     .ok()
                     .filter(|s: &f64| s.is_finite())
-                    .ok_or_else(|| bad(7, "is not a number: expected a scale such as 0.01 (value = raw x scale)".into()))?,
+                    .ok_or_else(|| {
+                        bad(
+                            7,
+                            "is not a number: expected a scale such as 0.01 (value = raw x scale)"
+                                .into(),
+                        )
+                    })?,
             );
         }
         blocks.push((row, first, last, b));
@@ -587,8 +612,14 @@ mod tests {
             e("register,name\n10H,\"open\n"),
             "MAP.csv row 2: a quoted cell is not closed: expected a closing \" before the end of the file"
         );
-        assert_eq!(e(""), "MAP.csv: empty: expected a header row (register, name, access, min, max, unit, scale)");
-        assert_eq!(e("register\n"), "MAP.csv: no register rows under the header");
+        assert_eq!(
+            e(""),
+            "MAP.csv: empty: expected a header row (register, name, access, min, max, unit, scale)"
+        );
+        assert_eq!(
+            e("register\n"),
+            "MAP.csv: no register rows under the header"
+        );
         assert_eq!(
             e("register\n70000\n"),
             "MAP.csv row 2, column register: \"70000\" is over FFFFH (65535), the largest register or value"
@@ -604,7 +635,14 @@ mod tests {
     #[test]
     fn never_panics_on_any_bytes() {
         // A few hostile shapes: lone quotes, separators only, a very long cell.
-        for csv in ["\"", ",,,\n,,,", "register\n\"\"\"", "register\n-", "register\n..", &"9".repeat(10_000)] {
+        for csv in [
+            "\"",
+            ",,,\n,,,",
+            "register\n\"\"\"",
+            "register\n-",
+            "register\n..",
+            &"9".repeat(10_000),
+        ] {
             let _ = import_csv(csv, &opts());
         }
     }

@@ -20,12 +20,12 @@ use std::ops::RangeInclusive;
 pub use error::ModelError;
 pub use facts::{Basis, ExceptionRule, Fact, Fault, SilenceReason};
 pub use file::ModelFile;
-pub use source::{sha256_hex, Source};
 pub use judge::{Expectation, Judgement, ReadPlan, WritePlan};
 pub use map::{
     Access, Alias, BitRoles, Group, Identification, Limits, NamedRegister, Origin, PerMode,
     ReadOnlyParameter, RegisterInfo, Resolution, Role,
 };
+pub use source::{sha256_hex, Source};
 
 pub use crate::codec::{frame_len, read_response_len, write_request_len};
 

@@ -55,6 +55,9 @@ mod tests {
         );
         let s = Source::of(None, "T", b"abc");
         assert_eq!(s.file_or_builtin(), "built-in");
-        assert_eq!(Source::of(Some("a.json"), "T", b"").file_or_builtin(), "a.json");
+        assert_eq!(
+            Source::of(Some("a.json"), "T", b"").file_or_builtin(),
+            "a.json"
+        );
     }
 }
