@@ -484,3 +484,36 @@ impl TargetArgs {
         s
     }
 }
+
+#[cfg(test)]
+mod model_file_tests {
+    use super::*;
+    use clap::Parser;
+
+    #[derive(Debug, Parser)]
+    struct T {
+        #[command(flatten)]
+        target: TargetArgs,
+    }
+
+    fn target(args: &[&str]) -> TargetArgs {
+        T::parse_from(std::iter::once("t").chain(args.iter().copied())).target
+    }
+
+    #[test]
+    fn a_replay_names_the_description_not_its_id() {
+        let t = target(&["--model-file", "x100.json", "--port", "/dev/ttyUSB0"]);
+        assert_eq!(
+            t.replay_prefix("send", "acme-x100"),
+            "conformance send --model-file x100.json --port /dev/ttyUSB0 -b 9600 -P even -d 8 -s 1 -a 1"
+        );
+        let t = target(&["--sim", "f510", "--model-file", "x100.json"]);
+        assert!(t
+            .replay_prefix("send", "acme-x100")
+            .starts_with("conformance send --sim f510 --model-file x100.json -b"));
+        let t = target(&["--model", "f510", "--tcp", "h:1"]);
+        assert!(t
+            .replay_prefix("send", "f510")
+            .starts_with("conformance send --model f510 --tcp h:1 -b"));
+    }
+}
