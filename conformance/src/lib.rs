@@ -8,6 +8,8 @@
 //! - [`vectors`]: the manuals' example frames as golden vectors (data under `vectors/`),
 //!   checked by the codec.
 //! - [`model`]: the drive models (data under `vectors/models/`) and their rules.
+//! - [`describe`]: descriptions in and out of other formats: a register map in CSV, and
+//!   pymodbus's simulator JSON (pure, text to text).
 //! - [`requirements`]: every wire-testable statement of the manuals (data under
 //!   `vectors/requirements/`), traced to the checks, vectors, model facts, monitor kinds
 //!   and oracle classes that verify it (the tracing reads the runner's check list).
@@ -35,6 +37,7 @@
 
 pub mod capture;
 pub mod codec;
+pub mod describe;
 pub mod expect;
 pub mod fuzz;
 pub mod gate;

@@ -366,6 +366,7 @@ fn header(config: &SessionConfig) -> Report {
             } else {
                 Vec::new()
             },
+            description: Some(config.model.source.clone()),
             ..Device::default()
         },
         options: RunOptions {

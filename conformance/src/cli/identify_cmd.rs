@@ -25,6 +25,10 @@ Examples:
   conformance identify --port /dev/ttyUSB0 -b 9600 -P even --mode rtu -a 1
   conformance identify --tcp 10.0.0.7:4001 --mode ascii --format json -o identify.json
   conformance check --model auto --port /dev/ttyUSB0 -b 9600 -P even   (identify, then check)
+  conformance identify --port /dev/ttyUSB0 --model-file x100.json --model-file x200.json
+                    (two descriptions more as candidates, beside the five built-in models)
+  conformance identify --port /dev/ttyUSB0 --model-file x100.json --model-file x200.json --only-files
+                    (those two only)
 
 Only reads (03H) are sent: nothing is written and nothing restarted. The reads are chosen
 from the models, where their predictions exclude each other: the identification register
@@ -34,6 +38,12 @@ register groups that differ (group sizes, E510's '-' registers, the legacy note'
 block), and the read limits (32 registers in the A510, 37 in the others in RTU). Each
 model is scored by how many answers it predicted exactly; the report gives every probe's
 request and reply and the models for and against it.
+
+Descriptions (--model-file FILE, repeatable) are more candidates, judged as the five are;
+with --only-files they are the only ones. Every candidate needs its own model id (a copy
+of f510.json still called f510 is refused beside the built-in f510: give it its own
+\"model\", or --only-files). The report names each description by its file, title and
+SHA-256.
 
 A silent device is not identified: the runner's preflight read must be answered first
 (as in `check`), and every silence is followed by a liveness probe.
@@ -83,6 +93,10 @@ pub struct IdentifyArgs {
     /// No progress bar.
     #[arg(short, long)]
     quiet: bool,
+    /// Only the descriptions given with --model-file are candidates, not the five built-in
+    /// models.
+    #[arg(long)]
+    only_files: bool,
 }
 
 /// The identification of the device `target` names, over `link`, recorded on `capture`.
@@ -102,10 +116,27 @@ pub fn config(
         (Some(m), true) => Some(Arc::new(load_model(m, None, address)?)),
         _ => None,
     };
-    let models = MODELS
+    let mut models = MODELS
         .iter()
         .map(|m| DriveModel::builtin(m).map(Arc::new))
         .collect::<Result<Vec<_>, _>>()?;
+    // Descriptions given with --model-file are more candidates (`check --model auto`
+    // refuses them before it gets here).
+    for path in target.model_file.as_deref().unwrap_or_default() {
+        let m = DriveModel::from_path(path)?;
+        if let Some(other) = models.iter().find(|o| o.id == m.id) {
+            bail!(
+                "{} describes model {:?}, as {} does: each candidate needs its own id (the file's \"model\"); with --only-files the built-in models are left out",
+                path.display(),
+                m.id,
+                other.source.file.as_deref().map_or_else(
+                    || format!("the built-in {}", other.id),
+                    |f| f.to_string()
+                )
+            );
+        }
+        models.push(Arc::new(m));
+    }
     let options = Options {
         address,
         bus: vec![address],
@@ -169,12 +200,18 @@ pub fn identify_device(
 }
 
 pub fn run(args: IdentifyArgs) -> anyhow::Result<ExitCode> {
-    if args.target.model.is_some() || args.target.model_file.is_some() {
-        bail!("identify finds the model itself: --model and --model-file are not taken (`check --model auto` identifies and then checks)");
+    if args.target.model.is_some() {
+        bail!("identify finds the model itself: --model is not taken (`check --model auto` identifies and then checks; --model-file adds a description to the candidates)");
+    }
+    if args.only_files && args.target.model_file.is_none() {
+        bail!("--only-files leaves the built-in models out: give the candidates with --model-file FILE");
     }
     let link = args.target.resolve_link(false, None)?;
     let capture = args.target.open_capture()?;
-    let config = config(&args.target, link, &args.tuning, capture.clone())?;
+    let mut config = config(&args.target, link, &args.tuning, capture.clone())?;
+    if args.only_files {
+        config.models.retain(|m| m.source.file.is_some());
+    }
     let stop = super::interrupt::stop_flag()?;
     let id = identify_device(&config, &stop, args.quiet)?;
     args.target.close_capture(capture.as_ref());

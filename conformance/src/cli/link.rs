@@ -56,9 +56,11 @@ pub struct TargetArgs {
     /// `conformance identify --help`), then run that model's checks.
     #[arg(long, value_name = "MODEL")]
     pub model: Option<String>,
-    /// Read the model from this file instead of the built-in one.
+    /// Read the model from this description (a model file) instead of a built-in one:
+    /// --model is then not needed, the model id is the file's. `identify` takes several
+    /// (each one more candidate); the other commands take one.
     #[arg(long, value_name = "FILE")]
-    pub model_file: Option<PathBuf>,
+    pub model_file: Option<Vec<PathBuf>>,
     /// Serial port of the device.
     #[arg(long, value_name = "PATH", group = "target")]
     pub port: Option<String>,
@@ -312,16 +314,53 @@ impl TargetArgs {
                 "--model auto is for `check` (it runs `identify` first); give the model (f510, a510, l510, e510, l510-legacy)"
             ),
             (Some(m), _) => m.clone(),
-            (None, Target::Tcp { .. }) => {
-                bail!("--tcp needs --model (f510, a510, l510, e510, l510-legacy)")
+            // The description names its model: its id is taken from the file.
+            (None, _) if self.model_file().is_some() => {
+                let model = self.load_file_model()?;
+                return self.resolve_with(link, model);
             }
-            (None, _) => bail!("--port needs --model (f510, a510, l510, e510, l510-legacy)"),
+            (None, Target::Tcp { .. }) => {
+                bail!("--tcp needs --model (f510, a510, l510, e510, l510-legacy) or --model-file FILE")
+            }
+            (None, _) => bail!(
+                "--port needs --model (f510, a510, l510, e510, l510-legacy) or --model-file FILE"
+            ),
         };
         self.resolve_as(link, &model_id)
     }
 
+    /// The one `--model-file` of a command that takes one; an error where it was given
+    /// several times (only `identify` takes several).
+    pub fn model_file(&self) -> Option<&std::path::Path> {
+        self.model_file
+            .as_deref()
+            .and_then(|f| f.first())
+            .map(PathBuf::as_path)
+    }
+
+    /// The `--model-file` given, refused where it was given more than once.
+    fn load_file_model(&self) -> anyhow::Result<DriveModel> {
+        let files = self.model_file.as_deref().unwrap_or_default();
+        if files.len() > 1 {
+            bail!(
+                "--model-file is given {} times: this command takes one description (identify takes several, as candidates)",
+                files.len()
+            );
+        }
+        load_model("", self.model_file(), self.address())
+    }
+
     /// [`TargetArgs::resolve`] with the model `model_id` (an identified one) for `link`.
     pub fn resolve_as(&self, link: Link, model_id: &str) -> anyhow::Result<Resolved> {
+        let model = match self.model_file() {
+            Some(_) => self.load_file_model()?,
+            None => load_model(model_id, None, self.address())?,
+        };
+        self.resolve_with(link, model)
+    }
+
+    /// [`TargetArgs::resolve`] with `model`, loaded, for `link`.
+    fn resolve_with(&self, link: Link, model: DriveModel) -> anyhow::Result<Resolved> {
         let Link {
             target,
             modes,
@@ -329,11 +368,7 @@ impl TargetArgs {
             is_sim,
             ..
         } = link;
-        let model = Arc::new(load_model(
-            model_id,
-            self.model_file.as_deref(),
-            self.address(),
-        )?);
+        let model = Arc::new(model);
         let nodes = &self.nodes.0;
         // The highest address the model allows that no node of the run has.
         let other_address = match self.other_address {
@@ -400,6 +435,15 @@ impl TargetArgs {
         }
     }
 
+    /// The option that names the model again: the description file where one was given
+    /// (a model it describes is no built-in), else `--model ID`.
+    fn model_option(&self, model: &str) -> String {
+        match self.model_file() {
+            Some(f) => format!("--model-file {}", f.display()),
+            None => format!("--model {model}"),
+        }
+    }
+
     /// The options that name this target again, for a replay command line.
     pub fn replay_prefix(&self, command: &str, model: &str) -> String {
         let mut s = format!("conformance {command}");
@@ -412,10 +456,13 @@ impl TargetArgs {
                 if self.no_pace {
                     s.push_str(" --no-pace");
                 }
+                if let Some(f) = self.model_file() {
+                    s.push_str(&format!(" --model-file {}", f.display()));
+                }
             }
-            (_, Some(p), _) => s.push_str(&format!(" --model {model} --port {p}")),
+            (_, Some(p), _) => s.push_str(&format!(" {} --port {p}", self.model_option(model))),
             (_, _, Some(t)) => {
-                s.push_str(&format!(" --model {model} --tcp {t}"));
+                s.push_str(&format!(" {} --tcp {t}", self.model_option(model)));
                 if self.framing == Some(Framing::Mbap) {
                     s.push_str(&format!(
                         " --framing mbap --unit {}",
@@ -435,5 +482,38 @@ impl TargetArgs {
             self.address()
         ));
         s
+    }
+}
+
+#[cfg(test)]
+mod model_file_tests {
+    use super::*;
+    use clap::Parser;
+
+    #[derive(Debug, Parser)]
+    struct T {
+        #[command(flatten)]
+        target: TargetArgs,
+    }
+
+    fn target(args: &[&str]) -> TargetArgs {
+        T::parse_from(std::iter::once("t").chain(args.iter().copied())).target
+    }
+
+    #[test]
+    fn a_replay_names_the_description_not_its_id() {
+        let t = target(&["--model-file", "x100.json", "--port", "/dev/ttyUSB0"]);
+        assert_eq!(
+            t.replay_prefix("send", "acme-x100"),
+            "conformance send --model-file x100.json --port /dev/ttyUSB0 -b 9600 -P even -d 8 -s 1 -a 1"
+        );
+        let t = target(&["--sim", "f510", "--model-file", "x100.json"]);
+        assert!(t
+            .replay_prefix("send", "acme-x100")
+            .starts_with("conformance send --sim f510 --model-file x100.json -b"));
+        let t = target(&["--model", "f510", "--tcp", "h:1"]);
+        assert!(t
+            .replay_prefix("send", "f510")
+            .starts_with("conformance send --model f510 --tcp h:1 -b"));
     }
 }

@@ -9,7 +9,11 @@ use clap::Args;
 use conformance::model::{Basis, DriveModel, Fact, Fault, SilenceReason, MODELS};
 
 #[derive(Debug, Args)]
+#[command(args_conflicts_with_subcommands = true)]
 pub struct ModelArgs {
+    /// Import a description from a register map, or export one to another format.
+    #[command(subcommand)]
+    action: Option<ModelAction>,
     /// The model: f510, a510, l510, e510, l510-legacy (all of them if left out).
     model: Option<String>,
     /// Read the model from this file instead of the built-in one.
@@ -18,6 +22,16 @@ pub struct ModelArgs {
     /// Only the model's decisions (where the manual is silent or contradicts itself).
     #[arg(long)]
     decisions: bool,
+}
+
+/// What `model` does besides showing a model.
+#[derive(Debug, clap::Subcommand)]
+enum ModelAction {
+    /// A description (schema_version 2) from a register map as integrators keep it (CSV:
+    /// register, name, access, min, max, unit, scale).
+    Import(super::model_io_cmd::ImportArgs),
+    /// A description in another format: pymodbus's simulator JSON.
+    Export(super::model_io_cmd::ExportArgs),
 }
 
 fn fact(o: &mut String, what: &str, f: &Fact, only_decisions: bool) {
@@ -247,6 +261,11 @@ fn show(m: &DriveModel, only_decisions: bool) -> String {
 }
 
 pub fn run(args: ModelArgs) -> anyhow::Result<ExitCode> {
+    match args.action {
+        Some(ModelAction::Import(a)) => return super::model_io_cmd::import(a),
+        Some(ModelAction::Export(a)) => return super::model_io_cmd::export(a),
+        None => {}
+    }
     let models: Vec<DriveModel> = match (&args.model, &args.model_file) {
         (_, Some(path)) => vec![DriveModel::from_path(path)?],
         (Some(id), None) => vec![DriveModel::builtin(id)?],

@@ -98,10 +98,11 @@ pub struct MonitorArgs {
     /// tap hears both sides on one wire).
     #[arg(long, value_name = "FILE.pcapng", conflicts_with = "capture_in")]
     capture: Option<PathBuf>,
-    /// The drives' model: f510, a510, l510, e510, l510-legacy.
-    #[arg(long, value_name = "MODEL")]
-    model: String,
-    /// A model file instead of a built-in model.
+    /// The drives' model: f510, a510, l510, e510, l510-legacy (or --model-file).
+    #[arg(long, value_name = "MODEL", required_unless_present = "model_file")]
+    model: Option<String>,
+    /// A description (model file) instead of a built-in model; --model is then not
+    /// needed, the model id is the file's.
     #[arg(long, value_name = "FILE")]
     model_file: Option<PathBuf>,
     /// The nodes on the bus (requests to others must go unanswered); default: every node
@@ -186,7 +187,7 @@ pub fn run(args: MonitorArgs) -> anyhow::Result<ExitCode> {
     }
     let nodes = args.nodes.as_ref().map(|n| n.0.clone()).unwrap_or_default();
     let model = load_model(
-        &args.model,
+        args.model.as_deref().unwrap_or_default(),
         args.model_file.as_deref(),
         nodes.first().copied().unwrap_or(1),
     )?;
@@ -738,6 +739,7 @@ fn report_stopped(
             },
             identification: None,
             simulated: None,
+            description: Some(mon.model().source.clone()),
             nodes: on_bus
                 .into_iter()
                 .map(|address| NodeInfo {

@@ -162,6 +162,8 @@ pub struct ModeLink {
 pub struct Identification {
     /// The candidate models (ids).
     pub models: Vec<String>,
+    /// The descriptions the candidates were read from, in the order of `models`.
+    pub sources: Vec<crate::model::Source>,
     /// Node address probed.
     pub address: u8,
     /// Line settings.
@@ -202,6 +204,7 @@ pub fn run(
     let l = config.line;
     let mut out = Identification {
         models: models.iter().map(|m| m.id.clone()).collect(),
+        sources: models.iter().map(|m| m.source.clone()).collect(),
         address,
         line: format!("{} baud {}{}{}", l.baud, l.data_bits, l.parity, l.stop_bits),
         simulated: match (&config.target, &config.sim_model) {

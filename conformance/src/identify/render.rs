@@ -101,6 +101,17 @@ pub fn text(id: &Identification) -> String {
         );
     }
     let _ = writeln!(s, "line:    {}", id.line);
+    // Descriptions given with --model-file: each named by its file, title and hash (the
+    // built-in five by the suite's version on the first line).
+    for (m, src) in id.models.iter().zip(&id.sources) {
+        if let Some(file) = &src.file {
+            let _ = writeln!(
+                s,
+                "model:   {m} from {file}, {:?}, sha256 {}",
+                src.title, src.sha256
+            );
+        }
+    }
     let per_mode: Vec<String> = id
         .links
         .iter()
@@ -261,6 +272,12 @@ pub fn json(id: &Identification) -> Value {
             "echo": l.echo,
         })).collect::<Vec<_>>(),
         "tolerance": id.tolerance,
+        "candidates": id.models.iter().zip(&id.sources).map(|(m, s)| json!({
+            "model": m,
+            "file": s.file,
+            "title": s.title,
+            "sha256": s.sha256,
+        })).collect::<Vec<_>>(),
         "scores": id.scores.iter().map(|s| json!({
             "model": s.model,
             "manual": s.manual,

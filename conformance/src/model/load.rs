@@ -505,6 +505,7 @@ impl DriveModel {
             example_registers,
             initial_values,
             aliases,
+            source: Source::default(),
             map,
         };
         model.parameter_read_only = read_only_parameters(&model, &f.parameter_access.read_only)?;

@@ -12,6 +12,7 @@ mod file;
 mod judge;
 mod load;
 mod map;
+mod source;
 
 use std::collections::BTreeMap;
 use std::ops::RangeInclusive;
@@ -24,6 +25,7 @@ pub use map::{
     Access, Alias, BitRoles, Group, Identification, Limits, NamedRegister, Origin, PerMode,
     ReadOnlyParameter, RegisterInfo, Resolution, Role,
 };
+pub use source::{sha256_hex, Source};
 
 pub use crate::codec::{frame_len, read_response_len, write_request_len};
 
@@ -101,6 +103,8 @@ pub struct DriveModel {
     pub initial_values: Vec<(u16, u16, Fact)>,
     /// Alias spellings.
     pub aliases: Vec<Alias>,
+    /// The description the model was read from (file, title, hash), for reports.
+    pub source: Source,
     /// Sorted, non-overlapping spans of the map: (range, access, group, origin).
     map: Vec<(RangeInclusive<u16>, Access, usize, Origin)>,
 }
@@ -154,7 +158,9 @@ impl DriveModel {
             file: path.display().to_string(),
             source,
         })?;
-        Self::from_json(&path.display().to_string(), &text)
+        let mut m = Self::from_json(&path.display().to_string(), &text)?;
+        m.source.file = Some(path.display().to_string());
+        Ok(m)
     }
 
     /// Parses and checks a model file's text; `name` names it in errors.
@@ -163,7 +169,9 @@ impl DriveModel {
             model: name.to_string(),
             source,
         })?;
-        Self::from_file(&file)
+        let mut m = Self::from_file(&file)?;
+        m.source = Source::of(None, &m.title, text.as_bytes());
+        Ok(m)
     }
 
     /// Where `register` sits in the map, resolving alias spellings; `None` if the model

@@ -77,6 +77,7 @@ fn base(results: Vec<CheckResult>, restore: Vec<RestoreRecord>) -> Report {
             identification: Some(0x0510),
             simulated: Some(vec![]),
             nodes: vec![],
+            description: None,
         },
         options: RunOptions {
             modes: vec![Mode::Rtu, Mode::Ascii],

@@ -322,6 +322,18 @@ fn header(out: &mut String, report: &Report) {
             let d = &report.device;
             row(out, "model", &esc(&d.model));
             row(out, "manual", &esc(&d.manual));
+            if let Some(s) = &d.description {
+                row(
+                    out,
+                    "description",
+                    &format!(
+                        "{}, {} <span class=\"muted\">sha256 {}</span>",
+                        esc(s.file_or_builtin()),
+                        esc(&s.title),
+                        esc(&s.sha256)
+                    ),
+                );
+            }
             if d.nodes.is_empty() && report.kind == ReportKind::Monitor {
                 row(out, "node addresses", "<i>no node heard</i>");
             } else if d.nodes.is_empty() {

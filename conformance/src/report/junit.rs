@@ -43,6 +43,19 @@ fn body(c: &CheckResult) -> String {
     s
 }
 
+/// The properties that name the description the device was judged by: its file
+/// (`built-in`), title and SHA-256; none in a report that does not record it.
+fn description(r: &Report) -> Vec<(&'static str, String)> {
+    match &r.device.description {
+        Some(s) => vec![
+            ("description", s.file_or_builtin().to_string()),
+            ("description_title", s.title.clone()),
+            ("description_sha256", s.sha256.clone()),
+        ],
+        None => Vec::new(),
+    }
+}
+
 /// The report as JUnit XML.
 pub fn junit(r: &Report) -> String {
     let s = r.summary();
@@ -94,7 +107,7 @@ pub fn junit(r: &Report) -> String {
                     ("count", c.count.to_string()),
                     ("complete", r.complete.to_string()),
                 ],
-                None => vec![
+                None => [
                     ("model", r.device.model.clone()),
                     ("manual", r.device.manual.clone()),
                     ("address", format!("{:02X}", r.device.address)),
@@ -111,7 +124,10 @@ pub fn junit(r: &Report) -> String {
                             .unwrap_or_default(),
                     ),
                     ("complete", r.complete.to_string()),
-                ],
+                ]
+                .into_iter()
+                .chain(description(r))
+                .collect(),
             };
             suite(&mut o, r, &name, &cases, &properties);
         }
@@ -149,6 +165,7 @@ pub fn junit(r: &Report) -> String {
             ("link", links.clone()),
             ("line", r.device.line.clone()),
         ];
+        properties.extend(description(r));
         if let Some(i) = info {
             properties.push((
                 "identification",

@@ -56,6 +56,9 @@ pub struct Device {
     /// In a run of several nodes on one bus (`check --address 1,2,5`): each node, in the
     /// order checked; empty for a run of one node. [`Device::address`] is then the first.
     pub nodes: Vec<NodeInfo>,
+    /// The description the device was judged by: its file (`None` for a built-in model),
+    /// title and SHA-256. `None` in reports older than it.
+    pub description: Option<crate::model::Source>,
 }
 
 /// One node of a run of several nodes on one bus.
@@ -456,6 +459,13 @@ impl Report {
                 "quirks": self.device.simulated.clone().unwrap_or_default(),
             }),
         };
+        if let (Some(s), true) = (&self.device.description, device.is_object()) {
+            device["description"] = json!({
+                "file": s.file,
+                "title": s.title,
+                "sha256": s.sha256,
+            });
+        }
         if !self.device.nodes.is_empty() && device.is_object() {
             device["nodes"] = self
                 .device

@@ -311,6 +311,18 @@ impl Report {
                     } else {
                         None
                     },
+                    // Reports older than the description's record have none.
+                    description: match d.get("description") {
+                        None | Some(Value::Null) => None,
+                        Some(s) => {
+                            let p = format!("{p}.description");
+                            Some(crate::model::Source {
+                                file: opt_string(s, "file", &p)?,
+                                title: string(s, "title", &p)?,
+                                sha256: string(s, "sha256", &p)?,
+                            })
+                        }
+                    },
                     // Reports of one node (and reports older than several-node runs)
                     // have no list.
                     nodes: match d.get("nodes") {
@@ -454,6 +466,11 @@ mod tests {
                 identification: Some(0x0510),
                 simulated: Some(vec!["wrong-exception".into()]),
                 nodes: Vec::new(),
+                description: Some(crate::model::Source::of(
+                    Some("models/x100.json"),
+                    "Acme X100 user manual rev C",
+                    b"{}",
+                )),
             },
             options: RunOptions {
                 modes: vec![Mode::Rtu, Mode::Ascii],

@@ -125,6 +125,17 @@ pub fn text(r: &Report, verbose: bool) -> String {
             let _ = writeln!(o, "link:    {mode}: {link}");
         }
         let _ = writeln!(o, "line:    {}", d.line);
+        // A built-in model is named by the suite's version on the first line; a
+        // description read from a file by its file, title and hash.
+        if let Some(s) = d.description.as_ref().filter(|s| s.file.is_some()) {
+            let _ = writeln!(
+                o,
+                "model:   {}, {:?}, sha256 {}",
+                s.file_or_builtin(),
+                s.title,
+                s.sha256
+            );
+        }
     }
     let _ = writeln!(
         o,

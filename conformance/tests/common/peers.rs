@@ -284,6 +284,33 @@ pub fn pymodbus_serial_with(
     })
 }
 
+/// pymodbus's simulator (tests/interop/pymodbus_sim_server.py) serving the simulator JSON
+/// `sim` (as `model export --to pymodbus-sim` writes it) in RTU on one end of a
+/// [`PtyPair`] in `dir`; None (after SKIPPED) when pymodbus is missing.
+pub fn pymodbus_sim_serial(dir: &Path, sim: &Path) -> Option<SerialPeer> {
+    if !need(Peer::Pymodbus) {
+        return None;
+    }
+    let (line, a, b) = pty_pair(dir);
+    let server = concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/tests/interop/pymodbus_sim_server.py"
+    );
+    let device = Kill::spawn(
+        Command::new(python())
+            .arg(server)
+            .arg(sim)
+            .arg(&a)
+            .stderr(Stdio::null()),
+    );
+    super::wait_until_answers(&b, "rtu", &["-P", "none"]);
+    Some(SerialPeer {
+        device,
+        line,
+        port: b,
+    })
+}
+
 /// pymodbus's generic Modbus TCP server (tests/interop/pymodbus_tcp_server.py) with one
 /// unit id, listening on a free port of 127.0.0.1: the guard and its address; None
 /// (after SKIPPED) when pymodbus is missing.
