@@ -18,6 +18,16 @@ pub struct ModelArgs {
     /// Only the model's decisions (where the manual is silent or contradicts itself).
     #[arg(long)]
     decisions: bool,
+    #[command(subcommand)]
+    action: Option<ModelAction>,
+}
+
+/// What `model` does other than show a model.
+#[derive(Debug, clap::Subcommand)]
+enum ModelAction {
+    /// Draw up a first description from a live device (reads only, unless
+    /// --allow-write): its map, functions, exceptions, silences and timing.
+    Learn(super::model_learn_cmd::LearnArgs),
 }
 
 fn fact(o: &mut String, what: &str, f: &Fact, only_decisions: bool) {
@@ -247,6 +257,9 @@ fn show(m: &DriveModel, only_decisions: bool) -> String {
 }
 
 pub fn run(args: ModelArgs) -> anyhow::Result<ExitCode> {
+    if let Some(ModelAction::Learn(a)) = args.action {
+        return super::model_learn_cmd::run(a);
+    }
     let models: Vec<DriveModel> = match (&args.model, &args.model_file) {
         (_, Some(path)) => vec![DriveModel::from_path(path)?],
         (Some(id), None) => vec![DriveModel::builtin(id)?],

@@ -194,6 +194,11 @@ impl<'a> Asker<'a> {
         self.requests
     }
 
+    /// Sets the cap on requests (the map search runs under a lower one).
+    pub fn set_cap(&mut self, max_requests: u64) {
+        self.max_requests = max_requests;
+    }
+
     /// Requests that may still be made under the cap.
     pub fn budget(&self) -> u64 {
         self.max_requests.saturating_sub(self.requests)
@@ -348,12 +353,5 @@ mod tests {
             (m, p),
             (Duration::from_millis(50), Duration::from_millis(99))
         );
-    }
-}
-
-impl Asker<'_> {
-    /// Sets the cap on requests (the map search runs under a lower one).
-    pub fn set_cap(&mut self, max_requests: u64) {
-        self.max_requests = max_requests;
     }
 }

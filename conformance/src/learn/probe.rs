@@ -374,7 +374,7 @@ fn writes(ask: &mut Asker<'_>, learned: &mut Learned) -> Result<(), LearnError> 
 /// What the draft says of a block's access, from the writes to its first register:
 /// read-write (a write answered and read back), read-only (every write refused with an
 /// exception other than the unserved-function one), or not known.
-pub fn block_access<'l>(learned: &'l Learned, first: u16) -> Option<(&'static str, &'l Evidence)> {
+pub fn block_access(learned: &Learned, first: u16) -> Option<(&'static str, &Evidence)> {
     let unserved = learned.illegal_function.as_ref().map(|(c, _)| *c);
     let tried: Vec<&WriteSeen> = learned
         .writes
