@@ -35,7 +35,8 @@ impl Tmp {
 
 impl Drop for Tmp {
     fn drop(&mut self) {
-        if !std::thread::panicking() {
+        // Kept where the test failed, or where TECO_KEEP is set (to read the drafts).
+        if !std::thread::panicking() && std::env::var_os("TECO_KEEP").is_none() {
             let _ = std::fs::remove_dir_all(&self.0);
         }
     }
@@ -327,7 +328,9 @@ fn learn_a_libmodbus_server() {
 /// `check --model-file DRAFT --port PORT --read-only ARGS`: no deviation, exit 0.
 fn check_holds(dir: &Path, port: &str, line: &[&str]) {
     let draft = dir.join("draft.json");
+    let report = dir.join("check.json");
     let mut args = vec![
+        "check",
         "--model-file",
         draft.to_str().unwrap(),
         "--port",
@@ -335,9 +338,17 @@ fn check_holds(dir: &Path, port: &str, line: &[&str]) {
         "--read-only",
         "--timeout",
         "1000",
+        "--format",
+        "json",
+        "--quiet",
+        "-o",
+        report.to_str().unwrap(),
     ];
     args.extend_from_slice(line);
-    let (exit, v) = common::check_device(dir, &args, Duration::from_secs(300));
+    let (exit, _, stderr) = run_bounded(&args, Duration::from_secs(300));
+    let text = std::fs::read_to_string(&report)
+        .unwrap_or_else(|e| panic!("check wrote no report ({e}), exit {exit:?}: {stderr}"));
+    let v: Value = serde_json::from_str(&text).unwrap();
     let deviations: Vec<String> = v["checks"]
         .as_array()
         .into_iter()
@@ -380,4 +391,52 @@ fn learn_a_libmodbus_server_then_check() {
     let (exit, stderr, _) = learn(dir.path(), port, &LIBMODBUS_LINE);
     assert_eq!(exit, Some(0), "{stderr}");
     check_holds(dir.path(), port, &LIBMODBUS_LINE);
+}
+
+/// Ctrl-C (SIGINT) during the map search: the draft of what was found so far is
+/// written, says it was interrupted, and follows the format; exit 2.
+#[test]
+fn learn_interrupted_writes_the_draft_so_far() {
+    use nix::sys::signal::{kill, Signal};
+    use nix::unistd::Pid;
+    use std::io::{BufRead, BufReader};
+    let dir = Tmp::new("learn_interrupted_writes_the_draft_so_far");
+    let (_sim, port) = f510_sim();
+    let out = dir.path().join("draft.json");
+    // The whole range: far longer than the wait below.
+    let mut child = common::Kill::spawn(
+        std::process::Command::new(common::bin())
+            .args(["model", "learn", "--port", &port, "-q"])
+            .args(F510_LINE)
+            .arg("-o")
+            .arg(&out)
+            .stderr(std::process::Stdio::piped()),
+    );
+    let mut stderr = BufReader::new(child.0.stderr.take().unwrap());
+    let mut line = String::new();
+    // The device is found: the learn proper has started.
+    while !line.starts_with("found node") {
+        line.clear();
+        assert!(
+            stderr.read_line(&mut line).unwrap() > 0,
+            "learn ended before finding the device"
+        );
+    }
+    std::thread::sleep(Duration::from_secs(1));
+    kill(Pid::from_raw(child.0.id() as i32), Signal::SIGINT).unwrap();
+    let status = child.wait_within(Duration::from_secs(60), "model learn after SIGINT");
+    let mut rest = String::new();
+    std::io::Read::read_to_string(&mut stderr, &mut rest).unwrap();
+    assert_eq!(status.code(), Some(2), "{rest}");
+    assert!(rest.contains("learn stopped early: interrupted"), "{rest}");
+    let d: Value = serde_json::from_str(&std::fs::read_to_string(&out).unwrap()).unwrap();
+    follows_the_format(&d);
+    assert!(
+        d["notes"]
+            .as_str()
+            .unwrap()
+            .contains("Learning stopped early: interrupted"),
+        "{}",
+        d["notes"]
+    );
 }

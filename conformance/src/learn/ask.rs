@@ -252,7 +252,11 @@ impl<'a> Asker<'a> {
             reply: heard.reply.as_ref().map(|r| frame_text(mode, r)),
         };
         let answer = sort(mode, frame, &heard);
-        if let (Some(t), Answer::Data(_) | Answer::Exception(_)) = (heard.latency, &answer) {
+        // Only replies to requests that wait for one are timed: a broadcast's or another
+        // node's answer is a fault of its own, not the device's response time.
+        if let (true, Some(t), Answer::Data(_) | Answer::Exception(_)) =
+            (expect_reply, heard.latency, &answer)
+        {
             self.latencies.push((t, evidence.clone()));
         }
         Ok((answer, evidence))

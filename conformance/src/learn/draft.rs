@@ -264,22 +264,19 @@ fn notes(l: &Learned) -> String {
         l.map.largest.as_ref().map_or(0, |(c, _)| *c),
         m.stride
     ));
-    for b in l
-        .map
-        .blocks
-        .iter()
-        .filter(|b| !b.start_shown || !b.end_shown)
-    {
-        n.push(format!(
-            "Block {:04X}H..{:04X}H: {} (the search stopped there).",
-            b.first,
-            b.last,
-            match (b.start_shown, b.end_shown) {
-                (false, false) => "neither edge was shown",
-                (false, true) => "its start was not shown",
-                _ => "its end was not shown",
-            }
-        ));
+    for b in &l.map.blocks {
+        if !b.start_shown {
+            n.push(format!(
+                "Block {:04X}H..{:04X}H starts at the first register searched: it may start lower.",
+                b.first, b.last
+            ));
+        }
+        if !b.end_shown {
+            n.push(format!(
+                "Block {:04X}H..{:04X}H ends where the search stopped: it may go on.",
+                b.first, b.last
+            ));
+        }
     }
     if let Some((c, e)) = &l.map.largest {
         n.push(format!(
