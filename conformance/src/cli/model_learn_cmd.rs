@@ -354,7 +354,11 @@ pub fn run(args: LearnArgs) -> anyhow::Result<ExitCode> {
         "map: {} block(s) in {:04X}H..{:04X}H{}: {} requests (largest read {} registers)",
         m.blocks.len(),
         map.first,
-        m.searched_to.unwrap_or(map.first),
+        if m.complete {
+            map.last
+        } else {
+            m.searched_to.unwrap_or(map.first)
+        },
         if m.complete {
             ""
         } else {
