@@ -281,19 +281,43 @@ fn pymodbus_device(dir: &Path) -> Option<SerialPeer> {
 
 const PYMODBUS_LINE: [&str; 8] = ["-b", "9600", "-P", "none", "-m", "rtu", "-a", "1"];
 
+/// With --allow-write: each block's first register written with the value just read
+/// (06H and 10H) and read back, so the draft lists 06H and 10H and each block's access.
 #[test]
 fn learn_a_pymodbus_server() {
     let dir = Tmp::new("learn_a_pymodbus_server");
     let Some(peer) = pymodbus_device(dir.path()) else {
         return;
     };
-    let (exit, stderr, d) = learn(dir.path(), peer.port.to_str().unwrap(), &PYMODBUS_LINE);
+    let mut args = PYMODBUS_LINE.to_vec();
+    args.push("--allow-write");
+    let (exit, stderr, d) = learn(dir.path(), peer.port.to_str().unwrap(), &args);
     assert_eq!(exit, Some(0), "{stderr}");
     let blocks = follows_the_format(&d);
     assert_eq!(blocks, [(0x0000, 0x0FFF), (0x2500, 0x252F)]);
     assert_eq!(d["exceptions"]["illegal-register"]["code"], "02");
     assert_eq!(d["limits"]["read_registers"]["rtu"], 125);
     assert!(d["limits"].get("same_group").is_none());
+    assert_eq!(
+        d["functions"]["codes"],
+        serde_json::json!(["03", "04", "06", "08", "10"])
+    );
+    for b in d["blocks"].as_array().unwrap() {
+        assert_eq!(b["access"], "read-write", "{b}");
+    }
+    assert!(d.get("parameter_access").is_none());
+    // pymodbus 3.16.1 answers a broadcast and another node (exception 04H), an unserved
+    // function not at all, and a count over 125 with no valid frame: none of these is
+    // stated, each is in the notes.
+    for reason in ["broadcast", "other-address"] {
+        assert!(d["silence"].get(reason).is_none(), "{reason}");
+    }
+    let notes = d["notes"].as_str().unwrap();
+    assert!(
+        notes.contains("broadcast: the device did not keep silent"),
+        "{notes}"
+    );
+    assert!(notes.contains("Function 41H drew no reply"), "{notes}");
     note(&format!(
         "pymodbus draft: functions {}, exceptions {}, silence {}",
         d["functions"]["codes"], d["exceptions"], d["silence"]

@@ -369,6 +369,9 @@ pub(crate) mod tests {
         pub same_group: bool,
         pub node: u8,
         pub asked: u64,
+        /// Answers requests to every node (the broadcast too) with exception 04H, at
+        /// once, as pymodbus's serial server does for a node it does not have.
+        pub answers_everyone: Option<std::time::Duration>,
     }
 
     impl Fake {
@@ -379,6 +382,7 @@ pub(crate) mod tests {
                 same_group,
                 node: 1,
                 asked: 0,
+                answers_everyone: None,
             }
         }
 
@@ -391,7 +395,9 @@ pub(crate) mod tests {
         fn answer(&self, body: &[u8]) -> Option<Vec<u8>> {
             let (&node, rest) = body.split_first()?;
             if node != self.node {
-                return None;
+                return self
+                    .answers_everyone
+                    .and_then(|_| Some(vec![node, rest.first()? | 0x80, 0x04]));
             }
             match rest {
                 [0x03, sh, sl, ch, cl] => {
@@ -427,16 +433,23 @@ pub(crate) mod tests {
 
         fn exchange(&mut self, frame: &[u8], _expect: bool) -> Result<Heard, TransportError> {
             self.asked += 1;
-            let reply = frame_parts(Mode::Rtu, frame)
+            let body = frame_parts(Mode::Rtu, frame)
                 .ok()
                 .filter(|p| p.checksum.is_valid())
-                .and_then(|p| self.answer(&p.body))
+                .map(|p| p.body);
+            let to_other = body.as_ref().is_some_and(|b| b[0] != self.node);
+            let reply = body
+                .and_then(|b| self.answer(&b))
                 .map(|b| frame_of_body(Mode::Rtu, &b).unwrap());
+            let latency = match self.answers_everyone {
+                Some(t) if to_other => t,
+                _ => std::time::Duration::from_millis(3),
+            };
             Ok(Heard {
                 request: frame.to_vec(),
                 reply,
                 stray: 0,
-                latency: Some(std::time::Duration::from_millis(3)),
+                latency: Some(latency),
             })
         }
     }

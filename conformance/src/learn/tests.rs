@@ -7,11 +7,15 @@ use super::map::MapConfig;
 use super::*;
 
 fn learn_fake(fake: &mut Fake, allow_write: bool) -> (Learned, Result<(), LearnError>) {
+    learn_range(fake, allow_write, 0x2FFF)
+}
+
+fn learn_range(fake: &mut Fake, allow_write: bool, last: u16) -> (Learned, Result<(), LearnError>) {
     let cfg = LearnConfig {
         node: 1,
         map: MapConfig {
             first: 0,
-            last: 0x2FFF,
+            last,
             stride: 16,
         },
         max_requests: 20_000,
@@ -128,4 +132,35 @@ fn an_interrupted_learn_keeps_what_it_found() {
         .as_str()
         .unwrap()
         .contains("Learning stopped early: interrupted"));
+}
+
+/// A device that answers a broadcast and another node (with exception 04H, as pymodbus
+/// does) has no silence to state, and those answers are no response time of its own:
+/// here they come late, and the p99 (of a few replies: the largest) stays the device's
+/// 3 ms.
+#[test]
+fn answers_to_a_broadcast_and_another_node_are_not_timed() {
+    let mut fake = Fake::new(&[(0x0000, 0x00FF)], 125, false);
+    fake.answers_everyone = Some(std::time::Duration::from_millis(400));
+    let (learned, r) = learn_range(&mut fake, false, 0x00FF);
+    assert!(
+        learned.timed < 100,
+        "{} replies: the p99 is not the largest",
+        learned.timed
+    );
+    r.unwrap();
+    let d = draft::draft(&learned, "learned", "2026-11-27");
+    assert_eq!(
+        d["limits"]["response_time_ms"]["value"], 3,
+        "{}",
+        d["limits"]
+    );
+    assert!(d["silence"].get("broadcast").is_none());
+    assert!(d["silence"].get("other-address").is_none());
+    assert_eq!(d["silence"]["bad-checksum"]["basis"], "observed");
+    let notes = d["notes"].as_str().unwrap();
+    assert!(
+        notes.contains("broadcast: the device did not keep silent"),
+        "{notes}"
+    );
 }
