@@ -59,7 +59,10 @@ impl<T: Transport + ?Sized> Device for LiveDevice<T> {
 
     fn exchange(&mut self, frame: &[u8], expect_reply: bool) -> Result<Heard, TransportError> {
         let ex = self.master.exchange(frame, expect_reply)?;
-        let stray = ex.after_echo().len() - ex.reply.as_ref().map_or(0, Vec::len);
+        let stray = ex
+            .after_echo()
+            .len()
+            .saturating_sub(ex.reply.as_ref().map_or(0, Vec::len));
         // As the runner measures a response delay: the first byte arrives one character
         // after the reply starts.
         let ct = self
