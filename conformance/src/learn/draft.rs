@@ -51,11 +51,17 @@ pub fn draft(learned: &Learned, id: &str, date: &str) -> Value {
     let mut d = Map::new();
     d.insert("schema_version".into(), json!(2));
     d.insert("model".into(), json!(id));
+    // A serial link's description names its line settings already.
+    let line = if learned.link.contains(&learned.line) {
+        learned.mode.to_string()
+    } else {
+        format!("{} {}", learned.line, learned.mode)
+    };
     d.insert(
         "title".into(),
         json!(format!(
-            "learned from {} node {} on {date} ({} {})",
-            learned.link, learned.node, learned.line, learned.mode
+            "learned from {} node {} on {date} ({line})",
+            learned.link, learned.node
         )),
     );
     d.insert("manual".into(), json!("learned draft"));
