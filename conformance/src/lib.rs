@@ -43,6 +43,7 @@ pub mod fuzz;
 pub mod gate;
 pub mod identify;
 pub mod judge;
+pub mod learn;
 #[cfg(unix)]
 pub mod line;
 pub mod model;

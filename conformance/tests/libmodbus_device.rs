@@ -49,18 +49,10 @@
 //! fails.
 
 mod common;
-use common::{Kill, SerialPeer};
+use common::SerialPeer;
 
-use std::io::{BufRead, BufReader};
-use std::path::{Path, PathBuf};
-use std::process::{Command, Stdio};
-use std::sync::mpsc;
+use std::path::Path;
 use std::time::{Duration, Instant};
-
-/// Builds the server into `dir`; `None` (after SKIPPED) when a tool is missing.
-fn build_server(dir: &Path) -> Option<PathBuf> {
-    common::libmodbus_program(dir, "server")
-}
 
 /// The check of `id` in the report.
 fn check<'a>(v: &'a serde_json::Value, id: &str) -> &'a serde_json::Value {
@@ -82,33 +74,7 @@ fn status<'a>(v: &'a serde_json::Value, id: &str, want: &str) -> &'a serde_json:
 /// The server built and started on one end of a pseudo-terminal pair: the guards and the runner's
 /// end (None after SKIPPED when a tool is missing).
 fn start(dir: &Path) -> Option<SerialPeer> {
-    let server = build_server(dir)?;
-    let (line, a, b) = common::pty_pair(dir);
-    let mut server = Kill::spawn(
-        Command::new(&server)
-            .args([a.to_str().unwrap(), "1"])
-            .stdout(Stdio::piped())
-            .stderr(Stdio::null()),
-    );
-    // The server prints "ready" once the port is open, and nothing else on stdout.
-    let stdout = server.0.stdout.take().unwrap();
-    let (tx, rx) = mpsc::channel();
-    std::thread::spawn(move || {
-        let mut lines = BufReader::new(stdout).lines();
-        let _ = tx.send(lines.next().and_then(Result::ok));
-        assert!(lines.next().is_none(), "the server wrote more than 'ready'");
-    });
-    let ready = rx.recv_timeout(Duration::from_secs(10));
-    assert_eq!(
-        ready,
-        Ok(Some("ready".to_string())),
-        "the server did not start"
-    );
-    Some(SerialPeer {
-        device: server,
-        line,
-        port: b,
-    })
+    common::libmodbus_server(dir, &["1"])
 }
 
 #[test]

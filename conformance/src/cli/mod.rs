@@ -15,6 +15,7 @@ mod link;
 mod master_gate_cmd;
 mod model_cmd;
 mod model_io_cmd;
+mod model_learn_cmd;
 mod monitor_cmd;
 mod report_cmd;
 mod requirements_cmd;

@@ -11,7 +11,7 @@ use conformance::model::{Basis, DriveModel, Fact, Fault, SilenceReason, MODELS};
 #[derive(Debug, Args)]
 #[command(args_conflicts_with_subcommands = true)]
 pub struct ModelArgs {
-    /// Import a description from a register map, or export one to another format.
+    /// Learn, import or export a description.
     #[command(subcommand)]
     action: Option<ModelAction>,
     /// The model: f510, a510, l510, e510, l510-legacy (all of them if left out).
@@ -27,6 +27,9 @@ pub struct ModelArgs {
 /// What `model` does besides showing a model.
 #[derive(Debug, clap::Subcommand)]
 enum ModelAction {
+    /// Draw up a first description from a live device (reads only, unless
+    /// --allow-write): its map, functions, exceptions, silences and timing.
+    Learn(super::model_learn_cmd::LearnArgs),
     /// A description (schema_version 2) from a register map as integrators keep it (CSV:
     /// register, name, access, min, max, unit, scale).
     Import(super::model_io_cmd::ImportArgs),
@@ -262,6 +265,7 @@ fn show(m: &DriveModel, only_decisions: bool) -> String {
 
 pub fn run(args: ModelArgs) -> anyhow::Result<ExitCode> {
     match args.action {
+        Some(ModelAction::Learn(a)) => return super::model_learn_cmd::run(a),
         Some(ModelAction::Import(a)) => return super::model_io_cmd::import(a),
         Some(ModelAction::Export(a)) => return super::model_io_cmd::export(a),
         None => {}

@@ -190,21 +190,13 @@ pub fn address_ranges(addresses: &[u8]) -> String {
 
 pub fn run(args: ScanArgs) -> anyhow::Result<ExitCode> {
     let addresses = parse_addresses(&args.addresses)?;
-    let search = Search {
-        bauds: args.bauds.clone(),
-        parities: args
-            .parities
-            .iter()
-            .map(|p| match p {
-                ParityArg::None => Parity::None,
-                ParityArg::Even => Parity::Even,
-                ParityArg::Odd => Parity::Odd,
-            })
-            .collect(),
-        stop_bits: args.stop_bits.clone(),
-        data_bits: args.data_bits.clone(),
-        modes: args.modes.iter().map(|&m| Mode::from(m)).collect(),
-    };
+    let search = search_of(
+        &args.bauds,
+        &args.parities,
+        &args.data_bits,
+        &args.stop_bits,
+        &args.modes,
+    );
     if args.bauds.contains(&0) {
         bail!("-b 0 is no baud rate");
     }
@@ -220,68 +212,16 @@ pub fn run(args: ScanArgs) -> anyhow::Result<ExitCode> {
         .as_deref()
         .map(super::link::open_capture)
         .transpose()?;
-    let mut link: Box<dyn ScanLink> = match (&args.port, &args.tcp) {
-        (Some(path), None) => {
-            let first = settings[0].line;
-            let kind = serial_kind(path);
-            let mut port =
-                SerialTransport::open(path, first, kind)?.with_rts(args.rts.control())?;
-            if kind == LinkKind::Pty {
-                // A pseudo-terminal standing in for a line: requests take their wire
-                // time, as on a real port.
-                port = port.paced_peer();
-            }
-            let link = SerialLink::new(port, path);
-            Box::new(match &capture {
-                Some(rec) => link.recorded(rec.clone()),
-                None => link,
-            })
-        }
-        (None, Some(addr)) => {
-            // The gateway's line is its own: one setting a mode, for the windows.
-            let line = settings[0].line;
-            let mut modes: Vec<Mode> = Vec::new();
-            for s in &settings {
-                if !modes.contains(&s.mode) {
-                    modes.push(s.mode);
-                }
-            }
-            settings = modes
-                .into_iter()
-                .map(|mode| Setting { line, mode })
-                .collect();
-            if args.framing == Some(Framing::Mbap) {
-                if settings.iter().any(|s| s.mode != Mode::Rtu) && !args.modes.is_empty() {
-                    bail!("--framing mbap carries RTU-equivalent PDUs only: there is no ASCII over Modbus TCP (drop -m ascii)");
-                }
-                settings.retain(|s| s.mode == Mode::Rtu);
-                // Node n is unit n: the map of one node to itself is the identity.
-                let mut t = MbapGateway::connect(addr, Duration::from_secs(2), UnitMap::new(1, 1))?;
-                if let Some(rec) = &capture {
-                    t = t.with_capture(rec.clone());
-                }
-                // The gateway's own description names the one unit of a request; the
-                // sweep's header names every unit id it tries.
-                let described = format!(
-                    "Modbus TCP gateway {} (MBAP, unit ids {} swept, each the node address)",
-                    t.peer(),
-                    address_ranges(&addresses)
-                );
-                // A gateway answers a unit with no device with 0BH only after its own
-                // serial timeout (often 100..1000 ms): the window waits for that answer,
-                // so that it is not taken for the reply to the next unit's read.
-                Box::new(FixedLink::new(Box::new(t), MBAP_SLACK).described_as(described))
-            } else {
-                let t = TcpTransport::connect(addr, Duration::from_secs(2))?;
-                let link = FixedLink::new(Box::new(t), Duration::from_millis(20));
-                Box::new(match &capture {
-                    Some(rec) => link.recorded(rec.clone()),
-                    None => link,
-                })
-            }
-        }
-        _ => bail!("say where the line is: --port PATH or --tcp HOST:PORT"),
-    };
+    let mut link = open_link(
+        args.port.as_deref(),
+        args.tcp.as_deref(),
+        args.framing,
+        &mut settings,
+        &args.rts,
+        capture.as_ref(),
+        &addresses,
+        !args.modes.is_empty(),
+    )?;
     let config = ScanConfig {
         settings,
         addresses,
@@ -352,6 +292,107 @@ pub fn run(args: ScanArgs) -> anyhow::Result<ExitCode> {
         ExitCode::from(1)
     } else {
         ExitCode::SUCCESS
+    })
+}
+
+/// The settings to search, from the options as given (empty: the defaults).
+pub(super) fn search_of(
+    bauds: &[u32],
+    parities: &[ParityArg],
+    data_bits: &[u8],
+    stop_bits: &[u8],
+    modes: &[ModeArg],
+) -> Search {
+    Search {
+        bauds: bauds.to_vec(),
+        parities: parities
+            .iter()
+            .map(|p| match p {
+                ParityArg::None => Parity::None,
+                ParityArg::Even => Parity::Even,
+                ParityArg::Odd => Parity::Odd,
+            })
+            .collect(),
+        stop_bits: stop_bits.to_vec(),
+        data_bits: data_bits.to_vec(),
+        modes: modes.iter().map(|&m| Mode::from(m)).collect(),
+    }
+}
+
+/// The link a scan searches: a serial port at `port` (its line set per setting) or a
+/// gateway at `tcp` (raw frames, or Modbus TCP with `framing` mbap, where `settings` is
+/// narrowed to one line a mode); recorded on `capture`. `modes_given`: -m was given.
+#[allow(clippy::too_many_arguments)]
+pub(super) fn open_link(
+    port: Option<&str>,
+    tcp: Option<&str>,
+    framing: Option<Framing>,
+    settings: &mut Vec<Setting>,
+    rts: &RtsArgs,
+    capture: Option<&conformance::transport::capture::SharedRecorder>,
+    addresses: &[u8],
+    modes_given: bool,
+) -> anyhow::Result<Box<dyn ScanLink>> {
+    Ok(match (port, tcp) {
+        (Some(path), None) => {
+            let first = settings[0].line;
+            let kind = serial_kind(path);
+            let mut port = SerialTransport::open(path, first, kind)?.with_rts(rts.control())?;
+            if kind == LinkKind::Pty {
+                // A pseudo-terminal standing in for a line: requests take their wire
+                // time, as on a real port.
+                port = port.paced_peer();
+            }
+            let link = SerialLink::new(port, path);
+            Box::new(match capture {
+                Some(rec) => link.recorded(rec.clone()),
+                None => link,
+            })
+        }
+        (None, Some(addr)) => {
+            // The gateway's line is its own: one setting a mode, for the windows.
+            let line = settings[0].line;
+            let mut modes: Vec<Mode> = Vec::new();
+            for s in settings.iter() {
+                if !modes.contains(&s.mode) {
+                    modes.push(s.mode);
+                }
+            }
+            *settings = modes
+                .into_iter()
+                .map(|mode| Setting { line, mode })
+                .collect();
+            if framing == Some(Framing::Mbap) {
+                if settings.iter().any(|s| s.mode != Mode::Rtu) && modes_given {
+                    bail!("--framing mbap carries RTU-equivalent PDUs only: there is no ASCII over Modbus TCP (drop -m ascii)");
+                }
+                settings.retain(|s| s.mode == Mode::Rtu);
+                // Node n is unit n: the map of one node to itself is the identity.
+                let mut t = MbapGateway::connect(addr, Duration::from_secs(2), UnitMap::new(1, 1))?;
+                if let Some(rec) = capture {
+                    t = t.with_capture(rec.clone());
+                }
+                // The gateway's own description names the one unit of a request; the
+                // sweep's header names every unit id it tries.
+                let described = format!(
+                    "Modbus TCP gateway {} (MBAP, unit ids {} swept, each the node address)",
+                    t.peer(),
+                    address_ranges(addresses)
+                );
+                // A gateway answers a unit with no device with 0BH only after its own
+                // serial timeout (often 100..1000 ms): the window waits for that answer,
+                // so that it is not taken for the reply to the next unit's read.
+                Box::new(FixedLink::new(Box::new(t), MBAP_SLACK).described_as(described))
+            } else {
+                let t = TcpTransport::connect(addr, Duration::from_secs(2))?;
+                let link = FixedLink::new(Box::new(t), Duration::from_millis(20));
+                Box::new(match capture {
+                    Some(rec) => link.recorded(rec.clone()),
+                    None => link,
+                })
+            }
+        }
+        _ => bail!("say where the line is: --port PATH or --tcp HOST:PORT"),
     })
 }
 

@@ -261,6 +261,17 @@ pub fn pymodbus_serial_with(
     nodes: &str,
     registers: u32,
 ) -> Option<SerialPeer> {
+    pymodbus_serial_args(dir, mode, nodes, &["--registers", &registers.to_string()])
+}
+
+/// [`pymodbus_serial_server`] at node 1 serving the holding-register blocks `blocks`
+/// only ("0000-0FFF,2500-252F", hex): a read that leaves a block gets exception 02H.
+pub fn pymodbus_serial_blocks(dir: &Path, mode: &str, blocks: &str) -> Option<SerialPeer> {
+    pymodbus_serial_args(dir, mode, "1", &["--blocks", blocks])
+}
+
+/// [`pymodbus_serial_nodes`] with `extra` options of tests/interop/pymodbus_server.py.
+fn pymodbus_serial_args(dir: &Path, mode: &str, nodes: &str, extra: &[&str]) -> Option<SerialPeer> {
     if !need(Peer::Pymodbus) {
         return None;
     }
@@ -272,7 +283,7 @@ pub fn pymodbus_serial_with(
     let device = Kill::spawn(
         Command::new(python())
             .args([server, a.to_str().unwrap(), mode, "--address", nodes])
-            .args(["--registers", &registers.to_string()])
+            .args(extra)
             .stderr(Stdio::null()),
     );
     let first = nodes.split(',').next().unwrap_or("1");
@@ -431,4 +442,38 @@ pub fn libmodbus_program(dir: &Path, name: &str) -> Option<PathBuf> {
         String::from_utf8_lossy(&out.stderr)
     );
     Some(exe)
+}
+
+/// libmodbus's RTU server (tests/libmodbus/server.c) built into `dir` and started with
+/// `args` (ADDRESS [START COUNT]) on one end of a [`PtyPair`]: the guards and the
+/// runner's end; None (after SKIPPED) when libmodbus or a C compiler is missing.
+pub fn libmodbus_server(dir: &Path, args: &[&str]) -> Option<SerialPeer> {
+    let exe = libmodbus_program(dir, "server")?;
+    let (line, a, b) = pty_pair(dir);
+    let mut server = Kill::spawn(
+        Command::new(&exe)
+            .arg(&a)
+            .args(args)
+            .stdout(Stdio::piped())
+            .stderr(Stdio::null()),
+    );
+    // The server prints "ready" once the port is open, and nothing else on stdout.
+    let stdout = server.0.stdout.take().unwrap();
+    let (tx, rx) = mpsc::channel();
+    std::thread::spawn(move || {
+        let mut lines = BufReader::new(stdout).lines();
+        let _ = tx.send(lines.next().and_then(Result::ok));
+        assert!(lines.next().is_none(), "the server wrote more than 'ready'");
+    });
+    let ready = rx.recv_timeout(Duration::from_secs(10));
+    assert_eq!(
+        ready,
+        Ok(Some("ready".to_string())),
+        "the server did not start"
+    );
+    Some(SerialPeer {
+        device: server,
+        line,
+        port: b,
+    })
 }

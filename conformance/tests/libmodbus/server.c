@@ -7,7 +7,10 @@
  *
  * and checks it as an F510, as tests/generic_device.rs does with pymodbus's server.
  *
- *     server PORT [ADDRESS]     (9600 8N1; ADDRESS 1..247, default 1)
+ *     server PORT [ADDRESS [START COUNT]]
+ *
+ * 9600 8N1; ADDRESS 1..247, default 1; START and COUNT (default 0 and 65536) the holding
+ * registers it serves, START..START+COUNT-1: a read outside gets exception 02H.
  *
  * stdout carries one line, "ready", once the port is open; diagnostics go to stderr.
  * Bad input never ends the server: a frame with a bad CRC, a frame cut short, a frame
@@ -33,12 +36,22 @@ static void on_signal(int sig)
 
 int main(int argc, char **argv)
 {
-    if (argc < 2 || argc > 3) {
-        fprintf(stderr, "usage: %s PORT [ADDRESS]\n", argv[0]);
+    if (argc != 2 && argc != 3 && argc != 5) {
+        fprintf(stderr, "usage: %s PORT [ADDRESS [START COUNT]]\n", argv[0]);
         return 2;
     }
+    long start = 0, count = 0x10000;
+    if (argc == 5) {
+        char *end1 = NULL, *end2 = NULL;
+        start = strtol(argv[3], &end1, 0);
+        count = strtol(argv[4], &end2, 0);
+        if (*end1 != '\0' || *end2 != '\0' || start < 0 || count < 1 || start + count > 0x10000) {
+            fprintf(stderr, "START %s COUNT %s: a block inside 0..65535\n", argv[3], argv[4]);
+            return 2;
+        }
+    }
     int address = 1;
-    if (argc == 3) {
+    if (argc >= 3) {
         char *end = NULL;
         long a = strtol(argv[2], &end, 0);
         if (*argv[2] == '\0' || *end != '\0' || a < 1 || a > 247) {
@@ -65,8 +78,10 @@ int main(int argc, char **argv)
         modbus_free(ctx);
         return 2;
     }
-    /* The whole register space, so that every F510 register (and every other) reads. */
-    modbus_mapping_t *map = modbus_mapping_new_start_address(0, 0, 0, 0, 0, 0x10000, 0, 0);
+    /* By default the whole register space, so that every F510 register (and every
+     * other) reads. */
+    modbus_mapping_t *map =
+        modbus_mapping_new_start_address(0, 0, 0, 0, (unsigned int)start, (int)count, 0, 0);
     if (map == NULL) {
         fprintf(stderr, "modbus_mapping_new_start_address: %s\n", modbus_strerror(errno));
         modbus_free(ctx);
