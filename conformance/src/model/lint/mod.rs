@@ -112,12 +112,15 @@ pub fn lint(name: &str, text: &str) -> Vec<Finding> {
         out.push(Severity::Error, &e.path, e.message);
     }
     if has_errors(&out.findings) {
+        out.findings.sort_by_key(|f| (f.line, f.column));
         return out.findings;
     }
     semantic(&value, &mut out);
     if !has_errors(&out.findings) {
         loader(&mut out);
     }
+    // In the file's order, as a compiler lists its errors.
+    out.findings.sort_by_key(|f| (f.line, f.column));
     out.findings
 }
 
