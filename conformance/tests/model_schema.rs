@@ -42,7 +42,10 @@ fn the_built_in_models_and_the_examples_match_the_schema() {
     for f in std::fs::read_dir(repo().join("vectors/models/examples")).unwrap() {
         let p = f.unwrap().path();
         if p.extension().is_some_and(|x| x == "json") {
-            let e = errors(&v, &serde_json::from_str(&std::fs::read_to_string(&p).unwrap()).unwrap());
+            let e = errors(
+                &v,
+                &serde_json::from_str(&std::fs::read_to_string(&p).unwrap()).unwrap(),
+            );
             assert!(e.is_empty(), "{}: {e:#?}", p.display());
             examples += 1;
         }
@@ -109,9 +112,9 @@ fn every_description_and_fragment_in_the_docs_matches_the_schema() {
                 },
             };
             let is_description = v.get("schema_version").is_some() && v.get("modes").is_some();
-            let looks_like_part = v
-                .as_object()
-                .is_some_and(|o| !o.is_empty() && o.keys().all(|k| s["properties"].get(k).is_some()));
+            let looks_like_part = v.as_object().is_some_and(|o| {
+                !o.is_empty() && o.keys().all(|k| s["properties"].get(k).is_some())
+            });
             if is_description {
                 let e = errors(&whole, &v);
                 assert!(e.is_empty(), "{here}: {e:#?}");
@@ -124,7 +127,10 @@ fn every_description_and_fragment_in_the_docs_matches_the_schema() {
         }
     }
     // The guide page alone has the complete example and its fields one by one.
-    assert!(descriptions >= 1 && fragments >= 8, "{descriptions} descriptions, {fragments} fragments");
+    assert!(
+        descriptions >= 1 && fragments >= 8,
+        "{descriptions} descriptions, {fragments} fragments"
+    );
 }
 
 /// Damaged copies of the F510 description: the validator and lint's schema pass find
@@ -132,25 +138,43 @@ fn every_description_and_fragment_in_the_docs_matches_the_schema() {
 #[test]
 fn lint_and_the_validator_agree_on_what_breaks_the_schema() {
     let v = jsonschema::validator_for(&schema()).unwrap();
-    let f510: Value =
-        serde_json::from_str(&std::fs::read_to_string(repo().join("vectors/models/f510.json")).unwrap()).unwrap();
+    let f510: Value = serde_json::from_str(
+        &std::fs::read_to_string(repo().join("vectors/models/f510.json")).unwrap(),
+    )
+    .unwrap();
     type Edit = fn(&mut Value);
     let cases: [(&str, Edit); 7] = [
-        ("/limits/read_registers", |v| v["limits"]["read_registers"]["rtu_max"] = 1.into()),
+        ("/limits/read_registers", |v| {
+            v["limits"]["read_registers"]["rtu_max"] = 1.into()
+        }),
         ("/modes/0", |v| v["modes"][0] = "RTU".into()),
-        ("/groups/0/first", |v| v["groups"][0]["first"] = "25000".into()),
-        ("/limits/response_time_ms/value", |v| v["limits"]["response_time_ms"]["value"] = (-1).into()),
+        ("/groups/0/first", |v| {
+            v["groups"][0]["first"] = "25000".into()
+        }),
+        ("/limits/response_time_ms/value", |v| {
+            v["limits"]["response_time_ms"]["value"] = (-1).into()
+        }),
         ("", |v| {
             v.as_object_mut().unwrap().remove("silence");
         }),
-        ("/exceptions", |v| v["exceptions"]["illegal-counts"] = v["exceptions"]["illegal-count"].clone()),
-        ("/registers/1/bits/0/role", |v| v["registers"][1]["bits"][0]["role"] = "runs".into()),
+        ("/exceptions", |v| {
+            v["exceptions"]["illegal-counts"] = v["exceptions"]["illegal-count"].clone()
+        }),
+        ("/registers/1/bits/0/role", |v| {
+            v["registers"][1]["bits"][0]["role"] = "runs".into()
+        }),
     ];
     for (path, edit) in cases {
         let mut broken = f510.clone();
         edit(&mut broken);
-        let by_validator: Vec<String> = v.iter_errors(&broken).map(|e| e.instance_path.to_string()).collect();
-        assert!(by_validator.contains(&path.to_string()), "{path}: {by_validator:?}");
+        let by_validator: Vec<String> = v
+            .iter_errors(&broken)
+            .map(|e| e.instance_path.to_string())
+            .collect();
+        assert!(
+            by_validator.contains(&path.to_string()),
+            "{path}: {by_validator:?}"
+        );
         let findings = lint::lint("f", &serde_json::to_string_pretty(&broken).unwrap());
         assert!(findings.iter().all(|f| f.severity == Severity::Error));
         // Lint names a member it refuses, the validator the object that has it.
@@ -169,7 +193,9 @@ fn lint_and_the_validator_agree_on_what_breaks_the_schema() {
             })
             .collect();
         assert!(
-            lint_paths.iter().any(|p| p == path || p.rsplit_once('/').map(|(a, _)| a) == Some(path)),
+            lint_paths
+                .iter()
+                .any(|p| p == path || p.rsplit_once('/').map(|(a, _)| a) == Some(path)),
             "{path}: lint says {findings:#?}"
         );
     }
