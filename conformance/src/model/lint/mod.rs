@@ -153,14 +153,21 @@ fn loader(out: &mut Lints<'_>) {
     match err {
         ModelError::Json { source, .. } => {
             // The schema passed, so this is a rule of the serde types it does not carry.
+            // serde says where it stopped: the field is the one holding that place.
             let (line, column) = (source.line().max(1), source.column().max(1));
+            let at = span::offset_of(out.text, line, column);
+            let message = source.to_string();
+            let message = match message.rfind(" at line ") {
+                Some(i) => message[..i].to_string(),
+                None => message,
+            };
             out.findings.push(Finding {
                 severity: Severity::Error,
                 file: out.name.to_string(),
                 line,
                 column,
-                path: JsonPath::default().to_string(),
-                message: source.to_string(),
+                path: span::path_at(out.text, at.saturating_sub(1)).to_string(),
+                message,
             });
         }
         ModelError::Invalid { problem, .. } => {

@@ -132,6 +132,81 @@ pub fn locate(text: &str, path: &JsonPath) -> usize {
     found
 }
 
+/// The byte offset of `line` and `column` (both from 1; the column in bytes, as
+/// serde_json counts it), or the end of the text if it has no such place.
+pub fn offset_of(text: &str, line: usize, column: usize) -> usize {
+    let start = if line <= 1 {
+        0
+    } else {
+        match text.match_indices('\n').nth(line - 2) {
+            Some((i, _)) => i + 1,
+            None => return text.len(),
+        }
+    };
+    (start + column.saturating_sub(1)).min(text.len())
+}
+
+/// The path of the deepest member or element whose key or value holds the byte `offset`
+/// (the field a serde error at that place is about); the top level if none does.
+pub fn path_at(text: &str, offset: usize) -> JsonPath {
+    let b = text.as_bytes();
+    let mut path = JsonPath::default();
+    let mut at = skip_ws(b, 0);
+    'descend: loop {
+        match b.get(at) {
+            Some(b'{') => {
+                let mut i = skip_ws(b, at + 1);
+                while b.get(i) == Some(&b'"') {
+                    let key_end = skip_string(b, i);
+                    let key: Option<String> =
+                        std::str::from_utf8(b.get(i..key_end).unwrap_or_default())
+                            .ok()
+                            .and_then(|raw| serde_json::from_str(raw).ok());
+                    let colon = skip_ws(b, key_end);
+                    if b.get(colon) != Some(&b':') {
+                        break 'descend;
+                    }
+                    let value_at = skip_ws(b, colon + 1);
+                    let value_end = skip_value(b, value_at);
+                    if (i..value_end).contains(&offset) {
+                        let Some(k) = key else { break 'descend };
+                        path.0.push(Segment::Key(k));
+                        at = value_at;
+                        continue 'descend;
+                    }
+                    i = skip_ws(b, value_end);
+                    if b.get(i) != Some(&b',') {
+                        break 'descend;
+                    }
+                    i = skip_ws(b, i + 1);
+                }
+                break 'descend;
+            }
+            Some(b'[') => {
+                let mut i = skip_ws(b, at + 1);
+                let mut n = 0;
+                while i < b.len() && b.get(i) != Some(&b']') {
+                    let end = skip_value(b, i);
+                    if (i..end).contains(&offset) {
+                        path.0.push(Segment::Index(n));
+                        at = i;
+                        continue 'descend;
+                    }
+                    i = skip_ws(b, end);
+                    if b.get(i) != Some(&b',') {
+                        break 'descend;
+                    }
+                    i = skip_ws(b, i + 1);
+                    n += 1;
+                }
+                break 'descend;
+            }
+            _ => break 'descend,
+        }
+    }
+    path
+}
+
 fn skip_ws(b: &[u8], mut i: usize) -> usize {
     while matches!(b.get(i), Some(b' ' | b'\t' | b'\n' | b'\r')) {
         i += 1;
@@ -266,6 +341,23 @@ mod tests {
     }
 
     #[test]
+    fn the_path_at_a_place_is_the_deepest_field_holding_it() {
+        let path_at_lc = |l, c| path_at(TEXT, offset_of(TEXT, l, c)).to_string();
+        assert_eq!(path_at_lc(2, 3), "a");
+        assert_eq!(path_at_lc(2, 16), "a.b");
+        assert_eq!(path_at_lc(2, 25), "a.b[1].c");
+        assert_eq!(path_at_lc(2, 33), "a.b[2][0]");
+        assert_eq!(path_at_lc(3, 14), "de");
+        assert_eq!(path_at_lc(1, 1), "(top level)");
+        assert_eq!(path_at_lc(99, 1), "(top level)");
+        // What locate finds, path_at gives back.
+        for p in ["a", "a.b[1].c", "a.b[2]", "de"] {
+            let p = JsonPath::parse(p).unwrap();
+            assert_eq!(path_at(TEXT, locate(TEXT, &p)), p);
+        }
+    }
+
+    #[test]
     fn paths_print_as_they_parse() {
         for p in [
             "blocks[2].last",
@@ -301,11 +393,13 @@ mod tests {
                 let o = locate(t, &JsonPath::parse(p).unwrap());
                 assert!(o <= t.len());
                 let _ = line_col(t, o);
+                let _ = path_at(t, o);
             }
             // Every prefix of every text, so a cut in the middle of anything is covered.
             for cut in 0..=t.len() {
                 if let Some(s) = t.get(..cut) {
                     let _ = locate(s, &JsonPath::parse("a.b[1]").unwrap());
+                    let _ = path_at(s, cut / 2);
                 }
             }
         }
