@@ -426,7 +426,7 @@ fn semantic(v: &Value, out: &mut Lints<'_>) {
                         Severity::Error,
                         &root.key("exceptions").key(fault).key("code"),
                         format!(
-                            "exception {code}H is not in exception_codes (which has {})",
+                            "code {code} is not in the exception-code table (exception_codes has {})",
                             if table.is_empty() {
                                 "none".to_string()
                             } else {

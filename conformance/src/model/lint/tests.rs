@@ -169,7 +169,7 @@ fn an_exception_code_not_in_the_table_is_named() {
     assert_eq!(f[0].path, "exceptions.illegal-count.code");
     assert_eq!(
         f[0].message,
-        "exception 0BH is not in exception_codes (which has 01, 02, 03, 04)"
+        "code 0B is not in the exception-code table (exception_codes has 01, 02, 03, 04)"
     );
 }
 
@@ -239,7 +239,7 @@ fn an_exception_without_a_table_and_a_backward_block_are_errors() {
     );
     assert_eq!(
         find(&f, "exceptions.illegal-count.code").message,
-        "exception 03H is not in exception_codes (which has 02)"
+        "code 03 is not in the exception-code table (exception_codes has 02)"
     );
 }
 
