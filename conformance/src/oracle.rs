@@ -928,6 +928,35 @@ pub fn mbap_frame(data: &[u8]) {
     }
 }
 
+/// `model lint` on arbitrary text: it never panics; the same text gives the same
+/// findings; every finding's line and column lie inside the text; and a text lint finds no
+/// error in loads (lint is the stricter: it also refuses what the loader lets through, such
+/// as a limit beyond the Modbus specification).
+pub fn model_lint(data: &[u8]) {
+    use crate::model::{lint, DriveModel};
+    let Ok(text) = std::str::from_utf8(data) else {
+        return;
+    };
+    let findings = lint::lint("fuzz.json", text);
+    assert_eq!(
+        findings,
+        lint::lint("fuzz.json", text),
+        "lint is not deterministic"
+    );
+    let lines = text.split('\n').count();
+    for f in &findings {
+        assert!(
+            (1..=lines).contains(&f.line) && f.column >= 1,
+            "{f} lies outside the text ({lines} lines)"
+        );
+    }
+    if !lint::has_errors(&findings) {
+        if let Err(e) = DriveModel::from_json_unlinted("fuzz.json", text) {
+            panic!("lint found no error, the loader refuses it: {e}");
+        }
+    }
+}
+
 /// The capture reader (pcap and pcapng) on arbitrary bytes: it never panics; every
 /// packet is a slice of the input; the first error ends the packets and names an offset
 /// inside the file; and the packets read, written again by the pcapng writer, read back
@@ -1015,7 +1044,7 @@ pub fn capture_reader(data: &[u8]) {
 
 /// The fuzz targets by name, each with its oracle: the one list the fuzz crate, the seed
 /// corpus writer and the regression replay share.
-pub const TARGETS: [(&str, Oracle); 10] = [
+pub const TARGETS: [(&str, Oracle); 11] = [
     ("rtu_frame", rtu_frame),
     ("ascii_frame", ascii_frame),
     ("rtu_deframer", rtu_deframer),
@@ -1026,6 +1055,7 @@ pub const TARGETS: [(&str, Oracle); 10] = [
     ("drive", drive),
     ("mbap_frame", mbap_frame),
     ("capture_reader", capture_reader),
+    ("model_lint", model_lint),
 ];
 
 #[cfg(test)]

@@ -48,7 +48,8 @@ enum Command {
     Encode(codec_cmd::EncodeArgs),
     /// The golden vectors transcribed from the manuals: list, verify, export.
     Vectors(vectors_cmd::VectorsArgs),
-    /// Show a drive model: the manual's facts and the model's decisions, with their basis.
+    /// Show a device description (a drive model) with the basis of each fact, or lint one
+    /// (`model lint FILE`).
     Model(model_cmd::ModelArgs),
     /// Run a simulated drive on a serial port, a pseudo-terminal or TCP.
     Simulate(simulate_cmd::SimulateArgs),

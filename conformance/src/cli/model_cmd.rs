@@ -1,32 +1,34 @@
-//! `conformance model`: what a drive model says, fact by fact, with its basis.
+//! `conformance model`: what a device description says, fact by fact, with its basis
+//! (`model show`, also `conformance model [MODEL]` as before); `model lint`, `model learn`,
+//! `model import` and `model export`.
 
 use std::fmt::Write as _;
 use std::io::Write;
 use std::path::PathBuf;
 use std::process::ExitCode;
 
-use clap::Args;
+use clap::{Args, Subcommand, ValueEnum};
+use conformance::model::lint::{self, Finding, Severity};
 use conformance::model::{Basis, DriveModel, Fact, Fault, SilenceReason, MODELS};
 
+/// `conformance model`: a subcommand, or the arguments of `show` directly (the command
+/// line before `show` existed).
 #[derive(Debug, Args)]
 #[command(args_conflicts_with_subcommands = true)]
 pub struct ModelArgs {
-    /// Learn, import or export a description.
     #[command(subcommand)]
-    action: Option<ModelAction>,
-    /// The model: f510, a510, l510, e510, l510-legacy (all of them if left out).
-    model: Option<String>,
-    /// Read the model from this file instead of the built-in one.
-    #[arg(long, value_name = "FILE")]
-    model_file: Option<PathBuf>,
-    /// Only the model's decisions (where the manual is silent or contradicts itself).
-    #[arg(long)]
-    decisions: bool,
+    command: Option<ModelCommand>,
+    #[command(flatten)]
+    show: ShowArgs,
 }
 
-/// What `model` does besides showing a model.
-#[derive(Debug, clap::Subcommand)]
-enum ModelAction {
+/// What `conformance model` does.
+#[derive(Debug, Subcommand)]
+pub enum ModelCommand {
+    /// Show a description: the manual's facts and the model's decisions, with their basis.
+    Show(ShowArgs),
+    /// Check descriptions before use: every error with FILE:LINE:COL and the field's path.
+    Lint(LintArgs),
     /// Draw up a first description from a live device (reads only, unless
     /// --allow-write): its map, functions, exceptions, silences and timing.
     Learn(super::model_learn_cmd::LearnArgs),
@@ -35,6 +37,45 @@ enum ModelAction {
     Import(super::model_io_cmd::ImportArgs),
     /// A description in another format: pymodbus's simulator JSON.
     Export(super::model_io_cmd::ExportArgs),
+}
+
+/// `model lint`.
+#[derive(Debug, Args)]
+#[command(
+    after_help = "Exit codes: 0 no error (warnings allowed unless --deny-warnings); 1 errors found; 2 a file cannot be read."
+)]
+pub struct LintArgs {
+    /// The description files.
+    #[arg(required = true, value_name = "FILE")]
+    files: Vec<PathBuf>,
+    /// Output: one line per finding as FILE:LINE:COL: error: PATH: message, or JSON.
+    #[arg(long, value_enum, default_value_t = LintFormat::Text)]
+    format: LintFormat,
+    /// Fail (exit 1) on warnings too.
+    #[arg(long)]
+    deny_warnings: bool,
+}
+
+/// Output of `model lint`.
+#[derive(Debug, Clone, Copy, ValueEnum)]
+pub enum LintFormat {
+    /// One finding a line, as compilers print theirs, then a count.
+    Text,
+    /// `{"files": [{"file", "findings": [...]}], "errors", "warnings"}`.
+    Json,
+}
+
+/// `model show`.
+#[derive(Debug, Args)]
+pub struct ShowArgs {
+    /// The model: f510, a510, l510, e510, l510-legacy (all of them if left out).
+    model: Option<String>,
+    /// Read the model from this file instead of the built-in one.
+    #[arg(long, value_name = "FILE")]
+    model_file: Option<PathBuf>,
+    /// Only the model's decisions (where the manual is silent or contradicts itself).
+    #[arg(long)]
+    decisions: bool,
 }
 
 fn fact(o: &mut String, what: &str, f: &Fact, only_decisions: bool) {
@@ -263,13 +304,83 @@ fn show(m: &DriveModel, only_decisions: bool) -> String {
     o
 }
 
+/// Runs `conformance model`.
 pub fn run(args: ModelArgs) -> anyhow::Result<ExitCode> {
-    match args.action {
-        Some(ModelAction::Learn(a)) => return super::model_learn_cmd::run(a),
-        Some(ModelAction::Import(a)) => return super::model_io_cmd::import(a),
-        Some(ModelAction::Export(a)) => return super::model_io_cmd::export(a),
-        None => {}
+    match args.command {
+        Some(ModelCommand::Show(a)) => run_show(a),
+        Some(ModelCommand::Lint(a)) => run_lint(a),
+        Some(ModelCommand::Learn(a)) => super::model_learn_cmd::run(a),
+        Some(ModelCommand::Import(a)) => super::model_io_cmd::import(a),
+        Some(ModelCommand::Export(a)) => super::model_io_cmd::export(a),
+        None => run_show(args.show),
     }
+}
+
+fn run_lint(args: LintArgs) -> anyhow::Result<ExitCode> {
+    let mut files = Vec::new();
+    let mut unreadable = false;
+    for path in &args.files {
+        let name = path.display().to_string();
+        match std::fs::read_to_string(path) {
+            Ok(text) => files.push((name.clone(), lint::lint(&name, &text), None)),
+            Err(e) => {
+                unreadable = true;
+                files.push((name, Vec::new(), Some(format!("cannot read: {e}"))));
+            }
+        }
+    }
+    let all: Vec<&Finding> = files.iter().flat_map(|(_, f, _)| f).collect();
+    let count = |s: Severity| all.iter().filter(|f| f.severity == s).count();
+    let (errors, warnings) = (count(Severity::Error), count(Severity::Warning));
+    let mut out = std::io::stdout().lock();
+    match args.format {
+        LintFormat::Text => {
+            for (name, findings, unread) in &files {
+                if let Some(e) = unread {
+                    writeln!(out, "{name}: error: {e}")?;
+                }
+                for f in findings {
+                    writeln!(out, "{f}")?;
+                }
+            }
+            let owned: Vec<Finding> = all.iter().map(|f| (*f).clone()).collect();
+            writeln!(
+                out,
+                "{}: {} in {} file{}",
+                if errors > 0 || unreadable {
+                    "failed"
+                } else {
+                    "ok"
+                },
+                lint::summary(&owned),
+                files.len(),
+                if files.len() == 1 { "" } else { "s" }
+            )?;
+        }
+        LintFormat::Json => {
+            let v = serde_json::json!({
+                "files": files.iter().map(|(name, findings, unread)| serde_json::json!({
+                    "file": name,
+                    "readable": unread.is_none(),
+                    "error": unread,
+                    "findings": findings,
+                })).collect::<Vec<_>>(),
+                "errors": errors,
+                "warnings": warnings,
+            });
+            writeln!(out, "{}", serde_json::to_string_pretty(&v)?)?;
+        }
+    }
+    Ok(if unreadable {
+        ExitCode::from(2)
+    } else if errors > 0 || (args.deny_warnings && warnings > 0) {
+        ExitCode::from(1)
+    } else {
+        ExitCode::SUCCESS
+    })
+}
+
+fn run_show(args: ShowArgs) -> anyhow::Result<ExitCode> {
     let models: Vec<DriveModel> = match (&args.model, &args.model_file) {
         (_, Some(path)) => vec![DriveModel::from_path(path)?],
         (Some(id), None) => vec![DriveModel::builtin(id)?],

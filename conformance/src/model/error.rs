@@ -19,6 +19,14 @@ pub enum ModelError {
         /// What is wrong.
         problem: String,
     },
+    /// `model lint` found errors: every finding, errors and warnings, one per line.
+    #[error("{file}: {} in the description\n{}", crate::model::lint::summary(findings), findings.iter().map(ToString::to_string).collect::<Vec<_>>().join("\n"))]
+    Lint {
+        /// The file.
+        file: String,
+        /// What lint found.
+        findings: Vec<crate::model::lint::Finding>,
+    },
     /// No such model.
     #[error("unknown model {0:?}; the models are f510, a510, l510, e510, l510-legacy")]
     Unknown(String),

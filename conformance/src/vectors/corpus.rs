@@ -130,6 +130,13 @@ pub fn seeds(set: &VectorSet, files: &[(String, String)]) -> Vec<Seed> {
             bytes: capture_of(&captured),
         });
     }
+    for (model, text) in crate::model::DriveModel::builtin_files() {
+        out.push(Seed {
+            target: "model_lint",
+            name: format!("{model}.json"),
+            bytes: text.as_bytes().to_vec(),
+        });
+    }
     for (name, text) in files {
         out.push(Seed {
             target: "vector_loader",
