@@ -37,7 +37,7 @@ fn write(m: &DriveModel, register: u16, value: u16) -> Expectation {
 fn exception(m: &DriveModel, fault: Fault) -> Expectation {
     Expectation::Exception {
         fault,
-        code: m.rule(fault).code,
+        code: m.answer_code(fault),
     }
 }
 
@@ -140,9 +140,9 @@ fn tables_say_what_the_manuals_say() {
     assert_eq!(model("e510").exception_meaning(5), Some("Write mode error"));
     assert!(model("l510-legacy").numbers_exceptions_from_51());
     assert!(!f.numbers_exceptions_from_51());
-    assert_eq!(model("l510").identification.value, Some(0x0110));
-    assert_eq!(f.identification.value, None);
-    assert_eq!(f.identification.fact.basis, Basis::Decision);
+    assert_eq!(model("l510").identification.unwrap().value, Some(0x0110));
+    assert_eq!(f.identification.as_ref().unwrap().value, None);
+    assert_eq!(f.identification.as_ref().unwrap().fact.basis, Basis::Decision);
 
     // F510 parameter groups: 0-00..0-56, 2-00..2-19 and 2-33..2-34, no group 19.
     let groups: Vec<_> = f.parameter_groups().collect();
@@ -221,7 +221,7 @@ fn reads_follow_the_map_and_the_limits() {
         read(&a, Mode::Rtu, 0x0000, 33),
         exception(&a, Fault::IllegalCount)
     );
-    assert_eq!(a.rule(Fault::IllegalCount).code, 4);
+    assert_eq!(a.answer_code(Fault::IllegalCount), 4);
 }
 
 #[test]
@@ -233,15 +233,15 @@ fn writes_follow_the_access_of_each_register() {
         exception(&f, Fault::DataOutOfRange)
     );
     assert_eq!(write(&f, 0x2520, 0), exception(&f, Fault::ReadOnly));
-    assert_eq!(f.rule(Fault::ReadOnly).code, 2);
+    assert_eq!(f.answer_code(Fault::ReadOnly), 2);
     assert_eq!(write(&f, 0x2500, 0), exception(&f, Fault::ReservedWrite));
     assert_eq!(write(&f, 0x0039, 0), exception(&f, Fault::IllegalRegister));
     let e = model("e510");
-    assert_eq!(e.rule(Fault::ReadOnly).code, 5);
+    assert_eq!(e.answer_code(Fault::ReadOnly), 5);
     assert_eq!(write(&e, 0x0014, 0), exception(&e, Fault::NoAccess));
     let l = model("l510-legacy");
     assert_eq!(write(&l, 0x2520, 0), exception(&l, Fault::ReadOnly));
-    assert_eq!(l.rule(Fault::ReadOnly).code, 0x55);
+    assert_eq!(l.answer_code(Fault::ReadOnly), 0x55);
     let j = l.judge(
         1,
         Mode::Rtu,

@@ -606,6 +606,8 @@ pub fn run(
             out.stopped = Some(e.to_string())
         }
         Err(RunError::DeviceLost(why)) => out.stopped = Some(why),
+        // The storm sends without probing: nothing of it is undescribed.
+        Err(RunError::Undescribed(_)) => {}
     }
     // Let the line go quiet, then the device must still answer.
     std::thread::sleep(ctx.silence_window());

@@ -113,7 +113,7 @@ impl fmt::Display for Prediction {
 /// The value the manual documents for `register`, where it gives one: the identification
 /// register's (L510: 252FH reads 0110H).
 fn documented_value(model: &DriveModel, register: u16) -> Option<u16> {
-    let id = &model.identification;
+    let id = model.identification.as_ref()?;
     match (id.register, id.value) {
         (Some(r), Some(v)) if r == register && id.fact.basis != Basis::Decision => Some(v),
         _ => None,

@@ -147,6 +147,26 @@ fn cite(model: &DriveModel, fact: &Fact) -> String {
     format!("{}: {}", model.manual, fact.citation())
 }
 
+/// [`cite`] for a fact the description may leave out (`field` names it).
+fn cite_or(model: &DriveModel, fact: Option<&Fact>, field: &str) -> String {
+    match fact {
+        Some(f) => cite(model, f),
+        None => format!("{}: the description has no {field}", model.manual),
+    }
+}
+
+/// Why a check whose facts the description leaves out is skipped.
+fn undescribed(fields: &[String]) -> String {
+    format!("the description has no {}", fields.join(", no "))
+}
+
+/// A check that is skipped because the description leaves out `fields`: listed, so that
+/// a report says what was not checked and why, never run.
+fn undescribed_check(id: String, title: String, source: String, fields: Vec<String>) -> Check {
+    let why = undescribed(&fields);
+    check(id, title, source, false, false, move |_| Ok(Verdict::skip(why.clone())))
+}
+
 /// Runs of contiguous readable registers (read-write or read-only or reserved) of one group.
 fn readable_runs(model: &DriveModel) -> Vec<(u16, u16)> {
     let mut runs: Vec<(u16, u16)> = Vec::new();
