@@ -48,8 +48,9 @@ pub const MBAP_NOT_ASCII: &str = "--framing mbap carries the PDU only (Modbus TC
 #[derive(Debug, Args)]
 pub struct TargetArgs {
     /// Run against this suite's simulator of MODEL, started in-process on a
-    /// pseudo-terminal pair (no hardware needed).
-    #[arg(long, value_name = "MODEL", group = "target")]
+    /// pseudo-terminal pair (no hardware needed). Bare `--sim` with --model-file FILE:
+    /// the simulator serves that description.
+    #[arg(long, value_name = "MODEL", group = "target", num_args = 0..=1, default_missing_value = "")]
     pub sim: Option<String>,
     /// Drive model of the device: f510, a510, l510, e510, l510-legacy; with `check`, also
     /// auto: identify the model from the device's answers to reads first (see
@@ -241,8 +242,11 @@ impl TargetArgs {
         }
         let (named, target) = match (&self.sim, &self.port, &self.tcp) {
             (Some(m), None, None) => {
+                if m.is_empty() && self.model_file.is_none() {
+                    bail!("--sim needs a MODEL (f510, a510, l510, e510, l510-legacy), or --model-file FILE");
+                }
                 if let Some(other) = &self.model {
-                    if other != m && other != AUTO {
+                    if other != m && other != AUTO && !m.is_empty() {
                         bail!("--sim {m} and --model {other} name different models");
                     }
                 }
@@ -312,6 +316,8 @@ impl TargetArgs {
                 "--model auto is for `check` (it runs `identify` first); give the model (f510, a510, l510, e510, l510-legacy)"
             ),
             (Some(m), _) => m.clone(),
+            // A description names its model itself.
+            (None, _) if self.model_file.is_some() => String::new(),
             (None, Target::Tcp { .. }) => {
                 bail!("--tcp needs --model (f510, a510, l510, e510, l510-legacy)")
             }
@@ -403,7 +409,12 @@ impl TargetArgs {
     /// The options that name this target again, for a replay command line.
     pub fn replay_prefix(&self, command: &str, model: &str) -> String {
         let mut s = format!("conformance {command}");
+        let model = match &self.model_file {
+            Some(f) if model.is_empty() => format!("--model-file {}", f.display()),
+            _ => format!("--model {model}"),
+        };
         match (&self.sim, &self.port, &self.tcp) {
+            (Some(m), _, _) if m.is_empty() => s.push_str(&format!(" --sim {model}")),
             (Some(m), _, _) => {
                 s.push_str(&format!(" --sim {m}"));
                 for q in &self.quirks {
@@ -413,9 +424,9 @@ impl TargetArgs {
                     s.push_str(" --no-pace");
                 }
             }
-            (_, Some(p), _) => s.push_str(&format!(" --model {model} --port {p}")),
+            (_, Some(p), _) => s.push_str(&format!(" {model} --port {p}")),
             (_, _, Some(t)) => {
-                s.push_str(&format!(" --model {model} --tcp {t}"));
+                s.push_str(&format!(" {model} --tcp {t}"));
                 if self.framing == Some(Framing::Mbap) {
                     s.push_str(&format!(
                         " --framing mbap --unit {}",

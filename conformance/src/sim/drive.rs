@@ -618,6 +618,18 @@ impl Drive {
             };
         }
         let mut judgement = self.model.judge(self.address, mode, frame);
+        // A device that does not serve this mode does not take the frame for one.
+        if !self.model.serves_mode(mode) {
+            notes.push(format!(
+                "{} is not in the description's modes: frame ignored",
+                mode.to_string().to_uppercase()
+            ));
+            return Outcome {
+                judgement,
+                sends,
+                notes,
+            };
+        }
         let request_address = frame_address(mode, frame);
         if judgement.expect == Expectation::Silence(SilenceReason::OtherAddress)
             && self.has(Quirk::AnswerEveryAddress)

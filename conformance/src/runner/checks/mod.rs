@@ -87,6 +87,30 @@ pub fn preflight(model: &DriveModel, mode: Mode) -> Check {
     )
 }
 
+/// The one check of a mode the description does not list in `modes`: skipped, saying
+/// so (nothing is sent in that mode, not even the preflight).
+pub fn mode_not_served(model: &DriveModel, mode: Mode) -> Check {
+    let why = mode_not_served_reason(model, mode);
+    check(
+        format!("{mode}.mode"),
+        format!("The device serves {}", mode.to_string().to_uppercase()),
+        format!("{}: modes", model.manual),
+        false,
+        false,
+        move |_| Ok(Verdict::skip(why.clone())),
+    )
+}
+
+/// Why [`mode_not_served`] skips.
+pub fn mode_not_served_reason(model: &DriveModel, mode: Mode) -> String {
+    let listed: Vec<String> = model.modes().iter().map(|m| format!("\"{m}\"")).collect();
+    format!(
+        "the description's modes are [{}]: the device does not serve {}",
+        listed.join(", "),
+        mode.to_string().to_uppercase()
+    )
+}
+
 /// Findings and records of several probes.
 fn verdict(probes: &[&Probed], pass: String) -> Verdict {
     Verdict {
@@ -194,6 +218,9 @@ pub fn plan(
     opts: &super::Options,
 ) -> Vec<Check> {
     let m = mode.to_string();
+    if !model.serves_mode(mode) {
+        return vec![mode_not_served(model, mode)];
+    }
     let mut out = Vec::new();
     reads::examples(model, vectors, mode, &mut out);
     reads::identification(model, &m, &mut out);
