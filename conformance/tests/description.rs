@@ -281,3 +281,37 @@ fn every_built_in_model_loads_as_it_did_before_schema_version_2() {
         );
     }
 }
+
+#[test]
+fn a_device_that_differs_from_what_a_description_leaves_out_is_never_a_deviation() {
+    // The simulator answers every exception with the wrong code: the full description
+    // states its codes and sees deviations; the minimal one states none, so the checks
+    // that would judge a code are skipped, naming the rule, and nothing deviates.
+    let (exit, v) = check_device(
+        &tempdir("wrong-full"),
+        &["--sim", "--no-pace", "--quirk", "wrong-exception", "--model-file", example(FULL).to_str().unwrap()],
+        Duration::from_secs(120),
+    );
+    assert_ne!(exit, Some(0));
+    assert!(v["summary"]["deviation"].as_u64().unwrap() > 0, "{:#?}", v["summary"]);
+    let (exit, v) = check_device(
+        &tempdir("wrong-minimal"),
+        &["--sim", "--no-pace", "--quirk", "wrong-exception", "--model-file", example(MINIMAL).to_str().unwrap()],
+        Duration::from_secs(120),
+    );
+    clean(exit, &v);
+    let all = checks(&v);
+    let (status, summary) = status_of(&all, "rtu.read-count.over-limit");
+    assert_eq!(status, "skip");
+    assert!(summary.contains("exceptions.illegal-count"), "{summary}");
+
+    // A device that states more (loop-back, read-only status, its own exceptions), held
+    // to the minimal description of it: no deviation either.
+    let (_sim, port) = sim_pty(&["--model-file", example(FULL).to_str().unwrap()]);
+    let (exit, v) = check_device(
+        &tempdir("full-as-minimal"),
+        &["--model-file", example(MINIMAL).to_str().unwrap(), "--port", &port],
+        Duration::from_secs(120),
+    );
+    clean(exit, &v);
+}

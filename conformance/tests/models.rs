@@ -635,3 +635,162 @@ fn read_only_parameter_entries_are_checked_on_load() {
     });
     assert!(e.contains("needs a read-write register"), "{e}");
 }
+
+/// The issue's device (RTU only, two plain blocks), as JSON to change in each test.
+fn v2_device() -> serde_json::Value {
+    serde_json::json!({
+        "schema_version": 2,
+        "model": "device-x",
+        "title": "device X data sheet",
+        "modes": ["rtu"],
+        "functions": {"codes": ["03", "06", "10"], "basis": "documented", "source": "data sheet 2"},
+        "blocks": [
+            {"first": "0000", "last": "0FFF", "basis": "documented", "source": "data sheet 3"},
+            {"first": "2500", "last": "252F", "basis": "documented", "source": "data sheet 3"}
+        ]
+    })
+}
+
+fn v2_error(v: &serde_json::Value) -> conformance::model::ModelError {
+    DriveModel::from_json("device-x", &v.to_string()).unwrap_err()
+}
+
+#[test]
+fn a_v2_description_with_nothing_optional_loads_with_the_specification_s_defaults() {
+    let m = DriveModel::from_json("device-x", &v2_device().to_string()).unwrap();
+    assert_eq!(m.modes(), [Mode::Rtu]);
+    assert_eq!(m.manual, "device X data sheet", "manual defaults to the title");
+    assert_eq!((m.broadcast, m.addresses.clone()), (0, 1..=0xF7));
+    assert_eq!(m.addresses_fact.basis, Basis::Derived);
+    assert_eq!(m.lookup(0x0FFF).map(|i| i.access), Some(Access::ReadWrite));
+    assert_eq!(m.lookup(0x1000), None);
+    assert_eq!(m.lookup(0x252F).map(|i| i.access), Some(Access::ReadWrite));
+    // A block is a plain range: a read across 0000H..0FFFH needs no TECO group.
+    assert!(matches!(read(&m, Mode::Rtu, 0x0F90, 0x70), Expectation::Read(_)));
+    // A read past the map: the Modbus code, but the judgement says which rule is missing
+    // and binds no device.
+    let j = m.judge(1, Mode::Rtu, &frame(Mode::Rtu, 1, Pdu::ReadRequest { start: 0x1000, count: 1 }));
+    assert_eq!(j.expect, Expectation::Exception { fault: Fault::IllegalRegister, code: 0x02 });
+    assert_eq!(j.missing, ["exceptions.illegal-register"]);
+    assert_eq!(j.basis(), Basis::Decision);
+    assert_eq!(
+        j.missing_reason().as_deref(),
+        Some("the description has no exceptions.illegal-register")
+    );
+    let over = m.judge(1, Mode::Rtu, &frame(Mode::Rtu, 1, Pdu::ReadRequest { start: 0, count: 126 }));
+    assert_eq!(over.expect, Expectation::Exception { fault: Fault::IllegalCount, code: 0x03 });
+    let broadcast = m.judge(1, Mode::Rtu, &frame(Mode::Rtu, 0, Pdu::ReadRequest { start: 0, count: 1 }));
+    assert_eq!(broadcast.expect, Expectation::Silence(SilenceReason::Broadcast));
+    assert_eq!(broadcast.missing, ["silence.broadcast"]);
+    // A served read rests on stated facts only.
+    let ok = m.judge(1, Mode::Rtu, &frame(Mode::Rtu, 1, Pdu::ReadRequest { start: 0, count: 1 }));
+    assert!(ok.missing.is_empty());
+    assert_eq!(ok.basis(), Basis::Documented);
+}
+
+#[test]
+fn v2_block_access_and_bounds_decide_writes_and_reads() {
+    let mut v = v2_device();
+    v["blocks"][0]["max"] = "7FFF".into();
+    v["blocks"][0]["min"] = "0010".into();
+    v["blocks"][1]["access"] = "read-only".into();
+    v["blocks"].as_array_mut().unwrap().push(serde_json::json!(
+        {"first": "3000", "last": "300F", "access": "write-only", "basis": "documented", "source": "s"}
+    ));
+    v["blocks"].as_array_mut().unwrap().push(serde_json::json!(
+        {"first": "4000", "last": "400F", "access": "reserved", "basis": "documented", "source": "s"}
+    ));
+    let m = DriveModel::from_json("device-x", &v.to_string()).unwrap();
+    assert_eq!(write(&m, 0x0001, 0x7FFF), Expectation::WriteSingle);
+    assert_eq!(write(&m, 0x0001, 0x8000), exception(&m, Fault::DataOutOfRange));
+    assert_eq!(write(&m, 0x0001, 0x000F), exception(&m, Fault::DataOutOfRange));
+    assert_eq!(write(&m, 0x2500, 0), exception(&m, Fault::ReadOnly));
+    assert_eq!(write(&m, 0x3000, 0xFFFF), Expectation::WriteSingle);
+    assert_eq!(read(&m, Mode::Rtu, 0x3000, 1), exception(&m, Fault::IllegalRegister));
+    // Reserved: served by no function.
+    assert_eq!(read(&m, Mode::Rtu, 0x4000, 1), exception(&m, Fault::IllegalRegister));
+    assert_eq!(write(&m, 0x4000, 0), exception(&m, Fault::IllegalRegister));
+    assert_eq!(m.blocks.len(), 4);
+    assert_eq!(m.blocks[3].access, Access::Reserved);
+}
+
+#[test]
+fn v2_errors_name_the_field_s_path() {
+    let cases: Vec<(Box<dyn Fn(&mut serde_json::Value)>, &str, &str)> = vec![
+        (Box::new(|v| v["blocks"][1]["last"] = "2400".into()), "blocks[1].last", "2400 is before first 2500"),
+        (Box::new(|v| v["blocks"][1]["first"] = "0FFF".into()), "", "overlap"),
+        (Box::new(|v| v["blocks"][0]["access"] = "sometimes".into()), "blocks[0].access", "not read-write"),
+        (Box::new(|v| v["blocks"][0]["max"] = "12".into()), "blocks[0].max", "four upper-case hex digits"),
+        (Box::new(|v| v["modes"] = serde_json::json!([])), "modes", "at least one"),
+        (Box::new(|v| v["modes"] = serde_json::json!(["rtu", "rtu"])), "modes[1]", "listed twice"),
+        (Box::new(|v| v["modes"] = serde_json::json!(["tcp"])), "modes[0]", "not \"rtu\""),
+        (Box::new(|v| v["schema_version"] = 3.into()), "schema_version", "not supported"),
+        (Box::new(|v| v["model"] = "Device X".into()), "model", "not an id"),
+        (Box::new(|v| v["limits"] = serde_json::json!({"read_registers": {"rtu": 126, "ascii": 125, "basis": "documented", "source": "s"}})), "limits.read_registers.rtu", "257-byte response"),
+        (Box::new(|v| v["identification"] = serde_json::json!({"register": "1000", "value": null, "basis": "documented", "source": "s"})), "identification.register", "not in the map"),
+        (Box::new(|v| v["exceptions"] = serde_json::json!({"illegal-count": {"code": "03", "basis": "documented", "source": "s"}})), "exceptions.illegal-count.code", "not in the exception-code table"),
+        (Box::new(|v| v["exceptions"] = serde_json::json!({"too-long": {"code": "03", "basis": "documented", "source": "s"}})), "exceptions.too-long", "unknown fault kind"),
+        (Box::new(|v| v["blocks"][0]["basis"] = "observed".into()), "blocks[0]", "needs the request"),
+        (Box::new(|v| v["parameter_groups"] = serde_json::json!([{"group": 1, "registers": ["0100-0101"], "source": "s"}])), "naming", "group x 100H + number"),
+    ];
+    for (change, path, text) in cases {
+        let mut v = v2_device();
+        change(&mut v);
+        let e = v2_error(&v);
+        let shown = e.to_string();
+        assert!(shown.contains(text), "{shown}");
+        if !path.is_empty() {
+            assert_eq!(e.path(), Some(path), "{shown}");
+            assert!(shown.contains(&format!(": {path}: ")), "{shown}");
+        }
+    }
+    // An observed fact with its request loads, and binds like a documented one.
+    let mut v = v2_device();
+    v["blocks"][0] = serde_json::json!({"first": "0000", "last": "0FFF", "basis": "observed",
+        "request": "01 03 00 00 00 7D 85 EB", "reply": "01 03 FA 00 00"});
+    let m = DriveModel::from_json("device-x", &v.to_string()).unwrap();
+    assert_eq!(m.blocks[0].fact.basis, Basis::Observed);
+    assert!(Basis::Observed.binding());
+    assert!(m.blocks[0].fact.citation().contains("request 01 03 00 00 00 7D 85 EB"));
+}
+
+#[test]
+fn a_copied_f510_file_keeps_its_example_register_inside_a_v2_block() {
+    // Item 3 of issue 34: the F510's example register 0123H, left in a file copied from
+    // f510.json, lies inside the new block 0000H..0FFFH.
+    let mut v: serde_json::Value = serde_json::from_str(DriveModel::builtin_files()[0].1).unwrap();
+    v["schema_version"] = 2.into();
+    v["model"] = "copied".into();
+    for k in ["parameter_groups", "groups", "registers", "identification", "parameter_access"] {
+        v.as_object_mut().unwrap().remove(k);
+    }
+    v["exceptions"].as_object_mut().unwrap().remove("no-access");
+    v["blocks"] = v2_device()["blocks"].clone();
+    let m = DriveModel::from_json("copied", &v.to_string()).unwrap();
+    assert_eq!(m.lookup(0x0123).map(|i| i.access), Some(Access::ReadWrite));
+    assert_eq!(m.example_registers.len(), 1);
+    // With another access it contradicts the block: an overlap.
+    v["example_registers"][0]["access"] = "read-only".into();
+    let e = DriveModel::from_json("copied", &v.to_string()).unwrap_err();
+    assert!(e.to_string().contains("overlap"), "{e}");
+}
+
+#[test]
+fn a_v1_file_keeps_every_field_it_requires() {
+    let text = DriveModel::builtin_files()[0].1;
+    for field in ["loop_back", "silence", "identification", "limits", "manual"] {
+        let mut v: serde_json::Value = serde_json::from_str(text).unwrap();
+        v.as_object_mut().unwrap().remove(field);
+        let e = DriveModel::from_json("f510", &v.to_string()).unwrap_err();
+        assert_eq!(e.path(), Some(field), "{e}");
+        assert!(e.to_string().contains("schema_version 1 requires"), "{e}");
+    }
+    let mut v: serde_json::Value = serde_json::from_str(text).unwrap();
+    v["modes"] = serde_json::json!(["rtu"]);
+    let e = DriveModel::from_json("f510", &v.to_string()).unwrap_err();
+    assert_eq!(e.path(), Some("modes"), "{e}");
+    let mut v: serde_json::Value = serde_json::from_str(text).unwrap();
+    v["blocks"] = serde_json::json!([]);
+    let e = DriveModel::from_json("f510", &v.to_string()).unwrap_err();
+    assert!(e.to_string().contains("schema_version 2 field"), "{e}");
+}
