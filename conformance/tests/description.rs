@@ -91,11 +91,21 @@ fn both_examples_load_and_say_what_they_leave_out() {
     // The Modbus specification's limits stand in for the ones it leaves out.
     assert_eq!(minimal.limits.read.rtu, 125);
     assert_eq!(minimal.limits.write.rtu, 123);
-    assert_eq!(minimal.limits.max_frame_in(conformance::codec::Mode::Rtu), 256);
-    assert_eq!(minimal.limits.max_frame_in(conformance::codec::Mode::Ascii), 513);
+    assert_eq!(
+        minimal.limits.max_frame_in(conformance::codec::Mode::Rtu),
+        256
+    );
+    assert_eq!(
+        minimal.limits.max_frame_in(conformance::codec::Mode::Ascii),
+        513
+    );
 
     let full = DriveModel::from_path(&example(FULL)).unwrap();
-    assert_eq!(full.absent, Vec::<String>::new(), "the full example leaves nothing out but no-access");
+    assert_eq!(
+        full.absent,
+        Vec::<String>::new(),
+        "the full example leaves nothing out but no-access"
+    );
     assert_eq!(full.identification.as_ref().unwrap().register, Some(0x252F));
 }
 
@@ -131,7 +141,9 @@ fn the_issue_device_passes_on_the_simulator_and_its_skips_name_the_missing_field
     let (status, summary) = status_of(&all, "ascii.mode");
     assert_eq!(status, "skip");
     assert!(summary.contains("modes are [\"rtu\"]"), "{summary}");
-    assert!(!all.iter().any(|c| c.0.starts_with("ascii.") && c.0 != "ascii.mode"));
+    assert!(!all
+        .iter()
+        .any(|c| c.0.starts_with("ascii.") && c.0 != "ascii.mode"));
     // The blocks are read and written as plain ranges.
     for id in [
         "rtu.map.holding.first",
@@ -166,7 +178,10 @@ fn the_full_example_passes_on_the_simulator_with_its_bounds_and_identification()
         assert_eq!(status_of(&all, id).0, "pass", "{id}: {all:#?}");
     }
     let (_, summary) = status_of(&all, "rtu.write.holding.over-max");
-    assert!(summary.contains("exception 03H (data-out-of-range)"), "{summary}");
+    assert!(
+        summary.contains("exception 03H (data-out-of-range)"),
+        "{summary}"
+    );
     assert_eq!(v["device"]["identification"], "5831");
 }
 
@@ -183,7 +198,11 @@ fn check_model_file_alone_holds_a_simulated_device_to_its_description() {
             Duration::from_secs(120),
         );
         clean(exit, &v);
-        assert_eq!(v["summary"]["pass"].as_u64().map(|n| n > 10), Some(true), "{name}");
+        assert_eq!(
+            v["summary"]["pass"].as_u64().map(|n| n > 10),
+            Some(true),
+            "{name}"
+        );
     }
 }
 
@@ -289,14 +308,32 @@ fn a_device_that_differs_from_what_a_description_leaves_out_is_never_a_deviation
     // that would judge a code are skipped, naming the rule, and nothing deviates.
     let (exit, v) = check_device(
         &tempdir("wrong-full"),
-        &["--sim", "--no-pace", "--quirk", "wrong-exception", "--model-file", example(FULL).to_str().unwrap()],
+        &[
+            "--sim",
+            "--no-pace",
+            "--quirk",
+            "wrong-exception",
+            "--model-file",
+            example(FULL).to_str().unwrap(),
+        ],
         Duration::from_secs(120),
     );
     assert_ne!(exit, Some(0));
-    assert!(v["summary"]["deviation"].as_u64().unwrap() > 0, "{:#?}", v["summary"]);
+    assert!(
+        v["summary"]["deviation"].as_u64().unwrap() > 0,
+        "{:#?}",
+        v["summary"]
+    );
     let (exit, v) = check_device(
         &tempdir("wrong-minimal"),
-        &["--sim", "--no-pace", "--quirk", "wrong-exception", "--model-file", example(MINIMAL).to_str().unwrap()],
+        &[
+            "--sim",
+            "--no-pace",
+            "--quirk",
+            "wrong-exception",
+            "--model-file",
+            example(MINIMAL).to_str().unwrap(),
+        ],
         Duration::from_secs(120),
     );
     clean(exit, &v);
@@ -310,7 +347,12 @@ fn a_device_that_differs_from_what_a_description_leaves_out_is_never_a_deviation
     let (_sim, port) = sim_pty(&["--model-file", example(FULL).to_str().unwrap()]);
     let (exit, v) = check_device(
         &tempdir("full-as-minimal"),
-        &["--model-file", example(MINIMAL).to_str().unwrap(), "--port", &port],
+        &[
+            "--model-file",
+            example(MINIMAL).to_str().unwrap(),
+            "--port",
+            &port,
+        ],
         Duration::from_secs(120),
     );
     clean(exit, &v);

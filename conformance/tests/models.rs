@@ -142,7 +142,10 @@ fn tables_say_what_the_manuals_say() {
     assert!(!f.numbers_exceptions_from_51());
     assert_eq!(model("l510").identification.unwrap().value, Some(0x0110));
     assert_eq!(f.identification.as_ref().unwrap().value, None);
-    assert_eq!(f.identification.as_ref().unwrap().fact.basis, Basis::Decision);
+    assert_eq!(
+        f.identification.as_ref().unwrap().fact.basis,
+        Basis::Decision
+    );
 
     // F510 parameter groups: 0-00..0-56, 2-00..2-19 and 2-33..2-34, no group 19.
     let groups: Vec<_> = f.parameter_groups().collect();
@@ -659,31 +662,82 @@ fn v2_error(v: &serde_json::Value) -> conformance::model::ModelError {
 fn a_v2_description_with_nothing_optional_loads_with_the_specification_s_defaults() {
     let m = DriveModel::from_json("device-x", &v2_device().to_string()).unwrap();
     assert_eq!(m.modes(), [Mode::Rtu]);
-    assert_eq!(m.manual, "device X data sheet", "manual defaults to the title");
+    assert_eq!(
+        m.manual, "device X data sheet",
+        "manual defaults to the title"
+    );
     assert_eq!((m.broadcast, m.addresses.clone()), (0, 1..=0xF7));
     assert_eq!(m.addresses_fact.basis, Basis::Derived);
     assert_eq!(m.lookup(0x0FFF).map(|i| i.access), Some(Access::ReadWrite));
     assert_eq!(m.lookup(0x1000), None);
     assert_eq!(m.lookup(0x252F).map(|i| i.access), Some(Access::ReadWrite));
     // A block is a plain range: a read across 0000H..0FFFH needs no TECO group.
-    assert!(matches!(read(&m, Mode::Rtu, 0x0F90, 0x70), Expectation::Read(_)));
+    assert!(matches!(
+        read(&m, Mode::Rtu, 0x0F90, 0x70),
+        Expectation::Read(_)
+    ));
     // A read past the map: the Modbus code, but the judgement says which rule is missing
     // and binds no device.
-    let j = m.judge(1, Mode::Rtu, &frame(Mode::Rtu, 1, Pdu::ReadRequest { start: 0x1000, count: 1 }));
-    assert_eq!(j.expect, Expectation::Exception { fault: Fault::IllegalRegister, code: 0x02 });
+    let j = m.judge(
+        1,
+        Mode::Rtu,
+        &frame(
+            Mode::Rtu,
+            1,
+            Pdu::ReadRequest {
+                start: 0x1000,
+                count: 1,
+            },
+        ),
+    );
+    assert_eq!(
+        j.expect,
+        Expectation::Exception {
+            fault: Fault::IllegalRegister,
+            code: 0x02
+        }
+    );
     assert_eq!(j.missing, ["exceptions.illegal-register"]);
     assert_eq!(j.basis(), Basis::Decision);
     assert_eq!(
         j.missing_reason().as_deref(),
         Some("the description has no exceptions.illegal-register")
     );
-    let over = m.judge(1, Mode::Rtu, &frame(Mode::Rtu, 1, Pdu::ReadRequest { start: 0, count: 126 }));
-    assert_eq!(over.expect, Expectation::Exception { fault: Fault::IllegalCount, code: 0x03 });
-    let broadcast = m.judge(1, Mode::Rtu, &frame(Mode::Rtu, 0, Pdu::ReadRequest { start: 0, count: 1 }));
-    assert_eq!(broadcast.expect, Expectation::Silence(SilenceReason::Broadcast));
+    let over = m.judge(
+        1,
+        Mode::Rtu,
+        &frame(
+            Mode::Rtu,
+            1,
+            Pdu::ReadRequest {
+                start: 0,
+                count: 126,
+            },
+        ),
+    );
+    assert_eq!(
+        over.expect,
+        Expectation::Exception {
+            fault: Fault::IllegalCount,
+            code: 0x03
+        }
+    );
+    let broadcast = m.judge(
+        1,
+        Mode::Rtu,
+        &frame(Mode::Rtu, 0, Pdu::ReadRequest { start: 0, count: 1 }),
+    );
+    assert_eq!(
+        broadcast.expect,
+        Expectation::Silence(SilenceReason::Broadcast)
+    );
     assert_eq!(broadcast.missing, ["silence.broadcast"]);
     // A served read rests on stated facts only.
-    let ok = m.judge(1, Mode::Rtu, &frame(Mode::Rtu, 1, Pdu::ReadRequest { start: 0, count: 1 }));
+    let ok = m.judge(
+        1,
+        Mode::Rtu,
+        &frame(Mode::Rtu, 1, Pdu::ReadRequest { start: 0, count: 1 }),
+    );
     assert!(ok.missing.is_empty());
     assert_eq!(ok.basis(), Basis::Documented);
 }
@@ -702,36 +756,122 @@ fn v2_block_access_and_bounds_decide_writes_and_reads() {
     ));
     let m = DriveModel::from_json("device-x", &v.to_string()).unwrap();
     assert_eq!(write(&m, 0x0001, 0x7FFF), Expectation::WriteSingle);
-    assert_eq!(write(&m, 0x0001, 0x8000), exception(&m, Fault::DataOutOfRange));
-    assert_eq!(write(&m, 0x0001, 0x000F), exception(&m, Fault::DataOutOfRange));
+    assert_eq!(
+        write(&m, 0x0001, 0x8000),
+        exception(&m, Fault::DataOutOfRange)
+    );
+    assert_eq!(
+        write(&m, 0x0001, 0x000F),
+        exception(&m, Fault::DataOutOfRange)
+    );
     assert_eq!(write(&m, 0x2500, 0), exception(&m, Fault::ReadOnly));
     assert_eq!(write(&m, 0x3000, 0xFFFF), Expectation::WriteSingle);
-    assert_eq!(read(&m, Mode::Rtu, 0x3000, 1), exception(&m, Fault::IllegalRegister));
+    assert_eq!(
+        read(&m, Mode::Rtu, 0x3000, 1),
+        exception(&m, Fault::IllegalRegister)
+    );
     // Reserved: served by no function.
-    assert_eq!(read(&m, Mode::Rtu, 0x4000, 1), exception(&m, Fault::IllegalRegister));
+    assert_eq!(
+        read(&m, Mode::Rtu, 0x4000, 1),
+        exception(&m, Fault::IllegalRegister)
+    );
     assert_eq!(write(&m, 0x4000, 0), exception(&m, Fault::IllegalRegister));
     assert_eq!(m.blocks.len(), 4);
     assert_eq!(m.blocks[3].access, Access::Reserved);
 }
 
+/// A change to a description, in a table of broken descriptions.
+type Change = Box<dyn Fn(&mut serde_json::Value)>;
+
 #[test]
 fn v2_errors_name_the_field_s_path() {
-    let cases: Vec<(Box<dyn Fn(&mut serde_json::Value)>, &str, &str)> = vec![
-        (Box::new(|v| v["blocks"][1]["last"] = "2400".into()), "blocks[1].last", "2400 is before first 2500"),
-        (Box::new(|v| v["blocks"][1]["first"] = "0FFF".into()), "", "overlap"),
-        (Box::new(|v| v["blocks"][0]["access"] = "sometimes".into()), "blocks[0].access", "not read-write"),
-        (Box::new(|v| v["blocks"][0]["max"] = "12".into()), "blocks[0].max", "four upper-case hex digits"),
-        (Box::new(|v| v["modes"] = serde_json::json!([])), "modes", "at least one"),
-        (Box::new(|v| v["modes"] = serde_json::json!(["rtu", "rtu"])), "modes[1]", "listed twice"),
-        (Box::new(|v| v["modes"] = serde_json::json!(["tcp"])), "modes[0]", "not \"rtu\""),
-        (Box::new(|v| v["schema_version"] = 3.into()), "schema_version", "not supported"),
-        (Box::new(|v| v["model"] = "Device X".into()), "model", "not an id"),
-        (Box::new(|v| v["limits"] = serde_json::json!({"read_registers": {"rtu": 126, "ascii": 125, "basis": "documented", "source": "s"}})), "limits.read_registers.rtu", "257-byte response"),
-        (Box::new(|v| v["identification"] = serde_json::json!({"register": "1000", "value": null, "basis": "documented", "source": "s"})), "identification.register", "not in the map"),
-        (Box::new(|v| v["exceptions"] = serde_json::json!({"illegal-count": {"code": "03", "basis": "documented", "source": "s"}})), "exceptions.illegal-count.code", "not in the exception-code table"),
-        (Box::new(|v| v["exceptions"] = serde_json::json!({"too-long": {"code": "03", "basis": "documented", "source": "s"}})), "exceptions.too-long", "unknown fault kind"),
-        (Box::new(|v| v["blocks"][0]["basis"] = "observed".into()), "blocks[0]", "needs the request"),
-        (Box::new(|v| v["parameter_groups"] = serde_json::json!([{"group": 1, "registers": ["0100-0101"], "source": "s"}])), "naming", "group x 100H + number"),
+    let cases: Vec<(Change, &str, &str)> = vec![
+        (
+            Box::new(|v| v["blocks"][1]["last"] = "2400".into()),
+            "blocks[1].last",
+            "2400 is before first 2500",
+        ),
+        (
+            Box::new(|v| v["blocks"][1]["first"] = "0FFF".into()),
+            "",
+            "overlap",
+        ),
+        (
+            Box::new(|v| v["blocks"][0]["access"] = "sometimes".into()),
+            "blocks[0].access",
+            "not read-write",
+        ),
+        (
+            Box::new(|v| v["blocks"][0]["max"] = "12".into()),
+            "blocks[0].max",
+            "four upper-case hex digits",
+        ),
+        (
+            Box::new(|v| v["modes"] = serde_json::json!([])),
+            "modes",
+            "at least one",
+        ),
+        (
+            Box::new(|v| v["modes"] = serde_json::json!(["rtu", "rtu"])),
+            "modes[1]",
+            "listed twice",
+        ),
+        (
+            Box::new(|v| v["modes"] = serde_json::json!(["tcp"])),
+            "modes[0]",
+            "not \"rtu\"",
+        ),
+        (
+            Box::new(|v| v["schema_version"] = 3.into()),
+            "schema_version",
+            "not supported",
+        ),
+        (
+            Box::new(|v| v["model"] = "Device X".into()),
+            "model",
+            "not an id",
+        ),
+        (
+            Box::new(
+                |v| v["limits"] = serde_json::json!({"read_registers": {"rtu": 126, "ascii": 125, "basis": "documented", "source": "s"}}),
+            ),
+            "limits.read_registers.rtu",
+            "257-byte response",
+        ),
+        (
+            Box::new(
+                |v| v["identification"] = serde_json::json!({"register": "1000", "value": null, "basis": "documented", "source": "s"}),
+            ),
+            "identification.register",
+            "not in the map",
+        ),
+        (
+            Box::new(
+                |v| v["exceptions"] = serde_json::json!({"illegal-count": {"code": "03", "basis": "documented", "source": "s"}}),
+            ),
+            "exceptions.illegal-count.code",
+            "not in the exception-code table",
+        ),
+        (
+            Box::new(
+                |v| v["exceptions"] = serde_json::json!({"too-long": {"code": "03", "basis": "documented", "source": "s"}}),
+            ),
+            "exceptions.too-long",
+            "unknown fault kind",
+        ),
+        (
+            Box::new(|v| v["blocks"][0]["basis"] = "observed".into()),
+            "blocks[0]",
+            "needs the request",
+        ),
+        (
+            Box::new(|v| {
+                v["parameter_groups"] =
+                    serde_json::json!([{"group": 1, "registers": ["0100-0101"], "source": "s"}])
+            }),
+            "naming",
+            "group x 100H + number",
+        ),
     ];
     for (change, path, text) in cases {
         let mut v = v2_device();
@@ -751,7 +891,10 @@ fn v2_errors_name_the_field_s_path() {
     let m = DriveModel::from_json("device-x", &v.to_string()).unwrap();
     assert_eq!(m.blocks[0].fact.basis, Basis::Observed);
     assert!(Basis::Observed.binding());
-    assert!(m.blocks[0].fact.citation().contains("request 01 03 00 00 00 7D 85 EB"));
+    assert!(m.blocks[0]
+        .fact
+        .citation()
+        .contains("request 01 03 00 00 00 7D 85 EB"));
 }
 
 #[test]
@@ -761,7 +904,13 @@ fn a_copied_f510_file_keeps_its_example_register_inside_a_v2_block() {
     let mut v: serde_json::Value = serde_json::from_str(DriveModel::builtin_files()[0].1).unwrap();
     v["schema_version"] = 2.into();
     v["model"] = "copied".into();
-    for k in ["parameter_groups", "groups", "registers", "identification", "parameter_access"] {
+    for k in [
+        "parameter_groups",
+        "groups",
+        "registers",
+        "identification",
+        "parameter_access",
+    ] {
         v.as_object_mut().unwrap().remove(k);
     }
     v["exceptions"].as_object_mut().unwrap().remove("no-access");

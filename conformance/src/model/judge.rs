@@ -106,9 +106,8 @@ impl Judgement {
     /// "the description has no exceptions.illegal-count": why a check that rests on
     /// this judgement is skipped; `None` where nothing is missing.
     pub fn missing_reason(&self) -> Option<String> {
-        (!self.missing.is_empty()).then(|| {
-            format!("the description has no {}", self.missing.join(", no "))
-        })
+        (!self.missing.is_empty())
+            .then(|| format!("the description has no {}", self.missing.join(", no ")))
     }
 
     /// The facts' citations, one line each.
@@ -509,7 +508,9 @@ impl DriveModel {
                     (None, Origin::Block) => match self.block_of(info.register) {
                         Some(b) => match &b.name {
                             Some(n) => write!(s, " ({n})"),
-                            None => write!(s, " (block {:04X}..{:04X})", b.span.start(), b.span.end()),
+                            None => {
+                                write!(s, " (block {:04X}..{:04X})", b.span.start(), b.span.end())
+                            }
                         },
                         None => Ok(()),
                     },

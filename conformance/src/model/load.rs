@@ -104,7 +104,8 @@ fn spec(rule: &str) -> Fact {
 }
 
 /// The Modbus application protocol's counts, which a v2 description may leave out.
-const SPEC_COUNTS: &str = "Modbus application protocol V1.1b3, 6.3 and 6.12: 1..125 registers per 03H, 1..123 per 10H";
+const SPEC_COUNTS: &str =
+    "Modbus application protocol V1.1b3, 6.3 and 6.12: 1..125 registers per 03H, 1..123 per 10H";
 
 impl DriveModel {
     /// Checks a parsed model file and builds the model.
@@ -153,7 +154,11 @@ impl DriveModel {
             }
             if f.blocks.is_some() || f.naming.is_some() {
                 return Err(at(
-                    if f.blocks.is_some() { "blocks" } else { "naming" },
+                    if f.blocks.is_some() {
+                        "blocks"
+                    } else {
+                        "naming"
+                    },
                     "is a schema_version 2 field".to_string(),
                 ));
             }
@@ -301,11 +306,23 @@ impl DriveModel {
         };
         let l = f.limits.as_ref().unwrap_or(&no_limits);
         for (what, fact) in [
-            ("limits.max_frame_bytes", l.max_frame_bytes.as_ref().map(|v| &v.fact)),
-            ("limits.read_registers", l.read_registers.as_ref().map(|v| &v.fact)),
-            ("limits.write_registers", l.write_registers.as_ref().map(|v| &v.fact)),
+            (
+                "limits.max_frame_bytes",
+                l.max_frame_bytes.as_ref().map(|v| &v.fact),
+            ),
+            (
+                "limits.read_registers",
+                l.read_registers.as_ref().map(|v| &v.fact),
+            ),
+            (
+                "limits.write_registers",
+                l.write_registers.as_ref().map(|v| &v.fact),
+            ),
             ("limits.same_group", l.same_group.as_ref().map(|v| &v.fact)),
-            ("limits.response_time_ms", l.response_time_ms.as_ref().map(|v| &v.fact)),
+            (
+                "limits.response_time_ms",
+                l.response_time_ms.as_ref().map(|v| &v.fact),
+            ),
         ] {
             if let Some(fact) = fact {
                 check_fact(m, what, fact)?;
@@ -351,14 +368,20 @@ impl DriveModel {
             let write_len = write_request_len(mode, w);
             let max = limits.max_frame_in(mode);
             if r == 0 || read_len > max {
-                return Err(at(&format!("limits.read_registers.{mode}"), format!(
-                    "{r} registers need a {read_len}-byte response, over the {max}-byte frame"
-                )));
+                return Err(at(
+                    &format!("limits.read_registers.{mode}"),
+                    format!(
+                        "{r} registers need a {read_len}-byte response, over the {max}-byte frame"
+                    ),
+                ));
             }
             if w == 0 || write_len > max {
-                return Err(at(&format!("limits.write_registers.{mode}"), format!(
-                    "{w} registers need a {write_len}-byte request, over the {max}-byte frame"
-                )));
+                return Err(at(
+                    &format!("limits.write_registers.{mode}"),
+                    format!(
+                        "{w} registers need a {write_len}-byte request, over the {max}-byte frame"
+                    ),
+                ));
             }
         }
 
@@ -368,7 +391,10 @@ impl DriveModel {
             let first = hex16(m, &format!("groups[{i}].first"), &g.first)?;
             let last = hex16(m, &format!("groups[{i}].last"), &g.last)?;
             if first > last {
-                return Err(at(&format!("groups[{i}].last"), format!("{last:04X} is before first {first:04X}")));
+                return Err(at(
+                    &format!("groups[{i}].last"),
+                    format!("{last:04X} is before first {first:04X}"),
+                ));
             }
             groups.push(Group {
                 name: g.name.clone(),
@@ -528,8 +554,7 @@ impl DriveModel {
         }
         let parameter_groups = f.parameter_groups.as_deref().unwrap_or_default();
         let uses_naming = !parameter_groups.is_empty()
-            || f
-                .parameter_access
+            || f.parameter_access
                 .as_ref()
                 .is_some_and(|p| !p.read_only.is_empty());
         let naming = match &f.naming {
@@ -644,7 +669,8 @@ impl DriveModel {
             {
                 return Err(at(
                     &format!("{path}.access"),
-                    "min and max bound written values: the block must be read-write or write-only".to_string(),
+                    "min and max bound written values: the block must be read-write or write-only"
+                        .to_string(),
                 ));
             }
             if let Some(scale) = b.scale {
@@ -755,24 +781,24 @@ impl DriveModel {
                 None
             }
             Some(id) => {
-        check_fact(m, "identification", &id.fact)?;
-        Some(Identification {
-            register: id
-                .register
-                .as_deref()
-                .map(|r| hex16(m, "identification.register", r))
-                .transpose()?,
-            value: id
-                .value
-                .as_deref()
-                .map(|r| hex16(m, "identification.value", r))
-                .transpose()?,
-            simulated: match (&id.value, &id.simulated) {
-                (Some(v), _) | (None, Some(v)) => hex16(m, "identification", v)?,
-                (None, None) => 0,
-            },
-            fact: Fact::from_file(&id.fact),
-        })
+                check_fact(m, "identification", &id.fact)?;
+                Some(Identification {
+                    register: id
+                        .register
+                        .as_deref()
+                        .map(|r| hex16(m, "identification.register", r))
+                        .transpose()?,
+                    value: id
+                        .value
+                        .as_deref()
+                        .map(|r| hex16(m, "identification.value", r))
+                        .transpose()?,
+                    simulated: match (&id.value, &id.simulated) {
+                        (Some(v), _) | (None, Some(v)) => hex16(m, "identification", v)?,
+                        (None, None) => 0,
+                    },
+                    fact: Fact::from_file(&id.fact),
+                })
             }
         };
         let mut initial_values = Vec::new();

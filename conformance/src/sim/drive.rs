@@ -523,7 +523,10 @@ impl Drive {
     /// What the identification register reads: the description's value, or the value
     /// it gives the simulator.
     fn identification_value(&self) -> u16 {
-        self.model.identification.as_ref().map_or(0, |i| i.simulated)
+        self.model
+            .identification
+            .as_ref()
+            .map_or(0, |i| i.simulated)
     }
 
     /// Whether `register` is the description's identification register.

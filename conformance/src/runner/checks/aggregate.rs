@@ -5,7 +5,10 @@ use std::time::Duration;
 use super::*;
 
 pub(super) fn aggregates(model: &DriveModel, m: &str, out: &mut Vec<Check>) {
-    match (model.limits.response_time_ms, &model.limits.response_time_fact) {
+    match (
+        model.limits.response_time_ms,
+        &model.limits.response_time_fact,
+    ) {
         (Some(stated), Some(fact)) => response_time(model, m, stated, fact, out),
         _ => out.push(undescribed_check(
             format!("{m}.response-time"),
@@ -206,7 +209,14 @@ fn timing_and_codes(model: &DriveModel, m: &str, out: &mut Vec<Check>) {
         format!("{m}.exception-codes"),
         "Exception codes the device sent during this mode's checks, against the manual's table"
             .to_string(),
-        format!("{}, {}", model.manual, model.exception_codes_source.as_deref().unwrap_or("exception-code table")),
+        format!(
+            "{}, {}",
+            model.manual,
+            model
+                .exception_codes_source
+                .as_deref()
+                .unwrap_or("exception-code table")
+        ),
         false,
         false,
         |ctx| {

@@ -188,7 +188,9 @@ fn undescribed(fields: &[String]) -> String {
 /// a report says what was not checked and why, never run.
 fn undescribed_check(id: String, title: String, source: String, fields: Vec<String>) -> Check {
     let why = undescribed(&fields);
-    check(id, title, source, false, false, move |_| Ok(Verdict::skip(why.clone())))
+    check(id, title, source, false, false, move |_| {
+        Ok(Verdict::skip(why.clone()))
+    })
 }
 
 /// Runs of contiguous readable registers (read-write or read-only or reserved) of one group.

@@ -65,7 +65,12 @@ pub(super) fn order(model: &DriveModel, mode: Mode, m: &str, out: &mut Vec<Check
                 .filter(|f| model.rule(*f).is_none())
                 .map(|f| format!("exceptions.{}", f.key()))
                 .collect();
-            out.push(undescribed_check(format!("{m}.order.{name}"), title, spec.to_string(), fields));
+            out.push(undescribed_check(
+                format!("{m}.order.{name}"),
+                title,
+                spec.to_string(),
+                fields,
+            ));
             continue;
         };
         let source = format!(

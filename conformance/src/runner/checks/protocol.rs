@@ -393,7 +393,9 @@ pub(super) fn addressing(model: &DriveModel, m: &str, out: &mut Vec<Check>) {
         format!("Read {probe:04X}H from another node address: no reply"),
         cite_or(
             model,
-            model.silence.get(&crate::model::SilenceReason::OtherAddress),
+            model
+                .silence
+                .get(&crate::model::SilenceReason::OtherAddress),
             "silence.other-address",
         ),
         false,

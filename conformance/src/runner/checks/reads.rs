@@ -336,7 +336,9 @@ pub(super) fn counts(model: &DriveModel, mode: Mode, m: &str, out: &mut Vec<Chec
                     "{wsource}; {}",
                     cite_or(
                         model,
-                        model.silence.get(&crate::model::SilenceReason::FrameTooLong),
+                        model
+                            .silence
+                            .get(&crate::model::SilenceReason::FrameTooLong),
                         "silence.frame-too-long"
                     )
                 )

@@ -81,7 +81,13 @@ pub(super) fn writes(model: &DriveModel, mode: Mode, m: &str, out: &mut Vec<Chec
         out.push(refused_write(
             format!("{m}.write.out-of-range"),
             format!("Write FFFFH (655.35 Hz) to the frequency command {f:04X}H, and read it back"),
-            cite_or(model, model.rule(crate::model::Fault::DataOutOfRange).map(|r| &r.fact), "exceptions.data-out-of-range"),
+            cite_or(
+                model,
+                model
+                    .rule(crate::model::Fault::DataOutOfRange)
+                    .map(|r| &r.fact),
+                "exceptions.data-out-of-range",
+            ),
             Target::stored(f),
             move |ctx, _| {
                 ctx.frame(Pdu::WriteSingle {
@@ -166,7 +172,11 @@ pub(super) fn writes(model: &DriveModel, mode: Mode, m: &str, out: &mut Vec<Chec
         out.push(refused_write(
             format!("{m}.write.read-only"),
             format!("Write 0000H to the monitor register {ro:04X}H (read-only), and read it back"),
-            cite_or(model, model.rule(crate::model::Fault::ReadOnly).map(|r| &r.fact), "exceptions.read-only"),
+            cite_or(
+                model,
+                model.rule(crate::model::Fault::ReadOnly).map(|r| &r.fact),
+                "exceptions.read-only",
+            ),
             Target::state(ro),
             move |ctx, _| {
                 ctx.frame(Pdu::WriteSingle {
@@ -185,7 +195,13 @@ pub(super) fn writes(model: &DriveModel, mode: Mode, m: &str, out: &mut Vec<Chec
         out.push(refused_write(
             format!("{m}.write.reserved"),
             format!("Write 0000H to the reserved register {res:04X}H, and read it back"),
-            cite_or(model, model.rule(crate::model::Fault::ReservedWrite).map(|r| &r.fact), "exceptions.reserved-write"),
+            cite_or(
+                model,
+                model
+                    .rule(crate::model::Fault::ReservedWrite)
+                    .map(|r| &r.fact),
+                "exceptions.reserved-write",
+            ),
             Target::stored(res),
             move |ctx, _| {
                 ctx.frame(Pdu::WriteSingle {
