@@ -174,6 +174,7 @@ fn the_full_example_passes_on_the_simulator_with_its_bounds_and_identification()
         "rtu.read-count.over-limit",
         "rtu.broadcast.read",
         "rtu.response-time",
+        "rtu.same-group",
     ] {
         assert_eq!(status_of(&all, id).0, "pass", "{id}: {all:#?}");
     }

@@ -943,3 +943,22 @@ fn a_v1_file_keeps_every_field_it_requires() {
     let e = DriveModel::from_json("f510", &v.to_string()).unwrap_err();
     assert!(e.to_string().contains("schema_version 2 field"), "{e}");
 }
+
+#[test]
+fn adjacent_v2_blocks_are_one_range_unless_same_group_says_a_block_is_a_group() {
+    let mut v = v2_device();
+    v["blocks"][1]["first"] = "1000".into();
+    v["blocks"][1]["last"] = "10FF".into();
+    let m = DriveModel::from_json("device-x", &v.to_string()).unwrap();
+    assert!(matches!(
+        read(&m, Mode::Rtu, 0x0FFF, 2),
+        Expectation::Read(_)
+    ));
+    v["limits"] =
+        serde_json::json!({"same_group": {"value": true, "basis": "documented", "source": "s"}});
+    let m = DriveModel::from_json("device-x", &v.to_string()).unwrap();
+    assert_eq!(
+        read(&m, Mode::Rtu, 0x0FFF, 2),
+        exception(&m, Fault::CrossesGroup)
+    );
+}

@@ -304,6 +304,38 @@ pub(super) fn counts(model: &DriveModel, mode: Mode, m: &str, out: &mut Vec<Chec
             ));
         }
     }
+    // The same rule between two adjacent blocks of a description (v2): a read across
+    // them is served unless limits.same_group says a block is a group.
+    if model.group("command").is_none() {
+        if let Some(w) = model
+            .blocks
+            .windows(2)
+            .find(|w| w[0].span.end().checked_add(1) == Some(*w[1].span.start()))
+        {
+            let from = *w[0].span.end();
+            let names = |b: &crate::model::Block| {
+                b.name
+                    .clone()
+                    .unwrap_or_else(|| format!("block {:04X}", b.span.start()))
+            };
+            out.push(probe_check(
+                format!("{m}.same-group"),
+                format!(
+                    "Read 2 registers from {from:04X}H, across the blocks {} and {}",
+                    names(&w[0]),
+                    names(&w[1])
+                ),
+                cite(model, &model.limits.same_group_fact),
+                false,
+                move |ctx| {
+                    ctx.frame(Pdu::ReadRequest {
+                        start: from,
+                        count: 2,
+                    })
+                },
+            ));
+        }
+    }
     // Write counts: a value-preserving write of the limit, a write of 0, and one over
     // the limit (a frame over 80 bytes).
     let wlimit = model.limits.write.get(mode);
