@@ -8,6 +8,7 @@
 
 mod error;
 mod facts;
+mod fields;
 mod file;
 mod judge;
 mod load;
