@@ -80,7 +80,10 @@ impl Prediction {
                         .zip(b)
                         .any(|(x, y)| matches!((x, y), (Some(x), Some(y)) if x != y))
             }
-            (Prediction::AnyException(_), Prediction::Exception(_) | Prediction::AnyException(_))
+            (
+                Prediction::AnyException(_),
+                Prediction::Exception(_) | Prediction::AnyException(_),
+            )
             | (Prediction::Exception(_), Prediction::AnyException(_)) => false,
             (a, b) => a != b,
         }
