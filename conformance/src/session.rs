@@ -409,6 +409,10 @@ pub fn fuzz(
             report.stopped = Some("interrupted".into());
             break;
         }
+        // The description leaves this mode out: nothing to fuzz in it.
+        if !config.model.serves_mode(mode) {
+            continue;
+        }
         let (sim, transport) = open(config, mode)?;
         report
             .device
@@ -465,6 +469,21 @@ pub fn run(
         if stop.load(Ordering::Relaxed) {
             report.stopped = Some("interrupted".into());
             break;
+        }
+        // A mode the description leaves out is one SKIP: nothing is opened or sent.
+        if !config.model.serves_mode(mode) {
+            let check = crate::runner::checks::mode_not_served(&config.model, mode);
+            on_start(mode, &check);
+            let why = crate::runner::checks::mode_not_served_reason(&config.model, mode);
+            let result = crate::runner::run::result_of(
+                &check,
+                mode,
+                crate::runner::Verdict::skip(why),
+                std::time::Duration::ZERO,
+            );
+            report.results.push(result);
+            on_result(&report);
+            continue;
         }
         let (sim, transport) = open(config, mode)?;
         report

@@ -973,7 +973,6 @@ fn the_describing_a_device_lint_transcript_is_what_lint_prints() {
 
 /// Issue 34: the example description lints clean (no error, no warning).
 #[test]
-#[ignore = "needs the schema_version 2 loader (branch i34-format): the loader of this branch refuses version 2"]
 fn the_example_description_lints_clean() {
     let text = std::fs::read_to_string(repo().join(ACME)).unwrap();
     let findings = conformance::model::lint::lint(ACME, &text);

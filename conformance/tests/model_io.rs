@@ -177,7 +177,6 @@ fn a_bad_register_map_exits_1_naming_row_and_column_and_an_unreadable_one_2() {
 /// pymodbus's simulator; `check --model-file` of the description against it. Needs the
 /// schema_version 2 loader (branch i34-format) to load the imported description.
 #[test]
-#[ignore = "needs the schema_version 2 loader (branch i34-format): run after the merge"]
 fn an_imported_map_served_by_pymodbus_checks_clean() {
     let d = dir("import-roundtrip");
     let map = d.join("X100.csv");

@@ -209,7 +209,6 @@ fn model_show_is_what_model_printed_before() {
 /// The F510 example register left in a copied description (issue 34, item 3): inside a
 /// block of the same access it is a warning, which fails only with --deny-warnings.
 #[test]
-#[ignore = "needs the schema_version 2 loader (branch i34-format): the loader of this branch refuses version 2"]
 fn a_warning_fails_only_with_deny_warnings() {
     let d = dir("warn");
     let acme =

@@ -37,7 +37,7 @@ fn write(m: &DriveModel, register: u16, value: u16) -> Expectation {
 fn exception(m: &DriveModel, fault: Fault) -> Expectation {
     Expectation::Exception {
         fault,
-        code: m.rule(fault).code,
+        code: m.answer_code(fault),
     }
 }
 
@@ -140,9 +140,12 @@ fn tables_say_what_the_manuals_say() {
     assert_eq!(model("e510").exception_meaning(5), Some("Write mode error"));
     assert!(model("l510-legacy").numbers_exceptions_from_51());
     assert!(!f.numbers_exceptions_from_51());
-    assert_eq!(model("l510").identification.value, Some(0x0110));
-    assert_eq!(f.identification.value, None);
-    assert_eq!(f.identification.fact.basis, Basis::Decision);
+    assert_eq!(model("l510").identification.unwrap().value, Some(0x0110));
+    assert_eq!(f.identification.as_ref().unwrap().value, None);
+    assert_eq!(
+        f.identification.as_ref().unwrap().fact.basis,
+        Basis::Decision
+    );
 
     // F510 parameter groups: 0-00..0-56, 2-00..2-19 and 2-33..2-34, no group 19.
     let groups: Vec<_> = f.parameter_groups().collect();
@@ -221,7 +224,7 @@ fn reads_follow_the_map_and_the_limits() {
         read(&a, Mode::Rtu, 0x0000, 33),
         exception(&a, Fault::IllegalCount)
     );
-    assert_eq!(a.rule(Fault::IllegalCount).code, 4);
+    assert_eq!(a.answer_code(Fault::IllegalCount), 4);
 }
 
 #[test]
@@ -233,15 +236,15 @@ fn writes_follow_the_access_of_each_register() {
         exception(&f, Fault::DataOutOfRange)
     );
     assert_eq!(write(&f, 0x2520, 0), exception(&f, Fault::ReadOnly));
-    assert_eq!(f.rule(Fault::ReadOnly).code, 2);
+    assert_eq!(f.answer_code(Fault::ReadOnly), 2);
     assert_eq!(write(&f, 0x2500, 0), exception(&f, Fault::ReservedWrite));
     assert_eq!(write(&f, 0x0039, 0), exception(&f, Fault::IllegalRegister));
     let e = model("e510");
-    assert_eq!(e.rule(Fault::ReadOnly).code, 5);
+    assert_eq!(e.answer_code(Fault::ReadOnly), 5);
     assert_eq!(write(&e, 0x0014, 0), exception(&e, Fault::NoAccess));
     let l = model("l510-legacy");
     assert_eq!(write(&l, 0x2520, 0), exception(&l, Fault::ReadOnly));
-    assert_eq!(l.rule(Fault::ReadOnly).code, 0x55);
+    assert_eq!(l.answer_code(Fault::ReadOnly), 0x55);
     let j = l.judge(
         1,
         Mode::Rtu,
@@ -634,4 +637,328 @@ fn read_only_parameter_entries_are_checked_on_load() {
         r["max"] = serde_json::json!({"value": "0001", "basis": "documented", "source": "x"});
     });
     assert!(e.contains("needs a read-write register"), "{e}");
+}
+
+/// The issue's device (RTU only, two plain blocks), as JSON to change in each test.
+fn v2_device() -> serde_json::Value {
+    serde_json::json!({
+        "schema_version": 2,
+        "model": "device-x",
+        "title": "device X data sheet",
+        "modes": ["rtu"],
+        "functions": {"codes": ["03", "06", "10"], "basis": "documented", "source": "data sheet 2"},
+        "blocks": [
+            {"first": "0000", "last": "0FFF", "basis": "documented", "source": "data sheet 3"},
+            {"first": "2500", "last": "252F", "basis": "documented", "source": "data sheet 3"}
+        ]
+    })
+}
+
+fn v2_error(v: &serde_json::Value) -> conformance::model::ModelError {
+    DriveModel::from_json("device-x", &v.to_string()).unwrap_err()
+}
+
+#[test]
+fn a_v2_description_with_nothing_optional_loads_with_the_specification_s_defaults() {
+    let m = DriveModel::from_json("device-x", &v2_device().to_string()).unwrap();
+    assert_eq!(m.modes(), [Mode::Rtu]);
+    assert_eq!(
+        m.manual, "device X data sheet",
+        "manual defaults to the title"
+    );
+    assert_eq!((m.broadcast, m.addresses.clone()), (0, 1..=0xF7));
+    assert_eq!(m.addresses_fact.basis, Basis::Derived);
+    assert_eq!(m.lookup(0x0FFF).map(|i| i.access), Some(Access::ReadWrite));
+    assert_eq!(m.lookup(0x1000), None);
+    assert_eq!(m.lookup(0x252F).map(|i| i.access), Some(Access::ReadWrite));
+    // A block is a plain range: a read across 0000H..0FFFH needs no TECO group.
+    assert!(matches!(
+        read(&m, Mode::Rtu, 0x0F90, 0x70),
+        Expectation::Read(_)
+    ));
+    // A read past the map: the Modbus code, but the judgement says which rule is missing
+    // and binds no device.
+    let j = m.judge(
+        1,
+        Mode::Rtu,
+        &frame(
+            Mode::Rtu,
+            1,
+            Pdu::ReadRequest {
+                start: 0x1000,
+                count: 1,
+            },
+        ),
+    );
+    assert_eq!(
+        j.expect,
+        Expectation::Exception {
+            fault: Fault::IllegalRegister,
+            code: 0x02
+        }
+    );
+    assert_eq!(j.missing, ["exceptions.illegal-register"]);
+    assert_eq!(j.basis(), Basis::Decision);
+    assert_eq!(
+        j.missing_reason().as_deref(),
+        Some("the description has no exceptions.illegal-register")
+    );
+    let over = m.judge(
+        1,
+        Mode::Rtu,
+        &frame(
+            Mode::Rtu,
+            1,
+            Pdu::ReadRequest {
+                start: 0,
+                count: 126,
+            },
+        ),
+    );
+    assert_eq!(
+        over.expect,
+        Expectation::Exception {
+            fault: Fault::IllegalCount,
+            code: 0x03
+        }
+    );
+    let broadcast = m.judge(
+        1,
+        Mode::Rtu,
+        &frame(Mode::Rtu, 0, Pdu::ReadRequest { start: 0, count: 1 }),
+    );
+    assert_eq!(
+        broadcast.expect,
+        Expectation::Silence(SilenceReason::Broadcast)
+    );
+    assert_eq!(broadcast.missing, ["silence.broadcast"]);
+    // A served read rests on stated facts only.
+    let ok = m.judge(
+        1,
+        Mode::Rtu,
+        &frame(Mode::Rtu, 1, Pdu::ReadRequest { start: 0, count: 1 }),
+    );
+    assert!(ok.missing.is_empty());
+    assert_eq!(ok.basis(), Basis::Documented);
+}
+
+#[test]
+fn v2_block_access_and_bounds_decide_writes_and_reads() {
+    let mut v = v2_device();
+    v["blocks"][0]["max"] = "7FFF".into();
+    v["blocks"][0]["min"] = "0010".into();
+    v["blocks"][1]["access"] = "read-only".into();
+    v["blocks"].as_array_mut().unwrap().push(serde_json::json!(
+        {"first": "3000", "last": "300F", "access": "write-only", "basis": "documented", "source": "s"}
+    ));
+    v["blocks"].as_array_mut().unwrap().push(serde_json::json!(
+        {"first": "4000", "last": "400F", "access": "reserved", "basis": "documented", "source": "s"}
+    ));
+    let m = DriveModel::from_json("device-x", &v.to_string()).unwrap();
+    assert_eq!(write(&m, 0x0001, 0x7FFF), Expectation::WriteSingle);
+    assert_eq!(
+        write(&m, 0x0001, 0x8000),
+        exception(&m, Fault::DataOutOfRange)
+    );
+    assert_eq!(
+        write(&m, 0x0001, 0x000F),
+        exception(&m, Fault::DataOutOfRange)
+    );
+    assert_eq!(write(&m, 0x2500, 0), exception(&m, Fault::ReadOnly));
+    assert_eq!(write(&m, 0x3000, 0xFFFF), Expectation::WriteSingle);
+    assert_eq!(
+        read(&m, Mode::Rtu, 0x3000, 1),
+        exception(&m, Fault::IllegalRegister)
+    );
+    // Reserved: served by no function.
+    assert_eq!(
+        read(&m, Mode::Rtu, 0x4000, 1),
+        exception(&m, Fault::IllegalRegister)
+    );
+    assert_eq!(write(&m, 0x4000, 0), exception(&m, Fault::IllegalRegister));
+    assert_eq!(m.blocks.len(), 4);
+    assert_eq!(m.blocks[3].access, Access::Reserved);
+}
+
+/// A change to a description, in a table of broken descriptions.
+type Change = Box<dyn Fn(&mut serde_json::Value)>;
+
+#[test]
+fn v2_errors_name_the_field_s_path() {
+    let cases: Vec<(Change, &str, &str)> = vec![
+        (
+            Box::new(|v| v["blocks"][1]["last"] = "2400".into()),
+            "blocks[1].last",
+            "2400 is before first 2500",
+        ),
+        (
+            Box::new(|v| v["blocks"][1]["first"] = "0FFF".into()),
+            "",
+            "overlap",
+        ),
+        (
+            Box::new(|v| v["blocks"][0]["access"] = "sometimes".into()),
+            "blocks[0].access",
+            "not read-write",
+        ),
+        (
+            Box::new(|v| v["blocks"][0]["max"] = "12".into()),
+            "blocks[0].max",
+            "four upper-case hex digits",
+        ),
+        (
+            Box::new(|v| v["modes"] = serde_json::json!([])),
+            "modes",
+            "at least one",
+        ),
+        (
+            Box::new(|v| v["modes"] = serde_json::json!(["rtu", "rtu"])),
+            "modes[1]",
+            "listed twice",
+        ),
+        (
+            Box::new(|v| v["modes"] = serde_json::json!(["tcp"])),
+            "modes[0]",
+            "not \"rtu\"",
+        ),
+        (
+            Box::new(|v| v["schema_version"] = 3.into()),
+            "schema_version",
+            "not supported",
+        ),
+        (
+            Box::new(|v| v["model"] = "Device X".into()),
+            "model",
+            "not an id",
+        ),
+        (
+            Box::new(
+                |v| v["limits"] = serde_json::json!({"read_registers": {"rtu": 126, "ascii": 125, "basis": "documented", "source": "s"}}),
+            ),
+            "limits.read_registers.rtu",
+            "257-byte response",
+        ),
+        (
+            Box::new(
+                |v| v["identification"] = serde_json::json!({"register": "1000", "value": null, "basis": "documented", "source": "s"}),
+            ),
+            "identification.register",
+            "not in the map",
+        ),
+        (
+            Box::new(
+                |v| v["exceptions"] = serde_json::json!({"illegal-count": {"code": "03", "basis": "documented", "source": "s"}}),
+            ),
+            "exceptions.illegal-count.code",
+            "not in the exception-code table",
+        ),
+        (
+            Box::new(
+                |v| v["exceptions"] = serde_json::json!({"too-long": {"code": "03", "basis": "documented", "source": "s"}}),
+            ),
+            "exceptions.too-long",
+            "unknown fault kind",
+        ),
+        (
+            Box::new(|v| v["blocks"][0]["basis"] = "observed".into()),
+            "blocks[0]",
+            "needs the request",
+        ),
+        (
+            Box::new(|v| {
+                v["parameter_groups"] =
+                    serde_json::json!([{"group": 1, "registers": ["0100-0101"], "source": "s"}])
+            }),
+            "naming",
+            "group x 100H + number",
+        ),
+    ];
+    for (change, path, text) in cases {
+        let mut v = v2_device();
+        change(&mut v);
+        let e = v2_error(&v);
+        let shown = e.to_string();
+        assert!(shown.contains(text), "{shown}");
+        if !path.is_empty() {
+            assert_eq!(e.path(), Some(path), "{shown}");
+            assert!(shown.contains(&format!(": {path}: ")), "{shown}");
+        }
+    }
+    // An observed fact with its request loads, and binds like a documented one.
+    let mut v = v2_device();
+    v["blocks"][0] = serde_json::json!({"first": "0000", "last": "0FFF", "basis": "observed",
+        "request": "01 03 00 00 00 7D 85 EB", "reply": "01 03 FA 00 00"});
+    let m = DriveModel::from_json("device-x", &v.to_string()).unwrap();
+    assert_eq!(m.blocks[0].fact.basis, Basis::Observed);
+    assert!(Basis::Observed.binding());
+    assert!(m.blocks[0]
+        .fact
+        .citation()
+        .contains("request 01 03 00 00 00 7D 85 EB"));
+}
+
+#[test]
+fn a_copied_f510_file_keeps_its_example_register_inside_a_v2_block() {
+    // Item 3 of issue 34: the F510's example register 0123H, left in a file copied from
+    // f510.json, lies inside the new block 0000H..0FFFH.
+    let mut v: serde_json::Value = serde_json::from_str(DriveModel::builtin_files()[0].1).unwrap();
+    v["schema_version"] = 2.into();
+    v["model"] = "copied".into();
+    for k in [
+        "parameter_groups",
+        "groups",
+        "registers",
+        "identification",
+        "parameter_access",
+    ] {
+        v.as_object_mut().unwrap().remove(k);
+    }
+    v["exceptions"].as_object_mut().unwrap().remove("no-access");
+    v["blocks"] = v2_device()["blocks"].clone();
+    let m = DriveModel::from_json("copied", &v.to_string()).unwrap();
+    assert_eq!(m.lookup(0x0123).map(|i| i.access), Some(Access::ReadWrite));
+    assert_eq!(m.example_registers.len(), 1);
+    // With another access it contradicts the block: an overlap.
+    v["example_registers"][0]["access"] = "read-only".into();
+    let e = DriveModel::from_json("copied", &v.to_string()).unwrap_err();
+    assert!(e.to_string().contains("overlap"), "{e}");
+}
+
+#[test]
+fn a_v1_file_keeps_every_field_it_requires() {
+    let text = DriveModel::builtin_files()[0].1;
+    for field in ["loop_back", "silence", "identification", "limits", "manual"] {
+        let mut v: serde_json::Value = serde_json::from_str(text).unwrap();
+        v.as_object_mut().unwrap().remove(field);
+        let e = DriveModel::from_json("f510", &v.to_string()).unwrap_err();
+        assert_eq!(e.path(), Some(field), "{e}");
+        assert!(e.to_string().contains("schema_version 1 requires"), "{e}");
+    }
+    let mut v: serde_json::Value = serde_json::from_str(text).unwrap();
+    v["modes"] = serde_json::json!(["rtu"]);
+    let e = DriveModel::from_json("f510", &v.to_string()).unwrap_err();
+    assert_eq!(e.path(), Some("modes"), "{e}");
+    let mut v: serde_json::Value = serde_json::from_str(text).unwrap();
+    v["blocks"] = serde_json::json!([]);
+    let e = DriveModel::from_json("f510", &v.to_string()).unwrap_err();
+    assert!(e.to_string().contains("schema_version 2 field"), "{e}");
+}
+
+#[test]
+fn adjacent_v2_blocks_are_one_range_unless_same_group_says_a_block_is_a_group() {
+    let mut v = v2_device();
+    v["blocks"][1]["first"] = "1000".into();
+    v["blocks"][1]["last"] = "10FF".into();
+    let m = DriveModel::from_json("device-x", &v.to_string()).unwrap();
+    assert!(matches!(
+        read(&m, Mode::Rtu, 0x0FFF, 2),
+        Expectation::Read(_)
+    ));
+    v["limits"] =
+        serde_json::json!({"same_group": {"value": true, "basis": "documented", "source": "s"}});
+    let m = DriveModel::from_json("device-x", &v.to_string()).unwrap();
+    assert_eq!(
+        read(&m, Mode::Rtu, 0x0FFF, 2),
+        exception(&m, Fault::CrossesGroup)
+    );
 }

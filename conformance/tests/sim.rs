@@ -680,8 +680,8 @@ fn the_simulator_follows_read_only_parameters_and_frequency_facts() {
     let (a, mut b) = memory::pair();
     let served = start(a, "f510", mode, &[]);
     let model = DriveModel::builtin("f510").unwrap();
-    let ro = model.rule(conformance::model::Fault::ReadOnly).code;
-    let range = model.rule(conformance::model::Fault::DataOutOfRange).code;
+    let ro = model.answer_code(conformance::model::Fault::ReadOnly);
+    let range = model.answer_code(conformance::model::Fault::DataOutOfRange);
     let exception = |function: u8, code: u8| frame(mode, 1, Pdu::Exception { function, code });
     for r in [0x0C10, 0x0C11, 0x0C12, 0x0C18, 0x0C19, 0x0C1A, 0x0C2D] {
         let w = frame(

@@ -48,8 +48,9 @@ pub const MBAP_NOT_ASCII: &str = "--framing mbap carries the PDU only (Modbus TC
 #[derive(Debug, Args)]
 pub struct TargetArgs {
     /// Run against this suite's simulator of MODEL, started in-process on a
-    /// pseudo-terminal pair (no hardware needed).
-    #[arg(long, value_name = "MODEL", group = "target")]
+    /// pseudo-terminal pair (no hardware needed). Bare `--sim` with --model-file FILE:
+    /// the simulator serves that description.
+    #[arg(long, value_name = "MODEL", group = "target", num_args = 0..=1, default_missing_value = "")]
     pub sim: Option<String>,
     /// Drive model of the device: f510, a510, l510, e510, l510-legacy; with `check`, also
     /// auto: identify the model from the device's answers to reads first (see
@@ -243,8 +244,11 @@ impl TargetArgs {
         }
         let (named, target) = match (&self.sim, &self.port, &self.tcp) {
             (Some(m), None, None) => {
+                if m.is_empty() && self.model_file.is_none() {
+                    bail!("--sim needs a MODEL (f510, a510, l510, e510, l510-legacy), or --model-file FILE");
+                }
                 if let Some(other) = &self.model {
-                    if other != m && other != AUTO {
+                    if other != m && other != AUTO && !m.is_empty() {
                         bail!("--sim {m} and --model {other} name different models");
                     }
                 }
@@ -448,6 +452,10 @@ impl TargetArgs {
     pub fn replay_prefix(&self, command: &str, model: &str) -> String {
         let mut s = format!("conformance {command}");
         match (&self.sim, &self.port, &self.tcp) {
+            // A bare --sim serves the description given.
+            (Some(m), _, _) if m.is_empty() => {
+                s.push_str(&format!(" --sim {}", self.model_option(model)))
+            }
             (Some(m), _, _) => {
                 s.push_str(&format!(" --sim {m}"));
                 for q in &self.quirks {

@@ -113,8 +113,9 @@ fn show(m: &DriveModel, only_decisions: bool) -> String {
     let l = &m.limits;
     let _ = writeln!(
         o,
-        "  limits: frame {} bytes; read {} (RTU) / {} (ASCII); write {} / {}; same group: {}; response {} ms",
-        l.max_frame, l.read.rtu, l.read.ascii, l.write.rtu, l.write.ascii, l.same_group, l.response_time_ms
+        "  limits: frame {} bytes; read {} (RTU) / {} (ASCII); write {} / {}; same group: {}; response {}",
+        l.max_frame, l.read.rtu, l.read.ascii, l.write.rtu, l.write.ascii, l.same_group,
+        l.response_time_ms.map_or("not stated".to_string(), |t| format!("{t} ms"))
     );
     let groups = m.parameter_groups().count();
     let params: usize = m
@@ -142,12 +143,9 @@ fn show(m: &DriveModel, only_decisions: bool) -> String {
         }
     }
     for reason in SilenceReason::ALL {
-        fact(
-            &mut o,
-            &format!("{reason}: no reply"),
-            &m.silence[&reason],
-            only_decisions,
-        );
+        if let Some(f) = m.silence.get(&reason) {
+            fact(&mut o, &format!("{reason}: no reply"), f, only_decisions);
+        }
     }
     fact(
         &mut o,
@@ -167,12 +165,9 @@ fn show(m: &DriveModel, only_decisions: bool) -> String {
         &l.same_group_fact,
         only_decisions,
     );
-    fact(
-        &mut o,
-        "identification",
-        &m.identification.fact,
-        only_decisions,
-    );
+    if let Some(id) = &m.identification {
+        fact(&mut o, "identification", &id.fact, only_decisions);
+    }
     fact(
         &mut o,
         "parameter access",

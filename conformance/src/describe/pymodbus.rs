@@ -60,14 +60,20 @@ pub fn export_pymodbus_sim(model: &DriveModel) -> PymodbusExport {
     for (r, v, _) in &model.initial_values {
         initial[usize::from(*r)] = *v;
     }
-    if let Some(r) = model.identification.register {
-        initial[usize::from(r)] = model.identification.simulated;
+    if let Some((r, v)) = model
+        .identification
+        .as_ref()
+        .and_then(|i| Some((i.register?, i.simulated)))
+    {
+        initial[usize::from(r)] = v;
     }
     let cells: Vec<Cell> = (0..=u16::MAX)
         .map(|r| match model.lookup(r) {
             None => Cell::Invalid,
             Some(info) => match info.access {
-                Access::ReadWrite => Cell::Served {
+                // pymodbus has no write-only cell: a write-only register is served
+                // read-write (its reads answered, where the device refuses them).
+                Access::ReadWrite | Access::WriteOnly => Cell::Served {
                     value: initial[usize::from(info.register)],
                     write: true,
                 },
@@ -119,10 +125,10 @@ pub fn export_pymodbus_sim(model: &DriveModel) -> PymodbusExport {
             "read and write limits ({} / {} registers in RTU): pymodbus takes the specification's 125 / 123",
             model.limits.read.rtu, model.limits.write.rtu
         ),
-        format!(
-            "the response time ({} ms): pymodbus answers as soon as it can",
-            model.limits.response_time_ms
-        ),
+        match model.limits.response_time_ms {
+            Some(ms) => format!("the response time ({ms} ms): pymodbus answers as soon as it can"),
+            None => "the response time (not stated): pymodbus answers as soon as it can".to_string(),
+        },
         "the exception table: pymodbus answers 01H, 02H, 03H, 04H as the specification numbers them"
             .to_string(),
     ];

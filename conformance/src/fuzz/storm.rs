@@ -606,6 +606,8 @@ pub fn run(
             out.stopped = Some(e.to_string())
         }
         Err(RunError::DeviceLost(why)) => out.stopped = Some(why),
+        // The storm sends without probing: nothing of it is undescribed.
+        Err(RunError::Undescribed(_)) => {}
     }
     // Let the line go quiet, then the device must still answer.
     std::thread::sleep(ctx.silence_window());
@@ -653,7 +655,12 @@ fn storm(
         Duration::from_micros(l.t3_5_us())
     });
     let first_char = line.map_or(Duration::ZERO, |l| Duration::from_micros(l.char_time_us()));
-    s.limit = model.response_time_on(line.as_ref()) + first_char + ctx.opts.response_allowance;
+    // A description that states no response time holds no reply late: the master's own
+    // timeout is the only bound.
+    s.limit = match model.limits.response_time_ms {
+        Some(_) => model.response_time_on(line.as_ref()) + first_char + ctx.opts.response_allowance,
+        None => ctx.opts.timing.timeout,
+    };
     let mut rng = Rng::new(cfg.seed ^ 0x5707_4D00);
     let reads = own_reads(ctx);
     if reads.is_empty() {

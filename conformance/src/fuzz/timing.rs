@@ -222,6 +222,7 @@ pub fn predict_for(
         write: None,
         facts: vec![fact],
         detail,
+        missing: vec![],
     };
     let t15_fact = || {
         Fact {

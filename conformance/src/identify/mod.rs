@@ -364,6 +364,8 @@ fn probe_mode(
                 outcome.stopped = Some(why);
                 break;
             }
+            // An exchange is not judged by the model: never undescribed.
+            Err(RunError::Undescribed(_)) => continue,
             // A probe this host could not send whole (or whose answer it delayed past
             // the timeout) tells nothing: it is left out, rather than scored as a silence
             // the device never had; the other probes decide.

@@ -279,7 +279,7 @@ pub fn candidates(models: &[&DriveModel], mode: Mode) -> Vec<Candidate> {
         }
     };
     for m in models {
-        if let Some(r) = m.identification.register {
+        if let Some(r) = m.identification.as_ref().and_then(|i| i.register) {
             add(
                 Some(r),
                 1,

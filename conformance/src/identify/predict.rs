@@ -24,6 +24,9 @@ pub enum Prediction {
     Read(Vec<Option<u16>>),
     /// An exception reply with this code.
     Exception(u8),
+    /// An exception reply whose code the description does not state (it names the
+    /// missing rule): any code fits, and only a normal reply or silence tells it apart.
+    AnyException(String),
     /// No reply.
     Silence,
     /// Any other normal reply (a write's echo, a loop-back); identify sends reads only,
@@ -43,6 +46,9 @@ impl Prediction {
                     .map(|&r| documented_value(model, r))
                     .collect(),
             ),
+            Expectation::Exception { .. } if !j.missing.is_empty() => {
+                Prediction::AnyException(j.missing.join(", "))
+            }
             Expectation::Exception { code, .. } => Prediction::Exception(*code),
             Expectation::Silence(_) => Prediction::Silence,
             other => Prediction::Other(other.describe()),
@@ -58,6 +64,7 @@ impl Prediction {
                     && want.iter().zip(got).all(|(w, g)| w.is_none_or(|w| w == *g))
             }
             (Prediction::Exception(a), Answer::Exception(b)) => a == b,
+            (Prediction::AnyException(_), Answer::Exception(_)) => true,
             (Prediction::Silence, Answer::Silence) => true,
             _ => false,
         }
@@ -73,6 +80,11 @@ impl Prediction {
                         .zip(b)
                         .any(|(x, y)| matches!((x, y), (Some(x), Some(y)) if x != y))
             }
+            (
+                Prediction::AnyException(_),
+                Prediction::Exception(_) | Prediction::AnyException(_),
+            )
+            | (Prediction::Exception(_), Prediction::AnyException(_)) => false,
             (a, b) => a != b,
         }
     }
@@ -98,6 +110,9 @@ impl Prediction {
                 )
             }
             Prediction::Exception(c) => format!("exception {c:02X}H"),
+            Prediction::AnyException(missing) => {
+                format!("an exception (code not stated: the description has no {missing})")
+            }
             Prediction::Silence => "no reply".to_string(),
             Prediction::Other(s) => s.clone(),
         }
@@ -113,7 +128,7 @@ impl fmt::Display for Prediction {
 /// The value the manual documents for `register`, where it gives one: the identification
 /// register's (L510: 252FH reads 0110H).
 fn documented_value(model: &DriveModel, register: u16) -> Option<u16> {
-    let id = &model.identification;
+    let id = model.identification.as_ref()?;
     match (id.register, id.value) {
         (Some(r), Some(v)) if r == register && id.fact.basis != Basis::Decision => Some(v),
         _ => None,
@@ -224,6 +239,27 @@ mod tests {
         assert!(!q.admits(&Answer::Read(vec![1, 2])));
         // Overlapping predictions do not tell the two apart.
         assert!(!p.excludes(&q));
+    }
+
+    #[test]
+    fn an_exception_whose_code_a_description_leaves_out_admits_any_code() {
+        let m = DriveModel::from_json(
+            "x",
+            r#"{"schema_version": 2, "model": "x", "title": "x", "modes": ["rtu"],
+                "functions": {"codes": ["03"], "basis": "documented", "source": "s"},
+                "blocks": [{"first": "0000", "last": "000F", "basis": "documented", "source": "s"}]}"#,
+        )
+        .unwrap();
+        let (p, _) = Prediction::of(&m, 1, Mode::Rtu, &read(0x1000, 1));
+        assert_eq!(
+            p,
+            Prediction::AnyException("exceptions.illegal-register".into())
+        );
+        assert!(p.admits(&Answer::Exception(0x02)));
+        assert!(p.admits(&Answer::Exception(0x52)));
+        assert!(!p.admits(&Answer::Silence));
+        assert!(!p.excludes(&Prediction::Exception(0x52)));
+        assert!(p.excludes(&Prediction::Silence));
     }
 
     #[test]

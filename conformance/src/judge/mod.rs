@@ -471,10 +471,15 @@ impl<'m> Judge<'m> {
             return;
         }
         let ms = |d: Duration| d.as_secs_f64() * 1000.0;
-        let source = &self.model.limits.response_time_fact;
+        let stated = self
+            .model
+            .limits
+            .response_time_ms
+            .zip(self.model.limits.response_time_fact.as_ref());
         if let Some(rt) = conv.timing.response_time() {
             let limit = rule.response_limit(self.model);
-            if rt > limit {
+            // A description that states no response time holds no reply late.
+            if let Some((stated_ms, source)) = stated.filter(|_| rt > limit) {
                 out(
                     Kind::LateReply,
                     Finding {
@@ -482,7 +487,7 @@ impl<'m> Judge<'m> {
                         text: format!(
                             "late reply: it began {:.1} ms after the request; manual: {} ms{} (limit with one character and the allowance {:.1} ms). Source: {}",
                             ms(rt),
-                            self.model.limits.response_time_ms,
+                            stated_ms,
                             rule.line.map_or(String::new(), |l| format!(
                                 ", t3.5 on this line {:.1} ms",
                                 l.t3_5_us() as f64 / 1000.0

@@ -263,12 +263,8 @@ fn model_identifications() -> Vec<(String, u16, u16)> {
         .iter()
         .filter_map(|id| DriveModel::builtin(id).ok())
         .filter_map(|m| {
-            let r = m.identification.register?;
-            Some((
-                m.id.clone(),
-                r,
-                m.identification.value.unwrap_or(m.identification.simulated),
-            ))
+            let i = m.identification.as_ref()?;
+            Some((m.id.clone(), i.register?, i.value.unwrap_or(i.simulated)))
         })
         .collect()
 }

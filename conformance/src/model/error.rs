@@ -12,10 +12,14 @@ pub enum ModelError {
         source: serde_json::Error,
     },
     /// A rule of the format is broken.
-    #[error("{model}: {problem}")]
+    #[error("{model}: {}{problem}", if path.is_empty() { String::new() } else { format!("{path}: ") })]
     Invalid {
         /// The model.
         model: String,
+        /// The JSON path of the field at fault ("blocks[2].last",
+        /// "limits.read_registers.rtu"), empty where the problem is not one field's;
+        /// `model lint` maps it to a line and column of the file.
+        path: String,
         /// What is wrong.
         problem: String,
     },
@@ -38,4 +42,14 @@ pub enum ModelError {
         /// The error.
         source: std::io::Error,
     },
+}
+
+impl ModelError {
+    /// The JSON path of the field at fault, where the error is about one field.
+    pub fn path(&self) -> Option<&str> {
+        match self {
+            ModelError::Invalid { path, .. } if !path.is_empty() => Some(path),
+            _ => None,
+        }
+    }
 }

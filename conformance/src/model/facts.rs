@@ -16,6 +16,12 @@ pub enum Basis {
     Documented,
     /// It follows from documented facts by a stated rule.
     Derived,
+    /// Seen on a device (v2, written by `model learn`): the file gives the request that
+    /// showed it. Binding like a documented fact: a device that differs deviates from
+    /// its description.
+    /// (Declared before `Decision`: a judgement's basis is its weakest fact's, and a
+    /// decision is weaker.)
+    Observed,
     /// The manual is silent or contradicts itself; the model decides.
     Decision,
 }
@@ -34,6 +40,7 @@ impl fmt::Display for Basis {
             Basis::Documented => "documented",
             Basis::Derived => "derived",
             Basis::Decision => "decision",
+            Basis::Observed => "observed",
         })
     }
 }
@@ -53,9 +60,17 @@ pub struct Fact {
 
 impl Fact {
     pub(super) fn from_file(f: &file::FactFile) -> Self {
+        // An observed fact's citation is the exchange that showed it.
+        let observed = f.request.as_ref().map(|req| match &f.reply {
+            Some(rep) => format!("observed: request {req}, reply {rep}"),
+            None => format!("observed: request {req}"),
+        });
         Fact {
             basis: f.basis,
-            source: f.source.clone(),
+            source: match (&f.source, observed) {
+                (Some(s), Some(o)) => Some(format!("{s}; {o}")),
+                (s, o) => s.clone().or(o),
+            },
             rule: f.rule.clone(),
             why: f.why.clone(),
         }
@@ -125,6 +140,20 @@ impl Fault {
         Fault::NoAccess,
         Fault::Malformed,
     ];
+
+    /// The code the Modbus application protocol (V1.1b3, 7) gives this kind of fault,
+    /// for a description that states no rule for it.
+    pub fn modbus_code(self) -> u8 {
+        match self {
+            Fault::IllegalFunction => 0x01,
+            Fault::IllegalRegister
+            | Fault::ReadOnly
+            | Fault::ReservedWrite
+            | Fault::CrossesGroup
+            | Fault::NoAccess => 0x02,
+            Fault::IllegalCount | Fault::DataOutOfRange | Fault::Malformed => 0x03,
+        }
+    }
 
     /// The key in the model file.
     pub fn key(self) -> &'static str {

@@ -23,57 +23,133 @@ pub struct FactFile {
     /// For decisions: what the model does and why.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub why: Option<String>,
+    /// For observed facts (v2, written by `model learn`): the request frame that showed
+    /// the fact, in hex.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub request: Option<String>,
+    /// For observed facts: the reply to `request`, in hex.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub reply: Option<String>,
 }
 
-/// One model file.
+/// One model file: schema_version 1 (the five manuals) or 2 (any device; see
+/// `vectors/schema/model.schema.json` and the guide's "Describing your own device").
+///
+/// Version 1 requires every field that is an `Option` or a defaulted collection here;
+/// the loader says which one a version 1 file lacks. In version 2 each is optional, and a
+/// check whose facts a description leaves out is skipped, naming the field.
 #[derive(Debug, Clone, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct ModelFile {
-    /// Format version (1).
+    /// Format version (1 or 2).
     pub schema_version: u32,
-    /// Model id: f510, a510, l510, e510, l510-legacy.
+    /// Model id: f510, a510, l510, e510, l510-legacy, or a description's own.
     pub model: String,
     /// The document the model is read from.
     pub title: String,
-    /// Short name of the document, for citations ("F510 manual").
-    pub manual: String,
+    /// Short name of the document, for citations ("F510 manual"); v2 default: the title.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub manual: Option<String>,
     /// How to read the file.
-    pub notes: String,
-    /// Transmission modes ("rtu", "ascii").
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub notes: Option<String>,
+    /// Transmission modes ("rtu", "ascii"): v1 both, v2 any non-empty subset.
     pub modes: Vec<String>,
-    /// Node addresses.
-    pub addresses: AddressesFile,
+    /// Node addresses; v2 default: the Modbus serial line's 01..F7, broadcast 00.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub addresses: Option<AddressesFile>,
     /// Function codes served.
     pub functions: FunctionsFile,
     /// The loop-back function.
-    pub loop_back: LoopBackFile,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub loop_back: Option<LoopBackFile>,
     /// The exception-code table, as printed.
-    pub exception_codes: Vec<ExceptionCodeFile>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub exception_codes: Option<Vec<ExceptionCodeFile>>,
     /// Where the table is.
-    pub exception_codes_source: String,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub exception_codes_source: Option<String>,
     /// Which exception each kind of bad request gets (key: fault kind).
-    pub exceptions: BTreeMap<String, ExceptionRuleFile>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub exceptions: Option<BTreeMap<String, ExceptionRuleFile>>,
     /// Requests that get no reply (key: reason).
-    pub silence: BTreeMap<String, FactFile>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub silence: Option<BTreeMap<String, FactFile>>,
     /// Frame, count and timing limits.
-    pub limits: LimitsFile,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub limits: Option<LimitsFile>,
+    /// Plain register blocks (v2).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub blocks: Option<Vec<BlockFile>>,
+    /// TECO's naming rule, register = group x 100H + number (v2; v1 implies it).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub naming: Option<NamingFile>,
     /// Register groups outside the parameter table (command, monitor).
-    pub groups: Vec<GroupFile>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub groups: Option<Vec<GroupFile>>,
     /// Command and monitor registers, one entry each.
-    pub registers: Vec<RegisterFile>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub registers: Option<Vec<RegisterFile>>,
     /// The identification register.
-    pub identification: IdentificationFile,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub identification: Option<IdentificationFile>,
     /// Parameter groups from the "Parameter Data" tables.
-    pub parameter_groups: Vec<ParameterGroupFile>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub parameter_groups: Option<Vec<ParameterGroupFile>>,
     /// What the model assumes about parameter access and values, and the parameters
     /// some table of the document marks read-only.
-    pub parameter_access: ParameterAccessFile,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub parameter_access: Option<ParameterAccessFile>,
     /// Registers used by the manual's examples outside its tables.
-    pub example_registers: Vec<ExampleRegisterFile>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub example_registers: Option<Vec<ExampleRegisterFile>>,
     /// Values the simulator starts with, other than 0000H.
-    pub initial_values: Vec<InitialValueFile>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub initial_values: Option<Vec<InitialValueFile>>,
     /// Other spellings of register blocks (the legacy note's A0xxH).
-    pub aliases: Vec<AliasFile>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub aliases: Option<Vec<AliasFile>>,
+}
+
+/// A plain block of registers (v2): a range with optional name, access, value bounds,
+/// unit and scale.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct BlockFile {
+    /// First register (hex).
+    pub first: String,
+    /// Last register (hex).
+    pub last: String,
+    /// Name for people ("holding", "setpoints").
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub name: Option<String>,
+    /// read-write (default), read-only, write-only or reserved.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub access: Option<String>,
+    /// Smallest value a write may carry (hex).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub min: Option<String>,
+    /// Largest value a write may carry (hex).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub max: Option<String>,
+    /// Unit of the raw value times `scale`, for display.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub unit: Option<String>,
+    /// Value = raw x scale, for display.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub scale: Option<f64>,
+    /// Basis and citation.
+    #[serde(flatten)]
+    pub fact: FactFile,
+}
+
+/// TECO's naming rule (v2): register = group x 100H + number.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct NamingFile {
+    /// The rule: "group-number".
+    pub rule: String,
+    /// Basis and citation.
+    #[serde(flatten)]
+    pub fact: FactFile,
 }
 
 /// Node addresses.
@@ -138,15 +214,20 @@ pub struct ExceptionRuleFile {
 #[serde(deny_unknown_fields)]
 pub struct LimitsFile {
     /// Longest frame, bytes (RTU) or characters (ASCII).
-    pub max_frame_bytes: ValueFile<usize>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub max_frame_bytes: Option<ValueFile<usize>>,
     /// Registers per 03H request.
-    pub read_registers: PerModeFile,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub read_registers: Option<PerModeFile>,
     /// Registers per 10H request.
-    pub write_registers: PerModeFile,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub write_registers: Option<PerModeFile>,
     /// Whether one request must stay within one register group.
-    pub same_group: ValueFile<bool>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub same_group: Option<ValueFile<bool>>,
     /// Response time.
-    pub response_time_ms: ValueFile<u64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub response_time_ms: Option<ValueFile<u64>>,
 }
 
 /// A value with its basis.

@@ -81,17 +81,33 @@ pub struct Judgement {
     pub facts: Vec<Fact>,
     /// Why, in words, with registers in hex.
     pub detail: String,
+    /// The fields the judgement needs that the description leaves out
+    /// ("exceptions.illegal-count", "silence.broadcast", "loop_back"): the expectation is
+    /// then the Modbus specification's (what the simulator does), and no device is held
+    /// to it. The runner skips a check that rests on one, naming it.
+    pub missing: Vec<String>,
 }
 
 impl Judgement {
     /// The weakest basis of the facts: a judgement is binding only if every fact it rests
     /// on is documented or derived.
     pub fn basis(&self) -> Basis {
+        // A judgement that rests on a fact the description leaves out binds no device.
+        if !self.missing.is_empty() {
+            return Basis::Decision;
+        }
         self.facts
             .iter()
             .map(|f| f.basis)
             .max()
             .unwrap_or(Basis::Documented)
+    }
+
+    /// "the description has no exceptions.illegal-count": why a check that rests on
+    /// this judgement is skipped; `None` where nothing is missing.
+    pub fn missing_reason(&self) -> Option<String> {
+        (!self.missing.is_empty())
+            .then(|| format!("the description has no {}", self.missing.join(", no ")))
     }
 
     /// The facts' citations, one line each.
@@ -104,11 +120,17 @@ impl DriveModel {
     /// What a drive of this model at node `own_address` does with `frame` (a whole RTU or
     /// ASCII frame, checksum included) received in `mode`.
     pub fn judge(&self, own_address: u8, mode: Mode, frame: &[u8]) -> Judgement {
+        // An absent reason still means silence: the Modbus serial line answers none of
+        // these (V1.02, 2.1, 2.4.1, 2.5.1.2).
         let silence = |reason: SilenceReason, detail: String| Judgement {
             expect: Expectation::Silence(reason),
             write: None,
-            facts: vec![self.silence[&reason].clone()],
+            facts: self.silence.get(&reason).cloned().into_iter().collect(),
             detail,
+            missing: match self.silence.contains_key(&reason) {
+                true => vec![],
+                false => vec![format!("silence.{}", reason.key())],
+            },
         };
         let (body, checksum_ok) = match crate::codec::frame_parts(mode, frame) {
             Ok(p) => (p.body, p.checksum.is_valid()),
@@ -128,7 +150,7 @@ impl DriveModel {
                 ),
             );
         }
-        if frame.len() > self.limits.max_frame {
+        if frame.len() > self.limits.max_frame_in(mode) {
             let mut j = silence(
                 SilenceReason::FrameTooLong,
                 format!(
@@ -139,7 +161,7 @@ impl DriveModel {
                     } else {
                         "characters"
                     },
-                    self.limits.max_frame
+                    self.limits.max_frame_in(mode)
                 ),
             );
             j.facts.push(self.limits.max_frame_fact.clone());
@@ -169,6 +191,7 @@ impl DriveModel {
             if executes {
                 b.write = j.write.take();
             }
+            b.missing.extend(j.missing);
             return b;
         }
         j
@@ -176,15 +199,34 @@ impl DriveModel {
 
     fn exception(&self, fault: Fault, extra: Vec<Fact>, detail: String) -> Judgement {
         let rule = self.rule(fault);
-        let mut facts = vec![rule.fact.clone()];
+        let mut facts: Vec<Fact> = rule.map(|r| r.fact.clone()).into_iter().collect();
         facts.extend(extra);
         Judgement {
             expect: Expectation::Exception {
                 fault,
-                code: rule.code,
+                code: self.answer_code(fault),
             },
             write: None,
             facts,
+            detail,
+            missing: match rule {
+                Some(_) => vec![],
+                None => vec![format!("exceptions.{}", fault.key())],
+            },
+        }
+    }
+
+    /// A judgement of the loop-back function, which a description may leave out (the
+    /// drive then echoes, as the Modbus application protocol's 08H 0000H does).
+    fn loop_back(&self, facts: Vec<Option<&Fact>>, detail: String) -> Judgement {
+        Judgement {
+            expect: Expectation::LoopBack,
+            write: None,
+            missing: match facts.iter().all(Option::is_some) {
+                true => vec![],
+                false => vec!["loop_back".to_string()],
+            },
+            facts: facts.into_iter().flatten().cloned().collect(),
             detail,
         }
     }
@@ -214,6 +256,7 @@ impl DriveModel {
                         detail: format!("write {value:04X} to {}", self.describe(register)),
                         write: Some(plan),
                         facts,
+                        missing: vec![],
                     },
                     Err(j) => j,
                 }
@@ -236,25 +279,22 @@ impl DriveModel {
                         detail: format!("write {count} registers from {}", self.describe(start)),
                         write: Some(plan),
                         facts,
+                        missing: vec![],
                     },
                     Err(j) => j,
                 }
             }
-            Pdu::LoopBack { test_code: 0, .. } => Judgement {
-                expect: Expectation::LoopBack,
-                write: None,
-                facts: vec![self.loop_back_fact.clone()],
-                detail: "loop-back: echo".to_string(),
-            },
-            Pdu::LoopBack { test_code, .. } => Judgement {
-                expect: Expectation::LoopBack,
-                write: None,
-                facts: vec![
-                    self.loop_back_fact.clone(),
-                    self.loop_back_other_fact.clone(),
+            Pdu::LoopBack { test_code: 0, .. } => self.loop_back(
+                vec![self.loop_back_fact.as_ref()],
+                "loop-back: echo".to_string(),
+            ),
+            Pdu::LoopBack { test_code, .. } => self.loop_back(
+                vec![
+                    self.loop_back_fact.as_ref(),
+                    self.loop_back_other_fact.as_ref(),
                 ],
-                detail: format!("loop-back with test code {test_code:04X}H: echo"),
-            },
+                format!("loop-back with test code {test_code:04X}H: echo"),
+            ),
             // Parsed as a request, a served function code always gives one of the above.
             _ => self.exception(Fault::Malformed, vec![], "unexpected layout".to_string()),
         }
@@ -297,6 +337,14 @@ impl DriveModel {
                     format!("{r:04X}H is marked '-' (no Modbus access)"),
                 );
             }
+            if info.access == Access::WriteOnly {
+                let fact = self.block_of(r).map(|b| b.fact.clone());
+                return self.exception(
+                    Fault::IllegalRegister,
+                    fact.into_iter().collect(),
+                    format!("{} is write-only", self.describe(r)),
+                );
+            }
             if let Some(e) = self.crosses(&mut group, info.group, r) {
                 return e;
             }
@@ -308,6 +356,7 @@ impl DriveModel {
             write: None,
             facts,
             detail: format!("read {count} from {}", self.describe(start)),
+            missing: vec![],
         }
     }
 
@@ -391,7 +440,25 @@ impl DriveModel {
                         format!("{} is reserved", self.describe(r)),
                     ))
                 }
-                Access::ReadWrite => {}
+                Access::ReadWrite | Access::WriteOnly => {}
+            }
+            if let Some(b) = self
+                .block_of(info.register)
+                .filter(|_| info.origin == Origin::Block)
+            {
+                if !b.admits(value) {
+                    let bound = match (b.min, b.max) {
+                        (Some(lo), Some(hi)) => format!("{lo:04X}..{hi:04X}"),
+                        (Some(lo), None) => format!("{lo:04X} or more"),
+                        (None, Some(hi)) => format!("{hi:04X} or less"),
+                        (None, None) => String::new(),
+                    };
+                    return Err(self.exception(
+                        Fault::DataOutOfRange,
+                        vec![b.fact.clone()],
+                        format!("{value:04X} is outside {bound} of {}", self.describe(r)),
+                    ));
+                }
             }
             if let Some((max, fact)) = self.named(info.register).and_then(|n| n.max.as_ref()) {
                 if value > *max {
@@ -438,6 +505,15 @@ impl DriveModel {
                 let _ = match (self.named(info.register), info.origin) {
                     (Some(n), _) => write!(s, " ({})", n.name),
                     (None, Origin::Example) => write!(s, " (example register)"),
+                    (None, Origin::Block) => match self.block_of(info.register) {
+                        Some(b) => match &b.name {
+                            Some(n) => write!(s, " ({n})"),
+                            None => {
+                                write!(s, " (block {:04X}..{:04X})", b.span.start(), b.span.end())
+                            }
+                        },
+                        None => Ok(()),
+                    },
                     (None, _) => write!(s, " ({})", self.group_name(info.group)),
                 };
                 if info.via_alias {

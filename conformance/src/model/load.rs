@@ -4,54 +4,8 @@
 use std::collections::BTreeMap;
 use std::ops::RangeInclusive;
 
+use super::fields::*;
 use super::*;
-
-fn hex16(model: &str, what: &str, s: &str) -> Result<u16, ModelError> {
-    if s.len() == 4
-        && s.bytes()
-            .all(|c| c.is_ascii_digit() || (b'A'..=b'F').contains(&c))
-    {
-        if let Ok(v) = u16::from_str_radix(s, 16) {
-            return Ok(v);
-        }
-    }
-    Err(ModelError::Invalid {
-        model: model.to_string(),
-        problem: format!("{what}: {s:?} is not four upper-case hex digits"),
-    })
-}
-
-fn hex8(model: &str, what: &str, s: &str) -> Result<u8, ModelError> {
-    if s.len() == 2
-        && s.bytes()
-            .all(|c| c.is_ascii_digit() || (b'A'..=b'F').contains(&c))
-    {
-        if let Ok(v) = u8::from_str_radix(s, 16) {
-            return Ok(v);
-        }
-    }
-    Err(ModelError::Invalid {
-        model: model.to_string(),
-        problem: format!("{what}: {s:?} is not two upper-case hex digits"),
-    })
-}
-
-fn hex_range(model: &str, what: &str, s: &str) -> Result<RangeInclusive<u16>, ModelError> {
-    let (a, b) = match s.split_once('-') {
-        Some((a, b)) => (hex16(model, what, a)?, hex16(model, what, b)?),
-        None => {
-            let a = hex16(model, what, s)?;
-            (a, a)
-        }
-    };
-    if a > b {
-        return Err(ModelError::Invalid {
-            model: model.to_string(),
-            problem: format!("{what}: range {s} runs backwards"),
-        });
-    }
-    Ok(a..=b)
-}
 
 impl DriveModel {
     /// Checks a parsed model file and builds the model.
@@ -59,50 +13,138 @@ impl DriveModel {
         let m = f.model.as_str();
         let invalid = |problem: String| ModelError::Invalid {
             model: m.to_string(),
+            path: String::new(),
             problem,
         };
-        if f.schema_version != 1 {
-            return Err(invalid(format!(
-                "schema_version {} is not supported (1 is)",
-                f.schema_version
-            )));
+        let at = |path: &str, problem: String| ModelError::Invalid {
+            model: m.to_string(),
+            path: path.to_string(),
+            problem,
+        };
+        let v2 = match f.schema_version {
+            1 => false,
+            2 => true,
+            n => {
+                return Err(at(
+                    "schema_version",
+                    format!("{n} is not supported (1 and 2 are)"),
+                ))
+            }
+        };
+        let id_ok = !m.is_empty()
+            && m.len() <= 64
+            && m.bytes().enumerate().all(|(i, c)| {
+                c.is_ascii_lowercase()
+                    || c.is_ascii_digit()
+                    || (i > 0 && matches!(c, b'.' | b'_' | b'-'))
+            });
+        if !id_ok {
+            return Err(at(
+                "model",
+                format!("{m:?} is not an id: lower-case letters, digits, '.', '_', '-', 1..64 characters, starting with a letter or digit"),
+            ));
         }
-        if f.modes != ["rtu", "ascii"] {
-            return Err(invalid(format!(
-                "modes must be [\"rtu\", \"ascii\"], found {:?}",
-                f.modes
-            )));
+        if !v2 {
+            if let Some(path) = v1_required(f).first() {
+                return Err(at(
+                    path,
+                    "schema_version 1 requires this field (version 2 makes it optional)"
+                        .to_string(),
+                ));
+            }
+            if f.blocks.is_some() || f.naming.is_some() {
+                return Err(at(
+                    if f.blocks.is_some() {
+                        "blocks"
+                    } else {
+                        "naming"
+                    },
+                    "is a schema_version 2 field".to_string(),
+                ));
+            }
         }
-        let broadcast = hex8(m, "addresses.broadcast", &f.addresses.broadcast)?;
-        let first = hex8(m, "addresses.first", &f.addresses.first)?;
-        let last = hex8(m, "addresses.last", &f.addresses.last)?;
+        let mut absent: Vec<String> = Vec::new();
+        // Modes: v1 both, in this order; v2 any non-empty subset without repeats.
+        let mut modes = Vec::new();
+        for (i, s) in f.modes.iter().enumerate() {
+            let mode = match s.as_str() {
+                "rtu" => Mode::Rtu,
+                "ascii" => Mode::Ascii,
+                other => {
+                    return Err(at(
+                        &format!("modes[{i}]"),
+                        format!("{other:?} is not \"rtu\" or \"ascii\""),
+                    ))
+                }
+            };
+            if modes.contains(&mode) {
+                return Err(at(&format!("modes[{i}]"), format!("{s:?} is listed twice")));
+            }
+            modes.push(mode);
+        }
+        if modes.is_empty() || (!v2 && f.modes != ["rtu", "ascii"]) {
+            return Err(at(
+                "modes",
+                if v2 {
+                    "must list at least one of \"rtu\", \"ascii\"".to_string()
+                } else {
+                    format!(
+                        "schema_version 1 requires [\"rtu\", \"ascii\"], found {:?}",
+                        f.modes
+                    )
+                },
+            ));
+        }
+        let (broadcast, first, last, addresses_fact) = match &f.addresses {
+            Some(a) => {
+                let broadcast = hex8(m, "addresses.broadcast", &a.broadcast)?;
+                let first = hex8(m, "addresses.first", &a.first)?;
+                let last = hex8(m, "addresses.last", &a.last)?;
+                check_fact(m, "addresses", &a.fact)?;
+                (broadcast, first, last, Fact::from_file(&a.fact))
+            }
+            None => (
+                0,
+                1,
+                0xF7,
+                spec("Modbus over Serial Line V1.02 2.2: 1..247, 0 broadcast"),
+            ),
+        };
         if broadcast != 0 || first == 0 || first > last {
-            return Err(invalid(format!(
-                "addresses: broadcast must be 00 and 01 <= first <= last, found {broadcast:02X} {first:02X}..{last:02X}"
+            return Err(at("addresses", format!(
+                "broadcast must be 00 and 01 <= first <= last, found {broadcast:02X} {first:02X}..{last:02X}"
             )));
         }
-        let functions = f
-            .functions
-            .codes
-            .iter()
-            .map(|c| hex8(m, "functions.codes", c))
-            .collect::<Result<Vec<_>, _>>()?;
-        let mut exception_codes = Vec::new();
-        for e in &f.exception_codes {
-            exception_codes.push((hex8(m, "exception_codes", &e.code)?, e.meaning.clone()));
+        let mut functions = Vec::new();
+        for (i, c) in f.functions.codes.iter().enumerate() {
+            functions.push(hex8(m, &format!("functions.codes[{i}]"), c)?);
         }
+        check_fact(m, "functions", &f.functions.fact)?;
+        let mut exception_codes = Vec::new();
+        for (i, e) in f.exception_codes.iter().flatten().enumerate() {
+            exception_codes.push((
+                hex8(m, &format!("exception_codes[{i}].code"), &e.code)?,
+                e.meaning.clone(),
+            ));
+        }
+        if exception_codes.is_empty() {
+            absent.push("exception_codes".to_string());
+        }
+        let no_rules = BTreeMap::new();
+        let rules = f.exceptions.as_ref().unwrap_or(&no_rules);
         let mut exceptions = BTreeMap::new();
         for fault in Fault::ALL {
-            match f.exceptions.get(fault.key()) {
+            let path = format!("exceptions.{}", fault.key());
+            match rules.get(fault.key()) {
                 Some(rule) => {
-                    let code = hex8(m, "exceptions", &rule.code)?;
+                    let code = hex8(m, &format!("{path}.code"), &rule.code)?;
                     if !exception_codes.iter().any(|(c, _)| *c == code) {
-                        return Err(invalid(format!(
-                            "exceptions.{}: code {code:02X} is not in the exception-code table",
-                            fault.key()
-                        )));
+                        return Err(at(
+                            &format!("{path}.code"),
+                            format!("code {code:02X} is not in the exception-code table"),
+                        ));
                     }
-                    check_fact(m, &format!("exceptions.{}", fault.key()), &rule.fact)?;
+                    check_fact(m, &path, &rule.fact)?;
                     exceptions.insert(
                         fault,
                         ExceptionRule {
@@ -112,82 +154,148 @@ impl DriveModel {
                     );
                 }
                 None if fault == Fault::NoAccess => {}
-                None => return Err(invalid(format!("exceptions: no rule for {}", fault.key()))),
+                None if v2 => absent.push(path),
+                None => return Err(at("exceptions", format!("no rule for {}", fault.key()))),
             }
         }
-        if let Some(k) = f
-            .exceptions
+        if let Some(k) = rules
             .keys()
             .find(|k| !Fault::ALL.iter().any(|x| x.key() == k.as_str()))
         {
-            return Err(invalid(format!("exceptions: unknown fault kind {k:?}")));
+            return Err(at(
+                &format!("exceptions.{k}"),
+                format!(
+                    "unknown fault kind {k:?}; the kinds are {}",
+                    Fault::ALL.map(Fault::key).join(", ")
+                ),
+            ));
         }
+        let no_silence = BTreeMap::new();
+        let silences = f.silence.as_ref().unwrap_or(&no_silence);
         let mut silence = BTreeMap::new();
         for r in SilenceReason::ALL {
-            let fact = f
-                .silence
-                .get(r.key())
-                .ok_or_else(|| invalid(format!("silence: no entry for {}", r.key())))?;
-            check_fact(m, &format!("silence.{}", r.key()), fact)?;
-            silence.insert(r, Fact::from_file(fact));
+            let path = format!("silence.{}", r.key());
+            match silences.get(r.key()) {
+                Some(fact) => {
+                    check_fact(m, &path, fact)?;
+                    silence.insert(r, Fact::from_file(fact));
+                }
+                None if v2 => absent.push(path),
+                None => return Err(at("silence", format!("no entry for {}", r.key()))),
+            }
         }
-        if silence.len() != f.silence.len() {
-            return Err(invalid("silence: unknown reason".to_string()));
+        if let Some(k) = silences
+            .keys()
+            .find(|k| !SilenceReason::ALL.iter().any(|x| x.key() == k.as_str()))
+        {
+            return Err(at(
+                &format!("silence.{k}"),
+                format!(
+                    "unknown reason {k:?}; the reasons are {}",
+                    SilenceReason::ALL.map(SilenceReason::key).join(", ")
+                ),
+            ));
         }
 
-        let l = &f.limits;
-        let limits = Limits {
-            max_frame: l.max_frame_bytes.value,
-            max_frame_fact: Fact::from_file(&l.max_frame_bytes.fact),
-            read: PerMode {
-                rtu: l.read_registers.rtu,
-                ascii: l.read_registers.ascii,
-                fact: Fact::from_file(&l.read_registers.fact),
-            },
-            write: PerMode {
-                rtu: l.write_registers.rtu,
-                ascii: l.write_registers.ascii,
-                fact: Fact::from_file(&l.write_registers.fact),
-            },
-            same_group: l.same_group.value,
-            same_group_fact: Fact::from_file(&l.same_group.fact),
-            response_time_ms: l.response_time_ms.value,
-            response_time_fact: Fact::from_file(&l.response_time_ms.fact),
+        let no_limits = file::LimitsFile {
+            max_frame_bytes: None,
+            read_registers: None,
+            write_registers: None,
+            same_group: None,
+            response_time_ms: None,
         };
+        let l = f.limits.as_ref().unwrap_or(&no_limits);
         for (what, fact) in [
-            ("limits.max_frame_bytes", &l.max_frame_bytes.fact),
-            ("limits.read_registers", &l.read_registers.fact),
-            ("limits.write_registers", &l.write_registers.fact),
-            ("limits.same_group", &l.same_group.fact),
-            ("limits.response_time_ms", &l.response_time_ms.fact),
+            (
+                "limits.max_frame_bytes",
+                l.max_frame_bytes.as_ref().map(|v| &v.fact),
+            ),
+            (
+                "limits.read_registers",
+                l.read_registers.as_ref().map(|v| &v.fact),
+            ),
+            (
+                "limits.write_registers",
+                l.write_registers.as_ref().map(|v| &v.fact),
+            ),
+            ("limits.same_group", l.same_group.as_ref().map(|v| &v.fact)),
+            (
+                "limits.response_time_ms",
+                l.response_time_ms.as_ref().map(|v| &v.fact),
+            ),
         ] {
-            check_fact(m, what, fact)?;
+            if let Some(fact) = fact {
+                check_fact(m, what, fact)?;
+            }
+        }
+        let per_mode = |p: &Option<file::PerModeFile>, n: u16| match p {
+            Some(p) => PerMode {
+                rtu: p.rtu,
+                ascii: p.ascii,
+                fact: Fact::from_file(&p.fact),
+            },
+            None => PerMode {
+                rtu: n,
+                ascii: n,
+                fact: spec(SPEC_COUNTS),
+            },
+        };
+        let limits = Limits {
+            max_frame: l.max_frame_bytes.as_ref().map_or(256, |v| v.value),
+            max_frame_fact: l.max_frame_bytes.as_ref().map_or_else(
+                || spec("Modbus over Serial Line V1.02 2.5.1: an RTU frame is at most 256 bytes, an ASCII frame 513 characters"),
+                |v| Fact::from_file(&v.fact),
+            ),
+            read: per_mode(&l.read_registers, 125),
+            write: per_mode(&l.write_registers, 123),
+            same_group: l.same_group.as_ref().is_some_and(|v| v.value),
+            same_group_fact: l.same_group.as_ref().map_or_else(
+                || spec("Modbus application protocol V1.1b3: a request may span any registers the device serves"),
+                |v| Fact::from_file(&v.fact),
+            ),
+            response_time_ms: l.response_time_ms.as_ref().map(|v| v.value),
+            response_time_fact: l.response_time_ms.as_ref().map(|v| Fact::from_file(&v.fact)),
+            max_frame_ascii: l.max_frame_bytes.is_none().then_some(513),
+        };
+        if l.response_time_ms.is_none() {
+            absent.push("limits.response_time_ms".to_string());
         }
         // Counts must fit the frame: the derivation the legacy note confirms.
-        for mode in [Mode::Rtu, Mode::Ascii] {
+        for &mode in &modes {
             let r = limits.read.get(mode);
             let w = limits.write.get(mode);
             let read_len = read_response_len(mode, r);
             let write_len = write_request_len(mode, w);
-            if r == 0 || read_len > limits.max_frame {
-                return Err(invalid(format!(
-                    "limits.read_registers.{mode}: {r} registers need a {read_len}-byte response, over the {}-byte frame",
-                    limits.max_frame
-                )));
+            let max = limits.max_frame_in(mode);
+            if r == 0 || read_len > max {
+                return Err(at(
+                    &format!("limits.read_registers.{mode}"),
+                    format!(
+                        "{r} registers need a {read_len}-byte response, over the {max}-byte frame"
+                    ),
+                ));
             }
-            if w == 0 || write_len > limits.max_frame {
-                return Err(invalid(format!(
-                    "limits.write_registers.{mode}: {w} registers need a {write_len}-byte request, over the {}-byte frame",
-                    limits.max_frame
-                )));
+            if w == 0 || write_len > max {
+                return Err(at(
+                    &format!("limits.write_registers.{mode}"),
+                    format!(
+                        "{w} registers need a {write_len}-byte request, over the {max}-byte frame"
+                    ),
+                ));
             }
         }
 
         // Groups: command and monitor first, then parameter groups, then examples.
         let mut groups = Vec::new();
-        for g in &f.groups {
-            let first = hex16(m, "groups.first", &g.first)?;
-            let last = hex16(m, "groups.last", &g.last)?;
+        for (i, g) in f.groups.iter().flatten().enumerate() {
+            let first = hex16(m, &format!("groups[{i}].first"), &g.first)?;
+            let last = hex16(m, &format!("groups[{i}].last"), &g.last)?;
+            if first > last {
+                return Err(at(
+                    &format!("groups[{i}].last"),
+                    format!("{last:04X} is before first {first:04X}"),
+                ));
+            }
             groups.push(Group {
                 name: g.name.clone(),
                 parameter_group: None,
@@ -202,7 +310,7 @@ impl DriveModel {
         let mut named = Vec::new();
         let mut bits = BitRoles::default();
         let mut external_fault_code = None;
-        for r in &f.registers {
+        for r in f.registers.iter().flatten() {
             let register = hex16(m, "registers.register", &r.register)?;
             let access = Access::parse(&r.access).ok_or_else(|| {
                 invalid(format!(
@@ -228,6 +336,8 @@ impl DriveModel {
                         source: source.clone(),
                         rule: None,
                         why: r.why.clone(),
+                        request: None,
+                        reply: None,
                     };
                     check_fact(m, &format!("register {register:04X}"), &ff)?;
                     Fact::from_file(&ff)
@@ -342,7 +452,34 @@ impl DriveModel {
                 .and_then(|n| n.fact.source.clone())
                 .unwrap_or_default();
         }
-        for p in &f.parameter_groups {
+        let parameter_groups = f.parameter_groups.as_deref().unwrap_or_default();
+        let uses_naming = !parameter_groups.is_empty()
+            || f.parameter_access
+                .as_ref()
+                .is_some_and(|p| !p.read_only.is_empty());
+        let naming = match &f.naming {
+            Some(n) => {
+                if n.rule != "group-number" {
+                    return Err(at(
+                        "naming.rule",
+                        format!("{:?} is not a known rule (\"group-number\" is)", n.rule),
+                    ));
+                }
+                check_fact(m, "naming", &n.fact)?;
+                Some(Fact::from_file(&n.fact))
+            }
+            None if !v2 => Some(Fact::documented(
+                "the manual's parameter tables: register = group x 100H + number",
+            )),
+            None if uses_naming => {
+                return Err(at(
+                    "naming",
+                    "parameter_groups and parameter_access.read_only number registers as group x 100H + number: state the rule ({\"rule\": \"group-number\", ...})".to_string(),
+                ))
+            }
+            None => None,
+        };
+        for p in parameter_groups {
             let idx = groups.len();
             let mut registers = Vec::new();
             for r in &p.registers {
@@ -386,8 +523,97 @@ impl DriveModel {
                 notes: p.notes.clone(),
             });
         }
+        // Blocks (v2): plain ranges, each a group of the map.
+        let mut blocks = Vec::new();
+        for (i, b) in f.blocks.iter().flatten().enumerate() {
+            let path = format!("blocks[{i}]");
+            let first = hex16(m, &format!("{path}.first"), &b.first)?;
+            let last = hex16(m, &format!("{path}.last"), &b.last)?;
+            if first > last {
+                return Err(at(
+                    &format!("{path}.last"),
+                    format!("{last:04X} is before first {first:04X}"),
+                ));
+            }
+            let access = match b.access.as_deref() {
+                None => Access::ReadWrite,
+                Some(s) => Access::parse(s)
+                    .filter(|a| *a != Access::NoAccess)
+                    .ok_or_else(|| {
+                        at(
+                            &format!("{path}.access"),
+                            format!("{s:?} is not read-write, read-only, write-only or reserved"),
+                        )
+                    })?,
+            };
+            let min = b
+                .min
+                .as_deref()
+                .map(|v| hex16(m, &format!("{path}.min"), v))
+                .transpose()?;
+            let max = b
+                .max
+                .as_deref()
+                .map(|v| hex16(m, &format!("{path}.max"), v))
+                .transpose()?;
+            if let (Some(lo), Some(hi)) = (min, max) {
+                if lo > hi {
+                    return Err(at(
+                        &format!("{path}.max"),
+                        format!("{hi:04X} is below min {lo:04X}"),
+                    ));
+                }
+            }
+            if (min.is_some() || max.is_some())
+                && !matches!(access, Access::ReadWrite | Access::WriteOnly)
+            {
+                return Err(at(
+                    &format!("{path}.access"),
+                    "min and max bound written values: the block must be read-write or write-only"
+                        .to_string(),
+                ));
+            }
+            if let Some(scale) = b.scale {
+                if !scale.is_finite() || scale == 0.0 {
+                    return Err(at(
+                        &format!("{path}.scale"),
+                        format!("{scale} is not a finite non-zero number"),
+                    ));
+                }
+            }
+            check_fact(m, &path, &b.fact)?;
+            let block = Block {
+                span: first..=last,
+                name: b.name.clone(),
+                access,
+                min,
+                max,
+                unit: b.unit.clone(),
+                scale: b.scale,
+                fact: Fact::from_file(&b.fact),
+            };
+            // A reserved block is served by no function: it stays out of the map, and a
+            // request for it gets the illegal-register answer.
+            if access != Access::Reserved {
+                let idx = groups.len();
+                groups.push(Group {
+                    name: b
+                        .name
+                        .clone()
+                        .unwrap_or_else(|| format!("block {first:04X}")),
+                    parameter_group: None,
+                    span: first..=last,
+                    registers: vec![first..=last],
+                    no_access: vec![],
+                    source: block.fact.citation(),
+                    notes: vec![],
+                });
+                map.push((first..=last, access, idx, Origin::Block));
+            }
+            blocks.push(block);
+        }
         let mut example_registers = Vec::new();
-        for e in &f.example_registers {
+        for e in f.example_registers.iter().flatten() {
             let register = hex16(m, "example_registers.register", &e.register)?;
             let initial = hex16(m, "example_registers.initial", &e.initial)?;
             let access = Access::parse(&e.access)
@@ -398,6 +624,15 @@ impl DriveModel {
                     ))
                 })?;
             check_fact(m, "example_registers", &e.fact)?;
+            // v2: an example register inside a block whose access agrees is the block's
+            // register (a description copied from a built-in model keeps it harmlessly;
+            // `model lint` warns).
+            if let Some(b) = blocks.iter().find(|b| b.span.contains(&register)) {
+                if v2 && b.access == access {
+                    example_registers.push((register, initial, access, Fact::from_file(&e.fact)));
+                    continue;
+                }
+            }
             let idx = groups.len();
             groups.push(Group {
                 name: format!("example {register:04X}"),
@@ -424,7 +659,7 @@ impl DriveModel {
             }
         }
         let mut aliases = Vec::new();
-        for a in &f.aliases {
+        for a in f.aliases.iter().flatten() {
             let first = hex16(m, "aliases.first", &a.first)?;
             let last = hex16(m, "aliases.last", &a.last)?;
             let target = hex16(m, "aliases.target", &a.target)?;
@@ -440,27 +675,34 @@ impl DriveModel {
                 fact: Fact::from_file(&a.fact),
             });
         }
-        let id = &f.identification;
-        check_fact(m, "identification", &id.fact)?;
-        let identification = Identification {
-            register: id
-                .register
-                .as_deref()
-                .map(|r| hex16(m, "identification.register", r))
-                .transpose()?,
-            value: id
-                .value
-                .as_deref()
-                .map(|r| hex16(m, "identification.value", r))
-                .transpose()?,
-            simulated: match (&id.value, &id.simulated) {
-                (Some(v), _) | (None, Some(v)) => hex16(m, "identification", v)?,
-                (None, None) => 0,
-            },
-            fact: Fact::from_file(&id.fact),
+        let identification = match &f.identification {
+            None => {
+                absent.push("identification".to_string());
+                None
+            }
+            Some(id) => {
+                check_fact(m, "identification", &id.fact)?;
+                Some(Identification {
+                    register: id
+                        .register
+                        .as_deref()
+                        .map(|r| hex16(m, "identification.register", r))
+                        .transpose()?,
+                    value: id
+                        .value
+                        .as_deref()
+                        .map(|r| hex16(m, "identification.value", r))
+                        .transpose()?,
+                    simulated: match (&id.value, &id.simulated) {
+                        (Some(v), _) | (None, Some(v)) => hex16(m, "identification", v)?,
+                        (None, None) => 0,
+                    },
+                    fact: Fact::from_file(&id.fact),
+                })
+            }
         };
         let mut initial_values = Vec::new();
-        for v in &f.initial_values {
+        for v in f.initial_values.iter().flatten() {
             check_fact(m, "initial_values", &v.fact)?;
             initial_values.push((
                 hex16(m, "initial_values.register", &v.register)?,
@@ -468,28 +710,42 @@ impl DriveModel {
                 Fact::from_file(&v.fact),
             ));
         }
-        check_fact(m, "parameter_access", &f.parameter_access.fact)?;
-        check_fact(m, "addresses", &f.addresses.fact)?;
-        check_fact(m, "functions", &f.functions.fact)?;
-        check_fact(m, "loop_back", &f.loop_back.fact)?;
-        check_fact(
-            m,
-            "loop_back.other_test_codes",
-            &f.loop_back.other_test_codes,
-        )?;
+        let parameter_access = match &f.parameter_access {
+            Some(p) => {
+                check_fact(m, "parameter_access", &p.fact)?;
+                Fact::from_file(&p.fact)
+            }
+            None => Fact {
+                basis: Basis::Decision,
+                source: None,
+                rule: None,
+                why: Some("not stated: every register of the map is taken as read-write unless its block says otherwise".to_string()),
+            },
+        };
+        if let Some(lb) = &f.loop_back {
+            check_fact(m, "loop_back", &lb.fact)?;
+            check_fact(m, "loop_back.other_test_codes", &lb.other_test_codes)?;
+        } else {
+            absent.push("loop_back".to_string());
+        }
 
         let mut model = DriveModel {
             id: f.model.clone(),
+            version: f.schema_version,
+            modes,
             title: f.title.clone(),
-            manual: f.manual.clone(),
+            manual: f.manual.clone().unwrap_or_else(|| f.title.clone()),
             broadcast,
             addresses: first..=last,
-            addresses_fact: Fact::from_file(&f.addresses.fact),
+            addresses_fact,
             functions,
             functions_fact: Fact::from_file(&f.functions.fact),
-            loop_back_data_bytes: f.loop_back.data_bytes,
-            loop_back_fact: Fact::from_file(&f.loop_back.fact),
-            loop_back_other_fact: Fact::from_file(&f.loop_back.other_test_codes),
+            loop_back_data_bytes: f.loop_back.as_ref().map_or(2, |l| l.data_bytes),
+            loop_back_fact: f.loop_back.as_ref().map(|l| Fact::from_file(&l.fact)),
+            loop_back_other_fact: f
+                .loop_back
+                .as_ref()
+                .map(|l| Fact::from_file(&l.other_test_codes)),
             exception_codes,
             exception_codes_source: f.exception_codes_source.clone(),
             exceptions,
@@ -500,15 +756,20 @@ impl DriveModel {
             bits,
             external_fault_code,
             identification,
-            parameter_access: Fact::from_file(&f.parameter_access.fact),
+            parameter_access,
             parameter_read_only: Vec::new(),
             example_registers,
             initial_values,
             aliases,
             source: Source::default(),
+            blocks,
+            naming,
+            absent,
             map,
         };
-        model.parameter_read_only = read_only_parameters(&model, &f.parameter_access.read_only)?;
+        if let Some(p) = &f.parameter_access {
+            model.parameter_read_only = read_only_parameters(&model, &p.read_only)?;
+        }
         for (r, ..) in &model.initial_values {
             if model.lookup(*r).is_none() {
                 return Err(invalid(format!(
@@ -516,11 +777,21 @@ impl DriveModel {
                 )));
             }
         }
-        if let Some(r) = model.identification.register {
-            if model.lookup(r).is_none() {
-                return Err(invalid(format!(
-                    "identification register {r:04X} is not in the map"
-                )));
+        if let Some(r) = model.identification.as_ref().and_then(|i| i.register) {
+            match model.lookup(r) {
+                None => {
+                    return Err(at(
+                        "identification.register",
+                        format!("{r:04X} is not in the map"),
+                    ))
+                }
+                Some(i) if i.access == Access::WriteOnly => {
+                    return Err(at(
+                        "identification.register",
+                        format!("{r:04X} is write-only: it cannot be read"),
+                    ))
+                }
+                Some(_) => {}
             }
         }
         Ok(model)
@@ -533,16 +804,6 @@ impl file::FactFile {
     }
 }
 
-/// "12-16" as (group, number).
-fn parameter_number(s: &str) -> Option<(u8, u8)> {
-    let (g, n) = s.split_once('-')?;
-    let ok = |t: &str| !t.is_empty() && t.len() <= 2 && t.bytes().all(|c| c.is_ascii_digit());
-    if !ok(g) || !ok(n) {
-        return None;
-    }
-    Some((g.parse().ok()?, n.parse().ok()?))
-}
-
 /// Checks the read-only entries against the map built so far: every register a listed
 /// parameter (not "-"), the parameter numbers spelling the same registers, no overlaps.
 fn read_only_parameters(
@@ -552,6 +813,7 @@ fn read_only_parameters(
     let m = model.id.as_str();
     let invalid = |problem: String| ModelError::Invalid {
         model: m.to_string(),
+        path: String::new(),
         problem,
     };
     let mut out: Vec<ReadOnlyParameter> = Vec::new();
@@ -600,26 +862,4 @@ fn read_only_parameters(
         });
     }
     Ok(out)
-}
-
-fn check_fact(model: &str, what: &str, f: &file::FactFile) -> Result<(), ModelError> {
-    let problem = match f.basis {
-        Basis::Documented if f.source.as_deref().unwrap_or("").is_empty() => {
-            Some("a documented fact needs a source")
-        }
-        Basis::Derived if f.rule.as_deref().unwrap_or("").is_empty() => {
-            Some("a derived fact needs a rule")
-        }
-        Basis::Decision if f.why.as_deref().unwrap_or("").is_empty() => {
-            Some("a decision needs a why")
-        }
-        _ => None,
-    };
-    match problem {
-        Some(p) => Err(ModelError::Invalid {
-            model: model.to_string(),
-            problem: format!("{what}: {p}"),
-        }),
-        None => Ok(()),
-    }
 }

@@ -18,6 +18,8 @@ pub enum Access {
     Reserved,
     /// Marked "-" in the parameter table: no Modbus access.
     NoAccess,
+    /// Written, never read (a v2 block): a read gets the illegal-register exception.
+    WriteOnly,
 }
 
 impl Access {
@@ -26,6 +28,7 @@ impl Access {
             "read-write" => Some(Access::ReadWrite),
             "read-only" => Some(Access::ReadOnly),
             "reserved" => Some(Access::Reserved),
+            "write-only" => Some(Access::WriteOnly),
             _ => None,
         }
     }
@@ -38,6 +41,7 @@ impl fmt::Display for Access {
             Access::ReadOnly => "read-only",
             Access::Reserved => "reserved",
             Access::NoAccess => "no access",
+            Access::WriteOnly => "write-only",
         })
     }
 }
@@ -175,6 +179,8 @@ pub enum Origin {
     Parameter,
     /// Used only by an example of the manual.
     Example,
+    /// A plain block of a v2 description ([`Block`]).
+    Block,
 }
 
 /// Where a register sits in the map.
@@ -248,10 +254,53 @@ pub struct Limits {
     pub same_group: bool,
     /// Basis of the same-group rule.
     pub same_group_fact: Fact,
-    /// Response time in milliseconds.
-    pub response_time_ms: u64,
+    /// Response time in milliseconds; `None` where the description does not state one
+    /// (the response-time check is skipped, and the master waits its own timeout).
+    pub response_time_ms: Option<u64>,
     /// Basis of the response time.
-    pub response_time_fact: Fact,
+    pub response_time_fact: Option<Fact>,
+    /// Longest ASCII frame in characters where it differs from `max_frame` (a v2
+    /// description that leaves the frame to the Modbus specification: 256 bytes RTU,
+    /// 513 characters ASCII); `None`: `max_frame` holds in both modes.
+    pub max_frame_ascii: Option<usize>,
+}
+
+impl Limits {
+    /// Longest frame in `mode`: bytes (RTU) or characters (ASCII).
+    pub fn max_frame_in(&self, mode: Mode) -> usize {
+        match (mode, self.max_frame_ascii) {
+            (Mode::Ascii, Some(n)) => n,
+            _ => self.max_frame,
+        }
+    }
+}
+
+/// A plain block of registers of a v2 description.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Block {
+    /// First and last register.
+    pub span: RangeInclusive<u16>,
+    /// Name for people, if the description gives one.
+    pub name: Option<String>,
+    /// Access (a reserved block is in no map: every function refuses it).
+    pub access: Access,
+    /// Smallest value a write may carry.
+    pub min: Option<u16>,
+    /// Largest value a write may carry.
+    pub max: Option<u16>,
+    /// Unit, for display.
+    pub unit: Option<String>,
+    /// Value = raw x scale, for display.
+    pub scale: Option<f64>,
+    /// Basis and citation.
+    pub fact: Fact,
+}
+
+impl Block {
+    /// Whether `value` is within the block's bounds.
+    pub fn admits(&self, value: u16) -> bool {
+        self.min.is_none_or(|m| value >= m) && self.max.is_none_or(|m| value <= m)
+    }
 }
 
 /// The identification register.

@@ -8,6 +8,7 @@
 
 mod error;
 mod facts;
+mod fields;
 mod file;
 mod judge;
 pub mod lint;
@@ -23,7 +24,7 @@ pub use facts::{Basis, ExceptionRule, Fact, Fault, SilenceReason};
 pub use file::ModelFile;
 pub use judge::{Expectation, Judgement, ReadPlan, WritePlan};
 pub use map::{
-    Access, Alias, BitRoles, Group, Identification, Limits, NamedRegister, Origin, PerMode,
+    Access, Alias, BitRoles, Block, Group, Identification, Limits, NamedRegister, Origin, PerMode,
     ReadOnlyParameter, RegisterInfo, Resolution, Role,
 };
 pub use source::{sha256_hex, Source};
@@ -52,6 +53,10 @@ const BUILTIN: [(&str, &str); 5] = [
 pub struct DriveModel {
     /// Model id (f510, ...).
     pub id: String,
+    /// The file's schema_version (1: the five manuals; 2: any device).
+    pub version: u32,
+    /// Transmission modes the device serves (v1: both).
+    pub modes: Vec<Mode>,
     /// The document.
     pub title: String,
     /// Short name of the document.
@@ -66,19 +71,21 @@ pub struct DriveModel {
     pub functions: Vec<u8>,
     /// Basis of the functions.
     pub functions_fact: Fact,
-    /// Data bytes of the manual's loop-back frames.
+    /// Data bytes of the manual's loop-back frames (2 where the description has no
+    /// `loop_back`).
     pub loop_back_data_bytes: usize,
-    /// Basis of the loop-back.
-    pub loop_back_fact: Fact,
+    /// Basis of the loop-back; `None` where the description has no `loop_back` (its
+    /// checks are skipped).
+    pub loop_back_fact: Option<Fact>,
     /// Basis of the echo of a test code (sub-function) other than 0000H.
-    pub loop_back_other_fact: Fact,
-    /// The exception-code table.
+    pub loop_back_other_fact: Option<Fact>,
+    /// The exception-code table (empty where the description has none).
     pub exception_codes: Vec<(u8, String)>,
     /// Where the table is.
-    pub exception_codes_source: String,
-    /// Which exception each fault gets.
+    pub exception_codes_source: Option<String>,
+    /// Which exception each fault gets (v2: only the faults the description states).
     pub exceptions: BTreeMap<Fault, ExceptionRule>,
-    /// Why requests get no reply.
+    /// Why requests get no reply (v2: only the reasons the description states).
     pub silence: BTreeMap<SilenceReason, Fact>,
     /// Limits.
     pub limits: Limits,
@@ -90,8 +97,8 @@ pub struct DriveModel {
     pub bits: BitRoles,
     /// Fault code raised by the external-fault bit.
     pub external_fault_code: Option<(u16, Fact)>,
-    /// The identification register.
-    pub identification: Identification,
+    /// The identification register; `None` where the description has none.
+    pub identification: Option<Identification>,
     /// Parameter access and values: what the model assumes of parameters that no table
     /// marks.
     pub parameter_access: Fact,
@@ -106,6 +113,15 @@ pub struct DriveModel {
     pub aliases: Vec<Alias>,
     /// The description the model was read from (file, title, hash), for reports.
     pub source: Source,
+    /// Plain register blocks (v2); each is also a [`Group`] of the map.
+    pub blocks: Vec<Block>,
+    /// TECO's naming rule (register = group x 100H + number), where the description
+    /// uses it (v1 implies it).
+    pub naming: Option<Fact>,
+    /// The optional fields the description leaves out, by their path in the file
+    /// ("loop_back", "exceptions.illegal-count", "limits.response_time_ms"): each check
+    /// that needs one is skipped, naming it.
+    pub absent: Vec<String>,
     /// Sorted, non-overlapping spans of the map: (range, access, group, origin).
     map: Vec<(RangeInclusive<u16>, Access, usize, Origin)>,
 }
@@ -119,19 +135,22 @@ impl DriveModel {
     /// below (8E1) that is longer than the manuals' 10 ms: 18.3 ms at 2400 baud, 41.3 ms
     /// at 1200.
     pub fn response_delay(&self, line: &crate::codec::timing::LineSettings) -> std::time::Duration {
-        let manual = std::time::Duration::from_millis(self.limits.response_time_ms);
+        // Where the description states no response time, the soonest a reply may start.
+        let manual = std::time::Duration::from_millis(self.limits.response_time_ms.unwrap_or(0));
         manual.max(std::time::Duration::from_micros(
             line.t3_5_us() + line.char_time_us(),
         ))
     }
 
     /// The shortest response time a device can keep on `line`: the manual's, or t3.5
-    /// where that is longer (a reply must not start before t3.5).
+    /// where that is longer (a reply must not start before t3.5). Where the description
+    /// states no response time, t3.5 alone (zero without a line): callers that judge
+    /// lateness check [`Limits::response_time_ms`] first.
     pub fn response_time_on(
         &self,
         line: Option<&crate::codec::timing::LineSettings>,
     ) -> std::time::Duration {
-        let manual = std::time::Duration::from_millis(self.limits.response_time_ms);
+        let manual = std::time::Duration::from_millis(self.limits.response_time_ms.unwrap_or(0));
         match line {
             Some(l) => manual.max(std::time::Duration::from_micros(l.t3_5_us())),
             None => manual,
@@ -265,13 +284,47 @@ impl DriveModel {
             .map(|n| n.register)
     }
 
-    /// The exception rule for `fault`. Models without a rule for "-" registers (only E510
-    /// marks them) answer them as unknown registers.
-    pub fn rule(&self, fault: Fault) -> &ExceptionRule {
-        self.exceptions
-            .get(&fault)
-            .or_else(|| self.exceptions.get(&Fault::IllegalRegister))
-            .expect("validated: every model has an illegal-register rule")
+    /// The exception rule for `fault`, if the description states one. Models without a
+    /// rule for "-" registers (only E510 marks them) answer them as unknown registers.
+    pub fn rule(&self, fault: Fault) -> Option<&ExceptionRule> {
+        self.exceptions.get(&fault).or_else(|| match fault {
+            Fault::NoAccess => self.exceptions.get(&Fault::IllegalRegister),
+            _ => None,
+        })
+    }
+
+    /// The exception code a drive of this description answers for `fault`: the stated
+    /// rule's, or where the description has none the Modbus application protocol's
+    /// (V1.1b3, 7: 01H illegal function; 02H illegal data address for a register outside
+    /// the map, read-only, reserved or across blocks; 03H illegal data value for a count
+    /// or value out of range and a malformed request). The simulator needs some answer;
+    /// the runner skips the checks that rest on an absent rule.
+    pub fn answer_code(&self, fault: Fault) -> u8 {
+        match self.rule(fault) {
+            Some(r) => r.code,
+            None => fault.modbus_code(),
+        }
+    }
+
+    /// Whether the description states `field` (a path such as "loop_back" or
+    /// "exceptions.illegal-count"); see [`DriveModel::absent`].
+    pub fn states(&self, field: &str) -> bool {
+        !self.absent.iter().any(|a| a == field)
+    }
+
+    /// The transmission modes the device serves.
+    pub fn modes(&self) -> &[Mode] {
+        &self.modes
+    }
+
+    /// Whether the device serves `mode`.
+    pub fn serves_mode(&self, mode: Mode) -> bool {
+        self.modes.contains(&mode)
+    }
+
+    /// The block that holds `register`, if any (v2).
+    pub fn block_of(&self, register: u16) -> Option<&Block> {
+        self.blocks.iter().find(|b| b.span.contains(&register))
     }
 
     /// The meaning of exception `code` in this model's table.
@@ -284,7 +337,7 @@ impl DriveModel {
 
     /// Whether the model numbers exceptions 51H..55H (the legacy note) rather than 01H..05H.
     pub fn numbers_exceptions_from_51(&self) -> bool {
-        self.exception_codes.iter().all(|(c, _)| *c >= 0x51)
+        !self.exception_codes.is_empty() && self.exception_codes.iter().all(|(c, _)| *c >= 0x51)
     }
 
     /// Name of group `i`.

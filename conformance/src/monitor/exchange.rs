@@ -72,9 +72,9 @@ impl Monitor {
                     kind: "request-before-reply",
                     severity: Severity::Deviation,
                     text: format!(
-                        "the next request began {:.1} ms after this one, before the drive's reply was due (manual: {} ms; limit {:.1} ms): the master did not wait for the reply",
+                        "the next request began {:.1} ms after this one, before the drive's reply was due (manual: {}; limit {:.1} ms): the master did not wait for the reply",
                         ms(after),
-                        self.model.limits.response_time_ms,
+                        self.model.limits.response_time_ms.map_or("not stated".to_string(), |t| format!("{t} ms")),
                         ms(limit)
                     ),
                 });

@@ -60,6 +60,11 @@ pub enum RunError {
     /// about the device and ends as ERROR; the run goes on.
     #[error(transparent)]
     HostStalled(TransportError),
+    /// The model's prediction rests on a fact the description leaves out (the reason
+    /// names the field): the check is skipped, nothing is sent, and no device is held
+    /// to a guess.
+    #[error("{0}")]
+    Undescribed(String),
 }
 
 impl From<TransportError> for RunError {
@@ -577,6 +582,9 @@ impl<'a> Ctx<'a> {
         known: Option<(Vec<Option<u16>>, Fact)>,
     ) -> Result<Probed, RunError> {
         let judgement = self.model.judge(node, self.mode, &frame);
+        if let Some(why) = judgement.missing_reason() {
+            return Err(RunError::Undescribed(why));
+        }
         let (exchange, proven_alive) = self.exchange(&frame, judgement.expect.replies())?;
         let comparison = Judge::new(self.model).verdict_on(
             &judgement,

@@ -127,6 +127,7 @@ pub fn run_section(
         let (verdict, fatal) = match verdict {
             Ok(v) => (v, None),
             Err(RunError::DeviceLost(why)) => (Verdict::error(why), None),
+            Err(RunError::Undescribed(why)) => (Verdict::skip(why), None),
             Err(e @ RunError::HostStalled(_)) => (
                 Verdict::error(format!(
                     "{e} (the check ran {} times, and this host stalled under it each time: an overloaded host; run it again)",

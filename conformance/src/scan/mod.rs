@@ -154,15 +154,15 @@ pub struct Progress<'a> {
 pub fn models_with_identification(value: u16) -> Vec<String> {
     let mut out = Vec::new();
     for id in MODELS {
-        let Ok(m) = DriveModel::builtin(id) else {
+        let Some(ident) = DriveModel::builtin(id).ok().and_then(|m| m.identification) else {
             continue;
         };
-        if m.identification.register != Some(probe::ID_REGISTER) {
+        if ident.register != Some(probe::ID_REGISTER) {
             continue;
         }
-        if m.identification.value == Some(value) {
+        if ident.value == Some(value) {
             out.push(format!("{id} (the manual's value)"));
-        } else if m.identification.value.is_none() && m.identification.simulated == value {
+        } else if ident.value.is_none() && ident.simulated == value {
             out.push(format!(
                 "{id} (this suite's simulator; the manual gives no value)"
             ));

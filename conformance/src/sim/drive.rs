@@ -520,6 +520,23 @@ impl Drive {
         self.model.frequency_in_use(written)
     }
 
+    /// What the identification register reads: the description's value, or the value
+    /// it gives the simulator.
+    fn identification_value(&self) -> u16 {
+        self.model
+            .identification
+            .as_ref()
+            .map_or(0, |i| i.simulated)
+    }
+
+    /// Whether `register` is the description's identification register.
+    fn is_identification(&self, register: u16) -> bool {
+        self.model
+            .identification
+            .as_ref()
+            .is_some_and(|i| i.register == Some(register))
+    }
+
     /// The value a read of `register` (as the map knows it) returns now.
     pub fn read_register(&self, register: u16) -> u16 {
         let Some(info) = self.model.lookup(register) else {
@@ -545,7 +562,9 @@ impl Drive {
             Some(Role::OutputFrequency) => self
                 .model
                 .frequency_in_use(self.output.round().clamp(0.0, 65535.0) as u16),
-            Some(Role::Identification) => self.model.identification.simulated,
+            Some(Role::Identification) => self.identification_value(),
+            // A v2 description's identification register may sit in a plain block.
+            _ if self.is_identification(info.register) => self.identification_value(),
             _ => self.values.get(&info.register).copied().unwrap_or(0),
         }
     }
@@ -602,6 +621,18 @@ impl Drive {
             };
         }
         let mut judgement = self.model.judge(self.address, mode, frame);
+        // A device that does not serve this mode does not take the frame for one.
+        if !self.model.serves_mode(mode) {
+            notes.push(format!(
+                "{} is not in the description's modes: frame ignored",
+                mode.to_string().to_uppercase()
+            ));
+            return Outcome {
+                judgement,
+                sends,
+                notes,
+            };
+        }
         let request_address = frame_address(mode, frame);
         if judgement.expect == Expectation::Silence(SilenceReason::OtherAddress)
             && self.has(Quirk::AnswerEveryAddress)

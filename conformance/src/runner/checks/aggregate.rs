@@ -5,13 +5,29 @@ use std::time::Duration;
 use super::*;
 
 pub(super) fn aggregates(model: &DriveModel, m: &str, out: &mut Vec<Check>) {
+    match (
+        model.limits.response_time_ms,
+        &model.limits.response_time_fact,
+    ) {
+        (Some(stated), Some(fact)) => response_time(model, m, stated, fact, out),
+        _ => out.push(undescribed_check(
+            format!("{m}.response-time"),
+            "Response time of every reply of this mode against the description's".to_string(),
+            cite_or(model, None, "limits.response_time_ms"),
+            vec!["limits.response_time_ms".to_string()],
+        )),
+    }
+    timing_and_codes(model, m, out);
+}
+
+fn response_time(model: &DriveModel, m: &str, stated: u64, fact: &Fact, out: &mut Vec<Check>) {
     out.push(check(
         format!("{m}.response-time"),
-        format!("Response time of every reply of this mode against the manual's {} ms", model.limits.response_time_ms),
-        cite(model, &model.limits.response_time_fact),
+        format!("Response time of every reply of this mode against the manual's {stated} ms"),
+        cite(model, fact),
         false,
         false,
-        |ctx| {
+        move |ctx| {
             if ctx.latencies.is_empty() {
                 return Ok(Verdict::skip("no replies were measured"));
             }
@@ -33,8 +49,8 @@ pub(super) fn aggregates(model: &DriveModel, m: &str, out: &mut Vec<Check>) {
                 ms(median),
                 ms(max),
                 l.len(),
-                ctx.model.limits.response_time_ms,
-                if manual.as_millis() > u128::from(ctx.model.limits.response_time_ms) {
+                stated,
+                if manual.as_millis() > u128::from(stated) {
                     format!(", t3.5 on this line: {:.1} ms", ms(manual))
                 } else {
                     String::new()
@@ -67,6 +83,9 @@ pub(super) fn aggregates(model: &DriveModel, m: &str, out: &mut Vec<Check>) {
             Ok(v)
         },
     ));
+}
+
+fn timing_and_codes(model: &DriveModel, m: &str, out: &mut Vec<Check>) {
     let ascii = m == "ascii";
     let (title, source) = if ascii {
         (
@@ -177,11 +196,27 @@ pub(super) fn aggregates(model: &DriveModel, m: &str, out: &mut Vec<Check>) {
     );
     line_timing.needs_line = true;
     out.push(line_timing);
+    if model.exception_codes.is_empty() {
+        out.push(undescribed_check(
+            format!("{m}.exception-codes"),
+            "Exception codes the device sent during this mode's checks, against the description's table".to_string(),
+            cite_or(model, None, "exception_codes"),
+            vec!["exception_codes".to_string()],
+        ));
+        return;
+    }
     out.push(check(
         format!("{m}.exception-codes"),
         "Exception codes the device sent during this mode's checks, against the manual's table"
             .to_string(),
-        format!("{}, {}", model.manual, model.exception_codes_source),
+        format!(
+            "{}, {}",
+            model.manual,
+            model
+                .exception_codes_source
+                .as_deref()
+                .unwrap_or("exception-code table")
+        ),
         false,
         false,
         |ctx| {

@@ -87,6 +87,30 @@ pub fn preflight(model: &DriveModel, mode: Mode) -> Check {
     )
 }
 
+/// The one check of a mode the description does not list in `modes`: skipped, saying
+/// so (nothing is sent in that mode, not even the preflight).
+pub fn mode_not_served(model: &DriveModel, mode: Mode) -> Check {
+    let why = mode_not_served_reason(model, mode);
+    check(
+        format!("{mode}.mode"),
+        format!("The device serves {}", mode.to_string().to_uppercase()),
+        format!("{}: modes", model.manual),
+        false,
+        false,
+        move |_| Ok(Verdict::skip(why.clone())),
+    )
+}
+
+/// Why [`mode_not_served`] skips.
+pub fn mode_not_served_reason(model: &DriveModel, mode: Mode) -> String {
+    let listed: Vec<String> = model.modes().iter().map(|m| format!("\"{m}\"")).collect();
+    format!(
+        "the description's modes are [{}]: the device does not serve {}",
+        listed.join(", "),
+        mode.to_string().to_uppercase()
+    )
+}
+
 /// Findings and records of several probes.
 fn verdict(probes: &[&Probed], pass: String) -> Verdict {
     Verdict {
@@ -147,6 +171,28 @@ fn cite(model: &DriveModel, fact: &Fact) -> String {
     format!("{}: {}", model.manual, fact.citation())
 }
 
+/// [`cite`] for a fact the description may leave out (`field` names it).
+fn cite_or(model: &DriveModel, fact: Option<&Fact>, field: &str) -> String {
+    match fact {
+        Some(f) => cite(model, f),
+        None => format!("{}: the description has no {field}", model.manual),
+    }
+}
+
+/// Why a check whose facts the description leaves out is skipped.
+fn undescribed(fields: &[String]) -> String {
+    format!("the description has no {}", fields.join(", no "))
+}
+
+/// A check that is skipped because the description leaves out `fields`: listed, so that
+/// a report says what was not checked and why, never run.
+fn undescribed_check(id: String, title: String, source: String, fields: Vec<String>) -> Check {
+    let why = undescribed(&fields);
+    check(id, title, source, false, false, move |_| {
+        Ok(Verdict::skip(why.clone()))
+    })
+}
+
 /// Runs of contiguous readable registers (read-write or read-only or reserved) of one group.
 fn readable_runs(model: &DriveModel) -> Vec<(u16, u16)> {
     let mut runs: Vec<(u16, u16)> = Vec::new();
@@ -174,6 +220,9 @@ pub fn plan(
     opts: &super::Options,
 ) -> Vec<Check> {
     let m = mode.to_string();
+    if !model.serves_mode(mode) {
+        return vec![mode_not_served(model, mode)];
+    }
     let mut out = Vec::new();
     reads::examples(model, vectors, mode, &mut out);
     reads::identification(model, &m, &mut out);

@@ -59,14 +59,25 @@ pub(super) fn order(model: &DriveModel, mode: Mode, m: &str, out: &mut Vec<Check
         ),
     ];
     for (name, title, first, second, writes, build) in cases {
+        let (Some(rule_a), Some(rule_b)) = (model.rule(first), model.rule(second)) else {
+            let fields = [first, second]
+                .into_iter()
+                .filter(|f| model.rule(*f).is_none())
+                .map(|f| format!("exceptions.{}", f.key()))
+                .collect();
+            out.push(undescribed_check(
+                format!("{m}.order.{name}"),
+                title,
+                spec.to_string(),
+                fields,
+            ));
+            continue;
+        };
         let source = format!(
             "{spec}; {}: {} {:02X}H, {} {:02X}H",
-            model.manual,
-            first,
-            model.rule(first).code,
-            second,
-            model.rule(second).code
+            model.manual, first, rule_a.code, second, rule_b.code
         );
+        let (a, b) = (rule_a.code, rule_b.code);
         out.push(check(
             format!("{m}.order.{name}"),
             title,
@@ -76,8 +87,6 @@ pub(super) fn order(model: &DriveModel, mode: Mode, m: &str, out: &mut Vec<Check
             move |ctx| {
                 let p = ctx.probe(build(ctx), None)?;
                 let mut v = verdict(&[&p], pass_text(&p));
-                let a = ctx.model.rule(first).code;
-                let b = ctx.model.rule(second).code;
                 let code = p
                     .exchange
                     .reply

@@ -6,9 +6,12 @@ use std::time::Duration;
 use super::*;
 
 pub(super) fn functions(model: &DriveModel, m: &str, out: &mut Vec<Check>) {
-    let source = cite(
+    let source = cite_or(
         model,
-        &model.rule(crate::model::Fault::IllegalFunction).fact,
+        model
+            .rule(crate::model::Fault::IllegalFunction)
+            .map(|r| &r.fact),
+        "exceptions.illegal-function",
     );
     for fc in [0x04u8, 0x41] {
         out.push(probe_check(
@@ -24,13 +27,22 @@ pub(super) fn functions(model: &DriveModel, m: &str, out: &mut Vec<Check>) {
             },
         ));
     }
+    if model.exception_codes.is_empty() {
+        out.push(undescribed_check(
+            format!("{m}.exception-numbering"),
+            "Exception numbering: 01H..05H or 51H..55H, as the description's table".to_string(),
+            cite_or(model, None, "exception_codes"),
+            vec!["exception_codes".to_string()],
+        ));
+        return;
+    }
     out.push(check(
         format!("{m}.exception-numbering"),
         format!(
             "Exception numbering: the manual numbers its codes {}",
             if model.numbers_exceptions_from_51() { "51H..55H" } else { "01H..05H" }
         ),
-        format!("{}, {}", model.manual, model.exception_codes_source),
+        format!("{}, {}", model.manual, model.exception_codes_source.as_deref().unwrap_or("exception-code table")),
         false,
         false,
         move |ctx| {
@@ -71,7 +83,7 @@ pub(super) fn functions(model: &DriveModel, m: &str, out: &mut Vec<Check>) {
 
 pub(super) fn loop_back(model: &DriveModel, m: &str, seed: u64, out: &mut Vec<Check>) {
     let mut rng = Rng::new(seed ^ 0x08);
-    let source = cite(model, &model.loop_back_fact);
+    let source = cite_or(model, model.loop_back_fact.as_ref(), "loop_back");
     for i in 0..3 {
         let r = rng.next_u64();
         // Any test code but the ones that restart, silence or reconfigure the device's
@@ -91,7 +103,10 @@ pub(super) fn loop_back(model: &DriveModel, m: &str, seed: u64, out: &mut Vec<Ch
             if test_code == 0 {
                 source.clone()
             } else {
-                format!("{source}; {}", cite(model, &model.loop_back_other_fact))
+                format!(
+                    "{source}; {}",
+                    cite_or(model, model.loop_back_other_fact.as_ref(), "loop_back")
+                )
             },
             false,
             move |ctx| {
@@ -129,7 +144,7 @@ const DIAGNOSTICS: [(u16, &str); 11] = [
 pub(super) fn diagnostics(model: &DriveModel, m: &str, out: &mut Vec<Check>) {
     let source = format!(
         "{}; Modbus application protocol V1.1b3, 6.8 (08H sub-functions)",
-        cite(model, &model.loop_back_other_fact)
+        cite_or(model, model.loop_back_other_fact.as_ref(), "loop_back")
     );
     out.push(check(
         format!("{m}.diagnostics.sub-functions"),
@@ -279,10 +294,12 @@ fn short_answer(mode: Mode, p: &Probed) -> String {
 }
 
 pub(super) fn addressing(model: &DriveModel, m: &str, out: &mut Vec<Check>) {
-    let bsource = cite(
+    let bsource = cite_or(
         model,
-        &model.silence[&crate::model::SilenceReason::Broadcast],
+        model.silence.get(&crate::model::SilenceReason::Broadcast),
+        "silence.broadcast",
     );
+    let probe = probe_register(model);
     let first = out.len();
     if let Some(f) = model.register_with_role(Role::FrequencyCommand) {
         out.push(check(
@@ -358,14 +375,14 @@ pub(super) fn addressing(model: &DriveModel, m: &str, out: &mut Vec<Check>) {
     }
     out.push(probe_check(
         format!("{m}.broadcast.read"),
-        "Broadcast (node 00H) a read of 2520H: no reply".to_string(),
+        format!("Broadcast (node 00H) a read of {probe:04X}H: no reply"),
         bsource,
         false,
-        |ctx| {
+        move |ctx| {
             ctx.frame_to(
                 0,
                 Pdu::ReadRequest {
-                    start: 0x2520,
+                    start: probe,
                     count: 1,
                 },
             )
@@ -373,17 +390,20 @@ pub(super) fn addressing(model: &DriveModel, m: &str, out: &mut Vec<Check>) {
     ));
     out.push(probe_check(
         format!("{m}.other-address"),
-        "Read 2520H from another node address: no reply".to_string(),
-        cite(
+        format!("Read {probe:04X}H from another node address: no reply"),
+        cite_or(
             model,
-            &model.silence[&crate::model::SilenceReason::OtherAddress],
+            model
+                .silence
+                .get(&crate::model::SilenceReason::OtherAddress),
+            "silence.other-address",
         ),
         false,
-        |ctx| {
+        move |ctx| {
             ctx.frame_to(
                 ctx.opts.other_address,
                 Pdu::ReadRequest {
-                    start: 0x2520,
+                    start: probe,
                     count: 1,
                 },
             )
@@ -404,22 +424,24 @@ fn node_list(nodes: &[u8]) -> String {
 }
 
 pub(super) fn line(model: &DriveModel, mode: Mode, m: &str, seed: u64, out: &mut Vec<Check>) {
-    let csource = cite(
+    let csource = cite_or(
         model,
-        &model.silence[&crate::model::SilenceReason::BadChecksum],
+        model.silence.get(&crate::model::SilenceReason::BadChecksum),
+        "silence.bad-checksum",
     );
+    let probe = probe_register(model);
     let (name, what) = match mode {
         Mode::Rtu => ("bad-crc", "CRC"),
         Mode::Ascii => ("bad-lrc", "LRC"),
     };
     let mut bad = probe_check(
         format!("{m}.{name}"),
-        format!("Read 2520H with a wrong {what}: no reply"),
+        format!("Read {probe:04X}H with a wrong {what}: no reply"),
         csource,
         false,
         move |ctx| {
             let mut f = ctx.frame(Pdu::ReadRequest {
-                start: 0x2520,
+                start: probe,
                 count: 1,
             });
             let n = f.len();
@@ -447,8 +469,9 @@ pub(super) fn line(model: &DriveModel, mode: Mode, m: &str, seed: u64, out: &mut
     let mut garbage_check = check(
         format!("{m}.garbage-then-frame"),
         format!(
-            "Send 12 garbage bytes ({}), pause, then read 2520H: the device recovers",
-            show(mode, &garbage)
+            "Send 12 garbage bytes ({}), pause, then read {:04X}H: the device recovers",
+            show(mode, &garbage),
+            probe
         ),
         recover.clone(),
         false,
@@ -457,7 +480,7 @@ pub(super) fn line(model: &DriveModel, mode: Mode, m: &str, seed: u64, out: &mut
             ctx.send_raw(&garbage, Duration::from_millis(30))?;
             let p = ctx.probe(
                 ctx.frame(Pdu::ReadRequest {
-                    start: 0x2520,
+                    start: probe,
                     count: 1,
                 }),
                 None,
@@ -477,7 +500,7 @@ pub(super) fn line(model: &DriveModel, mode: Mode, m: &str, seed: u64, out: &mut
         false,
         false,
         move |ctx| {
-            let f = ctx.frame(Pdu::ReadRequest { start: 0x2520, count: 1 });
+            let f = ctx.frame(Pdu::ReadRequest { start: probe, count: 1 });
             let half = f[..f.len() / 2].to_vec();
             // ASCII: the next ':' restarts the frame; RTU: the pause ends the partial frame.
             let pause = if ctx.mode == Mode::Ascii { Duration::from_millis(5) } else { Duration::from_millis(30) };
@@ -488,4 +511,23 @@ pub(super) fn line(model: &DriveModel, mode: Mode, m: &str, seed: u64, out: &mut
     );
     partial.needs_line = true;
     out.push(partial);
+}
+
+/// The register the protocol checks read (broadcast, other address, bad checksum,
+/// recovery): the TECO status register 2520H where the description serves it, else the
+/// first register it serves for reading.
+fn probe_register(model: &DriveModel) -> u16 {
+    let readable = |r: u16| {
+        model
+            .lookup(r)
+            .is_some_and(|i| !matches!(i.access, Access::NoAccess | Access::WriteOnly))
+    };
+    if readable(0x2520) {
+        return 0x2520;
+    }
+    model
+        .registers()
+        .map(|(r, _)| r)
+        .find(|&r| readable(r))
+        .unwrap_or(0x2520)
 }

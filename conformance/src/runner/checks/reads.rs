@@ -89,8 +89,17 @@ pub(super) fn examples(
 }
 
 pub(super) fn identification(model: &DriveModel, m: &str, out: &mut Vec<Check>) {
-    let id = &model.identification;
+    let Some(id) = &model.identification else {
+        out.push(undescribed_check(
+            format!("{m}.identification"),
+            "Read the identification register".to_string(),
+            cite_or(model, None, "identification"),
+            vec!["identification".to_string()],
+        ));
+        return;
+    };
     let register = id.register.unwrap_or(0x252F);
+    let id_fact = id.fact.clone();
     let documented = id.value;
     let source = cite(model, &id.fact);
     let title = match documented {
@@ -106,7 +115,7 @@ pub(super) fn identification(model: &DriveModel, m: &str, out: &mut Vec<Check>) 
         false,
         false,
         move |ctx| {
-            let known = documented.map(|v| (vec![Some(v)], ctx.model.identification.fact.clone()));
+            let known = documented.map(|v| (vec![Some(v)], id_fact.clone()));
             let frame = ctx.frame(Pdu::ReadRequest {
                 start: register,
                 count: 1,
@@ -225,7 +234,16 @@ pub(super) fn map(model: &DriveModel, m: &str, out: &mut Vec<Check>) {
         .find(|n| n.access == Access::Reserved)
         .map(|n| n.register)
     {
-        let fact = model.rule(crate::model::Fault::ReservedWrite).fact.clone();
+        let Some(rule) = model.rule(crate::model::Fault::ReservedWrite) else {
+            out.push(undescribed_check(
+                format!("{m}.map.reserved-reads-zero"),
+                format!("Read the reserved register {r:04X}H"),
+                cite_or(model, None, "exceptions.reserved-write"),
+                vec!["exceptions.reserved-write".to_string()],
+            ));
+            return;
+        };
+        let fact = rule.fact.clone();
         out.push(check(
             format!("{m}.map.reserved-reads-zero"),
             format!("Read the reserved register {r:04X}H"),
@@ -286,6 +304,38 @@ pub(super) fn counts(model: &DriveModel, mode: Mode, m: &str, out: &mut Vec<Chec
             ));
         }
     }
+    // The same rule between two adjacent blocks of a description (v2): a read across
+    // them is served unless limits.same_group says a block is a group.
+    if model.group("command").is_none() {
+        if let Some(w) = model
+            .blocks
+            .windows(2)
+            .find(|w| w[0].span.end().checked_add(1) == Some(*w[1].span.start()))
+        {
+            let from = *w[0].span.end();
+            let names = |b: &crate::model::Block| {
+                b.name
+                    .clone()
+                    .unwrap_or_else(|| format!("block {:04X}", b.span.start()))
+            };
+            out.push(probe_check(
+                format!("{m}.same-group"),
+                format!(
+                    "Read 2 registers from {from:04X}H, across the blocks {} and {}",
+                    names(&w[0]),
+                    names(&w[1])
+                ),
+                cite(model, &model.limits.same_group_fact),
+                false,
+                move |ctx| {
+                    ctx.frame(Pdu::ReadRequest {
+                        start: from,
+                        count: 2,
+                    })
+                },
+            ));
+        }
+    }
     // Write counts: a value-preserving write of the limit, a write of 0, and one over
     // the limit (a frame over 80 bytes).
     let wlimit = model.limits.write.get(mode);
@@ -309,16 +359,19 @@ pub(super) fn counts(model: &DriveModel, mode: Mode, m: &str, out: &mut Vec<Chec
             let title = if name == "limit" {
                 format!("Write {count} registers from {wstart:04X}H with the values they hold (the {mode} write limit is {wlimit}), and read them back")
             } else {
-                format!("Write {count} registers from {wstart:04X}H with the values they hold: one over the limit, a frame over {} bytes", model.limits.max_frame)
+                format!("Write {count} registers from {wstart:04X}H with the values they hold: one over the limit, a frame over {} bytes", model.limits.max_frame_in(mode))
             };
             let src = if name == "limit" {
                 wsource.clone()
             } else {
                 format!(
                     "{wsource}; {}",
-                    cite(
+                    cite_or(
                         model,
-                        &model.silence[&crate::model::SilenceReason::FrameTooLong]
+                        model
+                            .silence
+                            .get(&crate::model::SilenceReason::FrameTooLong),
+                        "silence.frame-too-long"
                     )
                 )
             };

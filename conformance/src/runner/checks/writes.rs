@@ -6,6 +6,7 @@ use super::*;
 
 pub(super) fn writes(model: &DriveModel, mode: Mode, m: &str, out: &mut Vec<Check>) {
     let _ = mode;
+    blocks(model, m, out);
     // A value-preserving write to the first parameter of every group, read back.
     for g in model.parameter_groups() {
         let Some(r) = g.registers.first().map(|r| *r.start()) else {
@@ -80,7 +81,13 @@ pub(super) fn writes(model: &DriveModel, mode: Mode, m: &str, out: &mut Vec<Chec
         out.push(refused_write(
             format!("{m}.write.out-of-range"),
             format!("Write FFFFH (655.35 Hz) to the frequency command {f:04X}H, and read it back"),
-            cite(model, &model.rule(crate::model::Fault::DataOutOfRange).fact),
+            cite_or(
+                model,
+                model
+                    .rule(crate::model::Fault::DataOutOfRange)
+                    .map(|r| &r.fact),
+                "exceptions.data-out-of-range",
+            ),
             Target::stored(f),
             move |ctx, _| {
                 ctx.frame(Pdu::WriteSingle {
@@ -165,7 +172,11 @@ pub(super) fn writes(model: &DriveModel, mode: Mode, m: &str, out: &mut Vec<Chec
         out.push(refused_write(
             format!("{m}.write.read-only"),
             format!("Write 0000H to the monitor register {ro:04X}H (read-only), and read it back"),
-            cite(model, &model.rule(crate::model::Fault::ReadOnly).fact),
+            cite_or(
+                model,
+                model.rule(crate::model::Fault::ReadOnly).map(|r| &r.fact),
+                "exceptions.read-only",
+            ),
             Target::state(ro),
             move |ctx, _| {
                 ctx.frame(Pdu::WriteSingle {
@@ -184,7 +195,13 @@ pub(super) fn writes(model: &DriveModel, mode: Mode, m: &str, out: &mut Vec<Chec
         out.push(refused_write(
             format!("{m}.write.reserved"),
             format!("Write 0000H to the reserved register {res:04X}H, and read it back"),
-            cite(model, &model.rule(crate::model::Fault::ReservedWrite).fact),
+            cite_or(
+                model,
+                model
+                    .rule(crate::model::Fault::ReservedWrite)
+                    .map(|r| &r.fact),
+                "exceptions.reserved-write",
+            ),
             Target::stored(res),
             move |ctx, _| {
                 ctx.frame(Pdu::WriteSingle {
@@ -265,6 +282,69 @@ impl Target {
 /// reads back after every rejected write for the same reason). A stored register is
 /// journalled first, so a device that takes the write gets its value back at the end.
 /// `build` gets the values read before (None where the read failed).
+/// The writes a v2 description's blocks predict: a value-preserving write to the first
+/// register of each writable block (read back where it can be read), a write to a
+/// read-only block, and writes just outside a block's bounds, each refused.
+fn blocks(model: &DriveModel, m: &str, out: &mut Vec<Check>) {
+    for b in &model.blocks {
+        let r = *b.span.start();
+        let label = b.name.clone().unwrap_or_else(|| format!("block {r:04X}"));
+        let name = slug(&label);
+        let source = cite(model, &b.fact);
+        match b.access {
+            Access::ReadWrite => out.push(check(
+                format!("{m}.write.{name}"),
+                format!("Write the first register of {label} ({r:04X}H) with the value it holds, and read it back"),
+                source.clone(),
+                true,
+                false,
+                move |ctx| {
+                    let orig = match ctx.remember(r)? {
+                        Ok(v) => v,
+                        Err(e) => return Ok(Verdict::setup_failed(&format!("read {r:04X}H first"), e)),
+                    };
+                    let w = ctx.probe(ctx.frame(Pdu::WriteSingle { register: r, value: orig }), None)?;
+                    let rb = ctx.probe(
+                        ctx.frame(Pdu::ReadRequest { start: r, count: 1 }),
+                        Some((vec![Some(orig)], write_fact())),
+                    )?;
+                    Ok(verdict(&[&w, &rb], format!("{r:04X}H accepted {orig:04X}H and reads it back")))
+                },
+            )),
+            Access::ReadOnly => out.push(refused_write(
+                format!("{m}.write.{name}.read-only"),
+                format!("Write the value it holds to {r:04X}H of {label} (read-only), and read it back"),
+                format!(
+                    "{source}; {}",
+                    cite_or(model, model.rule(crate::model::Fault::ReadOnly).map(|x| &x.fact), "exceptions.read-only")
+                ),
+                Target::state(r),
+                move |ctx, before| {
+                    ctx.frame(Pdu::WriteSingle { register: r, value: before.first().copied().flatten().unwrap_or(0) })
+                },
+            )),
+            _ => {}
+        }
+        let outside = [
+            ("over-max", b.max.and_then(|x| x.checked_add(1))),
+            ("under-min", b.min.and_then(|x| x.checked_sub(1))),
+        ];
+        for (which, value) in outside {
+            let Some(value) = value else { continue };
+            out.push(refused_write(
+                format!("{m}.write.{name}.{which}"),
+                format!("Write {value:04X}H to {r:04X}H, outside the bounds of {label}, and read it back"),
+                format!(
+                    "{source}; {}",
+                    cite_or(model, model.rule(crate::model::Fault::DataOutOfRange).map(|x| &x.fact), "exceptions.data-out-of-range")
+                ),
+                Target::stored(r),
+                move |ctx, _| ctx.frame(Pdu::WriteSingle { register: r, value }),
+            ));
+        }
+    }
+}
+
 pub(super) fn refused_write(
     id: String,
     title: String,
