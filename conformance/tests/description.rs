@@ -261,6 +261,8 @@ fn as_before(text: &str) -> String {
             ("naming", "None,") => i += 1,
             ("modes", "[") => skip_to(format!("{indent}],"), &mut i),
             ("naming", "Some(") => skip_to(format!("{indent}),"), &mut i),
+            // Where the description came from (the report names it), not what it says.
+            ("source", "Source {") => skip_to(format!("{indent}}},"), &mut i),
             (f, "Some(") if UNWRAPPED.contains(&f) => {
                 out.push(format!("{indent}{f}: {}", lines[i + 1].trim_start()));
                 i += 2;

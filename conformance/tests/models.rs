@@ -654,8 +654,10 @@ fn v2_device() -> serde_json::Value {
     })
 }
 
+/// The loader's own error (lint, which runs first on every load, words some of the same
+/// faults its way: `tests/model_lint.rs`).
 fn v2_error(v: &serde_json::Value) -> conformance::model::ModelError {
-    DriveModel::from_json("device-x", &v.to_string()).unwrap_err()
+    DriveModel::from_json_unlinted("device-x", &v.to_string()).unwrap_err()
 }
 
 #[test]
@@ -920,8 +922,16 @@ fn a_copied_f510_file_keeps_its_example_register_inside_a_v2_block() {
     assert_eq!(m.example_registers.len(), 1);
     // With another access it contradicts the block: an overlap.
     v["example_registers"][0]["access"] = "read-only".into();
-    let e = DriveModel::from_json("copied", &v.to_string()).unwrap_err();
+    let e = DriveModel::from_json_unlinted("copied", &v.to_string()).unwrap_err();
     assert!(e.to_string().contains("overlap"), "{e}");
+    // Lint, first on every load, says so too, naming the entry and the block.
+    let e = DriveModel::from_json("copied", &v.to_string()).unwrap_err();
+    assert!(
+        e.to_string().contains(
+            "example_registers[0].access: example register 0123H is read-only but blocks[0]"
+        ),
+        "{e}"
+    );
 }
 
 #[test]
@@ -930,17 +940,17 @@ fn a_v1_file_keeps_every_field_it_requires() {
     for field in ["loop_back", "silence", "identification", "limits", "manual"] {
         let mut v: serde_json::Value = serde_json::from_str(text).unwrap();
         v.as_object_mut().unwrap().remove(field);
-        let e = DriveModel::from_json("f510", &v.to_string()).unwrap_err();
+        let e = DriveModel::from_json_unlinted("f510", &v.to_string()).unwrap_err();
         assert_eq!(e.path(), Some(field), "{e}");
         assert!(e.to_string().contains("schema_version 1 requires"), "{e}");
     }
     let mut v: serde_json::Value = serde_json::from_str(text).unwrap();
     v["modes"] = serde_json::json!(["rtu"]);
-    let e = DriveModel::from_json("f510", &v.to_string()).unwrap_err();
+    let e = DriveModel::from_json_unlinted("f510", &v.to_string()).unwrap_err();
     assert_eq!(e.path(), Some("modes"), "{e}");
     let mut v: serde_json::Value = serde_json::from_str(text).unwrap();
     v["blocks"] = serde_json::json!([]);
-    let e = DriveModel::from_json("f510", &v.to_string()).unwrap_err();
+    let e = DriveModel::from_json_unlinted("f510", &v.to_string()).unwrap_err();
     assert!(e.to_string().contains("schema_version 2 field"), "{e}");
 }
 

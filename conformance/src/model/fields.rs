@@ -91,6 +91,14 @@ pub(super) fn v1_required(f: &ModelFile) -> Vec<&'static str> {
             need(l.max_frame_bytes.is_some(), "limits.max_frame_bytes");
             need(l.read_registers.is_some(), "limits.read_registers");
             need(l.write_registers.is_some(), "limits.write_registers");
+            if let Some(p) = &l.read_registers {
+                need(p.rtu.is_some(), "limits.read_registers.rtu");
+                need(p.ascii.is_some(), "limits.read_registers.ascii");
+            }
+            if let Some(p) = &l.write_registers {
+                need(p.rtu.is_some(), "limits.write_registers.rtu");
+                need(p.ascii.is_some(), "limits.write_registers.ascii");
+            }
             need(l.same_group.is_some(), "limits.same_group");
             need(l.response_time_ms.is_some(), "limits.response_time_ms");
         }

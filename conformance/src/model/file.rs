@@ -243,10 +243,12 @@ pub struct ValueFile<T> {
 /// A limit per transmission mode.
 #[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct PerModeFile {
-    /// RTU.
-    pub rtu: u16,
-    /// ASCII.
-    pub ascii: u16,
+    /// RTU (required where the description serves RTU, and in schema_version 1).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub rtu: Option<u16>,
+    /// ASCII (required where the description serves ASCII, and in schema_version 1).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub ascii: Option<u16>,
     /// Basis and citation.
     #[serde(flatten)]
     pub fact: FactFile,

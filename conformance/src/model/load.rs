@@ -228,10 +228,31 @@ impl DriveModel {
                 check_fact(m, what, fact)?;
             }
         }
+        // A count is stated for each mode the description serves; a mode it does not
+        // serve takes the specification's, which nothing sends in that mode reads.
+        for (p, what) in [
+            (&l.read_registers, "limits.read_registers"),
+            (&l.write_registers, "limits.write_registers"),
+        ] {
+            if let Some(p) = p {
+                for &mode in &modes {
+                    let stated = match mode {
+                        Mode::Rtu => p.rtu.is_some(),
+                        Mode::Ascii => p.ascii.is_some(),
+                    };
+                    if !stated {
+                        return Err(at(
+                            &format!("{what}.{mode}"),
+                            format!("no count for {mode}, a mode the description serves"),
+                        ));
+                    }
+                }
+            }
+        }
         let per_mode = |p: &Option<file::PerModeFile>, n: u16| match p {
             Some(p) => PerMode {
-                rtu: p.rtu,
-                ascii: p.ascii,
+                rtu: p.rtu.unwrap_or(n),
+                ascii: p.ascii.unwrap_or(n),
                 fact: Fact::from_file(&p.fact),
             },
             None => PerMode {
