@@ -219,10 +219,13 @@ pub fn draft(learned: &Learned, id: &str, date: &str) -> Value {
         d.insert("limits".into(), Value::Object(limits));
     }
 
+    // A block whose growth had not read anything yet when learn stopped (Ctrl-C, the
+    // cap) has no request to cite: it is left out, and the notes say so.
     let blocks: Vec<Value> = learned
         .map
         .blocks
         .iter()
+        .filter(|b| !b.shown_by.request.is_empty())
         .map(|b| {
             let mut m = observed(&b.shown_by);
             m.insert("first".into(), json!(hex4(b.first)));
@@ -271,6 +274,13 @@ fn notes(l: &Learned) -> String {
         m.stride
     ));
     for b in &l.map.blocks {
+        if b.shown_by.request.is_empty() {
+            n.push(format!(
+                "A block from {:04X}H was being measured when learn stopped: not written (no read of it was kept to cite).",
+                b.first
+            ));
+            continue;
+        }
         if !b.start_shown {
             n.push(format!(
                 "Block {:04X}H..{:04X}H starts at the first register searched: it may start lower.",

@@ -170,8 +170,12 @@ fn loader(out: &mut Lints<'_>) {
                 message,
             });
         }
-        ModelError::Invalid { problem, .. } => {
-            let (path, message) = loader_path(out.text, &problem);
+        // The loader names the field where it can; else its message may say it.
+        ModelError::Invalid { path, problem, .. } => {
+            let (path, message) = match JsonPath::parse(&path) {
+                Some(p) if !path.is_empty() => (p, problem),
+                _ => loader_path(out.text, &problem),
+            };
             out.push(Severity::Error, &path, message);
         }
         other => out.push(Severity::Error, &JsonPath::default(), other.to_string()),
