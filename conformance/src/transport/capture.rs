@@ -901,51 +901,70 @@ mod tests {
         );
     }
 
+    /// An in-memory link that says what a paced link says: its first `broken` sends were
+    /// broken by its host ([`Transport::send_was_broken`]), and the simulator at its other
+    /// end told when it began its replies (`starts`, [`Transport::peer_reply_starts`]).
+    struct Shaped {
+        inner: memory::MemoryEnd,
+        broken: u32,
+        sends: u32,
+        starts: Option<crate::transport::ReplyStarts>,
+    }
+
+    impl Shaped {
+        fn new(inner: memory::MemoryEnd) -> Self {
+            Shaped {
+                inner,
+                broken: 0,
+                sends: 0,
+                starts: None,
+            }
+        }
+    }
+
+    impl Transport for Shaped {
+        fn send(&mut self, bytes: &[u8]) -> Result<(), TransportError> {
+            self.sends += 1;
+            self.inner.send(bytes)
+        }
+        fn recv(&mut self, buf: &mut [u8], t: Duration) -> Result<usize, TransportError> {
+            self.inner.recv(buf, t)
+        }
+        fn discard_input(&mut self) -> Result<(), TransportError> {
+            self.inner.discard_input()
+        }
+        fn describe(&self) -> String {
+            "a paced link".into()
+        }
+        fn line_timing(&self) -> Option<LineSettings> {
+            None
+        }
+        fn kind(&self) -> LinkKind {
+            LinkKind::Pty
+        }
+        fn send_was_broken(&self) -> bool {
+            self.sends <= self.broken
+        }
+        fn peer_reply_starts(&self) -> Option<crate::transport::ReplyStarts> {
+            self.starts.clone()
+        }
+    }
+
     /// A link whose host stalled inside a send (on a line whose receiver is not told the
     /// silences, see [`Transport::send_was_broken`]): each broken send is its own outbound
     /// packet flagged "wrong inter-frame gap" (bit 27) with a comment saying the host broke
     /// it, which [`capture::broken_by_host`] reads back; the next, whole send is plain.
     #[test]
     fn a_send_the_host_broke_is_flagged_and_commented_and_the_next_one_is_not() {
-        struct Broke {
-            inner: memory::MemoryEnd,
-            broken: u32,
-            sends: u32,
-        }
-        impl Transport for Broke {
-            fn send(&mut self, bytes: &[u8]) -> Result<(), TransportError> {
-                self.sends += 1;
-                self.inner.send(bytes)
-            }
-            fn recv(&mut self, buf: &mut [u8], t: Duration) -> Result<usize, TransportError> {
-                self.inner.recv(buf, t)
-            }
-            fn discard_input(&mut self) -> Result<(), TransportError> {
-                self.inner.discard_input()
-            }
-            fn describe(&self) -> String {
-                "a link its host stalls on".into()
-            }
-            fn line_timing(&self) -> Option<LineSettings> {
-                None
-            }
-            fn kind(&self) -> LinkKind {
-                LinkKind::Memory
-            }
-            fn send_was_broken(&self) -> bool {
-                self.sends <= self.broken
-            }
-        }
         let sink = Sink::default();
         let rec = Recorder::new(Box::new(sink.clone()), "test")
             .unwrap()
             .shared();
         let (a, _b) = memory::pair();
         let line = LineSettings::new(9600, 8, Parity::Even, 1);
-        let link = Broke {
-            inner: a,
+        let link = Shaped {
             broken: 2,
-            sends: 0,
+            ..Shaped::new(a)
         };
         let mut a = Captured::new(link, rec.clone(), Mode::Rtu, line);
         for _ in 0..3 {
@@ -971,10 +990,9 @@ mod tests {
             .unwrap()
             .shared();
         let (a, _b) = memory::pair();
-        let link = Broke {
-            inner: a,
+        let link = Shaped {
             broken: 1,
-            sends: 0,
+            ..Shaped::new(a)
         };
         let mut a = Captured::new(link, rec, Mode::Ascii, line);
         a.send(b":010300000001FB\r\n").unwrap();
@@ -995,33 +1013,6 @@ mod tests {
     /// not taken for this one's.
     #[test]
     fn a_reply_the_simulators_host_began_late_is_recorded_when_it_began_and_marked() {
-        struct Told {
-            inner: memory::MemoryEnd,
-            starts: crate::transport::ReplyStarts,
-        }
-        impl Transport for Told {
-            fn send(&mut self, bytes: &[u8]) -> Result<(), TransportError> {
-                self.inner.send(bytes)
-            }
-            fn recv(&mut self, buf: &mut [u8], t: Duration) -> Result<usize, TransportError> {
-                self.inner.recv(buf, t)
-            }
-            fn discard_input(&mut self) -> Result<(), TransportError> {
-                self.inner.discard_input()
-            }
-            fn describe(&self) -> String {
-                "an emulated line".into()
-            }
-            fn line_timing(&self) -> Option<LineSettings> {
-                None
-            }
-            fn kind(&self) -> LinkKind {
-                LinkKind::Pty
-            }
-            fn peer_reply_starts(&self) -> Option<crate::transport::ReplyStarts> {
-                Some(self.starts.clone())
-            }
-        }
         let sink = Sink::default();
         let rec = Recorder::new(Box::new(sink.clone()), "test")
             .unwrap()
@@ -1029,9 +1020,9 @@ mod tests {
         let (a, mut b) = memory::pair();
         let starts = crate::transport::ReplyStarts::default();
         let line = LineSettings::new(9600, 8, Parity::Even, 1);
-        let link = Told {
-            inner: a,
-            starts: starts.clone(),
+        let link = Shaped {
+            starts: Some(starts.clone()),
+            ..Shaped::new(a)
         };
         let mut a = Captured::new(link, rec, Mode::Rtu, line);
         let after = Duration::from_millis(10);
