@@ -132,7 +132,12 @@ impl Recorder {
         let comment = match (why, &self.label) {
             (Some(why), Some(label)) => Some(format!("{label}: {why}")),
             (Some(why), None) => Some(why.to_string()),
-            _ => note.map(str::to_string),
+            _ => None,
+        };
+        // Both where a whole ASCII frame is also marked (a reply begun late by the host).
+        let comment = match (comment, note) {
+            (Some(c), Some(n)) => Some(format!("{c}; {n}")),
+            (c, n) => c.or_else(|| n.map(str::to_string)),
         };
         let since = at.saturating_duration_since(self.origin).as_micros() as u64;
         let meta = PacketMeta {
@@ -372,8 +377,8 @@ impl<T: Transport> Captured<T> {
         }
         // Wireshark has no Modbus ASCII dissector: a whole ASCII frame says what it is in
         // RTU in its comment, which a reader can paste into anything that decodes RTU.
-        let note = match (why, self.mode) {
-            (None, Mode::Ascii) => {
+        let note = match self.mode {
+            Mode::Ascii => {
                 let mut rtu = [0u8; crate::codec::MAX_RTU_FRAME];
                 crate::codec::ascii_to_rtu(bytes, &mut rtu)
                     .ok()
