@@ -160,17 +160,12 @@ fn bar(quiet: bool) -> Option<indicatif::ProgressBar> {
 }
 
 pub fn run(args: LearnArgs) -> anyhow::Result<ExitCode> {
-    if args.id.is_empty()
-        || args.id.len() > 64
-        || !args
-            .id
-            .starts_with(|c: char| c.is_ascii_lowercase() || c.is_ascii_digit())
-        || !args
-            .id
-            .chars()
-            .all(|c| c.is_ascii_lowercase() || c.is_ascii_digit() || "._-".contains(c))
-    {
-        bail!("--id {:?}: a model id is lower-case letters, digits, '.', '_' and '-', starting with a letter or digit, at most 64", args.id);
+    if !conformance::model::valid_model_id(&args.id) {
+        bail!(
+            "--id {:?}: a model id is {}",
+            args.id,
+            conformance::model::MODEL_ID_RULE
+        );
     }
     if args.bauds.contains(&0) {
         bail!("-b 0 is no baud rate");

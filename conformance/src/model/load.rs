@@ -31,18 +31,9 @@ impl DriveModel {
                 ))
             }
         };
-        let id_ok = !m.is_empty()
-            && m.len() <= 64
-            && m.bytes().enumerate().all(|(i, c)| {
-                c.is_ascii_lowercase()
-                    || c.is_ascii_digit()
-                    || (i > 0 && matches!(c, b'.' | b'_' | b'-'))
-            });
+        let id_ok = valid_model_id(m);
         if !id_ok {
-            return Err(at(
-                "model",
-                format!("{m:?} is not an id: lower-case letters, digits, '.', '_', '-', 1..64 characters, starting with a letter or digit"),
-            ));
+            return Err(at("model", format!("{m:?} is not an id: {MODEL_ID_RULE}")));
         }
         if !v2 {
             if let Some(path) = v1_required(f).first() {

@@ -33,6 +33,21 @@ pub use crate::codec::{frame_len, read_response_len, write_request_len};
 
 use crate::codec::Mode;
 
+/// What a model id is, in words (`^[a-z0-9][a-z0-9._-]{0,63}$`).
+pub const MODEL_ID_RULE: &str =
+    "lower-case letters, digits, '.', '_' or '-', 1 to 64 characters, starting with a letter or digit";
+
+/// Whether `id` is a model id ([`MODEL_ID_RULE`]): the loader, `model lint`, `model
+/// learn --id` and `model import --model` all hold ids to this one rule.
+pub fn valid_model_id(id: &str) -> bool {
+    (1..=64).contains(&id.len())
+        && id.bytes().enumerate().all(|(i, c)| {
+            c.is_ascii_lowercase()
+                || c.is_ascii_digit()
+                || (i > 0 && matches!(c, b'.' | b'_' | b'-'))
+        })
+}
+
 /// The models, in the order reports list them.
 pub const MODELS: [&str; 5] = ["f510", "a510", "l510", "e510", "l510-legacy"];
 

@@ -103,13 +103,9 @@ fn pattern(p: &str, s: &str) -> Option<(bool, &'static str)> {
             },
             "XXXX or XXXX-YYYY in upper-case hex",
         ),
-        "^[a-z0-9][a-z0-9._-]{0,63}$" => (
-            (1..=64).contains(&s.len())
-                && s.bytes().enumerate().all(|(i, c)| {
-                    c.is_ascii_lowercase() || c.is_ascii_digit() || (i > 0 && matches!(c, b'.' | b'_' | b'-'))
-                }),
-            "lower-case letters, digits, '.', '_' or '-' (1 to 64, starting with a letter or digit)",
-        ),
+        "^[a-z0-9][a-z0-9._-]{0,63}$" => {
+            (crate::model::valid_model_id(s), crate::model::MODEL_ID_RULE)
+        }
         _ => return None,
     })
 }
