@@ -19,8 +19,8 @@ use conformance::transport::serial::SerialTransport;
 use conformance::transport::tcp::TcpTransport;
 use conformance::transport::Transport;
 
-use super::common::{parse_number, ModeArg, Number, ParityArg, RtsArgs};
-use super::scan_cmd::{open_link, search_of};
+use super::common::{parse_number, Number, RtsArgs};
+use super::scan_cmd::{open_link, LineLists};
 
 const AFTER_HELP: &str = "\
 What it does, in order:
@@ -74,21 +74,8 @@ pub struct LearnArgs {
     /// A serial gateway carrying RTU or ASCII frames over TCP.
     #[arg(long, value_name = "HOST:PORT", group = "target")]
     tcp: Option<String>,
-    /// Baud rates to try (default: as scan).
-    #[arg(short = 'b', long = "baud", value_delimiter = ',')]
-    bauds: Vec<u32>,
-    /// Parities to try (default: even,none,odd).
-    #[arg(short = 'P', long = "parity", value_enum, value_delimiter = ',')]
-    parities: Vec<ParityArg>,
-    /// Data bits to try (default: 8).
-    #[arg(short = 'd', long = "data-bits", value_delimiter = ',', value_parser = clap::value_parser!(u8).range(7..=8))]
-    data_bits: Vec<u8>,
-    /// Stop bits to try (default: 1).
-    #[arg(short = 's', long = "stop-bits", value_delimiter = ',', value_parser = clap::value_parser!(u8).range(1..=2))]
-    stop_bits: Vec<u8>,
-    /// Modes to try (default: rtu,ascii).
-    #[arg(short = 'm', long = "mode", value_enum, value_delimiter = ',')]
-    modes: Vec<ModeArg>,
+    #[command(flatten)]
+    lines: LineLists,
     /// Node address of the device (default: the first found among 1..247).
     #[arg(short = 'a', long = "address", value_name = "N", value_parser = Number::<u8>::quiet())]
     address: Option<u8>,
@@ -167,22 +154,13 @@ pub fn run(args: LearnArgs) -> anyhow::Result<ExitCode> {
             conformance::model::MODEL_ID_RULE
         );
     }
-    if args.bauds.contains(&0) {
-        bail!("-b 0 is no baud rate");
-    }
+    let search = args.lines.search()?;
     if args.rts.rts && args.port.is_none() {
         bail!("--rts drives the RTS line of a serial port: give --port PATH");
     }
     if args.address == Some(0) {
         bail!("-a 0 is the broadcast address, which is never answered");
     }
-    let search = search_of(
-        &args.bauds,
-        &args.parities,
-        &args.data_bits,
-        &args.stop_bits,
-        &args.modes,
-    );
     let mut settings = search.settings();
     if settings.is_empty() {
         bail!("no setting to try: RTU needs 8 data bits (-d 8)");
@@ -202,7 +180,7 @@ pub fn run(args: LearnArgs) -> anyhow::Result<ExitCode> {
         &args.rts,
         None,
         &addresses,
-        !args.modes.is_empty(),
+        !args.lines.modes.is_empty(),
     )?;
     // One setting and one node, all given: one try, which waits as long as any
     // request of the learn (scan's short windows are for sweeping many).

@@ -93,21 +93,8 @@ pub struct ScanArgs {
     /// mbap (Modbus TCP: the addresses swept are the gateway's unit ids; RTU only).
     #[arg(long, value_enum, requires = "tcp")]
     framing: Option<Framing>,
-    /// Baud rates to try (default: 9600,19200,38400,57600,115200,4800,2400,1200).
-    #[arg(short = 'b', long = "baud", value_delimiter = ',')]
-    bauds: Vec<u32>,
-    /// Parities to try (default: even,none,odd).
-    #[arg(short = 'P', long = "parity", value_enum, value_delimiter = ',')]
-    parities: Vec<ParityArg>,
-    /// Data bits to try (default: 8; 7 is ASCII only).
-    #[arg(short = 'd', long = "data-bits", value_delimiter = ',', value_parser = clap::value_parser!(u8).range(7..=8))]
-    data_bits: Vec<u8>,
-    /// Stop bits to try (default: 1; a UART checks only its first stop bit).
-    #[arg(short = 's', long = "stop-bits", value_delimiter = ',', value_parser = clap::value_parser!(u8).range(1..=2))]
-    stop_bits: Vec<u8>,
-    /// Modes to try (default: rtu,ascii).
-    #[arg(short = 'm', long = "mode", value_enum, value_delimiter = ',')]
-    modes: Vec<ModeArg>,
+    #[command(flatten)]
+    lines: LineLists,
     /// Node addresses to try: ranges and single addresses, comma-separated (1-247,
     /// 1-32, 17, 1,2,5); a bare number is decimal, hex with H suffix or 0x prefix.
     #[arg(long, value_name = "LIST", default_value = "1-247")]
@@ -190,16 +177,7 @@ pub fn address_ranges(addresses: &[u8]) -> String {
 
 pub fn run(args: ScanArgs) -> anyhow::Result<ExitCode> {
     let addresses = parse_addresses(&args.addresses)?;
-    let search = search_of(
-        &args.bauds,
-        &args.parities,
-        &args.data_bits,
-        &args.stop_bits,
-        &args.modes,
-    );
-    if args.bauds.contains(&0) {
-        bail!("-b 0 is no baud rate");
-    }
+    let search = args.lines.search()?;
     if args.rts.rts && args.port.is_none() {
         bail!("--rts drives the RTS line of a serial port: give --port PATH");
     }
@@ -220,7 +198,7 @@ pub fn run(args: ScanArgs) -> anyhow::Result<ExitCode> {
         &args.rts,
         capture.as_ref(),
         &addresses,
-        !args.modes.is_empty(),
+        !args.lines.modes.is_empty(),
     )?;
     let config = ScanConfig {
         settings,
@@ -295,27 +273,48 @@ pub fn run(args: ScanArgs) -> anyhow::Result<ExitCode> {
     })
 }
 
-/// The settings to search, from the options as given (empty: the defaults).
-pub(super) fn search_of(
-    bauds: &[u32],
-    parities: &[ParityArg],
-    data_bits: &[u8],
-    stop_bits: &[u8],
-    modes: &[ModeArg],
-) -> Search {
-    Search {
-        bauds: bauds.to_vec(),
-        parities: parities
-            .iter()
-            .map(|p| match p {
-                ParityArg::None => Parity::None,
-                ParityArg::Even => Parity::Even,
-                ParityArg::Odd => Parity::Odd,
-            })
-            .collect(),
-        stop_bits: stop_bits.to_vec(),
-        data_bits: data_bits.to_vec(),
-        modes: modes.iter().map(|&m| Mode::from(m)).collect(),
+/// The line settings and modes a search tries (`scan`, `model learn`), each a list.
+#[derive(Debug, Args)]
+pub(super) struct LineLists {
+    /// Baud rates to try (default: 9600,19200,38400,57600,115200,4800,2400,1200).
+    #[arg(short = 'b', long = "baud", value_delimiter = ',')]
+    pub bauds: Vec<u32>,
+    /// Parities to try (default: even,none,odd).
+    #[arg(short = 'P', long = "parity", value_enum, value_delimiter = ',')]
+    pub parities: Vec<ParityArg>,
+    /// Data bits to try (default: 8; 7 is ASCII only).
+    #[arg(short = 'd', long = "data-bits", value_delimiter = ',', value_parser = clap::value_parser!(u8).range(7..=8))]
+    pub data_bits: Vec<u8>,
+    /// Stop bits to try (default: 1; a UART checks only its first stop bit).
+    #[arg(short = 's', long = "stop-bits", value_delimiter = ',', value_parser = clap::value_parser!(u8).range(1..=2))]
+    pub stop_bits: Vec<u8>,
+    /// Modes to try (default: rtu,ascii).
+    #[arg(short = 'm', long = "mode", value_enum, value_delimiter = ',')]
+    pub modes: Vec<ModeArg>,
+}
+
+impl LineLists {
+    /// The search these lists ask for (empty lists: the search's defaults); refused
+    /// where a baud rate is 0.
+    pub(super) fn search(&self) -> anyhow::Result<Search> {
+        if self.bauds.contains(&0) {
+            bail!("-b 0 is no baud rate");
+        }
+        Ok(Search {
+            bauds: self.bauds.clone(),
+            parities: self
+                .parities
+                .iter()
+                .map(|p| match p {
+                    ParityArg::None => Parity::None,
+                    ParityArg::Even => Parity::Even,
+                    ParityArg::Odd => Parity::Odd,
+                })
+                .collect(),
+            stop_bits: self.stop_bits.clone(),
+            data_bits: self.data_bits.clone(),
+            modes: self.modes.iter().map(|&m| Mode::from(m)).collect(),
+        })
     }
 }
 
