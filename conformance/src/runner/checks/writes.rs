@@ -13,24 +13,11 @@ pub(super) fn writes(model: &DriveModel, mode: Mode, m: &str, out: &mut Vec<Chec
             continue;
         };
         let source = format!("{}, {}", model.manual, g.source);
-        out.push(check(
+        out.push(preserving_write(
             format!("{m}.write.{}", slug(&g.name)),
             format!("Write the first parameter of {} ({r:04X}H) with the value it holds, and read it back", g.name),
             source,
-            true,
-            false,
-            move |ctx| {
-                let orig = match ctx.remember(r)? {
-                    Ok(v) => v,
-                    Err(e) => return Ok(Verdict::setup_failed(&format!("read {r:04X}H first"), e)),
-                };
-                let w = ctx.probe(ctx.frame(Pdu::WriteSingle { register: r, value: orig }), None)?;
-                let rb = ctx.probe(
-                    ctx.frame(Pdu::ReadRequest { start: r, count: 1 }),
-                    Some((vec![Some(orig)], write_fact())),
-                )?;
-                Ok(verdict(&[&w, &rb], format!("{r:04X}H accepted {orig:04X}H and reads it back")))
-            },
+            r,
         ));
     }
     let fc = model.register_with_role(Role::FrequencyCommand);
@@ -292,24 +279,11 @@ fn blocks(model: &DriveModel, m: &str, out: &mut Vec<Check>) {
         let name = slug(&label);
         let source = cite(model, &b.fact);
         match b.access {
-            Access::ReadWrite => out.push(check(
+            Access::ReadWrite => out.push(preserving_write(
                 format!("{m}.write.{name}"),
                 format!("Write the first register of {label} ({r:04X}H) with the value it holds, and read it back"),
                 source.clone(),
-                true,
-                false,
-                move |ctx| {
-                    let orig = match ctx.remember(r)? {
-                        Ok(v) => v,
-                        Err(e) => return Ok(Verdict::setup_failed(&format!("read {r:04X}H first"), e)),
-                    };
-                    let w = ctx.probe(ctx.frame(Pdu::WriteSingle { register: r, value: orig }), None)?;
-                    let rb = ctx.probe(
-                        ctx.frame(Pdu::ReadRequest { start: r, count: 1 }),
-                        Some((vec![Some(orig)], write_fact())),
-                    )?;
-                    Ok(verdict(&[&w, &rb], format!("{r:04X}H accepted {orig:04X}H and reads it back")))
-                },
+                r,
             )),
             Access::ReadOnly => out.push(refused_write(
                 format!("{m}.write.{name}.read-only"),
@@ -343,6 +317,33 @@ fn blocks(model: &DriveModel, m: &str, out: &mut Vec<Check>) {
             ));
         }
     }
+}
+
+/// A value-preserving write: `r` read (and journalled), written back with 06H, read
+/// again, the value expected unchanged (a parameter group's first register; a writable
+/// block's first register).
+fn preserving_write(id: String, title: String, source: String, r: u16) -> Check {
+    check(id, title, source, true, false, move |ctx| {
+        let orig = match ctx.remember(r)? {
+            Ok(v) => v,
+            Err(e) => return Ok(Verdict::setup_failed(&format!("read {r:04X}H first"), e)),
+        };
+        let w = ctx.probe(
+            ctx.frame(Pdu::WriteSingle {
+                register: r,
+                value: orig,
+            }),
+            None,
+        )?;
+        let rb = ctx.probe(
+            ctx.frame(Pdu::ReadRequest { start: r, count: 1 }),
+            Some((vec![Some(orig)], write_fact())),
+        )?;
+        Ok(verdict(
+            &[&w, &rb],
+            format!("{r:04X}H accepted {orig:04X}H and reads it back"),
+        ))
+    })
 }
 
 pub(super) fn refused_write(
