@@ -65,7 +65,7 @@ table.found td.id{white-space:nowrap}table.found code.repro{font-size:11.5px;ove
 .facts table td:first-child{color:var(--muted);white-space:nowrap;padding-right:12px;vertical-align:top}
 table{border-collapse:collapse;width:100%}
 th,td{text-align:left;padding:4px 8px;border-bottom:1px solid var(--line);vertical-align:top}
-.facts td{border:none;padding:2px 0}
+.facts td{border:none;padding:2px 0;overflow-wrap:anywhere}
 th{background:#eef1f4;font-weight:600}
 td.num,th.num{text-align:right;font-variant-numeric:tabular-nums}
 .badge{display:inline-block;min-width:88px;text-align:center;padding:1px 6px;border-radius:3px;font-size:11.5px;font-weight:600;color:#fff}
@@ -247,10 +247,24 @@ fn finding_block(out: &mut String, r: &CheckResult, folded: bool, several: bool,
     out.push_str("</article>");
 }
 
+/// Whether the device was judged by a description file other than a built-in model.
+fn described_by_file(report: &Report) -> bool {
+    report.device.description.as_ref().is_some_and(|d| {
+        d.file.is_some() && !crate::model::MODELS.contains(&report.device.model.as_str())
+    })
+}
+
 fn header(out: &mut String, report: &Report) {
     let s = report.summary();
     let words = master::words(report);
     let what = match report.kind {
+        // A device described by a file of its own is no TECO drive.
+        ReportKind::Drive | ReportKind::Fuzz if described_by_file(report) => {
+            format!("{} device", report.device.model)
+        }
+        ReportKind::Monitor if described_by_file(report) => {
+            format!("{} devices, heard on the bus", report.device.model)
+        }
         ReportKind::Drive | ReportKind::Fuzz => format!("TECO {} drive", report.device.model),
         ReportKind::Monitor => format!("TECO {} drives, heard on the bus", report.device.model),
         ReportKind::Gate => match (&report.codec, report.master.is_some()) {
@@ -327,7 +341,7 @@ fn header(out: &mut String, report: &Report) {
                     out,
                     "description",
                     &format!(
-                        "{}, {} <span class=\"muted\">sha256 {}</span>",
+                        "{}<br>{}<br><span class=\"muted\">sha256 {}</span>",
                         esc(s.file_or_builtin()),
                         esc(&s.title),
                         esc(&s.sha256)
