@@ -679,3 +679,40 @@ fn mutated_captures_keep_every_law_of_the_oracle() {
         crate::oracle::capture_reader(&v);
     }
 }
+
+/// A capture's comments are anybody's text: the late mark is read back where this suite
+/// wrote it, and nothing else (cut, doubled, huge or non-ASCII) panics or is misread.
+#[test]
+fn the_late_mark_is_read_from_what_the_suite_writes_and_from_nothing_else() {
+    use std::time::Duration;
+    let ours = format!(
+        "check rtu.map.monitor.first: {LATE_ON_HOST}: 41250 us (the simulator on this host was due to begin it 10.0 ms after the request); as RTU: 01 03"
+    );
+    assert_eq!(
+        late_on_host(Some(&ours)),
+        Some(Duration::from_micros(41_250))
+    );
+    let huge = format!("{LATE_ON_HOST}: 18446744073709551615 us");
+    assert_eq!(
+        late_on_host(Some(&huge)),
+        Some(Duration::from_micros(u64::MAX))
+    );
+    for other in [
+        String::new(),
+        LATE_ON_HOST.to_string(),
+        format!("{LATE_ON_HOST}: us"),
+        format!("{LATE_ON_HOST}: -5 us"),
+        format!("{LATE_ON_HOST}: 18446744073709551616 us"),
+        format!("{LATE_ON_HOST}: 12"),
+        format!("{LATE_ON_HOST}:12 us"),
+        format!("{LATE_ON_HOST}: 1é us"),
+        "check rtu.bad-crc: sent with a wrong CRC on purpose".to_string(),
+    ] {
+        assert_eq!(late_on_host(Some(&other)), None, "{other:?}");
+    }
+    assert_eq!(late_on_host(None), None);
+    // Every cut of ours, at a character boundary: no panic.
+    for (i, _) in ours.char_indices() {
+        let _ = late_on_host(Some(&ours[..i]));
+    }
+}
