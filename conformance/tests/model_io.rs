@@ -42,30 +42,12 @@ fn an_exported_description_served_by_pymodbus_checks_clean() {
     let Some(peer) = common::pymodbus_sim_serial(&d, &sim) else {
         return;
     };
-    let (code, v) = common::check_device(
-        &d,
-        &[
-            "--model-file",
-            description,
-            "--port",
-            peer.port.to_str().unwrap(),
-            "--mode",
-            "rtu",
-            "-P",
-            "none",
-            "--expect",
-            concat!(
-                env!("CARGO_MANIFEST_DIR"),
-                "/tests/interop/pymodbus-sim.expect.toml"
-            ),
-        ],
-        Duration::from_secs(600),
-    );
+    let (code, v) = check_against(&d, description, &peer);
     let deviations: Vec<String> = v["checks"]
         .as_array()
         .unwrap()
         .iter()
-        .filter(|c| c["status"] == "DEVIATION" || c["status"] == "ERROR")
+        .filter(|c| c["status"] == "deviation" || c["status"] == "error")
         .map(|c| format!("{} {}: {}", c["id"], c["status"], c["summary"]))
         .collect();
     assert_eq!(code, Some(0), "{}", deviations.join("\n"));
@@ -85,6 +67,35 @@ fn an_exported_description_served_by_pymodbus_checks_clean() {
             .find(|c| c["id"] == id);
         assert_eq!(c.map(|c| &c["status"]), Some(&"pass".into()), "{id}: {c:?}");
     }
+}
+
+/// `check --model-file DESCRIPTION` in RTU against pymodbus's simulator serving it
+/// (`peer`), with pymodbus's own differences accepted by
+/// `tests/interop/pymodbus-sim.expect.toml`: the exit code and the report.
+fn check_against(
+    d: &std::path::Path,
+    description: &str,
+    peer: &common::SerialPeer,
+) -> (Option<i32>, serde_json::Value) {
+    common::check_device(
+        d,
+        &[
+            "--model-file",
+            description,
+            "--port",
+            peer.port.to_str().unwrap(),
+            "--mode",
+            "rtu",
+            "-P",
+            "none",
+            "--expect",
+            concat!(
+                env!("CARGO_MANIFEST_DIR"),
+                "/tests/interop/pymodbus-sim.expect.toml"
+            ),
+        ],
+        Duration::from_secs(600),
+    )
 }
 
 /// The map of the device (holding registers 0000H..0FFFH and 2500H..252FH), as an
@@ -211,25 +222,7 @@ fn an_imported_map_served_by_pymodbus_checks_clean() {
     let Some(peer) = common::pymodbus_sim_serial(&d, &sim) else {
         return;
     };
-    let (code, v) = common::check_device(
-        &d,
-        &[
-            "--model-file",
-            description,
-            "--port",
-            peer.port.to_str().unwrap(),
-            "--mode",
-            "rtu",
-            "-P",
-            "none",
-            "--expect",
-            concat!(
-                env!("CARGO_MANIFEST_DIR"),
-                "/tests/interop/pymodbus-sim.expect.toml"
-            ),
-        ],
-        Duration::from_secs(600),
-    );
+    let (code, v) = check_against(&d, description, &peer);
     assert_eq!(code, Some(0), "{v}");
     assert_eq!(v["device"]["model"], "x100");
 }
