@@ -190,6 +190,8 @@ fn a_wrong_setting_yields_garbage_and_is_skipped_early() {
         first: vec![1],
         response: Duration::from_millis(10),
         reply_window: None,
+        // Every address answers here (the talker's frames): nothing to ask again.
+        retries: 1,
     };
     let report = scan(&mut link, &config, &AtomicBool::new(false), &mut |_| {}).unwrap();
     stop.store(true, Ordering::Relaxed);

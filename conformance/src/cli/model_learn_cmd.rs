@@ -192,6 +192,8 @@ pub fn run(args: LearnArgs) -> anyhow::Result<ExitCode> {
         first: vec![addresses[0]],
         response: Duration::from_millis(10),
         reply_window,
+        // As scan's default: one lost reply is not a missing device.
+        retries: 1,
     };
     let progress = bar(args.quiet);
     let found = scan(link.as_mut(), &config, &stop, &mut |p| {

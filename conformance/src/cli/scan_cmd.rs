@@ -39,7 +39,10 @@ Strategy, most likely first:
      another speed or parity) drops that setting, and the address that drew it is
      tried next at every setting left;
   4. the first valid frame fixes the line's setting (one bus, one setting): the rest
-     of the range is swept there only, and the scan ends.
+     of the range is swept there only;
+  5. there, each address that drew no valid frame is asked again after the sweep
+     (--retries, default 1: a lost or damaged reply is not a missing device), bytes
+     that made no frame are reported as noise, and the scan ends.
 Settings searched by default: 9600, 19200, 38400, 57600, 115200, 4800, 2400, 1200
 baud; parity even, none, odd; 8 data bits, 1 stop bit; RTU and ASCII (48 settings). A
 UART checks only its first stop bit, so a device at 2 stop bits is found at 1 (give
@@ -106,6 +109,11 @@ pub struct ScanArgs {
     /// The devices' response time in milliseconds (default 10, the manuals').
     #[arg(long, value_name = "MS", default_value_t = 10)]
     response_time: u64,
+    /// At the line's setting, ask an address that drew no valid frame this many more
+    /// times, after the sweep (a lost or damaged reply is not a missing device; each
+    /// retry of a silent address costs one reply window).
+    #[arg(long, value_name = "N", default_value_t = 1)]
+    retries: u32,
     #[command(flatten)]
     rts: RtsArgs,
     /// Output format.
@@ -206,6 +214,7 @@ pub fn run(args: ScanArgs) -> anyhow::Result<ExitCode> {
         first: vec![1],
         response: Duration::from_millis(args.response_time),
         reply_window: args.reply_window.map(Duration::from_millis),
+        retries: args.retries,
     };
 
     let stop = super::interrupt::stop_flag()?;

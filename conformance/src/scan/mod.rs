@@ -17,6 +17,10 @@
 //! 4. Once a valid frame is heard, the setting is the line's (the devices of one bus
 //!    share it): the rest of the address range is swept at that setting only, and the
 //!    scan ends.
+//! 5. At the line's setting, an address that drew no valid frame is asked again, up to
+//!    [`ScanConfig::retries`] more times, after the sweep: one lost or damaged reply
+//!    (noise, a collision, a host that stalled) is not a missing device. Bytes that made
+//!    no frame there are kept as [`Noise`], never dropped unsaid.
 //!
 //! Through a gateway ([`link::ScanLink::searchable`] false) the line is set in the
 //! gateway: only the addresses (and the modes, where the gateway passes frames
@@ -53,7 +57,26 @@ pub struct ScanConfig {
     pub response: Duration,
     /// A reply window given instead of the derived one.
     pub reply_window: Option<Duration>,
+    /// How many more times an address that drew no valid frame at the line's setting is
+    /// asked (after the sweep).
+    pub retries: u32,
 }
+
+/// Bytes that made no frame, heard at the line's setting after a request (noise on the
+/// line, a collision, or a reply damaged on its way).
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Noise {
+    /// The address asked.
+    pub address: u8,
+    /// The bytes (at most [`probe::GARBAGE_KEPT`]).
+    pub bytes: Vec<u8>,
+}
+
+/// How many times one try's request is sent again after this host broke it.
+pub const HOST_RESENDS: u32 = 3;
+
+/// The [`Noise`] records kept (the rest are counted in [`ScanReport::noise_more`]).
+pub const NOISE_KEPT: usize = 32;
 
 /// A device found.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -103,6 +126,8 @@ pub struct SettingResult {
     pub setting: Setting,
     /// Tries made at it.
     pub tries: u32,
+    /// Of them, tries that asked an address again.
+    pub retried: u32,
     /// What became of it.
     pub verdict: Verdict,
     /// Its windows.
@@ -122,6 +147,17 @@ pub struct ScanReport {
     pub settings: Vec<SettingResult>,
     /// Tries made.
     pub tries: u64,
+    /// Of the tries, those that asked an address again (see [`ScanConfig::retries`]).
+    pub retried: u64,
+    /// Addresses found only when asked again.
+    pub found_on_retry: Vec<u8>,
+    /// Bytes that made no frame at the line's setting.
+    pub noise: Vec<Noise>,
+    /// Noise records not kept (beyond [`NOISE_KEPT`]).
+    pub noise_more: u64,
+    /// Requests sent again because this host broke them while pacing them onto a
+    /// pseudo-terminal (not tries: no device saw them whole).
+    pub host_resends: u64,
     /// Addresses in the range.
     pub addresses: usize,
     /// Time taken.
@@ -184,6 +220,7 @@ fn try_one(
     address: u8,
     slack: Duration,
     current: &mut Option<(LineSettings, crate::codec::Mode)>,
+    host_resends: &mut u64,
 ) -> Result<Outcome, TransportError> {
     if current.map(|c| c.0) != Some(setting.line) {
         link.set_line(&setting.line)?;
@@ -195,6 +232,24 @@ fn try_one(
     let req = request(setting.mode, address);
     let t = link.transport();
     t.send(&req)?;
+    // A request this host broke while pacing it onto a pseudo-terminal (a stall over
+    // t1.5 between two of its characters) is no try: a device drops it. Whatever comes
+    // back within a try's time is drained, and the request is sent again.
+    let mut resent = 0;
+    while t.send_was_broken() && resent < HOST_RESENDS {
+        resent += 1;
+        *host_resends += 1;
+        let end = Instant::now() + w.reply + w.rest;
+        let mut chunk = [0u8; 256];
+        loop {
+            let now = Instant::now();
+            if now >= end {
+                break;
+            }
+            t.recv(&mut chunk, end - now)?;
+        }
+        t.send(&req)?;
+    }
     let sent = t.sent_at().unwrap_or_else(Instant::now);
     let mut heard: Vec<u8> = Vec::new();
     let mut chunk = [0u8; 256];
@@ -267,6 +322,7 @@ pub fn scan(
         .map(|(s, w)| SettingResult {
             setting: *s,
             tries: 0,
+            retried: 0,
             verdict: Verdict::Untried,
             windows: *w,
         })
@@ -308,12 +364,28 @@ pub fn scan(
     let mut locked: Option<usize> = None;
     let mut found: Vec<Found> = Vec::new();
     let mut tries = 0u64;
+    let mut retried = 0u64;
+    // Retries planned for each address at the line's setting, in all and not yet made.
+    let mut asked_again = [0u32; 256];
+    let mut pending = [0u32; 256];
+    let mut found_on_retry: Vec<u8> = Vec::new();
+    let mut noise: Vec<Noise> = Vec::new();
+    let mut noise_more = 0u64;
+    let mut host_resends = 0u64;
     let mut stopped = None;
     let mut current: Option<(LineSettings, crate::codec::Mode)> = None;
 
     while let Some((s, a)) = queue.pop_front() {
-        if dead[s] || tried[s][usize::from(a)] || locked.is_some_and(|l| l != s) {
+        if dead[s] || locked.is_some_and(|l| l != s) {
             continue;
+        }
+        // An address already tried is asked again only as a retry planned for it.
+        let again = tried[s][usize::from(a)];
+        if again {
+            if locked != Some(s) || pending[usize::from(a)] == 0 {
+                continue;
+            }
+            pending[usize::from(a)] -= 1;
         }
         if stop.load(Ordering::Relaxed) {
             stopped = Some("interrupted".to_string());
@@ -329,6 +401,10 @@ pub fn scan(
         tried[s][usize::from(a)] = true;
         tries += 1;
         results[s].tries += 1;
+        if again {
+            retried += 1;
+            results[s].retried += 1;
+        }
         let outcome = try_one(
             link,
             &config.settings[s],
@@ -336,17 +412,37 @@ pub fn scan(
             a,
             slack,
             &mut current,
+            &mut host_resends,
         )?;
         done_us += cost(s);
+        // At the line's setting, an address that drew no valid frame is asked again
+        // after the sweep (at most `retries` more times).
+        let mut ask_again = |queue: &mut VecDeque<(usize, u8)>, total_us: &mut u64| {
+            if locked == Some(s) && asked_again[usize::from(a)] < config.retries {
+                asked_again[usize::from(a)] += 1;
+                pending[usize::from(a)] += 1;
+                queue.push_back((s, a));
+                *total_us += cost(s);
+            }
+        };
         match outcome {
             Outcome::Silent => {
                 if results[s].verdict == Verdict::Untried {
                     results[s].verdict = Verdict::Silent;
                 }
+                ask_again(&mut queue, &mut total_us);
             }
             Outcome::Garbage(bytes) => {
                 if locked.is_some() {
-                    // At the line's setting, garbage is noise on the line, not a sign.
+                    // At the line's setting, garbage is noise on the line (or a reply
+                    // damaged on its way), not a sign of another setting: kept, and the
+                    // address asked again.
+                    if noise.len() < NOISE_KEPT {
+                        noise.push(Noise { address: a, bytes });
+                    } else {
+                        noise_more += 1;
+                    }
+                    ask_again(&mut queue, &mut total_us);
                     continue;
                 }
                 dead[s] = true;
@@ -378,6 +474,9 @@ pub fn scan(
                         Answer::Value(v) => models_with_identification(v),
                         _ => Vec::new(),
                     };
+                    if again {
+                        found_on_retry.push(h.address);
+                    }
                     found.push(Found {
                         address: h.address,
                         asked: a,
@@ -397,6 +496,18 @@ pub fn scan(
                         .filter(|&&b| !tried[s][usize::from(b)])
                         .map(|&b| (s, b))
                         .collect();
+                    // The addresses tried here before it was known to be the line's
+                    // were silent (garbage would have dropped the setting): they are
+                    // asked again too, after the sweep.
+                    if config.retries > 0 {
+                        for &b in &config.addresses {
+                            if tried[s][usize::from(b)] && b != a {
+                                asked_again[usize::from(b)] += 1;
+                                pending[usize::from(b)] += 1;
+                                queue.push_back((s, b));
+                            }
+                        }
+                    }
                     total_us = done_us + queue.iter().map(|&(q, _)| cost(q)).sum::<u64>();
                     for (i, r) in results.iter_mut().enumerate() {
                         if i != s && r.verdict == Verdict::Untried {
@@ -414,10 +525,202 @@ pub fn scan(
         found,
         settings: results,
         tries,
+        retried,
+        found_on_retry,
+        noise,
+        noise_more,
+        host_resends,
         addresses: config.addresses.len(),
         elapsed: t0.elapsed(),
         stopped,
         response: config.response,
         slack,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::codec::timing::Parity;
+    use crate::codec::{frame_of_body, Mode};
+    use crate::transport::{LinkKind, Transport};
+
+    /// A line whose devices answer at once, from a script: `lost` replies to an address
+    /// are lost (silence) and `damaged` come back with their CRC broken, before it
+    /// answers whole.
+    struct Scripted {
+        present: Vec<u8>,
+        lost: Vec<u8>,
+        damaged: Vec<u8>,
+        asked: Vec<u8>,
+        pending: Vec<u8>,
+        /// Sends this host breaks while pacing them (a device drops them).
+        broken: Vec<u8>,
+        last_broken: bool,
+    }
+
+    impl Transport for Scripted {
+        fn send(&mut self, bytes: &[u8]) -> Result<(), TransportError> {
+            let a = bytes[0];
+            self.asked.push(a);
+            self.last_broken = false;
+            if let Some(i) = self.broken.iter().position(|&x| x == a) {
+                self.broken.remove(i);
+                self.last_broken = true;
+                return Ok(());
+            }
+            if !self.present.contains(&a) {
+                return Ok(());
+            }
+            if let Some(i) = self.lost.iter().position(|&x| x == a) {
+                self.lost.remove(i);
+                return Ok(());
+            }
+            let mut reply = frame_of_body(Mode::Rtu, &[a, 0x03, 0x02, 0x05, 0x10]).unwrap();
+            if let Some(i) = self.damaged.iter().position(|&x| x == a) {
+                self.damaged.remove(i);
+                let last = reply.len() - 1;
+                reply[last] ^= 0xFF;
+            }
+            self.pending = reply;
+            Ok(())
+        }
+        fn recv(&mut self, buf: &mut [u8], timeout: Duration) -> Result<usize, TransportError> {
+            if self.pending.is_empty() {
+                std::thread::sleep(timeout.min(Duration::from_millis(1)));
+                return Ok(0);
+            }
+            let n = self.pending.len().min(buf.len());
+            buf[..n].copy_from_slice(&self.pending[..n]);
+            self.pending.drain(..n);
+            Ok(n)
+        }
+        fn discard_input(&mut self) -> Result<(), TransportError> {
+            self.pending.clear();
+            Ok(())
+        }
+        fn describe(&self) -> String {
+            "scripted".into()
+        }
+        fn kind(&self) -> LinkKind {
+            LinkKind::Memory
+        }
+        fn line_timing(&self) -> Option<LineSettings> {
+            None
+        }
+        fn send_was_broken(&self) -> bool {
+            self.last_broken
+        }
+    }
+
+    impl ScanLink for Scripted {
+        fn set_line(&mut self, _line: &LineSettings) -> Result<(), TransportError> {
+            Ok(())
+        }
+        fn transport(&mut self) -> &mut dyn Transport {
+            self
+        }
+        fn searchable(&self) -> bool {
+            true
+        }
+        fn slack(&self) -> Duration {
+            Duration::from_millis(1)
+        }
+        fn describe(&self) -> String {
+            "scripted".into()
+        }
+    }
+
+    fn line(present: &[u8], lost: &[u8], damaged: &[u8]) -> Scripted {
+        Scripted {
+            present: present.to_vec(),
+            lost: lost.to_vec(),
+            damaged: damaged.to_vec(),
+            asked: Vec::new(),
+            pending: Vec::new(),
+            broken: Vec::new(),
+            last_broken: false,
+        }
+    }
+
+    fn config(retries: u32) -> ScanConfig {
+        ScanConfig {
+            settings: vec![Setting {
+                line: LineSettings::new(9600, 8, Parity::Even, 1),
+                mode: Mode::Rtu,
+            }],
+            addresses: (1..=6).collect(),
+            first: vec![1],
+            response: Duration::from_millis(1),
+            reply_window: Some(Duration::from_millis(5)),
+            retries,
+        }
+    }
+
+    fn found(r: &ScanReport) -> Vec<u8> {
+        r.found.iter().map(|f| f.address).collect()
+    }
+
+    #[test]
+    fn a_lost_reply_is_asked_again_after_the_sweep_and_found() {
+        let mut l = line(&[1, 2, 5], &[2], &[]);
+        let r = scan(&mut l, &config(1), &AtomicBool::new(false), &mut |_| {}).unwrap();
+        assert_eq!(found(&r), [1, 2, 5]);
+        assert_eq!(r.found_on_retry, [2]);
+        // The sweep, then each silent address once more (2, 3, 4, 6), in that order.
+        assert_eq!(l.asked, [1, 2, 3, 4, 5, 6, 2, 3, 4, 6]);
+        assert_eq!((r.tries, r.retried), (10, 4));
+        assert_eq!((r.settings[0].tries, r.settings[0].retried), (10, 4));
+        assert!(report::text(&r).contains("(6 of 6 addresses a setting at most)"));
+        // Without retries the lost reply is a missing device: what the option is for.
+        let mut l = line(&[1, 2, 5], &[2], &[]);
+        let r = scan(&mut l, &config(0), &AtomicBool::new(false), &mut |_| {}).unwrap();
+        assert_eq!(found(&r), [1, 5]);
+        assert_eq!((r.tries, r.retried), (6, 0));
+    }
+
+    #[test]
+    fn a_damaged_reply_at_the_line_setting_is_kept_as_noise_and_asked_again() {
+        let mut l = line(&[1, 2, 5], &[], &[2, 2]);
+        let r = scan(&mut l, &config(2), &AtomicBool::new(false), &mut |_| {}).unwrap();
+        assert_eq!(found(&r), [1, 2, 5]);
+        assert_eq!(r.found_on_retry, [2]);
+        assert_eq!(r.noise.len(), 2, "{:?}", r.noise);
+        assert!(r.noise.iter().all(|n| n.address == 2 && n.bytes.len() == 7));
+        // The setting stays the line's: damage there is not a sign of another setting.
+        assert_eq!(r.settings[0].verdict, Verdict::Answered);
+        let text = report::text(&r);
+        assert!(
+            text.contains("after a read of node 02H: 02 03 02 05 10"),
+            "{text}"
+        );
+        assert!(text.contains("found only then: 02H"), "{text}");
+    }
+
+    #[test]
+    fn a_silent_first_address_is_asked_again_once_the_line_setting_is_known() {
+        // Node 1's reply is lost before any device has answered: once node 2 fixes the
+        // line's setting, node 1 is asked again.
+        let mut l = line(&[1, 2], &[1], &[]);
+        let r = scan(&mut l, &config(1), &AtomicBool::new(false), &mut |_| {}).unwrap();
+        assert_eq!(found(&r), [1, 2]);
+        assert_eq!(r.found_on_retry, [1]);
+    }
+
+    #[test]
+    fn a_request_this_host_broke_is_sent_again_and_is_no_try() {
+        let mut l = line(&[1, 2, 5], &[], &[]);
+        l.broken = vec![2, 2];
+        let r = scan(&mut l, &config(0), &AtomicBool::new(false), &mut |_| {}).unwrap();
+        assert_eq!(found(&r), [1, 2, 5]);
+        assert_eq!(l.asked, [1, 2, 2, 2, 3, 4, 5, 6]);
+        assert_eq!((r.tries, r.host_resends), (6, 2));
+        assert!(report::text(&r).contains("sent again: 2 requests this host broke"));
+        // A host that breaks every send gives up after HOST_RESENDS: the try is silent.
+        let mut l = line(&[1, 2], &[], &[]);
+        l.broken = vec![2; 10];
+        let r = scan(&mut l, &config(0), &AtomicBool::new(false), &mut |_| {}).unwrap();
+        assert_eq!(found(&r), [1]);
+        assert_eq!(r.host_resends, u64::from(HOST_RESENDS));
+    }
 }

@@ -114,7 +114,7 @@ pub struct Sifted {
 }
 
 /// Most garbage bytes kept for a report.
-const GARBAGE_KEPT: usize = 64;
+pub const GARBAGE_KEPT: usize = 64;
 
 fn answer_of(mode: Mode, frame: &[u8]) -> Option<Heard> {
     let parts = frame_parts(mode, frame).ok()?;

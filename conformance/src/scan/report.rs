@@ -123,6 +123,51 @@ pub fn text(r: &ScanReport) -> String {
             );
         }
     }
+    if !r.noise.is_empty() {
+        let _ = writeln!(out);
+        let _ = writeln!(
+            out,
+            "noise at the line's setting (bytes that make no frame; the address was asked again):"
+        );
+        for n in &r.noise {
+            let _ = writeln!(
+                out,
+                "  after a read of node {:02X}H: {}",
+                n.address,
+                hex_bytes(&n.bytes)
+            );
+        }
+        if r.noise_more > 0 {
+            let _ = writeln!(out, "  and {} more, not kept", r.noise_more);
+        }
+    }
+    if r.retried > 0 {
+        let _ = writeln!(out);
+        let _ = writeln!(
+            out,
+            "asked again: {} tries to addresses that drew no valid frame{}",
+            r.retried,
+            if r.found_on_retry.is_empty() {
+                String::new()
+            } else {
+                format!(
+                    "; found only then: {}",
+                    r.found_on_retry
+                        .iter()
+                        .map(|a| format!("{a:02X}H"))
+                        .collect::<Vec<_>>()
+                        .join(", ")
+                )
+            }
+        );
+    }
+    if r.host_resends > 0 {
+        let _ = writeln!(
+            out,
+            "sent again: {} requests this host broke while pacing them (a stall between two characters; not tries)",
+            r.host_resends
+        );
+    }
     let count = |f: fn(&Verdict) -> bool| r.settings.iter().filter(|s| f(&s.verdict)).count();
     let _ = writeln!(out);
     let _ = writeln!(
@@ -132,7 +177,11 @@ pub fn text(r: &ScanReport) -> String {
         count(|v| matches!(v, Verdict::Silent)),
         count(|v| matches!(v, Verdict::Garbage { .. })),
         count(|v| matches!(v, Verdict::Untried | Verdict::Dropped)),
-        r.settings.iter().map(|s| s.tries).max().unwrap_or(0),
+        r.settings
+            .iter()
+            .map(|s| s.tries - s.retried)
+            .max()
+            .unwrap_or(0),
         r.addresses
     );
     if let Some(s) = r
@@ -186,6 +235,7 @@ pub fn json(r: &ScanReport) -> Value {
         "settings": r.settings.iter().map(|s| json!({
             "setting": s.setting.to_string(),
             "tries": s.tries,
+            "retried": s.retried,
             "verdict": match &s.verdict {
                 Verdict::Untried => "untried",
                 Verdict::Silent => "silent",
@@ -205,6 +255,14 @@ pub fn json(r: &ScanReport) -> Value {
             "reply_window_ms": ms(s.windows.reply),
         })).collect::<Vec<_>>(),
         "tries": r.tries,
+        "retried": r.retried,
+        "found_on_retry": r.found_on_retry,
+        "noise": r.noise.iter().map(|n| json!({
+            "address": n.address,
+            "bytes_hex": hex_bytes(&n.bytes),
+        })).collect::<Vec<_>>(),
+        "noise_more": r.noise_more,
+        "host_resends": r.host_resends,
         "addresses": r.addresses,
         "elapsed_ms": ms(r.elapsed),
         "stopped": r.stopped,

@@ -225,6 +225,7 @@ impl SerialTransport {
         let mut gaps = Vec::new();
         let mut due = std::time::Instant::now();
         let mut previous: Option<std::time::Instant> = None;
+        let mut previous_written: Option<std::time::Instant> = None;
         for (k, piece) in pieces.iter().enumerate() {
             if k > 0 {
                 due += gap;
@@ -260,6 +261,19 @@ impl SerialTransport {
                     self.untell(piece.len() - i);
                     return Err(self.err("write", e));
                 }
+                // A stall between the clock's reading above and the write (the thread
+                // preempted there) is on the line too: judged again by when the write
+                // returned.
+                let written = std::time::Instant::now();
+                if let Some(p) = previous_written {
+                    let silence = written
+                        .saturating_duration_since(p)
+                        .saturating_sub(char_time);
+                    if i > 0 && silence > t15 && self.tags.is_none() {
+                        self.broken = true;
+                    }
+                }
+                previous_written = Some(written);
                 due += char_time;
             }
         }
