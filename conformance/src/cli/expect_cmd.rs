@@ -6,7 +6,7 @@ use std::process::ExitCode;
 
 use anyhow::Context;
 use clap::Args;
-use conformance::expect::{self, Day, Expectations};
+use conformance::expect::{Day, Expectations};
 use conformance::report::Report;
 
 use super::report_cmd::{emit, load};
@@ -50,7 +50,7 @@ impl Loaded {
     /// Marks the report's results against the file (today's date judges expiry).
     pub fn apply(&self, report: &mut Report) {
         if let Some(f) = &self.file {
-            expect::apply(report, f, self.strict, Day::today());
+            conformance::report::apply_expectations(report, f, self.strict, Day::today());
         }
     }
 }
@@ -85,7 +85,7 @@ pub struct ExpectCmdArgs {
 
 pub fn run(args: ExpectCmdArgs) -> anyhow::Result<ExitCode> {
     let report = load(&args.from)?;
-    let text = expect::starting_file(
+    let text = conformance::report::starting_expectations(
         &report,
         &args.from.display().to_string(),
         args.reason.as_deref(),

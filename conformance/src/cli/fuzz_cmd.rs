@@ -13,9 +13,9 @@ use conformance::fuzz::{FuzzConfig, Writes};
 use conformance::runner::Options;
 use conformance::session::{self, SessionConfig};
 
-use super::check_cmd::{finish, format_for, Format, FORMAT_DEFAULT};
 use super::common::parse_duration;
 use super::link::{Resolved, SafetyArgs, TargetArgs};
+use super::output::{finish, format_for, Format, FORMAT_DEFAULT};
 
 const AFTER_HELP: &str = "\
 Examples:

@@ -9,8 +9,8 @@ use clap::Args;
 use conformance::gate::{self, Adapter, GateOptions};
 use conformance::vectors::VectorSet;
 
-use super::check_cmd::{Format, FORMAT_DEFAULT};
 use super::gate_run::Common;
+use super::output::{shell_quote, Format, FORMAT_DEFAULT};
 
 const AFTER_HELP: &str = "\
 The adapter protocol (line-delimited JSON on the adapter's stdin/stdout) is documented in
@@ -104,11 +104,6 @@ pub(super) fn this_program(command: &str) -> anyhow::Result<String> {
     let exe = std::env::current_exe()
         .context("--codec \"conformance ...\" runs this program, but its path cannot be found: give the path of the conformance binary (e.g. target/release/conformance adapter)")?;
     Ok(format!("{}{rest}", shell_quote(&exe.to_string_lossy())))
-}
-
-/// `text` as one word for `sh -c`.
-pub(super) fn shell_quote(text: &str) -> String {
-    format!("'{}'", text.replace('\'', "'\\''"))
 }
 
 fn parse_seed(s: &str) -> Result<u64, String> {

@@ -17,7 +17,7 @@ use conformance::gate::{Case, GateProgress, Hello};
 use conformance::report::{Codec, Report, ReportKind, RunOptions};
 use conformance::runner::CheckResult;
 
-use super::check_cmd::{finish, format_for, render, write_atomic, Format};
+use super::output::{finish, format_for, render, write_atomic, Format};
 
 /// The options `gate` shares between codecs and masters.
 pub struct Common {

@@ -14,9 +14,9 @@ use conformance::identify::{self, render, Identification, IdentifyConfig, PlanLi
 use conformance::model::{DriveModel, MODELS};
 use conformance::runner::Options;
 
-use super::check_cmd::write_atomic;
 use super::common::load_model;
 use super::link::{Link, TargetArgs};
+use super::output::write_atomic;
 use conformance::transport::capture::SharedRecorder;
 
 const AFTER_HELP: &str = "\

@@ -10,8 +10,8 @@ use conformance::codec::Mode;
 use conformance::gate::master::{self, MasterAdapter, MasterOptions, MasterSettings};
 
 use super::common::{load_model, ParityArg};
-use super::gate_cmd::shell_quote;
 use super::gate_run::Common;
+use super::output::shell_quote;
 
 /// Modes to run.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]

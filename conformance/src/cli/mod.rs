@@ -17,6 +17,7 @@ mod model_cmd;
 mod model_io_cmd;
 mod model_learn_cmd;
 mod monitor_cmd;
+mod output;
 mod report_cmd;
 mod requirements_cmd;
 mod scan_cmd;

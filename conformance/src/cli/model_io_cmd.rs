@@ -10,7 +10,7 @@ use clap::{Args, ValueEnum};
 use conformance::describe::{export_pymodbus_sim, import_csv, ImportOptions};
 use conformance::model::DriveModel;
 
-use super::check_cmd::write_atomic;
+use super::output::write_atomic;
 
 const IMPORT_HELP: &str = "\
 Examples:

@@ -17,8 +17,8 @@ use conformance::session::serial_kind;
 use conformance::transport::capture::Captured;
 use conformance::transport::serial::SerialTransport;
 
-use super::check_cmd::{finish, format_for, Format, FORMAT_DEFAULT};
 use super::common::{load_model, parse_nodes, NodeList, ParityArg};
+use super::output::{finish, format_for, Format, FORMAT_DEFAULT};
 
 const AFTER_HELP: &str = "\
 Examples:

@@ -9,8 +9,8 @@ use anyhow::Context;
 use clap::Args;
 use conformance::report::Report;
 
-use super::check_cmd::{format_for, render, write_atomic, Format, FORMAT_DEFAULT};
 use super::common::Number;
+use super::output::{format_for, render, write_atomic, Format, FORMAT_DEFAULT};
 
 const REPORT_AFTER_HELP: &str = "\
 Examples:

@@ -11,7 +11,7 @@ use conformance::report::requirements as render;
 use conformance::requirements::trace::{self, Universe};
 use conformance::requirements::Catalogue;
 
-use super::check_cmd::write_atomic;
+use super::output::write_atomic;
 
 const AFTER_HELP: &str = "\
 Every statement of the five manuals' Modbus chapters that a tester could observe on the

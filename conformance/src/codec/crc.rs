@@ -12,6 +12,13 @@
 //! the CRC value is 3C74H. So a vector's `printed` bytes are in transmission order, and
 //! the byte the manual calls "High" is the low byte of [`crc16`]'s result.
 //! [`CrcBytes`] holds that mapping in one place.
+//!
+//! The slice-by-8 tables are in [`super::crc_table`], the carry-less paths and the
+//! dispatcher that chooses among them in [`super::crc_clmul`]; this file is the API.
+
+pub use super::crc_clmul::CrcPath;
+pub use super::crc_table::crc16_update_table;
+use super::crc_table::{crc16_table_short, crc16_table_u64, POLY};
 
 /// The manuals' bitwise algorithm, step for step (F510 manual 1.0.1, "CRC Check"):
 /// load FFFFH; XOR each byte into the low byte; eight times shift right, XOR A001H when
@@ -32,43 +39,6 @@ pub fn crc16_reference(data: &[u8]) -> u16 {
         }
     }
     crc
-}
-
-/// Reflected polynomial of CRC-16/MODBUS.
-const POLY: u16 = 0xA001;
-
-/// `TABLES[k][b]` is the CRC register contribution of byte `b` followed by `k` zero bytes,
-/// which lets [`crc16`] consume eight bytes per step (slice-by-8).
-static TABLES: [[u16; 256]; 8] = build_tables();
-
-const fn build_tables() -> [[u16; 256]; 8] {
-    let mut tables = [[0u16; 256]; 8];
-    let mut b = 0;
-    while b < 256 {
-        let mut crc = b as u16;
-        let mut i = 0;
-        while i < 8 {
-            crc = if crc & 1 != 0 {
-                (crc >> 1) ^ POLY
-            } else {
-                crc >> 1
-            };
-            i += 1;
-        }
-        tables[0][b] = crc;
-        b += 1;
-    }
-    let mut k = 1;
-    while k < 8 {
-        let mut b = 0;
-        while b < 256 {
-            let prev = tables[k - 1][b];
-            tables[k][b] = (prev >> 8) ^ tables[0][(prev & 0xFF) as usize];
-            b += 1;
-        }
-        k += 1;
-    }
-    tables
 }
 
 /// CRC-16/MODBUS of `data`: the fast implementation used by the codec.
@@ -117,139 +87,6 @@ pub fn crc16_frame_ok(frame: &[u8]) -> bool {
 #[inline(never)]
 fn crc16_long_frame_ok(frame: &[u8]) -> bool {
     crc16_update(0xFFFF, frame) == 0
-}
-
-/// The portable table-driven CRC (slice-by-8), whatever the CPU: the fallback of
-/// [`crc16_update`], public so it can be benchmarked and tested on its own.
-#[inline]
-pub fn crc16_update_table(crc: u16, data: &[u8]) -> u16 {
-    let (words, rest) = data.split_at(data.len() & !7);
-    let crc = if words.is_empty() {
-        crc
-    } else {
-        crc16_table_words(crc, words)
-    };
-    crc16_table_short(crc, rest)
-}
-
-/// Slice-by-8 over whole eight-byte words (out of line: it loops).
-#[inline(never)]
-fn crc16_table_words(mut crc: u16, words: &[u8]) -> u16 {
-    for c in words.chunks_exact(8) {
-        let word = u64::from_le_bytes([c[0], c[1], c[2], c[3], c[4], c[5], c[6], c[7]]);
-        crc = crc16_table_u64(crc, word);
-    }
-    crc
-}
-
-/// The CRC over fewer than eight bytes (`rest.len() < 8`), inlined where it is used: an
-/// RTU request body is six bytes.
-#[inline(always)]
-fn crc16_table_short(crc: u16, rest: &[u8]) -> u16 {
-    let n = rest.len();
-    // Two to seven bytes in one step, as slice-by-8 does eight, without a loop that waits
-    // for each byte: with the register XORed into the
-    // first two bytes, the register becomes zero, and leading zero bytes then change
-    // nothing; so the bytes go to the top of a word and the eight-byte step finishes it.
-    // The two loads below overlap where n is not 2 or 4 (an overlapping byte is ORed in
-    // twice, harmlessly).
-    let word = match n {
-        0 => return crc,
-        1 => return (crc >> 8) ^ TABLES[0][usize::from((crc ^ u16::from(rest[0])) & 0xFF)],
-        2 | 3 => {
-            let first = u16::from_le_bytes([rest[0], rest[1]]);
-            let last = u16::from_le_bytes([rest[n - 2], rest[n - 1]]);
-            u64::from(first) | u64::from(last) << (8 * (n - 2))
-        }
-        _ => {
-            let first = u32::from_le_bytes([rest[0], rest[1], rest[2], rest[3]]);
-            let last = u32::from_le_bytes([rest[n - 4], rest[n - 3], rest[n - 2], rest[n - 1]]);
-            u64::from(first) | u64::from(last) << (8 * (n - 4))
-        }
-    };
-    crc16_table_u64(0, (word ^ u64::from(crc)) << (64 - 8 * n))
-}
-
-/// One slice-by-8 step: the register after eight bytes, `word` read little-endian.
-#[inline(always)]
-pub(super) fn crc16_table_u64(crc: u16, word: u64) -> u16 {
-    let w = word ^ u64::from(crc);
-    let b = |i: u32| usize::from((w >> (8 * i)) as u8);
-    TABLES[7][b(0)]
-        ^ TABLES[6][b(1)]
-        ^ TABLES[5][b(2)]
-        ^ TABLES[4][b(3)]
-        ^ TABLES[3][b(4)]
-        ^ TABLES[2][b(5)]
-        ^ TABLES[1][b(6)]
-        ^ TABLES[0][b(7)]
-}
-
-/// One implementation of CRC-16/MODBUS, so tests, the fuzz target and benches can force
-/// each path this CPU supports; [`crc16`] chooses among them by itself. Ordered from the
-/// narrowest to the widest, which is also the order of the dispatcher's tiers.
-#[doc(hidden)]
-#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash)]
-pub enum CrcPath {
-    /// Slice-by-8 tables, any CPU.
-    Table,
-    /// PCLMULQDQ folding, 128-bit lanes (x86-64).
-    Pclmul,
-    /// VPCLMULQDQ folding, 256-bit registers (x86-64 with AVX2, with or without AVX-512).
-    Avx2,
-    /// VPCLMULQDQ folding, 512-bit registers (x86-64 with AVX-512).
-    Avx512,
-}
-
-impl CrcPath {
-    /// Every path, supported here or not, narrowest first.
-    pub const ALL: [CrcPath; 4] = [
-        CrcPath::Table,
-        CrcPath::Pclmul,
-        CrcPath::Avx2,
-        CrcPath::Avx512,
-    ];
-
-    /// Whether this CPU can run the path.
-    pub fn available(self) -> bool {
-        match self {
-            CrcPath::Table => true,
-            CrcPath::Pclmul => super::crc_clmul::pclmul_available(),
-            CrcPath::Avx2 => super::crc_clmul::avx2_available(),
-            CrcPath::Avx512 => super::crc_clmul::avx512_available(),
-        }
-    }
-
-    /// The paths this CPU can run.
-    pub fn supported() -> impl Iterator<Item = CrcPath> {
-        Self::ALL.into_iter().filter(|p| p.available())
-    }
-
-    /// A short name, for test messages, bench ids and `CONFORMANCE_CRC_PATH`.
-    pub const fn name(self) -> &'static str {
-        match self {
-            CrcPath::Table => "table",
-            CrcPath::Pclmul => "pclmul",
-            CrcPath::Avx2 => "avx2",
-            CrcPath::Avx512 => "avx512",
-        }
-    }
-
-    /// The path of a [`name`](Self::name), `None` for any other text.
-    pub fn from_name(name: &str) -> Option<CrcPath> {
-        Self::ALL.into_iter().find(|p| p.name() == name)
-    }
-
-    /// The shortest input this path's own kernel folds: [`crc16_update_with`] hands a
-    /// shorter one to a narrower path (the width of one register; 0 for the table).
-    pub const fn min_len(self) -> usize {
-        match self {
-            CrcPath::Table => 0,
-            CrcPath::Pclmul => 16,
-            CrcPath::Avx2 => 32,
-            CrcPath::Avx512 => 64,
-        }
-    }
 }
 
 /// The dispatcher's tier on this CPU: the widest path [`crc16`] takes for long inputs

@@ -64,7 +64,72 @@
 
 use std::sync::atomic::{AtomicU8, Ordering};
 
-use crate::codec::crc::CrcPath;
+/// One implementation of CRC-16/MODBUS, so tests, the fuzz target and benches can force
+/// each path this CPU supports; [`crc16`](super::crc::crc16) chooses among them by itself. Ordered from the
+/// narrowest to the widest, which is also the order of the dispatcher's tiers.
+#[doc(hidden)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash)]
+pub enum CrcPath {
+    /// Slice-by-8 tables, any CPU.
+    Table,
+    /// PCLMULQDQ folding, 128-bit lanes (x86-64).
+    Pclmul,
+    /// VPCLMULQDQ folding, 256-bit registers (x86-64 with AVX2, with or without AVX-512).
+    Avx2,
+    /// VPCLMULQDQ folding, 512-bit registers (x86-64 with AVX-512).
+    Avx512,
+}
+
+impl CrcPath {
+    /// Every path, supported here or not, narrowest first.
+    pub const ALL: [CrcPath; 4] = [
+        CrcPath::Table,
+        CrcPath::Pclmul,
+        CrcPath::Avx2,
+        CrcPath::Avx512,
+    ];
+
+    /// Whether this CPU can run the path.
+    pub fn available(self) -> bool {
+        match self {
+            CrcPath::Table => true,
+            CrcPath::Pclmul => pclmul_available(),
+            CrcPath::Avx2 => avx2_available(),
+            CrcPath::Avx512 => avx512_available(),
+        }
+    }
+
+    /// The paths this CPU can run.
+    pub fn supported() -> impl Iterator<Item = CrcPath> {
+        Self::ALL.into_iter().filter(|p| p.available())
+    }
+
+    /// A short name, for test messages, bench ids and `CONFORMANCE_CRC_PATH`.
+    pub const fn name(self) -> &'static str {
+        match self {
+            CrcPath::Table => "table",
+            CrcPath::Pclmul => "pclmul",
+            CrcPath::Avx2 => "avx2",
+            CrcPath::Avx512 => "avx512",
+        }
+    }
+
+    /// The path of a [`name`](Self::name), `None` for any other text.
+    pub fn from_name(name: &str) -> Option<CrcPath> {
+        Self::ALL.into_iter().find(|p| p.name() == name)
+    }
+
+    /// The shortest input this path's own kernel folds: [`crc16_update_with`](super::crc::crc16_update_with) hands a
+    /// shorter one to a narrower path (the width of one register; 0 for the table).
+    pub const fn min_len(self) -> usize {
+        match self {
+            CrcPath::Table => 0,
+            CrcPath::Pclmul => 16,
+            CrcPath::Avx2 => 32,
+            CrcPath::Avx512 => 64,
+        }
+    }
+}
 
 /// P(x) with its x^16 term.
 const POLY: u32 = 0x1_8005;
@@ -374,7 +439,7 @@ mod x86 {
     use std::arch::x86_64::*;
 
     use super::{FOLD_1024, FOLD_128, FOLD_2048, FOLD_256, FOLD_384, FOLD_512, FOLD_TO_80};
-    use crate::codec::crc::{crc16_table_u64, crc16_update_table};
+    use crate::codec::crc_table::{crc16_table_u64, crc16_update_table};
 
     /// Folding constants as a 128-bit lane: low lane's constant low.
     #[inline]
@@ -669,7 +734,8 @@ mod x86 {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::codec::crc::{crc16_reference, crc16_update_table};
+    use crate::codec::crc::crc16_reference;
+    use crate::codec::crc_table::crc16_update_table;
 
     #[test]
     fn constants_are_powers_of_x() {

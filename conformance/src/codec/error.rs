@@ -1,7 +1,7 @@
 //! The codec's error type.
 
+use super::direction::Direction;
 use super::hex::Hex;
-use super::pdu::Direction;
 
 /// Why bytes are not a valid frame, or a message cannot be encoded.
 ///

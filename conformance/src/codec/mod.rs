@@ -11,7 +11,9 @@
 pub mod ascii;
 pub mod crc;
 pub mod crc_clmul;
+pub mod crc_table;
 pub mod deframe;
+pub mod direction;
 pub mod error;
 pub mod hex;
 #[cfg(target_arch = "x86_64")]

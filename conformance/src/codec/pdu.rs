@@ -28,23 +28,7 @@ pub mod function {
 
 use function::*;
 
-/// Whether a frame travels from master to slave or back.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
-pub enum Direction {
-    /// Master to slave.
-    Request,
-    /// Slave to master (normal or exception response).
-    Response,
-}
-
-impl fmt::Display for Direction {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        f.write_str(match self {
-            Direction::Request => "request",
-            Direction::Response => "response",
-        })
-    }
-}
+pub use super::direction::Direction;
 
 /// Register values as carried on the wire: big-endian 16-bit words, borrowed.
 #[derive(Clone, Copy, PartialEq, Eq, Hash)]

@@ -23,14 +23,13 @@
 //! reason = "..."
 //! ```
 //!
-//! [`apply`] marks a report's results against the entries; [`starting_file`] writes a
+//! [`crate::report::apply_expectations`] marks a report's results against the entries;
+//! [`crate::report::starting_expectations`] writes a
 //! file from a report (`conformance expect --from REPORT.json`).
 
-mod apply;
-mod write;
+mod outcome;
 
-pub use apply::{apply, EntryReport, EntryState, Mark, MarkKind, Outcome};
-pub use write::starting_file;
+pub use outcome::{EntryReport, EntryState, Mark, MarkKind, Outcome};
 
 use std::fmt;
 use std::path::Path;

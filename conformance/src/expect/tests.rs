@@ -1,5 +1,7 @@
 use super::*;
-use crate::report::{Device, Report, ReportKind};
+use crate::report::{
+    apply_expectations as apply, starting_expectations as starting_file, Device, Report, ReportKind,
+};
 use crate::runner::{CheckResult, Status};
 
 const GOOD: &str = r#"# accepted deviations

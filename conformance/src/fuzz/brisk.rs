@@ -35,8 +35,9 @@
 
 use std::time::Duration;
 
-use super::campaign::{observe as observe_careful, recover, Observed, State};
 use super::cases::Step;
+use super::observe::observe as observe_careful;
+use super::state::{recover, Observed, State};
 use crate::codec::crc::crc16;
 use crate::codec::deframe::rtu_frame_len;
 use crate::codec::pdu::{Direction, Pdu};
@@ -208,7 +209,7 @@ pub fn observe(
         }
         // Timing damage is sent only on a line with timing, where the brisk path is off;
         // should one come here, it takes the full windows of the timed path.
-        Step::Timed(_) => super::campaign::observe(ctx, step, state).map(|o| (o, false)),
+        Step::Timed(_) => observe_careful(ctx, step, state).map(|o| (o, false)),
         Step::Burst(frames) => {
             let probe = probe_frame(ctx, 2);
             let single_reads = frames.iter().all(|f| {

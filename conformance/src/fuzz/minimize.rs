@@ -5,8 +5,9 @@
 
 use std::time::Duration;
 
-use super::campaign::{observe, recover, State};
 use super::cases::{damage_checksum, Step};
+use super::observe::observe;
+use super::state::{recover, State};
 use super::{FuzzConfig, FuzzFinding, Kind};
 use crate::codec::pdu::Pdu;
 use crate::codec::{frame_of_body, frame_parts, Mode};

@@ -538,7 +538,7 @@ impl Storm<'_> {
 }
 
 fn compare_function(mode: Mode, frame: &[u8]) -> u8 {
-    super::campaign::function_of(mode, frame)
+    super::state::function_of(mode, frame)
 }
 
 /// The device's own requests: reads of readable registers (the writable ones among them,

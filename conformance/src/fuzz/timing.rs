@@ -31,7 +31,7 @@
 
 use std::time::Duration;
 
-use super::campaign::{Observed, State};
+use super::state::{Observed, State};
 use super::Kind;
 use crate::codec::timing::LineSettings;
 use crate::codec::Mode;
@@ -437,7 +437,7 @@ pub fn minimize(
             break;
         }
         replays += 1;
-        let _ = super::campaign::recover(ctx, Duration::from_secs(10));
+        let _ = super::state::recover(ctx, Duration::from_secs(10));
         if matches!(observe(ctx, &c, state), Ok(Some(o)) if o.kind == kind) {
             best = c;
             reproduced = true;

@@ -43,6 +43,7 @@
 pub mod log;
 mod own_rx;
 pub mod run;
+mod signal;
 pub mod station;
 pub mod wire;
 

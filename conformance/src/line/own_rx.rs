@@ -15,7 +15,7 @@
 //! line bit b spans [2r·b, 2r·(b+1)) and the receiver's sample k of a character that
 //! starts at s falls at s + (2k+1)·B.
 
-use super::wire::{Drivers, Event, Heard};
+use super::signal::{read_char, Drivers, Event, Heard};
 use crate::codec::timing::{LineSettings, Parity};
 
 #[derive(Debug, Clone, Copy)]
@@ -175,7 +175,7 @@ impl OwnRx {
             };
             return;
         }
-        let (byte, error) = super::wire::read_char(sampled, &self.line);
+        let (byte, error) = read_char(sampled, &self.line);
         out.push(Event::Heard(Heard {
             endpoint: self.endpoint,
             start: u64::try_from(start / self.line_bit).unwrap_or(u64::MAX),

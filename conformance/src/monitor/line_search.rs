@@ -39,12 +39,11 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
 use super::guess::{guess, Guess};
-use super::tap::{poll_interval, Ended, Heard, Tap};
+use super::tap::{poll_interval, Ended, Heard};
 use super::MonitorError;
 use crate::codec::hex::Hex;
 use crate::codec::timing::{LineSettings, Parity};
 use crate::codec::Mode;
-use crate::transport::TransportError;
 
 /// Bytes heard at one setting with no valid frames before the next is tried.
 pub const SETTING_BYTES: usize = 512;
@@ -67,11 +66,7 @@ pub const BAUDS: [u32; 8] = crate::scan::settings::BAUDS;
 /// Parities tried at each baud rate: those that check first (see the module notes).
 pub const PARITIES: [Parity; 3] = [Parity::Even, Parity::Odd, Parity::None];
 
-/// A port whose line settings can be changed, for listening only.
-pub trait Tunable: Tap {
-    /// Sets the port to `line` and drops what it read before.
-    fn set_line(&mut self, line: LineSettings) -> Result<(), TransportError>;
-}
+pub use super::tap::Tunable;
 
 /// The settings to try, most likely first: each of `bauds` (default [`BAUDS`]) with
 /// each of `parities` (default [`PARITIES`]), 8 data bits then, where `mode` may be
@@ -385,7 +380,9 @@ pub fn listen_for_line(
 mod tests {
     use super::*;
     use crate::codec::pdu::{Message, Pdu, Registers};
+    use crate::monitor::tap::Tap;
     use crate::transport::uart::{deliver, transcode, ErrorPolicy};
+    use crate::transport::TransportError;
 
     /// A tap on a line at `line` that carries `traffic` over and over; a port set to
     /// other settings reads what its UART would (parity errors and framing errors as

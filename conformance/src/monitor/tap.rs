@@ -74,7 +74,13 @@ impl Tap for ReadOnlySerial {
     }
 }
 
-impl super::line_search::Tunable for ReadOnlySerial {
+/// A port whose line settings can be changed, for listening only.
+pub trait Tunable: Tap {
+    /// Sets the port to `line` and drops what it read before.
+    fn set_line(&mut self, line: crate::codec::timing::LineSettings) -> Result<(), TransportError>;
+}
+
+impl Tunable for ReadOnlySerial {
     fn set_line(&mut self, line: crate::codec::timing::LineSettings) -> Result<(), TransportError> {
         self.port.set_line(line)?;
         self.port.discard_input()

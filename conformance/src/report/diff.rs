@@ -20,7 +20,7 @@ use std::fmt::Write;
 
 use serde_json::{json, Value};
 
-use super::html::{esc, CSS};
+use super::markup::{esc, CSS};
 use super::{Report, ReportKind};
 use crate::codec::hex::Hex;
 use crate::expect::MarkKind;

@@ -3,7 +3,7 @@
 
 use std::fmt::Write as _;
 
-use super::html::esc;
+use super::markup::esc;
 use super::Report;
 use crate::expect::{EntryState, Mark, MarkKind, Outcome};
 use crate::runner::CheckResult;

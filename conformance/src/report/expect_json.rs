@@ -6,7 +6,7 @@ use std::collections::BTreeMap;
 
 use serde_json::{json, Value};
 
-use super::parse::ReportError;
+use super::error::ReportError;
 use super::Report;
 use crate::codec::Mode;
 use crate::expect::{

@@ -8,10 +8,14 @@
 
 mod csv;
 pub mod diff;
+mod error;
+mod expect_apply;
 mod expect_html;
 mod expect_json;
+mod expect_write;
 mod html;
 mod junit;
+mod markup;
 mod parse;
 pub mod requirements;
 mod text;
@@ -21,9 +25,11 @@ use std::collections::BTreeMap;
 use serde_json::{json, Value};
 
 pub use csv::csv;
+pub use error::ReportError;
+pub use expect_apply::apply as apply_expectations;
+pub use expect_write::starting_file as starting_expectations;
 pub use html::{html, unresolved_links};
 pub use junit::junit;
-pub use parse::ReportError;
 pub use text::text;
 
 /// Positions where two frames differ (the judge's rule, one place).

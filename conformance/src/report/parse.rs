@@ -13,24 +13,7 @@ use crate::runner::{
     CheckResult, ExchangeRecord, Finding, LineBudget, ModeBudget, RestoreRecord, Severity, Status,
 };
 
-/// Why a JSON value is not a report.
-#[derive(Debug, thiserror::Error)]
-pub enum ReportError {
-    /// The text is not JSON.
-    #[error("not JSON: {0}")]
-    Json(#[from] serde_json::Error),
-    /// The JSON is not a report of this suite.
-    #[error("not a conformance report: {0}")]
-    NotAReport(String),
-    /// A field is missing or has the wrong type or value.
-    #[error("{path}: {problem}")]
-    Field {
-        /// Where, e.g. `checks[3].status`.
-        path: String,
-        /// What is wrong.
-        problem: String,
-    },
-}
+use super::error::ReportError;
 
 fn field(path: &str, problem: impl Into<String>) -> ReportError {
     ReportError::Field {

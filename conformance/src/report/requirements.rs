@@ -6,7 +6,7 @@ use std::fmt::Write;
 use serde_json::{json, Value};
 
 use super::csv::field;
-use super::html::{esc, CSS};
+use super::markup::{esc, CSS};
 use crate::requirements::trace::{self, Coverage};
 use crate::requirements::{Catalogue, Requirement};
 

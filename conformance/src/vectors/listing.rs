@@ -14,8 +14,8 @@ use super::model::{
     parse_hex_number, Body, CListing, ExceptionRule, FrameKey, FrameKind, TextRepair, Vector,
     Verdict,
 };
+use super::outcome::{effective_body, VectorReport};
 use super::set::VectorSet;
-use super::verify::{effective_body, VectorReport};
 
 /// Flag of a listing that needs `repairs` before it compiles.
 pub const CODE_DOES_NOT_COMPILE: &str = "code-does-not-compile";

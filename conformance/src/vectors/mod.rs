@@ -6,6 +6,7 @@ pub mod corpus;
 pub mod export;
 pub mod listing;
 pub mod model;
+pub mod outcome;
 pub mod set;
 pub mod verify;
 

@@ -7,6 +7,8 @@ use std::collections::BTreeSet;
 use std::fmt::Write as _;
 
 use super::model::*;
+use super::outcome::effective_body;
+pub use super::outcome::VectorReport;
 use super::set::VectorSet;
 use crate::codec::hex::Hex;
 use crate::codec::lrc::{lrc, lrc_chars};
@@ -26,67 +28,7 @@ const OBSERVABLE: [&str; 9] = [
     "length-mismatch",
 ];
 
-/// The outcome of checking one vector.
-#[derive(Debug, Clone, PartialEq, Eq)]
-pub struct VectorReport {
-    /// Vector id.
-    pub id: String,
-    /// Declared verdict.
-    pub verdict: Verdict,
-    /// Declared flags.
-    pub flags: Vec<String>,
-    /// Flags the codec observed.
-    pub observed: Vec<String>,
-    /// What does not hold; empty when the vector behaves as its verdict says.
-    pub problems: Vec<String>,
-}
-
-impl VectorReport {
-    /// Whether the vector behaves as its verdict and flags say.
-    pub fn passed(&self) -> bool {
-        self.problems.is_empty()
-    }
-}
-
 pub use crate::codec::{frame_parts, FrameParts};
-
-/// The body (address, function, data) a frame vector stands for: from `printed` when its
-/// body bytes are all known, else from `corrected`.
-pub(crate) fn effective_body(fv: &FrameVector) -> Option<Vec<u8>> {
-    let mode: Mode = fv.mode.into();
-    let printed = parse_printed(&fv.printed).ok()?;
-    if let Some(known) = printed.iter().copied().collect::<Option<Vec<u8>>>() {
-        if let Ok(p) = frame_parts(mode, &known) {
-            return Some(p.body);
-        }
-    }
-    // Blanks only in the checksum: the body is still what was printed.
-    let body_region = match mode {
-        Mode::Rtu => printed.len().checked_sub(2).map(|e| 0..e),
-        Mode::Ascii => printed.len().checked_sub(4).map(|e| 1..e),
-    }?;
-    if let Some(region) = printed[body_region]
-        .iter()
-        .copied()
-        .collect::<Option<Vec<u8>>>()
-    {
-        match mode {
-            Mode::Rtu => return Some(region),
-            Mode::Ascii => {
-                if region.len() % 2 == 0 {
-                    let text = String::from_utf8(region).ok()?;
-                    if let Ok(b) = crate::codec::hex::parse_hex(&text) {
-                        if b.len() * 2 == text.len() {
-                            return Some(b);
-                        }
-                    }
-                }
-            }
-        }
-    }
-    let corrected = parse_known(fv.corrected.as_deref()?).ok()?;
-    frame_parts(mode, &corrected).ok().map(|p| p.body)
-}
 
 /// The body of the frame an example means: its `corrected` frame when the manual got it
 /// wrong, else what was printed. A response is judged against the request it answers as

@@ -3,9 +3,10 @@
 
 use std::fmt::Write as _;
 
-use super::{esc, svg};
+use super::svg;
 use crate::monitor::stats::Histogram;
 use crate::monitor::{MonitorSummary, NodeStats};
+use crate::report::markup::esc;
 
 /// The section: a table of the nodes, then one histogram per node with replies, against
 /// `limits`.

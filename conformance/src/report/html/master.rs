@@ -4,9 +4,9 @@
 
 use std::fmt::Write as _;
 
-use super::esc;
 use crate::gate::master::MasterSummary;
 use crate::judge::Severity;
+use crate::report::markup::esc;
 use crate::report::{Report, ReportKind};
 
 /// The words a page uses for its results. A gate runs cases (as its text report says); a

@@ -5,7 +5,8 @@
 
 use std::fmt::Write;
 
-use super::{esc, Report};
+use crate::report::markup::esc;
+use crate::report::Report;
 use crate::runner::CheckResult;
 
 macro_rules! w {

@@ -4,7 +4,7 @@
 use std::collections::BTreeMap;
 use std::fmt::Write;
 
-use super::esc;
+use crate::report::markup::esc;
 use crate::report::Report;
 use crate::runner::{CheckResult, Status};
 

@@ -3,7 +3,7 @@
 
 use std::fmt::Write as _;
 
-use crate::report::{Report, ReportKind};
+use super::{Report, ReportKind};
 use crate::runner::Status;
 
 /// A TOML basic string: quoted, with backslashes, quotes and control characters escaped.
