@@ -15,13 +15,14 @@ mod junit;
 mod parse;
 pub mod requirements;
 mod text;
+pub mod watch;
 
 use std::collections::BTreeMap;
 
 use serde_json::{json, Value};
 
 pub use csv::csv;
-pub use html::{html, unresolved_links};
+pub use html::{html, unresolved_links, watch_html};
 pub use junit::junit;
 pub use parse::ReportError;
 pub use text::text;
