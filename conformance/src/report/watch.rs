@@ -26,13 +26,6 @@ fn opt_ms(d: Option<Duration>) -> String {
     d.map_or("-".to_string(), ms)
 }
 
-/// The value of `raw` as a number: in the model's unit where it has one, else raw.
-fn number(w: &Watcher, register: u16, raw: u16) -> f64 {
-    w.model
-        .unit_of(register)
-        .map_or(f64::from(raw), |u| u.value(raw))
-}
-
 /// The value of `raw` as text for a CSV cell: the unit's decimals, no unit.
 fn number_text(w: &Watcher, register: u16, raw: u16) -> String {
     match w.model.unit_of(register) {
@@ -259,7 +252,7 @@ fn register_of(o: &crate::watch::Observation) -> u16 {
 /// `outcome`, `rtt_ms` (null unless every read came back), `exceptions` (codes in hex),
 /// `findings` (the judge's, in words), `observations` (`register`, `kind`, `text`),
 /// `changed` (registers), and `values`: per register (`"2520H"`) its `raw` (hex),
-/// `value` (a number, in the unit where the model gives one), `unit`, `text` (as the
+/// `value` (a number: in the unit where the model gives one, else the raw value), `unit`, `text` (as the
 /// table shows it), `bits` (the set bits' names), or null where its read failed.
 pub fn json_row(w: &Watcher, p: &Poll) -> Value {
     let mut vals = serde_json::Map::new();
@@ -267,7 +260,10 @@ pub fn json_row(w: &Watcher, p: &Poll) -> Value {
         let entry = match v {
             Some(v) => json!({
                 "raw": format!("{v:04X}"),
-                "value": number(w, r, v),
+                "value": match w.model.unit_of(r) {
+                    Some(u) => json!(u.value(v)),
+                    None => json!(v),
+                },
                 "unit": w.model.unit_of(r).map(|u| u.unit),
                 "text": w.model.value_text(r, v),
                 "bits": w.model.bits_of(r).iter()

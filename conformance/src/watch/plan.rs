@@ -49,7 +49,8 @@ pub struct PollPlan {
 
 /// The registers `names` stand for, in order, each once: a register number (2520H,
 /// 0x2520, or decimal), a register's name (case-insensitive; a unique prefix will do),
-/// or a block's name (`monitor`, `command`, a description's block). With no names, the
+/// a block's name (`monitor`, `command`, a description's block), or `status` (the
+/// status word, whatever its table calls it). With no names, the
 /// monitor block and the status word.
 pub fn resolve(model: &DriveModel, names: &[String]) -> Result<Vec<u16>, WatchError> {
     let mut out: Vec<u16> = Vec::new();
@@ -150,6 +151,12 @@ fn resolve_one(model: &DriveModel, name: &str) -> Result<Vec<u16>, WatchError> {
         .find(|b| b.name.as_deref().is_some_and(|n| n.to_lowercase() == lower))
     {
         return Ok(b.span.clone().collect());
+    }
+    // The status word by its role, whatever the table calls it ("State signal").
+    if lower == "status" || lower == "status word" {
+        if let Some(r) = model.register_with_role(crate::model::Role::Status) {
+            return Ok(vec![r]);
+        }
     }
     // A register by its name: exact first, then a unique prefix.
     let names: Vec<(u16, &str)> = model
@@ -300,6 +307,7 @@ mod tests {
         assert_eq!(r("0x2524").unwrap(), [0x2524]);
         assert_eq!(r("output freq").unwrap(), [0x2524]);
         assert_eq!(r("STATE SIGNAL").unwrap(), [0x2520]);
+        assert_eq!(r("status").unwrap(), [0x2520]);
         assert_eq!(r("monitor").unwrap().len(), 14);
         match r("frequency command (0.01 hz)") {
             Err(WatchError::Ambiguous { candidates, .. }) => {
