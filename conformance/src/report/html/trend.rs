@@ -110,6 +110,11 @@ fn chart(w: &Watcher, node: u8, c: &Cell) -> String {
         .flatten()
         .map(val)
         .collect();
+    let values_min = pts
+        .iter()
+        .map(|p| val(p.1))
+        .chain(bounds.iter().copied())
+        .fold(f64::INFINITY, f64::min);
     let lo = pts
         .iter()
         .map(|p| val(p.1))
@@ -120,14 +125,22 @@ fn chart(w: &Watcher, node: u8, c: &Cell) -> String {
         .map(|p| val(p.1))
         .chain(bounds.iter().copied())
         .fold(f64::NEG_INFINITY, f64::max);
-    let (lo, hi) = if hi - lo < 1e-9 {
-        (lo - 1.0, hi + 1.0)
+    // No tick finer than one step of the register (0.01 Hz; 1 for a raw value): a
+    // finer one would label the same value twice.
+    let resolution = unit.as_ref().map_or(1.0, |u| u.scale);
+    let decimals = unit.as_ref().map_or(0, |u| u.decimals);
+    // A flat trend gets one step of room either side.
+    let (lo, hi) = if hi - lo < resolution / 2.0 {
+        (lo - resolution, hi + resolution)
     } else {
         (lo, hi)
     };
-    let tick = step(hi - lo, 4.0);
-    let y0 = (lo / tick).floor() * tick;
-    let y1 = (hi / tick).ceil() * tick;
+    let tick = step(hi - lo, 4.0).max(resolution);
+    // One tick of room below and above, so that a bound or a value on the edge is not
+    // drawn on the axis (never below 0 for values that are not).
+    let y0 = (lo / tick).floor() * tick - tick;
+    let y0 = if values_min >= 0.0 { y0.max(0.0) } else { y0 };
+    let y1 = (hi / tick).ceil() * tick + tick;
     let t_end = pts
         .last()
         .map_or(1.0, |p| p.0)
@@ -155,7 +168,7 @@ fn chart(w: &Watcher, node: u8, c: &Cell) -> String {
             yv = y(v),
             xl = left - 6.0,
             yt = y(v) + 4.0,
-            label = trim(v)
+            label = format!("{v:.decimals$}")
         );
         v += tick;
     }
@@ -222,4 +235,47 @@ fn chart(w: &Watcher, node: u8, c: &Cell) -> String {
     }
     s.push_str("</svg>");
     s
+}
+
+#[cfg(test)]
+mod tests {
+    use std::sync::Arc;
+
+    use crate::codec::Mode;
+    use crate::model::DriveModel;
+    use crate::watch::{plan, Watcher};
+
+    /// The y labels of the chart of `register` (the `text-anchor="end"` texts).
+    fn y_labels(page: &str, register: &str) -> Vec<String> {
+        let at = page.find(&format!("trend-01-{register}")).unwrap();
+        let svg = &page[at..at + page[at..].find("</svg>").unwrap()];
+        svg.split("text-anchor=\"end\">")
+            .skip(1)
+            .filter_map(|s| s.split('<').next())
+            .filter(|s| *s != "s")
+            .map(String::from)
+            .collect()
+    }
+
+    #[test]
+    fn a_chart_labels_each_tick_once_and_no_value_below_zero() {
+        let m = Arc::new(DriveModel::builtin("f510").unwrap());
+        let p = plan(&m, 1, Mode::Rtu, &[0x2502, 0x2524]).unwrap();
+        let mut w = Watcher::new(m, Mode::Rtu, p, &[1]).unwrap();
+        for t in [0.0, 0.5, 1.0].iter() {
+            w.nodes[0].cells[0].trend.push(*t, 0x9C41);
+            w.nodes[0].cells[1].trend.push(*t, 0);
+        }
+        let page = super::watch_html(&w, "test");
+        // 400.01 Hz against the bound 400.00: steps of 0.01, each labelled once.
+        let labels = y_labels(&page, "2502");
+        let mut unique = labels.clone();
+        unique.dedup();
+        assert_eq!(labels, unique, "{labels:?}");
+        assert!(labels.contains(&"400.01".to_string()), "{labels:?}");
+        // A flat 0.00 Hz: no negative frequency on the axis.
+        let labels = y_labels(&page, "2524");
+        assert!(labels.iter().all(|l| !l.starts_with('-')), "{labels:?}");
+        assert!(!page.contains("<script"));
+    }
 }
