@@ -85,8 +85,9 @@ pub fn stats_line(node: u8, s: &NodeStats) -> String {
         )
     };
     let mut line = format!(
-        "node {node:02X}: {} polls, rtt last {} median {} p99 {} ms; timeouts {}, CRC errors {}, exceptions {}, out of range {}, reserved bits {}",
+        "node {node:02X}: {} poll{}, rtt last {} median {} p99 {} ms; timeouts {}, CRC errors {}, exceptions {}, out of range {}, reserved bits {}",
         s.polls,
+        if s.polls == 1 { "" } else { "s" },
         opt_ms(s.last_rtt),
         opt_ms(s.rtt.percentile(50)),
         opt_ms(s.rtt.percentile(99)),
@@ -129,11 +130,11 @@ pub fn table_text(w: &Watcher) -> String {
         .unwrap_or(4)
         .clamp(4, 44);
     for n in &w.nodes {
-        let _ = writeln!(
-            out,
-            "\nnode {:02X}\n    {:<6} {:<name_w$} {:>5}  {:<12} BITS",
-            n.node, "REG", "NAME", "RAW", "VALUE"
+        let header = format!(
+            "{:3} {:<5} {:<name_w$} {:>5}  {:<12} BITS",
+            "", "REG", "NAME", "RAW", "VALUE"
         );
+        let _ = writeln!(out, "\nnode {:02X}\n{header}", n.node);
         for c in &n.cells {
             let described = w.model.describe(c.register);
             // "2520H (State signal)": the name without the number and parentheses.
@@ -157,8 +158,7 @@ pub fn table_text(w: &Watcher) -> String {
                     let _ = write!(extra, "  [out of range: {}]", r.bounds());
                 }
             }
-            let _ = writeln!(
-                out,
+            let row = format!(
                 "{} {:04X}H {:<name_w$} {:>5}  {:<12} {}{}",
                 marks(c),
                 c.register,
@@ -168,6 +168,7 @@ pub fn table_text(w: &Watcher) -> String {
                 bits,
                 extra
             );
+            let _ = writeln!(out, "{}", row.trim_end());
         }
         let _ = writeln!(out, "{}", stats_line(n.node, &n.stats));
     }
