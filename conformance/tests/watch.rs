@@ -318,6 +318,39 @@ fn sigterm_ends_with_the_summary_and_exit_0() {
 }
 
 #[test]
+fn a_link_that_fails_ends_the_watch_with_its_summary_and_exit_2() {
+    let (mut sim, port) = common::sim_pty(&["--model", "f510"]);
+    let mut child = Kill::spawn(
+        Command::new(bin())
+            .args(["watch", "--model", "f510", "--port", &port, "-P", "even"])
+            .args(["--format", "csv", "--interval", "50ms", "2520H"])
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped()),
+    );
+    let mut lines = BufReader::new(child.0.stdout.take().unwrap()).lines();
+    lines.next().unwrap().unwrap();
+    let row = lines.next().unwrap().unwrap();
+    assert!(row.contains(",ok,"), "{row}");
+    // The simulator goes, and its pseudo-terminal with it.
+    sim.0.kill().unwrap();
+    let status = child.wait_within(LIMIT, "watch after its link went");
+    let err = child.stderr_text();
+    assert_eq!(status.code(), Some(2), "{err}");
+    assert!(err.contains("watch ended (the link failed)"), "{err}");
+    assert!(err.contains("result: the link failed (exit 2)"), "{err}");
+    // A link that cannot be opened: exit 2 too.
+    let (code, _, err) = watch(&[
+        "--model",
+        "f510",
+        "--port",
+        "/dev/nonexistent-watch",
+        "-c",
+        "1",
+    ]);
+    assert_eq!(code, Some(2), "{err}");
+}
+
+#[test]
 fn a_value_another_master_writes_is_marked_changed() {
     // The simulated drive behind a Modbus TCP gateway serves several masters at once:
     // the watch reads, `send` writes 2502H <- 1194H meanwhile.

@@ -13,7 +13,7 @@ use std::time::{Duration, Instant};
 use anyhow::{bail, Context};
 use clap::{Args, ValueEnum};
 use conformance::codec::Mode;
-use conformance::report::watch::{csv_header, csv_row, json_row, summary, table_text};
+use conformance::report::watch::{csv_header, csv_row, json_row, summary, table_text, LINK_FAILED};
 use conformance::report::watch_html;
 use conformance::runner::{Master, Options};
 use conformance::session::{self, SessionConfig};
@@ -257,7 +257,7 @@ pub fn run(mut args: WatchArgs) -> anyhow::Result<ExitCode> {
                 Ok(p) => p,
                 Err(e) => {
                     link_failed = Some(e);
-                    break 'watch "the link failed";
+                    break 'watch LINK_FAILED;
                 }
             };
             match format {
@@ -300,7 +300,7 @@ pub fn run(mut args: WatchArgs) -> anyhow::Result<ExitCode> {
     }
     eprint!("{}", summary(&watcher, ended));
     if let Some(e) = link_failed {
-        eprintln!("error: the link failed: {e} (exit 2)");
+        eprintln!("error: {e}");
         return Ok(ExitCode::from(2));
     }
     Ok(ExitCode::from(if watcher.found() { 1 } else { 0 }))

@@ -295,6 +295,9 @@ pub fn json_row(w: &Watcher, p: &Poll) -> Value {
     })
 }
 
+/// How a watch whose link failed ended, as its summary and report say it.
+pub const LINK_FAILED: &str = "the link failed";
+
 /// The summary at the end: one line per node, and the verdict.
 pub fn summary(w: &Watcher, ended: &str) -> String {
     let mut out = format!(
@@ -320,7 +323,9 @@ pub fn summary(w: &Watcher, ended: &str) -> String {
             );
         }
     }
-    out.push_str(if w.found() {
+    out.push_str(if ended == LINK_FAILED {
+        "result: the link failed (exit 2); the counts above are of the polls before\n"
+    } else if w.found() {
         "result: an exception or a value out of the model's range was seen (exit 1)\n"
     } else {
         "result: no exception and no value out of the model's range (exit 0)\n"
