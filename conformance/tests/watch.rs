@@ -521,51 +521,57 @@ fn the_html_report_has_a_trend_per_register_and_no_script() {
 
 #[test]
 fn pymodbus_serial_server_is_watched_and_its_exceptions_counted() {
-    let d = dir("pymodbus");
-    // pymodbus serves the command block only: the monitor block's reads get 02H.
-    let Some(peer) = common::pymodbus_serial_blocks(&d, "rtu", "2500-251F") else {
-        return;
-    };
-    let port = peer.port.to_str().unwrap();
-    let (code, out, err) = watch(&[
-        "--model",
-        "f510",
-        "--port",
-        port,
-        "-P",
-        "none",
-        "-c",
-        "3",
-        "--interval",
-        "50ms",
-        "--format",
-        "csv",
-        "2502H",
-    ]);
-    assert_eq!(code, Some(0), "{err}");
-    let (_, rows) = csv(&out);
-    assert_eq!(rows.len(), 3);
-    assert!(rows.iter().all(|r| r[4] == "ok"), "{out}");
-    let (code, out, err) = watch(&[
-        "--model",
-        "f510",
-        "--port",
-        port,
-        "-P",
-        "none",
-        "-c",
-        "2",
-        "--interval",
-        "50ms",
-        "--format",
-        "csv",
-        "monitor",
-    ]);
-    assert_eq!(code, Some(1), "{err}");
-    let (_, rows) = csv(&out);
-    assert!(
-        rows.iter().all(|r| r[4] == "exception" && r[6] == "02"),
-        "{out}"
-    );
-    assert!(err.contains("exceptions 2 (02H x2)"), "{err}");
+    for mode in ["rtu", "ascii"] {
+        let d = dir(&format!("pymodbus-{mode}"));
+        // pymodbus serves the command block only: the monitor block's reads get 02H.
+        let Some(peer) = common::pymodbus_serial_blocks(&d, mode, "2500-251F") else {
+            return;
+        };
+        let port = peer.port.to_str().unwrap();
+        let (code, out, err) = watch(&[
+            "--model",
+            "f510",
+            "--port",
+            port,
+            "-P",
+            "none",
+            "-m",
+            mode,
+            "-c",
+            "3",
+            "--interval",
+            "50ms",
+            "--format",
+            "csv",
+            "2502H",
+        ]);
+        assert_eq!(code, Some(0), "{mode}: {err}");
+        let (_, rows) = csv(&out);
+        assert_eq!(rows.len(), 3);
+        assert!(rows.iter().all(|r| r[4] == "ok"), "{mode}: {out}");
+        let (code, out, err) = watch(&[
+            "--model",
+            "f510",
+            "--port",
+            port,
+            "-P",
+            "none",
+            "-m",
+            mode,
+            "-c",
+            "2",
+            "--interval",
+            "50ms",
+            "--format",
+            "csv",
+            "monitor",
+        ]);
+        assert_eq!(code, Some(1), "{mode}: {err}");
+        let (_, rows) = csv(&out);
+        assert!(
+            rows.iter().all(|r| r[4] == "exception" && r[6] == "02"),
+            "{mode}: {out}"
+        );
+        assert!(err.contains("exceptions 2 (02H x2)"), "{mode}: {err}");
+    }
 }

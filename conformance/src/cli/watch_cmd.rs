@@ -233,10 +233,8 @@ pub fn run(mut args: WatchArgs) -> anyhow::Result<ExitCode> {
     let mut master =
         Master::new(transport, mode, config.options.timing).with_echo(args.target.echo);
     let mut watcher = Watcher::new(model.clone(), mode, plan, &nodes)?;
-    match format {
-        WatchFormat::Csv => sink.write(&csv_header(&watcher))?,
-        WatchFormat::Text if !terminal => {}
-        _ => {}
+    if format == WatchFormat::Csv {
+        sink.write(&csv_header(&watcher))?;
     }
     let deadline = args.duration.map(|d| Instant::now() + d);
     let mut next = Instant::now();

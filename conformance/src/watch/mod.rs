@@ -97,6 +97,20 @@ pub enum ReadEnd {
     BadReply(Vec<&'static str>),
 }
 
+impl ReadEnd {
+    /// The read's outcome word and how bad it is (an exception is the worst: the drive
+    /// refused a read its manual serves).
+    fn outcome(&self) -> (&'static str, u8) {
+        match self {
+            ReadEnd::Values(_) => ("ok", 0),
+            ReadEnd::BadReply(_) => ("bad-reply", 1),
+            ReadEnd::BadChecksum => ("bad-checksum", 2),
+            ReadEnd::Timeout => ("timeout", 3),
+            ReadEnd::Exception(_) => ("exception", 4),
+        }
+    }
+}
+
 /// What one value was observed to do against the model.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub enum Observation {
@@ -177,27 +191,11 @@ impl Poll {
     /// "ok", or the worst way a read ended: "timeout", "bad-checksum", "exception",
     /// "bad-reply".
     pub fn outcome(&self) -> &'static str {
-        let mut worst = "ok";
-        for r in &self.reads {
-            let (w, rank) = match r {
-                ReadEnd::Values(_) => ("ok", 0),
-                ReadEnd::BadReply(_) => ("bad-reply", 1),
-                ReadEnd::BadChecksum => ("bad-checksum", 2),
-                ReadEnd::Timeout => ("timeout", 3),
-                ReadEnd::Exception(_) => ("exception", 4),
-            };
-            let current = match worst {
-                "bad-reply" => 1,
-                "bad-checksum" => 2,
-                "timeout" => 3,
-                "exception" => 4,
-                _ => 0,
-            };
-            if rank > current {
-                worst = w;
-            }
-        }
-        worst
+        self.reads
+            .iter()
+            .map(ReadEnd::outcome)
+            .max_by_key(|(_, rank)| *rank)
+            .map_or("ok", |(word, _)| word)
     }
 
     /// The exception codes the poll's reads got.
