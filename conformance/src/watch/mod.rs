@@ -75,7 +75,7 @@ pub enum WatchError {
         why: String,
     },
     /// The description has neither a monitor block nor a status word.
-    #[error("the description {0} has no monitor block and no status word to watch by default: name the registers or blocks to watch")]
+    #[error("the description {0} has no monitor block, no status word and no read-only block to watch by default: name the registers or blocks to watch")]
     NothingByDefault(String),
     /// A request could not be built.
     #[error("cannot build the read: {0}")]

@@ -73,7 +73,8 @@ pub fn resolve(model: &DriveModel, names: &[String]) -> Result<Vec<u16>, WatchEr
     Ok(out)
 }
 
-/// The monitor block (its registers that are not reserved) and the status word.
+/// The monitor block (its registers that are not reserved) and the status word; for a
+/// description without them, its read-only blocks.
 fn default_registers(model: &DriveModel) -> Result<Vec<u16>, WatchError> {
     let mut out: Vec<u16> = model
         .group("monitor")
@@ -83,6 +84,16 @@ fn default_registers(model: &DriveModel) -> Result<Vec<u16>, WatchError> {
         if !out.contains(&s) {
             out.insert(0, s);
         }
+    }
+    // A description without the manuals' monitor block: its read-only blocks, which
+    // are what a device reports rather than what it is told.
+    if out.is_empty() {
+        out = model
+            .blocks
+            .iter()
+            .filter(|b| b.access == Access::ReadOnly)
+            .flat_map(|b| b.span.clone())
+            .collect();
     }
     if out.is_empty() {
         return Err(WatchError::NothingByDefault(model.id.clone()));
@@ -319,6 +330,23 @@ mod tests {
         let e = r("2520").unwrap_err().to_string();
         assert!(e.contains("09D8H") && e.contains("2520H"), "{e}");
         assert!(matches!(r("nosuch"), Err(WatchError::UnknownName { .. })));
+    }
+
+    #[test]
+    fn a_description_is_watched_by_its_blocks() {
+        let text = include_str!("../../../vectors/models/examples/acme-x100.json");
+        let m = DriveModel::from_json("acme-x100.json", text).unwrap();
+        // No monitor block: the read-only block "status", in one read.
+        let regs = resolve(&m, &[]).unwrap();
+        assert_eq!(regs, (0x2520..=0x252F).collect::<Vec<u16>>());
+        assert_eq!(plan(&m, 1, Mode::Rtu, &regs).unwrap().reads.len(), 1);
+        // A block by its name, with its unit and range.
+        let cmds = resolve(&m, &["Commands".to_string()]).unwrap();
+        assert_eq!(cmds.len(), 16);
+        assert_eq!(m.value_text(0x2500, 1500).unwrap(), "15.00 Hz");
+        assert!(!m.range_of(0x2500).unwrap().admits(0x1771));
+        // The reserved block cannot be read.
+        assert!(plan(&m, 1, Mode::Rtu, &[0x2510]).is_err());
     }
 
     #[test]
