@@ -29,6 +29,9 @@
 //! - [`report`]: text, JSON and JUnit XML reports of a run.
 //! - [`scan`]: finds the devices on a line (line settings, mode, node addresses).
 //! - [`session`]: a whole run against a serial port, a TCP gateway or the in-process simulator.
+//! - [`watch`]: polls named registers with reads only and judges every value through
+//!   the [`judge`] and the model (beside [`monitor`]; its text, CSV, JSON lines and HTML
+//!   are in [`report`]).
 //! - [`identify`]: which model a device follows, from its answers to reads (beside
 //!   [`session`]: it opens the target as a session does and uses the runner's master).
 // `unsafe` is allowed in one module only: codec::crc_clmul (SIMD intrinsics).
@@ -58,3 +61,4 @@ pub mod session;
 pub mod sim;
 pub mod transport;
 pub mod vectors;
+pub mod watch;

@@ -880,6 +880,11 @@ fn simulator_examples() {
 }
 
 #[test]
+fn watching_a_drive_examples() {
+    check_page("docs/src/watching-a-drive.md");
+}
+
+#[test]
 fn master_gate_examples() {
     check_page("docs/src/master-gate.md");
 }

@@ -3,7 +3,9 @@
 //! polls it between its steps. check, fuzz, scan, identify and gate stop after the current
 //! one (a check, a fuzz case, a probe), restore what they wrote, and write a whole report
 //! marked incomplete (exit 2); monitor stops listening and writes its report as at the end
-//! of its input; bus and simulate stop and remove their links (exit 0).
+//! of its input; watch ends after its current poll with its summary (exit 0, or 1 where
+//! it saw an exception or a value out of range); bus and simulate stop and remove their
+//! links (exit 0).
 //!
 //! One handler per process (the `ctrlc` crate allows one), installed on first use; a
 //! command that asks twice (`check --model auto` identifies, then checks) gets the same
@@ -28,6 +30,8 @@ pub enum Stopping {
     Bus,
     /// simulate: the simulator stops and its link goes.
     Simulator,
+    /// watch: the current poll ends, then the summary.
+    Watching,
 }
 
 impl Stopping {
@@ -42,6 +46,9 @@ impl Stopping {
             }
             Stopping::Bus => "interrupted: the bus stops and removes its links",
             Stopping::Simulator => "interrupted: the simulator stops and removes its link",
+            Stopping::Watching => {
+                "interrupted: the watch ends after the current poll, with its summary"
+            }
         }
     }
 }

@@ -24,6 +24,7 @@ mod scan_cmd;
 mod send_cmd;
 mod simulate_cmd;
 mod vectors_cmd;
+mod watch_cmd;
 
 use std::process::ExitCode;
 
@@ -34,7 +35,7 @@ use clap::{Parser, Subcommand};
 #[derive(Debug, Parser)]
 #[command(name = "conformance", version, about, long_about = None)]
 #[command(
-    after_help = "Exit codes: 0 ok; 1 a problem was found (bad checksum, failing vector); 2 the command could not run.\n\nCtrl-C, SIGTERM and SIGHUP stop a long command. check, fuzz, scan, identify and gate stop after their current check, case or probe: what they wrote is restored and the report is whole, marked incomplete (exit 2). monitor stops listening and writes its whole report (exit 0 or 1, by what it heard). bus and simulate stop and remove their links (exit 0)."
+    after_help = "Exit codes: 0 ok; 1 a problem was found (bad checksum, failing vector); 2 the command could not run.\n\nCtrl-C, SIGTERM and SIGHUP stop a long command. check, fuzz, scan, identify and gate stop after their current check, case or probe: what they wrote is restored and the report is whole, marked incomplete (exit 2). monitor stops listening and writes its whole report (exit 0 or 1, by what it heard). watch ends after its current poll with its summary (exit 0, or 1 where an exception or a value out of range was seen). bus and simulate stop and remove their links (exit 0)."
 )]
 pub struct Cli {
     #[command(subcommand)]
@@ -72,6 +73,9 @@ enum Command {
     /// Listen to a bus others drive, never send a byte, and judge both the drives and the
     /// master against the manual (passive conformance).
     Monitor(monitor_cmd::MonitorArgs),
+    /// Poll named registers of one or more drives (reads only) and judge every value
+    /// against the model as it changes: a live table, CSV, JSON lines or an HTML trend.
+    Watch(watch_cmd::WatchArgs),
     /// Find the devices on a line: line settings, mode and node addresses (reads only).
     Scan(scan_cmd::ScanArgs),
     /// Check another Modbus codec (--codec) or master (--master) through an adapter
@@ -108,6 +112,7 @@ pub fn run(cli: Cli) -> anyhow::Result<ExitCode> {
         Command::Fuzz(a) => fuzz_cmd::run(a),
         Command::Send(a) => send_cmd::run(a),
         Command::Scan(a) => scan_cmd::run(a),
+        Command::Watch(a) => watch_cmd::run(a),
         Command::Monitor(a) => monitor_cmd::run(a),
         Command::Gate(a) => gate_cmd::run(a),
         Command::Adapter(a) => gate_cmd::adapter(a),

@@ -439,6 +439,14 @@ impl DriveModel {
                 max_notes: r.max.as_ref().map(|b| b.notes.clone()).unwrap_or_default(),
                 resolution,
                 fact,
+                bits: r
+                    .bits
+                    .iter()
+                    .map(|b| NamedBit {
+                        bit: b.bit,
+                        name: b.name.clone(),
+                    })
+                    .collect(),
             });
         }
         for g in groups.iter_mut() {

@@ -128,6 +128,28 @@ pub struct NamedRegister {
     pub resolution: Option<Resolution>,
     /// Basis: documented, or the model's decision for registers it adds.
     pub fact: Fact,
+    /// The bits the table names (the command and status words), lowest first; empty for
+    /// a register that is a number.
+    pub bits: Vec<NamedBit>,
+}
+
+/// One bit of a command or status word, as the table names it.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct NamedBit {
+    /// Bit number, 0 = least significant.
+    pub bit: u8,
+    /// Meaning as printed ("Inverter ready (1: ready)", "Reserved").
+    pub name: String,
+}
+
+impl NamedBit {
+    /// Whether the table marks the bit reserved: a device that sets it does something
+    /// the manual does not describe.
+    pub fn reserved(&self) -> bool {
+        self.name
+            .get(..8)
+            .is_some_and(|w| w.eq_ignore_ascii_case("reserved"))
+    }
 }
 
 /// A coarser resolution of a register above a value: the A510's "If the maximum output

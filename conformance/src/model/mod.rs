@@ -15,6 +15,7 @@ pub mod lint;
 mod load;
 mod map;
 mod source;
+mod value;
 
 use std::collections::BTreeMap;
 use std::ops::RangeInclusive;
@@ -24,10 +25,11 @@ pub use facts::{Basis, ExceptionRule, Fact, Fault, SilenceReason};
 pub use file::ModelFile;
 pub use judge::{Expectation, Judgement, ReadPlan, WritePlan};
 pub use map::{
-    Access, Alias, BitRoles, Block, Group, Identification, Limits, NamedRegister, Origin, PerMode,
-    ReadOnlyParameter, RegisterInfo, Resolution, Role,
+    Access, Alias, BitRoles, Block, Group, Identification, Limits, NamedBit, NamedRegister, Origin,
+    PerMode, ReadOnlyParameter, RegisterInfo, Resolution, Role,
 };
 pub use source::{sha256_hex, Source};
+pub use value::{Unit, ValueRange};
 
 pub use crate::codec::{frame_len, read_response_len, write_request_len};
 

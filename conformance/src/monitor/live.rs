@@ -108,17 +108,10 @@ impl fmt::Display for Line {
     }
 }
 
-/// A register with its name and a value in its unit where the name gives one
+/// A register with its name and a value in its unit where the model gives one
 /// ("2502H (Frequency command (0.01 Hz)) <- 1194H = 45.00 Hz").
 fn value(model: &DriveModel, register: u16, v: u16) -> String {
-    let name = model.describe(register);
-    if name.contains("0.01 Hz") {
-        format!("{name} <- {v:04X}H = {}.{:02} Hz", v / 100, v % 100)
-    } else if name.contains("0.1 Hz") {
-        format!("{name} <- {v:04X}H = {}.{} Hz", v / 10, v % 10)
-    } else {
-        format!("{name} <- {v:04X}H")
-    }
+    model.assignment(register, v)
 }
 
 /// A frame decoded with the model's register names.

@@ -12,8 +12,10 @@ mod heard;
 mod master;
 mod nodes;
 mod svg;
+mod trend;
 
 pub(crate) use svg::{latencies, median};
+pub use trend::watch_html;
 
 use std::fmt::Write;
 

@@ -19,6 +19,7 @@ mod markup;
 mod parse;
 pub mod requirements;
 mod text;
+pub mod watch;
 
 use std::collections::BTreeMap;
 
@@ -28,7 +29,7 @@ pub use csv::csv;
 pub use error::ReportError;
 pub use expect_apply::apply as apply_expectations;
 pub use expect_write::starting_file as starting_expectations;
-pub use html::{html, unresolved_links};
+pub use html::{html, unresolved_links, watch_html};
 pub use junit::junit;
 pub use text::text;
 

@@ -62,6 +62,11 @@ pub enum Quirk {
     /// another slave on the bus) is lost, as a receiver still busy with the other
     /// node's traffic loses it. The storm test (`fuzz --storm`) must catch it.
     BusyAfter(u64),
+    /// A planted firmware bug: reads of this register return this value, whatever was
+    /// written (a stuck sensor, a value out of the manual's range).
+    StuckAt(u16, u16),
+    /// A planted firmware bug: a read that covers this register gets exception 04H.
+    ExceptionAt(u16),
 }
 
 /// How long the hang-on-byte-count quirk keeps the drive silent.
@@ -71,7 +76,7 @@ pub const HANG_TIME: Duration = Duration::from_secs(5);
 pub const OVERFLOW_RECOVERY: Duration = Duration::from_secs(1);
 
 /// The quirks, with their spelling and what each does, for help text and docs.
-pub const QUIRK_HELP: [(&str, &str); 17] = [
+pub const QUIRK_HELP: [(&str, &str); 19] = [
     (
         "crc-swap",
         "swap the two CRC bytes of every reply (ASCII: the two LRC characters)",
@@ -134,11 +139,19 @@ pub const QUIRK_HELP: [(&str, &str); 17] = [
         "busy-after=N",
         "planted bug: a request that starts less than t3.5 + N characters after another node's frame is lost",
     ),
+    (
+        "stuck-at=REG:VALUE",
+        "planted bug: reads of register REG return VALUE (hex: 2502H:9C41H), whatever was written",
+    ),
+    (
+        "exception-at=REG",
+        "planted bug: a read that covers register REG gets exception 04H",
+    ),
 ];
 
 /// A quirk that cannot be parsed.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
-#[error("unknown quirk {0:?}; the quirks are crc-swap, reply-to-broadcast, wrong-exception, late-reply=MS, drop-every=N, local-echo, garbage-before-reply, truncated-reply, answer-every-address, dead, freeze-after=N, slow=MS, hang-on-byte-count, wrong-value-at=REG, overflow-after=N, ignore-t15, busy-after=N")]
+#[error("unknown quirk {0:?}; the quirks are crc-swap, reply-to-broadcast, wrong-exception, late-reply=MS, drop-every=N, local-echo, garbage-before-reply, truncated-reply, answer-every-address, dead, freeze-after=N, slow=MS, hang-on-byte-count, wrong-value-at=REG, overflow-after=N, ignore-t15, busy-after=N, stuck-at=REG:VALUE, exception-at=REG")]
 pub struct QuirkError(pub String);
 
 impl std::str::FromStr for Quirk {
@@ -184,6 +197,14 @@ impl std::str::FromStr for Quirk {
             }
             ("ignore-t15", None) => Quirk::IgnoreT15,
             ("busy-after", a) => Quirk::BusyAfter(num(a)?),
+            ("stuck-at", Some(a)) => {
+                let (r, v) = a.split_once(':').ok_or_else(err)?;
+                Quirk::StuckAt(
+                    parse_register(r).ok_or_else(err)?,
+                    parse_register(v).ok_or_else(err)?,
+                )
+            }
+            ("exception-at", Some(a)) => Quirk::ExceptionAt(parse_register(a).ok_or_else(err)?),
             _ => return Err(err()),
         })
     }
@@ -208,6 +229,8 @@ impl fmt::Display for Quirk {
             Quirk::OverflowAfter(n) => write!(f, "overflow-after={n}"),
             Quirk::IgnoreT15 => f.write_str("ignore-t15"),
             Quirk::BusyAfter(n) => write!(f, "busy-after={n}"),
+            Quirk::StuckAt(r, v) => write!(f, "stuck-at={r:04X}H:{v:04X}H"),
+            Quirk::ExceptionAt(r) => write!(f, "exception-at={r:04X}H"),
         }
     }
 }
@@ -722,9 +745,27 @@ impl Drive {
         let function = body.get(1).copied().unwrap_or(0);
         let mut values = Vec::new();
         let pdu = match expect {
+            Expectation::Read(plan)
+                if plan
+                    .registers
+                    .iter()
+                    .any(|r| self.quirks.contains(&Quirk::ExceptionAt(*r))) =>
+            {
+                Pdu::Exception {
+                    function: function & 0x7F,
+                    code: 0x04,
+                }
+            }
             Expectation::Read(plan) => {
                 for &r in &plan.registers {
                     let mut v = self.read_register(r);
+                    if let Some(Quirk::StuckAt(_, stuck)) = self
+                        .quirks
+                        .iter()
+                        .find(|q| matches!(q, Quirk::StuckAt(at, _) if *at == r))
+                    {
+                        v = *stuck;
+                    }
                     if self.quirks.contains(&Quirk::WrongValueAt(r)) {
                         v ^= 1;
                     }
@@ -800,7 +841,8 @@ mod tests {
             let s = spelling
                 .replace("=MS", "=200")
                 .replace("=N", "=3")
-                .replace("=REG", "=2502H");
+                .replace("=REG", "=2502H")
+                .replace(":VALUE", ":9C41H");
             let q: Quirk = s.parse().unwrap();
             // `slow=MS` is another spelling of `late-reply=MS`.
             let printed = s.replace("slow=", "late-reply=");
@@ -813,6 +855,19 @@ mod tests {
         );
         assert!("overflow-after=0".parse::<Quirk>().is_err());
         assert!("wrong-value-at=FFFFFH".parse::<Quirk>().is_err());
+        assert_eq!(
+            "stuck-at=2502H:9C41H".parse::<Quirk>().unwrap(),
+            Quirk::StuckAt(0x2502, 0x9C41)
+        );
+        assert_eq!(
+            Quirk::StuckAt(0x2502, 0x9C41).to_string(),
+            "stuck-at=2502H:9C41H"
+        );
+        assert!("stuck-at=2502H".parse::<Quirk>().is_err());
+        assert_eq!(
+            "exception-at=0x2521".parse::<Quirk>().unwrap(),
+            Quirk::ExceptionAt(0x2521)
+        );
         assert_eq!("freeze-after=7".parse::<Quirk>(), Ok(Quirk::FreezeAfter(7)));
         assert!("dead=1".parse::<Quirk>().is_err());
         assert!("drop-every=0".parse::<Quirk>().is_err());
@@ -923,6 +978,19 @@ mod tests {
             now,
         );
         assert!(o.sends.is_empty());
+    }
+
+    #[test]
+    fn stuck_at_and_exception_at_answer_reads_as_planted() {
+        let now = Instant::now();
+        let read = |start, count| req(Mode::Rtu, 1, Pdu::ReadRequest { start, count });
+        let o = drive(&[Quirk::StuckAt(0x2502, 0x9C41)]).handle(Mode::Rtu, &read(0x2501, 2), now);
+        assert_eq!(&reply(&o).unwrap().bytes[3..7], &[0x00, 0x00, 0x9C, 0x41]);
+        let o = drive(&[Quirk::ExceptionAt(0x2521)]).handle(Mode::Rtu, &read(0x2520, 3), now);
+        assert_eq!(&reply(&o).unwrap().bytes[..3], &[0x01, 0x83, 0x04]);
+        // A read that does not cover the register is served.
+        let o = drive(&[Quirk::ExceptionAt(0x2521)]).handle(Mode::Rtu, &read(0x2522, 2), now);
+        assert_eq!(&reply(&o).unwrap().bytes[..3], &[0x01, 0x03, 0x04]);
     }
 
     #[test]
