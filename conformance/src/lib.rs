@@ -29,6 +29,8 @@
 //! - [`report`]: text, JSON and JUnit XML reports of a run.
 //! - [`scan`]: finds the devices on a line (line settings, mode, node addresses).
 //! - [`session`]: a whole run against a serial port, a TCP gateway or the in-process simulator.
+//! - [`params`]: a drive's parameters backed up to a file a person edits, compared, and
+//!   restored with a plan, the runner's journal and an audit log (beside [`identify`]).
 //! - [`identify`]: which model a device follows, from its answers to reads (beside
 //!   [`session`]: it opens the target as a session does and uses the runner's master).
 // `unsafe` is allowed in one module only: codec::crc_clmul (SIMD intrinsics).
@@ -49,6 +51,7 @@ pub mod line;
 pub mod model;
 pub mod monitor;
 pub mod oracle;
+pub mod params;
 pub mod report;
 pub mod requirements;
 pub mod rng;
