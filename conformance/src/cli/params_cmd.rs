@@ -124,6 +124,20 @@ struct Live {
     transport: Box<dyn conformance::transport::Transport>,
     sim: Option<session::SimThread>,
     link: String,
+    /// The `--capture` recorder, said on stderr when the command ends.
+    capture: Option<conformance::transport::capture::SharedRecorder>,
+}
+
+/// Says on stderr what the `--capture` file holds when the command ends, however it ends.
+struct SayCapture<'a>(
+    &'a TargetArgs,
+    Option<conformance::transport::capture::SharedRecorder>,
+);
+
+impl Drop for SayCapture<'_> {
+    fn drop(&mut self) {
+        self.0.close_capture(self.1.as_ref());
+    }
 }
 
 /// Opens the link of `target` in its first mode.
@@ -170,6 +184,7 @@ fn open(target: &TargetArgs) -> anyhow::Result<Live> {
         transport,
         sim,
         link,
+        capture: config.capture,
     })
 }
 
@@ -208,7 +223,9 @@ fn backup(args: BackupArgs) -> anyhow::Result<ExitCode> {
         transport,
         sim: _sim,
         link,
+        capture,
     } = open(&args.target)?;
+    let _said = SayCapture(&args.target, capture);
     let node = options.address;
     let mut ctx = Ctx::new(&model, None, mode, &options, transport);
     preflight(&mut ctx)?;
@@ -318,9 +335,11 @@ fn diff_cmd(args: DiffArgs) -> anyhow::Result<ExitCode> {
         transport,
         link,
         sim: _sim,
+        capture,
         ..
     }) = live
     {
+        let _said = SayCapture(&args.target, capture);
         let node = options.address;
         let mut ctx = Ctx::new(&model, None, mode, &options, transport);
         preflight(&mut ctx)?;
@@ -421,7 +440,9 @@ fn restore(args: RestoreArgs) -> anyhow::Result<ExitCode> {
         transport,
         sim: _sim,
         link,
+        capture,
     } = open(&args.target)?;
+    let _said = SayCapture(&args.target, capture);
     let node = options.address;
     if file.header.model != model.id {
         bail!(
