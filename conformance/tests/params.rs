@@ -538,4 +538,101 @@ fn the_round_trip_against_pymodbus_described_by_a_model_file() {
     let a = backup_of(&d.join("a.toml"));
     let v: BTreeMap<u16, u16> = a.values();
     assert_eq!(v.len(), 0x1000 + 0x30, "both blocks, every register");
+    // Consecutive changes: one 10H write, which pymodbus confirms and holds.
+    let link = [
+        "--model-file",
+        model,
+        "--port",
+        port,
+        "-P",
+        "none",
+        "--mode",
+        "rtu",
+    ];
+    for (r, v) in [(0x0801, 1), (0x0802, 2), (0x0803, 3)] {
+        let (code, ..) =
+            conformance(&[&["send", &write_frame(Mode::Rtu, r, v)], &link[..]].concat());
+        assert_eq!(code, Some(0));
+    }
+    let audit = d.join("fc10.jsonl");
+    let file = d.join("a.toml");
+    let (code, out, err) = conformance(
+        &[
+            &[
+                "params",
+                "restore",
+                file.to_str().unwrap(),
+                "--yes",
+                "--audit",
+                audit.to_str().unwrap(),
+            ],
+            &link[..],
+        ]
+        .concat(),
+    );
+    assert_eq!(code, Some(0), "{out}{err}");
+    let lines = audit_lines(&audit);
+    assert_eq!(lines.len(), 3, "{lines:?}");
+    assert!(
+        lines
+            .iter()
+            .all(|l| l["function"] == "10" && l["verified"] == true),
+        "{lines:?}"
+    );
+    assert!(
+        lines[0]["reply"]
+            .as_str()
+            .unwrap()
+            .starts_with("01 10 08 01 00 03"),
+        "{lines:?}"
+    );
+}
+
+#[test]
+fn consecutive_changes_are_restored_by_one_10h_write_and_read_back() {
+    let d = dir("fc10");
+    let log = d.join("sim.jsonl");
+    let (_sim, port) = sim_pty(&["--model", "f510", "--log", log.to_str().unwrap()]);
+    let link = ["--model", "f510", "--port", &port, "--mode", "rtu"];
+    let a = d.join("a.toml");
+    let (code, out, err) =
+        conformance(&[&["params", "backup", "-o", a.to_str().unwrap()], &link[..]].concat());
+    assert_eq!(code, Some(0), "{out}{err}");
+    for (r, v) in [(0x0301, 1), (0x0302, 2), (0x0303, 3)] {
+        let (code, ..) =
+            conformance(&[&["send", &write_frame(Mode::Rtu, r, v)], &link[..]].concat());
+        assert_eq!(code, Some(0));
+    }
+    let seen = received(&log, Mode::Rtu).len();
+    let (code, out, err) = conformance(
+        &[
+            &["params", "restore", a.to_str().unwrap(), "--yes"],
+            &link[..],
+        ]
+        .concat(),
+    );
+    assert_eq!(code, Some(0), "{out}{err}");
+    assert!(out.contains("plan: 1 writes"), "{out}");
+    assert!(
+        out.contains("write 10H 0301H (3-01) 1 -> 0, 0302H (3-02) 2 -> 0, 0303H (3-03) 3 -> 0"),
+        "{out}"
+    );
+    let frames = received(&log, Mode::Rtu)[seen..].to_vec();
+    assert_eq!(writes(&frames), vec![(0x0301, vec![0, 0, 0])]);
+    let i = frames.iter().position(|b| b[1] == 0x10).unwrap();
+    assert!((0x0301..=0x0303).all(|r| read_back_after(&frames, i, r)));
+    let audit = audit_lines(&d.join("conformance-audit.jsonl"));
+    assert_eq!(audit.len(), 3, "one line per register");
+    assert!(audit
+        .iter()
+        .all(|l| l["function"] == "10" && l["request"] == audit[0]["request"]));
+    // The 10H reply echoes start and count: 01 10 03 01 00 03 and its CRC.
+    assert!(
+        audit[0]["reply"]
+            .as_str()
+            .unwrap()
+            .starts_with("01 10 03 01 00 03"),
+        "{:?}",
+        audit[0]
+    );
 }

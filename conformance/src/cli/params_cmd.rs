@@ -479,6 +479,19 @@ fn restore(args: RestoreArgs) -> anyhow::Result<ExitCode> {
         .collect();
     let mut ctx = Ctx::new(&model, None, mode, &options, transport);
     preflight(&mut ctx)?;
+    // Another identification is another firmware or another device: worth saying, not
+    // a reason to refuse (copying settings between drives is what a restore is for).
+    if let (Some(was), Some(is)) = (
+        file.header.identification,
+        params::read_identification(&mut ctx, &model, node),
+    ) {
+        if was != is {
+            eprintln!(
+                "note: {} was read from a device identifying as {was:04X}H; this one is {is:04X}H",
+                args.file.display()
+            );
+        }
+    }
     let (current, _) = read_all(&mut ctx, &model, mode, node, &mine, &stop)?;
     let changes: Vec<(&Parameter, u16, u16)> = mine
         .iter()
