@@ -652,3 +652,75 @@ fn consecutive_changes_are_restored_by_one_10h_write_and_read_back() {
         audit[0]
     );
 }
+
+#[test]
+fn on_a_terminal_a_restore_asks_once_and_writes_only_after_yes() {
+    if !common::tool_or_skip(
+        common::runs("script", &["--version"]),
+        "script (util-linux), to give the restore a terminal",
+    ) {
+        return;
+    }
+    let d = dir("ask");
+    let log = d.join("sim.jsonl");
+    let (_sim, port) = sim_pty(&["--model", "f510", "--log", log.to_str().unwrap()]);
+    let link = format!("--model f510 --port {port} --mode rtu");
+    let a = d.join("a.toml");
+    let (code, out, err) = conformance(&[
+        "params",
+        "backup",
+        "--model",
+        "f510",
+        "--port",
+        &port,
+        "--mode",
+        "rtu",
+        "-o",
+        a.to_str().unwrap(),
+    ]);
+    assert_eq!(code, Some(0), "{out}{err}");
+    let text = std::fs::read_to_string(&a)
+        .unwrap()
+        .replace("\n0301 = 0 ", "\n0301 = 3 ");
+    std::fs::write(&a, text).unwrap();
+    // script(1) runs the restore on a pseudo-terminal of its own and types our answer.
+    let ask = |answer: &str| {
+        let cmd = format!("{} params restore {} {link}", bin(), a.display());
+        let mut child = Kill::spawn(
+            std::process::Command::new("script")
+                .args(["-qec", &cmd, "/dev/null"])
+                .stdin(std::process::Stdio::piped())
+                .stdout(std::process::Stdio::piped())
+                .stderr(std::process::Stdio::null()),
+        );
+        use std::io::{Read, Write};
+        child
+            .0
+            .stdin
+            .take()
+            .unwrap()
+            .write_all(answer.as_bytes())
+            .unwrap();
+        let status = child.wait_within(LIMIT, "the restore on a terminal");
+        let mut out = String::new();
+        child
+            .0
+            .stdout
+            .take()
+            .unwrap()
+            .read_to_string(&mut out)
+            .unwrap();
+        (status.code(), out)
+    };
+    let (code, out) = ask("n\n");
+    assert_eq!(code, Some(2), "{out}");
+    assert_eq!(out.matches("[y/N]").count(), 1, "asked once: {out}");
+    assert!(out.contains("not confirmed: nothing written"), "{out}");
+    assert_eq!(writes(&received(&log, Mode::Rtu)), vec![]);
+    let (code, out) = ask("y\n");
+    assert_eq!(code, Some(0), "{out}");
+    assert_eq!(
+        distinct_writes(&received(&log, Mode::Rtu)),
+        vec![(0x0301, vec![3])]
+    );
+}
