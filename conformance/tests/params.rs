@@ -319,9 +319,11 @@ fn a_line_for_a_read_only_or_command_register_is_refused_naming_the_line() {
 }
 
 /// `acme-x100.json` (the guide's example description) with its settings block cut
-/// around `0012H`, which becomes read-only: the device that refuses a write its
-/// description (the unchanged file) allows.
-fn refusing_description(d: &Path) -> (PathBuf, PathBuf) {
+/// around `0012H`, which becomes `access` (read-only: the device that refuses a write
+/// its description, the unchanged file, allows; write-only: one that refuses a read).
+/// Its simulator answers after 5 ms (`--delay 5`), not the description's 50 ms, so that
+/// a backup of its 4112 registers takes seconds, not half a minute.
+fn refusing_description(d: &Path, access: &str) -> (PathBuf, PathBuf) {
     let src = concat!(
         env!("CARGO_MANIFEST_DIR"),
         "/../vectors/models/examples/acme-x100.json"
@@ -338,9 +340,9 @@ fn refusing_description(d: &Path) -> (PathBuf, PathBuf) {
         b
     };
     blocks.insert(0, part("0013", "0FFF", "read-write"));
-    blocks.insert(0, part("0012", "0012", "read-only"));
+    blocks.insert(0, part("0012", "0012", access));
     blocks.insert(0, part("0000", "0011", "read-write"));
-    let device = d.join("device.json");
+    let device = d.join(format!("device-{access}.json"));
     std::fs::write(&device, serde_json::to_string_pretty(&v).unwrap()).unwrap();
     (PathBuf::from(src), device)
 }
@@ -348,9 +350,11 @@ fn refusing_description(d: &Path) -> (PathBuf, PathBuf) {
 #[test]
 fn an_exception_mid_restore_stops_it_and_the_audit_log_and_journal_say_what_was_written() {
     let d = dir("exception");
-    let (described, device) = refusing_description(&d);
+    let (described, device) = refusing_description(&d, "read-only");
     let log = d.join("sim.jsonl");
     let (_sim, port) = sim_pty(&[
+        "--delay",
+        "5",
         "--model-file",
         device.to_str().unwrap(),
         "--log",
@@ -723,4 +727,59 @@ fn on_a_terminal_a_restore_asks_once_and_writes_only_after_yes() {
         distinct_writes(&received(&log, Mode::Rtu)),
         vec![(0x0301, vec![3])]
     );
+}
+
+#[test]
+fn a_register_the_device_refuses_to_read_is_a_comment_of_the_backup_and_stops_no_other() {
+    let d = dir("unread");
+    let (described, device) = refusing_description(&d, "write-only");
+    let (_sim, port) = sim_pty(&["--delay", "5", "--model-file", device.to_str().unwrap()]);
+    let link = [
+        "--model-file",
+        described.to_str().unwrap(),
+        "--port",
+        &port,
+        "--mode",
+        "rtu",
+    ];
+    let a = d.join("a.toml");
+    let (code, out, err) =
+        conformance(&[&["params", "backup", "-o", a.to_str().unwrap()], &link[..]].concat());
+    assert_eq!(code, Some(0), "{out}{err}");
+    assert!(
+        out.contains("1 refused by the device, as comments"),
+        "{out}"
+    );
+    assert!(
+        err.contains("note: 0012H (settings) not read: reading 1 from 0012H"),
+        "{err}"
+    );
+    let text = std::fs::read_to_string(&a).unwrap();
+    assert!(
+        text.contains("\n# 0012 not read: reading 1 from 0012H"),
+        "{text}"
+    );
+    let b = backup_of(&a);
+    assert!(!b.values().contains_key(&0x0012));
+    assert!(b.values().contains_key(&0x0011) && b.values().contains_key(&0x0013));
+    // The live side lacks it: a diff says so (a firmware that stopped serving one).
+    std::fs::write(
+        &a,
+        text.replace("\n# 0012 not read", "\n0012 = 0 # not read"),
+    )
+    .unwrap();
+    let (code, out, err) =
+        conformance(&[&["params", "diff", a.to_str().unwrap(), "live"], &link[..]].concat());
+    assert_eq!(code, Some(1), "{out}{err}");
+    assert!(out.contains("only in A: 0012H (settings)"), "{out}");
+    // A restore cannot plan a register it cannot read: it refuses, naming the line.
+    let (code, out, err) = conformance(
+        &[
+            &["params", "restore", a.to_str().unwrap(), "--yes"],
+            &link[..],
+        ]
+        .concat(),
+    );
+    assert_eq!(code, Some(2), "{out}{err}");
+    assert!(err.contains("the device refuses to read 0012H"), "{err}");
 }

@@ -16,7 +16,7 @@ use conformance::codec::Mode;
 use conformance::model::DriveModel;
 use conformance::params::{
     self, diff, read_plan, read_values, write_plan, AuditLog, Backup, FileError, Header, Parameter,
-    Side, StepResult,
+    ReadOut, Side, StepResult,
 };
 use conformance::runner::{Ctx, Options};
 use conformance::session::{self, SessionConfig};
@@ -200,7 +200,8 @@ fn preflight(ctx: &mut Ctx<'_>) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// Reads every parameter of `params` from the device of `ctx`.
+/// Reads every parameter of `params` from the device of `ctx`; the registers it refused
+/// are said on stderr.
 fn read_all(
     ctx: &mut Ctx<'_>,
     model: &DriveModel,
@@ -208,10 +209,13 @@ fn read_all(
     node: u8,
     params: &[Parameter],
     stop: &AtomicBool,
-) -> anyhow::Result<(BTreeMap<u16, u16>, usize)> {
+) -> anyhow::Result<(ReadOut, usize)> {
     let plan = read_plan(model, mode, params);
-    let values = read_values(ctx, node, &plan, stop)?;
-    Ok((values, plan.len()))
+    let out = read_values(ctx, node, &plan, stop)?;
+    for (r, why) in &out.refused {
+        eprintln!("note: {} not read: {why}", model.describe(*r));
+    }
+    Ok((out, plan.len()))
 }
 
 fn backup(args: BackupArgs) -> anyhow::Result<ExitCode> {
@@ -236,7 +240,7 @@ fn backup(args: BackupArgs) -> anyhow::Result<ExitCode> {
             model.id
         );
     }
-    let (values, reads) = read_all(&mut ctx, &model, mode, node, &params, &stop)?;
+    let (read, reads) = read_all(&mut ctx, &model, mode, node, &params, &stop)?;
     let header = Header {
         model: model.id.clone(),
         node,
@@ -244,13 +248,21 @@ fn backup(args: BackupArgs) -> anyhow::Result<ExitCode> {
         time: humantime::format_rfc3339_seconds(std::time::SystemTime::now()).to_string(),
         mode: Some(mode.to_string()),
     };
-    let text = Backup::write(&model, &header, &params, &values);
+    let text = Backup::write(&model, &header, &params, &read.values, &read.refused);
     write_atomic(&args.output, &text)
         .with_context(|| format!("cannot write {}", args.output.display()))?;
     let read_only = params.iter().filter(|p| !p.writable).count();
+    let refused = if read.refused.is_empty() {
+        String::new()
+    } else {
+        format!(
+            "; {} refused by the device, as comments",
+            read.refused.len()
+        )
+    };
     println!(
-        "backup: {} parameters of {} node {node:02X} ({} read-only, as comments) in {reads} reads over {link} ({mode}) -> {}",
-        values.len(),
+        "backup: {} parameters of {} node {node:02X} ({} read-only, as comments{refused}) in {reads} reads over {link} ({mode}) -> {}",
+        read.values.len(),
         model.id,
         read_only,
         args.output.display()
@@ -343,10 +355,10 @@ fn diff_cmd(args: DiffArgs) -> anyhow::Result<ExitCode> {
         let node = options.address;
         let mut ctx = Ctx::new(&model, None, mode, &options, transport);
         preflight(&mut ctx)?;
-        let (values, _) = read_all(&mut ctx, &model, mode, node, &writable, &stop)?;
+        let (read, _) = read_all(&mut ctx, &model, mode, node, &writable, &stop)?;
         live_values = Some((
             format!("live ({} node {node:02X} over {link}, {mode})", model.id),
-            values,
+            read.values,
         ));
     }
     let side = |s: &str| -> Side {
@@ -492,7 +504,18 @@ fn restore(args: RestoreArgs) -> anyhow::Result<ExitCode> {
             );
         }
     }
-    let (current, _) = read_all(&mut ctx, &model, mode, node, &mine, &stop)?;
+    let (read, _) = read_all(&mut ctx, &model, mode, node, &mine, &stop)?;
+    if let Some((r, why)) = read.refused.iter().next() {
+        let line = file
+            .entries()
+            .find(|e| e.register == *r)
+            .map_or(0, |e| e.line);
+        bail!(
+            "{}: line {line}: the device refuses to read {r:04X}H ({why}), so a restore cannot tell whether it needs a write: take the line out (or make it a comment)",
+            args.file.display()
+        );
+    }
+    let current = read.values;
     let changes: Vec<(&Parameter, u16, u16)> = mine
         .iter()
         .filter_map(|p| {

@@ -12,7 +12,7 @@ use crate::codec::hex::Hex;
 use crate::codec::pdu::{Direction, Message, Pdu};
 use crate::judge;
 use crate::model::DriveModel;
-use crate::runner::{Ctx, RestoreRecord, RunError};
+use crate::runner::{Ctx, RestoreRecord, RunError, SetupError};
 
 /// Why the device's parameters could not be read.
 #[derive(Debug, thiserror::Error)]
@@ -28,14 +28,26 @@ pub enum LiveError {
     Interrupted,
 }
 
-/// Reads the registers of `plan` (start, count) from `node`: the values by register.
+/// What a read of every parameter found.
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
+pub struct ReadOut {
+    /// The values read, by register.
+    pub values: BTreeMap<u16, u16>,
+    /// The registers the device refused to read one by one, with its answer in words
+    /// (a firmware that does not serve a parameter its manual lists).
+    pub refused: BTreeMap<u16, String>,
+}
+
+/// Reads the registers of `plan` (start, count) from `node`. A read the device refuses
+/// with an exception is read again one register at a time, so that one register it does
+/// not serve costs only that register; no valid answer ends the read.
 pub fn read_values(
     ctx: &mut Ctx<'_>,
     node: u8,
     plan: &[(u16, u16)],
     stop: &AtomicBool,
-) -> Result<BTreeMap<u16, u16>, LiveError> {
-    let mut out = BTreeMap::new();
+) -> Result<ReadOut, LiveError> {
+    let mut out = ReadOut::default();
     for &(start, count) in plan {
         if stop.load(Ordering::Relaxed) {
             return Err(LiveError::Interrupted);
@@ -43,8 +55,27 @@ pub fn read_values(
         match ctx.read_at(node, start, count)? {
             Ok(values) => {
                 for (i, v) in values.into_iter().enumerate() {
-                    out.insert(start.wrapping_add(i as u16), v);
+                    out.values.insert(start.wrapping_add(i as u16), v);
                 }
+            }
+            Err(SetupError::Refused { .. }) if count > 1 => {
+                for r in (0..count).map(|i| start.wrapping_add(i)) {
+                    if stop.load(Ordering::Relaxed) {
+                        return Err(LiveError::Interrupted);
+                    }
+                    match ctx.read_at(node, r, 1)? {
+                        Ok(v) => {
+                            out.values.insert(r, v[0]);
+                        }
+                        Err(e @ SetupError::Refused { .. }) => {
+                            out.refused.insert(r, e.to_string());
+                        }
+                        Err(e) => return Err(LiveError::Read(e.to_string())),
+                    }
+                }
+            }
+            Err(e @ SetupError::Refused { .. }) => {
+                out.refused.insert(start, e.to_string());
             }
             Err(e) => return Err(LiveError::Read(e.to_string())),
         }

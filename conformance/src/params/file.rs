@@ -261,12 +261,14 @@ impl Backup {
 
     /// The file's text: the header, then per group `REGISTER = VALUE  # name, unit`.
     /// Read-only parameters are written as comments: a person sees them, and a restore of
-    /// the file never meets a line it must refuse.
+    /// the file never meets a line it must refuse. A register the device refused to read
+    /// (`refused`, with why) is a comment that says so.
     pub fn write(
         model: &DriveModel,
         header: &Header,
         params: &[Parameter],
         values: &BTreeMap<u16, u16>,
+        refused: &BTreeMap<u16, String>,
     ) -> String {
         let mut s = String::new();
         let _ = writeln!(
@@ -289,13 +291,20 @@ impl Backup {
         }
         let mut group: Option<&str> = None;
         for p in params {
-            let Some(v) = values.get(&p.register) else {
+            let (v, why) = (values.get(&p.register), refused.get(&p.register));
+            if v.is_none() && why.is_none() {
                 continue;
-            };
+            }
             if group != Some(p.group.as_str()) {
                 let _ = writeln!(s, "\n[{}]", quote(&p.group));
                 group = Some(p.group.as_str());
             }
+            let Some(v) = v else {
+                // A register the device would not read is kept in sight, not lost.
+                let why = why.map(|w| w.replace('\n', " ")).unwrap_or_default();
+                let _ = writeln!(s, "# {:04X} not read: {why}", p.register);
+                continue;
+            };
             let line = format!("{:04X} = {v}", p.register);
             if p.writable {
                 let _ = writeln!(s, "{line:<14} # {}", p.comment(*v));

@@ -19,7 +19,7 @@ mod plan;
 
 pub use audit::{now, AuditLog, AuditRecord};
 pub use device::{
-    read_identification, read_values, restore, LiveError, RestoreOutcome, Step, StepResult,
+    read_identification, read_values, restore, LiveError, ReadOut, RestoreOutcome, Step, StepResult,
 };
 pub use diff::{diff, Difference, Side, ValueDiff};
 pub use file::{Backup, Entry, FileError, Header};

@@ -44,7 +44,7 @@ fn a_backup_is_toml_and_reads_back_as_written() {
     let m = f510();
     let ps = parameters(&m);
     let v = values(&ps);
-    let text = Backup::write(&m, &header(), &ps, &v);
+    let text = Backup::write(&m, &header(), &ps, &v, &BTreeMap::new());
     let toml: toml::Table = toml::from_str(&text).expect("any TOML reader reads a backup");
     assert_eq!(toml["device"]["model"].as_str(), Some("f510"));
     assert_eq!(
@@ -163,7 +163,7 @@ fn a_group_table_given_again_takes_its_lines_into_that_group() {
 fn every_cut_and_byte_change_of_a_backup_is_read_or_refused_without_a_panic() {
     let m = DriveModel::builtin("l510").unwrap();
     let ps = parameters(&m);
-    let text = Backup::write(&m, &header(), &ps, &values(&ps));
+    let text = Backup::write(&m, &header(), &ps, &values(&ps), &BTreeMap::new());
     let bytes = text.as_bytes();
     for cut in 0..bytes.len().min(3000) {
         let _ = Backup::parse(&String::from_utf8_lossy(&bytes[..cut]));
