@@ -32,6 +32,8 @@
 //! - [`watch`]: polls named registers with reads only and judges every value through
 //!   the [`judge`] and the model (beside [`monitor`]; its text, CSV, JSON lines and HTML
 //!   are in [`report`]).
+//! - [`params`]: a drive's parameters backed up to a file a person edits, compared, and
+//!   restored with a plan, the runner's journal and an audit log (beside [`identify`]).
 //! - [`identify`]: which model a device follows, from its answers to reads (beside
 //!   [`session`]: it opens the target as a session does and uses the runner's master).
 // `unsafe` is allowed in one module only: codec::crc_clmul (SIMD intrinsics).
@@ -52,6 +54,7 @@ pub mod line;
 pub mod model;
 pub mod monitor;
 pub mod oracle;
+pub mod params;
 pub mod report;
 pub mod requirements;
 pub mod rng;

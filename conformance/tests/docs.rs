@@ -850,6 +850,11 @@ fn identify_and_scan_examples() {
 }
 
 #[test]
+fn parameters_examples() {
+    check_page("docs/src/parameters.md");
+}
+
+#[test]
 fn fuzzing_a_drive_examples() {
     check_page("docs/src/fuzzing-a-drive.md");
 }

@@ -18,6 +18,7 @@ mod model_io_cmd;
 mod model_learn_cmd;
 mod monitor_cmd;
 mod output;
+mod params_cmd;
 mod report_cmd;
 mod requirements_cmd;
 mod scan_cmd;
@@ -76,6 +77,9 @@ enum Command {
     /// Poll named registers of one or more drives (reads only) and judge every value
     /// against the model as it changes: a live table, CSV, JSON lines or an HTML trend.
     Watch(watch_cmd::WatchArgs),
+    /// A drive's parameters: back them up to a file a person edits, compare two sets
+    /// (files, a live device, the model), restore a file with a plan and an audit log.
+    Params(params_cmd::ParamsArgs),
     /// Find the devices on a line: line settings, mode and node addresses (reads only).
     Scan(scan_cmd::ScanArgs),
     /// Check another Modbus codec (--codec) or master (--master) through an adapter
@@ -113,6 +117,7 @@ pub fn run(cli: Cli) -> anyhow::Result<ExitCode> {
         Command::Send(a) => send_cmd::run(a),
         Command::Scan(a) => scan_cmd::run(a),
         Command::Watch(a) => watch_cmd::run(a),
+        Command::Params(a) => params_cmd::run(a),
         Command::Monitor(a) => monitor_cmd::run(a),
         Command::Gate(a) => gate_cmd::run(a),
         Command::Adapter(a) => gate_cmd::adapter(a),

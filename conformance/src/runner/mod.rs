@@ -731,6 +731,12 @@ impl<'a> Ctx<'a> {
         })
     }
 
+    /// The journal: (node, register, value before), in the order journalled; what
+    /// [`Ctx::restore`] writes back. `params restore` reports it.
+    pub fn journal(&self) -> &[(u8, u16, u16)] {
+        &self.journal
+    }
+
     /// The value `register` holds now, journalling it first if no check changed it yet
     /// (so that the restore can put it back).
     pub fn remember_current(&mut self, register: u16) -> Result<Result<u16, SetupError>, RunError> {
