@@ -230,7 +230,7 @@ fn assert_exact(j: &Judged) {
             "master.bad-checksum",
             (of_kind("noise", a).len() + of_kind("master-restart", a).len()) as u64,
         );
-        put("master.register-not-in-map", u(tn, "exceptions"));
+        put("master.register-not-in-map", u(tn, "unmapped_reads"));
         put("master.retry", u(tn, "retries"));
         let found: BTreeMap<String, u64> = mn["errors"]
             .as_object()

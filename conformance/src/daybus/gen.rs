@@ -529,8 +529,13 @@ impl<W: Write> Gen<W> {
         let c = self.counts.entry(address).or_default();
         c.requests += 1;
         c.exchanges += 1;
+        let unmapped = bytes.len() == 8
+            && bytes[1] == function::READ_HOLDING_REGISTERS
+            && u16::from_be_bytes([bytes[2], bytes[3]]) == self.exceptions_at;
         if corrupt {
             c.crc_errors += 1;
+        } else if unmapped {
+            c.unmapped_reads += 1;
         } else if bytes.get(1).is_some_and(|&f| {
             f == function::WRITE_SINGLE_REGISTER || f == function::WRITE_MULTIPLE_REGISTERS
         }) {

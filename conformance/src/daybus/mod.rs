@@ -115,6 +115,9 @@ pub struct NodeTruth {
     pub retries: u64,
     /// Replies that were exceptions.
     pub exceptions: u64,
+    /// Requests that read a register the model's map does not have (the master's side:
+    /// each is one, answered with an exception or not, a retry included).
+    pub unmapped_reads: u64,
     /// 06H and 10H requests (broadcasts included).
     pub writes: u64,
 }
