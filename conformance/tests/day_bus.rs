@@ -85,6 +85,8 @@ fn synth(dir: &Path, duration: &str, seed: u64) -> (PathBuf, Value, f64) {
 /// `monitor --capture-in CAP`, its live lines read from a pipe as they come (a day's
 /// log does not go to disk), its peak RSS from `wait4`; a run over `limit` is killed and
 /// fails the test.
+// The child is reaped by wait4 (which gives its own rusage), not by `Child::wait`.
+#[allow(clippy::zombie_processes)]
 fn judge(dir: &Path, cap: &Path, limit: Duration) -> (Value, Vec<Value>, f64, i64) {
     let report = dir.join("day.json");
     let t0 = Instant::now();
