@@ -42,6 +42,7 @@
 
 pub mod capture;
 pub mod codec;
+pub mod daybus;
 pub mod describe;
 pub mod expect;
 pub mod fuzz;

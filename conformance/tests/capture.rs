@@ -11,12 +11,9 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::sync::OnceLock;
 
-use common::{need, Peer};
+use common::{need, Peer, TSHARK_USER_DLT as USER_DLT};
 use conformance::capture::{Direction, Reader, FLAG_CRC_ERROR};
 use serde_json::Value;
-
-/// The user DLT table entry that maps link type 147 to Wireshark's Modbus RTU dissector.
-const USER_DLT: &str = r#"uat:user_dlts:"User 0 (DLT=147)","mbrtu","0","","0","""#;
 
 fn dir() -> PathBuf {
     let d = std::env::temp_dir().join(format!("capture-test-{}", std::process::id()));

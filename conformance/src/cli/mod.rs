@@ -2,6 +2,7 @@
 
 #[cfg(unix)]
 mod bus_cmd;
+mod capture_cmd;
 mod check_cmd;
 mod codec_cmd;
 mod common;
@@ -71,6 +72,9 @@ enum Command {
     /// Send raw frames (hex) to a device and show what comes back, with timestamps and the
     /// model's prediction.
     Send(send_cmd::SendArgs),
+    /// Make captures: `capture synth` writes a day of a bus (a master polling drives, rare
+    /// faults at known times) with its truth, for `monitor --capture-in` to be held to.
+    Capture(capture_cmd::CaptureArgs),
     /// Listen to a bus others drive, never send a byte, and judge both the drives and the
     /// master against the manual (passive conformance).
     Monitor(monitor_cmd::MonitorArgs),
@@ -119,6 +123,7 @@ pub fn run(cli: Cli) -> anyhow::Result<ExitCode> {
         Command::Watch(a) => watch_cmd::run(a),
         Command::Params(a) => params_cmd::run(a),
         Command::Monitor(a) => monitor_cmd::run(a),
+        Command::Capture(a) => capture_cmd::run(a),
         Command::Gate(a) => gate_cmd::run(a),
         Command::Adapter(a) => gate_cmd::adapter(a),
         Command::Report(a) => report_cmd::report(a),

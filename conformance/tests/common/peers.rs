@@ -477,3 +477,7 @@ pub fn libmodbus_server(dir: &Path, args: &[&str]) -> Option<SerialPeer> {
         port: b,
     })
 }
+
+/// tshark's `-o` option: the user DLT table entry that maps link type 147 (RTU frames in
+/// this suite's captures) to Wireshark's Modbus RTU dissector.
+pub const TSHARK_USER_DLT: &str = r#"uat:user_dlts:"User 0 (DLT=147)","mbrtu","0","","0","""#;
