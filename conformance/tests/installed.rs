@@ -45,8 +45,63 @@ fn model_lint_holds_a_description_to_the_schema_inside_the_binary() {
     let (code, out, err) = i.run(&["model", "lint", "good.json"]);
     assert_eq!(code, Some(0), "{out}{err}");
     // A field the schema does not know is an error that only the schema can give.
-    std::fs::write(i.cwd.join("bad.json"), "{\"schema_version\": 2, \"nonsense\": 1}").unwrap();
+    std::fs::write(
+        i.cwd.join("bad.json"),
+        "{\"schema_version\": 2, \"nonsense\": 1}",
+    )
+    .unwrap();
     let (code, out, err) = i.run(&["model", "lint", "bad.json"]);
     assert_eq!(code, Some(1), "{out}{err}");
     assert!(out.contains("bad.json:1:"), "{out}");
+}
+
+#[test]
+fn version_says_the_commit_and_the_crc_path_the_dispatcher_chose() {
+    let i = Installed::new("version");
+    let (code, out, err) = i.run(&["--version"]);
+    assert_eq!(code, Some(0), "{out}{err}");
+    let lines: Vec<&str> = out.lines().collect();
+    assert_eq!(
+        lines.first().copied(),
+        Some(concat!("conformance ", env!("CARGO_PKG_VERSION"))),
+        "{out}"
+    );
+    let commit = lines
+        .iter()
+        .find_map(|l| l.strip_prefix("commit: "))
+        .unwrap_or_else(|| panic!("no commit line: {out}"));
+    // Built from this checkout, it is the checkout's HEAD (and not a blank).
+    match std::process::Command::new("git")
+        .args(["rev-parse", "HEAD"])
+        .current_dir(env!("CARGO_MANIFEST_DIR"))
+        .output()
+    {
+        Ok(o) if o.status.success() && std::env::var_os("CONFORMANCE_BUILD_COMMIT").is_none() => {
+            assert_eq!(commit, String::from_utf8_lossy(&o.stdout).trim(), "{out}")
+        }
+        _ => assert!(commit.len() > 6, "{out}"),
+    }
+    // The path the codec's dispatcher takes in this process is the one the binary names.
+    let tier = conformance::codec::crc::crc16_tier().name();
+    assert!(
+        out.contains(&format!(
+            "\ncrc: {tier} path for long inputs (this CPU runs: table"
+        )),
+        "{out}"
+    );
+    // Capped to the table, it says so.
+    let o = i
+        .command(&["--version"])
+        .env("CONFORMANCE_CRC_PATH", "table")
+        .output()
+        .unwrap();
+    let out = String::from_utf8_lossy(&o.stdout);
+    assert!(out.contains("\ncrc: table path for long inputs"), "{out}");
+    assert!(
+        out.contains("capped by CONFORMANCE_CRC_PATH=table"),
+        "{out}"
+    );
+    // -V is the one line a script reads.
+    let (_, short, _) = i.run(&["-V"]);
+    assert_eq!(short.trim(), lines[0]);
 }

@@ -23,10 +23,11 @@ mod scan_cmd;
 mod send_cmd;
 mod simulate_cmd;
 mod vectors_cmd;
+mod version;
 
 use std::process::ExitCode;
 
-use clap::{Parser, Subcommand};
+use clap::{CommandFactory, FromArgMatches, Parser, Subcommand};
 
 /// Conformance and fuzz test suite for the Modbus RTU/ASCII protocol of TECO F510, A510,
 /// L510 and E510 AC drives.
@@ -89,6 +90,14 @@ enum Command {
     /// This suite's codec behind the adapter protocol, on stdin/stdout (the reference
     /// adapter: `conformance gate --codec "conformance adapter"`).
     Adapter(gate_cmd::AdapterArgs),
+}
+
+/// Parses the command line: as [`Parser::parse`], with `--version` saying the commit and
+/// the CRC paths of this CPU, which are only known at run time.
+pub fn parse() -> Cli {
+    let long: &'static str = Box::leak(version::long().into_boxed_str());
+    let matches = Cli::command().long_version(long).get_matches();
+    Cli::from_arg_matches(&matches).unwrap_or_else(|e| e.exit())
 }
 
 /// Runs the parsed command.
