@@ -17,6 +17,7 @@ mod model_cmd;
 mod model_io_cmd;
 mod model_learn_cmd;
 mod monitor_cmd;
+mod ports_cmd;
 mod report_cmd;
 mod requirements_cmd;
 mod scan_cmd;
@@ -72,6 +73,9 @@ enum Command {
     /// Listen to a bus others drive, never send a byte, and judge both the drives and the
     /// master against the manual (passive conformance).
     Monitor(monitor_cmd::MonitorArgs),
+    /// The serial ports of this machine: which adapter is which path, its USB latency
+    /// timer and what it does to RTU framing, and whether you may open it.
+    Ports(ports_cmd::PortsArgs),
     /// Find the devices on a line: line settings, mode and node addresses (reads only).
     Scan(scan_cmd::ScanArgs),
     /// Check another Modbus codec (--codec) or master (--master) through an adapter
@@ -116,6 +120,7 @@ pub fn run(cli: Cli) -> anyhow::Result<ExitCode> {
         Command::Fuzz(a) => fuzz_cmd::run(a),
         Command::Send(a) => send_cmd::run(a),
         Command::Scan(a) => scan_cmd::run(a),
+        Command::Ports(a) => ports_cmd::run(a),
         Command::Monitor(a) => monitor_cmd::run(a),
         Command::Gate(a) => gate_cmd::run(a),
         Command::Adapter(a) => gate_cmd::adapter(a),
