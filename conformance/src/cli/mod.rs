@@ -9,6 +9,7 @@ mod expect_cmd;
 mod fuzz_cmd;
 mod gate_cmd;
 mod gate_run;
+mod generate_cmd;
 mod identify_cmd;
 mod interrupt;
 mod link;
@@ -94,6 +95,11 @@ enum Command {
     /// This suite's codec behind the adapter protocol, on stdin/stdout (the reference
     /// adapter: `conformance gate --codec "conformance adapter"`).
     Adapter(gate_cmd::AdapterArgs),
+    /// The completion script for a shell (bash, zsh, fish, elvish, powershell), on stdout.
+    Completions(generate_cmd::CompletionsArgs),
+    /// Man pages and completion scripts into a folder, for packaging.
+    #[command(hide = true)]
+    Generate(generate_cmd::GenerateArgs),
 }
 
 /// Parses the command line: as [`Parser::parse`], with `--version` saying the commit and
@@ -127,5 +133,7 @@ pub fn run(cli: Cli) -> anyhow::Result<ExitCode> {
         Command::Report(a) => report_cmd::report(a),
         Command::Diff(a) => report_cmd::diff(a),
         Command::Expect(a) => expect_cmd::run(a),
+        Command::Completions(a) => generate_cmd::completions(a),
+        Command::Generate(a) => generate_cmd::generate(a),
     }
 }
