@@ -93,7 +93,7 @@ pub fn access(path: &Path) -> Access {
     let listed = Group::from_gid(Gid::from_raw(gid))
         .ok()
         .flatten()
-        .is_some_and(|g| g.mem.iter().any(|m| *m == user));
+        .is_some_and(|g| g.mem.contains(&user));
     if !in_group && rw(3) {
         return Access {
             may_open: Some(false),
