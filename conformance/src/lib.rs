@@ -27,6 +27,8 @@
 //! - [`expect`]: expectations files (known, accepted results) and how a run stands
 //!   against one; [`report`] records the outcome and gives the exit code by it.
 //! - [`report`]: text, JSON and JUnit XML reports of a run.
+//! - [`ports`]: the serial ports of this machine (sysfs on Linux), their USB identity,
+//!   latency timer, access rights and locks (below the transports: it opens nothing).
 //! - [`scan`]: finds the devices on a line (line settings, mode, node addresses).
 //! - [`session`]: a whole run against a serial port, a TCP gateway or the in-process simulator.
 //! - [`watch`]: polls named registers with reads only and judges every value through
@@ -56,6 +58,7 @@ pub mod model;
 pub mod monitor;
 pub mod oracle;
 pub mod params;
+pub mod ports;
 pub mod report;
 pub mod requirements;
 pub mod rng;

@@ -737,6 +737,16 @@ fn readme_examples() {
     check_page("README.md");
 }
 
+#[test]
+fn tour_examples() {
+    check_page("docs/src/tour.md");
+}
+
+#[test]
+fn from_the_box_examples() {
+    check_page("docs/src/from-the-box.md");
+}
+
 /// The `sh` blocks list commands for a real drive, a gateway or a long campaign, which
 /// cannot run here; each of their `conformance` lines must at least use options its
 /// command has (so a renamed option cannot leave the guide behind).
@@ -792,6 +802,11 @@ fn unknown_options(
             if b.lang() == "text" && !l.trim_start().starts_with("$ conformance ") {
                 continue;
             }
+            // In a console block only the `$` lines are commands (`conformance --version`
+            // prints a line that starts with `conformance`).
+            if b.lang() == "console" && !l.trim_start().starts_with("$ ") {
+                continue;
+            }
             let l = l.trim().trim_start_matches("$ ");
             let l = l.split(" #").next().unwrap().trim().trim_end_matches(" &");
             let Some(args) = l.strip_prefix("conformance ") else {
@@ -817,7 +832,13 @@ fn unknown_options(
                 }
                 path = p;
             }
-            if path.is_empty() {
+            // Options of the program itself (`conformance --version`) are in its own help.
+            if path.is_empty() && w.first().is_some_and(|x| x.starts_with('-')) {
+                help_of.entry(Vec::new()).or_insert_with(|| {
+                    let o = Command::new(bin).arg("--help").output().unwrap();
+                    String::from_utf8_lossy(&o.stdout).to_string()
+                });
+            } else if path.is_empty() {
                 bad.push(format!("{at}: {l}: no such command"));
                 continue;
             }

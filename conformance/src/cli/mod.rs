@@ -10,6 +10,7 @@ mod expect_cmd;
 mod fuzz_cmd;
 mod gate_cmd;
 mod gate_run;
+mod generate_cmd;
 mod identify_cmd;
 mod interrupt;
 mod link;
@@ -20,6 +21,7 @@ mod model_learn_cmd;
 mod monitor_cmd;
 mod output;
 mod params_cmd;
+mod ports_cmd;
 mod report_cmd;
 mod requirements_cmd;
 mod scan_cmd;
@@ -27,10 +29,11 @@ mod send_cmd;
 mod simulate_cmd;
 mod vectors_cmd;
 mod watch_cmd;
+mod version;
 
 use std::process::ExitCode;
 
-use clap::{Parser, Subcommand};
+use clap::{CommandFactory, FromArgMatches, Parser, Subcommand};
 
 /// Conformance and fuzz test suite for the Modbus RTU/ASCII protocol of TECO F510, A510,
 /// L510 and E510 AC drives.
@@ -84,6 +87,9 @@ enum Command {
     /// A drive's parameters: back them up to a file a person edits, compare two sets
     /// (files, a live device, the model), restore a file with a plan and an audit log.
     Params(params_cmd::ParamsArgs),
+    /// The serial ports of this machine: which adapter is which path, its USB latency
+    /// timer and what it does to RTU framing, and whether you may open it.
+    Ports(ports_cmd::PortsArgs),
     /// Find the devices on a line: line settings, mode and node addresses (reads only).
     Scan(scan_cmd::ScanArgs),
     /// Check another Modbus codec (--codec) or master (--master) through an adapter
@@ -102,6 +108,19 @@ enum Command {
     /// This suite's codec behind the adapter protocol, on stdin/stdout (the reference
     /// adapter: `conformance gate --codec "conformance adapter"`).
     Adapter(gate_cmd::AdapterArgs),
+    /// The completion script for a shell (bash, zsh, fish, elvish, powershell), on stdout.
+    Completions(generate_cmd::CompletionsArgs),
+    /// Man pages and completion scripts into a folder, for packaging.
+    #[command(hide = true)]
+    Generate(generate_cmd::GenerateArgs),
+}
+
+/// Parses the command line: as [`Parser::parse`], with `--version` saying the commit and
+/// the CRC paths of this CPU, which are only known at run time.
+pub fn parse() -> Cli {
+    let long: &'static str = Box::leak(version::long().into_boxed_str());
+    let matches = Cli::command().long_version(long).get_matches();
+    Cli::from_arg_matches(&matches).unwrap_or_else(|e| e.exit())
 }
 
 /// Runs the parsed command.
@@ -122,6 +141,7 @@ pub fn run(cli: Cli) -> anyhow::Result<ExitCode> {
         Command::Scan(a) => scan_cmd::run(a),
         Command::Watch(a) => watch_cmd::run(a),
         Command::Params(a) => params_cmd::run(a),
+        Command::Ports(a) => ports_cmd::run(a),
         Command::Monitor(a) => monitor_cmd::run(a),
         Command::Capture(a) => capture_cmd::run(a),
         Command::Gate(a) => gate_cmd::run(a),
@@ -129,5 +149,7 @@ pub fn run(cli: Cli) -> anyhow::Result<ExitCode> {
         Command::Report(a) => report_cmd::report(a),
         Command::Diff(a) => report_cmd::diff(a),
         Command::Expect(a) => expect_cmd::run(a),
+        Command::Completions(a) => generate_cmd::completions(a),
+        Command::Generate(a) => generate_cmd::generate(a),
     }
 }

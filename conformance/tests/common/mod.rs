@@ -4,6 +4,7 @@
 
 pub mod agree;
 pub mod gate;
+pub mod installed;
 mod peers;
 mod skip;
 pub use peers::*;
