@@ -218,6 +218,18 @@ impl TapFramer {
         self.block_ends = ends;
     }
 
+    /// Bytes held now: the deframers' buffers and a frame cut short held for its rest.
+    /// Bounded whatever the input (the deframers' buffers are fixed, a carry is at most a
+    /// frame's start).
+    pub fn held_bytes(&self) -> usize {
+        self.rtu.pending() + self.ascii.pending() + self.carry.as_ref().map_or(0, |c| c.bytes.len())
+    }
+
+    /// Pieces of the held block whose times are kept (at most one per byte held).
+    pub fn held_pieces(&self) -> usize {
+        self.pieces.len() + self.carry.as_ref().map_or(0, |c| c.pieces.len())
+    }
+
     /// The side the next pieces come from (`None`: unknown, a tap).
     pub fn set_side(&mut self, side: Option<u64>) {
         self.side = side;
@@ -558,8 +570,12 @@ impl TapFramer {
                 }
                 let to = from + len;
                 let (k0, begins) = piece_of(from);
+                // A carry is the start of one frame: never more bytes than a frame has
+                // (a line that never falls silent would otherwise grow it for ever, each
+                // block joined to the carry before it and carried again).
                 if may_carry
                     && to == block.len()
+                    && len <= MAX_RTU_FRAME
                     && status != FrameStatus::Valid
                     && (starts_frame(&block[from..]) || self.end_unproven)
                 {
