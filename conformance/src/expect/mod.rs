@@ -27,6 +27,7 @@
 //! file from a report (`conformance expect --from REPORT.json`).
 
 mod apply;
+pub mod fuzzing;
 mod write;
 
 pub use apply::{apply, EntryReport, EntryState, Mark, MarkKind, Outcome};
