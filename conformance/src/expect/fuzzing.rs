@@ -52,16 +52,17 @@ pub fn expectations_file(data: &[u8]) {
     }
 }
 
+/// Files like those the tests and the guide use, cut anywhere and with bytes changed.
+pub const FILES: [&str; 3] = [
+    "[[expect]]\ncheck = \"F510.RTU.EXC.*\"\nstatus = \"DEVIATION\"\nreason = \"known: answers 02H\"\nticket = \"T-1\"\nexpires = 2030-01-01\n",
+    "# comment\n[[expect]]\nsignature = \"fuzz-*\"\nnode = 3\nmode = \"ascii\"\nstatus = \"FINDING\"\nreason = \"r\"\nidentification = \"0A1B\"\n\n[[expect]]\ncheck = \"x\"\nstatus = \"OBSERVATION\"\nreason = \"y\"\n",
+    "[[expect]]\ncheck = \"a\"\nstatus = \"PASS\"\n",
+];
+
+
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    /// Files like those the tests and the guide use, cut anywhere and with bytes changed.
-    pub(crate) const FILES: [&str; 3] = [
-        "[[expect]]\ncheck = \"F510.RTU.EXC.*\"\nstatus = \"DEVIATION\"\nreason = \"known: answers 02H\"\nticket = \"T-1\"\nexpires = 2030-01-01\n",
-        "# comment\n[[expect]]\nsignature = \"fuzz-*\"\nnode = 3\nmode = \"ascii\"\nstatus = \"FINDING\"\nreason = \"r\"\nidentification = \"0A1B\"\n\n[[expect]]\ncheck = \"x\"\nstatus = \"OBSERVATION\"\nreason = \"y\"\n",
-        "[[expect]]\ncheck = \"a\"\nstatus = \"PASS\"\n",
-    ];
 
     #[test]
     fn files_cut_and_changed_keep_the_laws() {

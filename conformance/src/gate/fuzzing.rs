@@ -144,52 +144,53 @@ pub fn adapter_protocol(data: &[u8]) {
     }
 }
 
+/// What adapters say, honest and hostile: a session of each role, a hello that lies
+/// about its role, answers never asked for, wrong types, a missing id, invalid UTF-8,
+/// a line over the limit, settings no master has.
+pub fn sessions() -> Vec<Vec<u8>> {
+    let mut out = Vec::new();
+    let codec = concat!(
+        "{\"id\":0,\"ok\":true,\"protocol\":1,\"adapter\":\"x\",\"supports\":[\"decode\"]}\n",
+        "{\"id\":1,\"ok\":true,\"message\":{}}\n",
+        "{\"id\":1,\"ok\":true}\n",
+        "{\"id\":9,\"ok\":true}\n",
+        "{\"ok\":true}\n",
+        "{\"id\":\"3\",\"ok\":1}\n",
+        "[1,2,3]\n",
+    );
+    let master = concat!(
+        "{\"id\":0,\"ok\":true,\"protocol\":1,\"role\":\"master\",\"supports\":[\"read\"],\"lines\":[\"pty\"],\"modes\":[\"rtu\"]}\n",
+        "{\"id\":1,\"ok\":true,\"timeout_ms\":200,\"retries\":1}\n",
+        "{\"id\":2,\"ok\":true,\"result\":\"values\",\"values\":[\"0001\",\"zz\"]}\n",
+        "{\"id\":3,\"ok\":true,\"result\":\"exception\",\"code\":\"02\"}\n",
+        "{\"id\":4,\"ok\":true,\"result\":\"echo\",\"test_code\":\"0000\",\"data\":\"12 34\"}\n",
+        "{\"id\":5,\"ok\":true,\"result\":\"sideways\"}\n",
+    );
+    let liar = "{\"id\":0,\"ok\":true,\"protocol\":1,\"role\":\"codec\"}\n{\"id\":1,\"ok\":true,\"timeout_ms\":1e300,\"retries\":-1}\n";
+    let greedy = "{\"id\":0,\"ok\":true,\"protocol\":1,\"role\":\"master\"}\n{\"id\":1,\"ok\":true,\"timeout_ms\":18446744073709551615,\"retries\":4294967295}\n";
+    for (control, text) in [
+        (0u8, codec),
+        (1, master),
+        (1, liar),
+        (1, greedy),
+        (0xFE, codec),
+    ] {
+        let mut s = vec![control];
+        s.extend_from_slice(text.as_bytes());
+        out.push(s);
+    }
+    let mut bad = vec![0u8];
+    bad.extend_from_slice(b"{\"id\":0,\"ok\":true,\"protocol\":1,\"adapter\":\"\xFF\xFE\"}\n");
+    bad.extend(std::iter::repeat_n(b'x', 5000));
+    bad.extend_from_slice(b"\n{\"id\":1}\n");
+    out.push(bad);
+    out
+}
+
+
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    /// What adapters say, honest and hostile: a session of each role, a hello that lies
-    /// about its role, answers never asked for, wrong types, a missing id, invalid UTF-8,
-    /// a line over the limit, settings no master has.
-    pub(crate) fn sessions() -> Vec<Vec<u8>> {
-        let mut out = Vec::new();
-        let codec = concat!(
-            "{\"id\":0,\"ok\":true,\"protocol\":1,\"adapter\":\"x\",\"supports\":[\"decode\"]}\n",
-            "{\"id\":1,\"ok\":true,\"message\":{}}\n",
-            "{\"id\":1,\"ok\":true}\n",
-            "{\"id\":9,\"ok\":true}\n",
-            "{\"ok\":true}\n",
-            "{\"id\":\"3\",\"ok\":1}\n",
-            "[1,2,3]\n",
-        );
-        let master = concat!(
-            "{\"id\":0,\"ok\":true,\"protocol\":1,\"role\":\"master\",\"supports\":[\"read\"],\"lines\":[\"pty\"],\"modes\":[\"rtu\"]}\n",
-            "{\"id\":1,\"ok\":true,\"timeout_ms\":200,\"retries\":1}\n",
-            "{\"id\":2,\"ok\":true,\"result\":\"values\",\"values\":[\"0001\",\"zz\"]}\n",
-            "{\"id\":3,\"ok\":true,\"result\":\"exception\",\"code\":\"02\"}\n",
-            "{\"id\":4,\"ok\":true,\"result\":\"echo\",\"test_code\":\"0000\",\"data\":\"12 34\"}\n",
-            "{\"id\":5,\"ok\":true,\"result\":\"sideways\"}\n",
-        );
-        let liar = "{\"id\":0,\"ok\":true,\"protocol\":1,\"role\":\"codec\"}\n{\"id\":1,\"ok\":true,\"timeout_ms\":1e300,\"retries\":-1}\n";
-        let greedy = "{\"id\":0,\"ok\":true,\"protocol\":1,\"role\":\"master\"}\n{\"id\":1,\"ok\":true,\"timeout_ms\":18446744073709551615,\"retries\":4294967295}\n";
-        for (control, text) in [
-            (0u8, codec),
-            (1, master),
-            (1, liar),
-            (1, greedy),
-            (0xFE, codec),
-        ] {
-            let mut s = vec![control];
-            s.extend_from_slice(text.as_bytes());
-            out.push(s);
-        }
-        let mut bad = vec![0u8];
-        bad.extend_from_slice(b"{\"id\":0,\"ok\":true,\"protocol\":1,\"adapter\":\"\xFF\xFE\"}\n");
-        bad.extend(std::iter::repeat_n(b'x', 5000));
-        bad.extend_from_slice(b"\n{\"id\":1}\n");
-        out.push(bad);
-        out
-    }
 
     #[test]
     fn honest_and_hostile_sessions_keep_the_laws() {

@@ -34,7 +34,7 @@ use super::line_search::{listen_for_line, Tunable, SETTING_BYTES};
 use super::tap::Tap;
 use super::{Monitor, MonitorConfig, NodeStats};
 use crate::codec::deframe::{bus_rtu_frame_len, Event, RtuDeframer, RtuFraming};
-use crate::codec::pdu::Direction;
+use crate::codec::pdu::{Direction, Message, Pdu, Registers};
 use crate::codec::timing::{LineSettings, Parity};
 use crate::codec::{Mode, MAX_RTU_FRAME};
 use crate::model::DriveModel;
@@ -543,63 +543,84 @@ pub fn line_search(data: &[u8]) {
     }
 }
 
+/// A read of two registers at `node` and its reply, as frames of `mode`.
+fn poll(mode: Mode, node: u8) -> (Vec<u8>, Vec<u8>) {
+    let req = Message {
+        address: node,
+        pdu: Pdu::ReadRequest {
+            start: 0x2520,
+            count: 2,
+        },
+    };
+    let rep = Message {
+        address: node,
+        pdu: Pdu::ReadResponse {
+            values: Registers::new(&[0x00, 0x03, 0x11, 0x94]).unwrap(),
+        },
+    };
+    (
+        req.to_frame_vec(mode).unwrap(),
+        rep.to_frame_vec(mode).unwrap(),
+    )
+}
+
+/// Streams like a bus's: polls with their replies, a silence between, in RTU, ASCII
+/// and auto, with a damaged reply, a reply never asked for and noise.
+pub fn bus_streams() -> Vec<Vec<u8>> {
+    let mut out = Vec::new();
+    for control in [0u8, 1, 2, 0x0C, 0x1D, 0xE2, 0x50] {
+        let mode = if control % 3 == 1 {
+            Mode::Ascii
+        } else {
+            Mode::Rtu
+        };
+        let (q1, r1) = poll(mode, 1);
+        let (q2, r2) = poll(mode, 2);
+        let mut damaged = r2.clone();
+        damaged[3] ^= 0x40;
+        let noise = [0xFFu8, 0x00, 0x3A, 0x0D, 0x0A, 0x01];
+        out.push(encode_stream(
+            control,
+            &[
+                (0, &q1),
+                (20, &r1),
+                (0xC0, &q2),
+                (20, &damaged),
+                (60, &r2),
+                (0x90, &noise),
+                (0x90, &r1),
+                (40, &q1[..3]),
+                (10, &q1[3..]),
+            ],
+        ));
+    }
+    out
+}
+
+
+/// Scripts for [`line_search`] of `frames` (each frame a read, an empty read after each
+/// pair), once for each mode asked for.
+pub fn search_scripts(frames: &[Vec<u8>]) -> Vec<Vec<u8>> {
+    (0u8..3)
+        .map(|control| {
+            let mut data = vec![control | 0x04];
+            for (i, f) in frames.iter().enumerate() {
+                for chunk in f.chunks(255) {
+                    data.push(chunk.len() as u8);
+                    data.extend_from_slice(chunk);
+                }
+                if i % 2 == 1 {
+                    data.push(0);
+                }
+            }
+            data
+        })
+        .collect()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::codec::pdu::{Message, Pdu, Registers};
-
-    fn poll(mode: Mode, node: u8) -> (Vec<u8>, Vec<u8>) {
-        let req = Message {
-            address: node,
-            pdu: Pdu::ReadRequest {
-                start: 0x2520,
-                count: 2,
-            },
-        };
-        let rep = Message {
-            address: node,
-            pdu: Pdu::ReadResponse {
-                values: Registers::new(&[0x00, 0x03, 0x11, 0x94]).unwrap(),
-            },
-        };
-        (
-            req.to_frame_vec(mode).unwrap(),
-            rep.to_frame_vec(mode).unwrap(),
-        )
-    }
-
-    /// Streams like a bus's: polls with their replies, a silence between, in RTU, ASCII
-    /// and auto, with a damaged reply, a reply never asked for and noise.
-    pub(crate) fn bus_streams() -> Vec<Vec<u8>> {
-        let mut out = Vec::new();
-        for control in [0u8, 1, 2, 0x0C, 0x1D, 0xE2, 0x50] {
-            let mode = if control % 3 == 1 {
-                Mode::Ascii
-            } else {
-                Mode::Rtu
-            };
-            let (q1, r1) = poll(mode, 1);
-            let (q2, r2) = poll(mode, 2);
-            let mut damaged = r2.clone();
-            damaged[3] ^= 0x40;
-            let noise = [0xFFu8, 0x00, 0x3A, 0x0D, 0x0A, 0x01];
-            out.push(encode_stream(
-                control,
-                &[
-                    (0, &q1),
-                    (20, &r1),
-                    (0xC0, &q2),
-                    (20, &damaged),
-                    (60, &r2),
-                    (0x90, &noise),
-                    (0x90, &r1),
-                    (40, &q1[..3]),
-                    (10, &q1[3..]),
-                ],
-            ));
-        }
-        out
-    }
 
     /// Pseudo-random inputs: a fixed xorshift, so that a failure replays.
     fn noise(count: usize, longest: u32) -> Vec<Vec<u8>> {
