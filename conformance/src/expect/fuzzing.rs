@@ -59,7 +59,6 @@ pub const FILES: [&str; 3] = [
     "[[expect]]\ncheck = \"a\"\nstatus = \"PASS\"\n",
 ];
 
-
 #[cfg(test)]
 mod tests {
     use super::*;

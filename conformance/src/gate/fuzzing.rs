@@ -187,7 +187,6 @@ pub fn sessions() -> Vec<Vec<u8>> {
     out
 }
 
-
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -597,7 +597,6 @@ pub fn bus_streams() -> Vec<Vec<u8>> {
     out
 }
 
-
 /// Scripts for [`line_search`] of `frames` (each frame a read, an empty read after each
 /// pair), once for each mode asked for.
 pub fn search_scripts(frames: &[Vec<u8>]) -> Vec<Vec<u8>> {

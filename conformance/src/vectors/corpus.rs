@@ -197,13 +197,25 @@ fn issue_37_seeds(set: &VectorSet, out: &mut Vec<Seed>) {
         add("adapter_protocol", format!("session-{i}"), s);
     }
     for (i, text) in crate::expect::fuzzing::FILES.iter().enumerate() {
-        add("expectations_file", format!("file-{i}.toml"), text.as_bytes().to_vec());
+        add(
+            "expectations_file",
+            format!("file-{i}.toml"),
+            text.as_bytes().to_vec(),
+        );
     }
     for (doc, text) in crate::requirements::Catalogue::builtin_texts() {
-        add("requirements_file", format!("{doc}.json"), text.as_bytes().to_vec());
+        add(
+            "requirements_file",
+            format!("{doc}.json"),
+            text.as_bytes().to_vec(),
+        );
     }
     for (model, text) in crate::model::DriveModel::builtin_files() {
-        add("model_file", format!("{model}.json"), text.as_bytes().to_vec());
+        add(
+            "model_file",
+            format!("{model}.json"),
+            text.as_bytes().to_vec(),
+        );
     }
 }
 
