@@ -11,14 +11,16 @@
 //! The laws:
 //! - [`monitor_stream`]: no panic; the bytes counted are the bytes fed; every frame is
 //!   accounted for once (paired, unpaired or damaged) and every request closed once; what
-//!   the monitor holds stays under [`Held::within_bounds`] after every piece; and the same
+//!   the monitor holds stays under [`Held::within_bounds`](super::Held::within_bounds) after every piece; and the same
 //!   stream fed with its pieces cut in two (both halves read at the piece's time, which no
-//!   gap separates) gives the same verdicts.
+//!   gap separates) gives the same verdicts, but for those on timing ([`TIMING_KINDS`]: two
+//!   reads at one moment prove other silences than one read does).
 //! - [`tap_framer`]: the framer gives back every byte once, in order; a valid RTU frame
 //!   has its CRC right and, ended by its length, the length the codec's rule gives; a
 //!   valid ASCII frame is one the codec takes; a frame ended by t3.5 ends where the
 //!   codec's deframer by silence ends a block; it holds a bounded number of bytes; cut
-//!   pieces give the same frames.
+//!   pieces give the same frames, each valid or damaged alike (corrupt or incomplete:
+//!   which one rests on the silences the reads prove).
 //! - [`line_search`]: the search ends within its budget (it reads at most
 //!   [`SETTING_BYTES`] and one read more at a setting before it moves on, and never sets
 //!   a setting without reading), and never reports a setting without two valid frames of
@@ -181,13 +183,45 @@ fn f510() -> &'static DriveModel {
     MODEL.get_or_init(|| DriveModel::builtin("f510").expect("the built-in F510 model loads"))
 }
 
-/// What a monitor made of a stream: its verdicts.
+/// Findings judged on silences and response times: the times of two pieces read at one
+/// moment prove less about the line than one piece's (where in the read the bytes came),
+/// so cutting a piece may change them, and only them.
+pub const TIMING_KINDS: [&str; 6] = [
+    "no-t3.5",
+    "late-reply",
+    "early-reply",
+    "gap-in-reply",
+    "request-before-reply",
+    "broadcast-turnaround",
+];
+
+/// What a monitor made of a stream: its verdicts, less those on timing (see
+/// [`TIMING_KINDS`]). Per node: requests, exchanges, replies, timeouts, CRC errors,
+/// retries, and the count of each kind of finding.
 #[derive(Debug, PartialEq, Eq)]
 struct Judged {
     frames: u64,
     bytes: u64,
     tally: super::FrameTally,
-    nodes: Vec<(u8, NodeStats)>,
+    nodes: Vec<(u8, [u64; 6], Vec<(String, u64)>)>,
+}
+
+fn untimed(address: u8, n: &NodeStats) -> (u8, [u64; 6], Vec<(String, u64)>) {
+    let errors = n
+        .errors
+        .iter()
+        .filter(|(k, _)| !TIMING_KINDS.iter().any(|t| k.ends_with(&format!(".{t}"))))
+        .map(|(k, v)| (k.clone(), *v))
+        .collect();
+    let counts = [
+        n.requests,
+        n.exchanges,
+        n.replies,
+        n.timeouts,
+        n.crc_errors,
+        n.retries,
+    ];
+    (address, counts, errors)
 }
 
 /// Feeds `stream` to a monitor in `mode`, checking after each piece that what it holds is
@@ -256,7 +290,7 @@ fn judge_stream(stream: &Stream, mode: Mode) -> Judged {
         frames: m.frames_heard(),
         bytes: m.bytes_heard(),
         tally: t,
-        nodes: m.nodes().iter().map(|(a, s)| (*a, s.clone())).collect(),
+        nodes: m.nodes().iter().map(|(a, s)| untimed(*a, s)).collect(),
     }
 }
 
@@ -384,9 +418,12 @@ pub fn tap_framer(data: &[u8]) {
             ),
         }
     }
-    let key = |fs: &[(usize, TapFrame)]| -> Vec<(Vec<u8>, FrameStatus)> {
+    // Corrupt and incomplete are both damaged; which of the two rests on a silence inside
+    // the frame, which two reads at one moment prove otherwise than one (see
+    // TIMING_KINDS).
+    let key = |fs: &[(usize, TapFrame)]| -> Vec<(Vec<u8>, bool)> {
         fs.iter()
-            .map(|(_, f)| (f.bytes.clone(), f.status))
+            .map(|(_, f)| (f.bytes.clone(), f.status == FrameStatus::Valid))
             .collect()
     };
     let cut = frame_stream(&stream.cut(), mode);
