@@ -77,5 +77,13 @@ mod tests {
         }
         expectations_file(b"");
         expectations_file(&[0xFF]);
+        // A key of a quote alone: the error named no field (a campaign's finding).
+        expectations_file(b"[[expect]]\n\" = x\n");
+        match Expectations::parse("[[expect]]\n\" = x\n", "f.toml") {
+            Err(ExpectError::Invalid { line, field, .. }) => {
+                assert_eq!((line, field.as_str()), (2, "expect"))
+            }
+            other => panic!("{other:?}"),
+        }
     }
 }

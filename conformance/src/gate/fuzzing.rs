@@ -95,7 +95,19 @@ pub fn adapter_protocol(data: &[u8]) {
         assert_eq!(heard, hear(line, id), "a line judged twice differs");
         let answer = match heard {
             Heard::Late => {
-                assert!(id > 0, "a late answer to the hello");
+                // Late: an earlier id than the call's; while the hello (id 0) is waited
+                // for, any other id (the gate's rule: it waits on, and its deadline ends
+                // the wait).
+                let got = match line {
+                    Line::Text(t) => serde_json::from_str::<Value>(t)
+                        .ok()
+                        .and_then(|v| v.get("id").and_then(Value::as_u64)),
+                    _ => None,
+                };
+                assert!(
+                    got.is_some_and(|g| g < id || (id == 0 && g > 0)),
+                    "a line taken as late whose id is {got:?}, waiting for {id}"
+                );
                 continue;
             }
             Heard::Error(e) => {
