@@ -35,10 +35,15 @@ if [ "$SANITIZER" != address ] || [ "$FUZZING_ENGINE" != libfuzzer ]; then
 fi
 for tool in clang clang++; do
   if ! command -v "$tool" >/dev/null; then
-    echo "cflite-build-local: $tool not found (the image builds C with clang): apt-get install clang" >&2
+    echo "cflite-build-local: $tool not found (the image builds C and C++ with clang): apt-get install clang libc++-dev libc++abi-dev" >&2
     exit 2
   fi
 done
+# The image's CXXFLAGS take libc++ (libfuzzer-sys builds libFuzzer's C++ with them).
+if ! echo '#include <cstdint>' | clang++ -stdlib=libc++ -x c++ -fsyntax-only - 2>/dev/null; then
+  echo "cflite-build-local: clang++ finds no libc++ headers (the image's CXXFLAGS use -stdlib=libc++): apt-get install libc++-dev libc++abi-dev" >&2
+  exit 2
+fi
 export CC="${CC:-clang}"
 export CXX="${CXX:-clang++}"
 common="-O1 -fno-omit-frame-pointer -gline-tables-only -DFUZZING_BUILD_MODE_UNSAFE_FOR_PRODUCTION"
