@@ -203,10 +203,13 @@ struct Judged {
     frames: u64,
     bytes: u64,
     tally: super::FrameTally,
-    nodes: Vec<(u8, [u64; 6], Vec<(String, u64)>)>,
+    nodes: Vec<NodeVerdict>,
 }
 
-fn untimed(address: u8, n: &NodeStats) -> (u8, [u64; 6], Vec<(String, u64)>) {
+/// A node's verdicts without timing: its address, its counts, its findings by kind.
+type NodeVerdict = (u8, [u64; 6], Vec<(String, u64)>);
+
+fn untimed(address: u8, n: &NodeStats) -> NodeVerdict {
     let errors = n
         .errors
         .iter()
