@@ -557,7 +557,9 @@ impl TapFramer {
             // their CRC holds (a function the length rule does not know, 04H or 41H,
             // followed at once by a reply: the reply is found by its length first).
             let head = &block[pos..pos + s];
-            let before_status = if head.len() >= 4 && crc16(head) == 0 {
+            // A CRC that checks over more bytes than any frame has is chance (1 in 65,536
+            // blocks of noise), not a frame.
+            let before_status = if (4..=MAX_RTU_FRAME).contains(&head.len()) && crc16(head) == 0 {
                 FrameStatus::Valid
             } else {
                 FrameStatus::Corrupt
@@ -743,7 +745,9 @@ fn starts_frame(bytes: &[u8]) -> bool {
 /// direction with a valid CRC, or is the whole rest with a valid CRC; bytes where no
 /// frame starts are skipped one at a time, as the codec's by-length deframer does.
 fn split_next(rest: &[u8]) -> (usize, usize, FrameStatus) {
-    let whole_ok = || rest.len() >= 4 && crc16(rest) == 0;
+    // A CRC that checks over more bytes than a frame has is chance, not a frame.
+    let checks = |b: &[u8]| (4..=MAX_RTU_FRAME).contains(&b.len()) && crc16(b) == 0;
+    let whole_ok = || checks(rest);
     for skip in 0..rest.len() {
         let head = &rest[skip..];
         for dir in [Direction::Response, Direction::Request] {
@@ -756,7 +760,7 @@ fn split_next(rest: &[u8]) -> (usize, usize, FrameStatus) {
         if skip == 0 && whole_ok() {
             return (0, rest.len(), FrameStatus::Valid);
         }
-        if head.len() >= 4 && crc16(head) == 0 {
+        if checks(head) {
             return (skip, head.len(), FrameStatus::Valid);
         }
     }

@@ -210,12 +210,25 @@ struct Judged {
 type NodeVerdict = (u8, [u64; 6], Vec<(String, u64)>);
 
 fn untimed(address: u8, n: &NodeStats) -> NodeVerdict {
-    let errors = n
+    // A damaged request is incomplete or malformed by the silences inside it (as a
+    // frame is incomplete or corrupt): one kind here.
+    let mut errors: Vec<(String, u64)> = Vec::new();
+    for (k, v) in n
         .errors
         .iter()
         .filter(|(k, _)| !TIMING_KINDS.iter().any(|t| k.ends_with(&format!(".{t}"))))
-        .map(|(k, v)| (k.clone(), *v))
-        .collect();
+    {
+        let k = if k == "master.incomplete-request" {
+            "master.malformed"
+        } else {
+            k.as_str()
+        };
+        match errors.iter_mut().find(|(e, _)| e == k) {
+            Some((_, n)) => *n += v,
+            None => errors.push((k.to_string(), *v)),
+        }
+    }
+    errors.sort();
     let counts = [
         n.requests,
         n.exchanges,
