@@ -1,6 +1,8 @@
 #!/usr/bin/env bash
 # Checks the ClusterFuzzLite / OSS-Fuzz build outside the container, as CI runs it:
-# .clusterfuzzlite/build.sh into a temporary OUT (or $OUT), then for every target that
+# .clusterfuzzlite/build.sh run as the OSS-Fuzz image runs it (fuzz/cflite-build-local.sh:
+# $SRC, $WORK, the sanitizer's CC/CFLAGS/RUSTFLAGS) into a temporary OUT (or $OUT), which
+# checks that every target landed there; then for every target that
 # $OUT holds a runnable binary, <target>_seed_corpus.zip and <target>.dict, and that the
 # binary runs its seeds and FUZZ_RUNS (default 3000) mutated inputs without a finding.
 # FUZZ_SECONDS, when set, makes each run a time-bounded fuzz smoke instead.
@@ -9,7 +11,7 @@ repo="$(cd "$(dirname "$0")/.." && pwd)"
 start=$SECONDS
 OUT="${OUT:-$(mktemp -d)}"
 export OUT
-"$repo/.clusterfuzzlite/build.sh"
+"$repo/fuzz/cflite-build-local.sh"
 mapfile -t targets < <(sed -n 's/^name = "\(.*\)"$/\1/p' "$repo/fuzz/Cargo.toml" | grep -v '^conformance-fuzz$')
 built=$SECONDS
 fail=0

@@ -1044,7 +1044,7 @@ pub fn capture_reader(data: &[u8]) {
 
 /// The fuzz targets by name, each with its oracle: the one list the fuzz crate, the seed
 /// corpus writer and the regression replay share.
-pub const TARGETS: [(&str, Oracle); 11] = [
+pub const TARGETS: [(&str, Oracle); 18] = [
     ("rtu_frame", rtu_frame),
     ("ascii_frame", ascii_frame),
     ("rtu_deframer", rtu_deframer),
@@ -1056,6 +1056,21 @@ pub const TARGETS: [(&str, Oracle); 11] = [
     ("mbap_frame", mbap_frame),
     ("capture_reader", capture_reader),
     ("model_lint", model_lint),
+    // Issue 37: the listener, the adapter protocols and the hand-written files; their
+    // laws sit next to the code they check.
+    ("monitor_stream", crate::monitor::fuzzing::monitor_stream),
+    ("tap_framer", crate::monitor::fuzzing::tap_framer),
+    ("line_search", crate::monitor::fuzzing::line_search),
+    ("adapter_protocol", crate::gate::fuzzing::adapter_protocol),
+    (
+        "expectations_file",
+        crate::expect::fuzzing::expectations_file,
+    ),
+    (
+        "requirements_file",
+        crate::requirements::fuzzing::requirements_file,
+    ),
+    ("model_file", crate::model::fuzzing::model_file),
 ];
 
 #[cfg(test)]

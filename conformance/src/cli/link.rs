@@ -439,6 +439,51 @@ impl TargetArgs {
         }
     }
 
+    /// The session of a command that talks to one link in one mode with the runner's
+    /// usual allowances and no checks of its own (`send`, `watch`, `params`): the nodes of
+    /// `bus` (the first is the one addressed), writes only where `read_only` is false,
+    /// never motion or a restart.
+    pub fn plain_session(
+        &self,
+        resolved: Resolved,
+        mode: Mode,
+        bus: Vec<u8>,
+        read_only: bool,
+    ) -> anyhow::Result<conformance::session::SessionConfig> {
+        let Resolved {
+            model,
+            target,
+            line,
+            is_sim,
+            other_address,
+            ..
+        } = resolved;
+        let options = conformance::runner::Options {
+            address: bus.first().copied().unwrap_or(1),
+            bus,
+            other_address,
+            read_only,
+            allow_motion: false,
+            only: Vec::new(),
+            timing: self.timing(is_sim, 300),
+            response_allowance: Duration::from_millis(20),
+            gap_allowance: Duration::from_millis(20),
+            seed: 0,
+            echo: self.echo,
+            line: Some(self.line.settings()),
+            allow_restart: false,
+            injected_stalls: None,
+        };
+        Ok(conformance::session::SessionConfig {
+            model,
+            target,
+            modes: vec![mode],
+            line,
+            options,
+            capture: self.open_capture()?,
+        })
+    }
+
     /// The option that names the model again: the description file where one was given
     /// (a model it describes is no built-in), else `--model ID`.
     fn model_option(&self, model: &str) -> String {

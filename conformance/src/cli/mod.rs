@@ -28,8 +28,8 @@ mod scan_cmd;
 mod send_cmd;
 mod simulate_cmd;
 mod vectors_cmd;
-mod watch_cmd;
 mod version;
+mod watch_cmd;
 
 use std::process::ExitCode;
 

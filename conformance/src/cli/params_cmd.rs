@@ -8,7 +8,6 @@ use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::sync::atomic::AtomicBool;
 use std::sync::Arc;
-use std::time::Duration;
 
 use anyhow::{bail, Context};
 use clap::{Args, Subcommand};
@@ -19,11 +18,11 @@ use conformance::params::{
     ReadOut, Side, StepResult,
 };
 use conformance::runner::{Ctx, Options};
-use conformance::session::{self, SessionConfig};
+use conformance::session;
 
-use super::output::write_atomic;
 use super::common::load_model;
-use super::link::{Resolved, TargetArgs};
+use super::link::TargetArgs;
+use super::output::write_atomic;
 
 const AFTER_HELP: &str = "\
 Examples:
@@ -142,39 +141,9 @@ impl Drop for SayCapture<'_> {
 
 /// Opens the link of `target` in its first mode.
 fn open(target: &TargetArgs) -> anyhow::Result<Live> {
-    let Resolved {
-        model,
-        target: to,
-        modes,
-        line,
-        is_sim,
-        other_address,
-    } = target.resolve(false, None)?;
-    let mode = modes[0];
-    let options = Options {
-        address: target.address(),
-        bus: vec![target.address()],
-        other_address,
-        read_only: false,
-        allow_motion: false,
-        only: Vec::new(),
-        timing: target.timing(is_sim, 300),
-        response_allowance: Duration::from_millis(20),
-        gap_allowance: Duration::from_millis(20),
-        seed: 0,
-        echo: target.echo,
-        line: Some(target.line.settings()),
-        allow_restart: false,
-        injected_stalls: None,
-    };
-    let config = SessionConfig {
-        model: model.clone(),
-        target: to,
-        modes: vec![mode],
-        line,
-        options,
-        capture: target.open_capture()?,
-    };
+    let resolved = target.resolve(false, None)?;
+    let (model, mode) = (resolved.model.clone(), resolved.modes[0]);
+    let config = target.plain_session(resolved, mode, vec![target.address()], false)?;
     let (sim, transport) = session::open(&config, mode)?;
     let link = transport.describe();
     Ok(Live {

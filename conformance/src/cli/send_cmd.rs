@@ -12,10 +12,10 @@ use conformance::codec::crc::crc16_frame_ok;
 use conformance::codec::hex::{parse_hex, Hex};
 use conformance::codec::Mode;
 use conformance::judge::{describe_reply, explain_invalid, show};
-use conformance::runner::{Master, Options};
+use conformance::runner::Master;
 use conformance::session::{self, SessionConfig};
 
-use super::link::{Resolved, TargetArgs};
+use super::link::TargetArgs;
 
 const AFTER_HELP: &str = "\
 Examples:
@@ -94,16 +94,9 @@ fn split_frame_notes(texts: &[String], frames: &[Vec<u8>]) -> Vec<String> {
 }
 
 pub fn run(args: SendArgs) -> anyhow::Result<ExitCode> {
-    let Resolved {
-        model,
-        target,
-        modes,
-        line,
-        is_sim,
-        other_address,
-    } = args.target.resolve(false, None)?;
-    let mode = modes[0];
-    if args.burst && matches!(target, session::Target::Mbap { .. }) {
+    let resolved = args.target.resolve(false, None)?;
+    let (model, mode) = (resolved.model.clone(), resolved.modes[0]);
+    if args.burst && matches!(resolved.target, session::Target::Mbap { .. }) {
         bail!("--burst sends frames back to back without t3.5 between them: line timing that a Modbus TCP gateway does not carry (--framing mbap sends one PDU at a time)");
     }
     let mut frames = Vec::new();
@@ -118,30 +111,9 @@ pub fn run(args: SendArgs) -> anyhow::Result<ExitCode> {
             eprintln!("{note}");
         }
     }
-    let options = Options {
-        address: args.target.address(),
-        bus: vec![args.target.address()],
-        other_address,
-        read_only: true,
-        allow_motion: false,
-        only: Vec::new(),
-        timing: args.target.timing(is_sim, 300),
-        response_allowance: Duration::from_millis(20),
-        gap_allowance: Duration::from_millis(20),
-        seed: 0,
-        echo: args.target.echo,
-        line: Some(args.target.line.settings()),
-        allow_restart: false,
-        injected_stalls: None,
-    };
-    let config = SessionConfig {
-        model: model.clone(),
-        target,
-        modes: vec![mode],
-        line,
-        options,
-        capture: args.target.open_capture()?,
-    };
+    let config = args
+        .target
+        .plain_session(resolved, mode, vec![args.target.address()], true)?;
     let (_sim, transport) = session::open(&config, mode)?;
     let mut out = std::io::stdout().lock();
     writeln!(out, "link: {}", transport.describe())?;

@@ -15,14 +15,14 @@ use clap::{Args, ValueEnum};
 use conformance::codec::Mode;
 use conformance::report::watch::{csv_header, csv_row, json_row, summary, table_text, LINK_FAILED};
 use conformance::report::watch_html;
-use conformance::runner::{Master, Options};
-use conformance::session::{self, SessionConfig};
+use conformance::runner::Master;
+use conformance::session;
 use conformance::watch::{plan, resolve, Watcher};
 
-use super::output::write_atomic;
 use super::common::parse_duration;
 use super::interrupt::{stop_flag_saying, Stopping};
-use super::link::{ModesArg, Resolved, TargetArgs};
+use super::link::{ModesArg, TargetArgs};
+use super::output::write_atomic;
 
 const AFTER_HELP: &str = "\
 Examples:
@@ -149,14 +149,12 @@ pub fn run(mut args: WatchArgs) -> anyhow::Result<ExitCode> {
             "--interval must be more than 0 (a drive needs time to answer; 200ms is the default)"
         );
     }
-    let Resolved {
-        model,
-        target,
-        modes,
-        line,
-        is_sim,
-        other_address,
-    } = args.target.resolve(false, None)?;
+    let resolved = args.target.resolve(false, None)?;
+    let (model, is_sim, modes) = (
+        resolved.model.clone(),
+        resolved.is_sim,
+        resolved.modes.clone(),
+    );
     if args.target.mode == Some(ModesArg::Both) {
         bail!("--mode both: a watch polls in one mode; give --mode rtu or --mode ascii");
     }
@@ -183,30 +181,9 @@ pub fn run(mut args: WatchArgs) -> anyhow::Result<ExitCode> {
     }
     // The live table goes to a terminal whenever the rows or the report go elsewhere.
     let live = terminal && (format == WatchFormat::Text || args.output.is_some());
-    let options = Options {
-        address: nodes[0],
-        bus: nodes.clone(),
-        other_address,
-        read_only: true,
-        allow_motion: false,
-        only: Vec::new(),
-        timing: args.target.timing(is_sim, 300),
-        response_allowance: Duration::from_millis(20),
-        gap_allowance: Duration::from_millis(20),
-        seed: 0,
-        echo: args.target.echo,
-        line: Some(args.target.line.settings()),
-        allow_restart: false,
-        injected_stalls: None,
-    };
-    let config = SessionConfig {
-        model: model.clone(),
-        target,
-        modes: vec![mode],
-        line,
-        options,
-        capture: args.target.open_capture()?,
-    };
+    let config = args
+        .target
+        .plain_session(resolved, mode, nodes.clone(), true)?;
     let stop = stop_flag_saying(Stopping::Watching)?;
     let (_sim, transport) = match session::open(&config, mode) {
         Ok(t) => t,

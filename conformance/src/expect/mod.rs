@@ -27,6 +27,7 @@
 //! [`crate::report::starting_expectations`] writes a
 //! file from a report (`conformance expect --from REPORT.json`).
 
+pub mod fuzzing;
 mod outcome;
 
 pub use outcome::{EntryReport, EntryState, Mark, MarkKind, Outcome};
@@ -251,7 +252,10 @@ fn field_of_parse_error(message: &str, line_text: &str) -> String {
         }
     }
     match line_text.split_once('=') {
-        Some((key, _)) if !key.trim().is_empty() && !key.trim().starts_with('[') => {
+        // A key of quotes alone ("" = 1) names no field.
+        Some((key, _))
+            if !key.trim().trim_matches('"').trim().is_empty() && !key.trim().starts_with('[') =>
+        {
             key.trim().trim_matches('"').to_string()
         }
         _ => "expect".to_string(),

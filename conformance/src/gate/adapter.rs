@@ -8,7 +8,7 @@
 
 use std::io::{BufRead, BufReader, Read, Write};
 use std::process::{Child, ChildStdin, Command, Stdio};
-use std::sync::mpsc::{channel, Receiver, RecvTimeoutError};
+use std::sync::mpsc::{sync_channel, Receiver, RecvTimeoutError};
 use std::sync::{Arc, Mutex};
 use std::thread;
 use std::time::{Duration, Instant};
@@ -18,8 +18,21 @@ use serde_json::{json, Value};
 /// Protocol version the gate speaks.
 pub const PROTOCOL: u64 = 1;
 
-/// Longest answer line the gate reads; a longer one is malformed.
-const MAX_LINE: usize = 1 << 20;
+/// Longest answer line the gate reads (bytes, its `\n` included); a longer one is
+/// malformed, and the gate never holds more of it than this (adapters/PROTOCOL.md states
+/// the limit).
+pub const MAX_LINE: usize = 1 << 20;
+
+/// Answer lines read ahead of the gate: an adapter that writes lines nobody asked for
+/// waits (its pipe fills) rather than growing the gate's memory.
+pub const LINES_QUEUED: usize = 16;
+
+/// Longest stderr line kept (bytes); the rest of a longer one is left out.
+const MAX_STDERR_LINE: usize = 4096;
+
+/// How long the gate waits for an adapter that closed its output to exit before it
+/// kills it.
+const EXIT_WAIT: Duration = Duration::from_secs(2);
 
 /// The least time the gate waits for the hello's answer (the adapter's start).
 pub const HANDSHAKE_TIMEOUT: Duration = Duration::from_secs(10);
@@ -142,12 +155,14 @@ fn watch_stderr(pipe: std::process::ChildStderr, state: Stderr) {
         let mut reader = BufReader::new(pipe);
         let mut buf = Vec::new();
         loop {
-            buf.clear();
-            match reader.read_until(b'\n', &mut buf) {
-                Ok(0) | Err(_) => break,
-                Ok(_) => {}
-            }
-            let line = String::from_utf8_lossy(&buf).trim_end().to_string();
+            let line = match read_line(&mut reader, &mut buf, MAX_STDERR_LINE) {
+                Ok(Some(RawLine::Whole)) => String::from_utf8_lossy(&buf).trim_end().to_string(),
+                Ok(Some(RawLine::TooLong)) => format!(
+                    "{} ... (a line over {MAX_STDERR_LINE} bytes, cut)",
+                    String::from_utf8_lossy(&buf[..buf.len().min(200)]).trim_end()
+                ),
+                Ok(None) | Err(_) => break,
+            };
             let Ok(mut s) = state.lock() else { break };
             if s.pass_through {
                 drop(s);
@@ -209,9 +224,182 @@ impl Hello {
     }
 }
 
-enum Line {
+impl Hello {
+    /// Reads the adapter's answer to the hello: refused unless it says `ok` and speaks
+    /// [`PROTOCOL`]; fields of the wrong type read as absent.
+    pub fn from_answer(v: Value) -> Result<Hello, String> {
+        if v.get("ok") != Some(&Value::Bool(true)) {
+            return Err(format!("the adapter refused protocol {PROTOCOL}: {v}"));
+        }
+        if v.get("protocol").and_then(Value::as_u64) != Some(PROTOCOL) {
+            return Err(format!(
+                "the adapter speaks protocol {:?}, the gate {PROTOCOL}",
+                v.get("protocol")
+            ));
+        }
+        let s = |k: &str| v.get(k).and_then(Value::as_str).unwrap_or("").to_string();
+        Ok(Hello {
+            adapter: s("adapter"),
+            implementation: s("implementation"),
+            version: s("version"),
+            supports: v
+                .get("supports")
+                .and_then(Value::as_array)
+                .map(|a| {
+                    a.iter()
+                        .filter_map(|x| x.as_str().map(String::from))
+                        .collect()
+                })
+                .unwrap_or_default(),
+            raw: v,
+        })
+    }
+}
+
+/// One line the adapter wrote on its standard output, as the gate reads it.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum Line {
+    /// A line of UTF-8 text, without its line end.
     Text(String),
+    /// A line over [`MAX_LINE`] bytes (the rest of it was skipped, never held).
     TooLong,
+    /// A line that is not UTF-8: where the first bad byte is, and up to 16 bytes from it.
+    NotUtf8 {
+        /// Its offset in the line.
+        at: usize,
+        /// The bytes from there.
+        bytes: Vec<u8>,
+    },
+}
+
+/// How [`read_line`] ended.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum RawLine {
+    /// A whole line (or the last bytes before the end of the input) is in the buffer.
+    Whole,
+    /// The line was longer than the limit: the buffer holds its first `limit` bytes, and
+    /// the rest was read and dropped a piece at a time.
+    TooLong,
+}
+
+/// Reads one line of at most `limit` bytes from `reader` into `buf` (cleared first);
+/// `None` at the end of the input. Never holds more than `limit` bytes of a line and the
+/// reader's own buffer, however long the line is.
+pub fn read_line(
+    reader: &mut impl BufRead,
+    buf: &mut Vec<u8>,
+    limit: usize,
+) -> std::io::Result<Option<RawLine>> {
+    buf.clear();
+    let n = reader
+        .by_ref()
+        .take(limit as u64 + 1)
+        .read_until(b'\n', buf)?;
+    if n == 0 {
+        return Ok(None);
+    }
+    if buf.len() <= limit {
+        return Ok(Some(RawLine::Whole));
+    }
+    // Over the limit: its end may be the byte past it, already read; else the rest of the
+    // line is skipped from the reader's buffer, a piece at a time.
+    let ended = buf.last() == Some(&b'\n');
+    buf.truncate(limit);
+    if !ended {
+        loop {
+            let (used, found) = {
+                let piece = reader.fill_buf()?;
+                if piece.is_empty() {
+                    break;
+                }
+                match memchr::memchr(b'\n', piece) {
+                    Some(i) => (i + 1, true),
+                    None => (piece.len(), false),
+                }
+            };
+            reader.consume(used);
+            if found {
+                break;
+            }
+        }
+    }
+    Ok(Some(RawLine::TooLong))
+}
+
+/// Reads the adapter's next answer line from `reader` (see [`read_line`] and
+/// [`MAX_LINE`]); `None` at the end of its output.
+pub fn next_line(reader: &mut impl BufRead, buf: &mut Vec<u8>) -> Option<Line> {
+    next_line_within(reader, buf, MAX_LINE)
+}
+
+/// [`next_line`] with a limit of `limit` bytes in place of [`MAX_LINE`] (the fuzz target
+/// reaches the limit with short inputs).
+pub fn next_line_within(
+    reader: &mut impl BufRead,
+    buf: &mut Vec<u8>,
+    limit: usize,
+) -> Option<Line> {
+    match read_line(reader, buf, limit) {
+        Ok(Some(RawLine::Whole)) => Some(match std::str::from_utf8(buf) {
+            Ok(text) => Line::Text(text.trim_end().to_string()),
+            Err(e) => {
+                let at = e.valid_up_to();
+                Line::NotUtf8 {
+                    at,
+                    bytes: buf[at..buf.len().min(at + 16)].to_vec(),
+                }
+            }
+        }),
+        Ok(Some(RawLine::TooLong)) => Some(Line::TooLong),
+        Ok(None) | Err(_) => None,
+    }
+}
+
+/// What one answer line is to a call waiting for answer `id`.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Heard {
+    /// Its answer.
+    Answer(Value),
+    /// A late answer to an earlier request: dropped, the call waits on.
+    Late,
+    /// A line that is no answer to it: the call fails with this.
+    Error(CallError),
+}
+
+/// Judges one line the adapter wrote while the gate waits for answer `id` (0: the
+/// hello). Total: every line is an answer, a late one, or a typed error that shows the
+/// offending text or bytes.
+pub fn hear(line: &Line, id: u64) -> Heard {
+    let text = match line {
+        Line::TooLong => {
+            return Heard::Error(CallError::Malformed(format!(
+                "an answer line over {MAX_LINE} bytes"
+            )))
+        }
+        Line::NotUtf8 { at, bytes } => {
+            return Heard::Error(CallError::Malformed(format!(
+                "an answer line that is not UTF-8: at byte {at}, {}",
+                crate::codec::hex::Hex(bytes)
+            )))
+        }
+        Line::Text(t) => t,
+    };
+    let v: Value = match serde_json::from_str(text) {
+        Ok(v) => v,
+        Err(e) => {
+            let shown: String = text.chars().take(200).collect();
+            return Heard::Error(CallError::Malformed(format!("not JSON ({e}): {shown:?}")));
+        }
+    };
+    match v.get("id").and_then(Value::as_u64) {
+        Some(got) if got == id => Heard::Answer(v),
+        // A late answer to an earlier request: drop it.
+        Some(got) if got < id || (id == 0 && got > 0) => Heard::Late,
+        other => Heard::Error(CallError::Malformed(format!(
+            "answer id {other:?}, expected {id}: {}",
+            text.chars().take(200).collect::<String>()
+        ))),
+    }
 }
 
 struct Process {
@@ -264,6 +452,25 @@ fn kill(child: &mut Child) {
     let _ = child.wait();
 }
 
+/// The child's exit status, waiting at most `wait` for it to exit, then killing it.
+fn wait_or_kill(child: &mut Child, wait: Duration) -> String {
+    let deadline = Instant::now() + wait;
+    loop {
+        match child.try_wait() {
+            Ok(Some(s)) => return s.to_string(),
+            Ok(None) if Instant::now() < deadline => thread::sleep(Duration::from_millis(10)),
+            Ok(None) => {
+                kill(child);
+                return format!(
+                    "it closed its output and did not exit within {} ms: killed",
+                    wait.as_millis()
+                );
+            }
+            Err(e) => return e.to_string(),
+        }
+    }
+}
+
 /// A running adapter.
 pub struct Adapter {
     command: String,
@@ -313,32 +520,17 @@ fn spawn(command: &str, pass_through: bool) -> Result<Process, std::io::Error> {
     if let Some(pipe) = child.stderr.take() {
         watch_stderr(pipe, stderr.clone());
     }
-    let (tx, rx) = channel();
+    let (tx, rx) = sync_channel(LINES_QUEUED);
     thread::spawn(move || {
         let mut reader = BufReader::new(stdout);
-        loop {
-            let mut buf = Vec::new();
-            // Read at most MAX_LINE + 1 bytes of one line.
-            let n = match (&mut reader)
-                .take(MAX_LINE as u64 + 1)
-                .read_until(b'\n', &mut buf)
-            {
-                Ok(n) => n,
-                Err(_) => return,
-            };
-            if n == 0 {
-                return;
-            }
-            let line = if buf.len() > MAX_LINE {
-                // Skip the rest of the overlong line.
-                let mut sink = Vec::new();
-                let _ = reader.read_until(b'\n', &mut sink);
-                Line::TooLong
-            } else {
-                Line::Text(String::from_utf8_lossy(&buf).trim_end().to_string())
-            };
+        let mut buf = Vec::new();
+        while let Some(line) = next_line(&mut reader, &mut buf) {
             if tx.send(line).is_err() {
                 return;
+            }
+            // A huge line's buffer is not kept for the short ones after it.
+            if buf.capacity() > 64 * 1024 {
+                buf = Vec::new();
             }
         }
     });
@@ -417,31 +609,7 @@ impl Adapter {
         let answer = self.raw_call_with_id(0, hello);
         self.timeout = per_case;
         let v = answer.map_err(|e| e.to_string())?;
-        if v.get("ok") != Some(&Value::Bool(true)) {
-            return Err(format!("the adapter refused protocol {PROTOCOL}: {v}"));
-        }
-        if v.get("protocol").and_then(Value::as_u64) != Some(PROTOCOL) {
-            return Err(format!(
-                "the adapter speaks protocol {:?}, the gate {PROTOCOL}",
-                v.get("protocol")
-            ));
-        }
-        let s = |k: &str| v.get(k).and_then(Value::as_str).unwrap_or("").to_string();
-        Ok(Hello {
-            adapter: s("adapter"),
-            implementation: s("implementation"),
-            version: s("version"),
-            supports: v
-                .get("supports")
-                .and_then(Value::as_array)
-                .map(|a| {
-                    a.iter()
-                        .filter_map(|x| x.as_str().map(String::from))
-                        .collect()
-                })
-                .unwrap_or_default(),
-            raw: v,
-        })
+        Hello::from_answer(v)
     }
 
     /// The time each answer is waited for.
@@ -552,34 +720,14 @@ impl Adapter {
             let left = deadline.saturating_duration_since(Instant::now());
             let p = self.process.as_mut().ok_or(CallError::Gone)?;
             match p.lines.recv_timeout(left) {
-                Ok(Line::TooLong) => {
-                    return Err(CallError::Malformed(format!(
-                        "an answer line over {MAX_LINE} bytes"
-                    )))
-                }
-                Ok(Line::Text(text)) => {
-                    let v: Value = match serde_json::from_str(&text) {
-                        Ok(v) => v,
-                        Err(e) => {
-                            let shown: String = text.chars().take(200).collect();
-                            return Err(CallError::Malformed(format!("not JSON ({e}): {shown:?}")));
-                        }
-                    };
-                    match v.get("id").and_then(Value::as_u64) {
-                        Some(got) if got == id => {
-                            self.timeouts = 0;
-                            return Ok(v);
-                        }
-                        // A late answer to an earlier request: drop it.
-                        Some(got) if got < id || (id == 0 && got > 0) => continue,
-                        other => {
-                            return Err(CallError::Malformed(format!(
-                                "answer id {other:?}, expected {id}: {}",
-                                text.chars().take(200).collect::<String>()
-                            )))
-                        }
+                Ok(line) => match hear(&line, id) {
+                    Heard::Answer(v) => {
+                        self.timeouts = 0;
+                        return Ok(v);
                     }
-                }
+                    Heard::Late => continue,
+                    Heard::Error(e) => return Err(e),
+                },
                 Err(RecvTimeoutError::Timeout) => {
                     self.timeouts += 1;
                     if self.timeouts >= HUNG_AFTER {
@@ -590,11 +738,9 @@ impl Adapter {
                     return Err(CallError::Timeout(self.timeout.as_millis()));
                 }
                 Err(RecvTimeoutError::Disconnected) => {
-                    let status = p
-                        .child
-                        .wait()
-                        .map(|s| s.to_string())
-                        .unwrap_or_else(|e| e.to_string());
+                    // An adapter that closed its output but does not exit is killed: the
+                    // gate does not wait on it for ever.
+                    let status = wait_or_kill(&mut p.child, EXIT_WAIT);
                     return Err(self.exited(format!("its output closed: {status}")));
                 }
             }

@@ -14,6 +14,7 @@
 //! Results are [`CheckResult`]s, reported like the runner's.
 
 pub mod adapter;
+pub mod fuzzing;
 pub mod master;
 pub mod reference;
 

@@ -10,6 +10,7 @@ mod error;
 mod facts;
 mod fields;
 mod file;
+pub mod fuzzing;
 mod judge;
 pub mod lint;
 mod load;

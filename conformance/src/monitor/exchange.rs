@@ -21,6 +21,7 @@ impl Monitor {
         let Some(p) = self.pending.take() else {
             return;
         };
+        self.tally.answered += 1;
         self.watch_slices(f.start.is_none());
         let received: Cow<'_, [u8]> = if p.leading.is_empty() {
             Cow::Borrowed(&f.bytes)
@@ -62,6 +63,7 @@ impl Monitor {
         let Some(mut p) = self.pending.take() else {
             return;
         };
+        self.tally.unanswered += 1;
         let limit = self.timing_rule().response_limit(&self.model);
         let mut cut_short = false;
         if let Some(after) = early {

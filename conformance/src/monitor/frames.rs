@@ -218,6 +218,18 @@ impl TapFramer {
         self.block_ends = ends;
     }
 
+    /// Bytes held now: the deframers' buffers and a frame cut short held for its rest.
+    /// Bounded whatever the input (the deframers' buffers are fixed, a carry is at most a
+    /// frame's start).
+    pub fn held_bytes(&self) -> usize {
+        self.rtu.pending() + self.ascii.pending() + self.carry.as_ref().map_or(0, |c| c.bytes.len())
+    }
+
+    /// Pieces of the held block whose times are kept (at most one per byte held).
+    pub fn held_pieces(&self) -> usize {
+        self.pieces.len() + self.carry.as_ref().map_or(0, |c| c.pieces.len())
+    }
+
     /// The side the next pieces come from (`None`: unknown, a tap).
     pub fn set_side(&mut self, side: Option<u64>) {
         self.side = side;
@@ -545,7 +557,9 @@ impl TapFramer {
             // their CRC holds (a function the length rule does not know, 04H or 41H,
             // followed at once by a reply: the reply is found by its length first).
             let head = &block[pos..pos + s];
-            let before_status = if head.len() >= 4 && crc16(head) == 0 {
+            // A CRC that checks over more bytes than any frame has is chance (1 in 65,536
+            // blocks of noise), not a frame.
+            let before_status = if (4..=MAX_RTU_FRAME).contains(&head.len()) && crc16(head) == 0 {
                 FrameStatus::Valid
             } else {
                 FrameStatus::Corrupt
@@ -558,8 +572,12 @@ impl TapFramer {
                 }
                 let to = from + len;
                 let (k0, begins) = piece_of(from);
+                // A carry is the start of one frame: never more bytes than a frame has
+                // (a line that never falls silent would otherwise grow it for ever, each
+                // block joined to the carry before it and carried again).
                 if may_carry
                     && to == block.len()
+                    && len <= MAX_RTU_FRAME
                     && status != FrameStatus::Valid
                     && (starts_frame(&block[from..]) || self.end_unproven)
                 {
@@ -727,7 +745,9 @@ fn starts_frame(bytes: &[u8]) -> bool {
 /// direction with a valid CRC, or is the whole rest with a valid CRC; bytes where no
 /// frame starts are skipped one at a time, as the codec's by-length deframer does.
 fn split_next(rest: &[u8]) -> (usize, usize, FrameStatus) {
-    let whole_ok = || rest.len() >= 4 && crc16(rest) == 0;
+    // A CRC that checks over more bytes than a frame has is chance, not a frame.
+    let checks = |b: &[u8]| (4..=MAX_RTU_FRAME).contains(&b.len()) && crc16(b) == 0;
+    let whole_ok = || checks(rest);
     for skip in 0..rest.len() {
         let head = &rest[skip..];
         for dir in [Direction::Response, Direction::Request] {
@@ -740,7 +760,7 @@ fn split_next(rest: &[u8]) -> (usize, usize, FrameStatus) {
         if skip == 0 && whole_ok() {
             return (0, rest.len(), FrameStatus::Valid);
         }
-        if head.len() >= 4 && crc16(head) == 0 {
+        if checks(head) {
             return (skip, head.len(), FrameStatus::Valid);
         }
     }

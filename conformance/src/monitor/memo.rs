@@ -150,8 +150,7 @@ impl<V> Memo<V> {
         self.map.insert(key.into(), value);
     }
 
-    /// Entries held.
-    #[cfg(test)]
+    /// Entries held (at most [`MEMO_ENTRIES`]).
     pub(super) fn len(&self) -> usize {
         self.map.len()
     }

@@ -19,6 +19,7 @@
 
 mod exchange;
 pub mod frames;
+pub mod fuzzing;
 pub mod guess;
 mod judge_master;
 pub mod line_search;
@@ -235,6 +236,8 @@ pub struct Monitor {
     live: bool,
     /// The framer's output buffer, kept between calls.
     framed: Vec<TapFrame>,
+    /// What became of each frame heard, and of each request.
+    tally: FrameTally,
     /// Tests: every exchange as counted.
     #[cfg(test)]
     trail: Vec<Counted>,
@@ -243,6 +246,29 @@ pub struct Monitor {
 /// Tests: one exchange as counted (node, status, findings, citations, exchange).
 #[cfg(test)]
 type Counted = (u8, VerdictStatus, Vec<Issue>, Vec<String>, ExchangeRecord);
+
+/// What became of every frame the monitor heard, and of every request among them: each
+/// frame is counted once, where its fate is decided, so that a frame dropped or counted
+/// twice shows as a sum that does not add up (the `monitor_stream` fuzz target's law).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct FrameTally {
+    /// Frames taken as a request (valid or not), each then closed once below.
+    pub requests: u64,
+    /// Frames taken as the reply to the request under way.
+    pub replies: u64,
+    /// Damaged frames after a request, held as the start of its reply (or of its
+    /// silence).
+    pub damaged: u64,
+    /// Replies with no request under way (the first frame heard among them).
+    pub unpaired: u64,
+    /// Requests closed with a reply.
+    pub answered: u64,
+    /// Requests closed without a (valid) reply: the window passed, or the next request
+    /// came.
+    pub unanswered: u64,
+    /// Requests left unjudged because listening ended inside their window.
+    pub unjudged: u64,
+}
 
 /// Replies read together with their request, at least, before the monitor says the tap
 /// delivers bytes in slices (a USB adapter's latency timer), when half or more are.
@@ -287,6 +313,7 @@ impl Monitor {
             notices_taken: 0,
             live: true,
             framed: Vec::new(),
+            tally: FrameTally::default(),
             #[cfg(test)]
             trail: Vec::new(),
         })
@@ -323,6 +350,57 @@ impl Monitor {
     /// outbound on its sender's, and a master's and a drive's frames differ by interface.
     pub fn set_side(&mut self, side: Option<u64>) {
         self.framer.set_side(side);
+    }
+}
+
+/// What a [`Monitor`] holds at one moment, by kind: its memory apart from the model and
+/// the per-node statistics (fixed size each). Every field has a bound that no traffic can
+/// pass ([`Held::within_bounds`]).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct Held {
+    /// Bytes the framer holds (a block under way, a frame cut short).
+    pub framer: usize,
+    /// Bytes of the request under way and of what came after it that is no frame.
+    pub pending: usize,
+    /// Bytes of the last request kept per node (to tell retries).
+    pub last_requests: usize,
+    /// Register values learnt from writes.
+    pub written: usize,
+    /// First examples kept (one per node, side and kind).
+    pub examples: usize,
+    /// Entries of the two memos.
+    pub memo_entries: usize,
+    /// Notices made.
+    pub notices: usize,
+    /// Live lines not taken yet (the caller takes them as it goes).
+    pub lines: usize,
+}
+
+/// The most notices a session makes: each kind is said once (latency timer, first frame a
+/// reply, the last request unjudged), and the caller's own (how the line was found).
+pub const MAX_NOTICES: usize = 8;
+
+impl Held {
+    /// Whether every field is under its bound, given the registers the model maps
+    /// (`map_registers`) and the nodes on the bus (`nodes`, 0: any of 247); the first
+    /// field over its bound, with the bound, where one is.
+    pub fn within_bounds(&self, map_registers: usize, nodes: usize) -> Result<(), String> {
+        use crate::codec::MAX_ASCII_FRAME;
+        let nodes = if nodes == 0 { 248 } else { nodes + 1 };
+        let kinds = kinds().len();
+        let bounds = [
+            ("framer", self.framer, 4 * MAX_ASCII_FRAME),
+            ("pending", self.pending, 3 * MAX_ASCII_FRAME),
+            ("last_requests", self.last_requests, 256 * MAX_ASCII_FRAME),
+            ("written", self.written, nodes * map_registers),
+            ("examples", self.examples, 256 * 2 * kinds),
+            ("memo_entries", self.memo_entries, 2 * memo::MEMO_ENTRIES),
+            ("notices", self.notices, MAX_NOTICES),
+        ];
+        match bounds.iter().find(|(_, v, b)| v > b) {
+            Some((name, v, b)) => Err(format!("{name}: {v} held, over its bound of {b}")),
+            None => Ok(()),
+        }
     }
 }
 
@@ -417,6 +495,7 @@ impl Monitor {
                     self.cfg.window.as_millis()
                 ));
                 self.pending = None;
+                self.tally.unjudged += 1;
                 return;
             }
             self.close_unanswered(None);
@@ -474,6 +553,40 @@ impl Monitor {
     /// The first example of each kind of finding, per node and side.
     pub fn examples(&self) -> &BTreeMap<(u8, Side, &'static str), Example> {
         &self.examples
+    }
+
+    /// What became of the frames heard so far (see [`FrameTally`]).
+    pub fn tally(&self) -> FrameTally {
+        self.tally
+    }
+
+    /// Frames heard so far.
+    pub fn frames_heard(&self) -> u64 {
+        self.frames
+    }
+
+    /// Bytes heard so far (every byte given to [`Monitor::feed`] and
+    /// [`Monitor::feed_packet`]).
+    pub fn bytes_heard(&self) -> u64 {
+        self.bytes
+    }
+
+    /// What the monitor holds now, by kind (see [`Held`]): bounded whatever it hears.
+    pub fn held(&self) -> Held {
+        let pending = self
+            .pending
+            .as_ref()
+            .map_or(0, |p| p.bytes.len() + p.leading.len());
+        Held {
+            framer: self.framer.held_bytes(),
+            pending,
+            last_requests: self.last_request.values().map(|(b, ..)| b.len()).sum(),
+            written: self.written.len(),
+            examples: self.examples.len(),
+            memo_entries: self.requests_memo.len() + self.verdicts_memo.len(),
+            notices: self.notices.len(),
+            lines: self.lines.len(),
+        }
     }
 
     /// Deviations found, over every node.
@@ -561,6 +674,7 @@ impl Monitor {
                         && (same_side == Some(false)
                             || is_reply_to(self.cfg.mode, &p.bytes, &f.bytes)) =>
                 {
+                    self.tally.replies += 1;
                     self.close_with_reply(f, since_previous);
                     return;
                 }
@@ -576,6 +690,7 @@ impl Monitor {
                         p.leading_start = f.start;
                     }
                     p.leading.extend_from_slice(&f.bytes);
+                    self.tally.damaged += 1;
                     return;
                 }
                 _ => {

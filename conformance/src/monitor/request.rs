@@ -34,8 +34,10 @@ impl Monitor {
                             "the first frame heard was a reply ({}): its request came before listening began, so it was not judged",
                             judge::show(mode, &f.bytes)
                         ));
+                        self.tally.unpaired += 1;
                         return;
                     }
+                    self.tally.unpaired += 1;
                     self.unsolicited(f, since_previous, address);
                     return;
                 }
@@ -44,6 +46,7 @@ impl Monitor {
         drop(body);
         let judged_as = self.judged_as(address);
         let (judgement, mut issues) = self.judge_request(&f, judged_as);
+        self.tally.requests += 1;
         let stats = self.nodes.entry(address).or_default();
         stats.requests += 1;
         let crc_error = f.status != FrameStatus::Valid && has_body;

@@ -7,6 +7,7 @@
 //! the files' shape. [`trace`] resolves the links against the checks, vectors, model facts,
 //! monitor kinds and oracle classes that exist, and computes the coverage.
 
+pub mod fuzzing;
 pub mod trace;
 
 use std::collections::BTreeSet;

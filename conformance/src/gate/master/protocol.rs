@@ -289,6 +289,66 @@ pub struct MasterHello {
     pub modes: Vec<String>,
 }
 
+impl MasterHello {
+    /// What a hello says of a master: refused unless it says `"role": "master"` (a codec
+    /// adapter's hello, or one that lies about its role).
+    pub fn from_hello(hello: &super::super::adapter::Hello) -> Result<MasterHello, String> {
+        let raw = &hello.raw;
+        if raw.get("role").and_then(Value::as_str) != Some("master") {
+            return Err(format!(
+                "the adapter does not speak the master protocol (no \"role\": \"master\" in its hello): {raw}"
+            ));
+        }
+        Ok(MasterHello {
+            supports: hello.supports.clone(),
+            lines: list(raw, "lines"),
+            modes: list(raw, "modes"),
+        })
+    }
+}
+
+/// The longest response timeout a master may say it runs with: no serial master waits a
+/// minute for a reply, and the gate waits the master's worst case for each answer
+/// (adapters/PROTOCOL.md).
+pub const MAX_MASTER_TIMEOUT: Duration = Duration::from_secs(60);
+
+/// The most retries a master may say it makes.
+pub const MAX_MASTER_RETRIES: u32 = 10;
+
+/// The settings an `open` answer says the master runs with (`want` where it says
+/// nothing); refused where they are not whole numbers, or say more than
+/// [`MAX_MASTER_TIMEOUT`] and [`MAX_MASTER_RETRIES`] (or than was asked, where more was
+/// asked): the gate waits the master's worst case for each answer, and a hostile
+/// adapter would make that wait endless.
+pub fn settings_of_open(answer: &Value, want: MasterSettings) -> Result<MasterSettings, String> {
+    let most_timeout = MAX_MASTER_TIMEOUT.max(want.timeout);
+    let most_retries = MAX_MASTER_RETRIES.max(want.retries);
+    let timeout = match answer.get("timeout_ms") {
+        None | Some(Value::Null) => want.timeout,
+        Some(v) => match v.as_u64() {
+            Some(ms) if Duration::from_millis(ms) <= most_timeout => Duration::from_millis(ms),
+            _ => {
+                return Err(format!(
+                    "\"timeout_ms\": {v}: expected a whole number of ms up to {}",
+                    most_timeout.as_millis()
+                ))
+            }
+        },
+    };
+    let retries = match answer.get("retries") {
+        None | Some(Value::Null) => want.retries,
+        Some(v) => match v.as_u64() {
+            Some(r) if r <= u64::from(most_retries) => r as u32,
+            _ => {
+                return Err(format!(
+                    "\"retries\": {v}: expected a whole number up to {most_retries}"
+                ))
+            }
+        },
+    };
+    Ok(MasterSettings { timeout, retries })
+}
+
 /// The master's own settings, as it runs with them.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct MasterSettings {
@@ -331,22 +391,14 @@ impl MasterAdapter {
     /// Starts `command` and shakes hands as a master.
     pub fn start(command: &str, slack: Duration) -> Result<Self, AdapterError> {
         let adapter = Adapter::start_with(command, slack, json!({"role": "master"}))?;
-        let raw = &adapter.hello.raw;
-        if raw.get("role").and_then(Value::as_str) != Some("master") {
-            return Err(AdapterError::Handshake {
+        let hello = MasterHello::from_hello(&adapter.hello).map_err(|problem| {
+            AdapterError::Handshake {
                 command: command.to_string(),
-                problem: format!(
-                    "the adapter does not speak the master protocol (no \"role\": \"master\" in its hello): {raw}"
-                ),
+                problem,
                 stderr: Vec::new(),
                 hint: "a codec adapter is run with `conformance gate --codec`; a master adapter answers the hello with \"role\": \"master\" (adapters/PROTOCOL.md)".into(),
-            });
-        }
-        let hello = MasterHello {
-            supports: adapter.hello.supports.clone(),
-            lines: list(raw, "lines"),
-            modes: list(raw, "modes"),
-        };
+            }
+        })?;
         Ok(MasterAdapter {
             adapter,
             hello,
@@ -423,16 +475,8 @@ impl MasterAdapter {
             Err(e) => return Err(e),
         };
         self.adapter.set_reopen(Some(request));
-        let got = MasterSettings {
-            timeout: answer
-                .get("timeout_ms")
-                .and_then(Value::as_u64)
-                .map_or(want.timeout, Duration::from_millis),
-            retries: answer
-                .get("retries")
-                .and_then(Value::as_u64)
-                .map_or(want.retries, |r| u32::try_from(r).unwrap_or(u32::MAX)),
-        };
+        let got = settings_of_open(&answer, want)
+            .map_err(|e| CallError::Malformed(format!("the open answer's settings: {e}")))?;
         // Its worst case, and the gate's allowance over it.
         self.adapter.set_timeout(
             got.timeout
