@@ -64,6 +64,7 @@ pub mod requirements;
 pub mod rng;
 pub mod runner;
 pub mod scan;
+pub mod seeds;
 pub mod session;
 pub mod sim;
 pub mod transport;

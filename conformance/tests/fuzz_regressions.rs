@@ -20,7 +20,7 @@ fn replay(name: &str, oracle: Oracle, data: &[u8]) {
         }
     }
 }
-use conformance::vectors::{corpus, VectorSet};
+use conformance::vectors::VectorSet;
 
 #[test]
 fn fuzz_regressions_replay() {
@@ -81,7 +81,7 @@ fn kept_corpus_passes_every_oracle() {
 #[test]
 fn seed_corpus_passes_every_oracle() {
     let set = VectorSet::builtin().unwrap();
-    let seeds = corpus::seeds(&set, &VectorSet::builtin_texts());
+    let seeds = conformance::seeds::seeds(&set, &VectorSet::builtin_texts());
     assert!(seeds.len() > 300, "{} seeds", seeds.len());
     for seed in &seeds {
         let oracle = TARGETS.iter().find(|(n, _)| *n == seed.target).unwrap().1;

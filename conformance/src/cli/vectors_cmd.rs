@@ -190,7 +190,7 @@ pub fn run(args: VectorsArgs) -> anyhow::Result<ExitCode> {
                     .collect::<anyhow::Result<Vec<_>>>()?,
                 None => VectorSet::builtin_texts(),
             };
-            let seeds = vectors::corpus::seeds(&set, &texts);
+            let seeds = conformance::seeds::seeds(&set, &texts);
             for s in &seeds {
                 let target_dir = out.join(s.target);
                 std::fs::create_dir_all(&target_dir)
