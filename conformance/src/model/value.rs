@@ -17,6 +17,21 @@ pub struct Unit {
 }
 
 impl Unit {
+    /// The unit of a register a description gives a scale and a unit for (either may be
+    /// left out); `None` where it gives neither, or only a scale of 1.
+    pub fn of(scale: Option<f64>, unit: Option<&str>) -> Option<Unit> {
+        let unit = unit.unwrap_or("");
+        let scale = scale.unwrap_or(1.0);
+        if unit.is_empty() && scale == 1.0 {
+            return None;
+        }
+        Some(Unit {
+            scale,
+            unit: unit.to_string(),
+            decimals: decimals_of(scale),
+        })
+    }
+
     /// The quantity `raw` stands for, as text ("45.00 Hz"). A scale that is a power of
     /// ten is applied in integers, so that no rounding shows (1194H is 45.00, never
     /// 44.99999).
@@ -175,6 +190,20 @@ fn unit_in_name(name: &str) -> Option<Unit> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_unit_of_a_scale_and_a_unit_shows_every_digit_of_a_step() {
+        assert_eq!(
+            Unit::of(Some(0.01), Some("Hz")).unwrap().show(0x1194),
+            "45.00 Hz"
+        );
+        // A step of 0.25 needs two decimals (params once printed one: 0.2 for 0.25).
+        assert_eq!(Unit::of(Some(0.25), None).unwrap().show(1), "0.25");
+        assert_eq!(Unit::of(None, Some("A")).unwrap().show(7), "7 A");
+        assert_eq!(Unit::of(Some(10.0), Some("rpm")).unwrap().show(3), "30 rpm");
+        assert!(Unit::of(None, None).is_none());
+        assert!(Unit::of(Some(1.0), Some("")).is_none());
+    }
 
     #[test]
     fn a_unit_is_read_from_the_name() {

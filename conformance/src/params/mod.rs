@@ -52,20 +52,8 @@ impl Parameter {
     /// The value in its unit where the description gives a scale or a unit ("45.00 Hz"),
     /// for the comment beside a raw value; `None` where it gives neither.
     pub fn in_unit(&self, raw: u16) -> Option<String> {
-        let unit = self.unit.as_deref().unwrap_or("");
-        match self.scale {
-            Some(s) if s != 1.0 => {
-                // As many decimals as the scale has (0.01 -> 2), so that no digit is made up.
-                let decimals = (-s.abs().log10()).ceil().clamp(0.0, 6.0) as usize;
-                Some(
-                    format!("{:.*} {unit}", decimals, f64::from(raw) * s)
-                        .trim_end()
-                        .to_string(),
-                )
-            }
-            _ if !unit.is_empty() => Some(format!("{raw} {unit}")),
-            _ => None,
-        }
+        // The model room's one rule for a value in its unit (no digit made up, none lost).
+        crate::model::Unit::of(self.scale, self.unit.as_deref()).map(|u| u.show(raw))
     }
 
     /// The comment a backup writes beside the value: name, unit, the value in its unit.
