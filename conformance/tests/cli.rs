@@ -683,3 +683,25 @@ fn an_adapter_that_dies_before_its_hello_is_shown_with_its_stderr_and_a_hint() {
         "{err}"
     );
 }
+
+/// Values that make no sense are refused with the range, not run: a bus at 0 baud
+/// (`capture synth` once wrote "3678 s of bus" for one minute asked) and a watch of
+/// 0 polls.
+#[test]
+fn a_baud_of_zero_and_a_count_of_zero_are_refused() {
+    let (code, _, err) = conformance_split(&[
+        "capture",
+        "synth",
+        "--duration",
+        "1m",
+        "--baud",
+        "0",
+        "-o",
+        "/nonexistent/x.pcapng",
+    ]);
+    assert_eq!(code, 2, "{err}");
+    assert!(err.contains("300..=1000000"), "{err}");
+    let (code, _, err) = conformance_split(&["watch", "--sim", "f510", "--count", "0"]);
+    assert_eq!(code, 2, "{err}");
+    assert!(err.contains("'--count <N>'"), "{err}");
+}

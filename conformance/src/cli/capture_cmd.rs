@@ -38,8 +38,9 @@ pub struct SynthArgs {
     /// How long the bus runs (a bare number is seconds: 90; or 30s, 10m, 24h).
     #[arg(long, value_name = "T", value_parser = parse_duration, default_value = "1h")]
     duration: Duration,
-    /// Baud rate.
-    #[arg(short = 'b', long = "baud", default_value_t = 115_200)]
+    /// Baud rate (300 to 1000000: a bus's timing is derived from it).
+    #[arg(short = 'b', long = "baud", default_value_t = 115_200,
+          value_parser = clap::value_parser!(u32).range(300..=1_000_000))]
     baud: u32,
     /// Parity.
     #[arg(short = 'P', long = "parity", value_enum, default_value = "even")]

@@ -81,8 +81,9 @@ pub struct WatchArgs {
     /// Stop after this long (default: until Ctrl-C or SIGTERM).
     #[arg(long, value_name = "TIME", value_parser = parse_duration)]
     duration: Option<Duration>,
-    /// Stop after this many polls of every node.
-    #[arg(short = 'c', long, value_name = "N")]
+    /// Stop after this many polls of every node (at least 1).
+    #[arg(short = 'c', long, value_name = "N",
+          value_parser = clap::value_parser!(u64).range(1..))]
     count: Option<u64>,
     /// Output format. Default: the one -o's extension names (.csv, .jsonl, .html), else
     /// text on a terminal and csv when piped.
