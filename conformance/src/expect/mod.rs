@@ -242,21 +242,21 @@ fn line_of(text: &str, offset: usize) -> usize {
 }
 
 /// The field a parser error is about: named in its message (unknown or missing field),
-/// else the key before `=` on the line it points at.
+/// else the key before `=` on the line it points at, else the table (`expect`). A key
+/// that is empty once its quotes are gone (`"" = 1`, `'' = 1`) names no field, nor does
+/// a message that names the empty key.
 fn field_of_parse_error(message: &str, line_text: &str) -> String {
     for lead in ["unknown field `", "missing field `", "duplicate key `"] {
         if let Some(rest) = message.split(lead).nth(1) {
-            if let Some(name) = rest.split('`').next() {
+            if let Some(name) = rest.split('`').next().filter(|n| !n.trim().is_empty()) {
                 return name.to_string();
             }
         }
     }
+    let unquoted = |key: &str| key.trim().trim_matches(['"', '\'']).trim().to_string();
     match line_text.split_once('=') {
-        // A key of quotes alone ("" = 1) names no field.
-        Some((key, _))
-            if !key.trim().trim_matches('"').trim().is_empty() && !key.trim().starts_with('[') =>
-        {
-            key.trim().trim_matches('"').to_string()
+        Some((key, _)) if !unquoted(key).is_empty() && !key.trim().starts_with('[') => {
+            unquoted(key)
         }
         _ => "expect".to_string(),
     }

@@ -127,6 +127,12 @@ fn an_invalid_file_names_the_line_and_the_field() {
     let (line, field, _) =
         refused("[[expect]]\ncheck = \"rtu.x\"\nreason = \"  \"\nstatus = \"deviation\"\n");
     assert_eq!((line, field.as_str()), (3, "reason"));
+    // A key that is empty once unquoted names no field: the entry is named instead
+    // (a campaign found `'' = ' '` refused as "unknown field ``", naming nothing).
+    for text in ["'' = ' '", "\"\" = 1", "[[expect]]\n'' = 1\n"] {
+        let (_, field, problem) = refused(text);
+        assert_eq!(field, "expect", "{text:?}: {problem}");
+    }
     // Not TOML at all: the line of the syntax error.
     let (line, _, _) = refused("[[expect]]\ncheck = \"rtu.x\"\nreason = \"unterminated\n");
     assert_eq!(line, 3);

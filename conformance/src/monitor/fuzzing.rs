@@ -14,13 +14,15 @@
 //!   the monitor holds stays under [`Held::within_bounds`](super::Held::within_bounds) after every piece; and the same
 //!   stream fed with its pieces cut in two (both halves read at the piece's time, which no
 //!   gap separates) gives the same verdicts, but for those on timing ([`TIMING_KINDS`]: two
-//!   reads at one moment prove other silences than one read does).
+//!   reads at one moment prove other silences than one read does) and the kind of damage
+//!   a damaged frame has ([`DAMAGE_KINDS`], for the same reason).
 //! - [`tap_framer`]: the framer gives back every byte once, in order; a valid RTU frame
 //!   has its CRC right and, ended by its length, the length the codec's rule gives; a
 //!   valid ASCII frame is one the codec takes; a frame ended by t3.5 ends where the
 //!   codec's deframer by silence ends a block; it holds a bounded number of bytes; cut
-//!   pieces give the same frames, each valid or damaged alike (corrupt or incomplete:
-//!   which one rests on the silences the reads prove).
+//!   pieces give the same valid frames and the same bytes damaged (corrupt or incomplete,
+//!   and where one damaged frame ends and the next begins, rest on the silences the reads
+//!   prove: [`DAMAGE_KINDS`]).
 //! - [`line_search`]: the search ends within its budget (it reads at most
 //!   [`SETTING_BYTES`] and one read more at a setting before it moves on, and never sets
 //!   a setting without reading), and never reports a setting without two valid frames of
@@ -195,6 +197,21 @@ pub const TIMING_KINDS: [&str; 6] = [
     "broadcast-turnaround",
 ];
 
+/// The kinds of finding on a damaged frame, the master's and the drive's. Which of them a
+/// frame gets rests on where the framer ends it, and that rests on the silences its reads
+/// prove: the framer dates each byte back from the time of the read that returned it (one
+/// character time a byte), so the first half of a piece read at the piece's moment, with
+/// the second half read at the same moment, dates its bytes later than the whole piece
+/// read at once does. A later first byte proves a silence before it that one read does
+/// not; a frame whose end the length rule gave becomes one with a silence over t1.5 in
+/// it (corrupt becomes incomplete: bad-checksum becomes incomplete-request), or damaged
+/// bytes are cut into other blocks (`tap_framer` found both). On a real port, two reads at
+/// one moment happen only when more than a read's 512 bytes wait (a host that stalled).
+pub const DAMAGE_KINDS: (&[&str], &[&str]) = (
+    &["incomplete-request", "bad-checksum", "malformed"],
+    &["bad-checksum", "truncated", "malformed", "extra-bytes"],
+);
+
 /// What a monitor made of a stream: its verdicts, less those on timing (see
 /// [`TIMING_KINDS`]). Per node: requests, exchanges, replies, timeouts, CRC errors,
 /// retries, and the count of each kind of finding.
@@ -210,18 +227,18 @@ struct Judged {
 type NodeVerdict = (u8, [u64; 6], Vec<(String, u64)>);
 
 fn untimed(address: u8, n: &NodeStats) -> NodeVerdict {
-    // A damaged request is incomplete or malformed by the silences inside it (as a
-    // frame is incomplete or corrupt): one kind here.
+    // What is wrong with a damaged frame rests on where it ends, which the silences the
+    // reads prove decide (see DAMAGE_KINDS): one kind per side here.
     let mut errors: Vec<(String, u64)> = Vec::new();
     for (k, v) in n
         .errors
         .iter()
         .filter(|(k, _)| !TIMING_KINDS.iter().any(|t| k.ends_with(&format!(".{t}"))))
     {
-        let k = if k == "master.incomplete-request" {
-            "master.malformed"
-        } else {
-            k.as_str()
+        let k = match k.split_once('.') {
+            Some(("master", kind)) if DAMAGE_KINDS.0.contains(&kind) => "master.damaged",
+            Some(("drive", kind)) if DAMAGE_KINDS.1.contains(&kind) => "drive.damaged",
+            _ => k.as_str(),
         };
         match errors.iter_mut().find(|(e, _)| e == k) {
             Some((_, n)) => *n += v,
@@ -396,7 +413,7 @@ pub fn tap_framer(data: &[u8]) {
         "the frames are not the bytes fed, once each, in order"
     );
     let silence_ends = (mode == Mode::Rtu).then(|| silence_block_ends(&stream, stream.line(mode)));
-    for (end, f) in &frames {
+    for (i, (end, f)) in frames.iter().enumerate() {
         if f.status != FrameStatus::Valid {
             continue;
         }
@@ -412,9 +429,15 @@ pub fn tap_framer(data: &[u8]) {
                     let by_rule = [Direction::Request, Direction::Response]
                         .into_iter()
                         .any(|d| bus_rtu_frame_len(d, &f.bytes) == Some(f.bytes.len()));
+                    // Or the bytes before a frame the length rule found, whose CRC holds
+                    // (a function the rule does not know, 04H or 41H, answered at once):
+                    // the valid frame after it ends it.
+                    let before_a_frame = frames
+                        .get(i + 1)
+                        .is_some_and(|(_, next)| next.status == FrameStatus::Valid);
                     assert!(
-                        by_rule,
-                        "a frame ended by its length that no length rule gives: {}",
+                        by_rule || before_a_frame,
+                        "a frame ended by its length that no length rule gives, and no valid frame after it: {}",
                         crate::codec::hex::Hex(&f.bytes)
                     );
                 }
@@ -434,13 +457,20 @@ pub fn tap_framer(data: &[u8]) {
             ),
         }
     }
-    // Corrupt and incomplete are both damaged; which of the two rests on a silence inside
-    // the frame, which two reads at one moment prove otherwise than one (see
-    // TIMING_KINDS).
+    // Corrupt and incomplete are both damaged, and damaged bytes next to each other are
+    // one run of damage: where a damaged frame ends, and so which of the two it is, rests
+    // on the silences the reads prove, which two reads at one moment prove otherwise than
+    // one (see DAMAGE_KINDS). The valid frames, and which bytes are damaged, do not.
     let key = |fs: &[(usize, TapFrame)]| -> Vec<(Vec<u8>, bool)> {
-        fs.iter()
-            .map(|(_, f)| (f.bytes.clone(), f.status == FrameStatus::Valid))
-            .collect()
+        let mut out: Vec<(Vec<u8>, bool)> = Vec::new();
+        for (_, f) in fs {
+            let valid = f.status == FrameStatus::Valid;
+            match out.last_mut() {
+                Some((run, false)) if !valid => run.extend_from_slice(&f.bytes),
+                _ => out.push((f.bytes.clone(), valid)),
+            }
+        }
+        out
     };
     let cut = frame_stream(&stream.cut(), mode);
     assert_eq!(
