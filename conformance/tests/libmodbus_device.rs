@@ -211,6 +211,17 @@ fn libmodbus_rtu_server_fuzzed_as_f510() {
         return;
     };
     let b = &peer.port;
+    // libmodbus sleeps and flushes after each request it refuses, so a case costs about a
+    // second: 80 cases by default (150 made this the longest test of the run, 200 s),
+    // 300 with CONFORMANCE_LONG=1, or FUZZ_CASES.
+    let cases = std::env::var("FUZZ_CASES").unwrap_or_else(|_| {
+        if std::env::var_os("CONFORMANCE_LONG").is_some() {
+            "300"
+        } else {
+            "80"
+        }
+        .into()
+    });
     let (exit, v) = common::report_of(
         "fuzz",
         &dir,
@@ -226,7 +237,7 @@ fn libmodbus_rtu_server_fuzzed_as_f510() {
             "--timeout",
             "1000",
             "--cases",
-            "150",
+            &cases,
             "--no-minimize",
         ],
         Duration::from_secs(400),
