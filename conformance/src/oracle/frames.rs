@@ -4,7 +4,7 @@
 use super::{with_scratch, Scratch, DIRECTIONS};
 use crate::codec::{
     ascii_to_rtu, decode_ascii, decode_ascii_unchecked, decode_rtu, decode_rtu_unchecked,
-    rtu_to_ascii, Direction, Message, Mode, MAX_RTU_FRAME,
+    rtu_to_ascii, Direction, FrameError, Message, Mode, Unchecked, MAX_RTU_FRAME,
 };
 
 /// `emitted` is `data` with its letters upper-cased.
@@ -91,6 +91,33 @@ fn allocating_views(m: &Message<'_>, dir: Direction, mode: Mode, data: &[u8]) {
     assert_eq!((r.address, &r.pdu), (other, &m.pdu));
 }
 
+/// The checked and the unchecked decoder on one input, in either mode: where both decode,
+/// the checksum (`sum`) is valid and the messages are the same; the unchecked one never
+/// refuses what the checked one takes; where only the unchecked one decodes, the checksum
+/// is wrong. The message, where both decode.
+fn decoders_agree<'a, 'm>(
+    checked: &'a Result<Message<'m>, FrameError>,
+    unchecked: &Result<Unchecked<'_>, FrameError>,
+    sum: &str,
+) -> Option<&'a Message<'m>> {
+    match (checked, unchecked) {
+        (Ok(m), Ok(u)) => {
+            assert!(u.checksum.is_valid(), "checked accepts a bad {sum}");
+            assert_eq!(&u.message, m, "unchecked and checked decode differently");
+            Some(m)
+        }
+        (Ok(_), Err(e)) => panic!("unchecked rejects what checked accepts: {e}"),
+        (Err(_), Ok(u)) => {
+            assert!(
+                !u.checksum.is_valid(),
+                "checked rejects a frame with a valid {sum} that unchecked decodes"
+            );
+            None
+        }
+        (Err(_), Err(_)) => None,
+    }
+}
+
 /// RTU frame parser, both directions: never panics; a frame that decodes re-encodes to
 /// exactly its bytes; the unchecked path agrees with the checked one; a frame that decodes
 /// converts to ASCII and back unchanged.
@@ -99,36 +126,25 @@ pub fn rtu_frame(data: &[u8]) {
     for dir in DIRECTIONS {
         let checked = decode_rtu(data, dir);
         let unchecked = decode_rtu_unchecked(data, dir);
-        match (&checked, &unchecked) {
-            (Ok(m), Ok(u)) => {
-                assert!(u.checksum.is_valid(), "checked accepts a bad CRC");
-                assert_eq!(&u.message, m, "unchecked and checked decode differently");
-                message_views(m, dir, Mode::Rtu, data);
-                with_scratch(|s| {
-                    let n = m
-                        .emit_rtu(&mut s.rtu)
-                        .expect("a decoded message re-encodes");
-                    assert_eq!(&s.rtu[..n], data, "emit(parse(x)) != x");
-                    assert!(
-                        m.emit_rtu(&mut s.rtu2[..n - 1]).is_err(),
-                        "emit into a buffer one byte short"
-                    );
-                    // The conversion does not depend on the direction: once per frame.
-                    if !converted {
-                        let n = rtu_to_ascii(data, &mut s.ascii).expect("a valid frame converts");
-                        let k =
-                            ascii_to_rtu(&s.ascii[..n], &mut s.rtu2).expect("and converts back");
-                        assert_eq!(&s.rtu2[..k], data);
-                    }
-                });
-                converted = true;
-            }
-            (Ok(_), Err(e)) => panic!("unchecked rejects what checked accepts: {e}"),
-            (Err(_), Ok(u)) => assert!(
-                !u.checksum.is_valid(),
-                "checked rejects a frame with a valid CRC that unchecked decodes"
-            ),
-            (Err(_), Err(_)) => {}
+        if let Some(m) = decoders_agree(&checked, &unchecked, "CRC") {
+            message_views(m, dir, Mode::Rtu, data);
+            with_scratch(|s| {
+                let n = m
+                    .emit_rtu(&mut s.rtu)
+                    .expect("a decoded message re-encodes");
+                assert_eq!(&s.rtu[..n], data, "emit(parse(x)) != x");
+                assert!(
+                    m.emit_rtu(&mut s.rtu2[..n - 1]).is_err(),
+                    "emit into a buffer one byte short"
+                );
+                // The conversion does not depend on the direction: once per frame.
+                if !converted {
+                    let n = rtu_to_ascii(data, &mut s.ascii).expect("a valid frame converts");
+                    let k = ascii_to_rtu(&s.ascii[..n], &mut s.rtu2).expect("and converts back");
+                    assert_eq!(&s.rtu2[..k], data);
+                }
+            });
+            converted = true;
         }
     }
 }
@@ -149,34 +165,24 @@ pub fn ascii_frame(data: &[u8]) {
             } = s;
             let checked = decode_ascii(data, dir, rtu);
             let unchecked = decode_ascii_unchecked(data, dir, rtu2);
-            match (&checked, &unchecked) {
-                (Ok(m), Ok(u)) => {
-                    assert!(u.checksum.is_valid(), "checked accepts a bad LRC");
-                    assert_eq!(&u.message, m, "unchecked and checked decode differently");
-                    let n = m.emit_ascii(ascii).expect("a decoded message re-encodes");
-                    assert!(is_upper_of(&ascii[..n], data), "emit(parse(x)) != x");
+            if let Some(m) = decoders_agree(&checked, &unchecked, "LRC") {
+                let n = m.emit_ascii(ascii).expect("a decoded message re-encodes");
+                assert!(is_upper_of(&ascii[..n], data), "emit(parse(x)) != x");
+                assert!(
+                    m.emit_ascii(&mut ascii2[..n - 1]).is_err(),
+                    "emit into a buffer one byte short"
+                );
+                message_views(m, dir, Mode::Ascii, data);
+                if !converted {
+                    let k = ascii_to_rtu(data, rtu3).expect("a valid frame converts");
                     assert!(
-                        m.emit_ascii(&mut ascii2[..n - 1]).is_err(),
-                        "emit into a buffer one byte short"
+                        ascii_to_rtu(data, &mut rtu2[..k - 1]).is_err(),
+                        "short buffer"
                     );
-                    message_views(m, dir, Mode::Ascii, data);
-                    if !converted {
-                        let k = ascii_to_rtu(data, rtu3).expect("a valid frame converts");
-                        assert!(
-                            ascii_to_rtu(data, &mut rtu2[..k - 1]).is_err(),
-                            "short buffer"
-                        );
-                        let n = rtu_to_ascii(&rtu3[..k], ascii2).expect("and converts back");
-                        assert!(is_upper_of(&ascii2[..n], data), "ASCII -> RTU -> ASCII");
-                    }
-                    converted = true;
+                    let n = rtu_to_ascii(&rtu3[..k], ascii2).expect("and converts back");
+                    assert!(is_upper_of(&ascii2[..n], data), "ASCII -> RTU -> ASCII");
                 }
-                (Ok(_), Err(e)) => panic!("unchecked rejects what checked accepts: {e}"),
-                (Err(_), Ok(u)) => assert!(
-                    !u.checksum.is_valid(),
-                    "checked rejects a frame with a valid LRC that unchecked decodes"
-                ),
-                (Err(_), Err(_)) => {}
+                converted = true;
             }
         });
     }

@@ -227,30 +227,9 @@ fn no_reply_and_a_retry_are_counted() {
 #[test]
 fn ascii_frames_are_judged_too() {
     let mut m = monitor(Mode::Ascii, &[1]);
-    let req = frame(
-        Mode::Ascii,
-        1,
-        Pdu::ReadRequest {
-            start: 0x2530,
-            count: 1,
-        },
-    );
-    let wrong = frame(
-        Mode::Ascii,
-        1,
-        Pdu::Exception {
-            function: 3,
-            code: 3,
-        },
-    );
-    let right = frame(
-        Mode::Ascii,
-        1,
-        Pdu::Exception {
-            function: 3,
-            code: 2,
-        },
-    );
+    let req = ascii_read(1, 0x2530, 1);
+    let wrong = ascii_exception(1, 3, 3);
+    let right = ascii_exception(1, 3, 2);
     let lines = run(
         &mut m,
         &[(0, &req), (40, &right), (200, &req), (240, &wrong)],

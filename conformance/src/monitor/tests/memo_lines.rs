@@ -82,30 +82,9 @@ fn the_memo_changes_no_verdict() {
         assert!(with == without, "live {live}:\n{with}\n---\n{without}");
     }
     // ASCII too.
-    let req = frame(
-        Mode::Ascii,
-        1,
-        Pdu::ReadRequest {
-            start: 0x2530,
-            count: 1,
-        },
-    );
-    let ok = frame(
-        Mode::Ascii,
-        1,
-        Pdu::Exception {
-            function: 3,
-            code: 2,
-        },
-    );
-    let wrong = frame(
-        Mode::Ascii,
-        1,
-        Pdu::Exception {
-            function: 3,
-            code: 3,
-        },
-    );
+    let req = ascii_read(1, 0x2530, 1);
+    let ok = ascii_exception(1, 3, 2);
+    let wrong = ascii_exception(1, 3, 3);
     let mut bad = ok.clone();
     let n = bad.len();
     bad.swap(n - 3, n - 4);

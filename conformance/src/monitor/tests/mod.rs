@@ -61,6 +61,14 @@ fn write(address: u8, register: u16, value: u16) -> Vec<u8> {
     frame(Mode::Rtu, address, Pdu::WriteSingle { register, value })
 }
 
+fn ascii_read(address: u8, start: u16, count: u16) -> Vec<u8> {
+    frame(Mode::Ascii, address, Pdu::ReadRequest { start, count })
+}
+
+fn ascii_exception(address: u8, function: u8, code: u8) -> Vec<u8> {
+    frame(Mode::Ascii, address, Pdu::Exception { function, code })
+}
+
 /// Feeds `frames` at their times (ms), then a long silence, then the end.
 fn run(m: &mut Monitor, frames: &[(u64, &[u8])]) -> Vec<Line> {
     for (t, f) in frames {

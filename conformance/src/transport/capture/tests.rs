@@ -3,7 +3,7 @@
 
 use super::captured::line_silence;
 use super::*;
-use crate::capture::{Reader, FLAG_INBOUND, FLAG_OUTBOUND, FLAG_WRONG_GAP};
+use crate::capture::{Packet, Reader, FLAG_INBOUND, FLAG_OUTBOUND, FLAG_WRONG_GAP};
 use crate::codec::timing::LineSettings;
 use crate::codec::timing::Parity;
 use crate::codec::Mode;
@@ -24,6 +24,30 @@ impl Write for Sink {
     }
 }
 
+impl Sink {
+    /// What the recorder wrote so far.
+    fn bytes(&self) -> Vec<u8> {
+        self.0.lock().unwrap().clone()
+    }
+}
+
+/// A recorder on a sink the test reads back.
+fn recorder() -> (Sink, SharedRecorder) {
+    let sink = Sink::default();
+    let rec = Recorder::new(Box::new(sink.clone()), "test")
+        .unwrap()
+        .shared();
+    (sink, rec)
+}
+
+/// The packets of a capture whose every block reads.
+fn read_back(data: &[u8]) -> Vec<Packet<'_>> {
+    Reader::new(data)
+        .unwrap()
+        .collect::<Result<_, _>>()
+        .unwrap()
+}
+
 const REQUEST: [u8; 8] = [0x01, 0x03, 0x01, 0x23, 0x00, 0x01, 0x74, 0x3C];
 const REPLY: [u8; 7] = [0x01, 0x03, 0x02, 0x17, 0x70, 0xB6, 0x50];
 const EXCEPTION: [u8; 5] = [0x01, 0x83, 0x02, 0xC0, 0xF1];
@@ -35,10 +59,7 @@ fn drain(t: &mut impl Transport, wait: Duration) -> usize {
 
 #[test]
 fn sends_and_receives_become_packets_with_directions_flags_and_comments() {
-    let sink = Sink::default();
-    let rec = Recorder::new(Box::new(sink.clone()), "test")
-        .unwrap()
-        .shared();
+    let (sink, rec) = recorder();
     let (a, mut b) = memory::pair();
     let line = LineSettings::new(9600, 8, Parity::Even, 1);
     let mut a = Captured::new(a, rec.clone(), Mode::Rtu, line);
@@ -64,11 +85,8 @@ fn sends_and_receives_become_packets_with_directions_flags_and_comments() {
     a.send_pieces(&[&REQUEST[..4], &REQUEST[4..]], Duration::from_millis(2))
         .unwrap();
     drop(a);
-    let data = sink.0.lock().unwrap().clone();
-    let packets: Vec<_> = Reader::new(&data)
-        .unwrap()
-        .collect::<Result<_, _>>()
-        .unwrap();
+    let data = sink.bytes();
+    let packets = read_back(&data);
     let seen: Vec<(&[u8], u32)> = packets
         .iter()
         .map(|p| (p.data, p.flags.unwrap_or(0)))
@@ -132,10 +150,7 @@ fn the_silence_between_reads_leaves_out_the_time_the_characters_took() {
 
 #[test]
 fn a_tap_records_requests_and_replies_apart_and_without_direction() {
-    let sink = Sink::default();
-    let rec = Recorder::new(Box::new(sink.clone()), "test")
-        .unwrap()
-        .shared();
+    let (sink, rec) = recorder();
     let (a, mut b) = memory::pair();
     let line = LineSettings::new(9600, 8, Parity::Even, 1);
     let mut a = Captured::new(a, rec, Mode::Rtu, line).as_tap();
@@ -148,11 +163,8 @@ fn a_tap_records_requests_and_replies_apart_and_without_direction() {
     b.send(&REPLY).unwrap();
     assert_eq!(drain(&mut a, Duration::from_millis(200)), 7);
     drop(a);
-    let data = sink.0.lock().unwrap().clone();
-    let packets: Vec<_> = Reader::new(&data)
-        .unwrap()
-        .collect::<Result<_, _>>()
-        .unwrap();
+    let data = sink.bytes();
+    let packets = read_back(&data);
     let seen: Vec<(&[u8], Option<u32>)> = packets.iter().map(|p| (p.data, p.flags)).collect();
     assert_eq!(seen, vec![(&request[..], None), (&REPLY[..], None)]);
 }
@@ -161,10 +173,7 @@ fn a_tap_records_requests_and_replies_apart_and_without_direction() {
 /// the same packet, as the master that waits its timeout for it takes it whole.
 #[test]
 fn a_reply_read_in_two_parts_by_a_stalled_host_is_one_packet_while_the_master_waits() {
-    let sink = Sink::default();
-    let rec = Recorder::new(Box::new(sink.clone()), "test")
-        .unwrap()
-        .shared();
+    let (sink, rec) = recorder();
     let (a, mut b) = memory::pair();
     let line = LineSettings::new(9600, 8, Parity::Even, 1);
     let mut a = Captured::new(a, rec, Mode::Rtu, line).holding_frames_for(Duration::from_secs(30));
@@ -182,11 +191,8 @@ fn a_reply_read_in_two_parts_by_a_stalled_host_is_one_packet_while_the_master_wa
     }
     a.send(&REQUEST).unwrap();
     drop(a);
-    let data = sink.0.lock().unwrap().clone();
-    let packets: Vec<_> = Reader::new(&data)
-        .unwrap()
-        .collect::<Result<_, _>>()
-        .unwrap();
+    let data = sink.bytes();
+    let packets = read_back(&data);
     let datas: Vec<&[u8]> = packets.iter().map(|p| p.data).collect();
     assert_eq!(datas, [&REQUEST[..], &REPLY[..], &REQUEST[..]]);
     assert_eq!(packets[1].flags.unwrap_or(0) & capture::FLAG_CRC_ERROR, 0);
@@ -194,10 +200,7 @@ fn a_reply_read_in_two_parts_by_a_stalled_host_is_one_packet_while_the_master_wa
 
 #[test]
 fn bytes_discarded_by_the_caller_are_in_the_capture_first() {
-    let sink = Sink::default();
-    let rec = Recorder::new(Box::new(sink.clone()), "test")
-        .unwrap()
-        .shared();
+    let (sink, rec) = recorder();
     let (a, mut b) = memory::pair();
     let line = LineSettings::new(9600, 8, Parity::Even, 1);
     let mut a = Captured::new(a, rec, Mode::Rtu, line);
@@ -207,11 +210,8 @@ fn bytes_discarded_by_the_caller_are_in_the_capture_first() {
     a.discard_input().unwrap();
     assert_eq!(drain(&mut a, Duration::from_millis(10)), 0);
     drop(a);
-    let data = sink.0.lock().unwrap().clone();
-    let packets: Vec<_> = Reader::new(&data)
-        .unwrap()
-        .collect::<Result<_, _>>()
-        .unwrap();
+    let data = sink.bytes();
+    let packets = read_back(&data);
     assert_eq!(packets.len(), 2);
     assert_eq!(packets[1].data, &REPLY);
     assert_eq!(packets[1].direction, Some(capture::Direction::Inbound));
@@ -320,10 +320,7 @@ impl Transport for Shaped {
 /// it, which [`capture::broken_by_host`] reads back; the next, whole send is plain.
 #[test]
 fn a_send_the_host_broke_is_flagged_and_commented_and_the_next_one_is_not() {
-    let sink = Sink::default();
-    let rec = Recorder::new(Box::new(sink.clone()), "test")
-        .unwrap()
-        .shared();
+    let (sink, rec) = recorder();
     let (a, _b) = memory::pair();
     let line = LineSettings::new(9600, 8, Parity::Even, 1);
     let link = Shaped {
@@ -335,11 +332,8 @@ fn a_send_the_host_broke_is_flagged_and_commented_and_the_next_one_is_not() {
         a.send(&REQUEST).unwrap();
     }
     drop(a);
-    let data = sink.0.lock().unwrap().clone();
-    let packets: Vec<_> = Reader::new(&data)
-        .unwrap()
-        .collect::<Result<_, _>>()
-        .unwrap();
+    let data = sink.bytes();
+    let packets = read_back(&data);
     let broken: Vec<bool> = packets
         .iter()
         .map(|p| capture::broken_by_host(p.flags, p.comment))
@@ -349,10 +343,7 @@ fn a_send_the_host_broke_is_flagged_and_commented_and_the_next_one_is_not() {
     assert_eq!(packets[0].flags, Some(FLAG_OUTBOUND | FLAG_WRONG_GAP));
     assert_eq!(packets[2].flags, Some(FLAG_OUTBOUND));
     // ASCII is not broken by a silence under its 1 s timeout: nothing is flagged.
-    let sink = Sink::default();
-    let rec = Recorder::new(Box::new(sink.clone()), "test")
-        .unwrap()
-        .shared();
+    let (sink, rec) = recorder();
     let (a, _b) = memory::pair();
     let link = Shaped {
         broken: 1,
@@ -361,11 +352,8 @@ fn a_send_the_host_broke_is_flagged_and_commented_and_the_next_one_is_not() {
     let mut a = Captured::new(link, rec, Mode::Ascii, line);
     a.send(b":010300000001FB\r\n").unwrap();
     drop(a);
-    let data = sink.0.lock().unwrap().clone();
-    let p: Vec<_> = Reader::new(&data)
-        .unwrap()
-        .collect::<Result<_, _>>()
-        .unwrap();
+    let data = sink.bytes();
+    let p = read_back(&data);
     assert_eq!(p.len(), 1);
     assert!(!capture::broken_by_host(p[0].flags, p[0].comment));
 }
@@ -377,10 +365,7 @@ fn a_send_the_host_broke_is_flagged_and_commented_and_the_next_one_is_not() {
 /// not taken for this one's.
 #[test]
 fn a_reply_the_simulators_host_began_late_is_recorded_when_it_began_and_marked() {
-    let sink = Sink::default();
-    let rec = Recorder::new(Box::new(sink.clone()), "test")
-        .unwrap()
-        .shared();
+    let (sink, rec) = recorder();
     let (a, mut b) = memory::pair();
     let starts = crate::transport::ReplyStarts::default();
     let line = LineSettings::new(9600, 8, Parity::Even, 1);
@@ -418,11 +403,8 @@ fn a_reply_the_simulators_host_began_late_is_recorded_when_it_began_and_marked()
         assert_eq!(drain(&mut a, Duration::from_millis(200)), 7);
     }
     drop(a);
-    let data = sink.0.lock().unwrap().clone();
-    let packets: Vec<_> = Reader::new(&data)
-        .unwrap()
-        .collect::<Result<_, _>>()
-        .unwrap();
+    let data = sink.bytes();
+    let packets = read_back(&data);
     assert_eq!(packets.len(), 4);
     let late = capture::late_on_host(packets[1].comment).expect("the late reply is marked");
     // Late by 30 ms from the end of the request as the recorder's clock read it (a

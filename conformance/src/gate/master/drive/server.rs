@@ -7,6 +7,7 @@ use std::time::{Duration, Instant};
 
 use crate::codec::ascii::Scratch;
 use crate::codec::deframe::{AsciiDeframer, Event, RtuDeframer, RtuFraming};
+use crate::codec::hex;
 use crate::codec::pdu::{Direction, Message, Pdu, Registers};
 use crate::codec::timing::later;
 use crate::codec::timing::LineSettings;
@@ -222,17 +223,9 @@ impl Server {
         let mut value_bytes = Vec::new();
         let reply: Option<Message<'_>> = match (&judgement.expect, &behaviour) {
             (Expectation::Silence(_), _) => None,
-            (_, Behaviour::Exception(code) | Behaviour::ExceptionNoChecksum(code)) => {
-                exception = Some(*code);
-                Some(Message {
-                    address: self.node,
-                    pdu: Pdu::Exception {
-                        function,
-                        code: *code,
-                    },
-                })
-            }
-            (Expectation::Exception { code, .. }, _) => {
+            // The case's exception first, else the model's.
+            (_, Behaviour::Exception(code) | Behaviour::ExceptionNoChecksum(code))
+            | (Expectation::Exception { code, .. }, _) => {
                 exception = Some(*code);
                 Some(Message {
                     address: self.node,
@@ -379,7 +372,7 @@ impl Server {
                     Mode::Rtu => body.to_vec(),
                     Mode::Ascii => {
                         let mut b = vec![b':'];
-                        b.extend(format!("{}", HexUpper(&body)).bytes());
+                        b.extend(body.iter().flat_map(|&x| hex::encode_byte(x)));
                         b.extend_from_slice(b"\r\n");
                         b
                     }
@@ -426,18 +419,6 @@ fn bad_checksum(mode: Mode, frame: &[u8]) -> Vec<u8> {
         }
     }
     f
-}
-
-/// Upper-case hex pairs without separators (an ASCII frame's characters).
-struct HexUpper<'a>(&'a [u8]);
-
-impl std::fmt::Display for HexUpper<'_> {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        for b in self.0 {
-            write!(f, "{b:02X}")?;
-        }
-        Ok(())
-    }
 }
 
 /// An event's bytes, and whether they are a valid frame.

@@ -255,6 +255,18 @@ pub fn judge_report(rec: &OpRecord<'_>, settings: &MasterSettings) -> Vec<Master
             }
         }
         Reported::Done | Reported::Echo { .. } => {
+            // A success reported where the drive sent `what`.
+            let success_on = |kind: &str, what: &str| {
+                dev(
+                    kind,
+                    format!(
+                        "reported {} for {} where the drive sent {what} ({})",
+                        rec.reported,
+                        rec.op,
+                        listed(&mine)
+                    ),
+                )
+            };
             let normal = valid.iter().any(|s| s.exception.is_none()) && !split;
             if normal {
                 if let (Reported::Echo { data, .. }, Operation::LoopBack { data: asked, .. }) =
@@ -276,15 +288,7 @@ pub fn judge_report(rec: &OpRecord<'_>, settings: &MasterSettings) -> Vec<Master
             }) {
                 // A frame of its own that answers it, but must not be taken.
                 let (kind, what) = class_kind(bad.class);
-                out.push(dev(
-                    kind,
-                    format!(
-                        "reported {} for {} where the drive sent {what} ({})",
-                        rec.reported,
-                        rec.op,
-                        listed(&mine)
-                    ),
-                ));
+                out.push(success_on(kind, what));
             } else if let Some(s) = earlier(None) {
                 out.push(stale(s));
             } else if let Some(code) = valid_exception {
@@ -297,16 +301,7 @@ pub fn judge_report(rec: &OpRecord<'_>, settings: &MasterSettings) -> Vec<Master
                     ),
                 ));
             } else {
-                let (kind, what) = ("success-without-reply", "nothing valid");
-                out.push(dev(
-                    kind,
-                    format!(
-                        "reported {} for {} where the drive sent {what} ({})",
-                        rec.reported,
-                        rec.op,
-                        listed(&mine)
-                    ),
-                ));
+                out.push(success_on("success-without-reply", "nothing valid"));
             }
         }
         Reported::Error { .. } => {
