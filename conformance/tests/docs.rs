@@ -358,6 +358,133 @@ fn the_link_checker_catches_what_it_should() {
     assert!(bad[1].contains(":4: (missing.md)"), "{bad:?}");
 }
 
+// ---- paths in code spans -----------------------------------------------------------
+
+/// The pages that name files of the repository in code spans and diagrams (the
+/// architecture page: `runner/checks/mod.rs`, `sim/drive/quirk.rs`, ...). A link is
+/// checked wherever it is; a path in code only on these pages, where it is meant as a
+/// path and not as an example of one.
+const PAGES_WITH_PATHS: [&str; 1] = ["docs/src/architecture.md"];
+
+/// Whether a word names a file or folder: path characters only, with a `/` or a file's
+/// ending in it. A placeholder (`cli/<name>_cmd.rs`), a command line or a Rust path
+/// (`conformance::oracle`) is not one.
+fn is_path(word: &str) -> bool {
+    !word.is_empty()
+        && !word.starts_with(['.', '/', '-'])
+        && word
+            .chars()
+            .all(|c| c.is_ascii_alphanumeric() || "_-./".contains(c))
+        && (word.contains('/')
+            || [".rs", ".md", ".json", ".toml", ".py", ".sh", ".c", ".js"]
+                .iter()
+                .any(|e| word.ends_with(e)))
+}
+
+/// The paths a page names that do not exist: `file:line: `path`: why`. A path is taken
+/// from the top of the repository, or else from `conformance/src/` (where the rooms of
+/// the library are); the words of a `text` block count as well as the code spans of
+/// the prose.
+fn missing_paths(file: &Path) -> Vec<String> {
+    let text = std::fs::read_to_string(file).unwrap();
+    let (prose, blocks) = split(&text);
+    let mut named: Vec<(usize, String)> = Vec::new();
+    for (n, line) in &prose {
+        // Between an odd and the next even backtick: a span (an unclosed one is not).
+        let pieces: Vec<&str> = line.split('`').collect();
+        for (i, span) in pieces.iter().enumerate() {
+            if i % 2 == 1 && i + 1 < pieces.len() && is_path(span) {
+                named.push((*n, span.to_string()));
+            }
+        }
+    }
+    for b in blocks.iter().filter(|b| b.lang() == "text") {
+        for (k, line) in b.lines.iter().enumerate() {
+            for w in line.split_whitespace() {
+                let w = w.trim_matches([',', ';', '(', ')', ':']);
+                if is_path(w) {
+                    named.push((b.line + 1 + k, w.to_string()));
+                }
+            }
+        }
+    }
+    let src = repo().join("conformance/src");
+    named
+        .into_iter()
+        .filter(|(_, p)| !repo().join(p).exists() && !src.join(p).exists())
+        .map(|(n, p)| {
+            format!(
+                "{}:{n}: `{p}`: neither {p} nor conformance/src/{p} exists",
+                rel(file)
+            )
+        })
+        .collect()
+}
+
+#[test]
+fn every_path_the_architecture_page_names_exists() {
+    let bad: Vec<String> = PAGES_WITH_PATHS
+        .iter()
+        .flat_map(|p| missing_paths(&repo().join(p)))
+        .collect();
+    assert!(
+        bad.is_empty(),
+        "{} path(s) that do not exist:\n{}",
+        bad.len(),
+        bad.join("\n")
+    );
+}
+
+/// Every room of the library (a folder or a file of `conformance/src/`, less `lib.rs`
+/// and `main.rs`, which the page names by their whole paths) has its row in the
+/// architecture page's table, so that a room added is a room described.
+#[test]
+fn every_room_of_the_library_is_on_the_architecture_page() {
+    let page = std::fs::read_to_string(repo().join("docs/src/architecture.md")).unwrap();
+    let mut missing = Vec::new();
+    for e in std::fs::read_dir(repo().join("conformance/src"))
+        .unwrap()
+        .flatten()
+    {
+        let name = e.file_name().to_string_lossy().to_string();
+        let room = if e.path().is_dir() {
+            format!("{name}/")
+        } else if name.ends_with(".rs") && name != "lib.rs" && name != "main.rs" {
+            name
+        } else {
+            continue;
+        };
+        if !page.contains(&format!("\n| `{room}` |")) {
+            missing.push(room);
+        }
+    }
+    missing.sort();
+    assert!(
+        missing.is_empty(),
+        "rooms of conformance/src/ with no row in docs/src/architecture.md: {missing:?}"
+    );
+}
+
+#[test]
+fn the_path_checker_catches_what_it_should() {
+    assert!(is_path("runner/checks/mod.rs") && is_path("seeds.rs") && is_path("gate/"));
+    assert!(!is_path("cli/<name>_cmd.rs") && !is_path("conformance::oracle"));
+    assert!(!is_path("farm-studio look") && !is_path("TARGETS") && !is_path("/dev/ttyUSB0"));
+    let dir = repo().join("target/tmp/docs-paths");
+    std::fs::create_dir_all(&dir).unwrap();
+    let f = dir.join("page.md");
+    std::fs::write(
+        &f,
+        "# Top\n\n`sim/drive/mod.rs` and `conformance/tests/docs.rs`, `no/such/room.rs`\n\
+         ```text\n  floor 1   codec/   nowhere.rs\n```\n`an unclosed span no/such.rs\n",
+    )
+    .unwrap();
+    let bad = missing_paths(&f);
+    assert_eq!(bad.len(), 2, "{bad:?}");
+    assert!(bad[0].contains("page.md:3: `no/such/room.rs`"), "{bad:?}");
+    assert!(bad[1].contains("page.md:5: `nowhere.rs`"), "{bad:?}");
+}
+
 // ---- examples ----------------------------------------------------------------------
 
 /// Splits a command line as a POSIX shell would for the cases the examples use: words,
