@@ -274,6 +274,20 @@ pub fn open(
     Ok((sim, transport))
 }
 
+/// [`open`], with the link noted in the report's links of `mode`.
+fn open_into(
+    config: &SessionConfig,
+    mode: Mode,
+    report: &mut Report,
+) -> Result<(Option<SimThread>, Box<dyn Transport>), SessionError> {
+    let (sim, transport) = open(config, mode)?;
+    report
+        .device
+        .links
+        .insert(mode.to_string(), transport.describe());
+    Ok((sim, transport))
+}
+
 /// [`open`] without the capture.
 fn open_link(
     config: &SessionConfig,
@@ -413,11 +427,7 @@ pub fn fuzz(
         if !config.model.serves_mode(mode) {
             continue;
         }
-        let (sim, transport) = open(config, mode)?;
-        report
-            .device
-            .links
-            .insert(mode.to_string(), transport.describe());
+        let (sim, transport) = open_into(config, mode, &mut report)?;
         let outcome = crate::fuzz::fuzz_mode(
             &config.model,
             file,
@@ -485,11 +495,7 @@ pub fn run(
             on_result(&report);
             continue;
         }
-        let (sim, transport) = open(config, mode)?;
-        report
-            .device
-            .links
-            .insert(mode.to_string(), transport.describe());
+        let (sim, transport) = open_into(config, mode, &mut report)?;
         if config.options.bus.len() > 1 {
             if let Target::Mbap { addr, .. } = &config.target {
                 report.device.links.insert(
