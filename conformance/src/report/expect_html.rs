@@ -90,11 +90,7 @@ pub fn section(
         out.push_str("</ul>");
     }
     for (r, m) in &expected {
-        let _ = write!(
-            out,
-            "<p class=\"muted\">expected {}</p>",
-            because(e, m)
-        );
+        let _ = write!(out, "<p class=\"muted\">expected {}</p>", because(e, m));
         block(out, r);
     }
     if !stale.is_empty() {

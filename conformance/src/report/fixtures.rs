@@ -49,7 +49,12 @@ pub(crate) fn result(id: &str, status: Status, node: Option<u8>) -> CheckResult 
 }
 
 /// A restore record of `register` (its original value 04D2H).
-pub(crate) fn restore(node: Option<u8>, register: u16, restored: bool, changed: bool) -> RestoreRecord {
+pub(crate) fn restore(
+    node: Option<u8>,
+    register: u16,
+    restored: bool,
+    changed: bool,
+) -> RestoreRecord {
     RestoreRecord {
         node,
         register,
