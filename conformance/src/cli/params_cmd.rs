@@ -412,9 +412,9 @@ fn restore(args: RestoreArgs) -> anyhow::Result<ExitCode> {
             model.id
         );
     }
-    let params = params::parameters(&model);
+    let params = params::parameters(model);
     for e in file.entries() {
-        if let Some(why) = params::refusal(&model, &params, e.register, e.value) {
+        if let Some(why) = params::refusal(model, &params, e.register, e.value) {
             let err = FileError::Refused {
                 line: e.line,
                 register: e.register,
@@ -442,7 +442,7 @@ fn restore(args: RestoreArgs) -> anyhow::Result<ExitCode> {
     // a reason to refuse (copying settings between drives is what a restore is for).
     if let (Some(was), Some(is)) = (
         file.header.identification,
-        params::read_identification(&mut ctx, &model, node),
+        params::read_identification(&mut ctx, model, node),
     ) {
         if was != is {
             eprintln!(
@@ -451,7 +451,7 @@ fn restore(args: RestoreArgs) -> anyhow::Result<ExitCode> {
             );
         }
     }
-    let (read, _) = read_all(&mut ctx, &model, mode, node, &mine, &stop)?;
+    let (read, _) = read_all(&mut ctx, model, mode, node, &mine, &stop)?;
     if let Some((r, why)) = read.refused.iter().next() {
         let line = file
             .entries()
@@ -470,7 +470,7 @@ fn restore(args: RestoreArgs) -> anyhow::Result<ExitCode> {
             (now != want).then_some((p, *now, *want))
         })
         .collect();
-    let writes = write_plan(&model, mode, node, &changes)?;
+    let writes = write_plan(model, mode, node, &changes)?;
     let mut out = std::io::stdout().lock();
     writeln!(
         out,
@@ -533,7 +533,7 @@ fn restore(args: RestoreArgs) -> anyhow::Result<ExitCode> {
         .with_context(|| format!("cannot open the audit log {}", audit_path.display()))?;
     let outcome = params::restore(
         &mut ctx,
-        &model,
+        model,
         node,
         &writes,
         &mut audit,
