@@ -59,6 +59,35 @@ def num(fields: dict, key: str) -> int:
 
 Op = Callable[[dict], dict]
 
+# The version of adapters/PROTOCOL.md the codec adapters speak.
+PROTOCOL = 1
+
+
+def hello(req: dict, adapter: str, implementation: str, version: str, supports: list[str]) -> dict:
+    """The answer to the gate's hello: who the adapter is and what it supports; a refusal
+    where the gate speaks another protocol."""
+    if req.get("protocol") != PROTOCOL:
+        return {"ok": False, "error": f"protocol {req.get('protocol')!r} not spoken; this adapter speaks {PROTOCOL}"}
+    return {
+        "ok": True,
+        "protocol": PROTOCOL,
+        "adapter": adapter,
+        "implementation": implementation,
+        "version": version,
+        "supports": supports,
+    }
+
+
+def crc16(data: bytes) -> bytes:
+    """CRC-16/MODBUS of `data`, low byte first: only to build the frames an adapter or a
+    script sends itself, never to judge one (the gate judges with its own)."""
+    crc = 0xFFFF
+    for b in data:
+        crc ^= b
+        for _ in range(8):
+            crc = (crc >> 1) ^ 0xA001 if crc & 1 else crc >> 1
+    return bytes([crc & 0xFF, crc >> 8])
+
 
 def handle(line: str, ops: dict[str, Op], log: Callable[[str], None], raised: str = "") -> dict:
     """One request line to one answer. An exception the operation did not expect is an

@@ -45,14 +45,23 @@ import threading
 import time
 import tty
 
-PROTOCOL = 1
 _OUT = sys.stdout
 sys.stdout = sys.stderr
 
 # The helpers and the protocol loop the Python adapters share (adapters/adapter_common.py);
 # appended, so that this folder's neighbours never shadow an installed package.
 sys.path.append(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-from adapter_common import BadRequest, Unsupported, hexnum, hexs, num, parse_hex, serve  # noqa: E402,F401
+from adapter_common import (  # noqa: E402,F401
+    BadRequest,
+    Unsupported,
+    crc16,
+    hello,
+    hexnum,
+    hexs,
+    num,
+    parse_hex,
+    serve,
+)
 
 MODBUS_ENOBASE = 112345678
 EXCEPTION_MAX = 12  # MODBUS_EXCEPTION_MAX in modbus.h (codes 01..0BH; 09H unused)
@@ -218,17 +227,8 @@ class Line:
         self.close()
 
 
-def crc16(data: bytes) -> bytes:
-    """CRC of the requests the adapter itself sends to libmodbus's server (not judged)."""
-    crc = 0xFFFF
-    for b in data:
-        crc ^= b
-        for _ in range(8):
-            crc = (crc >> 1) ^ 0xA001 if crc & 1 else crc >> 1
-    return bytes([crc & 0xFF, crc >> 8])
-
-
 def with_crc(body: bytes) -> bytes:
+    """A request the adapter itself sends to libmodbus's server (its CRC is not judged)."""
     return body + crc16(body)
 
 
@@ -486,16 +486,7 @@ def encode_response(msg: dict) -> bytes:
 
 
 def op_hello(req):
-    if req.get("protocol") != PROTOCOL:
-        return {"ok": False, "error": f"protocol {req.get('protocol')!r} not spoken; this adapter speaks 1"}
-    return {
-        "ok": True,
-        "protocol": PROTOCOL,
-        "adapter": "libmodbus-adapter",
-        "implementation": "libmodbus",
-        "version": VERSION,
-        "supports": ["decode:rtu", "encode:rtu"],
-    }
+    return hello(req, "libmodbus-adapter", "libmodbus", VERSION, ["decode:rtu", "encode:rtu"])
 
 
 def op_decode(req):

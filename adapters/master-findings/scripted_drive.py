@@ -10,13 +10,9 @@ import json, os, select, subprocess, sys, termios, threading, time, tty
 MODE, TMO, CMD = sys.argv[1], int(sys.argv[2]), sys.argv[3]
 ONLY = sys.argv[4:]
 
-def crc16(data):
-    crc = 0xFFFF
-    for b in data:
-        crc ^= b
-        for _ in range(8):
-            crc = (crc >> 1) ^ 0xA001 if crc & 1 else crc >> 1
-    return bytes([crc & 0xFF, crc >> 8])
+# The CRC the Python adapters share (adapters/adapter_common.py), to build the frames.
+sys.path.append(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+from adapter_common import crc16  # noqa: E402
 
 def lrc(data):
     return (-sum(data)) & 0xFF

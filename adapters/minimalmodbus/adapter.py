@@ -40,7 +40,6 @@ if sys.path and os.path.abspath(sys.path[0] or ".") == os.path.dirname(
 
 import minimalmodbus as mm  # noqa: E402
 
-PROTOCOL = 1
 # A deliberately broken variant, to show the gate catching it (conformance/tests/gate.rs):
 # with MINIMALMODBUS_ADAPTER_BREAK=accept-bad-checksum every received frame's CRC or LRC
 # is replaced by the right one before minimalmodbus sees it.
@@ -51,7 +50,7 @@ sys.stdout = sys.stderr
 # The helpers and the protocol loop the Python adapters share (adapters/adapter_common.py);
 # appended, so that this folder's neighbours never shadow an installed package.
 sys.path.append(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-from adapter_common import BadRequest, Unsupported, hexnum, hexs, num, parse_hex, serve  # noqa: E402,F401
+from adapter_common import BadRequest, Unsupported, hello, hexnum, hexs, num, parse_hex, serve  # noqa: E402,F401
 
 
 def log(msg: str) -> None:
@@ -80,16 +79,8 @@ def mend_checksum(mode: str, frame: bytes) -> bytes:
 
 
 def op_hello(req):
-    if req.get("protocol") != PROTOCOL:
-        return {"ok": False, "error": f"protocol {req.get('protocol')!r} not spoken; this adapter speaks 1"}
-    return {
-        "ok": True,
-        "protocol": PROTOCOL,
-        "adapter": "minimalmodbus-adapter" + (f" (broken: {BREAK})" if BREAK else ""),
-        "implementation": "minimalmodbus",
-        "version": mm.__version__,
-        "supports": ["decode", "encode", "crc", "lrc"],
-    }
+    adapter = "minimalmodbus-adapter" + (f" (broken: {BREAK})" if BREAK else "")
+    return hello(req, adapter, "minimalmodbus", mm.__version__, ["decode", "encode", "crc", "lrc"])
 
 
 def op_decode(req):

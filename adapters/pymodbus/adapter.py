@@ -53,7 +53,11 @@ from pymodbus.pdu.register_message import (  # noqa: E402
     WriteSingleRegisterResponse,
 )
 
-PROTOCOL = 1
+# The hello the Python adapters share (adapters/adapter_common.py); appended, so that this
+# folder's neighbours never shadow an installed package.
+sys.path.append(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+from adapter_common import hello  # noqa: E402
+
 ADAPTER = "pymodbus-adapter"
 
 # Keep the real stdout for answers; anything else printing goes to stderr.
@@ -363,16 +367,7 @@ def message_to_pdu(message, direction):
 
 
 def op_hello(req):
-    if req.get("protocol") != PROTOCOL:
-        return {"ok": False, "error": f"protocol {req.get('protocol')!r} not spoken; this adapter speaks {PROTOCOL}"}
-    return {
-        "ok": True,
-        "protocol": PROTOCOL,
-        "adapter": ADAPTER,
-        "implementation": "pymodbus",
-        "version": pymodbus.__version__,
-        "supports": ["decode", "encode", "crc", "lrc"],
-    }
+    return hello(req, ADAPTER, "pymodbus", pymodbus.__version__, ["decode", "encode", "crc", "lrc"])
 
 
 def op_decode(req):

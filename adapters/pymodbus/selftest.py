@@ -26,6 +26,10 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 ADAPTER = os.path.join(HERE, "adapter.py")
 TIMEOUT = 10.0
 
+# The CRC the Python adapters share (adapters/adapter_common.py), to build probe frames.
+sys.path.append(os.path.dirname(HERE))
+from adapter_common import crc16  # noqa: E402
+
 
 # --------------------------------------------------------------------------
 # helpers
@@ -41,19 +45,9 @@ def norm_hex(text) -> str:
     return " ".join(str(text).upper().split())
 
 
-def crc_bytes(data: bytes) -> bytes:
-    """Reference CRC-16/MODBUS (only to build probe frames, never to judge)."""
-    crc = 0xFFFF
-    for b in data:
-        crc ^= b
-        for _ in range(8):
-            crc = (crc >> 1) ^ 0xA001 if crc & 1 else crc >> 1
-    return bytes([crc & 0xFF, crc >> 8])
-
-
 def rtu(body_hex: str) -> str:
     body = bytes.fromhex(body_hex)
-    return " ".join(f"{b:02X}" for b in body + crc_bytes(body))
+    return " ".join(f"{b:02X}" for b in body + crc16(body))
 
 
 def ascii_frame(body_hex: str) -> str:

@@ -274,6 +274,20 @@ pub fn open(
     Ok((sim, transport))
 }
 
+/// [`open`], with the link noted in the report's links of `mode`.
+fn open_into(
+    config: &SessionConfig,
+    mode: Mode,
+    report: &mut Report,
+) -> Result<(Option<SimThread>, Box<dyn Transport>), SessionError> {
+    let (sim, transport) = open(config, mode)?;
+    report
+        .device
+        .links
+        .insert(mode.to_string(), transport.describe());
+    Ok((sim, transport))
+}
+
 /// [`open`] without the capture.
 fn open_link(
     config: &SessionConfig,
@@ -413,11 +427,7 @@ pub fn fuzz(
         if !config.model.serves_mode(mode) {
             continue;
         }
-        let (sim, transport) = open(config, mode)?;
-        report
-            .device
-            .links
-            .insert(mode.to_string(), transport.describe());
+        let (sim, transport) = open_into(config, mode, &mut report)?;
         let outcome = crate::fuzz::fuzz_mode(
             &config.model,
             file,
@@ -485,11 +495,7 @@ pub fn run(
             on_result(&report);
             continue;
         }
-        let (sim, transport) = open(config, mode)?;
-        report
-            .device
-            .links
-            .insert(mode.to_string(), transport.describe());
+        let (sim, transport) = open_into(config, mode, &mut report)?;
         if config.options.bus.len() > 1 {
             if let Target::Mbap { addr, .. } = &config.target {
                 report.device.links.insert(
@@ -585,9 +591,9 @@ fn run_bus(
 ) -> Option<String> {
     let mut master =
         Master::new(transport, mode, config.options.timing).with_echo(config.options.echo);
-    let mut wall = Duration::ZERO;
-    let mut last_budget = ModeBudget::default();
-    let mut host_reruns = 0;
+    // The last section's line figures (the master's so far), with the wall time and the
+    // host's reruns of every section.
+    let mut budget = ModeBudget::default();
     let mut answering: Vec<u8> = Vec::new();
     let sections = config
         .options
@@ -637,9 +643,11 @@ fn run_bus(
             )
         };
         master = m;
-        wall += run.budget.wall;
-        host_reruns += run.budget.host_reruns;
-        last_budget = run.budget;
+        budget = ModeBudget {
+            wall: budget.wall + run.budget.wall,
+            host_reruns: budget.host_reruns + run.budget.host_reruns,
+            ..run.budget
+        };
         for r in &mut run.restore {
             r.node.get_or_insert(opts.address);
         }
@@ -666,14 +674,7 @@ fn run_bus(
         }
         match run.stopped {
             Some(why) if !run.lost => {
-                report.budget.insert(
-                    mode.to_string(),
-                    ModeBudget {
-                        wall,
-                        host_reruns,
-                        ..last_budget
-                    },
-                );
+                report.budget.insert(mode.to_string(), budget);
                 return Some(why);
             }
             Some(_) => {}
@@ -681,14 +682,7 @@ fn run_bus(
             None => {}
         }
     }
-    report.budget.insert(
-        mode.to_string(),
-        ModeBudget {
-            wall,
-            host_reruns,
-            ..last_budget
-        },
-    );
+    report.budget.insert(mode.to_string(), budget);
     None
 }
 

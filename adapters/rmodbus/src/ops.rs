@@ -837,6 +837,18 @@ fn refuse_if_error(frame: &ModbusFrame<'_, Vec<u8>>, what: &str) -> Result<(), F
     }
 }
 
+/// The server's side of a write (`what`) that a device takes: refused where rmodbus's
+/// server answers it with an exception, else its values taken and the response built.
+fn accept_write(frame: &mut ModbusFrame<'_, Vec<u8>>, what: &str) -> Result<(), Failure> {
+    refuse_if_error(frame, what)?;
+    frame
+        .get_external_write()
+        .map_err(|e| rmodbus_error("get_external_write", e))?;
+    frame
+        .process_external_write(Ok(()))
+        .map_err(|e| rmodbus_error("process_external_write", e))
+}
+
 /// A response, built as an rmodbus slave does: its server parses a request (made by its
 /// client) and answers it through the "external" read/write API, then `finalize_response`.
 fn encode_response(
@@ -892,13 +904,7 @@ fn encode_response(
                 .generate_set_holding(register, value, &mut request)
                 .map_err(|e| rmodbus_error("generate_set_holding", e))?;
             serve(address, &request, proto, |frame| {
-                refuse_if_error(frame, "this write")?;
-                frame
-                    .get_external_write()
-                    .map_err(|e| rmodbus_error("get_external_write", e))?;
-                frame
-                    .process_external_write(Ok(()))
-                    .map_err(|e| rmodbus_error("process_external_write", e))
+                accept_write(frame, "this write")
             })
         }
         ("write-multiple-response", 0x10) => {
@@ -917,13 +923,7 @@ fn encode_response(
                 .generate_set_holdings_bulk(start, &vec![0u16; n], &mut request)
                 .map_err(|e| rmodbus_error("generate_set_holdings_bulk", e))?;
             serve(address, &request, proto, |frame| {
-                refuse_if_error(frame, &format!("a write of {count} registers"))?;
-                frame
-                    .get_external_write()
-                    .map_err(|e| rmodbus_error("get_external_write", e))?;
-                frame
-                    .process_external_write(Ok(()))
-                    .map_err(|e| rmodbus_error("process_external_write", e))
+                accept_write(frame, &format!("a write of {count} registers"))
             })
         }
         ("exception", _) => {

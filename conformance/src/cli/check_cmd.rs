@@ -1,7 +1,7 @@
 //! `conformance check`: probe a real or simulated drive and report every deviation from
 //! its manual's model.
 
-use std::io::{IsTerminal, Write};
+use std::io::Write;
 use std::path::PathBuf;
 use std::process::ExitCode;
 use std::time::Duration;
@@ -16,7 +16,9 @@ use conformance::session::{self, SessionConfig};
 
 use super::identify_cmd::{self, IdentifyTuning};
 use super::link::{Resolved, SafetyArgs, TargetArgs};
-use super::output::{finish, format_for, render, write_atomic, Format, FORMAT_DEFAULT};
+use super::output::{
+    finish, format_for, progress_bar, render, write_atomic, Format, FORMAT_DEFAULT,
+};
 
 const AFTER_HELP: &str = "\
 Examples:
@@ -299,16 +301,11 @@ pub fn run(mut args: CheckArgs) -> anyhow::Result<ExitCode> {
             args.only.join(" --only ")
         );
     }
-    let bar = if !args.quiet && std::io::stderr().is_terminal() {
-        let b = indicatif::ProgressBar::new(total);
-        b.set_style(
-            indicatif::ProgressStyle::with_template("{bar:30} {pos}/{len} eta {eta} {wide_msg}")
-                .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
-        );
-        Some(b)
-    } else {
-        None
-    };
+    let bar = progress_bar(
+        args.quiet,
+        total,
+        "{bar:30} {pos}/{len} eta {eta} {wide_msg}",
+    );
     let mut write_error: Option<anyhow::Error> = None;
     let output = args.output.clone();
     let format = format_for(args.format, args.output.as_deref());

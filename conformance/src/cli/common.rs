@@ -65,6 +65,17 @@ pub fn parse_number(text: &str, max: u16) -> Result<u16, NumberError> {
         .ok_or_else(too_large)
 }
 
+/// Reads a function or exception code, always hex (`03`, `83H`, `0x10`): 01..7F, the codes
+/// a request can carry; `what` names it in the error ("a function code").
+pub fn parse_code(text: &str, what: &str) -> Result<u8, String> {
+    let t = text.trim().trim_end_matches(['h', 'H']);
+    let t = t.strip_prefix("0x").unwrap_or(t);
+    match u8::from_str_radix(t, 16) {
+        Ok(c) if (1..0x80).contains(&c) => Ok(c),
+        _ => Err(format!("{text:?} is not {what} (hex 01..7F)")),
+    }
+}
+
 /// The note for a bare number whose digits, read as hex, are another value of the field:
 /// `note: --start 2520 is decimal (09D8H); write 2520H or 0x2520 for hex`. `None` where
 /// the number is spelled as hex or reads the same both ways (0..9).

@@ -318,11 +318,7 @@ pub fn run(args: FuzzArgs) -> anyhow::Result<ExitCode> {
                 "{spinner} {pos} cases, {elapsed} {wide_msg}",
             ),
         };
-        b.set_style(
-            indicatif::ProgressStyle::with_template(template)
-                .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
-        );
-        b
+        super::output::styled(b, template)
     });
     let mut plain = (!args.quiet && !terminal).then(PlainProgress::new);
     let mut started = Instant::now();

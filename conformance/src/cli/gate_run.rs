@@ -4,7 +4,7 @@
 //! (incomplete where the adapter exited twice or the run was interrupted, `--expect`
 //! applied, the report written, the exit code).
 
-use std::io::{IsTerminal, Write};
+use std::io::Write;
 use std::path::PathBuf;
 use std::process::ExitCode;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -17,7 +17,7 @@ use conformance::gate::{Case, GateProgress, Hello};
 use conformance::report::{Codec, Report, ReportKind, RunOptions};
 use conformance::runner::CheckResult;
 
-use super::output::{finish, format_for, render, write_atomic, Format};
+use super::output::{finish, format_for, progress_bar, render, write_atomic, Format};
 
 /// The options `gate` shares between codecs and masters.
 pub struct Common {
@@ -87,16 +87,11 @@ impl Common {
     /// The progress of a run of `total` cases into `report`: a bar unless `--quiet` or
     /// stderr is not a terminal.
     pub(super) fn progress(&self, report: Report, total: usize) -> Progress<'_> {
-        let bar = (!self.quiet && std::io::stderr().is_terminal()).then(|| {
-            let b = indicatif::ProgressBar::new(total as u64);
-            b.set_style(
-                indicatif::ProgressStyle::with_template(
-                    "{bar:30} {pos}/{len} eta {eta} {wide_msg}",
-                )
-                .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
-            );
-            b
-        });
+        let bar = progress_bar(
+            self.quiet,
+            total as u64,
+            "{bar:30} {pos}/{len} eta {eta} {wide_msg}",
+        );
         Progress {
             report,
             bar,

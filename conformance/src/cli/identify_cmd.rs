@@ -1,7 +1,7 @@
 //! `conformance identify`: which of the five models a device follows, from its answers
 //! to reads only; and the identification that `check --model auto` runs first.
 
-use std::io::{IsTerminal, Write};
+use std::io::Write;
 use std::path::PathBuf;
 use std::process::ExitCode;
 use std::sync::atomic::AtomicBool;
@@ -16,7 +16,7 @@ use conformance::runner::Options;
 
 use super::common::load_model;
 use super::link::{Link, TargetArgs};
-use super::output::write_atomic;
+use super::output::{progress_bar, write_atomic};
 use conformance::transport::capture::SharedRecorder;
 
 const AFTER_HELP: &str = "\
@@ -176,16 +176,7 @@ pub fn identify_device(
     stop: &AtomicBool,
     quiet: bool,
 ) -> anyhow::Result<Identification> {
-    let bar = if !quiet && std::io::stderr().is_terminal() {
-        let b = indicatif::ProgressBar::new(0);
-        b.set_style(
-            indicatif::ProgressStyle::with_template("{bar:30} {pos}/{len} identify {wide_msg}")
-                .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
-        );
-        Some(b)
-    } else {
-        None
-    };
+    let bar = progress_bar(quiet, 0, "{bar:30} {pos}/{len} identify {wide_msg}");
     let id = identify::run(config, stop, &mut |mode, i, n| {
         if let Some(b) = &bar {
             b.set_length(n as u64);

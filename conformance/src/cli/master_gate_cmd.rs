@@ -87,12 +87,7 @@ pub struct MasterGateArgs {
 }
 
 fn parse_code(s: &str) -> Result<u8, String> {
-    let t = s.trim().trim_end_matches(['h', 'H']);
-    let t = t.strip_prefix("0x").unwrap_or(t);
-    match u8::from_str_radix(t, 16) {
-        Ok(c) if (1..0x80).contains(&c) => Ok(c),
-        _ => Err(format!("{s:?} is not an exception code (hex 01..7F)")),
-    }
+    super::common::parse_code(s, "an exception code")
 }
 
 pub fn run(

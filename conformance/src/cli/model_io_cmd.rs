@@ -119,12 +119,7 @@ pub struct ExportArgs {
 }
 
 fn parse_function(s: &str) -> Result<u8, String> {
-    let t = s.trim().trim_end_matches(['h', 'H']);
-    let t = t.strip_prefix("0x").unwrap_or(t);
-    match u8::from_str_radix(t, 16) {
-        Ok(c) if (1..0x80).contains(&c) => Ok(c),
-        _ => Err(format!("{s:?} is not a function code (hex 01..7F)")),
-    }
+    super::common::parse_code(s, "a function code")
 }
 
 /// The model id a file's name gives: lower case, other characters as `-`.

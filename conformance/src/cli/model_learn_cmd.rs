@@ -2,7 +2,6 @@
 //! (reads only, unless --allow-write), written as a draft in the format of
 //! `vectors/models` with every fact marked observed.
 
-use std::io::IsTerminal;
 use std::path::PathBuf;
 use std::process::ExitCode;
 use std::time::{Duration, SystemTime};
@@ -133,17 +132,11 @@ fn parse_range(text: &str) -> Result<(u16, u16), String> {
 }
 
 fn bar(quiet: bool) -> Option<indicatif::ProgressBar> {
-    if quiet || !std::io::stderr().is_terminal() {
-        return None;
-    }
-    let b = indicatif::ProgressBar::new(1);
-    b.set_style(
-        indicatif::ProgressStyle::with_template(
-            "{bar:30} {pos}/{len} requests, eta {eta} {wide_msg}",
-        )
-        .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
-    );
-    Some(b)
+    super::output::progress_bar(
+        quiet,
+        1,
+        "{bar:30} {pos}/{len} requests, eta {eta} {wide_msg}",
+    )
 }
 
 pub fn run(args: LearnArgs) -> anyhow::Result<ExitCode> {

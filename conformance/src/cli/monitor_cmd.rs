@@ -353,7 +353,7 @@ pub fn run(args: MonitorArgs) -> anyhow::Result<ExitCode> {
                         listened: None,
                         searched: None,
                     };
-                    report_stopped(
+                    report(
                         &args,
                         mode,
                         line,
@@ -369,7 +369,7 @@ pub fn run(args: MonitorArgs) -> anyhow::Result<ExitCode> {
         },
         (None, None) => anyhow::bail!("say what to listen to: --port PATH or --capture-in FILE"),
     };
-    let code = report(&args, mode, line, when, &mon, &source, &ended)?;
+    let code = report(&args, mode, line, when, &mon, &source, &ended, None)?;
     // The report is written first: a log that failed loses no verdict.
     if let Some(e) = out.log_failed {
         eprintln!("error: {e:#}");
@@ -673,23 +673,11 @@ impl std::fmt::Display for SearchFailed {
 
 impl std::error::Error for SearchFailed {}
 
-/// The report of what `mon` heard on `source`.
-fn report(
-    args: &MonitorArgs,
-    mode: Mode,
-    line: LineSettings,
-    when: When,
-    mon: &Monitor,
-    source: &str,
-    ended: &str,
-) -> anyhow::Result<ExitCode> {
-    report_stopped(args, mode, line, when, mon, source, ended, None)
-}
-
-/// [`report`] of a listening that stopped before it could judge (`stopped`: why): the
-/// report says so, and its line is the one it was given, or none found.
+/// The report of what `mon` heard on `source`; of a listening that stopped before it could
+/// judge, `stopped` says why: the report says so, and its line is the one it was given, or
+/// none found.
 #[allow(clippy::too_many_arguments)]
-fn report_stopped(
+fn report(
     args: &MonitorArgs,
     mode: Mode,
     line: LineSettings,

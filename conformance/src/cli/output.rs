@@ -1,6 +1,6 @@
 //! How every command hands over its result: the report formats and the choice among
 //! them, writing a file so that it is always whole, the closing summary and exit code,
-//! and quoting a word for the reproduce lines that reports print.
+//! quoting a word for the reproduce lines that reports print, and the progress bar.
 
 use std::io::Write;
 use std::path::{Path, PathBuf};
@@ -9,6 +9,23 @@ use std::process::ExitCode;
 use anyhow::Context;
 use clap::ValueEnum;
 use conformance::report::{csv, html, junit, text, Report};
+
+/// A progress bar of `len` steps in `template` on stderr; none where `quiet` or stderr is
+/// not a terminal (a log or a pipe gets no bar).
+pub fn progress_bar(quiet: bool, len: u64, template: &str) -> Option<indicatif::ProgressBar> {
+    use std::io::IsTerminal;
+    (!quiet && std::io::stderr().is_terminal())
+        .then(|| styled(indicatif::ProgressBar::new(len), template))
+}
+
+/// `bar` drawn in `template` (indicatif's plain bar where the template does not parse).
+pub fn styled(bar: indicatif::ProgressBar, template: &str) -> indicatif::ProgressBar {
+    bar.set_style(
+        indicatif::ProgressStyle::with_template(template)
+            .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+    );
+    bar
+}
 
 /// Report format.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]

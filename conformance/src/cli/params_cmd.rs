@@ -19,6 +19,7 @@ use conformance::params::{
 };
 use conformance::runner::{Ctx, Options};
 use conformance::session;
+use conformance::transport::Transport;
 
 use super::common::load_model;
 use super::link::TargetArgs;
@@ -115,58 +116,66 @@ pub fn run(args: ParamsArgs) -> anyhow::Result<ExitCode> {
     }
 }
 
-/// The device of the link options, opened: what a [`Ctx`] is made of.
-struct Live {
+/// The device of the link options, opened: what a [`Ctx`] is made of (with the link's
+/// transport, which [`open`] returns beside it). Dropped, it says on stderr what the
+/// `--capture` file holds, however the command ends.
+struct Live<'t> {
+    target: &'t TargetArgs,
     model: Arc<DriveModel>,
     options: Options,
     mode: Mode,
-    transport: Box<dyn conformance::transport::Transport>,
-    sim: Option<session::SimThread>,
     link: String,
-    /// The `--capture` recorder, said on stderr when the command ends.
+    /// The `--capture` recorder; before `sim`, so that it is said before the simulator
+    /// stops.
     capture: Option<conformance::transport::capture::SharedRecorder>,
+    /// The simulator behind a `--sim` link, held so that it runs until the command ends.
+    _sim: Option<session::SimThread>,
 }
 
-/// Says on stderr what the `--capture` file holds when the command ends, however it ends.
-struct SayCapture<'a>(
-    &'a TargetArgs,
-    Option<conformance::transport::capture::SharedRecorder>,
-);
-
-impl Drop for SayCapture<'_> {
+impl Drop for Live<'_> {
     fn drop(&mut self) {
-        self.0.close_capture(self.1.as_ref());
+        self.target.close_capture(self.capture.as_ref());
+    }
+}
+
+impl Live<'_> {
+    /// The node the link options address.
+    fn node(&self) -> u8 {
+        self.options.address
+    }
+
+    /// A runner context over `transport`, after the preflight: a read the model says is
+    /// answered; an error where the device does not answer it.
+    fn ctx(&self, transport: Box<dyn Transport>) -> anyhow::Result<Ctx<'_>> {
+        let mut ctx = Ctx::new(&self.model, None, self.mode, &self.options, transport);
+        let v = ctx.preflight()?;
+        if ctx.lost.is_some() {
+            bail!(
+                "the device does not answer: {}",
+                v.error.unwrap_or(v.pass_summary)
+            );
+        }
+        Ok(ctx)
     }
 }
 
 /// Opens the link of `target` in its first mode.
-fn open(target: &TargetArgs) -> anyhow::Result<Live> {
+fn open(target: &TargetArgs) -> anyhow::Result<(Live<'_>, Box<dyn Transport>)> {
     let resolved = target.resolve(false, None)?;
     let (model, mode) = (resolved.model.clone(), resolved.modes[0]);
     let config = target.plain_session(resolved, mode, vec![target.address()], false)?;
     let (sim, transport) = session::open(&config, mode)?;
     let link = transport.describe();
-    Ok(Live {
+    let live = Live {
+        target,
         model,
         options: config.options,
         mode,
-        transport,
-        sim,
         link,
         capture: config.capture,
-    })
-}
-
-/// The preflight: a read the model says is answered; an error where the device does not.
-fn preflight(ctx: &mut Ctx<'_>) -> anyhow::Result<()> {
-    let v = ctx.preflight()?;
-    if ctx.lost.is_some() {
-        bail!(
-            "the device does not answer: {}",
-            v.error.unwrap_or(v.pass_summary)
-        );
-    }
-    Ok(())
+        _sim: sim,
+    };
+    Ok((live, transport))
 }
 
 /// Reads every parameter of `params` from the device of `ctx`; the registers it refused
@@ -189,35 +198,25 @@ fn read_all(
 
 fn backup(args: BackupArgs) -> anyhow::Result<ExitCode> {
     let stop = super::interrupt::stop_flag()?;
-    let Live {
-        model,
-        options,
-        mode,
-        transport,
-        sim: _sim,
-        link,
-        capture,
-    } = open(&args.target)?;
-    let _said = SayCapture(&args.target, capture);
-    let node = options.address;
-    let mut ctx = Ctx::new(&model, None, mode, &options, transport);
-    preflight(&mut ctx)?;
-    let params = params::parameters(&model);
+    let (live, transport) = open(&args.target)?;
+    let (model, mode, link, node) = (&live.model, live.mode, &live.link, live.node());
+    let mut ctx = live.ctx(transport)?;
+    let params = params::parameters(model);
     if params.is_empty() {
         bail!(
             "the {} model has no parameters (no parameter group, and no read-write block outside the command and monitor registers)",
             model.id
         );
     }
-    let (read, reads) = read_all(&mut ctx, &model, mode, node, &params, &stop)?;
+    let (read, reads) = read_all(&mut ctx, model, mode, node, &params, &stop)?;
     let header = Header {
         model: model.id.clone(),
         node,
-        identification: params::read_identification(&mut ctx, &model, node),
+        identification: params::read_identification(&mut ctx, model, node),
         time: humantime::format_rfc3339_seconds(std::time::SystemTime::now()).to_string(),
         mode: Some(mode.to_string()),
     };
-    let text = Backup::write(&model, &header, &params, &read.values, &read.refused);
+    let text = Backup::write(model, &header, &params, &read.values, &read.refused);
     write_atomic(&args.output, &text)
         .with_context(|| format!("cannot write {}", args.output.display()))?;
     let read_only = params.iter().filter(|p| !p.writable).count();
@@ -276,7 +275,7 @@ fn diff_cmd(args: DiffArgs) -> anyhow::Result<ExitCode> {
     let mut live = None;
     let model: Arc<DriveModel> = if live_wanted {
         let l = open(&args.target)?;
-        let m = l.model.clone();
+        let m = l.0.model.clone();
         live = Some(l);
         m
     } else if args.target.model_file().is_some() || args.target.model.is_some() {
@@ -310,20 +309,9 @@ fn diff_cmd(args: DiffArgs) -> anyhow::Result<ExitCode> {
     // for the same ones.
     let writable: Vec<Parameter> = params.iter().filter(|p| p.writable).cloned().collect();
     let mut live_values = None;
-    if let Some(Live {
-        options,
-        mode,
-        transport,
-        link,
-        sim: _sim,
-        capture,
-        ..
-    }) = live
-    {
-        let _said = SayCapture(&args.target, capture);
-        let node = options.address;
-        let mut ctx = Ctx::new(&model, None, mode, &options, transport);
-        preflight(&mut ctx)?;
+    if let Some((live, transport)) = live {
+        let (mode, link, node) = (live.mode, &live.link, live.node());
+        let mut ctx = live.ctx(transport)?;
         let (read, _) = read_all(&mut ctx, &model, mode, node, &writable, &stop)?;
         live_values = Some((
             format!("live ({} node {node:02X} over {link}, {mode})", model.id),
@@ -414,17 +402,8 @@ fn confirm(question: &str) -> anyhow::Result<bool> {
 fn restore(args: RestoreArgs) -> anyhow::Result<ExitCode> {
     let file = read_backup(&args.file)?;
     let stop = super::interrupt::stop_flag()?;
-    let Live {
-        model,
-        options,
-        mode,
-        transport,
-        sim: _sim,
-        link,
-        capture,
-    } = open(&args.target)?;
-    let _said = SayCapture(&args.target, capture);
-    let node = options.address;
+    let (live, transport) = open(&args.target)?;
+    let (model, mode, link, node) = (&live.model, live.mode, &live.link, live.node());
     if file.header.model != model.id {
         bail!(
             "{} is a backup of a {} device; this device is described as {}: restore a backup of the same model",
@@ -433,9 +412,9 @@ fn restore(args: RestoreArgs) -> anyhow::Result<ExitCode> {
             model.id
         );
     }
-    let params = params::parameters(&model);
+    let params = params::parameters(model);
     for e in file.entries() {
-        if let Some(why) = params::refusal(&model, &params, e.register, e.value) {
+        if let Some(why) = params::refusal(model, &params, e.register, e.value) {
             let err = FileError::Refused {
                 line: e.line,
                 register: e.register,
@@ -458,13 +437,12 @@ fn restore(args: RestoreArgs) -> anyhow::Result<ExitCode> {
         .filter(|p| wanted.contains_key(&p.register))
         .cloned()
         .collect();
-    let mut ctx = Ctx::new(&model, None, mode, &options, transport);
-    preflight(&mut ctx)?;
+    let mut ctx = live.ctx(transport)?;
     // Another identification is another firmware or another device: worth saying, not
     // a reason to refuse (copying settings between drives is what a restore is for).
     if let (Some(was), Some(is)) = (
         file.header.identification,
-        params::read_identification(&mut ctx, &model, node),
+        params::read_identification(&mut ctx, model, node),
     ) {
         if was != is {
             eprintln!(
@@ -473,7 +451,7 @@ fn restore(args: RestoreArgs) -> anyhow::Result<ExitCode> {
             );
         }
     }
-    let (read, _) = read_all(&mut ctx, &model, mode, node, &mine, &stop)?;
+    let (read, _) = read_all(&mut ctx, model, mode, node, &mine, &stop)?;
     if let Some((r, why)) = read.refused.iter().next() {
         let line = file
             .entries()
@@ -492,7 +470,7 @@ fn restore(args: RestoreArgs) -> anyhow::Result<ExitCode> {
             (now != want).then_some((p, *now, *want))
         })
         .collect();
-    let writes = write_plan(&model, mode, node, &changes)?;
+    let writes = write_plan(model, mode, node, &changes)?;
     let mut out = std::io::stdout().lock();
     writeln!(
         out,
@@ -555,7 +533,7 @@ fn restore(args: RestoreArgs) -> anyhow::Result<ExitCode> {
         .with_context(|| format!("cannot open the audit log {}", audit_path.display()))?;
     let outcome = params::restore(
         &mut ctx,
-        &model,
+        model,
         node,
         &writes,
         &mut audit,

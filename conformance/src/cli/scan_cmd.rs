@@ -1,7 +1,7 @@
 //! `conformance scan`: find the devices on a line, their line settings, mode and node
 //! addresses, with reads only.
 
-use std::io::{IsTerminal, Write};
+use std::io::Write;
 use std::path::PathBuf;
 use std::process::ExitCode;
 use std::time::Duration;
@@ -21,6 +21,7 @@ use conformance::transport::LinkKind;
 
 use super::common::{parse_number, ModeArg, ParityArg, RtsArgs};
 use super::link::Framing;
+use super::output::progress_bar;
 
 const AFTER_HELP: &str = "\
 What it does: sends reads only (03H, one register: 252FH, the identification register
@@ -220,16 +221,7 @@ pub fn run(args: ScanArgs) -> anyhow::Result<ExitCode> {
     let stop = super::interrupt::stop_flag()?;
     // The same progress style as check and gate; the bar counts planned wire time, so
     // that the ETA weighs slow settings right.
-    let bar = if !args.quiet && std::io::stderr().is_terminal() {
-        let b = indicatif::ProgressBar::new(1);
-        b.set_style(
-            indicatif::ProgressStyle::with_template("{bar:30} {percent}% eta {eta} {wide_msg}")
-                .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
-        );
-        Some(b)
-    } else {
-        None
-    };
+    let bar = progress_bar(args.quiet, 1, "{bar:30} {percent}% eta {eta} {wide_msg}");
     let result = scan(link.as_mut(), &config, &stop, &mut |p| {
         if let Some(b) = &bar {
             b.set_length(p.total_us.max(1));

@@ -339,7 +339,7 @@ impl Drop for PtyLink {
 
 /// [`run_once`] on `t`, recorded on `capture` where one is asked for.
 fn run_recorded<T: Transport>(
-    mut t: T,
+    t: T,
     capture: Option<&SharedRecorder>,
     line: LineSettings,
     drive: &mut dyn Responder,
@@ -347,15 +347,23 @@ fn run_recorded<T: Transport>(
     log: &mut TrafficLog,
     stop: &AtomicBool,
 ) -> Result<(), SimError> {
+    recorded(t, capture, mode, line, |t| {
+        run_once(t, drive, mode, log, stop)
+    })
+}
+
+/// `f` on `t`, recorded on `capture` where one is asked for (the recording closed when
+/// `f` returns).
+fn recorded<T: Transport, R>(
+    mut t: T,
+    capture: Option<&SharedRecorder>,
+    mode: Mode,
+    line: LineSettings,
+    f: impl FnOnce(&mut dyn Transport) -> R,
+) -> R {
     match capture {
-        Some(rec) => run_once(
-            &mut Captured::new(t, rec.clone(), mode, line),
-            drive,
-            mode,
-            log,
-            stop,
-        ),
-        None => run_once(&mut t, drive, mode, log, stop),
+        Some(rec) => f(&mut Captured::new(t, rec.clone(), mode, line)),
+        None => f(&mut t),
     }
 }
 
@@ -395,18 +403,9 @@ fn serve_tcp(
             Err(e) => return Err(SimError::Log(e)),
         };
         stream.set_nonblocking(false)?;
-        let mut t = TcpTransport::from_stream(stream)?;
+        let t = TcpTransport::from_stream(stream)?;
         log.message(&format!("client connected: {}", t.describe()))?;
-        let served = match capture {
-            Some(rec) => serve(
-                &mut Captured::new(t, rec.clone(), mode, line),
-                drive,
-                mode,
-                log,
-                stop,
-            ),
-            None => serve(&mut t, drive, mode, log, stop),
-        };
+        let served = recorded(t, capture, mode, line, |t| serve(t, drive, mode, log, stop));
         match served {
             Ok(_) => {}
             Err(SimError::Transport(TransportError::Closed { link })) => {

@@ -148,18 +148,8 @@ pub fn observe(
                 _ if wrong.is_some() => Kind::WrongValue,
                 _ => Kind::Mismatch,
             };
-            let severity = diff
-                .findings
-                .iter()
-                .map(|f| f.severity)
-                .max()
-                .unwrap_or(Severity::Deviation);
-            let text = diff
-                .findings
-                .iter()
-                .map(|f| f.text.as_str())
-                .collect::<Vec<_>>()
-                .join("; ");
+            let severity = diff.worst().unwrap_or(Severity::Deviation);
+            let text = diff.text();
             let field = super::signature::of_difference(
                 kind,
                 mode,

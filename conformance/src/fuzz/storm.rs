@@ -901,11 +901,10 @@ fn storm(
                     Judge::new(model).differences(&judgement, &ex.conversation(mode, own), None);
                 if !diff.findings.is_empty() {
                     storm.out.wrong += 1;
-                    let text: Vec<&str> = diff.findings.iter().map(|f| f.text.as_str()).collect();
                     storm.out.problem(format!(
                         "wrong answer to {}: {}",
                         judge::show(mode, &frame),
-                        text.join("; ")
+                        diff.text()
                     ));
                 }
                 learn(mode, &frame, &reply, &mut known);

@@ -311,26 +311,14 @@ fn once(ctx: &mut Ctx<'_>, t: &Timed) -> Result<Option<Observed>, RunError> {
         (_, true) => Kind::NoReply,
         _ => Kind::Mismatch,
     };
-    let severity = diff
-        .findings
-        .iter()
-        .map(|f| f.severity)
-        .max()
-        .unwrap_or(Severity::Deviation);
+    let severity = diff.worst().unwrap_or(Severity::Deviation);
     let mut text = format!(
         "{} sent with {} us of silence after byte(s) {:?}: ",
         judge::show(ctx.mode, &whole),
         t.gap_us,
         t.cuts
     );
-    text.push_str(
-        &diff
-            .findings
-            .iter()
-            .map(|f| f.text.as_str())
-            .collect::<Vec<_>>()
-            .join("; "),
-    );
+    text.push_str(&diff.text());
     let record = crate::runner::ExchangeRecord {
         request: whole,
         expected: diff.expected.clone(),

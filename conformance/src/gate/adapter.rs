@@ -242,18 +242,24 @@ impl Hello {
             adapter: s("adapter"),
             implementation: s("implementation"),
             version: s("version"),
-            supports: v
-                .get("supports")
-                .and_then(Value::as_array)
-                .map(|a| {
-                    a.iter()
-                        .filter_map(|x| x.as_str().map(String::from))
-                        .collect()
-                })
-                .unwrap_or_default(),
+            supports: string_list(&v, "supports"),
             raw: v,
         })
     }
+}
+
+/// The strings of the JSON array under `key` of an adapter's answer or a saved report;
+/// absent, not an array, or an element not a string reads as nothing (an adapter's hello
+/// and the reports read leniently).
+pub fn string_list(v: &Value, key: &str) -> Vec<String> {
+    v.get(key)
+        .and_then(Value::as_array)
+        .map(|a| {
+            a.iter()
+                .filter_map(|x| x.as_str().map(String::from))
+                .collect()
+        })
+        .unwrap_or_default()
 }
 
 /// One line the adapter wrote on its standard output, as the gate reads it.

@@ -607,6 +607,35 @@ fn want_text(w: &Want) -> String {
     }
 }
 
+/// The checksum `key` ("crc" or "lrc") of an adapter's answer, `digits` hex digits wide,
+/// against `want`: its text for the report, and a deviation in `f` where it differs, is
+/// missing or does not fit in `digits`.
+fn checksum_answer(
+    answer: &Value,
+    key: &str,
+    digits: usize,
+    want: u16,
+    f: &mut Vec<Finding>,
+) -> String {
+    let got = answer
+        .get(key)
+        .and_then(Value::as_str)
+        .and_then(|s| u16::from_str_radix(s, 16).ok())
+        .filter(|&c| u32::from(c) < 1 << (4 * digits));
+    let text = format!(
+        "{} {}",
+        key.to_uppercase(),
+        got.map(|c| format!("{c:0digits$X}"))
+            .unwrap_or_else(|| "missing".into())
+    );
+    if got != Some(want) {
+        f.push(Finding::deviation(format!(
+            "computed {text}, expected {want:0digits$X}"
+        )));
+    }
+    text
+}
+
 /// Judges one answer; returns (findings, the answer in words).
 fn judge(case: &Case, answer: &Value) -> (Vec<Finding>, String) {
     let mut f = Vec::new();
@@ -692,38 +721,8 @@ fn judge(case: &Case, answer: &Value) -> (Vec<Finding>, String) {
                 )));
             }
         },
-        Want::Crc(want) => {
-            let got = answer
-                .get("crc")
-                .and_then(Value::as_str)
-                .and_then(|s| u16::from_str_radix(s, 16).ok());
-            text = format!(
-                "CRC {}",
-                got.map(|c| format!("{c:04X}"))
-                    .unwrap_or_else(|| "missing".into())
-            );
-            if got != Some(*want) {
-                f.push(Finding::deviation(format!(
-                    "computed {text}, expected {want:04X}"
-                )));
-            }
-        }
-        Want::Lrc(want) => {
-            let got = answer
-                .get("lrc")
-                .and_then(Value::as_str)
-                .and_then(|s| u8::from_str_radix(s, 16).ok());
-            text = format!(
-                "LRC {}",
-                got.map(|c| format!("{c:02X}"))
-                    .unwrap_or_else(|| "missing".into())
-            );
-            if got != Some(*want) {
-                f.push(Finding::deviation(format!(
-                    "computed {text}, expected {want:02X}"
-                )));
-            }
-        }
+        Want::Crc(want) => text = checksum_answer(answer, "crc", 4, *want, &mut f),
+        Want::Lrc(want) => text = checksum_answer(answer, "lrc", 2, u16::from(*want), &mut f),
     }
     if answer.get("raised") == Some(&Value::Bool(true)) {
         f.insert(
@@ -875,6 +874,48 @@ pub fn cases(set: &VectorSet, opts: &GateOptions, command: &str) -> Vec<Case> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_checksum_answer_is_read_at_its_width() {
+        let judged = |want: Want, key: &str, got: Value| {
+            let case = Case {
+                id: "t".into(),
+                title: String::new(),
+                source: String::new(),
+                op: Op::Crc(vec![1, 3]),
+                want,
+                skip: None,
+                repro: String::new(),
+            };
+            let (f, text) = judge(&case, &json!({ key: got }));
+            (text, f.iter().map(|f| f.text.clone()).collect::<Vec<_>>())
+        };
+        assert_eq!(
+            judged(Want::Crc(0x1234), "crc", "1234".into()),
+            ("CRC 1234".into(), vec![])
+        );
+        assert_eq!(
+            judged(Want::Crc(0x1234), "crc", "5".into()),
+            (
+                "CRC 0005".into(),
+                vec!["computed CRC 0005, expected 1234".to_string()]
+            )
+        );
+        assert_eq!(
+            judged(Want::Lrc(0xF1), "lrc", "0f1".into()),
+            ("LRC F1".into(), vec![])
+        );
+        // An LRC wider than a byte, or not a hex string, is no LRC.
+        for got in [Value::from("1F1"), Value::from(241)] {
+            assert_eq!(
+                judged(Want::Lrc(0xF1), "lrc", got),
+                (
+                    "LRC missing".into(),
+                    vec!["computed LRC missing, expected F1".to_string()]
+                )
+            );
+        }
+    }
 
     #[test]
     fn vector_cases_follow_the_verdicts() {

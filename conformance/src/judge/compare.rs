@@ -180,25 +180,17 @@ fn compare_inner(
         v.push(kind, Finding::deviation(text));
         return v;
     };
-    if !conv.leading.is_empty() {
-        v.push(
-            Kind::ExtraBytes,
-            Finding::deviation(format!(
-                "{} {unit} before the reply: {}",
-                conv.leading.len(),
-                show(mode, conv.leading)
-            )),
-        );
-    }
-    if !conv.trailing.is_empty() {
-        v.push(
-            Kind::ExtraBytes,
-            Finding::deviation(format!(
-                "{} {unit} after the reply: {}",
-                conv.trailing.len(),
-                show(mode, conv.trailing)
-            )),
-        );
+    for (extra, side) in [(conv.leading, "before"), (conv.trailing, "after")] {
+        if !extra.is_empty() {
+            v.push(
+                Kind::ExtraBytes,
+                Finding::deviation(format!(
+                    "{} {unit} {side} the reply: {}",
+                    extra.len(),
+                    show(mode, extra)
+                )),
+            );
+        }
     }
     let expected = expected_frame(mode, judgement, conv.request, reply, known.map(|k| k.0));
     if let Some(exp) = &expected {

@@ -293,11 +293,25 @@ pub struct Verdict {
 impl Verdict {
     /// Pass, observation or deviation: the most serious finding.
     pub fn status(&self) -> VerdictStatus {
-        match self.findings.iter().map(|f| f.severity).max() {
+        match self.worst() {
             None => VerdictStatus::Pass,
             Some(Severity::Observation) => VerdictStatus::Observation,
             Some(Severity::Deviation) => VerdictStatus::Deviation,
         }
+    }
+
+    /// The severity of the most serious finding; `None` where there is none.
+    pub fn worst(&self) -> Option<Severity> {
+        self.findings.iter().map(|f| f.severity).max()
+    }
+
+    /// The findings' texts in one line, joined by "; " (a fuzz finding's text).
+    pub fn text(&self) -> String {
+        self.findings
+            .iter()
+            .map(|f| f.text.as_str())
+            .collect::<Vec<_>>()
+            .join("; ")
     }
 
     /// The judge's findings with their kinds.

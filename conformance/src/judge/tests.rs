@@ -70,25 +70,36 @@ fn a_bad_crc_and_a_reply_to_a_broadcast_are_told_apart() {
     assert_eq!(v.kinds, [Kind::UnexpectedReply]);
 }
 
-#[test]
-fn timing_is_judged_only_when_asked_and_only_where_seen() {
-    let model = f510();
-    let reply = [0x01, 0x83, 0x02, 0xC0, 0xF1];
-    let line = LineSettings::new(9600, 8, Parity::Even, 1);
-    let rule = TimingRule {
+/// The timing rule of `line`: 20 ms over the response time, 5 ms over the longest gap.
+fn rule_of(line: LineSettings) -> TimingRule {
+    TimingRule {
         line: Some(line),
         response_allowance: Duration::from_millis(20),
         gap_allowance: Duration::from_millis(5),
-    };
-    let at = |first: u64, gap: u64| Timing {
+    }
+}
+
+/// A request that ended at 100 ms, its reply's first byte `first` ms later with a longest
+/// gap of `gap` ms inside it, heard over `listened` ms.
+fn reply_at(first: u64, gap: u64, listened: u64) -> Timing {
+    Timing {
         request_end: Some(Duration::from_millis(100)),
         request_end_earliest: None,
         first_byte: Some(Duration::from_millis(100 + first)),
         last_byte: None,
         max_gap: Some(Duration::from_millis(gap)),
         silence_before: None,
-        listened: Duration::from_millis(1000),
-    };
+        listened: Duration::from_millis(listened),
+    }
+}
+
+#[test]
+fn timing_is_judged_only_when_asked_and_only_where_seen() {
+    let model = f510();
+    let reply = [0x01, 0x83, 0x02, 0xC0, 0xF1];
+    let line = LineSettings::new(9600, 8, Parity::Even, 1);
+    let rule = rule_of(line);
+    let at = |first: u64, gap: u64| reply_at(first, gap, 1000);
     let late = Conversation::new(Mode::Rtu, 1, &PAST_END)
         .with_reply(&reply)
         .with_timing(at(300, 0));
@@ -129,24 +140,12 @@ fn ascii_frames_are_timed_by_the_one_second_between_characters_not_by_t15_or_t35
     let model = f510();
     let request = b":010300390001C2\r\n";
     let reply = b":0183027A\r\n";
-    let judge = Judge::new(&model).with_timing(TimingRule {
-        line: Some(LineSettings::new(9600, 7, Parity::Even, 1)),
-        response_allowance: Duration::from_millis(20),
-        gap_allowance: Duration::from_millis(5),
-    });
-    let at = |first: u64, gap: u64| Timing {
-        request_end: Some(Duration::from_millis(100)),
-        request_end_earliest: None,
-        first_byte: Some(Duration::from_millis(100 + first)),
-        last_byte: None,
-        max_gap: Some(Duration::from_millis(gap)),
-        silence_before: None,
-        listened: Duration::from_millis(3000),
-    };
+    let judge =
+        Judge::new(&model).with_timing(rule_of(LineSettings::new(9600, 7, Parity::Even, 1)));
     let conv = |first, gap| {
         Conversation::new(Mode::Ascii, 1, request)
             .with_reply(reply)
-            .with_timing(at(first, gap))
+            .with_timing(reply_at(first, gap, 3000))
     };
     // A reply at once and a 50 ms pause between characters: both fine in ASCII (an RTU
     // reply would be early and have a gap over t1.5).

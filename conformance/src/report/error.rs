@@ -19,3 +19,11 @@ pub enum ReportError {
         problem: String,
     },
 }
+
+/// A [`ReportError::Field`] at `path`.
+pub(crate) fn field(path: &str, problem: impl Into<String>) -> ReportError {
+    ReportError::Field {
+        path: path.to_string(),
+        problem: problem.into(),
+    }
+}

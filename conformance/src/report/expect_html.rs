@@ -13,6 +13,19 @@ fn at(e: &Outcome, m: &Mark) -> String {
     format!("{}:{}", e.path, m.line)
 }
 
+/// Why a result is expected, escaped: the entry's place, its reason and its ticket.
+fn because(e: &Outcome, m: &Mark) -> String {
+    format!(
+        "({}): {}{}",
+        esc(&at(e, m)),
+        esc(&m.reason),
+        m.ticket
+            .as_deref()
+            .map(|t| format!(" [{}]", esc(t)))
+            .unwrap_or_default()
+    )
+}
+
 /// The tag after a check's status badge in the table of every check.
 pub fn tag(report: &Report, r: &CheckResult) -> String {
     match report.expectation(r) {
@@ -68,30 +81,16 @@ pub fn section(
         for (r, m) in &passes {
             let _ = write!(
                 out,
-                "<li><code>{}</code> UNEXPECTED PASS: expected {} ({}): {}{}</li>",
+                "<li><code>{}</code> UNEXPECTED PASS: expected {} {}</li>",
                 esc(&r.key()),
                 m.expected.key(),
-                esc(&at(e, m)),
-                esc(&m.reason),
-                m.ticket
-                    .as_deref()
-                    .map(|t| format!(" [{}]", esc(t)))
-                    .unwrap_or_default()
+                because(e, m)
             );
         }
         out.push_str("</ul>");
     }
     for (r, m) in &expected {
-        let _ = write!(
-            out,
-            "<p class=\"muted\">expected ({}): {}{}</p>",
-            esc(&at(e, m)),
-            esc(&m.reason),
-            m.ticket
-                .as_deref()
-                .map(|t| format!(" [{}]", esc(t)))
-                .unwrap_or_default()
-        );
+        let _ = write!(out, "<p class=\"muted\">expected {}</p>", because(e, m));
         block(out, r);
     }
     if !stale.is_empty() {

@@ -6,7 +6,7 @@ use std::collections::BTreeMap;
 
 use serde_json::{json, Value};
 
-use super::error::ReportError;
+use super::error::{field, ReportError};
 use super::Report;
 use crate::codec::Mode;
 use crate::expect::{
@@ -69,17 +69,10 @@ pub fn mark(m: &Mark) -> Value {
     })
 }
 
-fn bad(path: &str, problem: impl Into<String>) -> ReportError {
-    ReportError::Field {
-        path: path.to_string(),
-        problem: problem.into(),
-    }
-}
-
 fn s<'a>(v: &'a Value, key: &str, path: &str) -> Result<&'a str, ReportError> {
     v.get(key)
         .and_then(Value::as_str)
-        .ok_or_else(|| bad(&format!("{path}.{key}"), "missing or not a string"))
+        .ok_or_else(|| field(&format!("{path}.{key}"), "missing or not a string"))
 }
 
 fn opt_s(v: &Value, key: &str) -> Option<String> {
@@ -90,13 +83,13 @@ fn line(v: &Value, path: &str) -> Result<usize, ReportError> {
     v.get("line")
         .and_then(Value::as_u64)
         .and_then(|n| usize::try_from(n).ok())
-        .ok_or_else(|| bad(&format!("{path}.line"), "missing or not a whole number"))
+        .ok_or_else(|| field(&format!("{path}.line"), "missing or not a whole number"))
 }
 
 fn expected(v: &Value, path: &str) -> Result<Expected, ReportError> {
     let k = s(v, "status", path)?;
     Expected::from_key(k).ok_or_else(|| {
-        bad(
+        field(
             &format!("{path}.status"),
             format!("{k:?} is not deviation, observation or finding"),
         )
@@ -108,7 +101,7 @@ fn read_mark(v: &Value, path: &str) -> Result<Mark, ReportError> {
     let k = s(v, "outcome", path)?;
     Ok(Mark {
         kind: MarkKind::from_key(k).ok_or_else(|| {
-            bad(
+            field(
                 &format!("{path}.outcome"),
                 format!("{k:?} is not expected, unexpected-pass or changed"),
             )
@@ -131,7 +124,7 @@ pub fn read_outcome(v: &Value, results: &[CheckResult]) -> Result<Option<Outcome
     let entries = o
         .get("entries")
         .and_then(Value::as_array)
-        .ok_or_else(|| bad(&format!("{p}.entries"), "missing or not an array"))?
+        .ok_or_else(|| field(&format!("{p}.entries"), "missing or not an array"))?
         .iter()
         .enumerate()
         .map(|(i, e)| {
@@ -139,7 +132,7 @@ pub fn read_outcome(v: &Value, results: &[CheckResult]) -> Result<Option<Outcome
             let target = match (opt_s(e, "check"), opt_s(e, "signature")) {
                 (Some(c), _) => Target::Check(c),
                 (None, Some(sig)) => Target::Signature(sig),
-                (None, None) => return Err(bad(&p, "neither check nor signature")),
+                (None, None) => return Err(field(&p, "neither check nor signature")),
             };
             let state = s(e, "state", &p)?;
             Ok(EntryReport {
@@ -163,7 +156,7 @@ pub fn read_outcome(v: &Value, results: &[CheckResult]) -> Result<Option<Outcome
                         .and_then(|x| u16::from_str_radix(&x, 16).ok()),
                 },
                 state: EntryState::from_key(state).ok_or_else(|| {
-                    bad(&format!("{p}.state"), format!("{state:?} is not a state"))
+                    field(&format!("{p}.state"), format!("{state:?} is not a state"))
                 })?,
                 matched: e
                     .get("matched")

@@ -48,7 +48,13 @@ pub(crate) fn result(id: &str, status: Status, node: Option<u8>) -> CheckResult 
     }
 }
 
-fn restore(node: Option<u8>, register: u16, restored: bool, changed: bool) -> RestoreRecord {
+/// A restore record of `register` (its original value 04D2H).
+pub(crate) fn restore(
+    node: Option<u8>,
+    register: u16,
+    restored: bool,
+    changed: bool,
+) -> RestoreRecord {
     RestoreRecord {
         node,
         register,
@@ -63,7 +69,8 @@ fn restore(node: Option<u8>, register: u16, restored: bool, changed: bool) -> Re
     }
 }
 
-fn base(results: Vec<CheckResult>, restore: Vec<RestoreRecord>) -> Report {
+/// A finished run of node 01H of an F510 in both modes with `results` and `restore`.
+pub(crate) fn base(results: Vec<CheckResult>, restore: Vec<RestoreRecord>) -> Report {
     Report {
         started: "2026-01-01T00:00:00Z".into(),
         finished: Some("2026-01-01T00:01:00Z".into()),

@@ -13,14 +13,7 @@ use crate::runner::{
     CheckResult, ExchangeRecord, Finding, LineBudget, ModeBudget, RestoreRecord, Severity, Status,
 };
 
-use super::error::ReportError;
-
-fn field(path: &str, problem: impl Into<String>) -> ReportError {
-    ReportError::Field {
-        path: path.to_string(),
-        problem: problem.into(),
-    }
-}
+use super::error::{field, ReportError};
 
 fn get<'a>(v: &'a Value, key: &str, path: &str) -> Result<&'a Value, ReportError> {
     v.get(key)
@@ -433,66 +426,28 @@ impl Report {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::runner::CheckResult;
+    use crate::report::fixtures;
 
+    /// A run of one deviation with a restore, of a node other than 01H, simulated with a
+    /// fault, from a description, run with --only: every part the reader reads back.
     fn sample() -> Report {
-        Report {
-            started: "2026-01-01T00:00:00Z".into(),
-            finished: Some("2026-01-01T00:01:00Z".into()),
-            complete: true,
-            device: Device {
-                model: "f510".into(),
-                manual: "F510 manual".into(),
-                address: 0x0A,
-                links: [("rtu".to_string(), "pty /dev/pts/3".to_string())].into(),
-                line: "9600 baud 8E1".into(),
-                identification: Some(0x0510),
-                simulated: Some(vec!["wrong-exception".into()]),
-                nodes: Vec::new(),
-                description: Some(crate::model::Source::of(
-                    Some("models/x100.json"),
-                    "Acme X100 user manual rev C",
-                    b"{}",
-                )),
-            },
-            options: RunOptions {
-                modes: vec![Mode::Rtu, Mode::Ascii],
-                timeout_ms: 1000,
-                only: vec!["rtu.*".into()],
-                response_time_ms: Some(10.0),
-                response_allowance_ms: Some(20),
-                ..RunOptions::default()
-            },
-            results: vec![CheckResult {
-                id: "rtu.map.group-0.past-end".into(),
-                title: "Read past the end".into(),
-                mode: Some(Mode::Rtu),
-                source: "F510 manual, 1.0.3".into(),
-                status: Status::Deviation,
-                summary: "manual: 02; device: 03".into(),
-                findings: vec![Finding::deviation("code 03 instead of 02")],
-                exchanges: vec![ExchangeRecord {
-                    request: vec![1, 3, 0, 0x39, 0, 1, 0x54, 7],
-                    expected: Some(vec![1, 0x83, 2, 0xC0, 0xF1]),
-                    received: vec![1, 0x83, 3, 1, 0x31],
-                    reply: Some(vec![1, 0x83, 3, 1, 0x31]),
-                    predicted: "exception 02H".into(),
-                    actual: "exception 03H".into(),
-                    latency: Some(Duration::from_micros(8_960)),
-                }],
-                duration: Duration::from_micros(21_500),
-                node: None,
-            }],
-            restore: vec![RestoreRecord {
-                node: None,
-                register: 0x2502,
-                original: 0x04D2,
-                restored: true,
-                changed: true,
-                detail: "read back 04D2".into(),
-            }],
-            ..Report::default()
-        }
+        let mut r = fixtures::base(
+            vec![fixtures::result(
+                "rtu.map.group-0.past-end",
+                Status::Deviation,
+                None,
+            )],
+            vec![fixtures::restore(None, 0x2502, true, true)],
+        );
+        r.device.address = 0x0A;
+        r.device.simulated = Some(vec!["wrong-exception".into()]);
+        r.device.description = Some(crate::model::Source::of(
+            Some("models/x100.json"),
+            "Acme X100 user manual rev C",
+            b"{}",
+        ));
+        r.options.only = vec!["rtu.*".into()];
+        r
     }
 
     #[test]

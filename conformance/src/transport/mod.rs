@@ -249,17 +249,10 @@ pub trait Transport: Send {
         pieces: &[&[u8]],
         gap: std::time::Duration,
     ) -> Result<Vec<std::time::Duration>, TransportError> {
-        let mut gaps = Vec::new();
-        let mut end: Option<std::time::Instant> = None;
-        for p in pieces {
-            if let Some(e) = end {
-                sleep_until(e + gap);
-                gaps.push(std::time::Instant::now().saturating_duration_since(e));
-            }
+        send_gapped(pieces, gap, |p| {
             self.send(p)?;
-            end = Some(self.sent_at().unwrap_or_else(std::time::Instant::now));
-        }
-        Ok(gaps)
+            Ok(self.sent_at().unwrap_or_else(std::time::Instant::now))
+        })
     }
 
     /// Where the link carries whole valid frames only, re-framed (a Modbus TCP gateway:
@@ -328,6 +321,26 @@ impl<T: Transport + ?Sized> Transport for Box<T> {
     fn take_notes(&mut self) -> Vec<String> {
         (**self).take_notes()
     }
+}
+
+/// Sends `pieces` by `send`, which says when the piece it sent ended, sleeping `gap` from
+/// that end before the next; returns the gaps as they left this host (the sleep may
+/// overrun it), for [`Transport::send_pieces`].
+pub(crate) fn send_gapped(
+    pieces: &[&[u8]],
+    gap: Duration,
+    mut send: impl FnMut(&[u8]) -> Result<std::time::Instant, TransportError>,
+) -> Result<Vec<Duration>, TransportError> {
+    let mut gaps = Vec::new();
+    let mut end: Option<std::time::Instant> = None;
+    for p in pieces {
+        if let Some(e) = end {
+            sleep_until(e + gap);
+            gaps.push(std::time::Instant::now().saturating_duration_since(e));
+        }
+        end = Some(send(p)?);
+    }
+    Ok(gaps)
 }
 
 /// Sleeps until `deadline`, in short steps at the end so that pacing at a character time

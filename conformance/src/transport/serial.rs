@@ -14,7 +14,7 @@
 use std::io::{Read, Write};
 use std::time::Duration;
 
-use super::{sleep_until, LineTags, LinkKind, Transport, TransportError};
+use super::{send_gapped, sleep_until, LineTags, LinkKind, Transport, TransportError};
 use crate::codec::timing::{LineSettings, Parity};
 
 /// An open serial port.
@@ -375,20 +375,13 @@ impl Transport for SerialTransport {
         // A real port: each piece written and drained (tcdrain: the UART has sent it;
         // a USB adapter may still hold it for its latency timer, which the gaps
         // returned cannot see), then the gap slept.
-        let mut gaps = Vec::new();
-        let mut end: Option<std::time::Instant> = None;
-        for p in pieces {
-            if let Some(e) = end {
-                sleep_until(e + gap);
-                gaps.push(std::time::Instant::now().saturating_duration_since(e));
-            }
+        send_gapped(pieces, gap, |p| {
             self.port
                 .write_all(p)
                 .and_then(|_| self.port.flush())
                 .map_err(|e| self.err("write", e))?;
-            end = Some(std::time::Instant::now());
-        }
-        Ok(gaps)
+            Ok(std::time::Instant::now())
+        })
     }
 
     fn sent_at(&self) -> Option<std::time::Instant> {

@@ -131,6 +131,20 @@ pub fn repro(opts: &MasterOptions, id: &str) -> String {
     format!("{} --only {id}", opts.repro)
 }
 
+/// The result of a case that was not judged (`status` SKIP or ERROR, `why`), with no
+/// finding.
+fn unjudged(
+    case: &MasterCase,
+    status: Status,
+    why: String,
+    t0: Instant,
+) -> (CheckResult, Vec<MasterFinding>) {
+    (
+        result(case, status, why, vec![], vec![], t0.elapsed()),
+        vec![],
+    )
+}
+
 fn result(
     case: &MasterCase,
     status: Status,
@@ -374,45 +388,25 @@ fn run_case(
                 | Behaviour::Split(_)
         )
     {
-        return (
-            result(
-                case,
-                Status::Skip,
-                "a Modbus TCP gateway passes whole frames with a right CRC only, as PDUs: this fault is a serial line's (run it on a pty)".to_string(),
-                vec![],
-                vec![],
-                t0.elapsed(),
-            ),
-            vec![],
-        );
+        return unjudged(case, Status::Skip, "a Modbus TCP gateway passes whole frames with a right CRC only, as PDUs: this fault is a serial line's (run it on a pty)".to_string(), t0);
     }
     if !timed && (case.fault.busy || matches!(case.fault.behaviour, Behaviour::Split(_))) {
-        return (
-            result(
-                case,
-                Status::Skip,
-                format!(
-                    "a {} line carries no line timing (t1.5, t3.5): run it on a pty",
-                    opts.line_kind.key()
-                ),
-                vec![],
-                vec![],
-                t0.elapsed(),
+        return unjudged(
+            case,
+            Status::Skip,
+            format!(
+                "a {} line carries no line timing (t1.5, t3.5): run it on a pty",
+                opts.line_kind.key()
             ),
-            vec![],
+            t0,
         );
     }
     if !adapter.supports(case.op.name()) {
-        return (
-            result(
-                case,
-                Status::Skip,
-                format!("the master does not offer {}", case.op.name()),
-                vec![],
-                vec![],
-                t0.elapsed(),
-            ),
-            vec![],
+        return unjudged(
+            case,
+            Status::Skip,
+            format!("the master does not offer {}", case.op.name()),
+            t0,
         );
     }
     drive.drop_held();
@@ -459,31 +453,14 @@ fn run_case(
             message: format!("the adapter exited during the call ({why})"),
         },
         Ok(None) => {
-            return (
-                result(
-                    case,
-                    Status::Skip,
-                    format!("the adapter answered unsupported for {}", case.op.name()),
-                    vec![],
-                    vec![],
-                    t0.elapsed(),
-                ),
-                vec![],
+            return unjudged(
+                case,
+                Status::Skip,
+                format!("the adapter answered unsupported for {}", case.op.name()),
+                t0,
             )
         }
-        Err(e) => {
-            return (
-                result(
-                    case,
-                    Status::Error,
-                    adapter_error(&e),
-                    vec![],
-                    vec![],
-                    t0.elapsed(),
-                ),
-                vec![],
-            )
-        }
+        Err(e) => return unjudged(case, Status::Error, adapter_error(&e), t0),
     };
     let mark2 = drive.now();
     let call2 = Instant::now();

@@ -8,7 +8,7 @@ use serde_json::{json, Value};
 use crate::codec::hex::{parse_hex, Hex};
 use crate::codec::timing::{LineSettings, Parity};
 use crate::codec::Mode;
-use crate::gate::adapter::{Adapter, AdapterError, CallError};
+use crate::gate::adapter::{string_list, Adapter, AdapterError, CallError};
 
 /// One operation asked of the master.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -301,8 +301,8 @@ impl MasterHello {
         }
         Ok(MasterHello {
             supports: hello.supports.clone(),
-            lines: list(raw, "lines"),
-            modes: list(raw, "modes"),
+            lines: string_list(raw, "lines"),
+            modes: string_list(raw, "modes"),
         })
     }
 }
@@ -366,17 +366,6 @@ pub struct MasterAdapter {
     pub hello: MasterHello,
     /// `--timeout`: the gate's own allowance over the master's worst case.
     pub slack: Duration,
-}
-
-fn list(v: &Value, k: &str) -> Vec<String> {
-    v.get(k)
-        .and_then(Value::as_array)
-        .map(|a| {
-            a.iter()
-                .filter_map(|x| x.as_str().map(String::from))
-                .collect()
-        })
-        .unwrap_or_default()
 }
 
 fn parity_key(p: Parity) -> &'static str {

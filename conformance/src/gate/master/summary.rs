@@ -8,6 +8,7 @@ use std::time::Duration;
 
 use super::{drive, MasterRun, MasterSettings};
 use crate::codec::timing::LineSettings;
+use crate::gate::adapter::string_list;
 use crate::judge::Severity;
 
 /// The cases that had one kind of finding.
@@ -133,16 +134,6 @@ impl MasterSummary {
     /// master gate report).
     pub fn from_json(v: &serde_json::Value) -> Result<Self, String> {
         use serde_json::Value;
-        let strings = |k: &str| -> Vec<String> {
-            v.get(k)
-                .and_then(Value::as_array)
-                .map(|a| {
-                    a.iter()
-                        .filter_map(|x| x.as_str().map(String::from))
-                        .collect()
-                })
-                .unwrap_or_default()
-        };
         let mut settings = BTreeMap::new();
         if let Some(m) = v.get("settings").and_then(Value::as_object) {
             for (mode, s) in m {
@@ -183,23 +174,15 @@ impl MasterSummary {
                         "observation" => Severity::Observation,
                         other => return Err(format!("kinds[{i}].severity: {other:?}")),
                     },
-                    cases: k
-                        .get("cases")
-                        .and_then(Value::as_array)
-                        .map(|a| {
-                            a.iter()
-                                .filter_map(|x| x.as_str().map(String::from))
-                                .collect()
-                        })
-                        .unwrap_or_default(),
+                    cases: string_list(k, "cases"),
                     example: text("example")?,
                     repro: text("reproduce")?,
                 },
             );
         }
         Ok(MasterSummary {
-            modes: strings("modes"),
-            lines: strings("lines"),
+            modes: string_list(v, "modes"),
+            lines: string_list(v, "lines"),
             settings,
             kinds,
             line: v
@@ -249,19 +232,9 @@ pub fn summary(
     line: drive::LineKind,
     serial: LineSettings,
 ) -> MasterSummary {
-    let list = |k: &str| -> Vec<String> {
-        raw.get(k)
-            .and_then(serde_json::Value::as_array)
-            .map(|a| {
-                a.iter()
-                    .filter_map(|x| x.as_str().map(String::from))
-                    .collect()
-            })
-            .unwrap_or_default()
-    };
     MasterSummary {
-        modes: list("modes"),
-        lines: list("lines"),
+        modes: string_list(raw, "modes"),
+        lines: string_list(raw, "lines"),
         settings: run.settings.clone(),
         kinds: run.by_kind.clone(),
         line: line.key().to_string(),

@@ -265,7 +265,7 @@ fn timing_and_codes(model: &DriveModel, m: &str, out: &mut Vec<Check>) {
 mod tests {
     use super::*;
     use crate::codec::timing::{LineSettings, Parity};
-    use crate::runner::{EchoMode, MasterTiming, Options, Status};
+    use crate::runner::{Options, Status};
     use crate::transport::{memory, LinkKind, Transport, TransportError};
 
     /// A memory link that says it carries a line's timing, of `kind` (a pseudo-terminal
@@ -301,29 +301,15 @@ mod tests {
     /// 60 ms inside them and the given latencies.
     fn aggregate_with(id: &str, kind: LinkKind, latencies: &[u64]) -> crate::runner::CheckResult {
         let model = DriveModel::builtin("f510").unwrap();
-        let opts = Options {
-            address: 1,
-            other_address: 0x7F,
-            bus: vec![1],
+        let mut opts = Options {
             read_only: true,
             allow_motion: false,
-            only: vec![],
-            timing: MasterTiming {
-                timeout: Duration::from_millis(100),
-                silence: Duration::from_millis(50),
-                derive_silence: false,
-                quiet: Duration::from_millis(10),
-                gap: Duration::from_millis(1),
-                retries: 0,
-            },
-            response_allowance: Duration::from_millis(20),
-            gap_allowance: Duration::from_millis(20),
-            seed: 1,
-            echo: EchoMode::Off,
-            line: None,
             allow_restart: false,
-            injected_stalls: None,
+            ..Options::for_listing()
         };
+        opts.timing.timeout = Duration::from_millis(100);
+        opts.timing.silence = Duration::from_millis(50);
+        opts.timing.derive_silence = false;
         let (a, _b) = memory::pair();
         let link = Emulated(a, kind, Duration::from_millis(2));
         let mut ctx = Ctx::new(&model, None, Mode::Rtu, &opts, Box::new(link));
