@@ -19,19 +19,12 @@ use std::process::{Command, Stdio};
 use std::sync::mpsc;
 use std::time::{Duration, Instant};
 
-use common::{bin, need, need_all, python, Kill, Peer};
+use common::{bin, need, need_all, python, Kill, Peer, Scratch};
 use serde_json::Value;
 
 /// The request that reads 252FH (identification) of node 1, and the start of its reply.
 const READ_252F: [u8; 8] = [0x01, 0x03, 0x25, 0x2F, 0x00, 0x01, 0xBE, 0xCF];
 const REPLY_0510: [u8; 5] = [0x01, 0x03, 0x02, 0x05, 0x10];
-
-fn dir(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("conformance-bus-{}-{name}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).unwrap();
-    d
-}
 
 /// A running `conformance bus -q ARGS` and its pseudo-terminals (name, path), from the
 /// first `ptys` lines of its stdout.
@@ -205,7 +198,7 @@ fn an_endpoint_with_echo_hears_itself_and_the_others_do_not() {
 
 #[test]
 fn a_paced_frame_arrives_whole_on_the_lines_character_schedule() {
-    let d = dir("paced");
+    let d = Scratch::new("paced");
     let log = d.join("line.jsonl");
     let (mut bus, ends) = start(
         &[
@@ -259,7 +252,7 @@ fn a_paced_frame_arrives_whole_on_the_lines_character_schedule() {
 
 #[test]
 fn two_writers_at_once_collide_and_the_listener_gets_damage() {
-    let d = dir("collision");
+    let d = Scratch::new("collision");
     let log = d.join("line.jsonl");
     // 24 characters at 1200 baud are 220 ms on the line: the second write lands inside
     // the first however the host schedules this test.
@@ -307,7 +300,7 @@ fn two_writers_at_once_collide_and_the_listener_gets_damage() {
 /// The noise records (without their times) and what the listener heard, for ten frames
 /// through a noisy line with `seed`.
 fn noisy(seed: &str) -> (Vec<Value>, Vec<u8>) {
-    let d = dir(&format!("noise-{seed}"));
+    let d = Scratch::new(&format!("noise-{seed}"));
     let log = d.join("line.jsonl");
     let (mut bus, ends) = start(
         &[
@@ -388,7 +381,7 @@ fn f510_bus(d: &Path, extra: &[&str]) -> (Kill, PathBuf, File, PathBuf) {
 
 #[test]
 fn the_suites_check_passes_against_a_simulated_f510_on_the_line_and_a_listener_hears_both() {
-    let d = dir("check");
+    let d = Scratch::new("check");
     let (mut bus, master, mut tap, log) = f510_bus(&d, &["-a", "1"]);
     let port = master.to_str().unwrap();
     let (code, v) = common::check_device(
@@ -431,7 +424,7 @@ fn the_suites_check_passes_against_a_simulated_f510_on_the_line_and_a_listener_h
 
 #[test]
 fn two_drives_answering_at_once_collide_on_the_line() {
-    let d = dir("drives-collide");
+    let d = Scratch::new("drives-collide");
     // Node 2 answers every address: a request to node 1 gets two replies at once.
     // 2400 baud: a 7-byte reply is 32 ms on the line, longer than the drives' threads
     // differ by.
@@ -466,7 +459,7 @@ fn mbpoll_reads_the_simulated_f510_through_the_line_and_the_listener_hears_both(
     if !need(Peer::Mbpoll) {
         return;
     }
-    let d = dir("mbpoll");
+    let d = Scratch::new("mbpoll");
     let (mut bus, master, mut tap, _log) = f510_bus(&d, &["-a", "1"]);
     // mbpoll counts registers from 1: 9520 is 252FH.
     let o = Command::new("mbpoll")
@@ -494,7 +487,7 @@ fn pymodbus_and_minimalmodbus_read_and_write_the_simulated_f510_through_the_line
     if !need_all(&[Peer::Pymodbus, Peer::Minimalmodbus]) {
         return;
     }
-    let d = dir("python");
+    let d = Scratch::new("python");
     let (mut bus, master, mut tap, _log) = f510_bus(&d, &["-a", "1"]);
     let script = format!(
         "import minimalmodbus\n\
@@ -535,7 +528,7 @@ fn pymodbus_and_minimalmodbus_read_and_write_the_simulated_f510_through_the_line
 
 #[test]
 fn links_are_removed_on_sigterm() {
-    let d = dir("links");
+    let d = Scratch::new("links");
     let (a, b) = (d.join("a"), d.join("b"));
     let (mut bus, ends) = start(
         &[
@@ -570,7 +563,7 @@ fn links_are_removed_on_sigterm() {
 /// polling node 1 until the monitor ends.
 #[test]
 fn a_monitor_with_no_baud_rate_finds_the_lines_settings_on_an_emulated_line() {
-    let d = dir("search");
+    let d = Scratch::new("search");
     eprintln!("{}", d.display());
     let (m, t, log) = (d.join("master"), d.join("tap"), d.join("line.jsonl"));
     let (mut bus, _) = start(
@@ -708,7 +701,7 @@ fn a_monitor_with_no_baud_rate_finds_the_lines_settings_on_an_emulated_line() {
 /// the first setting. It wrote nothing.
 #[test]
 fn a_line_search_that_finds_nothing_still_writes_its_report() {
-    let d = dir("search-fails");
+    let d = Scratch::new("search-fails");
     let t = d.join("tap");
     let (mut bus, _) = start(
         &[

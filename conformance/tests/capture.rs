@@ -11,7 +11,7 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::sync::OnceLock;
 
-use common::{need, Peer, TSHARK_USER_DLT as USER_DLT};
+use common::{need, words, Peer, TSHARK_USER_DLT as USER_DLT};
 use conformance::capture::{Direction, Reader, FLAG_CRC_ERROR};
 use serde_json::Value;
 
@@ -360,14 +360,7 @@ fn monitor_judges_a_clean_capture_with_the_counts_it_holds() {
     let (cap, report) = captured_check(
         "clean",
         "rtu",
-        &[
-            "--only",
-            "rtu.map.*.first",
-            "--only",
-            "rtu.map.*.last",
-            "--only",
-            "rtu.write.group-*",
-        ],
+        &words("--only rtu.map.*.first --only rtu.map.*.last --only rtu.write.group-*"),
     );
     assert_eq!(report["summary"]["deviation"], 0);
     let all = frames(&cap);
@@ -590,12 +583,7 @@ fn an_ascii_capture_keeps_the_characters_under_link_type_148_and_the_monitor_jud
     let (cap, report) = captured_check(
         "ascii",
         "ascii",
-        &[
-            "--only",
-            "ascii.map.group-0.*",
-            "--only",
-            "ascii.map.group-1.*",
-        ],
+        &words("--only ascii.map.group-0.* --only ascii.map.group-1.*"),
     );
     let frames = frames(&cap);
     assert!(frames.iter().all(|f| f.link_type == 148));

@@ -22,7 +22,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-use common::{need, note, Peer, TSHARK_USER_DLT};
+use common::{need, note, Peer, Scratch, TSHARK_USER_DLT};
 use serde_json::Value;
 
 /// How close a finding's time must be to the fault's (the monitor's time of a frame is
@@ -319,7 +319,7 @@ fn figures(label: &str, j: &Judged) -> String {
 
 #[test]
 fn a_few_minutes_of_bus_are_judged_with_exact_counts_and_every_fault_at_its_time() {
-    let dir = tempdir("minutes");
+    let dir = Scratch::new("minutes");
     let j = day(&dir, "4m", 37, Duration::from_secs(300));
     note(&figures("day_bus 4 min", &j));
     let kinds: Vec<&str> = j.truth["faults"]
@@ -332,7 +332,6 @@ fn a_few_minutes_of_bus_are_judged_with_exact_counts_and_every_fault_at_its_time
         assert!(kinds.contains(&k), "no {k} planted: {kinds:?}");
     }
     assert_exact(&j);
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 /// A peer nobody here wrote reads the same file: tshark takes every packet, and its
@@ -342,7 +341,7 @@ fn tshark_reads_every_packet_and_finds_a_wrong_crc_on_the_planted_frames_only() 
     if !need(Peer::Tshark) {
         return;
     }
-    let dir = tempdir("tshark");
+    let dir = Scratch::new("tshark");
     let (cap, truth, _) = synth(&dir, "2m", 5);
     let out = Command::new("tshark")
         .arg("-r")
@@ -382,17 +381,15 @@ fn tshark_reads_every_packet_and_finds_a_wrong_crc_on_the_planted_frames_only() 
         planted + broadcasts,
         "frames tshark does not find right: {wrong} with a wrong CRC"
     );
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 #[test]
 #[ignore = "one hour of bus: .ci/run runs it (about 45 s)"]
 fn one_hour_of_bus_is_judged_with_exact_counts_and_every_fault_at_its_time() {
-    let dir = tempdir("hour");
+    let dir = Scratch::new("hour");
     let j = day(&dir, "1h", 1, Duration::from_secs(1200));
     note(&figures("day_bus 1 h", &j));
     assert_exact(&j);
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 #[test]
@@ -402,7 +399,7 @@ fn a_day_of_bus_is_judged_in_flat_memory_with_exact_counts() {
         note("day_bus: a_day_of_bus needs CONFORMANCE_LONG=1 (1 h, 6 h and 24 h of bus)");
         return;
     }
-    let dir = tempdir("day");
+    let dir = Scratch::new("day");
     let mut rss = Vec::new();
     for (d, limit) in [("1h", 1200), ("6h", 3600), ("24h", 4 * 3600)] {
         let j = day(&dir, d, 1, Duration::from_secs(limit));
@@ -412,13 +409,4 @@ fn a_day_of_bus_is_judged_in_flat_memory_with_exact_counts() {
     }
     // Flat: a day takes no more memory than an hour, within a fifth (allocator slack).
     assert!(rss[2] <= rss[0] + rss[0] / 5, "peak RSS grows: {rss:?} kB");
-    let _ = std::fs::remove_dir_all(&dir);
-}
-
-/// A directory of the test's own (`label`), emptied first.
-fn tempdir(label: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("day_bus-{label}-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).unwrap();
-    d
 }

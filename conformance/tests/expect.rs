@@ -5,6 +5,7 @@
 //! an invalid file is refused with its line and field.
 
 mod common;
+use common::Scratch;
 
 use std::collections::BTreeSet;
 use std::path::{Path, PathBuf};
@@ -17,13 +18,6 @@ use std::time::Duration;
 /// deviate, and a paced pseudo-terminal on a loaded host can stall a request (an ERROR,
 /// exit 2) that has nothing to do with expectations.
 const ONLY: [&str; 4] = ["--only", "rtu.map.group-1*", "--only", "rtu.broadcast.*"];
-
-fn dir(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("teco-expect-{name}-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).unwrap();
-    d
-}
 
 /// `conformance check --sim f510 ONLY ARGS --format json -o DIR/check.json`: exit code
 /// and report (checked against the schema).
@@ -126,7 +120,7 @@ fn starting_file(d: &Path) -> (PathBuf, BTreeSet<String>) {
 
 #[test]
 fn an_expectations_file_gates_runs_by_what_changed() {
-    let d = dir("gate");
+    let d = Scratch::new("gate");
     let (file, deviating) = starting_file(&d);
     let expect = ["--expect", file.to_str().unwrap()];
 
@@ -209,12 +203,11 @@ fn an_expectations_file_gates_runs_by_what_changed() {
         assert!(text.contains(id.as_str()), "{id}: {text}");
     }
     assert!(text.contains("expected"), "{text}");
-    let _ = std::fs::remove_dir_all(&d);
 }
 
 #[test]
 fn expired_and_unmatched_entries_are_reported_and_do_not_apply() {
-    let d = dir("stale");
+    let d = Scratch::new("stale");
     let (file, deviating) = starting_file(&d);
     // The first entry expired long ago; one more names a check that does not exist.
     let first = deviating.iter().next().unwrap().clone();
@@ -269,12 +262,11 @@ fn expired_and_unmatched_entries_are_reported_and_do_not_apply() {
         stale[1].contains("rtu.no-such-check") && stale[1].contains("matched nothing"),
         "{report}"
     );
-    let _ = std::fs::remove_dir_all(&d);
 }
 
 #[test]
 fn an_invalid_file_is_refused_with_its_line_and_field_before_the_run() {
-    let d = dir("invalid");
+    let d = Scratch::new("invalid");
     let file = d.join("bad.toml");
     std::fs::write(
         &file,
@@ -327,7 +319,6 @@ fn an_invalid_file_is_refused_with_its_line_and_field_before_the_run() {
     // --strict-expect means nothing without a file.
     let out = conformance(&[&["check"][..], &sim, &["--strict-expect"]].concat());
     assert_eq!(out.status.code(), Some(2));
-    let _ = std::fs::remove_dir_all(&d);
 }
 
 /// A fuzz run: `expect --from` a campaign against wrong-exception writes one entry per
@@ -336,7 +327,7 @@ fn an_invalid_file_is_refused_with_its_line_and_field_before_the_run() {
 /// --strict-expect).
 #[test]
 fn fuzz_findings_are_expected_by_their_signature() {
-    let d = dir("fuzz");
+    let d = Scratch::new("fuzz");
     let fuzz = |quirk: &[&str], more: &[&str]| {
         let mut args = vec![
             "--sim",
@@ -398,14 +389,13 @@ fn fuzz_findings_are_expected_by_their_signature() {
         .all(|e| e["state"] == "not-found"));
     let (exit, _) = fuzz(&[], &["--expect", f]);
     assert_eq!(exit, Some(0), "not strict");
-    let _ = std::fs::remove_dir_all(&d);
 }
 
 /// `monitor` judges a capture: `expect --from` its report accepts what it heard, and the
 /// same capture judged with the file exits 0 with each of its results expected.
 #[test]
 fn a_monitor_run_is_gated_by_the_same_file() {
-    let d = dir("monitor");
+    let d = Scratch::new("monitor");
     let cap = d.join("run.pcapng");
     let (exit, _) = check(
         &d,
@@ -454,5 +444,4 @@ fn a_monitor_run_is_gated_by_the_same_file() {
     let (exit, v) = monitor(&["--expect", file.to_str().unwrap()]);
     assert_eq!(exit, Some(0), "{}", v["expectations"]["counts"]);
     assert_eq!(ids_marked(&v, "expected"), deviating);
-    let _ = std::fs::remove_dir_all(&d);
 }

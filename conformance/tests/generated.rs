@@ -4,17 +4,11 @@
 //! completion scripts the shells load.
 
 mod common;
+use common::Scratch;
 
 use std::collections::BTreeSet;
-use std::path::PathBuf;
-use std::process::Command;
 
-fn scratch(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("generated-{}-{name}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).unwrap();
-    d
-}
+use std::process::Command;
 
 fn conformance(args: &[&str]) -> String {
     let o = Command::new(common::bin()).args(args).output().unwrap();
@@ -48,7 +42,7 @@ fn every_page(path: &mut Vec<String>, out: &mut BTreeSet<String>) {
 
 #[test]
 fn every_subcommand_gets_a_man_page_that_man_renders() {
-    let dir = scratch("man");
+    let dir = Scratch::new("man");
     let out = conformance(&["generate", "man", dir.to_str().unwrap()]);
     let mut expected = BTreeSet::new();
     every_page(&mut vec!["conformance".into()], &mut expected);
@@ -97,7 +91,6 @@ fn every_subcommand_gets_a_man_page_that_man_renders() {
             "{text}"
         );
     }
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 fn bash(script: &str) -> String {
@@ -108,7 +101,7 @@ fn bash(script: &str) -> String {
 
 #[test]
 fn the_bash_completion_loads_and_completes_subcommands_and_options() {
-    let dir = scratch("completions");
+    let dir = Scratch::new("completions");
     conformance(&["generate", "completions", dir.to_str().unwrap()]);
     for f in ["conformance.bash", "_conformance", "conformance.fish"] {
         assert!(dir.join(f).is_file(), "{f} missing");
@@ -147,7 +140,6 @@ fn the_bash_completion_loads_and_completes_subcommands_and_options() {
             );
         }
     }
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 #[test]

@@ -10,13 +10,12 @@
 //! taken out, which reaches every check that reads or writes first.
 
 mod common;
-use common::pymodbus_serial_server;
+use common::{pymodbus_serial_server, Scratch};
 
 use std::time::Duration;
 
 fn run(mode: &str) {
-    let dir = std::env::temp_dir().join(format!("teco-generic-{mode}-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
+    let dir = Scratch::new(&format!("generic-{mode}"));
     let Some(peer) = pymodbus_serial_server(&dir, mode) else {
         return;
     };
@@ -54,7 +53,6 @@ fn run(mode: &str) {
         v["summary"]
     );
     eprintln!("{mode}: {} in {:?}", v["summary"], t0.elapsed());
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 #[test]
@@ -71,8 +69,7 @@ fn a_generic_pymodbus_device_checked_as_f510_ascii() {
 /// (exit 0 or 1, never 2, never a panic), and every finding is of a kind a generic
 /// server explains (see `explained`).
 fn fuzz(mode: &str) {
-    let dir = std::env::temp_dir().join(format!("teco-generic-fuzz-{mode}-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
+    let dir = Scratch::new(&format!("generic-fuzz-{mode}"));
     let Some(peer) = pymodbus_serial_server(&dir, mode) else {
         return;
     };
@@ -146,7 +143,6 @@ fn fuzz(mode: &str) {
             .map(|f| format!("{} x{}", f["signature"], f["count"]))
             .collect::<Vec<_>>()
     );
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 /// The kinds of finding a generic pymodbus server has against the F510 model, each
@@ -203,8 +199,7 @@ fn a_generic_pymodbus_device_fuzzed_as_f510_ascii() {
 /// refused it with exception 02H, which is evidence: DEVIATION, and the run exits 1.
 #[test]
 fn a_generic_device_without_registers_from_1000h_up_deviates_and_exits_1() {
-    let dir = std::env::temp_dir().join(format!("teco-generic-short-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
+    let dir = Scratch::new("generic-short");
     let Some(peer) = common::pymodbus_serial_with(&dir, "rtu", "1", 0x1000) else {
         return;
     };
@@ -241,7 +236,6 @@ fn a_generic_device_without_registers_from_1000h_up_deviates_and_exits_1() {
     }
     // The registers it has still pass.
     assert_eq!(check_of(&v, "rtu.write.group-1")["status"], "pass");
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 fn check_of<'a>(v: &'a serde_json::Value, id: &str) -> &'a serde_json::Value {
@@ -295,8 +289,7 @@ fn check_sim_model(
 /// an ERROR, and the run exits 1.
 #[test]
 fn a_refused_read_before_a_check_is_a_deviation_not_an_error() {
-    let dir = std::env::temp_dir().join(format!("teco-generic-gap-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
+    let dir = Scratch::new("generic-gap");
     // Without group 0 (0000H..), groups 16 and up (1000H..) and the command group
     // (2500H..251FH: operation, frequency command, the two-word register).
     let model = edited_model(&dir, "gap.json", |m| {
@@ -352,15 +345,13 @@ fn a_refused_read_before_a_check_is_a_deviation_not_an_error() {
             "{id}: {e}"
         );
     }
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 /// A write a check needs first (the run check's 10.00 Hz) that the device refuses is a
 /// DEVIATION too.
 #[test]
 fn a_refused_write_before_a_check_is_a_deviation_not_an_error() {
-    let dir = std::env::temp_dir().join(format!("teco-generic-ro-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
+    let dir = Scratch::new("generic-ro");
     let model = edited_model(&dir, "ro.json", |m| {
         for r in m["registers"].as_array_mut().unwrap() {
             if r["register"] == "2502" {
@@ -381,5 +372,4 @@ fn a_refused_write_before_a_check_is_a_deviation_not_an_error() {
         s.starts_with("cannot write 03E8H (10.00 Hz) to 2502H first: the manual serves it, the device refused it with exception"),
         "{s}"
     );
-    let _ = std::fs::remove_dir_all(&dir);
 }

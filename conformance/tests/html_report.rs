@@ -3,19 +3,13 @@
 //! headless Chromium (the DOM it dumps, its console, a screenshot).
 
 mod common;
+use common::{words, Scratch};
 
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 use std::time::Duration;
 
 use serde_json::Value;
-
-fn dir(tag: &str) -> PathBuf {
-    let d = Path::new(env!("CARGO_TARGET_TMPDIR")).join(format!("html_report-{tag}"));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).unwrap();
-    d
-}
 
 fn conformance(args: &[&str]) -> Output {
     let o = Command::new(common::bin()).args(args).output().unwrap();
@@ -95,14 +89,7 @@ fn runs(d: &Path) -> [(PathBuf, Value, Option<i32>); 2] {
         common::check_device(&clean_dir, &["--sim", "f510", "--mode", "rtu"], limit);
     let (quirk_code, quirk) = common::check_device(
         &quirk_dir,
-        &[
-            "--sim",
-            "f510",
-            "--mode",
-            "rtu",
-            "--quirk",
-            "wrong-exception",
-        ],
+        &words("--sim f510 --mode rtu --quirk wrong-exception"),
         limit,
     );
     [
@@ -113,7 +100,7 @@ fn runs(d: &Path) -> [(PathBuf, Value, Option<i32>); 2] {
 
 #[test]
 fn html_csv_and_diff_of_a_clean_and_a_quirky_run() {
-    let d = dir("runs");
+    let d = Scratch::new("runs");
     let [(clean_json, clean, clean_code), (quirk_json, quirk, quirk_code)] = runs(&d);
     // The clean simulator has no deviations of its own; on a loaded host a timing check
     // may still find one, so the test asserts what the quirk adds.
@@ -374,7 +361,7 @@ fn html_csv_and_diff_of_a_clean_and_a_quirky_run() {
 
 #[test]
 fn check_writes_html_and_csv_directly() {
-    let d = dir("direct");
+    let d = Scratch::new("direct");
     for (format, marker) in [
         ("html", "<svg id=\"plot-map\""),
         ("csv", "\r\nrtu.identification,rtu,"),
@@ -409,7 +396,7 @@ fn check_writes_html_and_csv_directly() {
 
 #[test]
 fn a_file_that_is_not_a_report_is_refused_by_name() {
-    let d = dir("bad");
+    let d = Scratch::new("bad");
     let cases = [
         ("not-json.json", "{ this is not json", "not JSON"),
         ("other.json", "{\"schema\": \"something/else\"}", "not a conformance report"),
@@ -478,19 +465,10 @@ fn several_nodes_json(one: &Value) -> Value {
 
 #[test]
 fn a_report_of_several_nodes_renders_per_node_and_diffs_by_node() {
-    let d = dir("nodes");
+    let d = Scratch::new("nodes");
     let (code, one) = common::check_device(
         &d,
-        &[
-            "--sim",
-            "f510",
-            "--mode",
-            "rtu",
-            "--only",
-            "*map.group-0.*",
-            "--quirk",
-            "wrong-exception",
-        ],
+        &words("--sim f510 --mode rtu --only *map.group-0.* --quirk wrong-exception"),
         Duration::from_secs(120),
     );
     assert_eq!(code, Some(1));
@@ -620,25 +598,8 @@ fn a_report_of_several_nodes_renders_per_node_and_diffs_by_node() {
 /// it is what makes the exit code 2, and its header gives the exit code with its reason.
 #[test]
 fn html_puts_errors_first_and_says_why_the_exit_code_is_what_it_is() {
-    let d = dir("errors-first");
-    let (code, _) = common::check_device(
-        &d,
-        &[
-            "--sim",
-            "f510",
-            "--mode",
-            "rtu",
-            "--quirk",
-            "wrong-exception",
-            "--only",
-            "rtu.map.group-0.past-end",
-            "--only",
-            "rtu.map.command.first",
-            "--inject-host-stall",
-            "rtu.map.command.first:3",
-        ],
-        Duration::from_secs(120),
-    );
+    let d = Scratch::new("errors-first");
+    let (code, _) = common::check_device(&d, &words("--sim f510 --mode rtu --quirk wrong-exception --only rtu.map.group-0.past-end --only rtu.map.command.first --inject-host-stall rtu.map.command.first:3"), Duration::from_secs(120));
     assert_eq!(code, Some(2));
     let page = common::rendered(&d.join("check.json"), &d.join("check.html"));
     let error = page
@@ -660,5 +621,4 @@ fn html_puts_errors_first_and_says_why_the_exit_code_is_what_it_is() {
         "{}",
         &page[page.find("exit code").unwrap()..][..120]
     );
-    let _ = std::fs::remove_dir_all(&d);
 }

@@ -11,8 +11,8 @@
 //! no timing blurs.
 
 mod common;
-use common::bin;
 use common::gate::{gate_json, schema_valid, status_of};
+use common::{bin, Scratch};
 
 use std::collections::BTreeSet;
 use std::process::{Command, Output};
@@ -189,12 +189,10 @@ fn a_master_that_takes_a_stale_reply_is_caught() {
 /// section of what was found on the master, its case `case` linked to its finding, and
 /// every link of the page landing on an element of the page.
 fn html_lists_the_kinds(v: &serde_json::Value, kind: &str, case: &str) {
-    let d = std::env::temp_dir().join(format!("master-gate-html-{}", std::process::id()));
-    std::fs::create_dir_all(&d).unwrap();
+    let d = Scratch::new("master-gate-html");
     let json = d.join("r.json");
     std::fs::write(&json, v.to_string()).unwrap();
     let page = common::rendered(&json, &d.join("r.html"));
-    let _ = std::fs::remove_dir_all(&d);
     let at = page
         .find("<h2 id=\"found\">")
         .expect("no section of what was found");

@@ -14,7 +14,7 @@
 
 mod common;
 use common::{
-    bin, check_device, need, pymodbus_tcp_server, python, report_of, run_bounded, GatewaySim, Peer,
+    bin, check_device, need, pymodbus_tcp_server, python, report_of, GatewaySim, Peer, Run, Scratch,
 };
 
 use std::process::{Command, Stdio};
@@ -151,8 +151,7 @@ fn check_through_mbap_against_pymodbus_tcp_server() {
     let Some((_server, addr)) = pymodbus_tcp_server(1) else {
         return;
     };
-    let dir = std::env::temp_dir().join(format!("teco-mbap-pymodbus-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
+    let dir = Scratch::new("mbap-pymodbus");
     let (exit, v) = check_device(
         &dir,
         &[
@@ -217,14 +216,12 @@ fn check_through_mbap_against_pymodbus_tcp_server() {
     );
     assert_ne!(other["status"], "error", "{other}");
     eprintln!("pymodbus TCP server as F510: {}", v["summary"]);
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 #[test]
 fn check_through_mbap_against_the_simulated_gateway_has_no_deviation() {
     let sim = GatewaySim::start("f510", 1, &["--gateway-timeout", "50"]);
-    let dir = std::env::temp_dir().join(format!("teco-mbap-sim-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
+    let dir = Scratch::new("mbap-sim");
     let (exit, v) = check_device(
         &dir,
         &["--model", "f510", "--tcp", &sim.addr, "--framing", "mbap"],
@@ -241,14 +238,12 @@ fn check_through_mbap_against_the_simulated_gateway_has_no_deviation() {
     assert_eq!(exit, Some(0));
     assert_hidden_checks_skipped(&v);
     assert_eq!(v["device"]["identification"], "0510");
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 #[test]
 fn fuzz_through_mbap_sends_only_what_a_gateway_carries() {
     let sim = GatewaySim::start("f510", 1, &["--gateway-timeout", "20"]);
-    let dir = std::env::temp_dir().join(format!("teco-mbap-fuzz-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
+    let dir = Scratch::new("mbap-fuzz");
     let (exit, v) = report_of(
         "fuzz",
         &dir,
@@ -275,7 +270,6 @@ fn fuzz_through_mbap_sends_only_what_a_gateway_carries() {
         mode["skipped"]
     );
     assert_eq!(exit, Some(0), "{}", v["summary"]);
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 #[test]
@@ -413,19 +407,12 @@ fn scan_through_mbap_finds_the_unit_behind_the_gateway() {
         sim.addr
     );
     assert_eq!(v["link"], swept.as_str(), "{text}");
-    let (code, out, err) = run_bounded(
-        &[
-            "scan",
-            "--tcp",
-            &sim.addr,
-            "--framing",
-            "mbap",
-            "--addresses",
-            "10-12,17,20",
-            "-q",
-        ],
-        Duration::from_secs(120),
-    );
+    let (code, out, err) = Run::words("scan --tcp")
+        .arg(&sim.addr)
+        .args(["--framing", "mbap", "--addresses", "10-12,17,20", "-q"])
+        .timeout(Duration::from_secs(120))
+        .run()
+        .parts();
     assert_eq!(code, Some(0), "{out}{err}");
     let header = out.lines().next().unwrap_or_default();
     assert!(

@@ -3,19 +3,13 @@
 //! that loads a description (`--model-file`).
 
 mod common;
+use common::Scratch;
 
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
 fn repo() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("..")
-}
-
-fn dir(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("model-lint-{}-{name}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).unwrap();
-    d
 }
 
 fn run(args: &[&str]) -> Output {
@@ -55,7 +49,7 @@ fn place(file: &Path, needle: &str) -> String {
 
 #[test]
 fn lint_prints_every_error_with_its_place_and_path_and_exits_1() {
-    let d = dir("every");
+    let d = Scratch::new("every");
     let f = broken(&d);
     let o = run(&["model", "lint", f.to_str().unwrap()]);
     assert_eq!(o.status.code(), Some(1), "{}", text(&o.stderr));
@@ -94,7 +88,7 @@ fn the_built_in_models_lint_clean_and_an_unreadable_file_exits_2() {
     assert_eq!(o.status.code(), Some(0), "{}", text(&o.stdout));
     assert_eq!(text(&o.stdout), "ok: 0 errors, 0 warnings in 5 files\n");
 
-    let d = dir("unreadable");
+    let d = Scratch::new("unreadable");
     let missing = d.join("missing.json");
     let f = broken(&d);
     let o = run(&[
@@ -118,7 +112,7 @@ fn the_built_in_models_lint_clean_and_an_unreadable_file_exits_2() {
 
 #[test]
 fn json_output_has_every_finding() {
-    let d = dir("json");
+    let d = Scratch::new("json");
     let f = broken(&d);
     let o = run(&["model", "lint", "--format", "json", f.to_str().unwrap()]);
     assert_eq!(o.status.code(), Some(1));
@@ -145,7 +139,7 @@ fn json_output_has_every_finding() {
 
 #[test]
 fn every_command_that_loads_a_description_lints_it_first() {
-    let d = dir("load");
+    let d = Scratch::new("load");
     let f = broken(&d);
     let fs = f.to_str().unwrap();
     let lint = text(&run(&["model", "lint", fs]).stdout);
@@ -210,7 +204,7 @@ fn model_show_is_what_model_printed_before() {
 /// block of the same access it is a warning, which fails only with --deny-warnings.
 #[test]
 fn a_warning_fails_only_with_deny_warnings() {
-    let d = dir("warn");
+    let d = Scratch::new("warn");
     let acme =
         std::fs::read_to_string(repo().join("vectors/models/examples/acme-x100.json")).unwrap();
     let with_example = acme.replacen(

@@ -25,18 +25,8 @@ use std::process::{Command, Stdio};
 use std::sync::mpsc;
 use std::time::Duration;
 
-use common::{bin, need, note, python, Kill, Peer};
+use common::{bin, need, note, python, Kill, Peer, Scratch};
 use serde_json::Value;
-
-fn dir(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!(
-        "conformance-monitor-peers-{}-{name}",
-        std::process::id()
-    ));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).unwrap();
-    d
-}
 
 /// A bus with a simulated F510 at node 1 (9600 8E1), an endpoint `master` for the
 /// program under test, and the monitor listening on the endpoint `tap`.
@@ -318,7 +308,7 @@ fn mbpoll_polling_and_writing_is_heard_and_the_drive_passes() {
     if !need(Peer::Mbpoll) {
         return;
     }
-    let d = dir("mbpoll");
+    let d = Scratch::new("mbpoll");
     let l = Listening::start(&d, &[]);
     let mbpoll = |args: &[&str]| {
         let mut c = Command::new("mbpoll");
@@ -346,7 +336,7 @@ fn pymodbus_polling_and_writing_is_heard_and_the_drive_passes() {
     if !need(Peer::Pymodbus) {
         return;
     }
-    let d = dir("pymodbus");
+    let d = Scratch::new("pymodbus");
     let l = Listening::start(&d, &[]);
     // Parity E on a pseudo-terminal: pymodbus's connect() refuses it (EINVAL) and falls
     // back to N here; the line carries bytes, whatever the program's termios says.
@@ -373,7 +363,7 @@ fn minimalmodbus_polling_and_writing_is_heard_and_the_drive_passes() {
     if !need(Peer::Minimalmodbus) {
         return;
     }
-    let d = dir("minimalmodbus");
+    let d = Scratch::new("minimalmodbus");
     let l = Listening::start(&d, &[]);
     let script = format!(
         "import minimalmodbus\n\
@@ -397,7 +387,7 @@ fn minimalmodbus_polling_and_writing_is_heard_and_the_drive_passes() {
 
 #[test]
 fn a_libmodbus_client_polling_and_writing_is_heard_and_the_drive_passes() {
-    let d = dir("libmodbus");
+    let d = Scratch::new("libmodbus");
     let Some(client) = libmodbus_client(&d) else {
         return;
     };
@@ -426,7 +416,7 @@ fn replies_a_drive_drops_are_found_and_the_retries_of_the_master_counted() {
     if !need(Peer::Pymodbus) {
         return;
     }
-    let d = dir("retries");
+    let d = Scratch::new("retries");
     let l = Listening::start(&d, &["--quirk", "drop-every=2"]);
     let script = format!(
         "{connect}\
@@ -475,7 +465,7 @@ fn replies_a_drive_drops_are_found_and_the_retries_of_the_master_counted() {
 /// as one frame with a wrong CRC and stays silent, as the model says.)
 #[test]
 fn a_master_sending_two_requests_without_t35_is_found() {
-    let d = dir("burst");
+    let d = Scratch::new("burst");
     let l = Listening::start(&d, &[]);
     let out = Command::new(bin())
         .args([
@@ -513,7 +503,7 @@ fn a_master_sending_two_requests_without_t35_is_found() {
 /// or, where the two sent the same bytes in step, nothing wrong, as on a real line.
 #[test]
 fn a_collision_on_the_line_is_heard_as_damage() {
-    let d = dir("collision");
+    let d = Scratch::new("collision");
     let l = Listening::start_on(
         &d,
         "1,2",
@@ -658,7 +648,7 @@ fn check_and_monitor_judge_pymodbus_s_server_alike() {
     if !need(Peer::Pymodbus) {
         return;
     }
-    let d = dir("pymodbus-server");
+    let d = Scratch::new("pymodbus-server");
     // pymodbus_server.py PORT (RTU, node 1, 9600 8N1): the bus's endpoint comes last.
     let mut c = Command::new(python());
     c.arg(concat!(
@@ -687,7 +677,7 @@ fn check_and_monitor_judge_pymodbus_s_server_alike() {
 
 #[test]
 fn check_and_monitor_judge_libmodbus_s_server_alike() {
-    let d = dir("libmodbus-server");
+    let d = Scratch::new("libmodbus-server");
     let Some(exe) = libmodbus_server(&d) else {
         return;
     };

@@ -5,8 +5,9 @@
 #![cfg(unix)]
 
 mod common;
+use common::Scratch;
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::process::Command;
 
 use conformance::capture::write::{Interface, PacketMeta, PcapngWriter};
@@ -33,12 +34,6 @@ fn values(address: u8, v: &[u16]) -> Vec<u8> {
             values: Registers::new(&bytes).unwrap(),
         },
     )
-}
-
-fn dir(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("monitor-report-{}-{name}", std::process::id()));
-    std::fs::create_dir_all(&d).unwrap();
-    d
 }
 
 /// A pcapng capture of an RTU bus at `path`: each frame at `T0_US` + its offset in ms.
@@ -135,7 +130,7 @@ fn heard_section(html: &str) -> &str {
 /// counts, the percentiles, the findings by kind, the histograms and the notices.
 #[test]
 fn a_monitor_report_read_back_keeps_what_was_heard() {
-    let d = dir("readback");
+    let d = Scratch::new("readback");
     let cap = d.join("bus.pcapng");
     polled_bus(&cap);
     let json = d.join("m.json");
@@ -163,12 +158,11 @@ fn a_monitor_report_read_back_keeps_what_was_heard() {
     assert_eq!(section, heard_section(&own_html));
     // A histogram for each node that answered.
     assert_eq!(section.matches("<svg").count(), 2, "{section}");
-    let _ = std::fs::remove_dir_all(&d);
 }
 
 /// `monitor --capture-in` of `frames` with `extra` arguments, its JSON report read.
 fn monitor_json(name: &str, frames: &[(u64, Vec<u8>)], extra: &[&str]) -> serde_json::Value {
-    let d = dir(name);
+    let d = Scratch::new(name);
     let cap = d.join("bus.pcapng");
     capture(&cap, frames);
     let json = d.join("m.json");
@@ -189,18 +183,16 @@ fn monitor_json(name: &str, frames: &[(u64, Vec<u8>)], extra: &[&str]) -> serde_
     args.extend_from_slice(extra);
     run(&args);
     let v = serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
-    let _ = std::fs::remove_dir_all(&d);
     v
 }
 
 /// The text and HTML of `conformance report` of a saved report.
 fn both(name: &str, v: &serde_json::Value) -> (String, String) {
-    let d = dir(name);
+    let d = Scratch::new(name);
     let json = d.join("r.json");
     std::fs::write(&json, v.to_string()).unwrap();
     let (_, text) = run(&["report", json.to_str().unwrap()]);
     let html = common::rendered(&json, &d.join("r.html"));
-    let _ = std::fs::remove_dir_all(&d);
     (text, html)
 }
 
@@ -211,7 +203,7 @@ fn both(name: &str, v: &serde_json::Value) -> (String, String) {
 /// monitor's report.
 #[test]
 fn a_monitor_report_says_what_a_monitor_did() {
-    let d = dir("fields");
+    let d = Scratch::new("fields");
     let cap = d.join("bus.pcapng");
     polled_bus(&cap);
     let json = d.join("m.json");
@@ -245,7 +237,6 @@ fn a_monitor_report_says_what_a_monitor_did() {
         conformance::report::unresolved_links(&html),
         Vec::<String>::new()
     );
-    let _ = std::fs::remove_dir_all(&d);
 }
 
 /// Issue 33, item 12: a finding on the master's side shows its request and the drive's
@@ -330,7 +321,7 @@ fn a_monitor_report_shows_why_the_master_deviates_and_names_its_nodes() {
 /// lies beyond it.
 #[test]
 fn the_response_time_histogram_has_axes_units_and_the_manuals_limits() {
-    let d = dir("hist");
+    let d = Scratch::new("hist");
     let cap = d.join("bus.pcapng");
     polled_bus(&cap);
     let json = d.join("m.json");
@@ -353,5 +344,4 @@ fn the_response_time_histogram_has_axes_units_and_the_manuals_limits() {
     );
     // The 60 ms reply: a bar beyond the late limit.
     assert_eq!(svg.matches("class=\"bar late\"").count(), 1, "{svg}");
-    let _ = std::fs::remove_dir_all(&d);
 }

@@ -4,7 +4,7 @@
 //! changed; reports validate against their schema; the command line's exit codes.
 
 mod common;
-use common::{bin, free_port, wait_listening, Kill};
+use common::{bin, free_port, wait_listening, Kill, Scratch};
 
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
@@ -308,8 +308,7 @@ fn a_lost_link_ends_the_run_with_an_error_and_a_whole_report() {
 
 #[test]
 fn the_command_line_gives_exit_codes_and_every_format() {
-    let dir = std::env::temp_dir().join(format!("teco-runner-cli-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
+    let dir = Scratch::new("runner-cli");
     let out = |args: &[&str]| {
         std::process::Command::new(bin())
             .args(args)
@@ -425,7 +424,6 @@ fn the_command_line_gives_exit_codes_and_every_format() {
     let o = out(&["check", "--sim", "l510", "--list"]);
     assert_eq!(o.status.code(), Some(0));
     assert!(String::from_utf8_lossy(&o.stdout).contains("rtu.identification"));
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 /// A link on which this host stalls while pacing some requests (issue 24): a request it
@@ -1007,8 +1005,7 @@ fn check_in<'a>(v: &'a serde_json::Value, id: &str) -> (&'a str, &'a str) {
 #[test]
 fn a_check_the_host_stalled_under_runs_again_and_is_counted() {
     let id = "rtu.map.command.first";
-    let dir = std::env::temp_dir().join(format!("runner-stall-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
+    let dir = Scratch::new("runner-stall");
     let run = |n: u32| {
         let inject = format!("{id}:{n}");
         common::check_device(
@@ -1040,5 +1037,4 @@ fn a_check_the_host_stalled_under_runs_again_and_is_counted() {
     assert_eq!(code, Some(2));
     assert!(summary.contains("the check ran 3 times"), "{summary}");
     assert_eq!(reruns(&v), 2, "{:#}", v["budget"]);
-    let _ = std::fs::remove_dir_all(&dir);
 }

@@ -6,7 +6,7 @@
 //! wrote (mbpoll, minimalmodbus) against the simulated bus.
 
 mod common;
-use common::Kill;
+use common::{words, Kill, Scratch};
 
 use std::collections::BTreeMap;
 use std::process::{Command, Stdio};
@@ -14,14 +14,8 @@ use std::time::Duration;
 
 use serde_json::Value;
 
-fn dir(name: &str) -> std::path::PathBuf {
-    let d = std::env::temp_dir().join(format!("teco-nodes-{name}-{}", std::process::id()));
-    std::fs::create_dir_all(&d).unwrap();
-    d
-}
-
 fn check(name: &str, args: &[&str]) -> (Option<i32>, Value) {
-    common::check_device(&dir(name), args, Duration::from_secs(240))
+    common::check_device(&Scratch::new(name), args, Duration::from_secs(240))
 }
 
 fn checks(v: &Value) -> &Vec<Value> {
@@ -108,30 +102,7 @@ fn the_whole_suite_runs_per_node_and_the_bus_checks_once() {
 
 #[test]
 fn a_fault_planted_on_one_node_is_reported_on_that_node_only() {
-    let (exit, v) = check(
-        "planted",
-        &[
-            "--sim",
-            "f510",
-            "-a",
-            "1,2,5",
-            "--mode",
-            "rtu",
-            "--no-pace",
-            "--quirk",
-            "wrong-exception@2",
-            "--quirk",
-            "reply-to-broadcast@5",
-            "--only",
-            "rtu.map.group-0*",
-            "--only",
-            "rtu.function.*",
-            "--only",
-            "rtu.broadcast.*",
-            "--only",
-            "rtu.other-address",
-        ],
-    );
+    let (exit, v) = check("planted", &words("--sim f510 -a 1,2,5 --mode rtu --no-pace --quirk wrong-exception@2 --quirk reply-to-broadcast@5 --only rtu.map.group-0* --only rtu.function.* --only rtu.broadcast.* --only rtu.other-address"));
     assert_eq!(exit, Some(1), "{}", v["summary"]);
     let quirks: Vec<(String, Value)> = v["device"]["nodes"]
         .as_array()
@@ -187,24 +158,7 @@ fn a_fault_planted_on_one_node_is_reported_on_that_node_only() {
 
 #[test]
 fn a_dead_node_ends_its_own_section_only() {
-    let (exit, v) = check(
-        "dead",
-        &[
-            "--sim",
-            "f510",
-            "-a",
-            "1,2,5",
-            "--mode",
-            "rtu",
-            "--no-pace",
-            "--quirk",
-            "dead@2",
-            "--only",
-            "rtu.map.group-0*",
-            "--only",
-            "rtu.broadcast.*",
-        ],
-    );
+    let (exit, v) = check("dead", &words("--sim f510 -a 1,2,5 --mode rtu --no-pace --quirk dead@2 --only rtu.map.group-0* --only rtu.broadcast.*"));
     assert_eq!(
         exit,
         Some(2),
@@ -259,28 +213,12 @@ fn lists_and_refusals() {
         "{}",
         String::from_utf8_lossy(&o.stderr)
     );
-    let o = run(&[
-        "check",
-        "--sim",
-        "f510",
-        "-a",
-        "1,2",
-        "--other-address",
-        "2",
-    ]);
+    let o = run(&words("check --sim f510 -a 1,2 --other-address 2"));
     assert_eq!(o.status.code(), Some(2));
     assert!(String::from_utf8_lossy(&o.stderr).contains("--other-address"));
-    let o = run(&[
-        "check",
-        "--sim",
-        "f510",
-        "-a",
-        "1,2",
-        "--quirk",
-        "dead@3",
-        "--only",
-        "identification",
-    ]);
+    let o = run(&words(
+        "check --sim f510 -a 1,2 --quirk dead@3 --only identification",
+    ));
     assert_eq!(o.status.code(), Some(2));
     assert!(
         String::from_utf8_lossy(&o.stderr).contains("node 3 is not on the bus"),
@@ -299,7 +237,7 @@ fn lists_and_refusals() {
 /// node 3 is not silent: it is checked, and every read of it deviates.
 #[test]
 fn pymodbus_serving_two_nodes_is_checked_node_by_node() {
-    let d = dir("pymodbus");
+    let d = Scratch::new("pymodbus");
     let Some(peer) = common::pymodbus_serial_nodes(&d, "rtu", "1,2") else {
         return;
     };
@@ -416,7 +354,7 @@ fn foreign_masters_see_three_drives_on_the_simulated_bus() {
     if !common::need_all(&[common::Peer::Mbpoll, common::Peer::Minimalmodbus]) {
         return;
     }
-    let d = dir("masters");
+    let d = Scratch::new("masters");
     let link = d.join("bus");
     let _sim = Kill(
         Command::new(common::bin())
@@ -546,13 +484,14 @@ fn several_nodes_through_a_modbus_tcp_gateway() {
         "1,2",
     ];
     args.extend(only);
-    let (exit, v) = common::check_device(&dir("mbap-sim"), &args, Duration::from_secs(120));
+    let (exit, v) =
+        common::check_device(&Scratch::new("mbap-sim"), &args, Duration::from_secs(120));
     assert_eq!(exit, Some(0), "{}", v["summary"]);
     // Behind a gateway the serial line's timing is not ours to bound.
     assert_eq!(v["budget"]["rtu"]["bound_ms"], 0.0);
     let text = Command::new(common::bin())
         .arg("report")
-        .arg(dir("mbap-sim").join("check.json"))
+        .arg(Scratch::new("mbap-sim").join("check.json"))
         .args(["--format", "text"])
         .output()
         .unwrap();
@@ -635,7 +574,11 @@ fn several_nodes_through_a_modbus_tcp_gateway() {
         "500",
     ];
     args.extend(only);
-    let (_, v) = common::check_device(&dir("mbap-pymodbus"), &args, Duration::from_secs(120));
+    let (_, v) = common::check_device(
+        &Scratch::new("mbap-pymodbus"),
+        &args,
+        Duration::from_secs(120),
+    );
     for c in checks(&v) {
         eprintln!(
             "pymodbus tcp node {} {} {}: {}",
@@ -675,26 +618,7 @@ fn several_nodes_through_a_modbus_tcp_gateway() {
 /// are ERRORs that say why, not silently left out.
 #[test]
 fn a_bus_where_no_node_answers_reports_the_bus_checks_as_not_run() {
-    let (exit, v) = check(
-        "all-dead",
-        &[
-            "--sim",
-            "f510",
-            "-a",
-            "1,2",
-            "--mode",
-            "rtu",
-            "--no-pace",
-            "--timeout",
-            "200",
-            "--quirk",
-            "dead",
-            "--only",
-            "rtu.map.group-0.first",
-            "--only",
-            "rtu.broadcast.*",
-        ],
-    );
+    let (exit, v) = check("all-dead", &words("--sim f510 -a 1,2 --mode rtu --no-pace --timeout 200 --quirk dead --only rtu.map.group-0.first --only rtu.broadcast.*"));
     assert_eq!(exit, Some(2));
     let per_id = nodes_per_id(&v);
     assert_eq!(per_id["rtu.preflight"], ["01", "02"]);

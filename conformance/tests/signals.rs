@@ -10,16 +10,9 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
-use common::{bin, Kill};
+use common::{bin, Kill, Run, Scratch};
 use nix::sys::signal::{kill, Signal};
 use nix::unistd::Pid;
-
-fn dir(name: &str) -> PathBuf {
-    let d = Path::new(env!("CARGO_TARGET_TMPDIR")).join(format!("signals-{name}"));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).unwrap();
-    d
-}
 
 /// Waits (at most 120 s, for a loaded machine) until `ready` holds.
 fn wait_until(what: &str, mut ready: impl FnMut() -> bool) {
@@ -63,7 +56,7 @@ fn spawn(args: &[&str], out: &Path) -> Kill {
 
 #[test]
 fn sigterm_ends_a_fuzz_run_with_a_whole_report_marked_incomplete() {
-    let d = dir("fuzz");
+    let d = Scratch::new("fuzz");
     let (log, out) = (d.join("sim.jsonl"), d.join("fuzz.json"));
     let mut run = spawn(
         &[
@@ -103,7 +96,7 @@ fn sigterm_ends_a_fuzz_run_with_a_whole_report_marked_incomplete() {
 
 #[test]
 fn sigterm_ends_a_check_restoring_what_it_wrote() {
-    let d = dir("check");
+    let d = Scratch::new("check");
     let out = d.join("check.json");
     let mut run = spawn(&["check", "--sim", "f510", "--mode", "rtu"], &out);
     // The report is rewritten after every check: wait until a writing check has run
@@ -141,7 +134,7 @@ fn sigterm_ends_a_check_restoring_what_it_wrote() {
 
 #[test]
 fn sigterm_ends_the_simulator_and_removes_its_link() {
-    let d = dir("simulate");
+    let d = Scratch::new("simulate");
     let link = d.join("drive");
     let mut sim = Kill::spawn(
         Command::new(bin())
@@ -190,7 +183,7 @@ fn sigterm_ends_the_simulator_and_removes_its_link() {
 
 #[test]
 fn the_simulator_replaces_a_stale_link_but_never_a_file() {
-    let d = dir("stale");
+    let d = Scratch::new("stale");
     let link = d.join("drive");
     std::os::unix::fs::symlink("/dev/pts/nonexistent", &link).unwrap();
     let mut sim = Kill::spawn(
@@ -214,10 +207,11 @@ fn the_simulator_replaces_a_stale_link_but_never_a_file() {
 
     let file = d.join("notes.txt");
     std::fs::write(&file, "keep me").unwrap();
-    let (code, _, stderr) = common::run_bounded(
-        &["simulate", "--pty", "--link", file.to_str().unwrap()],
-        Duration::from_secs(30),
-    );
+    let (code, _, stderr) = Run::words("simulate --pty --link")
+        .arg(&file)
+        .timeout(Duration::from_secs(30))
+        .run()
+        .parts();
     assert_eq!(code, Some(2), "{stderr}");
     assert!(stderr.contains("is not a symbolic link"), "{stderr}");
     assert_eq!(std::fs::read_to_string(&file).unwrap(), "keep me");
@@ -225,7 +219,7 @@ fn the_simulator_replaces_a_stale_link_but_never_a_file() {
 
 #[test]
 fn sigterm_ends_a_gate_run_with_a_whole_report_marked_incomplete() {
-    let d = dir("gate");
+    let d = Scratch::new("gate");
     let out = d.join("gate.json");
     let codec = format!("{} adapter", bin());
     let mut run = spawn(
@@ -256,7 +250,7 @@ fn sigterm_ends_a_gate_run_with_a_whole_report_marked_incomplete() {
 
 #[test]
 fn sigterm_ends_identify_with_its_report_not_run() {
-    let d = dir("identify");
+    let d = Scratch::new("identify");
     let (log, out) = (d.join("sim.jsonl"), d.join("identify.json"));
     // Slow replies: the probes take seconds, the signal comes among them.
     let mut run = spawn(
@@ -288,7 +282,7 @@ fn sigterm_ends_identify_with_its_report_not_run() {
 
 #[test]
 fn sigterm_ends_a_scan_with_the_tries_made() {
-    let d = dir("scan");
+    let d = Scratch::new("scan");
     // One drive at an address the scan reaches late; its traffic log on stderr shows
     // when the scan's requests arrive.
     let mut sim = Kill::spawn(
@@ -326,7 +320,7 @@ fn sigterm_ends_a_scan_with_the_tries_made() {
 /// links removed (exit 0).
 #[test]
 fn sigterm_ends_monitor_and_bus_each_in_its_own_words() {
-    let d = dir("monitor-bus");
+    let d = Scratch::new("monitor-bus");
     let (master, tap) = (d.join("master"), d.join("tap"));
     let mut bus = Kill::spawn(
         Command::new(bin())

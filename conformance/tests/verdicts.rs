@@ -17,7 +17,7 @@
 //! (SIGSTOP) simulator give exit 2 and no PASS.
 
 mod common;
-use common::{bin, sim_pty, Kill};
+use common::{bin, sim_pty, Kill, Scratch};
 
 use std::collections::{BTreeMap, BTreeSet};
 use std::sync::{Arc, Mutex};
@@ -595,8 +595,7 @@ fn a_device_frozen_mid_run_ends_the_run() {
     use nix::unistd::Pid;
     let (sim, pty) = sim_pty(&["--model", "l510", "-P", "none"]);
     let pid = Pid::from_raw(i32::try_from(sim.0.id()).unwrap());
-    let dir = std::env::temp_dir().join(format!("teco-freeze-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
+    let dir = Scratch::new("freeze");
     let report = dir.join("report.json");
     let mut run = Kill(
         std::process::Command::new(bin())
@@ -657,5 +656,4 @@ fn a_device_frozen_mid_run_ends_the_run() {
     );
     let stopped = v["stopped"].as_str().unwrap();
     assert!(stopped.contains(lost), "{stopped}");
-    let _ = std::fs::remove_dir_all(&dir);
 }
