@@ -11,7 +11,7 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::sync::OnceLock;
 
-use common::{need, words, Peer, TSHARK_USER_DLT as USER_DLT};
+use common::{need, words, Peer, Run, TSHARK_USER_DLT as USER_DLT};
 use conformance::capture::{Direction, Reader, FLAG_CRC_ERROR};
 use serde_json::Value;
 
@@ -27,16 +27,16 @@ fn captured_check(name: &str, mode: &str, extra: &[&str]) -> (PathBuf, Value) {
     let d = dir();
     let cap = d.join(format!("{name}.pcapng"));
     let json = d.join(format!("{name}.json"));
-    let out = Command::new(common::bin())
-        .args(["check", "--sim", "f510", "--mode", mode, "--quiet"])
+    let out = Run::words("check --sim f510 --mode")
+        .arg(mode)
+        .arg("--quiet")
         .args(extra)
         .arg("--capture")
         .arg(&cap)
         .args(["--format", "json", "-o"])
         .arg(&json)
-        .output()
-        .unwrap();
-    let stderr = String::from_utf8_lossy(&out.stderr);
+        .run();
+    let stderr = out.stderr.as_str();
     assert!(stderr.contains("capture: "), "{stderr}");
     let report: Value = serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
     // Exit 0, or 2 where only this host stalled sending a request (an ERROR, never
@@ -52,7 +52,7 @@ fn captured_check(name: &str, mode: &str, extra: &[&str]) -> (PathBuf, Value) {
             );
         }
     }
-    assert!(matches!(out.status.code(), Some(0 | 2)), "{stderr}");
+    assert!(matches!(out.code, Some(0 | 2)), "{stderr}");
     (cap, report)
 }
 
@@ -211,23 +211,16 @@ fn tshark(cap: &Path, fields: &[&str]) -> Vec<Vec<String>> {
 
 /// [`tshark`], with `occurrence` "f" (first), "l" (last) or "a" (all, comma-separated).
 fn tshark_occurrences(cap: &Path, fields: &[&str], occurrence: &str) -> Vec<Vec<String>> {
-    let mut cmd = Command::new("tshark");
-    cmd.arg("-r")
+    let fields = fields.iter().flat_map(|f| ["-e", f]);
+    let out = Run::program("tshark", ["-r"])
         .arg(cap)
         .args(["-o", USER_DLT, "-o", "mbrtu.crc_verification:TRUE"])
         .args(["-T", "fields", "-E", "separator=/t", "-E"])
-        .arg(format!("occurrence={occurrence}"));
-    for f in fields {
-        cmd.args(["-e", f]);
-    }
-    let out = cmd.output().unwrap();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    String::from_utf8(out.stdout)
-        .unwrap()
+        .arg(format!("occurrence={occurrence}"))
+        .args(fields)
+        .run()
+        .ok();
+    out.stdout
         .lines()
         .map(|l| l.split('\t').map(str::to_string).collect())
         .collect()
@@ -329,20 +322,18 @@ fn tshark_decodes_every_frame_as_its_bytes_say_and_marks_exactly_the_bad_crc_fra
 
 fn monitor_capture(cap: &Path, name: &str, extra: &[&str]) -> (Option<i32>, Value, String) {
     let json = dir().join(format!("{name}.monitor.json"));
-    let out = Command::new(common::bin())
-        .args(["monitor", "--model", "f510", "--quiet", "--capture-in"])
+    let out = Run::words("monitor --model f510 --quiet --capture-in")
         .arg(cap)
         .args(extra)
         .args(["--format", "json", "-o"])
         .arg(&json)
-        .output()
-        .unwrap();
-    let stderr = String::from_utf8_lossy(&out.stderr).into_owned();
+        .run();
+    let stderr = out.stderr.clone();
     let report = std::fs::read_to_string(&json)
         .ok()
         .and_then(|s| serde_json::from_str(&s).ok())
         .unwrap_or(Value::Null);
-    (out.status.code(), report, stderr)
+    (out.code, report, stderr)
 }
 
 fn node<'a>(r: &'a Value, address: &str) -> &'a Value {
@@ -483,22 +474,13 @@ fn a_fuzz_capture_decodes_in_tshark_and_every_damaged_frame_is_marked_and_named(
     }
     let d = dir();
     let cap = d.join("fuzz.pcapng");
-    let out = Command::new(common::bin())
-        .args([
-            "fuzz", "--sim", "f510", "--mode", "rtu", "--cases", "150", "--quiet",
-        ])
+    let out = Run::words("fuzz --sim f510 --mode rtu --cases 150 --quiet")
         .arg("--capture")
         .arg(&cap)
         .args(["--format", "json", "-o"])
         .arg(d.join("fuzz.json"))
-        .output()
-        .unwrap();
-    assert_eq!(
-        out.status.code(),
-        Some(0),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+        .run();
+    assert_eq!(out.code, Some(0), "{}", out.stderr);
     let frames = frames(&cap);
     let sent = frames
         .iter()
@@ -645,25 +627,16 @@ fn a_simulator_killed_mid_run_leaves_a_whole_capture_seen_from_the_drive() {
     let mut path = String::new();
     let mut sim_out = BufReader::new(sim.stdout.take().unwrap());
     sim_out.read_line(&mut path).unwrap();
-    let out = Command::new(common::bin())
-        .args([
-            "check", "--model", "f510", "--mode", "rtu", "--quiet", "--port",
-        ])
+    let out = Run::words("check --model f510 --mode rtu --quiet --port")
         .arg(path.trim())
         .args(["--only", "rtu.map.group-0.*", "--format", "json", "-o"])
         .arg(d.join("simulate.json"))
-        .output()
-        .unwrap();
+        .run();
     // Killed, not stopped: no chance to finish anything.
     sim.kill().unwrap();
     sim.wait().unwrap();
     drop(sim_out);
-    assert_eq!(
-        out.status.code(),
-        Some(0),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    assert_eq!(out.code, Some(0), "{}", out.stderr);
     let frames = frames(&cap);
     assert!(frames.len() >= 8, "{} frames", frames.len());
     // From the drive's side: the requests came in, the replies went out.
@@ -700,24 +673,20 @@ fn a_bus_capture_holds_each_endpoints_frames_on_its_own_interface() {
     let mut paths = BufReader::new(bus.stdout.take().unwrap());
     paths.read_line(&mut first).unwrap();
     assert!(first.starts_with("m "), "{first}");
-    let out = Command::new(common::bin())
-        .args([
-            "check", "--model", "f510", "--mode", "rtu", "-a", "1", "--quiet", "--port",
-        ])
+    let out = Run::words("check --model f510 --mode rtu -a 1 --quiet --port")
         .arg(&link)
         .args(["--only", "rtu.map.group-0.*", "--format", "json", "-o"])
         .arg(d.join("bus.json"))
-        .output()
-        .unwrap();
+        .run();
     let running = bus.try_wait().unwrap().is_none();
     bus.kill().unwrap();
     bus.wait().unwrap();
     drop(paths);
     assert_eq!(
-        out.status.code(),
+        out.code,
         Some(0),
         "{} (the bus {}: {})",
-        String::from_utf8_lossy(&out.stderr),
+        out.stderr.as_str(),
         if running { "was running" } else { "had ended" },
         std::fs::read_to_string(d.join("bus.err")).unwrap_or_default()
     );
@@ -801,25 +770,16 @@ fn a_monitor_on_a_bus_records_what_the_line_carried_and_tshark_decodes_it() {
     let first = heard.next().unwrap().unwrap();
     assert!(first.starts_with("listening on"), "{first}");
     let drain = std::thread::spawn(move || heard.map_while(Result::ok).collect::<Vec<_>>());
-    let out = Command::new(common::bin())
-        .args([
-            "check", "--model", "f510", "--mode", "rtu", "-a", "1", "--quiet", "--port",
-        ])
+    let out = Run::words("check --model f510 --mode rtu -a 1 --quiet --port")
         .arg(&m)
         .args(["--only", "rtu.map.group-0.*", "--format", "json", "-o"])
         .arg(d.join("tap-check.json"))
-        .output()
-        .unwrap();
+        .run();
     let status = monitor.wait().unwrap();
     let stderr = drain.join().unwrap().join("\n");
     bus.kill().unwrap();
     bus.wait().unwrap();
-    assert_eq!(
-        out.status.code(),
-        Some(0),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    assert_eq!(out.code, Some(0), "{}", out.stderr);
     assert!(matches!(status.code(), Some(0 | 1)), "{stderr}");
     assert!(stderr.contains("capture: "), "{stderr}");
     // The tap heard what the line carried, byte for byte, with no direction.
@@ -944,22 +904,16 @@ fn monitor_capture_in_judges_every_exchange_of_the_check_run_as_check_did() {
         d.join("agree.json"),
         d.join("agree.heard.jsonl"),
     );
-    let out = Command::new(common::bin())
-        .args(["check", "--sim", "f510", "--mode", "rtu", "--quiet"])
+    let out = Run::words("check --sim f510 --mode rtu --quiet")
         .args(["--quirk", "wrong-exception", "--capture"])
         .arg(&cap)
         .args(["--format", "json", "-o"])
         .arg(&json)
-        .output()
-        .unwrap();
+        .run();
     // Exit 1: deviations (the planted fault). 2 only where this host stalled sending a
     // request (an ERROR, never judged); the other exchanges are still compared.
     let check: Value = serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
-    assert!(
-        matches!(out.status.code(), Some(1 | 2)),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    assert!(matches!(out.code, Some(1 | 2)), "{}", out.stderr);
     assert_eq!(check["complete"], true, "{}", check["stopped"]);
     for c in check["checks"].as_array().unwrap() {
         if c["status"] == "error" {
@@ -1001,25 +955,17 @@ fn a_gateway_run_records_its_mbap_frames_as_tcp_that_tshark_decodes_as_modbus_tc
     let d = dir();
     let cap = d.join("mbap.pcapng");
     let json = d.join("mbap.json");
-    let out = Command::new(common::bin())
-        .args([
-            "check",
-            "--model",
-            "f510",
-            "--tcp",
-            &gw.addr,
-            "--framing",
-            "mbap",
-        ])
+    let out = Run::words("check --model f510 --tcp")
+        .arg(&gw.addr)
+        .args(["--framing", "mbap"])
         .args(["--mode", "rtu", "--only", "rtu.map.monitor.*", "--quiet"])
         .arg("--capture")
         .arg(&cap)
         .args(["--format", "json", "-o"])
         .arg(&json)
-        .output()
-        .unwrap();
-    let stderr = String::from_utf8_lossy(&out.stderr);
-    assert_eq!(out.status.code(), Some(0), "{stderr}");
+        .run();
+    let stderr = out.stderr.as_str();
+    assert_eq!(out.code, Some(0), "{stderr}");
     let report: Value = serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
     let frames = frames(&cap);
     assert!(frames
@@ -1051,8 +997,7 @@ fn a_gateway_run_records_its_mbap_frames_as_tcp_that_tshark_decodes_as_modbus_tc
     if !need(Peer::Tshark) {
         return;
     }
-    let out = Command::new("tshark")
-        .arg("-r")
+    let out = Run::program("tshark", ["-r"])
         .arg(&cap)
         .args([
             "-o",
@@ -1077,15 +1022,10 @@ fn a_gateway_run_records_its_mbap_frames_as_tcp_that_tshark_decodes_as_modbus_tc
             "-e",
             "ip.checksum.status",
         ])
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    let rows: Vec<Vec<String>> = String::from_utf8(out.stdout)
-        .unwrap()
+        .run()
+        .ok();
+    let rows: Vec<Vec<String>> = out
+        .stdout
         .lines()
         .map(|l| l.split('\t').map(str::to_string).collect())
         .collect();
@@ -1122,25 +1062,13 @@ fn a_simulator_served_over_tcp_records_what_it_received_and_sent() {
                 .stderr(std::process::Stdio::null()),
         );
         common::wait_listening(&addr, std::time::Duration::from_secs(30));
-        let out = Command::new(common::bin())
-            .args([
-                "check",
-                "--model",
-                "f510",
-                "--tcp",
-                &addr,
-                "--framing",
-                framing,
-            ])
+        let out = Run::words("check --model f510 --tcp")
+            .arg(&addr)
+            .arg("--framing")
+            .arg(framing)
             .args(["--mode", "rtu", "--only", "rtu.map.monitor.*", "--quiet"])
-            .output()
-            .unwrap();
-        assert_eq!(
-            out.status.code(),
-            Some(0),
-            "{framing}: {}",
-            String::from_utf8_lossy(&out.stderr)
-        );
+            .run();
+        assert_eq!(out.code, Some(0), "{framing}: {}", out.stderr);
         let frames = frames(&cap);
         let inbound: Vec<&Frame> = frames
             .iter()
@@ -1245,26 +1173,19 @@ fn a_bus_a_tap_and_a_check_capture_of_one_run_are_judged_alike() {
     let first = heard.next().unwrap().unwrap();
     assert!(first.starts_with("listening on"), "{first}");
     let drain = std::thread::spawn(move || heard.map_while(Result::ok).collect::<Vec<_>>());
-    let out = Command::new(common::bin())
-        .args(["check", "--model", "f510", "--mode", "rtu", "-a", "1,2"])
+    let out = Run::words("check --model f510 --mode rtu -a 1,2")
         .args(["--quiet", "--port"])
         .arg(&m)
         .args(["--only", "rtu.map.group-0.*", "--capture"])
         .arg(d.join("check.pcapng"))
         .args(["--format", "json", "-o"])
         .arg(d.join("check.json"))
-        .output()
-        .unwrap();
+        .run();
     let status = monitor.wait().unwrap();
     let stderr = drain.join().unwrap().join("\n");
     bus.kill().unwrap();
     bus.wait().unwrap();
-    assert_eq!(
-        out.status.code(),
-        Some(0),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    assert_eq!(out.code, Some(0), "{}", out.stderr);
     assert!(matches!(status.code(), Some(0 | 1)), "{stderr}");
     let check: Value =
         serde_json::from_str(&std::fs::read_to_string(d.join("check.json")).unwrap()).unwrap();

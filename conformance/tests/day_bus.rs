@@ -22,7 +22,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-use common::{need, note, Peer, Scratch, TSHARK_USER_DLT};
+use common::{need, note, Peer, Run, Scratch, TSHARK_USER_DLT};
 use serde_json::Value;
 
 /// How close a finding's time must be to the fault's (the monitor's time of a frame is
@@ -51,15 +51,9 @@ struct Judged {
 fn synth(dir: &Path, duration: &str, seed: u64) -> (PathBuf, Value, f64) {
     let cap = dir.join(format!("day-{duration}.pcapng"));
     let t0 = Instant::now();
-    let out = Command::new(bin())
-        .args([
-            "capture",
-            "synth",
-            "--duration",
-            duration,
-            "--baud",
-            "115200",
-        ])
+    let out = Run::words("capture synth --duration")
+        .arg(duration)
+        .args(["--baud", "115200"])
         .args([
             "--drives",
             "8",
@@ -69,13 +63,8 @@ fn synth(dir: &Path, duration: &str, seed: u64) -> (PathBuf, Value, f64) {
             "-o",
         ])
         .arg(&cap)
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+        .run();
+    assert_eq!(out.code, Some(0), "{}", out.stderr);
     let mut truth_path = cap.clone().into_os_string();
     truth_path.push(".truth.json");
     let truth = serde_json::from_slice(&std::fs::read(truth_path).unwrap()).unwrap();
@@ -343,8 +332,7 @@ fn tshark_reads_every_packet_and_finds_a_wrong_crc_on_the_planted_frames_only() 
     }
     let dir = Scratch::new("tshark");
     let (cap, truth, _) = synth(&dir, "2m", 5);
-    let out = Command::new("tshark")
-        .arg("-r")
+    let out = Run::program("tshark", ["-r"])
         .arg(&cap)
         .args(["-o", TSHARK_USER_DLT, "-o", "mbrtu.crc_verification:TRUE"])
         .args([
@@ -355,15 +343,9 @@ fn tshark_reads_every_packet_and_finds_a_wrong_crc_on_the_planted_frames_only() 
             "-e",
             "mbrtu.crc16.status",
         ])
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    let rows = String::from_utf8(out.stdout).unwrap();
-    let rows: Vec<&str> = rows.lines().collect();
+        .run()
+        .ok();
+    let rows: Vec<&str> = out.stdout.lines().collect();
     assert_eq!(rows.len() as u64, u(&truth, "packets"));
     let planted = truth["faults"]
         .as_array()

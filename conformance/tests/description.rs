@@ -8,7 +8,7 @@ mod common;
 use std::path::PathBuf;
 use std::time::Duration;
 
-use common::{bin, check_device, sim_pty, Scratch};
+use common::{check_device, sim_pty, Run, Scratch};
 use conformance::model::{DriveModel, MODELS};
 
 /// The device: RTU only, holding registers 0000H..0FFFH and 2500H..252FH, no
@@ -205,12 +205,9 @@ fn check_model_file_alone_holds_a_simulated_device_to_its_description() {
 
 #[test]
 fn bare_sim_needs_a_model_file() {
-    let o = std::process::Command::new(bin())
-        .args(["check", "--sim", "--list"])
-        .output()
-        .unwrap();
-    assert!(!o.status.success());
-    let err = String::from_utf8_lossy(&o.stderr);
+    let o = Run::words("check --sim --list").run();
+    assert_ne!(o.code, Some(0));
+    let err = o.stderr.as_str();
     assert!(err.contains("--model-file"), "{err}");
 }
 

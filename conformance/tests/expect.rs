@@ -5,11 +5,10 @@
 //! an invalid file is refused with its line and field.
 
 mod common;
-use common::Scratch;
+use common::{Ran, Run, Scratch};
 
 use std::collections::BTreeSet;
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
 use std::time::Duration;
 
 /// Short runs: the map checks of groups 1 and 10..18 (wrong-exception makes their
@@ -29,9 +28,9 @@ fn check(dir: &Path, args: &[&str]) -> (Option<i32>, serde_json::Value) {
 }
 
 /// Runs the binary to completion (for the quick commands: expect, report, refusals).
-fn conformance(args: &[&str]) -> Output {
-    let out = Command::new(common::bin()).args(args).output().unwrap();
-    let stderr = String::from_utf8_lossy(&out.stderr);
+fn conformance(args: &[&str]) -> Ran {
+    let out = Run::new(args).run();
+    let stderr = out.stderr.as_str();
     assert!(!stderr.contains("panicked"), "{stderr}");
     out
 }
@@ -100,11 +99,7 @@ fn starting_file(d: &Path) -> (PathBuf, BTreeSet<String>) {
         "-o",
         file.to_str().unwrap(),
     ]);
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    assert_eq!(out.code, Some(0), "{}", out.stderr);
     let text = std::fs::read_to_string(&file).unwrap();
     assert_eq!(
         text.matches("[[expect]]").count(),
@@ -139,7 +134,7 @@ fn an_expectations_file_gates_runs_by_what_changed() {
     let saved = d.join("expected.json");
     std::fs::rename(d.join("check.json"), &saved).unwrap();
     let out = conformance(&["report", saved.to_str().unwrap()]);
-    let text = String::from_utf8_lossy(&out.stdout);
+    let text = out.stdout.as_str();
     assert_eq!(listed_under(&text, "EXPECTED ("), deviating, "{text}");
     assert!(listed_under(&text, "NEW DEVIATIONS").is_empty(), "{text}");
 
@@ -153,7 +148,7 @@ fn an_expectations_file_gates_runs_by_what_changed() {
     assert_eq!(v["expectations"]["strict"], true);
     assert_eq!(ids_marked(&v, "unexpected-pass"), deviating);
     let out = conformance(&["report", d.join("check.json").to_str().unwrap()]);
-    let text = String::from_utf8_lossy(&out.stdout);
+    let text = out.stdout.as_str();
     assert_eq!(
         listed_under(&text, "UNEXPECTED PASSES"),
         deviating,
@@ -188,7 +183,7 @@ fn an_expectations_file_gates_runs_by_what_changed() {
     assert_eq!(v["expectations"]["counts"]["unexpected"], new.len());
     assert_eq!(ids_marked(&v, "expected"), deviating);
     let out = conformance(&["report", d.join("check.json").to_str().unwrap()]);
-    let text = String::from_utf8_lossy(&out.stdout);
+    let text = out.stdout.as_str();
     assert_eq!(listed_under(&text, "NEW DEVIATIONS"), new, "{text}");
     // The diff from the expected run to this one names the new deviations, and sees that
     // the expected ones are still as expected.
@@ -197,8 +192,8 @@ fn an_expectations_file_gates_runs_by_what_changed() {
         saved.to_str().unwrap(),
         d.join("check.json").to_str().unwrap(),
     ]);
-    assert_eq!(out.status.code(), Some(1));
-    let text = String::from_utf8_lossy(&out.stdout);
+    assert_eq!(out.code, Some(1));
+    let text = out.stdout.as_str();
     for id in &new {
         assert!(text.contains(id.as_str()), "{id}: {text}");
     }
@@ -243,7 +238,7 @@ fn expired_and_unmatched_entries_are_reported_and_do_not_apply() {
     assert_eq!(v["expectations"]["counts"]["unmatched"], 1);
     assert_eq!(v["expectations"]["counts"]["unexpected"], 1);
     let out = conformance(&["report", d.join("check.json").to_str().unwrap()]);
-    let report = String::from_utf8_lossy(&out.stdout);
+    let report = out.stdout.as_str();
     assert_eq!(
         listed_under(&report, "NEW DEVIATIONS"),
         BTreeSet::from([first.clone()])
@@ -290,8 +285,8 @@ fn an_invalid_file_is_refused_with_its_line_and_field_before_the_run() {
         ],
     ] {
         let out = conformance(&args);
-        let stderr = String::from_utf8_lossy(&out.stderr);
-        assert_eq!(out.status.code(), Some(2), "{args:?}: {stderr}");
+        let stderr = out.stderr.as_str();
+        assert_eq!(out.code, Some(2), "{args:?}: {stderr}");
         assert!(
             stderr.contains(&format!("{f}:4: status: \"deviates\" is not")),
             "{args:?}: {stderr}"
@@ -304,8 +299,8 @@ fn an_invalid_file_is_refused_with_its_line_and_field_before_the_run() {
     )
     .unwrap();
     let out = conformance(&[&["check"][..], &sim, &["--expect", f]].concat());
-    assert_eq!(out.status.code(), Some(2));
-    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.code, Some(2));
+    let stderr = out.stderr.as_str();
     assert!(stderr.contains(&format!("{f}:5: expires: ")), "{stderr}");
     std::fs::write(
         &file,
@@ -313,12 +308,12 @@ fn an_invalid_file_is_refused_with_its_line_and_field_before_the_run() {
     )
     .unwrap();
     let out = conformance(&[&["check"][..], &sim, &["--expect", f]].concat());
-    assert_eq!(out.status.code(), Some(2));
-    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.code, Some(2));
+    let stderr = out.stderr.as_str();
     assert!(stderr.contains(&format!("{f}:3: ")), "{stderr}");
     // --strict-expect means nothing without a file.
     let out = conformance(&[&["check"][..], &sim, &["--strict-expect"]].concat());
-    assert_eq!(out.status.code(), Some(2));
+    assert_eq!(out.code, Some(2));
 }
 
 /// A fuzz run: `expect --from` a campaign against wrong-exception writes one entry per
@@ -363,7 +358,7 @@ fn fuzz_findings_are_expected_by_their_signature() {
         "-o",
         file.to_str().unwrap(),
     ]);
-    assert!(out.status.success());
+    assert_eq!(out.code, Some(0));
     let text = std::fs::read_to_string(&file).unwrap();
     for id in &findings {
         let sig = id.strip_prefix("fuzz.").unwrap();
@@ -440,7 +435,7 @@ fn a_monitor_run_is_gated_by_the_same_file() {
         "-o",
         file.to_str().unwrap(),
     ]);
-    assert!(out.status.success());
+    assert_eq!(out.code, Some(0));
     let (exit, v) = monitor(&["--expect", file.to_str().unwrap()]);
     assert_eq!(exit, Some(0), "{}", v["expectations"]["counts"]);
     assert_eq!(ids_marked(&v, "expected"), deviating);

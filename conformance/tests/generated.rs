@@ -4,16 +4,14 @@
 //! completion scripts the shells load.
 
 mod common;
-use common::Scratch;
+use common::{Run, Scratch};
 
 use std::collections::BTreeSet;
 
-use std::process::Command;
-
 fn conformance(args: &[&str]) -> String {
-    let o = Command::new(common::bin()).args(args).output().unwrap();
-    assert!(o.status.success(), "conformance {args:?}: {o:?}");
-    String::from_utf8_lossy(&o.stdout).into_owned()
+    let o = Run::new(args).run();
+    assert_eq!(o.code, Some(0), "conformance {args:?}: {o:?}");
+    o.stdout.clone()
 }
 
 /// The subcommands a `--help` lists under "Commands:" (without `help`).
@@ -75,17 +73,15 @@ fn every_subcommand_gets_a_man_page_that_man_renders() {
         common::runs("man", &["--version"]),
         "man (Debian package man-db)",
     ) {
-        let o = Command::new("man")
-            .arg("-l")
+        let o = Run::program("man", ["-l"])
             .arg(dir.join("conformance-check.1"))
             .env("MANPAGER", "cat")
             .env("MANWIDTH", "100")
-            .output()
-            .unwrap();
+            .run();
         // man justifies its lines: the words are compared, not the spaces.
-        let text = String::from_utf8_lossy(&o.stdout);
+        let text = o.stdout.as_str();
         let words = text.split_whitespace().collect::<Vec<_>>().join(" ");
-        assert!(o.status.success(), "{o:?}");
+        assert_eq!(o.code, Some(0), "{o:?}");
         assert!(
             words.contains("NAME conformance-check - Probe a real or simulated drive"),
             "{text}"
@@ -94,9 +90,9 @@ fn every_subcommand_gets_a_man_page_that_man_renders() {
 }
 
 fn bash(script: &str) -> String {
-    let o = Command::new("bash").arg("-c").arg(script).output().unwrap();
-    assert!(o.status.success(), "{script}: {o:?}");
-    String::from_utf8_lossy(&o.stdout).into_owned()
+    let o = Run::program("bash", ["-c", script]).run();
+    assert_eq!(o.code, Some(0), "{script}: {o:?}");
+    o.stdout
 }
 
 #[test]
@@ -144,10 +140,7 @@ fn the_bash_completion_loads_and_completes_subcommands_and_options() {
 
 #[test]
 fn completions_refuses_an_unknown_shell() {
-    let o = Command::new(common::bin())
-        .args(["completions", "tcsh"])
-        .output()
-        .unwrap();
-    assert_eq!(o.status.code(), Some(2));
-    assert!(String::from_utf8_lossy(&o.stderr).contains("possible values: bash"));
+    let o = Run::words("completions tcsh").run();
+    assert_eq!(o.code, Some(2));
+    assert!(o.stderr.contains("possible values: bash"));
 }

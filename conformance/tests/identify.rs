@@ -6,7 +6,9 @@
 //! checks of the model it identified.
 
 mod common;
-use common::{bin, pymodbus_serial_server, pymodbus_tcp_server, words, GatewaySim, Kill, Scratch};
+use common::{
+    bin, pymodbus_serial_server, pymodbus_tcp_server, words, GatewaySim, Kill, Run, Scratch,
+};
 
 use std::process::{Command, Stdio};
 use std::time::Duration;
@@ -252,23 +254,11 @@ fn check_model_auto_runs_the_checks_of_the_identified_model() {
         "no read past the end of the A510's group 0"
     );
     // Ambiguous or none: nothing is checked, exit 2.
-    let out = Command::new(bin())
-        .args([
-            "check",
-            "--sim",
-            "f510",
-            "--model",
-            "auto",
-            "--mode",
-            "rtu",
-            "--quirk",
-            "wrong-exception",
-            "--quiet",
-        ])
-        .output()
-        .unwrap();
-    assert_eq!(out.status.code(), Some(2));
-    let stderr = String::from_utf8_lossy(&out.stderr);
+    let out =
+        Run::words("check --sim f510 --model auto --mode rtu --quirk wrong-exception --quiet")
+            .run();
+    assert_eq!(out.code, Some(2));
+    let stderr = out.stderr.as_str();
     assert!(stderr.contains("none of the five"), "{stderr}");
     assert!(stderr.contains("nothing was checked"), "{stderr}");
     assert!(out.stdout.is_empty());

@@ -14,7 +14,7 @@
 
 mod common;
 use common::{
-    bin, check_device, need, pymodbus_tcp_server, python, report_of, GatewaySim, Peer, Run, Scratch,
+    check_device, need, pymodbus_tcp_server, python, report_of, GatewaySim, Peer, Run, Scratch,
 };
 
 use std::process::{Command, Stdio};
@@ -346,26 +346,15 @@ fn what_mbap_cannot_do_is_refused_with_a_reason() {
         ),
     ];
     for (args, want) in cases {
-        let o = Command::new(bin()).args(args).output().unwrap();
-        let err = String::from_utf8_lossy(&o.stderr);
-        assert_eq!(o.status.code(), Some(2), "{args:?}: {err}");
+        let o = Run::new(args).run();
+        let err = o.stderr.as_str();
+        assert_eq!(o.code, Some(2), "{args:?}: {err}");
         assert!(err.contains(want), "{args:?}: {err}");
     }
     // --unit without --framing: clap says what is missing.
-    let o = Command::new(bin())
-        .args([
-            "check",
-            "--model",
-            "f510",
-            "--tcp",
-            "127.0.0.1:1",
-            "--unit",
-            "3",
-        ])
-        .output()
-        .unwrap();
-    assert_eq!(o.status.code(), Some(2));
-    assert!(String::from_utf8_lossy(&o.stderr).contains("--framing"));
+    let o = Run::words("check --model f510 --tcp 127.0.0.1:1 --unit 3").run();
+    assert_eq!(o.code, Some(2));
+    assert!(o.stderr.contains("--framing"));
 }
 
 /// `scan --tcp --framing mbap` sweeps unit ids through the simulated gateway and finds the
@@ -375,18 +364,13 @@ fn what_mbap_cannot_do_is_refused_with_a_reason() {
 #[test]
 fn scan_through_mbap_finds_the_unit_behind_the_gateway() {
     let sim = GatewaySim::start("l510", 17, &["--gateway-timeout", "30"]);
-    let o = Command::new(bin())
-        .args(["scan", "--tcp", &sim.addr, "--framing", "mbap"])
+    let o = Run::words("scan --tcp")
+        .arg(&sim.addr)
+        .args(["--framing", "mbap"])
         .args(["--addresses", "10-20", "--format", "json", "-q"])
-        .output()
-        .unwrap();
-    let stdout = String::from_utf8_lossy(&o.stdout);
-    assert_eq!(
-        o.status.code(),
-        Some(0),
-        "{stdout}\n{}",
-        String::from_utf8_lossy(&o.stderr)
-    );
+        .run();
+    let stdout = o.stdout.as_str();
+    assert_eq!(o.code, Some(0), "{stdout}\n{}", o.stderr);
     let v: serde_json::Value = serde_json::from_str(&stdout).expect("scan JSON");
     let text = v.to_string();
     assert!(text.contains("\"address\":17"), "{text}");
@@ -424,18 +408,10 @@ fn scan_through_mbap_finds_the_unit_behind_the_gateway() {
     );
     assert!(!out.contains("unit 1)"), "{out}");
     // ASCII does not cross MBAP: refused with the reason.
-    let o = Command::new(bin())
-        .args([
-            "scan",
-            "--tcp",
-            &sim.addr,
-            "--framing",
-            "mbap",
-            "-m",
-            "ascii",
-        ])
-        .output()
-        .unwrap();
-    assert_eq!(o.status.code(), Some(2));
-    assert!(String::from_utf8_lossy(&o.stderr).contains("no ASCII over Modbus TCP"));
+    let o = Run::words("scan --tcp")
+        .arg(&sim.addr)
+        .args(["--framing", "mbap", "-m", "ascii"])
+        .run();
+    assert_eq!(o.code, Some(2));
+    assert!(o.stderr.contains("no ASCII over Modbus TCP"));
 }

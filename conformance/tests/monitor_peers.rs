@@ -25,7 +25,7 @@ use std::process::{Command, Stdio};
 use std::sync::mpsc;
 use std::time::Duration;
 
-use common::{bin, need, note, python, Kill, Peer, Scratch};
+use common::{bin, need, note, python, words, Kill, Peer, Run, Scratch};
 use serde_json::Value;
 
 /// A bus with a simulated F510 at node 1 (9600 8E1), an endpoint `master` for the
@@ -289,18 +289,12 @@ fn libmodbus_client(d: &Path) -> Option<PathBuf> {
 
 /// Runs `cmd` to its end (60 s at most): its stdout, which must come with exit 0 when
 /// `must_succeed`.
-fn run(cmd: &mut Command, must_succeed: bool) -> String {
-    let o = cmd.stdin(Stdio::null()).output().unwrap();
-    let out = String::from_utf8_lossy(&o.stdout).into_owned();
+fn run(cmd: Run, must_succeed: bool) -> String {
+    let o = cmd.timeout(Duration::from_secs(60)).run();
     if must_succeed {
-        assert!(
-            o.status.success(),
-            "{cmd:?}: {:?}\n{out}{}",
-            o.status,
-            String::from_utf8_lossy(&o.stderr)
-        );
+        assert_eq!(o.code, Some(0), "{o}");
     }
-    out
+    o.stdout
 }
 
 #[test]
@@ -311,12 +305,7 @@ fn mbpoll_polling_and_writing_is_heard_and_the_drive_passes() {
     let d = Scratch::new("mbpoll");
     let l = Listening::start(&d, &[]);
     let mbpoll = |args: &[&str]| {
-        let mut c = Command::new("mbpoll");
-        c.args([
-            "-m", "rtu", "-b", "9600", "-P", "even", "-a", "1", "-o", "2",
-        ])
-        .args(args);
-        c
+        Run::program("mbpoll", words("-m rtu -b 9600 -P even -a 1 -o 2")).args(args)
     };
     // mbpoll counts registers from 1: 9520 is 252FH, 9475 is 2502H.
     for _ in 0..3 {
@@ -349,7 +338,7 @@ fn pymodbus_polling_and_writing_is_heard_and_the_drive_passes() {
          c.close()\n",
         connect = pymodbus_connect(&l.master, "2", 0)
     );
-    let out = run(Command::new(python()).args(["-c", &script]), true);
+    let out = run(Run::program(python(), ["-c", &script]), true);
     assert_eq!(
         out.lines().collect::<Vec<_>>(),
         ["0x510", "0x510", "0x510", "0x4d2"]
@@ -376,7 +365,7 @@ fn minimalmodbus_polling_and_writing_is_heard_and_the_drive_passes() {
          print(hex(i.read_register(0x2502)))\n",
         port = l.master.to_str().unwrap()
     );
-    let out = run(Command::new(python()).args(["-c", &script]), true);
+    let out = run(Run::program(python(), ["-c", &script]), true);
     assert_eq!(
         out.lines().collect::<Vec<_>>(),
         ["0x510", "0x510", "0x510", "0x4d2"]
@@ -392,7 +381,7 @@ fn a_libmodbus_client_polling_and_writing_is_heard_and_the_drive_passes() {
         return;
     };
     let l = Listening::start(&d, &[]);
-    let out = run(Command::new(&client).arg(&l.master).args(["1", "3"]), true);
+    let out = run(Run::program(&client, [&l.master]).args(["1", "3"]), true);
     assert_eq!(
         out.lines().collect::<Vec<_>>(),
         [
@@ -426,7 +415,7 @@ fn replies_a_drive_drops_are_found_and_the_retries_of_the_master_counted() {
          c.close()\n",
         connect = pymodbus_connect(&l.master, "0.3", 2)
     );
-    let out = run(Command::new(python()).args(["-c", &script]), false);
+    let out = run(Run::program(python(), ["-c", &script]), false);
     // Every read gets its answer, at the first try or at a retry.
     assert_eq!(
         out.lines().collect::<Vec<_>>(),
@@ -467,21 +456,11 @@ fn replies_a_drive_drops_are_found_and_the_retries_of_the_master_counted() {
 fn a_master_sending_two_requests_without_t35_is_found() {
     let d = Scratch::new("burst");
     let l = Listening::start(&d, &[]);
-    let out = Command::new(bin())
-        .args([
-            "send", "--model", "f510", "--mode", "rtu", "--burst", "--port",
-        ])
+    let out = Run::words("send --model f510 --mode rtu --burst --port")
         .arg(&l.master)
         .args(["--timeout", "300", "0103252F0001BECF", "0103252F0001BECF"])
-        .stdin(Stdio::null())
-        .output()
-        .unwrap();
-    assert!(
-        out.status.code().is_some_and(|c| c < 2),
-        "send: {:?}\n{}",
-        out.status,
-        String::from_utf8_lossy(&out.stderr)
-    );
+        .run();
+    assert!(out.code.is_some_and(|c| c < 2), "send: {out}");
     let (code, r, lines, log) = l.stop(2);
     assert_eq!(code, 1, "{:#}\n{lines:#?}", r["summary"]);
     let master = findings(&r, "master");
@@ -510,21 +489,11 @@ fn a_collision_on_the_line_is_heard_as_damage() {
         &["-b", "2400"],
         &["--quirk", "answer-every-address@2"],
     );
-    let out = Command::new(bin())
-        .args([
-            "send", "--model", "f510", "--mode", "rtu", "-b", "2400", "--port",
-        ])
+    let out = Run::words("send --model f510 --mode rtu -b 2400 --port")
         .arg(&l.master)
         .args(["--timeout", "500", "0103252F0001BECF"])
-        .stdin(Stdio::null())
-        .output()
-        .unwrap();
-    assert!(
-        out.status.code().is_some_and(|c| c < 3),
-        "send: {:?}\n{}",
-        out.status,
-        String::from_utf8_lossy(&out.stderr)
-    );
+        .run();
+    assert!(out.code.is_some_and(|c| c < 3), "send: {out}");
     let (code, r, lines, log) = l.stop(1);
     let collision = log
         .iter()

@@ -5,10 +5,9 @@
 #![cfg(unix)]
 
 mod common;
-use common::Scratch;
+use common::{Run, Scratch};
 
 use std::path::Path;
-use std::process::Command;
 
 use conformance::capture::write::{Interface, PacketMeta, PcapngWriter};
 use conformance::capture::LINKTYPE_USER0;
@@ -86,12 +85,12 @@ fn polled_bus(path: &Path) {
 
 /// `conformance ARGS`, which must not panic or fail to run: its exit code and stdout.
 fn run(args: &[&str]) -> (i32, String) {
-    let o = Command::new(common::bin()).args(args).output().unwrap();
-    let err = String::from_utf8_lossy(&o.stderr);
+    let o = Run::new(args).run();
+    let err = o.stderr.as_str();
     assert!(!err.contains("panicked"), "{args:?}: {err}");
-    let code = o.status.code().unwrap_or(-1);
+    let code = o.code.unwrap_or(-1);
     assert!(code == 0 || code == 1, "{args:?} exited {code}: {err}");
-    (code, String::from_utf8_lossy(&o.stdout).into_owned())
+    (code, o.stdout.clone())
 }
 
 /// `monitor --capture-in CAP -a 1,2 -b 9600 -P even` writing its report to `out` (the

@@ -3,11 +3,11 @@
 //! the reports name the requirements each check verifies.
 
 mod common;
-use common::{words, Scratch};
+use common::{words, Run, Scratch};
 
 use std::collections::BTreeSet;
 use std::path::PathBuf;
-use std::process::Command;
+
 use std::time::Duration;
 
 use conformance::requirements::trace::{self, Coverage, Universe};
@@ -154,12 +154,8 @@ fn a_requirement_without_a_check_says_why() {
 }
 
 fn conformance(args: &[&str]) -> (i32, String, String) {
-    let o = Command::new(common::bin()).args(args).output().unwrap();
-    (
-        o.status.code().unwrap_or(-1),
-        String::from_utf8_lossy(&o.stdout).into_owned(),
-        String::from_utf8_lossy(&o.stderr).into_owned(),
-    )
+    let o = Run::new(args).run();
+    (o.code.unwrap_or(-1), o.stdout.clone(), o.stderr.clone())
 }
 
 #[test]

@@ -4,7 +4,7 @@
 //! changed; reports validate against their schema; the command line's exit codes.
 
 mod common;
-use common::{bin, free_port, wait_listening, Kill, Scratch};
+use common::{bin, free_port, wait_listening, Kill, Run, Scratch};
 
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
@@ -309,12 +309,7 @@ fn a_lost_link_ends_the_run_with_an_error_and_a_whole_report() {
 #[test]
 fn the_command_line_gives_exit_codes_and_every_format() {
     let dir = Scratch::new("runner-cli");
-    let out = |args: &[&str]| {
-        std::process::Command::new(bin())
-            .args(args)
-            .output()
-            .unwrap()
-    };
+    let out = |args: &[&str]| Run::new(args).run();
     // Clean: exit 0; JUnit parses with one test case per check.
     let xml = dir.join("r.xml");
     let o = out(&[
@@ -330,12 +325,7 @@ fn the_command_line_gives_exit_codes_and_every_format() {
         "-o",
         xml.to_str().unwrap(),
     ]);
-    assert_eq!(
-        o.status.code(),
-        Some(0),
-        "{}",
-        String::from_utf8_lossy(&o.stderr)
-    );
+    assert_eq!(o.code, Some(0), "{}", o.stderr);
     let text = std::fs::read_to_string(&xml).unwrap();
     let doc = roxmltree::Document::parse(&text).unwrap();
     let cases = doc
@@ -358,8 +348,8 @@ fn the_command_line_gives_exit_codes_and_every_format() {
         "--format",
         "junit",
     ]);
-    assert_eq!(o.status.code(), Some(1));
-    let text = String::from_utf8(o.stdout).unwrap();
+    assert_eq!(o.code, Some(1));
+    let text = o.stdout;
     let doc = roxmltree::Document::parse(&text).unwrap();
     assert_eq!(
         doc.descendants()
@@ -378,7 +368,7 @@ fn the_command_line_gives_exit_codes_and_every_format() {
         "--only",
         "rtu.function.04",
     ]);
-    let text = String::from_utf8(o.stdout).unwrap();
+    let text = o.stdout;
     assert!(
         text.lines()
             .nth(1)
@@ -408,22 +398,22 @@ fn the_command_line_gives_exit_codes_and_every_format() {
         "--format",
         "json",
     ]);
-    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    let v: serde_json::Value = serde_json::from_slice(&o.bytes).unwrap();
     assert!(schema().is_valid(&v));
     assert_eq!(v["checks"][0]["id"], "ascii.preflight");
     assert_eq!(v["checks"][1]["status"], "observation");
     // Bad arguments: exit 2 with a message.
     let o = out(&["check", "--sim", "f999"]);
-    assert_eq!(o.status.code(), Some(2));
-    assert!(String::from_utf8_lossy(&o.stderr).contains("unknown model"));
+    assert_eq!(o.code, Some(2));
+    assert!(o.stderr.contains("unknown model"));
     // A pattern that selects nothing is an error, not an empty pass.
     let o = out(&["check", "--sim", "f510", "--only", "no-such-check"]);
-    assert_eq!(o.status.code(), Some(2));
-    assert!(String::from_utf8_lossy(&o.stderr).contains("no check matches"));
+    assert_eq!(o.code, Some(2));
+    assert!(o.stderr.contains("no check matches"));
     // --list runs nothing and names every check.
     let o = out(&["check", "--sim", "l510", "--list"]);
-    assert_eq!(o.status.code(), Some(0));
-    assert!(String::from_utf8_lossy(&o.stdout).contains("rtu.identification"));
+    assert_eq!(o.code, Some(0));
+    assert!(o.stdout.contains("rtu.identification"));
 }
 
 /// A link on which this host stalls while pacing some requests (issue 24): a request it

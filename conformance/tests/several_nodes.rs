@@ -6,7 +6,7 @@
 //! wrote (mbpoll, minimalmodbus) against the simulated bus.
 
 mod common;
-use common::{words, Kill, Scratch};
+use common::{words, Kill, Run, Scratch};
 
 use std::collections::BTreeMap;
 use std::process::{Command, Stdio};
@@ -205,29 +205,31 @@ fn a_dead_node_ends_its_own_section_only() {
 
 #[test]
 fn lists_and_refusals() {
-    let run = |args: &[&str]| Command::new(common::bin()).args(args).output().unwrap();
+    let run = |args: &[&str]| Run::new(args).run();
     let o = run(&["fuzz", "--sim", "f510", "-a", "1,2", "--cases", "1"]);
-    assert_eq!(o.status.code(), Some(2));
+    assert_eq!(o.code, Some(2));
     assert!(
-        String::from_utf8_lossy(&o.stderr).contains("several drives on one bus are for `check`"),
+        o.stderr
+            .as_str()
+            .contains("several drives on one bus are for `check`"),
         "{}",
-        String::from_utf8_lossy(&o.stderr)
+        o.stderr
     );
     let o = run(&words("check --sim f510 -a 1,2 --other-address 2"));
-    assert_eq!(o.status.code(), Some(2));
-    assert!(String::from_utf8_lossy(&o.stderr).contains("--other-address"));
+    assert_eq!(o.code, Some(2));
+    assert!(o.stderr.contains("--other-address"));
     let o = run(&words(
         "check --sim f510 -a 1,2 --quirk dead@3 --only identification",
     ));
-    assert_eq!(o.status.code(), Some(2));
+    assert_eq!(o.code, Some(2));
     assert!(
-        String::from_utf8_lossy(&o.stderr).contains("node 3 is not on the bus"),
+        o.stderr.contains("node 3 is not on the bus"),
         "{}",
-        String::from_utf8_lossy(&o.stderr)
+        o.stderr
     );
     let o = run(&["check", "--sim", "f510", "-a", "1,1"]);
-    assert_eq!(o.status.code(), Some(2));
-    assert!(String::from_utf8_lossy(&o.stderr).contains("twice"));
+    assert_eq!(o.code, Some(2));
+    assert!(o.stderr.contains("twice"));
 }
 
 /// pymodbus's serial server with nodes 1 and 2 (each its own registers), checked as a bus
@@ -370,19 +372,12 @@ fn foreign_masters_see_three_drives_on_the_simulated_bus() {
     let port = link.to_str().unwrap();
     // mbpoll [options] PORT [values to write]
     let mbpoll = |args: &[&str], values: &[&str]| {
-        let o = Command::new("mbpoll")
-            .args([
-                "-m", "rtu", "-b", "9600", "-P", "even", "-t", "4:hex", "-1", "-o", "0.5",
-            ])
+        let o = Run::program("mbpoll", words("-m rtu -b 9600 -P even -t 4:hex -1 -o 0.5"))
             .args(args)
             .arg(port)
             .args(values)
-            .output()
-            .unwrap();
-        (
-            o.status.code(),
-            String::from_utf8_lossy(&o.stdout).to_string(),
-        )
+            .run();
+        (o.code, o.stdout)
     };
     // Write 1234H to the frequency command (2502H, mbpoll counts from 1: 9475) of node 2.
     let (code, out) = mbpoll(&["-a", "2", "-r", "9475"], &["0x1234"]);
@@ -419,16 +414,9 @@ fn foreign_masters_see_three_drives_on_the_simulated_bus() {
          except minimalmodbus.NoResponseError:\n\
          \x20   print('3 silent')\n"
     );
-    let o = Command::new(common::python())
-        .args(["-c", &script])
-        .output()
-        .unwrap();
-    let out = String::from_utf8_lossy(&o.stdout);
-    assert!(
-        o.status.success(),
-        "{out}{}",
-        String::from_utf8_lossy(&o.stderr)
-    );
+    let o = Run::program(common::python(), ["-c", &script]).run();
+    let out = o.stdout.as_str();
+    assert_eq!(o.code, Some(0), "{out}{}", o.stderr);
     assert_eq!(
         out.lines().collect::<Vec<_>>(),
         ["1 0x510 0x0", "2 0x510 0x1234", "5 0x510 0x0", "3 silent"],
@@ -489,13 +477,11 @@ fn several_nodes_through_a_modbus_tcp_gateway() {
     assert_eq!(exit, Some(0), "{}", v["summary"]);
     // Behind a gateway the serial line's timing is not ours to bound.
     assert_eq!(v["budget"]["rtu"]["bound_ms"], 0.0);
-    let text = Command::new(common::bin())
-        .arg("report")
+    let text = Run::words("report")
         .arg(Scratch::new("mbap-sim").join("check.json"))
         .args(["--format", "text"])
-        .output()
-        .unwrap();
-    let text = String::from_utf8_lossy(&text.stdout);
+        .run();
+    let text = text.stdout.as_str();
     assert!(
         text.contains("no line bound: the serial line is behind a gateway"),
         "{text}"
@@ -513,19 +499,10 @@ fn several_nodes_through_a_modbus_tcp_gateway() {
     // gateway's exception 0BH.
     if common::need(common::Peer::Mbpoll) {
         let poll = |unit: &str| {
-            let o = Command::new("mbpoll")
-                .args([
-                    "-m", "tcp", "-p", &port, "-a", unit, "-t", "4:hex", "-r", "9505", "-1", "-o",
-                    "1",
-                ])
-                .arg("127.0.0.1")
-                .output()
-                .unwrap();
-            (
-                o.status.code(),
-                String::from_utf8_lossy(&o.stdout).to_string()
-                    + &String::from_utf8_lossy(&o.stderr),
-            )
+            let o = Run::program("mbpoll", ["-m", "tcp", "-p", &port, "-a", unit])
+                .args(words("-t 4:hex -r 9505 -1 -o 1 127.0.0.1"))
+                .run();
+            (o.code, o.text())
         };
         for unit in ["1", "2"] {
             let (code, out) = poll(unit);
@@ -539,24 +516,12 @@ fn several_nodes_through_a_modbus_tcp_gateway() {
             out.lines().last().unwrap_or("")
         );
     }
-    let o = Command::new(common::bin())
-        .args([
-            "check",
-            "--model",
-            "f510",
-            "--tcp",
-            &addr,
-            "--framing",
-            "mbap",
-            "-a",
-            "1,2",
-            "--unit",
-            "4",
-        ])
-        .output()
-        .unwrap();
-    assert_eq!(o.status.code(), Some(2));
-    assert!(String::from_utf8_lossy(&o.stderr).contains("leave --unit out"));
+    let o = Run::words("check --model f510 --tcp")
+        .arg(&addr)
+        .args(["--framing", "mbap", "-a", "1,2", "--unit", "4"])
+        .run();
+    assert_eq!(o.code, Some(2));
+    assert!(o.stderr.contains("leave --unit out"));
 
     let Some((_server, addr)) = common::pymodbus_tcp_units("1,2") else {
         return;
@@ -651,31 +616,18 @@ fn scan_finds_every_node_of_a_simulated_bus() {
         "rtu",
         &["-b", "9600", "-P", "even"],
     );
-    let o = Command::new(common::bin())
-        .args([
-            "scan", "--port", &pty, "-b", "9600", "-P", "even", "--mode", "rtu",
-        ])
+    let o = Run::words("scan --port")
+        .arg(&pty)
+        .args(words("-b 9600 -P even --mode rtu"))
         // A wide reply window: tests run side by side on 2 cores, and a simulator
         // thread scheduled late must not look like a missing drive (the default window's
         // slack on a pseudo-terminal is 5 ms).
-        .args([
-            "--addresses",
-            "1-6",
-            "--reply-window",
-            "150",
-            "--format",
-            "json",
-            "--quiet",
-        ])
-        .output()
-        .unwrap();
-    assert_eq!(
-        o.status.code(),
-        Some(0),
-        "{}",
-        String::from_utf8_lossy(&o.stderr)
-    );
-    let v: Value = serde_json::from_slice(&o.stdout).unwrap();
+        .args(words(
+            "--addresses 1-6 --reply-window 150 --format json --quiet",
+        ))
+        .run();
+    assert_eq!(o.code, Some(0), "{}", o.stderr);
+    let v: Value = serde_json::from_slice(&o.bytes).unwrap();
     let found: Vec<u64> = v["found"]
         .as_array()
         .unwrap_or_else(|| panic!("{v}"))

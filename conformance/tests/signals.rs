@@ -153,14 +153,12 @@ fn sigterm_ends_the_simulator_and_removes_its_link() {
         PathBuf::from(first.trim())
     );
     // It serves through the link.
-    let sent = Command::new(bin())
-        .args(["send", "--model", "f510", "--mode", "rtu", "--port"])
+    let sent = Run::words("send --model f510 --mode rtu --port")
         .arg(&link)
         .arg("01 03 25 20 00 01 8E CC")
-        .output()
-        .unwrap();
-    let said = String::from_utf8_lossy(&sent.stdout);
-    assert_eq!(sent.status.code(), Some(0), "{said}");
+        .run();
+    let said = sent.stdout.as_str();
+    assert_eq!(sent.code, Some(0), "{said}");
     assert!(said.contains("device: node 01 03 read response"), "{said}");
     term(&sim);
     let status = sim.wait_within(Duration::from_secs(30), "simulate after SIGTERM");
@@ -399,8 +397,8 @@ fn sigterm_ends_monitor_and_bus_each_in_its_own_words() {
 /// of command does then and its exit code.
 #[test]
 fn the_help_says_what_each_long_command_does_when_stopped() {
-    let o = Command::new(bin()).arg("--help").output().unwrap();
-    let help = String::from_utf8_lossy(&o.stdout);
+    let o = Run::words("--help").run();
+    let help = o.stdout.as_str();
     let at = help
         .find("Ctrl-C, SIGTERM and SIGHUP")
         .expect("no word on signals");

@@ -17,7 +17,7 @@
 //! (SIGSTOP) simulator give exit 2 and no PASS.
 
 mod common;
-use common::{bin, sim_pty, Kill, Scratch};
+use common::{bin, sim_pty, Kill, Run, Scratch};
 
 use std::collections::{BTreeMap, BTreeSet};
 use std::sync::{Arc, Mutex};
@@ -534,14 +534,9 @@ fn parallel<T: Send + 'static>(
 }
 
 fn check(args: &[&str]) -> (Option<i32>, serde_json::Value) {
-    let o = std::process::Command::new(bin())
-        .args(["check", "--format", "json", "-q"])
-        .args(args)
-        .output()
-        .unwrap();
-    let v = serde_json::from_slice(&o.stdout)
-        .unwrap_or_else(|e| panic!("{e}: {}", String::from_utf8_lossy(&o.stderr)));
-    (o.status.code(), v)
+    let o = Run::words("check --format json -q").args(args).run();
+    let v = serde_json::from_slice(&o.bytes).unwrap_or_else(|e| panic!("{e}: {}", o.stderr));
+    (o.code, v)
 }
 
 fn passes(v: &serde_json::Value) -> usize {

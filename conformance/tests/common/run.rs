@@ -246,3 +246,11 @@ pub fn words(line: &str) -> Vec<&str> {
 pub fn run_bounded(args: &[&str], limit: Duration) -> (Option<i32>, String, String) {
     Run::new(args).timeout(limit).run().parts()
 }
+
+/// As [`Display`](std::fmt::Display): the command, its exit and both outputs, for `{o:?}`
+/// in a failure message.
+impl std::fmt::Debug for Ran {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        std::fmt::Display::fmt(self, f)
+    }
+}
