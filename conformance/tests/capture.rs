@@ -8,7 +8,7 @@
 mod common;
 
 use std::path::{Path, PathBuf};
-use std::process::Command;
+
 use std::sync::OnceLock;
 
 use common::{need, words, Peer, Run, TSHARK_USER_DLT as USER_DLT};
@@ -617,8 +617,8 @@ fn a_simulator_killed_mid_run_leaves_a_whole_capture_seen_from_the_drive() {
     use std::io::{BufRead, BufReader};
     let d = dir();
     let cap = d.join("simulate.pcapng");
-    let mut sim = Command::new(common::bin())
-        .args(["simulate", "--pty", "--pace", "--quiet", "--capture"])
+    let mut sim = Run::words("simulate --pty --pace --quiet --capture")
+        .command()
         .arg(&cap)
         .stdout(std::process::Stdio::piped())
         .stderr(std::process::Stdio::null())
@@ -658,8 +658,8 @@ fn a_bus_capture_holds_each_endpoints_frames_on_its_own_interface() {
     let d = dir();
     let cap = d.join("bus.pcapng");
     let link = d.join("bus-master");
-    let mut bus = Command::new(common::bin())
-        .args(["bus", "--model", "f510", "-a", "1", "--quiet", "--link"])
+    let mut bus = Run::words("bus --model f510 -a 1 --quiet --link")
+        .command()
         .arg(format!("m={}", link.display()))
         .arg("--capture")
         .arg(&cap)
@@ -729,8 +729,8 @@ fn a_monitor_on_a_bus_records_what_the_line_carried_and_tshark_decodes_it() {
     let line_cap = d.join("tap-line.pcapng");
     let tap_cap = d.join("tap.pcapng");
     let (m, tap) = (d.join("tap-master"), d.join("tap-tap"));
-    let mut bus = Command::new(common::bin())
-        .args(["bus", "--model", "f510", "-a", "1", "--quiet", "--link"])
+    let mut bus = Run::words("bus --model f510 -a 1 --quiet --link")
+        .command()
         .arg(format!("m={}", m.display()))
         .arg("--link")
         .arg(format!("tap={}", tap.display()))
@@ -744,19 +744,8 @@ fn a_monitor_on_a_bus_records_what_the_line_carried_and_tshark_decodes_it() {
     for _ in 0..2 {
         lines.next().unwrap().unwrap();
     }
-    let mut monitor = Command::new(common::bin())
-        .args([
-            "monitor",
-            "--model",
-            "f510",
-            "-a",
-            "1",
-            "-b",
-            "9600",
-            "--duration",
-            "8",
-            "--port",
-        ])
+    let mut monitor = Run::words("monitor --model f510 -a 1 -b 9600 --duration 8 --port")
+        .command()
         .arg(&tap)
         .arg("--capture")
         .arg(&tap_cap)
@@ -1053,8 +1042,9 @@ fn a_simulator_served_over_tcp_records_what_it_received_and_sent() {
         let port = common::free_port();
         let addr = format!("127.0.0.1:{port}");
         let _sim = common::Kill::spawn(
-            Command::new(common::bin())
-                .args(["simulate", "--model", "f510", "-q", "--tcp", &addr])
+            Run::words("simulate --model f510 -q --tcp")
+                .arg(&addr)
+                .command()
                 .args(["--framing", framing, "--capture"])
                 .arg(&cap)
                 .stdin(std::process::Stdio::null())
@@ -1142,8 +1132,8 @@ fn a_bus_a_tap_and_a_check_capture_of_one_run_are_judged_alike() {
     let d = dir().join("alike");
     std::fs::create_dir_all(&d).unwrap();
     let (m, tap) = (d.join("m"), d.join("tap"));
-    let mut bus = Command::new(common::bin())
-        .args(["bus", "--model", "f510", "-a", "1,2", "--quiet", "--link"])
+    let mut bus = Run::words("bus --model f510 -a 1,2 --quiet --link")
+        .command()
         .arg(format!("m={}", m.display()))
         .arg("--link")
         .arg(format!("tap={}", tap.display()))
@@ -1157,8 +1147,8 @@ fn a_bus_a_tap_and_a_check_capture_of_one_run_are_judged_alike() {
     for _ in 0..2 {
         lines.next().unwrap().unwrap();
     }
-    let mut monitor = Command::new(common::bin())
-        .args(["monitor", "--model", "f510", "-a", "1,2", "-b", "9600"])
+    let mut monitor = Run::words("monitor --model f510 -a 1,2 -b 9600")
+        .command()
         .args(["--duration", "10", "--port"])
         .arg(&tap)
         .arg("--capture")
@@ -1257,8 +1247,8 @@ fn a_check_whose_host_stalls_keeps_its_requests_whole_and_its_capture_agrees() {
         d.join("run.json"),
         d.join("heard.jsonl"),
     );
-    let mut check = Command::new(common::bin())
-        .args(["check", "--sim", "f510", "--mode", "rtu", "--quiet"])
+    let mut check = Run::words("check --sim f510 --mode rtu --quiet")
+        .command()
         .args(["--only", "rtu.map.group-2*", "--capture"])
         .arg(&cap)
         .args(["--format", "json", "-o"])

@@ -17,12 +17,12 @@ mod common;
 use std::collections::BTreeMap;
 use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
-use std::process::{Command, Stdio};
+use std::process::Stdio;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-use common::{need, note, Peer, Run, Scratch, TSHARK_USER_DLT};
+use common::{need, note, words, Peer, Run, Scratch, TSHARK_USER_DLT};
 use serde_json::Value;
 
 /// How close a finding's time must be to the fault's (the monitor's time of a frame is
@@ -51,7 +51,7 @@ struct Judged {
 fn synth(dir: &Path, duration: &str, seed: u64) -> (PathBuf, Value, f64) {
     let cap = dir.join(format!("day-{duration}.pcapng"));
     let t0 = Instant::now();
-    let out = Run::words("capture synth --duration")
+    let out = Run::program(bin(), ["capture", "synth", "--duration"])
         .arg(duration)
         .args(["--baud", "115200"])
         .args([
@@ -79,8 +79,8 @@ fn synth(dir: &Path, duration: &str, seed: u64) -> (PathBuf, Value, f64) {
 fn judge(dir: &Path, cap: &Path, limit: Duration) -> (Value, Vec<Value>, f64, i64) {
     let report = dir.join("day.json");
     let t0 = Instant::now();
-    let mut child = Command::new(bin())
-        .args(["monitor", "--model", "f510", "-b", "115200", "--capture-in"])
+    let mut child = Run::program(bin(), words("monitor --model f510 -b 115200 --capture-in"))
+        .command()
         .arg(cap)
         .args(["--log", "/dev/stdout", "--quiet", "--format", "json", "-o"])
         .arg(&report)

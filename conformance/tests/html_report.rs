@@ -93,7 +93,7 @@ fn runs(d: &Path) -> [(PathBuf, Value, Option<i32>); 2] {
 
 #[test]
 fn html_csv_and_diff_of_a_clean_and_a_quirky_run() {
-    let d = Scratch::new("runs");
+    let d = Scratch::kept("runs");
     let [(clean_json, clean, clean_code), (quirk_json, quirk, quirk_code)] = runs(&d);
     // The clean simulator has no deviations of its own; on a loaded host a timing check
     // may still find one, so the test asserts what the quirk adds.

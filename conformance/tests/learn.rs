@@ -460,8 +460,10 @@ fn learn_interrupted_writes_the_draft_so_far() {
     let out = dir.path().join("draft.json");
     // The whole range: far longer than the wait below.
     let mut child = common::Kill::spawn(
-        std::process::Command::new(common::bin())
-            .args(["model", "learn", "--port", &port, "-q"])
+        Run::words("model learn --port")
+            .arg(&port)
+            .arg("-q")
+            .command()
             .args(F510_LINE)
             .arg("-o")
             .arg(&out)

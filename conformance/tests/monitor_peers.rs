@@ -100,8 +100,8 @@ impl Listening {
         });
         let report = d.join("monitor.json");
         let mut monitor = Kill::spawn(
-            Command::new(bin())
-                .args(["monitor", "--model", "f510"])
+            Run::words("monitor --model f510")
+                .command()
                 // The bus's line is given (the search without -b has its own test).
                 .args(if monitor.contains(&"-b") {
                     &[][..]

@@ -4,7 +4,7 @@
 //! changed; reports validate against their schema; the command line's exit codes.
 
 mod common;
-use common::{bin, free_port, wait_listening, Kill, Run, Scratch};
+use common::{free_port, wait_listening, Run, Scratch};
 
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
@@ -265,10 +265,12 @@ fn an_interrupted_run_is_reported_incomplete_and_restores_what_it_changed() {
 #[test]
 fn a_lost_link_ends_the_run_with_an_error_and_a_whole_report() {
     let addr = format!("127.0.0.1:{}", free_port());
-    let child = Arc::new(std::sync::Mutex::new(Kill::spawn(
-        std::process::Command::new(bin())
-            .args(["simulate", "--model", "l510", "--tcp", &addr, "-q"]),
-    )));
+    let child = Arc::new(std::sync::Mutex::new(
+        Run::words("simulate --model l510 --tcp")
+            .arg(&addr)
+            .arg("-q")
+            .spawn(),
+    ));
     wait_listening(&addr, Duration::from_secs(10));
     thread::sleep(Duration::from_millis(100));
     let c = SessionConfig {

@@ -9,7 +9,7 @@ mod common;
 use common::{words, Kill, Run, Scratch};
 
 use std::collections::BTreeMap;
-use std::process::{Command, Stdio};
+use std::process::Stdio;
 use std::time::Duration;
 
 use serde_json::Value;
@@ -359,10 +359,8 @@ fn foreign_masters_see_three_drives_on_the_simulated_bus() {
     let d = Scratch::new("masters");
     let link = d.join("bus");
     let _sim = Kill(
-        Command::new(common::bin())
-            .args([
-                "simulate", "--model", "f510", "--pty", "--quiet", "-a", "1,2,5", "--link",
-            ])
+        Run::words("simulate --model f510 --pty --quiet -a 1,2,5 --link")
+            .command()
             .arg(&link)
             .stdout(Stdio::null())
             .spawn()
@@ -443,19 +441,9 @@ fn several_nodes_through_a_modbus_tcp_gateway() {
     let port = common::free_port().to_string();
     let addr = format!("127.0.0.1:{port}");
     let _sim = Kill(
-        Command::new(common::bin())
-            .args([
-                "simulate",
-                "--model",
-                "f510",
-                "--quiet",
-                "-a",
-                "1,2",
-                "--framing",
-                "mbap",
-                "--tcp",
-                &addr,
-            ])
+        Run::words("simulate --model f510 --quiet -a 1,2 --framing mbap --tcp")
+            .arg(&addr)
+            .command()
             .stdout(Stdio::null())
             .spawn()
             .unwrap(),

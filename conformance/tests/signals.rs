@@ -137,8 +137,8 @@ fn sigterm_ends_the_simulator_and_removes_its_link() {
     let d = Scratch::new("simulate");
     let link = d.join("drive");
     let mut sim = Kill::spawn(
-        Command::new(bin())
-            .args(["simulate", "--model", "f510", "--pty", "--link"])
+        Run::words("simulate --model f510 --pty --link")
+            .command()
             .arg(&link)
             .stdout(Stdio::piped())
             .stderr(Stdio::piped()),
@@ -185,8 +185,8 @@ fn the_simulator_replaces_a_stale_link_but_never_a_file() {
     let link = d.join("drive");
     std::os::unix::fs::symlink("/dev/pts/nonexistent", &link).unwrap();
     let mut sim = Kill::spawn(
-        Command::new(bin())
-            .args(["simulate", "--pty", "-q", "--link"])
+        Run::words("simulate --pty -q --link")
+            .command()
             .arg(&link)
             .stdout(Stdio::piped())
             .stderr(Stdio::null()),
@@ -284,8 +284,8 @@ fn sigterm_ends_a_scan_with_the_tries_made() {
     // One drive at an address the scan reaches late; its traffic log on stderr shows
     // when the scan's requests arrive.
     let mut sim = Kill::spawn(
-        Command::new(bin())
-            .args(["simulate", "--model", "f510", "--pty", "-a", "200"])
+        Run::words("simulate --model f510 --pty -a 200")
+            .command()
             .stdout(Stdio::piped())
             .stderr(Stdio::piped()),
     );
@@ -321,8 +321,8 @@ fn sigterm_ends_monitor_and_bus_each_in_its_own_words() {
     let d = Scratch::new("monitor-bus");
     let (master, tap) = (d.join("master"), d.join("tap"));
     let mut bus = Kill::spawn(
-        Command::new(bin())
-            .args(["bus", "-q", "--link"])
+        Run::words("bus -q --link")
+            .command()
             .arg(format!("master={}", master.display()))
             .arg("--link")
             .arg(format!("tap={}", tap.display()))
@@ -338,10 +338,8 @@ fn sigterm_ends_monitor_and_bus_each_in_its_own_words() {
 
     let report = d.join("monitor.json");
     let mut monitor = Kill::spawn(
-        Command::new(bin())
-            .args([
-                "monitor", "--model", "f510", "-a", "1", "--mode", "rtu", "-b", "9600",
-            ])
+        Run::words("monitor --model f510 -a 1 --mode rtu -b 9600")
+            .command()
             .args(["-P", "even", "--format", "json", "-o"])
             .arg(&report)
             .arg("--port")

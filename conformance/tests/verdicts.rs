@@ -17,7 +17,7 @@
 //! (SIGSTOP) simulator give exit 2 and no PASS.
 
 mod common;
-use common::{bin, sim_pty, Kill, Run, Scratch};
+use common::{sim_pty, Kill, Run, Scratch};
 
 use std::collections::{BTreeMap, BTreeSet};
 use std::sync::{Arc, Mutex};
@@ -593,10 +593,9 @@ fn a_device_frozen_mid_run_ends_the_run() {
     let dir = Scratch::new("freeze");
     let report = dir.join("report.json");
     let mut run = Kill(
-        std::process::Command::new(bin())
-            .args([
-                "check", "--format", "json", "-q", "--model", "l510", "--port", &pty,
-            ])
+        Run::words("check --format json -q --model l510 --port")
+            .arg(&pty)
+            .command()
             .args(["-P", "none", "--mode", "rtu", "--timeout", "300", "-o"])
             .arg(&report)
             .stdout(std::process::Stdio::null())

@@ -11,7 +11,9 @@ use std::io::{BufRead, BufReader};
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
-use common::{bin, need, run_bounded, runs, tool_or_skip, words, GatewaySim, Kill, Peer, Scratch};
+use common::{
+    bin, need, run_bounded, runs, tool_or_skip, words, GatewaySim, Kill, Peer, Run, Scratch,
+};
 use nix::sys::signal::{kill, Signal};
 use nix::unistd::Pid;
 
@@ -244,16 +246,8 @@ fn only_reads_go_out() {
 #[test]
 fn sigterm_ends_with_the_summary_and_exit_0() {
     let mut child = Kill::spawn(
-        Command::new(bin())
-            .args([
-                "watch",
-                "--sim",
-                "f510",
-                "--format",
-                "csv",
-                "--interval",
-                "50ms",
-            ])
+        Run::words("watch --sim f510 --format csv --interval 50ms")
+            .command()
             .stdout(Stdio::piped())
             .stderr(Stdio::piped()),
     );
@@ -273,8 +267,10 @@ fn sigterm_ends_with_the_summary_and_exit_0() {
 fn a_link_that_fails_ends_the_watch_with_its_summary_and_exit_2() {
     let (mut sim, port) = common::sim_pty(&["--model", "f510"]);
     let mut child = Kill::spawn(
-        Command::new(bin())
-            .args(["watch", "--model", "f510", "--port", &port, "-P", "even"])
+        Run::words("watch --model f510 --port")
+            .arg(&port)
+            .args(["-P", "even"])
+            .command()
             .args(["--format", "csv", "--interval", "50ms", "2520H"])
             .stdout(Stdio::piped())
             .stderr(Stdio::piped()),
@@ -301,16 +297,10 @@ fn a_value_another_master_writes_is_marked_changed() {
     // the watch reads, `send` writes 2502H <- 1194H meanwhile.
     let sim = GatewaySim::start("f510", 1, &[]);
     let mut child = Kill::spawn(
-        Command::new(bin())
-            .args([
-                "watch",
-                "--model",
-                "f510",
-                "--tcp",
-                &sim.addr,
-                "--framing",
-                "mbap",
-            ])
+        Run::words("watch --model f510 --tcp")
+            .arg(&sim.addr)
+            .args(["--framing", "mbap"])
+            .command()
             .args(["--format", "jsonl", "--interval", "50ms", "2502H"])
             .stdout(Stdio::piped())
             .stderr(Stdio::piped()),

@@ -115,6 +115,12 @@ impl Run {
         self.cmd
     }
 
+    /// Starts the program in the background under a [`Kill`] guard, its stdin, stdout
+    /// and stderr this process's (as [`Command::spawn`] leaves them).
+    pub fn spawn(mut self) -> Kill {
+        Kill::spawn(&mut self.cmd)
+    }
+
     /// Runs the program to its end (a run past its bound is killed and fails the test; so
     /// does a panic of `conformance`) and returns what it left.
     pub fn run(mut self) -> Ran {

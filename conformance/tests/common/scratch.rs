@@ -4,22 +4,31 @@
 use std::path::{Path, PathBuf};
 
 /// A folder under the system's temporary folder named for the test binary, the test's
-/// own `name` and this process, removed on drop unless the thread is panicking.
-pub struct Scratch(PathBuf);
+/// own `name` and this process, removed on drop unless the thread is panicking (or it
+/// was made to be [`kept`](Scratch::kept)).
+pub struct Scratch(PathBuf, bool);
 
 impl Scratch {
     /// A fresh, empty `<tmp>/conformance-<binary>-<name>-<pid>` (what an earlier run left
     /// there is removed first).
     pub fn new(name: &str) -> Scratch {
-        let binary = super::test_name();
-        let binary = binary.split("::").next().unwrap_or("test");
         let d = std::env::temp_dir().join(format!(
-            "conformance-{binary}-{name}-{}",
+            "conformance-{}-{name}-{}",
+            binary(),
             std::process::id()
         ));
         let _ = std::fs::remove_dir_all(&d);
         std::fs::create_dir_all(&d).unwrap_or_else(|e| panic!("cannot make {}: {e}", d.display()));
-        Scratch(d)
+        Scratch(d, false)
+    }
+
+    /// A fresh, empty `target/tmp/<binary>-<name>` that stays after the test, for what a
+    /// person looks at after the run (a screenshot); the next run empties it.
+    pub fn kept(name: &str) -> Scratch {
+        let d = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join(format!("{}-{name}", binary()));
+        let _ = std::fs::remove_dir_all(&d);
+        std::fs::create_dir_all(&d).unwrap_or_else(|e| panic!("cannot make {}: {e}", d.display()));
+        Scratch(d, true)
     }
 
     /// The folder.
@@ -49,10 +58,19 @@ impl AsRef<std::ffi::OsStr> for Scratch {
 
 impl Drop for Scratch {
     fn drop(&mut self) {
+        if self.1 {
+            return;
+        }
         if std::thread::panicking() {
             super::note(&format!("kept for a look: {}", self.0.display()));
         } else {
             let _ = std::fs::remove_dir_all(&self.0);
         }
     }
+}
+
+/// The test binary's name (`capture` for tests/capture.rs).
+fn binary() -> String {
+    let test = super::test_name();
+    test.split("::").next().unwrap_or("test").to_string()
 }
