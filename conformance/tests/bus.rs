@@ -19,7 +19,7 @@ use std::process::{Command, Stdio};
 
 use std::time::{Duration, Instant};
 
-use common::{need, need_all, python, terminate, Bus, Kill, Peer, Run, Scratch};
+use common::{line, need, need_all, python, terminate, Bus, Kill, Peer, Run, Scratch};
 use serde_json::Value;
 
 /// The request that reads 252FH (identification) of node 1, and the start of its reply.
@@ -162,16 +162,7 @@ fn a_paced_frame_arrives_whole_on_the_lines_character_schedule() {
         guard: mut bus,
         ends,
     } = Bus::start(
-        &[
-            "-n",
-            "2",
-            "-b",
-            "9600",
-            "-P",
-            "even",
-            "--log",
-            log.to_str().unwrap(),
-        ],
+        &line(&["-n 2 -b 9600 -P even --log", log.to_str().unwrap()]),
         2,
     );
     let (mut a, mut b) = (open(&ends[0].1), open(&ends[1].1));
@@ -221,16 +212,7 @@ fn two_writers_at_once_collide_and_the_listener_gets_damage() {
         guard: mut bus,
         ends,
     } = Bus::start(
-        &[
-            "-n",
-            "3",
-            "-b",
-            "1200",
-            "-P",
-            "even",
-            "--log",
-            log.to_str().unwrap(),
-        ],
+        &line(&["-n 3 -b 1200 -P even --log", log.to_str().unwrap()]),
         3,
     );
     let mut f: Vec<File> = ends.iter().map(|(_, p)| open(p)).collect();
@@ -270,20 +252,12 @@ fn noisy(seed: &str) -> (Vec<Value>, Vec<u8>) {
         guard: mut bus,
         ends,
     } = Bus::start(
-        &[
-            "-n",
-            "2",
-            "-b",
-            "38400",
-            "-P",
-            "none",
-            "--noise",
-            "0.01",
-            "--seed",
+        &line(&[
+            "-n 2 -b 38400 -P none --noise 0.01 --seed",
             seed,
             "--log",
             log.to_str().unwrap(),
-        ],
+        ]),
         2,
     );
     let (mut a, mut b) = (open(&ends[0].1), open(&ends[1].1));

@@ -8,7 +8,6 @@
 mod captured;
 mod common;
 
-
 use captured::*;
 use common::{need, words, Peer, Run};
 use conformance::capture::{Direction, FLAG_CRC_ERROR};

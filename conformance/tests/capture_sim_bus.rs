@@ -7,7 +7,6 @@
 mod captured;
 mod common;
 
-
 use captured::*;
 use common::{need, Peer, Run};
 use conformance::capture::Direction;

@@ -5,7 +5,7 @@
 //! an invalid file is refused with its line and field.
 
 mod common;
-use common::{Ran, Run, Scratch};
+use common::{line, Ran, Run, Scratch};
 
 use std::collections::BTreeSet;
 use std::path::{Path, PathBuf};
@@ -394,14 +394,10 @@ fn a_monitor_run_is_gated_by_the_same_file() {
     let cap = d.join("run.pcapng");
     let (exit, _) = check(
         &d,
-        &[
-            "--quirk",
-            "wrong-exception",
-            "--mode",
-            "rtu",
-            "--capture",
+        &line(&[
+            "--quirk wrong-exception --mode rtu --capture",
             cap.to_str().unwrap(),
-        ],
+        ]),
     );
     assert_eq!(exit, Some(1));
     let monitor = |more: &[&str]| {

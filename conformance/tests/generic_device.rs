@@ -10,7 +10,7 @@
 //! taken out, which reaches every check that reads or writes first.
 
 mod common;
-use common::{pymodbus_serial_server, Scratch};
+use common::{line, pymodbus_serial_server, Scratch};
 
 use std::time::Duration;
 
@@ -23,18 +23,13 @@ fn run(mode: &str) {
     let t0 = std::time::Instant::now();
     let (exit, v) = common::check_device(
         &dir,
-        &[
-            "--model",
-            "f510",
-            "--port",
+        &line(&[
+            "--model f510 --port",
             b.to_str().unwrap(),
             "--mode",
             mode,
-            "-P",
-            "none",
-            "--timeout",
-            "300",
-        ],
+            "-P none --timeout 300",
+        ]),
         Duration::from_secs(180),
     );
     assert_eq!(v["complete"], true, "{}", v["stopped"]);
@@ -77,21 +72,13 @@ fn fuzz(mode: &str) {
     let (exit, v) = common::report_of(
         "fuzz",
         &dir,
-        &[
-            "--model",
-            "f510",
-            "--port",
+        &line(&[
+            "--model f510 --port",
             b.to_str().unwrap(),
             "--mode",
             mode,
-            "-P",
-            "none",
-            "--timeout",
-            "500",
-            "--cases",
-            "150",
-            "--no-minimize",
-        ],
+            "-P none --timeout 500 --cases 150 --no-minimize",
+        ]),
         Duration::from_secs(300),
     );
     // pymodbus 3.16.1's serial server stops answering for good after one frame of a
@@ -205,20 +192,11 @@ fn a_generic_device_without_registers_from_1000h_up_deviates_and_exits_1() {
     };
     let (exit, v) = common::check_device(
         &dir,
-        &[
-            "--model",
-            "f510",
-            "--port",
+        &line(&[
+            "--model f510 --port",
             peer.port.to_str().unwrap(),
-            "--mode",
-            "rtu",
-            "-P",
-            "none",
-            "--timeout",
-            "300",
-            "--only",
-            "rtu.write.group-*",
-        ],
+            "--mode rtu -P none --timeout 300 --only rtu.write.group-*",
+        ]),
         Duration::from_secs(120),
     );
     assert_eq!(v["complete"], true, "{}", v["stopped"]);

@@ -7,7 +7,7 @@
 
 mod common;
 use common::{
-    bin, pymodbus_serial_server, pymodbus_tcp_server, words, GatewaySim, Kill, Run, Scratch,
+    bin, line, pymodbus_serial_server, pymodbus_tcp_server, words, GatewaySim, Kill, Run, Scratch,
 };
 
 use std::process::{Command, Stdio};
@@ -158,16 +158,10 @@ fn a_planted_fault_makes_it_none_of_the_five_and_a_tolerance_names_the_nearest()
     // A tolerance of that many misses names the nearest model.
     let (exit, v) = identify(
         &dir,
-        &[
-            "--sim",
-            "f510",
-            "--mode",
-            "rtu",
-            "--quirk",
-            "wrong-exception",
-            "--tolerance",
+        &line(&[
+            "--sim f510 --mode rtu --quirk wrong-exception --tolerance",
             &missed.to_string(),
-        ],
+        ]),
     );
     assert_eq!(
         v["verdict"]["models"],
@@ -289,16 +283,13 @@ fn generic(mode: &str) {
     let b = &peer.port;
     let (exit, v) = identify(
         &dir,
-        &[
+        &line(&[
             "--port",
             b.to_str().unwrap(),
             "--mode",
             mode,
-            "-P",
-            "none",
-            "--timeout",
-            "300",
-        ],
+            "-P none --timeout 300",
+        ]),
     );
     generic_is_none_of_the_five(exit, &v);
 }
@@ -320,14 +311,12 @@ fn named_through_a_gateway(model: &str, unit: u8) {
     let dir = Scratch::new(&format!("mbap-{model}"));
     let (exit, v) = identify(
         &dir,
-        &[
+        &line(&[
             "--tcp",
             &sim.addr,
-            "--framing",
-            "mbap",
-            "--unit",
+            "--framing mbap --unit",
             &unit.to_string(),
-        ],
+        ]),
     );
     assert_eq!(v["verdict"]["result"], "one", "{model}: {}", v["verdict"]);
     assert_eq!(v["verdict"]["models"], serde_json::json!([model]));
@@ -374,16 +363,7 @@ fn a_generic_pymodbus_tcp_server_is_none_of_the_five() {
     let dir = Scratch::new("pymodbus-tcp");
     let (exit, v) = identify(
         &dir,
-        &[
-            "--tcp",
-            &addr,
-            "--framing",
-            "mbap",
-            "--unit",
-            "3",
-            "--timeout",
-            "500",
-        ],
+        &line(&["--tcp", &addr, "--framing mbap --unit 3 --timeout 500"]),
     );
     generic_is_none_of_the_five(exit, &v);
 }

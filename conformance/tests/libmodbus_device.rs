@@ -49,7 +49,7 @@
 //! fails.
 
 mod common;
-use common::{Scratch, SerialPeer};
+use common::{line, Scratch, SerialPeer};
 
 use std::path::Path;
 use std::time::{Duration, Instant};
@@ -211,21 +211,11 @@ fn libmodbus_rtu_server_fuzzed_as_f510() {
     let (exit, v) = common::report_of(
         "fuzz",
         &dir,
-        &[
-            "--model",
-            "f510",
-            "--port",
+        &line(&[
+            "--model f510 --port",
             b.to_str().unwrap(),
-            "-P",
-            "none",
-            "--mode",
-            "rtu",
-            "--timeout",
-            "1000",
-            "--cases",
-            "150",
-            "--no-minimize",
-        ],
+            "-P none --mode rtu --timeout 1000 --cases 150 --no-minimize",
+        ]),
         Duration::from_secs(400),
     );
     assert!(

@@ -14,7 +14,8 @@
 
 mod common;
 use common::{
-    check_device, need, pymodbus_tcp_server, python, report_of, GatewaySim, Peer, Run, Scratch,
+    check_device, line, need, pymodbus_tcp_server, python, report_of, GatewaySim, Peer, Run,
+    Scratch,
 };
 
 use std::process::{Command, Stdio};
@@ -154,16 +155,7 @@ fn check_through_mbap_against_pymodbus_tcp_server() {
     let dir = Scratch::new("mbap-pymodbus");
     let (exit, v) = check_device(
         &dir,
-        &[
-            "--model",
-            "f510",
-            "--tcp",
-            &addr,
-            "--framing",
-            "mbap",
-            "--timeout",
-            "500",
-        ],
+        &line(&["--model f510 --tcp", &addr, "--framing mbap --timeout 500"]),
         Duration::from_secs(180),
     );
     assert_eq!(v["complete"], true, "{}", v["stopped"]);
@@ -247,16 +239,11 @@ fn fuzz_through_mbap_sends_only_what_a_gateway_carries() {
     let (exit, v) = report_of(
         "fuzz",
         &dir,
-        &[
-            "--model",
-            "f510",
-            "--tcp",
+        &line(&[
+            "--model f510 --tcp",
             &sim.addr,
-            "--framing",
-            "mbap",
-            "--cases",
-            "300",
-        ],
+            "--framing mbap --cases 300",
+        ]),
         Duration::from_secs(240),
     );
     assert_eq!(v["complete"], true, "{}", v["stopped"]);

@@ -6,7 +6,7 @@ mod common;
 use std::path::{Path, PathBuf};
 use std::time::Duration;
 
-use common::{run_bounded, words, Run, Scratch};
+use common::{line, run_bounded, words, Run, Scratch};
 
 /// The F510 model under another id and title: a description no built-in model has, so
 /// that a command can only know it from the file.
@@ -40,16 +40,7 @@ fn send_and_fuzz_take_a_description_alone() {
     let (code, v) = common::report_of(
         "fuzz",
         &d,
-        &[
-            "--model-file",
-            f,
-            "--port",
-            &port,
-            "--mode",
-            "rtu",
-            "--cases",
-            "10",
-        ],
+        &line(&["--model-file", f, "--port", &port, "--mode rtu --cases 10"]),
         Duration::from_secs(180),
     );
     assert!(matches!(code, Some(0 | 1)), "{v}");
@@ -132,16 +123,13 @@ fn reports_name_the_description_by_file_title_and_hash() {
     let (_sim, port) = common::sim_pty(&["--model", "f510"]);
     let (code, v) = common::check_device(
         &d,
-        &[
+        &line(&[
             "--model-file",
             f.to_str().unwrap(),
             "--port",
             &port,
-            "--mode",
-            "rtu",
-            "--only",
-            "rtu.map.monitor.*",
-        ],
+            "--mode rtu --only rtu.map.monitor.*",
+        ]),
         Duration::from_secs(120),
     );
     assert_eq!(code, Some(0), "{v}");
@@ -245,16 +233,7 @@ fn identify_takes_descriptions_as_more_candidates() {
     // Beside the five: a description that predicts what a510 predicts ties with it.
     let (code, v, err) = identify(
         &d,
-        &[
-            "--sim",
-            "a510",
-            "--mode",
-            "rtu",
-            "--model-file",
-            a,
-            "--model-file",
-            f,
-        ],
+        &line(&["--sim a510 --mode rtu --model-file", a, "--model-file", f]),
     );
     assert_eq!(code, Some(1), "{err}");
     assert_eq!(v["verdict"]["result"], "ambiguous", "{}", v["verdict"]);
@@ -274,17 +253,13 @@ fn identify_takes_descriptions_as_more_candidates() {
     // Only the descriptions: the one the device follows is named.
     let (code, v, err) = identify(
         &d,
-        &[
-            "--sim",
-            "a510",
-            "--mode",
-            "rtu",
-            "--model-file",
+        &line(&[
+            "--sim a510 --mode rtu --model-file",
             a,
             "--model-file",
             f,
             "--only-files",
-        ],
+        ]),
     );
     assert_eq!(code, Some(0), "{err}");
     assert_eq!(v["verdict"]["models"], serde_json::json!(["acme-a"]));
@@ -294,14 +269,7 @@ fn identify_takes_descriptions_as_more_candidates() {
     let copy = renamed(&d, "f510", "f510");
     let (code, _, err) = identify(
         &d,
-        &[
-            "--sim",
-            "a510",
-            "--mode",
-            "rtu",
-            "--model-file",
-            copy.to_str().unwrap(),
-        ],
+        &line(&["--sim a510 --mode rtu --model-file", copy.to_str().unwrap()]),
     );
     assert_eq!(code, Some(2), "{err}");
     assert!(

@@ -5,7 +5,7 @@
 #![cfg(unix)]
 
 mod common;
-use common::{Run, Scratch};
+use common::{line, Run, Scratch};
 
 use std::path::Path;
 
@@ -96,22 +96,12 @@ fn run(args: &[&str]) -> (i32, String) {
 /// `monitor --capture-in CAP -a 1,2 -b 9600 -P even` writing its report to `out` (the
 /// format from its extension), and the report.
 fn monitor(cap: &Path, out: &Path) -> String {
-    run(&[
-        "monitor",
-        "--model",
-        "f510",
-        "--quiet",
-        "-a",
-        "1,2",
-        "-b",
-        "9600",
-        "-P",
-        "even",
-        "--capture-in",
+    run(&line(&[
+        "monitor --model f510 --quiet -a 1,2 -b 9600 -P even --capture-in",
         cap.to_str().unwrap(),
         "-o",
         out.to_str().unwrap(),
-    ]);
+    ]));
     std::fs::read_to_string(out).unwrap()
 }
 

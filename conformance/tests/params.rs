@@ -13,7 +13,7 @@ use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::time::Duration;
 
-use common::{bin, run_bounded, sim_pty, Kill, Scratch};
+use common::{bin, line, run_bounded, sim_pty, Kill, Scratch};
 use conformance::codec::hex::{parse_hex, Hex};
 use conformance::codec::pdu::{Message, Pdu};
 use conformance::codec::Mode;
@@ -220,14 +220,12 @@ fn round_trip(d: &Path, link: &[&str], mode: &str, log: Option<&Path>) {
 fn sim_round_trip(mode: &str) {
     let d = Scratch::new(&format!("round-{mode}"));
     let log = d.join("sim.jsonl");
-    let (_sim, port) = sim_pty(&[
-        "--model",
-        "f510",
-        "-m",
+    let (_sim, port) = sim_pty(&line(&[
+        "--model f510 -m",
         mode,
         "--log",
         log.to_str().unwrap(),
-    ]);
+    ]));
     round_trip(&d, &["--model", "f510", "--port", &port], mode, Some(&log));
 }
 
@@ -295,16 +293,11 @@ fn a_line_for_a_read_only_or_command_register_is_refused_naming_the_line() {
             format!("[device]\nmodel = \"f510\"\nnode = 1\n\n[\"group 3\"]\n0301 = 0\n{line}\n"),
         )
         .unwrap();
-        let (code, out, err) = conformance(&[
-            "params",
-            "restore",
+        let (code, out, err) = conformance(&common::line(&[
+            "params restore",
             f.to_str().unwrap(),
-            "--sim",
-            "f510",
-            "--mode",
-            "rtu",
-            "--yes",
-        ]);
+            "--sim f510 --mode rtu --yes",
+        ]));
         assert_eq!(code, Some(2), "{out}{err}");
         assert!(err.contains(&format!("line 7: {line}: {says}")), "{err}");
         assert!(!out.contains("plan:"), "{out}");
@@ -345,14 +338,12 @@ fn an_exception_mid_restore_stops_it_and_the_audit_log_and_journal_say_what_was_
     let d = Scratch::new("exception");
     let (described, device) = refusing_description(&d, "read-only");
     let log = d.join("sim.jsonl");
-    let (_sim, port) = sim_pty(&[
-        "--delay",
-        "5",
-        "--model-file",
+    let (_sim, port) = sim_pty(&line(&[
+        "--delay 5 --model-file",
         device.to_str().unwrap(),
         "--log",
         log.to_str().unwrap(),
-    ]);
+    ]));
     let link = [
         "--model-file",
         described.to_str().unwrap(),
@@ -663,18 +654,12 @@ fn on_a_terminal_a_restore_asks_once_and_writes_only_after_yes() {
     let (_sim, port) = sim_pty(&["--model", "f510", "--log", log.to_str().unwrap()]);
     let link = format!("--model f510 --port {port} --mode rtu");
     let a = d.join("a.toml");
-    let (code, out, err) = conformance(&[
-        "params",
-        "backup",
-        "--model",
-        "f510",
-        "--port",
+    let (code, out, err) = conformance(&line(&[
+        "params backup --model f510 --port",
         &port,
-        "--mode",
-        "rtu",
-        "-o",
+        "--mode rtu -o",
         a.to_str().unwrap(),
-    ]);
+    ]));
     assert_eq!(code, Some(0), "{out}{err}");
     let text = std::fs::read_to_string(&a)
         .unwrap()

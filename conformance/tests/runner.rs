@@ -5,7 +5,7 @@
 
 mod common;
 mod sessions;
-use common::{free_port, wait_listening, Run, Scratch};
+use common::{free_port, line, wait_listening, Run, Scratch};
 
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
@@ -234,19 +234,10 @@ fn the_command_line_gives_exit_codes_and_every_format() {
     let out = |args: &[&str]| Run::new(args).run();
     // Clean: exit 0; JUnit parses with one test case per check.
     let xml = dir.join("r.xml");
-    let o = out(&[
-        "check",
-        "--sim",
-        "f510",
-        "--mode",
-        "rtu",
-        "--only",
-        "rtu.map.monitor",
-        "--format",
-        "junit",
-        "-o",
+    let o = out(&line(&[
+        "check --sim f510 --mode rtu --only rtu.map.monitor --format junit -o",
         xml.to_str().unwrap(),
-    ]);
+    ]));
     assert_eq!(o.code, Some(0), "{}", o.stderr);
     let text = std::fs::read_to_string(&xml).unwrap();
     let doc = roxmltree::Document::parse(&text).unwrap();

@@ -6,7 +6,7 @@
 
 mod common;
 mod sessions;
-use common::Scratch;
+use common::{line, Scratch};
 
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
@@ -604,16 +604,12 @@ fn a_check_the_host_stalled_under_runs_again_and_is_counted() {
         let inject = format!("{id}:{n}");
         common::check_device(
             &dir,
-            &[
-                "--sim",
-                "f510",
-                "--mode",
-                "rtu",
-                "--only",
+            &line(&[
+                "--sim f510 --mode rtu --only",
                 id,
                 "--inject-host-stall",
                 &inject,
-            ],
+            ]),
             Duration::from_secs(120),
         )
     };

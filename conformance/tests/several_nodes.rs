@@ -6,7 +6,7 @@
 //! wrote (mbpoll, minimalmodbus) against the simulated bus.
 
 mod common;
-use common::{words, Kill, Run, Scratch};
+use common::{line, words, Kill, Run, Scratch};
 
 use std::collections::BTreeMap;
 use std::process::Stdio;
@@ -246,26 +246,7 @@ fn pymodbus_serving_two_nodes_is_checked_node_by_node() {
     let b = peer.port.clone();
     let (exit, v) = common::check_device(
         &d,
-        &[
-            "--model",
-            "f510",
-            "--port",
-            b.to_str().unwrap(),
-            "-P",
-            "none",
-            "--timeout",
-            "300",
-            "-a",
-            "1,2,3",
-            "--only",
-            "rtu.map.group-0*",
-            "--only",
-            "rtu.write.group-0",
-            "--only",
-            "rtu.broadcast.*",
-            "--only",
-            "rtu.other-address",
-        ],
+        &line(&["--model f510 --port", b.to_str().unwrap(), "-P none --timeout 300 -a 1,2,3 --only rtu.map.group-0* --only rtu.write.group-0 --only rtu.broadcast.* --only rtu.other-address"]),
         Duration::from_secs(180),
     );
     for c in checks(&v) {

@@ -10,7 +10,7 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
-use common::{bin, Kill, Run, Scratch};
+use common::{bin, line, Kill, Run, Scratch};
 use nix::sys::signal::{kill, Signal};
 use nix::unistd::Pid;
 
@@ -59,17 +59,10 @@ fn sigterm_ends_a_fuzz_run_with_a_whole_report_marked_incomplete() {
     let d = Scratch::new("fuzz");
     let (log, out) = (d.join("sim.jsonl"), d.join("fuzz.json"));
     let mut run = spawn(
-        &[
-            "fuzz",
-            "--sim",
-            "f510",
-            "--mode",
-            "rtu",
-            "--cases",
-            "100000",
-            "--sim-log",
+        &line(&[
+            "fuzz --sim f510 --mode rtu --cases 100000 --sim-log",
             log.to_str().unwrap(),
-        ],
+        ]),
         &out,
     );
     // The simulator's log (a line per frame, flushed) grows past the preflight once
@@ -221,14 +214,7 @@ fn sigterm_ends_a_gate_run_with_a_whole_report_marked_incomplete() {
     let out = d.join("gate.json");
     let codec = format!("{} adapter", bin());
     let mut run = spawn(
-        &[
-            "gate",
-            "--codec",
-            &codec,
-            "--no-vectors",
-            "--count",
-            "20000",
-        ],
+        &line(&["gate --codec", &codec, "--no-vectors --count 20000"]),
         &out,
     );
     // The report is rewritten after every case.
@@ -252,17 +238,10 @@ fn sigterm_ends_identify_with_its_report_not_run() {
     let (log, out) = (d.join("sim.jsonl"), d.join("identify.json"));
     // Slow replies: the probes take seconds, the signal comes among them.
     let mut run = spawn(
-        &[
-            "identify",
-            "--sim",
-            "f510",
-            "--mode",
-            "rtu",
-            "--quirk",
-            "late-reply=300",
-            "--sim-log",
+        &line(&[
+            "identify --sim f510 --mode rtu --quirk late-reply=300 --sim-log",
             log.to_str().unwrap(),
-        ],
+        ]),
         &out,
     );
     wait_until("the identify probes", || {

@@ -17,7 +17,7 @@
 //! (SIGSTOP) simulator give exit 2 and no PASS.
 
 mod common;
-use common::{sim_pty, Kill, Run, Scratch};
+use common::{line, sim_pty, Kill, Run, Scratch};
 
 use std::collections::{BTreeMap, BTreeSet};
 use std::sync::{Arc, Mutex};
@@ -554,20 +554,11 @@ fn a_silent_device_passes_nothing() {
     // The reproduction: a simulator at node 1, the check aimed at node 2.
     let (_sim, pty) = sim_pty(&["--model", "f510", "-P", "none"]);
     let t0 = Instant::now();
-    let (code, v) = check(&[
-        "--model",
-        "f510",
-        "--port",
+    let (code, v) = check(&line(&[
+        "--model f510 --port",
         &pty,
-        "-P",
-        "none",
-        "--mode",
-        "rtu",
-        "-a",
-        "2",
-        "--timeout",
-        "200",
-    ]);
+        "-P none --mode rtu -a 2 --timeout 200",
+    ]));
     assert_eq!(code, Some(2), "{v:#}");
     assert_eq!(passes(&v), 0, "{v:#}");
     assert_eq!(v["complete"], false);

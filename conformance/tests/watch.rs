@@ -12,7 +12,7 @@ use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
 use common::{
-    bin, need, run_bounded, runs, tool_or_skip, words, GatewaySim, Kill, Peer, Run, Scratch,
+    bin, line, need, run_bounded, runs, tool_or_skip, words, GatewaySim, Kill, Peer, Run, Scratch,
 };
 use nix::sys::signal::{kill, Signal};
 use nix::unistd::Pid;
@@ -52,21 +52,11 @@ fn csv(stdout: &str) -> (Vec<String>, Vec<Vec<String>>) {
 #[test]
 fn csv_rows_parse_back_in_rtu_and_ascii() {
     for mode in ["rtu", "ascii"] {
-        let (code, out, err) = watch(&[
-            "--sim",
-            "f510",
-            "--mode",
+        let (code, out, err) = watch(&line(&[
+            "--sim f510 --mode",
             mode,
-            "-c",
-            "3",
-            "--interval",
-            "50ms",
-            "--format",
-            "csv",
-            "2502H",
-            "status",
-            "252FH",
-        ]);
+            "-c 3 --interval 50ms --format csv 2502H status 252FH",
+        ]));
         assert_eq!(code, Some(0), "{mode}: {err}");
         let (header, rows) = csv(&out);
         assert_eq!(
@@ -211,22 +201,11 @@ fn planted_faults_are_counted_as_their_kinds() {
 fn only_reads_go_out() {
     let d = Scratch::new("reads-only");
     let log = d.join("sim.jsonl");
-    let (code, _, err) = watch(&[
-        "--sim",
-        "f510",
-        "-a",
-        "1,2",
-        "--sim-log",
+    let (code, _, err) = watch(&line(&[
+        "--sim f510 -a 1,2 --sim-log",
         log.to_str().unwrap(),
-        "-c",
-        "3",
-        "--interval",
-        "50ms",
-        "--format",
-        "csv",
-        "command",
-        "monitor",
-    ]);
+        "-c 3 --interval 50ms --format csv command monitor",
+    ]));
     assert_eq!(code, Some(0), "{err}");
     let text = std::fs::read_to_string(&log).unwrap();
     let requests: Vec<serde_json::Value> = text
@@ -309,16 +288,11 @@ fn a_value_another_master_writes_is_marked_changed() {
     let first: serde_json::Value = serde_json::from_str(&lines.next().unwrap().unwrap()).unwrap();
     assert_eq!(first["values"]["2502H"]["raw"], "0000");
     let (code, out, err) = run_bounded(
-        &[
-            "send",
-            "--model",
-            "f510",
-            "--tcp",
+        &line(&[
+            "send --model f510 --tcp",
             &sim.addr,
-            "--framing",
-            "mbap",
-            "0106250211942EF9",
-        ],
+            "--framing mbap 0106250211942EF9",
+        ]),
         LIMIT,
     );
     assert_eq!(code, Some(0), "{out}{err}");
@@ -362,17 +336,7 @@ fn the_table_redraws_in_place_on_a_terminal() {
     );
     assert!(runs(
         "tmux",
-        &[
-            "new-session",
-            "-d",
-            "-s",
-            &session,
-            "-x",
-            "160",
-            "-y",
-            "50",
-            &command
-        ]
+        &line(&["new-session -d -s", &session, "-x 160 -y 50", &command])
     ));
     struct Session(String);
     impl Drop for Session {
@@ -463,44 +427,24 @@ fn pymodbus_serial_server_is_watched_and_its_exceptions_counted() {
             return;
         };
         let port = peer.port.to_str().unwrap();
-        let (code, out, err) = watch(&[
-            "--model",
-            "f510",
-            "--port",
+        let (code, out, err) = watch(&line(&[
+            "--model f510 --port",
             port,
-            "-P",
-            "none",
-            "-m",
+            "-P none -m",
             mode,
-            "-c",
-            "3",
-            "--interval",
-            "50ms",
-            "--format",
-            "csv",
-            "2502H",
-        ]);
+            "-c 3 --interval 50ms --format csv 2502H",
+        ]));
         assert_eq!(code, Some(0), "{mode}: {err}");
         let (_, rows) = csv(&out);
         assert_eq!(rows.len(), 3);
         assert!(rows.iter().all(|r| r[4] == "ok"), "{mode}: {out}");
-        let (code, out, err) = watch(&[
-            "--model",
-            "f510",
-            "--port",
+        let (code, out, err) = watch(&line(&[
+            "--model f510 --port",
             port,
-            "-P",
-            "none",
-            "-m",
+            "-P none -m",
             mode,
-            "-c",
-            "2",
-            "--interval",
-            "50ms",
-            "--format",
-            "csv",
-            "monitor",
-        ]);
+            "-c 2 --interval 50ms --format csv monitor",
+        ]));
         assert_eq!(code, Some(1), "{mode}: {err}");
         let (_, rows) = csv(&out);
         assert!(

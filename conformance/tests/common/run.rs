@@ -260,3 +260,11 @@ impl std::fmt::Debug for Ran {
         std::fmt::Display::fmt(self, f)
     }
 }
+
+/// A command line with holes: each part split at white space, so that literal words go
+/// in one string and the values between them as they are:
+/// `line(&["--sim f510 --mode", mode, "-c 3 --format csv"])`. A value that holds a
+/// space (a frame written "01 03 ...") must not go through it: pass it apart.
+pub fn line<'a>(parts: &[&'a str]) -> Vec<&'a str> {
+    parts.iter().flat_map(|p| p.split_whitespace()).collect()
+}
