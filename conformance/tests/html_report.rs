@@ -587,7 +587,15 @@ fn a_report_of_several_nodes_renders_per_node_and_diffs_by_node() {
 #[test]
 fn html_puts_errors_first_and_says_why_the_exit_code_is_what_it_is() {
     let d = Scratch::new("errors-first");
-    let (code, _) = common::check_device(&d, &words("--sim f510 --mode rtu --quirk wrong-exception --only rtu.map.group-0.past-end --only rtu.map.command.first --inject-host-stall rtu.map.command.first:3"), Duration::from_secs(120));
+    let (code, _) = common::check_device(
+        &d,
+        &words(
+            "--sim f510 --mode rtu --quirk wrong-exception \
+        --only rtu.map.group-0.past-end --only rtu.map.command.first --inject-host-stall \
+        rtu.map.command.first:3",
+        ),
+        Duration::from_secs(120),
+    );
     assert_eq!(code, Some(2));
     let page = common::rendered(&d.join("check.json"), &d.join("check.html"));
     let error = page

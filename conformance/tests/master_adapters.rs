@@ -151,7 +151,17 @@ fn pymodbus_master_completes_and_loses_a_reply_behind_a_stray_byte() {
         return;
     }
     let cmd = format!("{} {}", python(), adapter("pymodbus-master/adapter.py"));
-    let (code, v) = gate("pymodbus", &cmd, "l510-legacy", &words("rtu.read.normal rtu.read.exception-51 rtu.read.stale-reply rtu.read.stale-in-flight rtu.read.wrong-function rtu.read.zero-before rtu.loop-back.normal rtu.broadcast-single.normal ascii.read.normal ascii.read.zero-before"));
+    let (code, v) = gate(
+        "pymodbus",
+        &cmd,
+        "l510-legacy",
+        &words(
+            "rtu.read.normal \
+        rtu.read.exception-51 rtu.read.stale-reply rtu.read.stale-in-flight \
+        rtu.read.wrong-function rtu.read.zero-before rtu.loop-back.normal \
+        rtu.broadcast-single.normal ascii.read.normal ascii.read.zero-before",
+        ),
+    );
     assert_eq!(v["codec"]["implementation"], "pymodbus");
     // The headline (pymodbus #2636): a reply that comes while its next request waits is
     // taken as that request's, even with another register count.
@@ -185,7 +195,16 @@ fn minimalmodbus_master_completes_skips_loop_back_and_loses_a_reply_behind_a_str
         python(),
         adapter("minimalmodbus-master/adapter.py")
     );
-    let (code, v) = gate("minimalmodbus", &cmd, "l510-legacy", &words("rtu.read.normal rtu.read.exception-53 rtu.read.stale-reply rtu.read.zero-before rtu.loop-back.normal ascii.read.normal ascii.read.garbage-before"));
+    let (code, v) = gate(
+        "minimalmodbus",
+        &cmd,
+        "l510-legacy",
+        &words(
+            "rtu.read.normal \
+        rtu.read.exception-53 rtu.read.stale-reply rtu.read.zero-before rtu.loop-back.normal \
+        ascii.read.normal ascii.read.garbage-before",
+        ),
+    );
     assert_eq!(v["codec"]["implementation"], "minimalmodbus");
     assert_eq!(status_of(&v, "rtu.read.normal"), "pass");
     // "Slave reported error code 83" carries the legacy code. (It comes back only when its
@@ -208,7 +227,16 @@ fn libmodbus_master_takes_the_stale_reply_and_waits_after_a_broadcast() {
         return;
     }
     let cmd = format!("{} {}", python(), adapter("libmodbus-master/adapter.py"));
-    let (code, v) = gate("libmodbus", &cmd, "l510-legacy", &words("rtu.read.normal rtu.read.exception-52 rtu.write-single.normal rtu.write-multiple.normal rtu.broadcast-single.normal ascii.read.normal"));
+    let (code, v) = gate(
+        "libmodbus",
+        &cmd,
+        "l510-legacy",
+        &words(
+            "rtu.read.normal \
+        rtu.read.exception-52 rtu.write-single.normal rtu.write-multiple.normal \
+        rtu.broadcast-single.normal ascii.read.normal",
+        ),
+    );
     assert_eq!(v["codec"]["implementation"], "libmodbus");
     assert_eq!(status_of(&v, "rtu.read.normal"), "pass");
     assert_eq!(status_of(&v, "rtu.write-single.normal"), "pass");
@@ -270,7 +298,15 @@ fn rmodbus_master_takes_the_stale_reply_and_knows_no_legacy_exception() {
         return;
     }
     let Some(cmd) = rmodbus_master() else { return };
-    let (code, v) = gate("rmodbus", &cmd, "l510-legacy", &words("rtu.read.normal rtu.read.exception-54 rtu.write-single.normal rtu.loop-back.normal ascii.read.normal"));
+    let (code, v) = gate(
+        "rmodbus",
+        &cmd,
+        "l510-legacy",
+        &words(
+            "rtu.read.normal \
+        rtu.read.exception-54 rtu.write-single.normal rtu.loop-back.normal ascii.read.normal",
+        ),
+    );
     assert_eq!(v["codec"]["implementation"], "rmodbus");
     assert_eq!(status_of(&v, "rtu.read.normal"), "pass");
     assert_eq!(status_of(&v, "rtu.write-single.normal"), "pass");
@@ -292,7 +328,16 @@ fn jsmodbus_master_throws_on_a_legacy_exception_and_is_stuck_after_stray_bytes()
         return;
     }
     let cmd = format!("node {}", adapter("jsmodbus-master/adapter.js"));
-    let (code, v) = gate("jsmodbus", &cmd, "l510-legacy", &words("rtu.read.normal rtu.read.exception-55 rtu.read.stale-reply rtu.read.stale-in-flight rtu.broadcast-single.normal rtu.read.garbage-after ascii.read.normal"));
+    let (code, v) = gate(
+        "jsmodbus",
+        &cmd,
+        "l510-legacy",
+        &words(
+            "rtu.read.normal \
+        rtu.read.exception-55 rtu.read.stale-reply rtu.read.stale-in-flight \
+        rtu.broadcast-single.normal rtu.read.garbage-after ascii.read.normal",
+        ),
+    );
     assert_eq!(v["codec"]["implementation"], "jsmodbus");
     assert_eq!(status_of(&v, "rtu.read.normal"), "pass");
     // errorCodeToMessage throws inside the socket's data handler.
@@ -315,7 +360,16 @@ fn mbpoll_master_runs_once_per_operation_and_takes_the_stale_reply() {
         return;
     }
     let cmd = format!("{} {}", python(), adapter("mbpoll-master/adapter.py"));
-    let (code, v) = gate("mbpoll", &cmd, "l510-legacy", &words("rtu.read.normal rtu.read.exception-51 rtu.write-single.normal rtu.write-multiple.normal rtu.broadcast-single.normal"));
+    let (code, v) = gate(
+        "mbpoll",
+        &cmd,
+        "l510-legacy",
+        &words(
+            "rtu.read.normal \
+        rtu.read.exception-51 rtu.write-single.normal rtu.write-multiple.normal \
+        rtu.broadcast-single.normal",
+        ),
+    );
     assert_eq!(v["codec"]["implementation"], "mbpoll");
     assert_eq!(status_of(&v, "rtu.read.normal"), "pass");
     assert_eq!(status_of(&v, "rtu.write-single.normal"), "pass");

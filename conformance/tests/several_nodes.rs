@@ -102,7 +102,14 @@ fn the_whole_suite_runs_per_node_and_the_bus_checks_once() {
 
 #[test]
 fn a_fault_planted_on_one_node_is_reported_on_that_node_only() {
-    let (exit, v) = check("planted", &words("--sim f510 -a 1,2,5 --mode rtu --no-pace --quirk wrong-exception@2 --quirk reply-to-broadcast@5 --only rtu.map.group-0* --only rtu.function.* --only rtu.broadcast.* --only rtu.other-address"));
+    let (exit, v) = check(
+        "planted",
+        &words(
+            "--sim f510 -a 1,2,5 --mode rtu --no-pace --quirk \
+        wrong-exception@2 --quirk reply-to-broadcast@5 --only rtu.map.group-0* --only \
+        rtu.function.* --only rtu.broadcast.* --only rtu.other-address",
+        ),
+    );
     assert_eq!(exit, Some(1), "{}", v["summary"]);
     let quirks: Vec<(String, Value)> = v["device"]["nodes"]
         .as_array()
@@ -158,7 +165,13 @@ fn a_fault_planted_on_one_node_is_reported_on_that_node_only() {
 
 #[test]
 fn a_dead_node_ends_its_own_section_only() {
-    let (exit, v) = check("dead", &words("--sim f510 -a 1,2,5 --mode rtu --no-pace --quirk dead@2 --only rtu.map.group-0* --only rtu.broadcast.*"));
+    let (exit, v) = check(
+        "dead",
+        &words(
+            "--sim f510 -a 1,2,5 --mode rtu --no-pace --quirk dead@2 \
+        --only rtu.map.group-0* --only rtu.broadcast.*",
+        ),
+    );
     assert_eq!(
         exit,
         Some(2),
@@ -246,7 +259,12 @@ fn pymodbus_serving_two_nodes_is_checked_node_by_node() {
     let b = peer.port.clone();
     let (exit, v) = common::check_device(
         &d,
-        &line(&["--model f510 --port", b.to_str().unwrap(), "-P none --timeout 300 -a 1,2,3 --only rtu.map.group-0* --only rtu.write.group-0 --only rtu.broadcast.* --only rtu.other-address"]),
+        &line(&[
+            "--model f510 --port",
+            b.to_str().unwrap(),
+            "-P none --timeout 300 -a 1,2,3 --only rtu.map.group-0* --only rtu.write.group-0 \
+             --only rtu.broadcast.* --only rtu.other-address",
+        ]),
         Duration::from_secs(180),
     );
     for c in checks(&v) {
@@ -552,7 +570,13 @@ fn several_nodes_through_a_modbus_tcp_gateway() {
 /// are ERRORs that say why, not silently left out.
 #[test]
 fn a_bus_where_no_node_answers_reports_the_bus_checks_as_not_run() {
-    let (exit, v) = check("all-dead", &words("--sim f510 -a 1,2 --mode rtu --no-pace --timeout 200 --quirk dead --only rtu.map.group-0.first --only rtu.broadcast.*"));
+    let (exit, v) = check(
+        "all-dead",
+        &words(
+            "--sim f510 -a 1,2 --mode rtu --no-pace --timeout 200 \
+        --quirk dead --only rtu.map.group-0.first --only rtu.broadcast.*",
+        ),
+    );
     assert_eq!(exit, Some(2));
     let per_id = nodes_per_id(&v);
     assert_eq!(per_id["rtu.preflight"], ["01", "02"]);
