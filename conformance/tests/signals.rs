@@ -214,7 +214,15 @@ fn sigterm_ends_a_gate_run_with_a_whole_report_marked_incomplete() {
     let out = d.join("gate.json");
     let codec = format!("{} adapter", bin());
     let mut run = spawn(
-        &line(&["gate --codec", &codec, "--no-vectors --count 20000"]),
+        // The adapter command has a space: it goes apart, as one argument.
+        &[
+            "gate",
+            "--codec",
+            &codec,
+            "--no-vectors",
+            "--count",
+            "20000",
+        ],
         &out,
     );
     // The report is rewritten after every case.

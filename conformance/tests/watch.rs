@@ -336,7 +336,17 @@ fn the_table_redraws_in_place_on_a_terminal() {
     );
     assert!(runs(
         "tmux",
-        &line(&["new-session -d -s", &session, "-x 160 -y 50", &command])
+        &[
+            "new-session",
+            "-d",
+            "-s",
+            &session,
+            "-x",
+            "160",
+            "-y",
+            "50",
+            &command
+        ]
     ));
     struct Session(String);
     impl Drop for Session {
