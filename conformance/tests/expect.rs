@@ -135,8 +135,8 @@ fn an_expectations_file_gates_runs_by_what_changed() {
     std::fs::rename(d.join("check.json"), &saved).unwrap();
     let out = conformance(&["report", saved.to_str().unwrap()]);
     let text = out.stdout.as_str();
-    assert_eq!(listed_under(&text, "EXPECTED ("), deviating, "{text}");
-    assert!(listed_under(&text, "NEW DEVIATIONS").is_empty(), "{text}");
+    assert_eq!(listed_under(text, "EXPECTED ("), deviating, "{text}");
+    assert!(listed_under(text, "NEW DEVIATIONS").is_empty(), "{text}");
 
     // The clean drive: each expected deviation is an UNEXPECTED PASS; exit 0, and 1 with
     // --strict-expect.
@@ -150,7 +150,7 @@ fn an_expectations_file_gates_runs_by_what_changed() {
     let out = conformance(&["report", d.join("check.json").to_str().unwrap()]);
     let text = out.stdout.as_str();
     assert_eq!(
-        listed_under(&text, "UNEXPECTED PASSES"),
+        listed_under(text, "UNEXPECTED PASSES"),
         deviating,
         "{text}"
     );
@@ -184,7 +184,7 @@ fn an_expectations_file_gates_runs_by_what_changed() {
     assert_eq!(ids_marked(&v, "expected"), deviating);
     let out = conformance(&["report", d.join("check.json").to_str().unwrap()]);
     let text = out.stdout.as_str();
-    assert_eq!(listed_under(&text, "NEW DEVIATIONS"), new, "{text}");
+    assert_eq!(listed_under(text, "NEW DEVIATIONS"), new, "{text}");
     // The diff from the expected run to this one names the new deviations, and sees that
     // the expected ones are still as expected.
     let out = conformance(&[
@@ -240,7 +240,7 @@ fn expired_and_unmatched_entries_are_reported_and_do_not_apply() {
     let out = conformance(&["report", d.join("check.json").to_str().unwrap()]);
     let report = out.stdout.as_str();
     assert_eq!(
-        listed_under(&report, "NEW DEVIATIONS"),
+        listed_under(report, "NEW DEVIATIONS"),
         BTreeSet::from([first.clone()])
     );
     let stale: Vec<&str> = report

@@ -482,9 +482,9 @@ fn a_report_of_several_nodes_renders_per_node_and_diffs_by_node() {
     assert_eq!(again["restore"], bus["restore"]);
     let text = conformance(&["report", path(&bus_json), "--format", "text"]);
     let text = text.stdout.as_str();
-    let n1 = text.find("\n=== node 01H: ").expect(&text);
-    let n5 = text.find("\n=== node 05H: ").expect(&text);
-    let b = text.find("\n=== bus (").expect(&text);
+    let n1 = text.find("\n=== node 01H: ").expect(text);
+    let n5 = text.find("\n=== node 05H: ").expect(text);
+    let b = text.find("\n=== bus (").expect(text);
     assert!(n1 < n5 && n5 < b, "{text}");
     assert!(
         text[n1..n5].contains("[rtu.map.group-0.past-end]"),
@@ -500,7 +500,7 @@ fn a_report_of_several_nodes_renders_per_node_and_diffs_by_node() {
     );
     let junit = conformance(&["report", path(&bus_json), "--format", "junit"]);
     let junit = junit.stdout.as_str();
-    let doc = roxmltree::Document::parse(&junit).unwrap();
+    let doc = roxmltree::Document::parse(junit).unwrap();
     let suites: Vec<(String, String)> = doc
         .descendants()
         .filter(|n| n.has_tag_name("testsuite"))

@@ -358,7 +358,7 @@ fn scan_through_mbap_finds_the_unit_behind_the_gateway() {
         .run();
     let stdout = o.stdout.as_str();
     assert_eq!(o.code, Some(0), "{stdout}\n{}", o.stderr);
-    let v: serde_json::Value = serde_json::from_str(&stdout).expect("scan JSON");
+    let v: serde_json::Value = serde_json::from_str(stdout).expect("scan JSON");
     let text = v.to_string();
     assert!(text.contains("\"address\":17"), "{text}");
     assert!(

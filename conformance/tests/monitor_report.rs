@@ -171,8 +171,7 @@ fn monitor_json(name: &str, frames: &[(u64, Vec<u8>)], extra: &[&str]) -> serde_
     ];
     args.extend_from_slice(extra);
     run(&args);
-    let v = serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
-    v
+    serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap()
 }
 
 /// The text and HTML of `conformance report` of a saved report.

@@ -313,7 +313,8 @@ fn a_scan_capture_records_each_setting_on_its_own_interface() {
         "-a",
         "17",
     ]);
-    let cap = Scratch::new("scan-capture").join("scan.pcapng");
+    let dir = Scratch::new("scan-capture");
+    let cap = dir.join("scan.pcapng");
     let (code, out, err) = Run::words("scan --port")
         .arg(&path)
         .args([

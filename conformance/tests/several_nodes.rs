@@ -459,13 +459,13 @@ fn several_nodes_through_a_modbus_tcp_gateway() {
         "1,2",
     ];
     args.extend(only);
-    let (exit, v) =
-        common::check_device(&Scratch::new("mbap-sim"), &args, Duration::from_secs(120));
+    let d = Scratch::new("mbap-sim");
+    let (exit, v) = common::check_device(&d, &args, Duration::from_secs(120));
     assert_eq!(exit, Some(0), "{}", v["summary"]);
     // Behind a gateway the serial line's timing is not ours to bound.
     assert_eq!(v["budget"]["rtu"]["bound_ms"], 0.0);
     let text = Run::words("report")
-        .arg(Scratch::new("mbap-sim").join("check.json"))
+        .arg(d.join("check.json"))
         .args(["--format", "text"])
         .run();
     let text = text.stdout.as_str();
