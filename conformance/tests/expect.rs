@@ -149,11 +149,7 @@ fn an_expectations_file_gates_runs_by_what_changed() {
     assert_eq!(ids_marked(&v, "unexpected-pass"), deviating);
     let out = conformance(&["report", d.join("check.json").to_str().unwrap()]);
     let text = out.stdout.as_str();
-    assert_eq!(
-        listed_under(text, "UNEXPECTED PASSES"),
-        deviating,
-        "{text}"
-    );
+    assert_eq!(listed_under(text, "UNEXPECTED PASSES"), deviating, "{text}");
     assert!(
         text.contains("UNEXPECTED PASS: expected deviation"),
         "{text}"
