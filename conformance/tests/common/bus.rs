@@ -1,9 +1,8 @@
-//! Programs that run beside a test until it ends: `conformance bus` with its
-//! pseudo-terminals, and any program that makes a link (a simulator with `--link`, a bus)
-//! before it is of use; each under a [`Kill`] guard.
+//! `conformance bus` running beside a test until it ends, with its pseudo-terminals,
+//! under a [`Kill`] guard.
 
 use std::io::{BufRead, BufReader};
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::process::Stdio;
 use std::sync::mpsc;
 use std::time::Duration;
@@ -67,12 +66,4 @@ pub fn terminate(child: &mut Kill, what: &str) {
     nix::sys::signal::kill(pid, nix::sys::signal::Signal::SIGTERM).unwrap();
     let status = child.wait_within(Duration::from_secs(10), &format!("{what} after SIGTERM"));
     assert_eq!(status.code(), Some(0), "{status:?}");
-}
-
-/// Starts `run` (its stdout thrown away, stdin closed) and waits until `link` appears,
-/// which the program makes once it is ready: a simulator's or a bus's `--link`.
-pub fn start_linked(run: Run, link: &Path) -> Kill {
-    let guard = Kill::spawn(run.command().stdin(Stdio::null()).stdout(Stdio::null()));
-    super::wait_for(link);
-    guard
 }
