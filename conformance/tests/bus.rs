@@ -16,64 +16,15 @@ use std::os::fd::AsFd;
 use std::os::unix::fs::OpenOptionsExt;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
-use std::sync::mpsc;
+
 use std::time::{Duration, Instant};
 
-use common::{bin, need, need_all, python, Kill, Peer};
+use common::{line, need, need_all, python, terminate, Bus, Kill, Peer, Run, Scratch};
 use serde_json::Value;
 
 /// The request that reads 252FH (identification) of node 1, and the start of its reply.
 const READ_252F: [u8; 8] = [0x01, 0x03, 0x25, 0x2F, 0x00, 0x01, 0xBE, 0xCF];
 const REPLY_0510: [u8; 5] = [0x01, 0x03, 0x02, 0x05, 0x10];
-
-fn dir(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("conformance-bus-{}-{name}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).unwrap();
-    d
-}
-
-/// A running `conformance bus -q ARGS` and its pseudo-terminals (name, path), from the
-/// first `ptys` lines of its stdout.
-fn start(args: &[&str], ptys: usize) -> (Kill, Vec<(String, PathBuf)>) {
-    let mut child = Kill::spawn(
-        Command::new(bin())
-            .args(["bus", "-q"])
-            .args(args)
-            .stdin(Stdio::null())
-            .stdout(Stdio::piped())
-            .stderr(Stdio::inherit()),
-    );
-    let stdout = child.0.stdout.take().unwrap();
-    let (tx, rx) = mpsc::channel();
-    std::thread::spawn(move || {
-        for line in BufReader::new(stdout).lines().map_while(Result::ok) {
-            if tx.send(line).is_err() {
-                break;
-            }
-        }
-    });
-    let ends = (0..ptys)
-        .map(|_| {
-            let line = rx
-                .recv_timeout(Duration::from_secs(20))
-                .expect("the bus printed no endpoint");
-            let mut w = line.split_whitespace();
-            let name = w.next().unwrap().to_string();
-            let path = PathBuf::from(w.next().unwrap_or_else(|| panic!("{line:?}")));
-            (name, path)
-        })
-        .collect();
-    (child, ends)
-}
-
-/// Stops the bus with SIGTERM; it must exit 0 within 10 s.
-fn terminate(bus: &mut Kill) {
-    let pid = nix::unistd::Pid::from_raw(i32::try_from(bus.0.id()).unwrap());
-    nix::sys::signal::kill(pid, nix::sys::signal::Signal::SIGTERM).unwrap();
-    let status = bus.wait_within(Duration::from_secs(10), "conformance bus after SIGTERM");
-    assert_eq!(status.code(), Some(0), "{status:?}");
-}
 
 /// Opens an endpoint as a program would (it is raw already: the bus set it so).
 fn open(path: &Path) -> File {
@@ -166,7 +117,7 @@ fn contains(hay: &[u8], needle: &[u8]) -> bool {
 
 #[test]
 fn unpaced_bytes_reach_every_other_endpoint_and_never_the_writer() {
-    let (_bus, ends) = start(&["-n", "3", "--no-pace"], 3);
+    let Bus { guard: _bus, ends } = Bus::start(&["-n", "3", "--no-pace"], 3);
     assert_eq!(
         ends.iter().map(|(n, _)| n.as_str()).collect::<Vec<_>>(),
         ["0", "1", "2"]
@@ -190,7 +141,7 @@ fn unpaced_bytes_reach_every_other_endpoint_and_never_the_writer() {
 
 #[test]
 fn an_endpoint_with_echo_hears_itself_and_the_others_do_not() {
-    let (_bus, ends) = start(&["-n", "3", "--no-pace", "--echo", "1"], 3);
+    let Bus { guard: _bus, ends } = Bus::start(&["-n", "3", "--no-pace", "--echo", "1"], 3);
     let mut f: Vec<File> = ends.iter().map(|(_, p)| open(p)).collect();
     f[1].write_all(&READ_252F).unwrap();
     for (r, file) in f.iter_mut().enumerate() {
@@ -205,19 +156,13 @@ fn an_endpoint_with_echo_hears_itself_and_the_others_do_not() {
 
 #[test]
 fn a_paced_frame_arrives_whole_on_the_lines_character_schedule() {
-    let d = dir("paced");
+    let d = Scratch::new("paced");
     let log = d.join("line.jsonl");
-    let (mut bus, ends) = start(
-        &[
-            "-n",
-            "2",
-            "-b",
-            "9600",
-            "-P",
-            "even",
-            "--log",
-            log.to_str().unwrap(),
-        ],
+    let Bus {
+        guard: mut bus,
+        ends,
+    } = Bus::start(
+        &line(&["-n 2 -b 9600 -P even --log", log.to_str().unwrap()]),
         2,
     );
     let (mut a, mut b) = (open(&ends[0].1), open(&ends[1].1));
@@ -225,7 +170,7 @@ fn a_paced_frame_arrives_whole_on_the_lines_character_schedule() {
     let got = read_n(&mut b, READ_252F.len(), Duration::from_secs(10));
     assert_eq!(got, READ_252F);
     assert!(read_some(&mut a, Duration::from_millis(50)).is_empty());
-    terminate(&mut bus);
+    terminate(&mut bus, "conformance bus");
     let records = log_of(&log);
     let start = &records[0];
     assert_eq!(start["event"], "start");
@@ -259,21 +204,15 @@ fn a_paced_frame_arrives_whole_on_the_lines_character_schedule() {
 
 #[test]
 fn two_writers_at_once_collide_and_the_listener_gets_damage() {
-    let d = dir("collision");
+    let d = Scratch::new("collision");
     let log = d.join("line.jsonl");
     // 24 characters at 1200 baud are 220 ms on the line: the second write lands inside
     // the first however the host schedules this test.
-    let (mut bus, ends) = start(
-        &[
-            "-n",
-            "3",
-            "-b",
-            "1200",
-            "-P",
-            "even",
-            "--log",
-            log.to_str().unwrap(),
-        ],
+    let Bus {
+        guard: mut bus,
+        ends,
+    } = Bus::start(
+        &line(&["-n 3 -b 1200 -P even --log", log.to_str().unwrap()]),
         3,
     );
     let mut f: Vec<File> = ends.iter().map(|(_, p)| open(p)).collect();
@@ -291,7 +230,7 @@ fn two_writers_at_once_collide_and_the_listener_gets_damage() {
         !contains(&heard, &a) && !contains(&heard, &b),
         "{heard:02X?}"
     );
-    terminate(&mut bus);
+    terminate(&mut bus, "conformance bus");
     let records = log_of(&log);
     let col = events(&records, "collision");
     assert_eq!(col.len(), 1, "{records:?}");
@@ -307,23 +246,18 @@ fn two_writers_at_once_collide_and_the_listener_gets_damage() {
 /// The noise records (without their times) and what the listener heard, for ten frames
 /// through a noisy line with `seed`.
 fn noisy(seed: &str) -> (Vec<Value>, Vec<u8>) {
-    let d = dir(&format!("noise-{seed}"));
+    let d = Scratch::new(&format!("noise-{seed}"));
     let log = d.join("line.jsonl");
-    let (mut bus, ends) = start(
-        &[
-            "-n",
-            "2",
-            "-b",
-            "38400",
-            "-P",
-            "none",
-            "--noise",
-            "0.01",
-            "--seed",
+    let Bus {
+        guard: mut bus,
+        ends,
+    } = Bus::start(
+        &line(&[
+            "-n 2 -b 38400 -P none --noise 0.01 --seed",
             seed,
             "--log",
             log.to_str().unwrap(),
-        ],
+        ]),
         2,
     );
     let (mut a, mut b) = (open(&ends[0].1), open(&ends[1].1));
@@ -334,7 +268,7 @@ fn noisy(seed: &str) -> (Vec<Value>, Vec<u8>) {
     a.write_all(&frames).unwrap();
     let mut heard = read_n(&mut b, 140, Duration::from_secs(20));
     heard.extend(read_quiet(&mut b, Duration::from_secs(1)));
-    terminate(&mut bus);
+    terminate(&mut bus, "conformance bus");
     let records = log_of(&log);
     let flips = records
         .iter()
@@ -377,7 +311,7 @@ fn f510_bus(d: &Path, extra: &[&str]) -> (Kill, PathBuf, File, PathBuf) {
     ];
     args.extend(extra.iter().map(|s| s.to_string()));
     let args: Vec<&str> = args.iter().map(String::as_str).collect();
-    let (bus, ends) = start(&args, 2);
+    let Bus { guard: bus, ends } = Bus::start(&args, 2);
     assert_eq!(ends[0].0, "master");
     assert_eq!(ends[1].0, "tap");
     common::wait_for(&m);
@@ -388,7 +322,7 @@ fn f510_bus(d: &Path, extra: &[&str]) -> (Kill, PathBuf, File, PathBuf) {
 
 #[test]
 fn the_suites_check_passes_against_a_simulated_f510_on_the_line_and_a_listener_hears_both() {
-    let d = dir("check");
+    let d = Scratch::new("check");
     let (mut bus, master, mut tap, log) = f510_bus(&d, &["-a", "1"]);
     let port = master.to_str().unwrap();
     let (code, v) = common::check_device(
@@ -420,7 +354,7 @@ fn the_suites_check_passes_against_a_simulated_f510_on_the_line_and_a_listener_h
     let heard = read_quiet(&mut tap, Duration::from_millis(300));
     assert!(contains(&heard, &READ_252F), "the request: {heard:02X?}");
     assert!(contains(&heard, &REPLY_0510), "the reply: {heard:02X?}");
-    terminate(&mut bus);
+    terminate(&mut bus, "conformance bus");
     let records = log_of(&log);
     assert_eq!(records[0]["endpoints"][2]["name"], "drive1");
     let tx = events(&records, "tx");
@@ -431,7 +365,7 @@ fn the_suites_check_passes_against_a_simulated_f510_on_the_line_and_a_listener_h
 
 #[test]
 fn two_drives_answering_at_once_collide_on_the_line() {
-    let d = dir("drives-collide");
+    let d = Scratch::new("drives-collide");
     // Node 2 answers every address: a request to node 1 gets two replies at once.
     // 2400 baud: a 7-byte reply is 32 ms on the line, longer than the drives' threads
     // differ by.
@@ -454,7 +388,7 @@ fn two_drives_answering_at_once_collide_on_the_line() {
     // The master hears the damage (what it makes of it is its own business).
     let got = read_quiet(&mut m, Duration::from_millis(100));
     assert!(!got.is_empty());
-    terminate(&mut bus);
+    terminate(&mut bus, "conformance bus");
     let records = log_of(&log);
     let col = events(&records, "collision");
     assert_eq!(col.len(), 1, "{records:?}");
@@ -466,7 +400,7 @@ fn mbpoll_reads_the_simulated_f510_through_the_line_and_the_listener_hears_both(
     if !need(Peer::Mbpoll) {
         return;
     }
-    let d = dir("mbpoll");
+    let d = Scratch::new("mbpoll");
     let (mut bus, master, mut tap, _log) = f510_bus(&d, &["-a", "1"]);
     // mbpoll counts registers from 1: 9520 is 252FH.
     let o = Command::new("mbpoll")
@@ -481,7 +415,7 @@ fn mbpoll_reads_the_simulated_f510_through_the_line_and_the_listener_hears_both(
     let heard = read_quiet(&mut tap, Duration::from_millis(300));
     assert!(contains(&heard, &READ_252F), "{heard:02X?}");
     assert!(contains(&heard, &REPLY_0510), "{heard:02X?}");
-    terminate(&mut bus);
+    terminate(&mut bus, "conformance bus");
 }
 
 #[test]
@@ -494,7 +428,7 @@ fn pymodbus_and_minimalmodbus_read_and_write_the_simulated_f510_through_the_line
     if !need_all(&[Peer::Pymodbus, Peer::Minimalmodbus]) {
         return;
     }
-    let d = dir("python");
+    let d = Scratch::new("python");
     let (mut bus, master, mut tap, _log) = f510_bus(&d, &["-a", "1"]);
     let script = format!(
         "import minimalmodbus\n\
@@ -530,14 +464,17 @@ fn pymodbus_and_minimalmodbus_read_and_write_the_simulated_f510_through_the_line
     let heard = read_quiet(&mut tap, Duration::from_millis(300));
     assert!(contains(&heard, &READ_252F), "{heard:02X?}");
     assert!(contains(&heard, &REPLY_0510), "{heard:02X?}");
-    terminate(&mut bus);
+    terminate(&mut bus, "conformance bus");
 }
 
 #[test]
 fn links_are_removed_on_sigterm() {
-    let d = dir("links");
+    let d = Scratch::new("links");
     let (a, b) = (d.join("a"), d.join("b"));
-    let (mut bus, ends) = start(
+    let Bus {
+        guard: mut bus,
+        ends,
+    } = Bus::start(
         &[
             "--link",
             &format!("a={}", a.display()),
@@ -550,7 +487,7 @@ fn links_are_removed_on_sigterm() {
     common::wait_for(&b);
     assert_eq!(std::fs::read_link(&a).unwrap(), ends[0].1);
     assert_eq!(std::fs::read_link(&b).unwrap(), ends[1].1);
-    terminate(&mut bus);
+    terminate(&mut bus, "conformance bus");
     assert!(
         std::fs::symlink_metadata(&a).is_err(),
         "{} is left",
@@ -570,10 +507,10 @@ fn links_are_removed_on_sigterm() {
 /// polling node 1 until the monitor ends.
 #[test]
 fn a_monitor_with_no_baud_rate_finds_the_lines_settings_on_an_emulated_line() {
-    let d = dir("search");
+    let d = Scratch::new("search");
     eprintln!("{}", d.display());
     let (m, t, log) = (d.join("master"), d.join("tap"), d.join("line.jsonl"));
-    let (mut bus, _) = start(
+    let Bus { guard: mut bus, .. } = Bus::start(
         &[
             "--link",
             &format!("master={}", m.display()),
@@ -597,8 +534,8 @@ fn a_monitor_with_no_baud_rate_finds_the_lines_settings_on_an_emulated_line() {
     common::wait_for(&t);
     let report = d.join("monitor.json");
     let mut monitor = Kill::spawn(
-        Command::new(bin())
-            .args(["monitor", "--model", "f510", "-a", "1", "--quiet", "--log"])
+        Run::words("monitor --model f510 -a 1 --quiet --log")
+            .command()
             .arg(d.join("heard.jsonl"))
             // The search takes about a second now: 12 s leaves some 10 s of exchanges
             // (30 s, sized for the old 2 s a setting, only gave a loaded host more
@@ -625,8 +562,8 @@ fn a_monitor_with_no_baud_rate_finds_the_lines_settings_on_an_emulated_line() {
             t0.elapsed() < Duration::from_secs(120),
             "the monitor did not end"
         );
-        let out = Command::new(bin())
-            .args(["send", "--model", "f510", "--mode", "rtu", "-b", "19200"])
+        let out = Run::words("send --model f510 --mode rtu -b 19200")
+            .command()
             // The master here only makes traffic: on a loaded host the bus's drive
             // answered 1.0 s late (CI at load 10), which the default timeout took for no
             // reply and failed the test on the master, not on what it tests.
@@ -639,7 +576,7 @@ fn a_monitor_with_no_baud_rate_finds_the_lines_settings_on_an_emulated_line() {
         assert!(out.status.success(), "{out:?}");
     };
     let v: Value = serde_json::from_str(&std::fs::read_to_string(&report).unwrap()).unwrap();
-    terminate(&mut bus);
+    terminate(&mut bus, "conformance bus");
     let bus_log = log_of(&log);
     assert_eq!(v["device"]["line"], "19200 8O1", "{:#}", v["monitor"]);
     let notices = v["monitor"]["notices"].to_string();
@@ -708,9 +645,9 @@ fn a_monitor_with_no_baud_rate_finds_the_lines_settings_on_an_emulated_line() {
 /// the first setting. It wrote nothing.
 #[test]
 fn a_line_search_that_finds_nothing_still_writes_its_report() {
-    let d = dir("search-fails");
+    let d = Scratch::new("search-fails");
     let t = d.join("tap");
-    let (mut bus, _) = start(
+    let Bus { guard: mut bus, .. } = Bus::start(
         &[
             "--link",
             &format!("tap={}", t.display()),
@@ -726,8 +663,8 @@ fn a_line_search_that_finds_nothing_still_writes_its_report() {
     for (name, interrupt) in [("duration", false), ("interrupted", true)] {
         let report = d.join(format!("{name}.json"));
         let mut monitor = Kill::spawn(
-            Command::new(bin())
-                .args(["monitor", "--model", "f510", "-a", "1", "--mode", "rtu"])
+            Run::words("monitor --model f510 -a 1 --mode rtu")
+                .command()
                 .args(["--duration", "3", "--format", "json", "--port"])
                 .arg(&t)
                 .arg("-o")
@@ -773,5 +710,5 @@ fn a_line_search_that_finds_nothing_still_writes_its_report() {
             v["monitor"]["notices"]
         );
     }
-    terminate(&mut bus);
+    terminate(&mut bus, "conformance bus");
 }

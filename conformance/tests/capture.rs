@@ -5,130 +5,13 @@
 //! monitor judges the capture offline with the counts the capture holds.
 #![cfg(unix)]
 
+mod captured;
 mod common;
 
-use std::path::{Path, PathBuf};
-use std::process::Command;
-use std::sync::OnceLock;
-
-use common::{need, Peer, TSHARK_USER_DLT as USER_DLT};
-use conformance::capture::{Direction, Reader, FLAG_CRC_ERROR};
+use captured::*;
+use common::{need, words, Peer, Run};
+use conformance::capture::{Direction, FLAG_CRC_ERROR};
 use serde_json::Value;
-
-fn dir() -> PathBuf {
-    let d = std::env::temp_dir().join(format!("capture-test-{}", std::process::id()));
-    std::fs::create_dir_all(&d).unwrap();
-    d
-}
-
-/// A run of `check --sim f510 --mode MODE` with `extra` arguments, captured: the
-/// capture's path and the JSON report.
-fn captured_check(name: &str, mode: &str, extra: &[&str]) -> (PathBuf, Value) {
-    let d = dir();
-    let cap = d.join(format!("{name}.pcapng"));
-    let json = d.join(format!("{name}.json"));
-    let out = Command::new(common::bin())
-        .args(["check", "--sim", "f510", "--mode", mode, "--quiet"])
-        .args(extra)
-        .arg("--capture")
-        .arg(&cap)
-        .args(["--format", "json", "-o"])
-        .arg(&json)
-        .output()
-        .unwrap();
-    let stderr = String::from_utf8_lossy(&out.stderr);
-    assert!(stderr.contains("capture: "), "{stderr}");
-    let report: Value = serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
-    // Exit 0, or 2 where only this host stalled sending a request (an ERROR, never
-    // judged: a busy machine), with no deviation either way.
-    assert_eq!(report["summary"]["deviation"], 0, "{stderr}");
-    for c in report["checks"].as_array().unwrap() {
-        if c["status"] == "error" {
-            let why = c["summary"].as_str().unwrap();
-            assert!(
-                why.contains("could not send the request"),
-                "{}: {why}",
-                c["id"]
-            );
-        }
-    }
-    assert!(matches!(out.status.code(), Some(0 | 2)), "{stderr}");
-    (cap, report)
-}
-
-/// The whole RTU suite, once for every test of this file.
-fn whole_run() -> &'static (PathBuf, Value) {
-    static RUN: OnceLock<(PathBuf, Value)> = OnceLock::new();
-    RUN.get_or_init(|| captured_check("whole", "rtu", &[]))
-}
-
-/// One packet of a capture, owned.
-struct Frame {
-    interface: u32,
-    link_type: u16,
-    direction: Option<Direction>,
-    flags: u32,
-    comment: Option<String>,
-    bytes: Vec<u8>,
-}
-
-fn frames(path: &Path) -> Vec<Frame> {
-    let data = std::fs::read(path).unwrap();
-    Reader::new(&data)
-        .unwrap()
-        .map(|p| {
-            let p = p.unwrap();
-            Frame {
-                interface: p.interface,
-                link_type: p.link_type,
-                direction: p.direction,
-                flags: p.flags.unwrap_or(0),
-                comment: p.comment.map(str::to_string),
-                bytes: p.data.to_vec(),
-            }
-        })
-        .collect()
-}
-
-/// Whether the capture marks `f` as a send this host broke as it left (sent again).
-fn broken_by_host(f: &Frame) -> bool {
-    conformance::capture::broken_by_host(Some(f.flags), f.comment.as_deref())
-}
-
-/// The frames `monitor --capture-in` judges: all but the sends this host broke (it reads
-/// those as not sent, as `check` did).
-fn judged(frames: &[Frame]) -> Vec<&Frame> {
-    frames.iter().filter(|f| !broken_by_host(f)).collect()
-}
-
-fn hex(s: &str) -> Vec<u8> {
-    s.split_whitespace()
-        .map(|b| u8::from_str_radix(b, 16).unwrap())
-        .collect()
-}
-
-/// Every exchange's request in the report, with the check it belongs to, in order.
-fn requests(report: &Value) -> Vec<(String, Vec<u8>)> {
-    report["checks"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .flat_map(|c| {
-            let id = c["id"].as_str().unwrap().to_string();
-            c["exchanges"]
-                .as_array()
-                .unwrap()
-                .iter()
-                .filter_map(|e| e["request"].as_str().map(hex))
-                .map(move |r| (id.clone(), r))
-                .collect::<Vec<_>>()
-        })
-        .collect()
-}
-
-fn crc_ok(b: &[u8]) -> bool {
-    b.len() >= 4 && conformance::codec::crc::crc16_frame_ok(b)
-}
 
 #[test]
 fn the_capture_holds_every_request_of_the_report_in_order_with_directions_and_damage_marked() {
@@ -201,36 +84,6 @@ fn the_capture_holds_every_request_of_the_report_in_order_with_directions_and_da
         .iter()
         .filter(|f| f.direction == Some(Direction::Inbound))
         .all(|f| crc_ok(&f.bytes)));
-}
-
-/// tshark's fields for every frame of `cap`, one row per frame (of a field that occurs
-/// several times in a frame, the first).
-fn tshark(cap: &Path, fields: &[&str]) -> Vec<Vec<String>> {
-    tshark_occurrences(cap, fields, "f")
-}
-
-/// [`tshark`], with `occurrence` "f" (first), "l" (last) or "a" (all, comma-separated).
-fn tshark_occurrences(cap: &Path, fields: &[&str], occurrence: &str) -> Vec<Vec<String>> {
-    let mut cmd = Command::new("tshark");
-    cmd.arg("-r")
-        .arg(cap)
-        .args(["-o", USER_DLT, "-o", "mbrtu.crc_verification:TRUE"])
-        .args(["-T", "fields", "-E", "separator=/t", "-E"])
-        .arg(format!("occurrence={occurrence}"));
-    for f in fields {
-        cmd.args(["-e", f]);
-    }
-    let out = cmd.output().unwrap();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    String::from_utf8(out.stdout)
-        .unwrap()
-        .lines()
-        .map(|l| l.split('\t').map(str::to_string).collect())
-        .collect()
 }
 
 #[test]
@@ -327,47 +180,13 @@ fn tshark_decodes_every_frame_as_its_bytes_say_and_marks_exactly_the_bad_crc_fra
     }
 }
 
-fn monitor_capture(cap: &Path, name: &str, extra: &[&str]) -> (Option<i32>, Value, String) {
-    let json = dir().join(format!("{name}.monitor.json"));
-    let out = Command::new(common::bin())
-        .args(["monitor", "--model", "f510", "--quiet", "--capture-in"])
-        .arg(cap)
-        .args(extra)
-        .args(["--format", "json", "-o"])
-        .arg(&json)
-        .output()
-        .unwrap();
-    let stderr = String::from_utf8_lossy(&out.stderr).into_owned();
-    let report = std::fs::read_to_string(&json)
-        .ok()
-        .and_then(|s| serde_json::from_str(&s).ok())
-        .unwrap_or(Value::Null);
-    (out.status.code(), report, stderr)
-}
-
-fn node<'a>(r: &'a Value, address: &str) -> &'a Value {
-    r["monitor"]["nodes"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .find(|n| n["address"] == address)
-        .unwrap_or_else(|| panic!("no node {address} in {}", r["monitor"]))
-}
-
 #[test]
 fn monitor_judges_a_clean_capture_with_the_counts_it_holds() {
     // Reads and writes the manual allows, each answered: nothing to find on either side.
     let (cap, report) = captured_check(
         "clean",
         "rtu",
-        &[
-            "--only",
-            "rtu.map.*.first",
-            "--only",
-            "rtu.map.*.last",
-            "--only",
-            "rtu.write.group-*",
-        ],
+        &words("--only rtu.map.*.first --only rtu.map.*.last --only rtu.write.group-*"),
     );
     assert_eq!(report["summary"]["deviation"], 0);
     let all = frames(&cap);
@@ -490,22 +309,13 @@ fn a_fuzz_capture_decodes_in_tshark_and_every_damaged_frame_is_marked_and_named(
     }
     let d = dir();
     let cap = d.join("fuzz.pcapng");
-    let out = Command::new(common::bin())
-        .args([
-            "fuzz", "--sim", "f510", "--mode", "rtu", "--cases", "150", "--quiet",
-        ])
+    let out = Run::words("fuzz --sim f510 --mode rtu --cases 150 --quiet")
         .arg("--capture")
         .arg(&cap)
         .args(["--format", "json", "-o"])
         .arg(d.join("fuzz.json"))
-        .output()
-        .unwrap();
-    assert_eq!(
-        out.status.code(),
-        Some(0),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+        .run();
+    assert_eq!(out.code, Some(0), "{}", out.stderr);
     let frames = frames(&cap);
     let sent = frames
         .iter()
@@ -590,12 +400,7 @@ fn an_ascii_capture_keeps_the_characters_under_link_type_148_and_the_monitor_jud
     let (cap, report) = captured_check(
         "ascii",
         "ascii",
-        &[
-            "--only",
-            "ascii.map.group-0.*",
-            "--only",
-            "ascii.map.group-1.*",
-        ],
+        &words("--only ascii.map.group-0.* --only ascii.map.group-1.*"),
     );
     let frames = frames(&cap);
     assert!(frames.iter().all(|f| f.link_type == 148));
@@ -640,234 +445,6 @@ fn an_ascii_capture_keeps_the_characters_under_link_type_148_and_the_monitor_jud
     assert!(to_1 >= 4);
     assert_eq!(n["requests"], to_1, "{n}");
     assert_eq!(n["crc_errors"], 0, "{n}");
-}
-
-#[test]
-fn a_simulator_killed_mid_run_leaves_a_whole_capture_seen_from_the_drive() {
-    use std::io::{BufRead, BufReader};
-    let d = dir();
-    let cap = d.join("simulate.pcapng");
-    let mut sim = Command::new(common::bin())
-        .args(["simulate", "--pty", "--pace", "--quiet", "--capture"])
-        .arg(&cap)
-        .stdout(std::process::Stdio::piped())
-        .stderr(std::process::Stdio::null())
-        .spawn()
-        .unwrap();
-    let mut path = String::new();
-    let mut sim_out = BufReader::new(sim.stdout.take().unwrap());
-    sim_out.read_line(&mut path).unwrap();
-    let out = Command::new(common::bin())
-        .args([
-            "check", "--model", "f510", "--mode", "rtu", "--quiet", "--port",
-        ])
-        .arg(path.trim())
-        .args(["--only", "rtu.map.group-0.*", "--format", "json", "-o"])
-        .arg(d.join("simulate.json"))
-        .output()
-        .unwrap();
-    // Killed, not stopped: no chance to finish anything.
-    sim.kill().unwrap();
-    sim.wait().unwrap();
-    drop(sim_out);
-    assert_eq!(
-        out.status.code(),
-        Some(0),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    let frames = frames(&cap);
-    assert!(frames.len() >= 8, "{} frames", frames.len());
-    // From the drive's side: the requests came in, the replies went out.
-    for f in &frames {
-        let request = f.bytes.len() == 8 && f.bytes[1] == 0x03;
-        let expected = if request {
-            Direction::Inbound
-        } else {
-            Direction::Outbound
-        };
-        assert_eq!(f.direction, Some(expected), "{:02X?}", f.bytes);
-        assert!(crc_ok(&f.bytes), "{:02X?}", f.bytes);
-    }
-}
-
-#[test]
-fn a_bus_capture_holds_each_endpoints_frames_on_its_own_interface() {
-    use std::io::{BufRead, BufReader};
-    let d = dir();
-    let cap = d.join("bus.pcapng");
-    let link = d.join("bus-master");
-    let mut bus = Command::new(common::bin())
-        .args(["bus", "--model", "f510", "-a", "1", "--quiet", "--link"])
-        .arg(format!("m={}", link.display()))
-        .arg("--capture")
-        .arg(&cap)
-        .stdout(std::process::Stdio::piped())
-        .stderr(std::fs::File::create(d.join("bus.err")).unwrap())
-        .spawn()
-        .unwrap();
-    // One line per endpoint with a path: the master's. The pipe stays open while the bus
-    // runs (a bus whose stdout is gone ends).
-    let mut first = String::new();
-    let mut paths = BufReader::new(bus.stdout.take().unwrap());
-    paths.read_line(&mut first).unwrap();
-    assert!(first.starts_with("m "), "{first}");
-    let out = Command::new(common::bin())
-        .args([
-            "check", "--model", "f510", "--mode", "rtu", "-a", "1", "--quiet", "--port",
-        ])
-        .arg(&link)
-        .args(["--only", "rtu.map.group-0.*", "--format", "json", "-o"])
-        .arg(d.join("bus.json"))
-        .output()
-        .unwrap();
-    let running = bus.try_wait().unwrap().is_none();
-    bus.kill().unwrap();
-    bus.wait().unwrap();
-    drop(paths);
-    assert_eq!(
-        out.status.code(),
-        Some(0),
-        "{} (the bus {}: {})",
-        String::from_utf8_lossy(&out.stderr),
-        if running { "was running" } else { "had ended" },
-        std::fs::read_to_string(d.join("bus.err")).unwrap_or_default()
-    );
-    let report: Value =
-        serde_json::from_str(&std::fs::read_to_string(d.join("bus.json")).unwrap()).unwrap();
-    let frames = frames(&cap);
-    // One interface per endpoint (and the line's own, for collisions): the master's is
-    // the one that spoke first.
-    let m = frames[0].interface;
-    let master: Vec<&Frame> = frames.iter().filter(|f| f.interface == m).collect();
-    let drive: Vec<&Frame> = frames.iter().filter(|f| f.interface != m).collect();
-    assert!(drive.iter().all(|f| f.interface == drive[0].interface));
-    let mut at = 0;
-    for (id, r) in requests(&report) {
-        let i = master[at..]
-            .iter()
-            .position(|f| f.bytes == r)
-            .unwrap_or_else(|| panic!("{id}: {r:02X?} not sent by the master"));
-        at += i + 1;
-    }
-    assert!(drive.len() >= 4, "{} replies", drive.len());
-    for f in frames.iter() {
-        assert_eq!(
-            f.direction,
-            Some(Direction::Outbound),
-            "sent by its endpoint"
-        );
-        assert!(crc_ok(&f.bytes), "{:02X?}", f.bytes);
-    }
-    assert!(drive.iter().all(|f| f.bytes[0] == 1));
-}
-
-#[test]
-fn a_monitor_on_a_bus_records_what_the_line_carried_and_tshark_decodes_it() {
-    use std::io::{BufRead, BufReader};
-    if !need(Peer::Tshark) {
-        return;
-    }
-    let d = dir();
-    let line_cap = d.join("tap-line.pcapng");
-    let tap_cap = d.join("tap.pcapng");
-    let (m, tap) = (d.join("tap-master"), d.join("tap-tap"));
-    let mut bus = Command::new(common::bin())
-        .args(["bus", "--model", "f510", "-a", "1", "--quiet", "--link"])
-        .arg(format!("m={}", m.display()))
-        .arg("--link")
-        .arg(format!("tap={}", tap.display()))
-        .arg("--capture")
-        .arg(&line_cap)
-        .stdout(std::process::Stdio::piped())
-        .stderr(std::process::Stdio::null())
-        .spawn()
-        .unwrap();
-    let mut lines = BufReader::new(bus.stdout.take().unwrap()).lines();
-    for _ in 0..2 {
-        lines.next().unwrap().unwrap();
-    }
-    let mut monitor = Command::new(common::bin())
-        .args([
-            "monitor",
-            "--model",
-            "f510",
-            "-a",
-            "1",
-            "-b",
-            "9600",
-            "--duration",
-            "8",
-            "--port",
-        ])
-        .arg(&tap)
-        .arg("--capture")
-        .arg(&tap_cap)
-        .args(["--format", "json", "-o"])
-        .arg(d.join("tap.json"))
-        .stderr(std::process::Stdio::piped())
-        .stdout(std::process::Stdio::null())
-        .spawn()
-        .unwrap();
-    let mut heard = BufReader::new(monitor.stderr.take().unwrap()).lines();
-    let first = heard.next().unwrap().unwrap();
-    assert!(first.starts_with("listening on"), "{first}");
-    let drain = std::thread::spawn(move || heard.map_while(Result::ok).collect::<Vec<_>>());
-    let out = Command::new(common::bin())
-        .args([
-            "check", "--model", "f510", "--mode", "rtu", "-a", "1", "--quiet", "--port",
-        ])
-        .arg(&m)
-        .args(["--only", "rtu.map.group-0.*", "--format", "json", "-o"])
-        .arg(d.join("tap-check.json"))
-        .output()
-        .unwrap();
-    let status = monitor.wait().unwrap();
-    let stderr = drain.join().unwrap().join("\n");
-    bus.kill().unwrap();
-    bus.wait().unwrap();
-    assert_eq!(
-        out.status.code(),
-        Some(0),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    assert!(matches!(status.code(), Some(0 | 1)), "{stderr}");
-    assert!(stderr.contains("capture: "), "{stderr}");
-    // The tap heard what the line carried, byte for byte, with no direction.
-    let on_line: Vec<u8> = frames(&line_cap)
-        .into_iter()
-        .flat_map(|f| f.bytes)
-        .collect();
-    let tapped = frames(&tap_cap);
-    let heard_bytes: Vec<u8> = tapped.iter().flat_map(|f| f.bytes.clone()).collect();
-    assert_eq!(heard_bytes, on_line);
-    for f in &tapped {
-        assert_eq!(
-            (f.direction, f.flags),
-            (None, 0),
-            "{:02X?} in {:02X?}",
-            f.bytes,
-            tapped.iter().map(|f| f.bytes.len()).collect::<Vec<_>>()
-        );
-    }
-    assert!(tapped.len() >= 8, "{} frames", tapped.len());
-    // tshark decodes every frame the tap recorded.
-    let rows = tshark(
-        &tap_cap,
-        &["frame.number", "mbrtu.unit_id", "mbrtu.crc16.status"],
-    );
-    assert_eq!(rows.len(), tapped.len());
-    for (row, f) in rows.iter().zip(&tapped) {
-        assert_eq!(
-            row[1],
-            f.bytes[0].to_string(),
-            "frame {}: {:02X?}",
-            row[0],
-            f.bytes
-        );
-        assert_eq!(row[2], "1", "frame {}", row[0]);
-    }
 }
 
 /// A classic pcap file as a serial sniffer writes it: RTU frames under link type 147,
@@ -956,33 +533,18 @@ fn monitor_capture_in_judges_every_exchange_of_the_check_run_as_check_did() {
         d.join("agree.json"),
         d.join("agree.heard.jsonl"),
     );
-    let out = Command::new(common::bin())
-        .args(["check", "--sim", "f510", "--mode", "rtu", "--quiet"])
+    let out = Run::words("check --sim f510 --mode rtu --quiet")
         .args(["--quirk", "wrong-exception", "--capture"])
         .arg(&cap)
         .args(["--format", "json", "-o"])
         .arg(&json)
-        .output()
-        .unwrap();
+        .run();
     // Exit 1: deviations (the planted fault). 2 only where this host stalled sending a
     // request (an ERROR, never judged); the other exchanges are still compared.
     let check: Value = serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
-    assert!(
-        matches!(out.status.code(), Some(1 | 2)),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    assert!(matches!(out.code, Some(1 | 2)), "{}", out.stderr);
     assert_eq!(check["complete"], true, "{}", check["stopped"]);
-    for c in check["checks"].as_array().unwrap() {
-        if c["status"] == "error" {
-            let why = c["summary"].as_str().unwrap();
-            assert!(
-                why.contains("could not send the request"),
-                "{}: {why}",
-                c["id"]
-            );
-        }
-    }
+    errors_are_host_stalls(&check);
     let (code, report, stderr) = monitor_capture(
         &cap,
         "agree",
@@ -1001,329 +563,6 @@ fn monitor_capture_in_judges_every_exchange_of_the_check_run_as_check_did() {
         errors["drive.wrong-exception"].as_u64().unwrap() > 0,
         "{errors}"
     );
-}
-
-/// A run through a Modbus TCP gateway records the TCP stream, each MBAP frame in a
-/// segment under made-up Ethernet, IPv4 and TCP headers (server port 502): the capture
-/// holds every request of the report as an MBAP frame in order, and tshark decodes each
-/// as Modbus/TCP with its transaction, unit, function and register, with good checksums.
-#[test]
-fn a_gateway_run_records_its_mbap_frames_as_tcp_that_tshark_decodes_as_modbus_tcp() {
-    let gw = common::GatewaySim::start("f510", 1, &[]);
-    let d = dir();
-    let cap = d.join("mbap.pcapng");
-    let json = d.join("mbap.json");
-    let out = Command::new(common::bin())
-        .args([
-            "check",
-            "--model",
-            "f510",
-            "--tcp",
-            &gw.addr,
-            "--framing",
-            "mbap",
-        ])
-        .args(["--mode", "rtu", "--only", "rtu.map.monitor.*", "--quiet"])
-        .arg("--capture")
-        .arg(&cap)
-        .args(["--format", "json", "-o"])
-        .arg(&json)
-        .output()
-        .unwrap();
-    let stderr = String::from_utf8_lossy(&out.stderr);
-    assert_eq!(out.status.code(), Some(0), "{stderr}");
-    let report: Value = serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
-    let frames = frames(&cap);
-    assert!(frames
-        .iter()
-        .all(|f| f.link_type == conformance::capture::tcp::LINKTYPE_ETHERNET));
-    // The handshake, then one segment a write and a read.
-    let flags = |f: &Frame| f.bytes[14 + 20 + 13];
-    assert_eq!(
-        frames[..3].iter().map(flags).collect::<Vec<_>>(),
-        [0x02, 0x12, 0x10]
-    );
-    let ours: Vec<&Frame> = frames[3..]
-        .iter()
-        .filter(|f| f.direction == Some(Direction::Outbound))
-        .collect();
-    // Each request of the report (RTU: address, PDU, CRC) is one MBAP frame sent, in
-    // order: the same PDU, the unit id the node address.
-    let sent: Vec<Vec<u8>> = requests(&report).into_iter().map(|(_, b)| b).collect();
-    assert!(!sent.is_empty());
-    let mbap: Vec<&[u8]> = ours.iter().map(|f| &f.bytes[54..]).collect();
-    assert!(mbap.len() >= sent.len(), "{} < {}", mbap.len(), sent.len());
-    let tail = &mbap[mbap.len() - sent.len()..];
-    for (m, r) in tail.iter().zip(&sent) {
-        assert_eq!(&m[2..4], &[0, 0], "protocol id");
-        assert_eq!(usize::from(u16::from_be_bytes([m[4], m[5]])), m.len() - 6);
-        assert_eq!(m[6], r[0], "unit id = node address");
-        assert_eq!(&m[7..], &r[1..r.len() - 2], "the PDU");
-    }
-    if !need(Peer::Tshark) {
-        return;
-    }
-    let out = Command::new("tshark")
-        .arg("-r")
-        .arg(&cap)
-        .args([
-            "-o",
-            "tcp.check_checksum:TRUE",
-            "-o",
-            "ip.check_checksum:TRUE",
-        ])
-        .args(["-Y", "mbtcp", "-T", "fields", "-E", "separator=/t"])
-        .args([
-            "-e",
-            "tcp.dstport",
-            "-e",
-            "mbtcp.unit_id",
-            "-e",
-            "modbus.func_code",
-        ])
-        .args([
-            "-e",
-            "modbus.reference_num",
-            "-e",
-            "tcp.checksum.status",
-            "-e",
-            "ip.checksum.status",
-        ])
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    let rows: Vec<Vec<String>> = String::from_utf8(out.stdout)
-        .unwrap()
-        .lines()
-        .map(|l| l.split('\t').map(str::to_string).collect())
-        .collect();
-    // Every segment carrying data is decoded as Modbus/TCP, with good checksums.
-    assert_eq!(rows.len(), frames.len() - 3, "{rows:?}");
-    assert!(rows.iter().all(|r| r[4] == "1" && r[5] == "1"), "{rows:?}");
-    let queries: Vec<&Vec<String>> = rows.iter().filter(|r| r[0] == "502").collect();
-    let last = &queries[queries.len() - sent.len()..];
-    for (q, r) in last.iter().zip(&sent) {
-        assert_eq!(q[1], r[0].to_string());
-        assert_eq!(q[2], r[1].to_string());
-        assert_eq!(q[3], u16::from_be_bytes([r[2], r[3]]).to_string());
-    }
-}
-
-/// `simulate --tcp --capture`, seen from the drive's side: as a Modbus TCP gateway
-/// (`--framing mbap`) each connection's stream under made-up headers, the requests from
-/// the client, the replies from port 502; as a serial server (RTU frames over TCP) the
-/// frames under link type 147, requests inbound and replies outbound.
-#[test]
-fn a_simulator_served_over_tcp_records_what_it_received_and_sent() {
-    let d = dir();
-    for framing in ["mbap", "rtu"] {
-        let cap = d.join(format!("sim-tcp-{framing}.pcapng"));
-        let port = common::free_port();
-        let addr = format!("127.0.0.1:{port}");
-        let _sim = common::Kill::spawn(
-            Command::new(common::bin())
-                .args(["simulate", "--model", "f510", "-q", "--tcp", &addr])
-                .args(["--framing", framing, "--capture"])
-                .arg(&cap)
-                .stdin(std::process::Stdio::null())
-                .stdout(std::process::Stdio::null())
-                .stderr(std::process::Stdio::null()),
-        );
-        common::wait_listening(&addr, std::time::Duration::from_secs(30));
-        let out = Command::new(common::bin())
-            .args([
-                "check",
-                "--model",
-                "f510",
-                "--tcp",
-                &addr,
-                "--framing",
-                framing,
-            ])
-            .args(["--mode", "rtu", "--only", "rtu.map.monitor.*", "--quiet"])
-            .output()
-            .unwrap();
-        assert_eq!(
-            out.status.code(),
-            Some(0),
-            "{framing}: {}",
-            String::from_utf8_lossy(&out.stderr)
-        );
-        let frames = frames(&cap);
-        let inbound: Vec<&Frame> = frames
-            .iter()
-            .filter(|f| f.direction == Some(Direction::Inbound))
-            .collect();
-        let outbound: Vec<&Frame> = frames
-            .iter()
-            .filter(|f| f.direction == Some(Direction::Outbound))
-            .collect();
-        // The map reads (and the preflight, where it is its own read), each answered.
-        assert!(
-            inbound.len() >= 5 && outbound.len() == inbound.len(),
-            "{framing}: {} in, {} out",
-            inbound.len(),
-            outbound.len()
-        );
-        if framing == "mbap" {
-            // Ethernet, handshake first; the drive's replies come from port 502.
-            assert!(frames
-                .iter()
-                .all(|f| f.link_type == conformance::capture::tcp::LINKTYPE_ETHERNET));
-            for f in &outbound {
-                assert_eq!(&f.bytes[34..36], &502u16.to_be_bytes());
-                assert_eq!(f.bytes[54 + 7] & 0x7F, 0x03, "a read's reply or exception");
-            }
-            for f in &inbound {
-                assert_eq!(&f.bytes[36..38], &502u16.to_be_bytes());
-            }
-        } else {
-            assert!(frames.iter().all(|f| f.link_type == 147));
-            assert!(inbound
-                .iter()
-                .all(|f| f.bytes[1] == 0x03 && f.bytes.len() == 8 && crc_ok(&f.bytes)));
-            assert!(outbound.iter().all(|f| crc_ok(&f.bytes)));
-        }
-    }
-}
-
-/// Kinds of finding per node of a monitor report, leaving out the drive's timing (a
-/// capture made by a program on a busy host has its host's timing, not the line's).
-fn kinds_by_node(r: &Value) -> Vec<(String, u64, Vec<String>)> {
-    r["monitor"]["nodes"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .map(|n| {
-            let mut kinds: Vec<String> = n["errors"]
-                .as_object()
-                .map(|o| o.keys().cloned().collect())
-                .unwrap_or_default();
-            kinds.retain(|k| !common::agree::TIMING_KINDS.contains(&k.as_str()));
-            (
-                n["address"].as_str().unwrap().to_string(),
-                n["replies"].as_u64().unwrap_or(0),
-                kinds,
-            )
-        })
-        .collect()
-}
-
-/// Issue 33: one run of `check` on a `bus` of two F510s, recorded three ways (the bus's
-/// own capture, one interface per endpoint, every frame outbound on its sender's; a tap's
-/// `monitor --port --capture`, no directions; the master's `check --capture`), is judged
-/// by `monitor --capture-in` the same way from each file, and as the live monitor and
-/// `check` judged it: every exchange of the report found, with the verdict check gave.
-/// The bus's file was read as "every frame from the master's side", so each reply was a
-/// new request (`drive.unexpected-reply`, `master.request-before-reply`).
-#[test]
-fn a_bus_a_tap_and_a_check_capture_of_one_run_are_judged_alike() {
-    use std::io::{BufRead, BufReader};
-    let d = dir().join("alike");
-    std::fs::create_dir_all(&d).unwrap();
-    let (m, tap) = (d.join("m"), d.join("tap"));
-    let mut bus = Command::new(common::bin())
-        .args(["bus", "--model", "f510", "-a", "1,2", "--quiet", "--link"])
-        .arg(format!("m={}", m.display()))
-        .arg("--link")
-        .arg(format!("tap={}", tap.display()))
-        .arg("--capture")
-        .arg(d.join("bus.pcapng"))
-        .stdout(std::process::Stdio::piped())
-        .stderr(std::process::Stdio::null())
-        .spawn()
-        .unwrap();
-    let mut lines = BufReader::new(bus.stdout.take().unwrap()).lines();
-    for _ in 0..2 {
-        lines.next().unwrap().unwrap();
-    }
-    let mut monitor = Command::new(common::bin())
-        .args(["monitor", "--model", "f510", "-a", "1,2", "-b", "9600"])
-        .args(["--duration", "10", "--port"])
-        .arg(&tap)
-        .arg("--capture")
-        .arg(d.join("tap.pcapng"))
-        .args(["--format", "json", "-o"])
-        .arg(d.join("live.json"))
-        .stderr(std::process::Stdio::piped())
-        .stdout(std::process::Stdio::null())
-        .spawn()
-        .unwrap();
-    let mut heard = BufReader::new(monitor.stderr.take().unwrap()).lines();
-    let first = heard.next().unwrap().unwrap();
-    assert!(first.starts_with("listening on"), "{first}");
-    let drain = std::thread::spawn(move || heard.map_while(Result::ok).collect::<Vec<_>>());
-    let out = Command::new(common::bin())
-        .args(["check", "--model", "f510", "--mode", "rtu", "-a", "1,2"])
-        .args(["--quiet", "--port"])
-        .arg(&m)
-        .args(["--only", "rtu.map.group-0.*", "--capture"])
-        .arg(d.join("check.pcapng"))
-        .args(["--format", "json", "-o"])
-        .arg(d.join("check.json"))
-        .output()
-        .unwrap();
-    let status = monitor.wait().unwrap();
-    let stderr = drain.join().unwrap().join("\n");
-    bus.kill().unwrap();
-    bus.wait().unwrap();
-    assert_eq!(
-        out.status.code(),
-        Some(0),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    assert!(matches!(status.code(), Some(0 | 1)), "{stderr}");
-    let check: Value =
-        serde_json::from_str(&std::fs::read_to_string(d.join("check.json")).unwrap()).unwrap();
-    let live: Value =
-        serde_json::from_str(&std::fs::read_to_string(d.join("live.json")).unwrap()).unwrap();
-    let mut judged = Vec::new();
-    for name in ["bus", "tap", "check"] {
-        let log = d.join(format!("{name}.heard.jsonl"));
-        let (code, report, stderr) = monitor_capture(
-            &d.join(format!("{name}.pcapng")),
-            &format!("alike-{name}"),
-            &["-a", "1,2", "-b", "9600", "--log", log.to_str().unwrap()],
-        );
-        assert!(matches!(code, Some(0 | 1)), "{name}: {stderr}");
-        let heard: Vec<Value> = std::fs::read_to_string(&log)
-            .unwrap()
-            .lines()
-            .map(|l| serde_json::from_str(l).unwrap())
-            .collect();
-        let (agree, _) = common::agree::exchanges(&format!("{name} capture"), &check, &heard, &[]);
-        assert!(agree >= 8, "{name}: only {agree} exchanges compared");
-        judged.push((name, kinds_by_node(&report)));
-    }
-    // Each node answered every request it was sent, and the three files, the live
-    // monitor and one another agree on what was found on whose side.
-    let live = kinds_by_node(&live);
-    for (name, nodes) in &judged {
-        assert_eq!(nodes.len(), 2, "{name}: {nodes:?}");
-        for (address, replies, kinds) in nodes {
-            assert!(*replies >= 4, "{name}: node {address}: {replies} replies");
-            assert!(
-                kinds.iter().all(|k| k.starts_with("master.")),
-                "{name}: node {address}: {kinds:?}"
-            );
-        }
-        assert_eq!(nodes, &judged[0].1, "{name} against {}", judged[0].0);
-        let without_counts = |n: &[(String, u64, Vec<String>)]| {
-            n.iter()
-                .map(|(a, _, k)| (a.clone(), k.clone()))
-                .collect::<Vec<_>>()
-        };
-        assert_eq!(
-            without_counts(nodes),
-            without_counts(&live),
-            "{name} against the live monitor"
-        );
-    }
 }
 
 /// Issue 33: a `check` run whose host stalls while it paces requests onto the simulator's
@@ -1348,8 +587,8 @@ fn a_check_whose_host_stalls_keeps_its_requests_whole_and_its_capture_agrees() {
         d.join("run.json"),
         d.join("heard.jsonl"),
     );
-    let mut check = Command::new(common::bin())
-        .args(["check", "--sim", "f510", "--mode", "rtu", "--quiet"])
+    let mut check = Run::words("check --sim f510 --mode rtu --quiet")
+        .command()
         .args(["--only", "rtu.map.group-2*", "--capture"])
         .arg(&cap)
         .args(["--format", "json", "-o"])

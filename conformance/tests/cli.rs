@@ -2,25 +2,20 @@
 
 mod common;
 
-use std::process::Command;
 use std::time::Duration;
 
+use common::{words, Run, Scratch};
+
+/// Exit code and stdout followed by stderr.
 fn conformance(args: &[&str]) -> (i32, String) {
     let (code, stdout, stderr) = conformance_split(args);
     (code, stdout + &stderr)
 }
 
-/// Exit code, stdout and stderr apart.
+/// Exit code (-1: ended by a signal), stdout and stderr apart.
 fn conformance_split(args: &[&str]) -> (i32, String, String) {
-    let out = Command::new(env!("CARGO_BIN_EXE_conformance"))
-        .args(args)
-        .output()
-        .expect("binary runs");
-    (
-        out.status.code().unwrap_or(-1),
-        String::from_utf8_lossy(&out.stdout).to_string(),
-        String::from_utf8_lossy(&out.stderr).to_string(),
-    )
+    let (code, stdout, stderr) = Run::new(args).run().parts();
+    (code.unwrap_or(-1), stdout, stderr)
 }
 
 #[test]
@@ -64,16 +59,9 @@ fn decode_rejects_bad_input_with_exit_2() {
 
 #[test]
 fn encode_builds_both_modes() {
-    let (code, out) = conformance(&[
-        "encode",
-        "--address",
-        "1",
-        "write",
-        "--register",
-        "0x2502",
-        "--value",
-        "0x1770",
-    ]);
+    let (code, out) = conformance(&words(
+        "encode --address 1 write --register 0x2502 --value 0x1770",
+    ));
     assert_eq!(code, 0, "{out}");
     assert!(out.contains("RTU    01 06 25 02 17 70 2D 12"), "{out}");
     assert!(out.contains(r#"":0106250217704B\r\n""#), "{out}");
@@ -93,16 +81,9 @@ fn encode_reads_register_numbers_in_hex_with_h_or_0x() {
         );
         assert!(err.is_empty(), "{start}: no note for hex: {err}");
     }
-    let (code, out, err) = conformance_split(&[
-        "encode",
-        "--address",
-        "0x01",
-        "write",
-        "--register",
-        "2502H",
-        "--value",
-        "1770h",
-    ]);
+    let (code, out, err) = conformance_split(&words(
+        "encode --address 0x01 write --register 2502H --value 1770h",
+    ));
     assert_eq!(code, 0, "{out}{err}");
     assert!(out.contains("RTU    01 06 25 02 17 70 2D 12"), "{out}");
     assert!(err.is_empty(), "{err}");
@@ -120,16 +101,9 @@ fn encode_reads_a_bare_number_as_decimal_with_a_note() {
         "note: --start 2520 is decimal (09D8H); write 2520H or 0x2520 for hex"
     );
     // Every register number, value and code gets the note; a count and 0..9 do not.
-    let (code, out, err) = conformance_split(&[
-        "encode",
-        "--address",
-        "10",
-        "write-multi",
-        "--start",
-        "0x0100",
-        "--values",
-        "6000,7,12",
-    ]);
+    let (code, out, err) = conformance_split(&words(
+        "encode --address 10 write-multi --start 0x0100 --values 6000,7,12",
+    ));
     assert_eq!(code, 0, "{out}{err}");
     assert!(out.contains("values=[1770 0007 000C]"), "{out}");
     assert!(
@@ -167,26 +141,10 @@ fn encode_refuses_bad_numbers_with_their_text() {
         out.contains("invalid value '25G0H' for '--start <START>': \"25G0H\" is not a number: write hex with H suffix or 0x prefix (2520H, 0x2520); a bare number is decimal (9504)"),
         "{out}"
     );
-    let (code, out) = conformance(&[
-        "encode",
-        "write",
-        "--register",
-        "0x2502",
-        "--value",
-        "0x10000",
-    ]);
+    let (code, out) = conformance(&words("encode write --register 0x2502 --value 0x10000"));
     assert_eq!(code, 2, "{out}");
     assert!(out.contains("\"0x10000\" is over FFFFH (65535)"), "{out}");
-    let (code, out) = conformance(&[
-        "encode",
-        "--address",
-        "100H",
-        "read",
-        "--start",
-        "0",
-        "--count",
-        "1",
-    ]);
+    let (code, out) = conformance(&words("encode --address 100H read --start 0 --count 1"));
     assert_eq!(code, 2, "{out}");
     assert!(out.contains("\"100H\" is over FFH (255)"), "{out}");
     let (code, out) = conformance(&["encode", "loopback", "--data", "A5 3G"]);
@@ -224,22 +182,11 @@ fn vectors_verify_passes_and_export_is_json() {
 #[test]
 fn a_bare_duration_is_seconds() {
     // `--duration 90` was refused ("time unit needed").
-    let (code, out, err) = common::run_bounded(
-        &[
-            "fuzz",
-            "--sim",
-            "f510",
-            "--mode",
-            "rtu",
-            "--no-pace",
-            "--duration",
-            "1",
-            "--format",
-            "json",
-            "--quiet",
-        ],
-        Duration::from_secs(120),
-    );
+    let (code, out, err) =
+        Run::words("fuzz --sim f510 --mode rtu --no-pace --duration 1 --format json --quiet")
+            .timeout(Duration::from_secs(120))
+            .run()
+            .parts();
     assert!(matches!(code, Some(0 | 1)), "{err}");
     let v: serde_json::Value = serde_json::from_str(&out).unwrap();
     let m = &v["fuzz"]["modes"][0];
@@ -277,27 +224,14 @@ fn a_missing_port_is_named_once() {
 
 #[test]
 fn report_writes_text_unless_html_is_asked_for() {
-    let dir = std::path::Path::new(env!("CARGO_TARGET_TMPDIR")).join("cli-report-format");
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).unwrap();
+    let dir = Scratch::new("report-format");
     let json = dir.join("run.json");
-    let (code, _, err) = common::run_bounded(
-        &[
-            "check",
-            "--sim",
-            "f510",
-            "--mode",
-            "rtu",
-            "--only",
-            "identification",
-            "--format",
-            "json",
-            "--quiet",
-            "-o",
-            json.to_str().unwrap(),
-        ],
-        Duration::from_secs(120),
-    );
+    let (code, _, err) =
+        Run::words("check --sim f510 --mode rtu --only identification --format json --quiet -o")
+            .arg(&json)
+            .timeout(Duration::from_secs(120))
+            .run()
+            .parts();
     assert!(matches!(code, Some(0 | 1)), "{err}");
     let json = json.to_str().unwrap();
     // No --format: text on stdout.
@@ -329,22 +263,11 @@ fn report_writes_text_unless_html_is_asked_for() {
     assert!(help.contains("Default: text"), "{help}");
     // The same rule where a run writes its report: -o x.json is JSON, not text.
     let fuzzed = dir.join("fuzz.json");
-    let (code, _, err) = common::run_bounded(
-        &[
-            "fuzz",
-            "--sim",
-            "f510",
-            "--mode",
-            "rtu",
-            "--no-pace",
-            "--cases",
-            "20",
-            "-q",
-            "-o",
-            fuzzed.to_str().unwrap(),
-        ],
-        Duration::from_secs(120),
-    );
+    let (code, _, err) = Run::words("fuzz --sim f510 --mode rtu --no-pace --cases 20 -q -o")
+        .arg(&fuzzed)
+        .timeout(Duration::from_secs(120))
+        .run()
+        .parts();
     assert!(matches!(code, Some(0 | 1)), "{err}");
     let v: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(&fuzzed).unwrap()).unwrap();
@@ -417,20 +340,10 @@ fn fuzz_by_default_runs_a_short_campaign() {
     );
     // It runs for its 15 s (not a count of cases), and then ends (bounded above by
     // run_bounded).
-    let (code, out, err) = common::run_bounded(
-        &[
-            "fuzz",
-            "--sim",
-            "f510",
-            "--mode",
-            "rtu",
-            "--no-pace",
-            "--format",
-            "json",
-            "--quiet",
-        ],
-        Duration::from_secs(180),
-    );
+    let (code, out, err) = Run::words("fuzz --sim f510 --mode rtu --no-pace --format json --quiet")
+        .timeout(Duration::from_secs(180))
+        .run()
+        .parts();
     assert!(matches!(code, Some(0 | 1)), "{err}");
     let v: serde_json::Value = serde_json::from_str(&out).unwrap();
     let m = &v["fuzz"]["modes"][0];
@@ -441,18 +354,12 @@ fn fuzz_by_default_runs_a_short_campaign() {
 
 #[test]
 fn a_pseudo_terminal_has_no_line_bound() {
-    let dir = std::path::Path::new(env!("CARGO_TARGET_TMPDIR")).join("cli-pty-bound");
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).unwrap();
+    let dir = Scratch::new("pty-bound");
     let (_sim, pty) = common::sim_pty(&["--model", "f510"]);
     let json = dir.join("pty.json");
-    let (code, _, err) = common::run_bounded(
-        &[
-            "check",
-            "--model",
-            "f510",
-            "--port",
-            &pty,
+    let (code, _, err) = Run::words("check --model f510 --port")
+        .arg(&pty)
+        .args([
             "--mode",
             "rtu",
             "--only",
@@ -461,10 +368,11 @@ fn a_pseudo_terminal_has_no_line_bound() {
             "json",
             "--quiet",
             "-o",
-            json.to_str().unwrap(),
-        ],
-        Duration::from_secs(120),
-    );
+        ])
+        .arg(&json)
+        .timeout(Duration::from_secs(120))
+        .run()
+        .parts();
     assert_eq!(code, Some(0), "{err}");
     let v: serde_json::Value = serde_json::from_slice(&std::fs::read(&json).unwrap()).unwrap();
     let b = &v["budget"]["rtu"];
@@ -489,21 +397,11 @@ fn a_pseudo_terminal_has_no_line_bound() {
     );
 
     // The paced simulator has line timing: a bound, as before.
-    let (code, out, err) = common::run_bounded(
-        &[
-            "check",
-            "--sim",
-            "f510",
-            "--mode",
-            "rtu",
-            "--only",
-            "rtu.map.group-0*",
-            "--format",
-            "json",
-            "--quiet",
-        ],
-        Duration::from_secs(120),
-    );
+    let (code, out, err) =
+        Run::words("check --sim f510 --mode rtu --only rtu.map.group-0* --format json --quiet")
+            .timeout(Duration::from_secs(120))
+            .run()
+            .parts();
     let v: serde_json::Value =
         serde_json::from_str(&out).unwrap_or_else(|e| panic!("{e}: exit {code:?}: {err}"));
     // On a loaded host a paced request can stall on its way out every time: that check is
@@ -598,18 +496,10 @@ fn send_help_examples_send_what_they_say() {
         "{out}"
     );
     // One frame left unquoted goes as given, two frames, and the note says how to quote.
-    let (code, out, err) = common::run_bounded(
-        &[
-            "send",
-            "--sim",
-            "f510",
-            "--mode",
-            "rtu",
-            "010325200001",
-            "8ECC",
-        ],
-        Duration::from_secs(60),
-    );
+    let (code, out, err) = Run::words("send --sim f510 --mode rtu 010325200001 8ECC")
+        .timeout(Duration::from_secs(60))
+        .run()
+        .parts();
     assert_eq!(code, Some(0), "{out}{err}");
     assert_eq!(out.matches("] sent ").count(), 2, "{out}");
     assert!(
@@ -621,24 +511,13 @@ fn send_help_examples_send_what_they_say() {
 
 #[test]
 fn gate_runs_conformance_adapter_without_conformance_on_the_path() {
-    let out = Command::new(env!("CARGO_BIN_EXE_conformance"))
-        .args([
-            "gate",
-            "--codec",
-            "conformance adapter",
-            "--no-vectors",
-            "--count",
-            "20",
-        ])
+    let out = Run::new(["gate", "--codec", "conformance adapter", "--no-vectors"])
+        .args(["--count", "20"])
         // A fresh clone: no `conformance` on the PATH.
         .env("PATH", "/usr/bin:/bin")
-        .output()
-        .unwrap();
-    let (stdout, stderr) = (
-        String::from_utf8_lossy(&out.stdout),
-        String::from_utf8_lossy(&out.stderr),
-    );
-    assert_eq!(out.status.code(), Some(0), "{stdout}{stderr}");
+        .run();
+    let (stdout, stderr) = (&out.stdout, &out.stderr);
+    assert_eq!(out.code, Some(0), "{stdout}{stderr}");
     assert!(
         stdout.contains("(adapter conformance-reference-adapter;"),
         "{stdout}"
@@ -689,16 +568,9 @@ fn an_adapter_that_dies_before_its_hello_is_shown_with_its_stderr_and_a_hint() {
 /// 0 polls.
 #[test]
 fn a_baud_of_zero_and_a_count_of_zero_are_refused() {
-    let (code, _, err) = conformance_split(&[
-        "capture",
-        "synth",
-        "--duration",
-        "1m",
-        "--baud",
-        "0",
-        "-o",
-        "/nonexistent/x.pcapng",
-    ]);
+    let (code, _, err) = conformance_split(&words(
+        "capture synth --duration 1m --baud 0 -o /nonexistent/x.pcapng",
+    ));
     assert_eq!(code, 2, "{err}");
     assert!(err.contains("300..=1000000"), "{err}");
     let (code, _, err) = conformance_split(&["watch", "--sim", "f510", "--count", "0"]);

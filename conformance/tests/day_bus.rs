@@ -17,12 +17,12 @@ mod common;
 use std::collections::BTreeMap;
 use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
-use std::process::{Command, Stdio};
+use std::process::Stdio;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-use common::{need, note, Peer, TSHARK_USER_DLT};
+use common::{need, note, words, Peer, Run, Scratch, TSHARK_USER_DLT};
 use serde_json::Value;
 
 /// How close a finding's time must be to the fault's (the monitor's time of a frame is
@@ -51,15 +51,9 @@ struct Judged {
 fn synth(dir: &Path, duration: &str, seed: u64) -> (PathBuf, Value, f64) {
     let cap = dir.join(format!("day-{duration}.pcapng"));
     let t0 = Instant::now();
-    let out = Command::new(bin())
-        .args([
-            "capture",
-            "synth",
-            "--duration",
-            duration,
-            "--baud",
-            "115200",
-        ])
+    let out = Run::program(bin(), ["capture", "synth", "--duration"])
+        .arg(duration)
+        .args(["--baud", "115200"])
         .args([
             "--drives",
             "8",
@@ -69,13 +63,8 @@ fn synth(dir: &Path, duration: &str, seed: u64) -> (PathBuf, Value, f64) {
             "-o",
         ])
         .arg(&cap)
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+        .run();
+    assert_eq!(out.code, Some(0), "{}", out.stderr);
     let mut truth_path = cap.clone().into_os_string();
     truth_path.push(".truth.json");
     let truth = serde_json::from_slice(&std::fs::read(truth_path).unwrap()).unwrap();
@@ -90,8 +79,8 @@ fn synth(dir: &Path, duration: &str, seed: u64) -> (PathBuf, Value, f64) {
 fn judge(dir: &Path, cap: &Path, limit: Duration) -> (Value, Vec<Value>, f64, i64) {
     let report = dir.join("day.json");
     let t0 = Instant::now();
-    let mut child = Command::new(bin())
-        .args(["monitor", "--model", "f510", "-b", "115200", "--capture-in"])
+    let mut child = Run::program(bin(), words("monitor --model f510 -b 115200 --capture-in"))
+        .command()
         .arg(cap)
         .args(["--log", "/dev/stdout", "--quiet", "--format", "json", "-o"])
         .arg(&report)
@@ -319,7 +308,7 @@ fn figures(label: &str, j: &Judged) -> String {
 
 #[test]
 fn a_few_minutes_of_bus_are_judged_with_exact_counts_and_every_fault_at_its_time() {
-    let dir = tempdir("minutes");
+    let dir = Scratch::new("minutes");
     let j = day(&dir, "4m", 37, Duration::from_secs(300));
     note(&figures("day_bus 4 min", &j));
     let kinds: Vec<&str> = j.truth["faults"]
@@ -332,7 +321,6 @@ fn a_few_minutes_of_bus_are_judged_with_exact_counts_and_every_fault_at_its_time
         assert!(kinds.contains(&k), "no {k} planted: {kinds:?}");
     }
     assert_exact(&j);
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 /// A peer nobody here wrote reads the same file: tshark takes every packet, and its
@@ -342,10 +330,9 @@ fn tshark_reads_every_packet_and_finds_a_wrong_crc_on_the_planted_frames_only() 
     if !need(Peer::Tshark) {
         return;
     }
-    let dir = tempdir("tshark");
+    let dir = Scratch::new("tshark");
     let (cap, truth, _) = synth(&dir, "2m", 5);
-    let out = Command::new("tshark")
-        .arg("-r")
+    let out = Run::program("tshark", ["-r"])
         .arg(&cap)
         .args(["-o", TSHARK_USER_DLT, "-o", "mbrtu.crc_verification:TRUE"])
         .args([
@@ -356,15 +343,9 @@ fn tshark_reads_every_packet_and_finds_a_wrong_crc_on_the_planted_frames_only() 
             "-e",
             "mbrtu.crc16.status",
         ])
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    let rows = String::from_utf8(out.stdout).unwrap();
-    let rows: Vec<&str> = rows.lines().collect();
+        .run()
+        .ok();
+    let rows: Vec<&str> = out.stdout.lines().collect();
     assert_eq!(rows.len() as u64, u(&truth, "packets"));
     let planted = truth["faults"]
         .as_array()
@@ -382,17 +363,15 @@ fn tshark_reads_every_packet_and_finds_a_wrong_crc_on_the_planted_frames_only() 
         planted + broadcasts,
         "frames tshark does not find right: {wrong} with a wrong CRC"
     );
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 #[test]
 #[ignore = "one hour of bus: .ci/run runs it (about 45 s)"]
 fn one_hour_of_bus_is_judged_with_exact_counts_and_every_fault_at_its_time() {
-    let dir = tempdir("hour");
+    let dir = Scratch::new("hour");
     let j = day(&dir, "1h", 1, Duration::from_secs(1200));
     note(&figures("day_bus 1 h", &j));
     assert_exact(&j);
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 #[test]
@@ -402,7 +381,7 @@ fn a_day_of_bus_is_judged_in_flat_memory_with_exact_counts() {
         note("day_bus: a_day_of_bus needs CONFORMANCE_LONG=1 (1 h, 6 h and 24 h of bus)");
         return;
     }
-    let dir = tempdir("day");
+    let dir = Scratch::new("day");
     let mut rss = Vec::new();
     for (d, limit) in [("1h", 1200), ("6h", 3600), ("24h", 4 * 3600)] {
         let j = day(&dir, d, 1, Duration::from_secs(limit));
@@ -412,13 +391,4 @@ fn a_day_of_bus_is_judged_in_flat_memory_with_exact_counts() {
     }
     // Flat: a day takes no more memory than an hour, within a fifth (allocator slack).
     assert!(rss[2] <= rss[0] + rss[0] / 5, "peak RSS grows: {rss:?} kB");
-    let _ = std::fs::remove_dir_all(&dir);
-}
-
-/// A directory of the test's own (`label`), emptied first.
-fn tempdir(label: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("day_bus-{label}-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).unwrap();
-    d
 }

@@ -8,7 +8,7 @@ mod common;
 use std::path::PathBuf;
 use std::time::Duration;
 
-use common::{bin, check_device, sim_pty};
+use common::{check_device, sim_pty, Run, Scratch};
 use conformance::model::{DriveModel, MODELS};
 
 /// The issue's device: RTU only, holding registers 0000H..0FFFH and 2500H..252FH, no
@@ -24,12 +24,6 @@ fn example(name: &str) -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
         .join("../vectors/models/examples")
         .join(name)
-}
-
-fn tempdir(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("description-{}-{name}", std::process::id()));
-    std::fs::create_dir_all(&d).unwrap();
-    d
 }
 
 /// (id, status, summary) of every check of a report.
@@ -113,7 +107,7 @@ fn both_examples_load_and_say_what_they_leave_out() {
 
 #[test]
 fn the_issue_device_passes_on_the_simulator_and_its_skips_name_the_missing_fields() {
-    let dir = tempdir("minimal-sim");
+    let dir = Scratch::new("minimal-sim");
     let file = example(MINIMAL);
     let (exit, v) = check_device(
         &dir,
@@ -160,7 +154,7 @@ fn the_issue_device_passes_on_the_simulator_and_its_skips_name_the_missing_field
 
 #[test]
 fn the_full_example_passes_on_the_simulator_with_its_bounds_and_identification() {
-    let dir = tempdir("full-sim");
+    let dir = Scratch::new("full-sim");
     let file = example(FULL);
     let (exit, v) = check_device(
         &dir,
@@ -194,7 +188,7 @@ fn check_model_file_alone_holds_a_simulated_device_to_its_description() {
         let file = example(name);
         let file = file.to_str().unwrap();
         let (_sim, port) = sim_pty(&["--model-file", file]);
-        let dir = tempdir(&format!("pty-{name}"));
+        let dir = Scratch::new(&format!("pty-{name}"));
         let (exit, v) = check_device(
             &dir,
             &["--model-file", file, "--port", &port],
@@ -211,12 +205,9 @@ fn check_model_file_alone_holds_a_simulated_device_to_its_description() {
 
 #[test]
 fn bare_sim_needs_a_model_file() {
-    let o = std::process::Command::new(bin())
-        .args(["check", "--sim", "--list"])
-        .output()
-        .unwrap();
-    assert!(!o.status.success());
-    let err = String::from_utf8_lossy(&o.stderr);
+    let o = Run::words("check --sim --list").run();
+    assert_ne!(o.code, Some(0));
+    let err = o.stderr.as_str();
     assert!(err.contains("--model-file"), "{err}");
 }
 
@@ -317,7 +308,7 @@ fn a_device_that_differs_from_what_a_description_leaves_out_is_never_a_deviation
     // states its codes and sees deviations; the minimal one states none, so the checks
     // that would judge a code are skipped, naming the rule, and nothing deviates.
     let (exit, v) = check_device(
-        &tempdir("wrong-full"),
+        &Scratch::new("wrong-full"),
         &[
             "--sim",
             "--no-pace",
@@ -335,7 +326,7 @@ fn a_device_that_differs_from_what_a_description_leaves_out_is_never_a_deviation
         v["summary"]
     );
     let (exit, v) = check_device(
-        &tempdir("wrong-minimal"),
+        &Scratch::new("wrong-minimal"),
         &[
             "--sim",
             "--no-pace",
@@ -356,7 +347,7 @@ fn a_device_that_differs_from_what_a_description_leaves_out_is_never_a_deviation
     // to the minimal description of it: no deviation either.
     let (_sim, port) = sim_pty(&["--model-file", example(FULL).to_str().unwrap()]);
     let (exit, v) = check_device(
-        &tempdir("full-as-minimal"),
+        &Scratch::new("full-as-minimal"),
         &[
             "--model-file",
             example(MINIMAL).to_str().unwrap(),
@@ -377,7 +368,7 @@ fn a_device_that_differs_from_what_a_description_leaves_out_is_never_a_deviation
 /// field.
 #[test]
 fn a_description_written_from_the_guide_checks_a_pymodbus_server_with_no_deviation() {
-    let dir = tempdir("guide_pymodbus");
+    let dir = Scratch::new("guide_pymodbus");
     let Some(peer) = common::pymodbus_serial_blocks(&dir, "rtu", "0000-0FFF,2500-252F") else {
         return;
     };

@@ -1,6 +1,6 @@
-//! The documentation, checked: every relative link and `#anchor` in the repository's
-//! Markdown files resolves, every `console` example prints what the program prints, and
-//! every `conformance` line of a `sh` block uses options that its command has.
+//! The documentation, checked: every `console` example prints what the program prints,
+//! and every `conformance` line of a `sh` block uses options that its command has. (The
+//! links and anchors are checked by tests/docs_links.rs.)
 //!
 //! How an example is written (docs/src/overview.md, "How the examples are written"):
 //!
@@ -29,334 +29,18 @@
 //! can be pasted back into the page. `DOCS_EXAMPLES=PATTERN` runs only the examples whose
 //! command contains PATTERN.
 
-use std::collections::{BTreeSet, HashMap};
+mod common;
+mod markdown;
+
+use std::collections::HashMap;
 use std::io::{BufRead, BufReader, Read};
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 use std::sync::mpsc;
 use std::time::{Duration, Instant};
 
-/// The top of the repository.
-fn repo() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR"))
-        .parent()
-        .unwrap()
-        .to_path_buf()
-}
-
-/// Every Markdown file of the repository that people read (not build output, not
-/// installed packages, not fuzz corpora).
-fn markdown_files() -> Vec<PathBuf> {
-    fn walk(dir: &Path, out: &mut Vec<PathBuf>) {
-        let Ok(entries) = std::fs::read_dir(dir) else {
-            return;
-        };
-        for e in entries.flatten() {
-            let p = e.path();
-            let name = e.file_name().to_string_lossy().to_string();
-            if p.is_dir() {
-                if !(name.starts_with('.') && name != ".ci"
-                    || matches!(name.as_str(), "target" | "node_modules" | "book")
-                    || name.starts_with("corpus"))
-                {
-                    walk(&p, out);
-                }
-            } else if name.ends_with(".md") {
-                out.push(p);
-            }
-        }
-    }
-    let mut out = Vec::new();
-    walk(&repo(), &mut out);
-    out.sort();
-    out
-}
-
-fn rel(p: &Path) -> String {
-    p.strip_prefix(repo())
-        .unwrap_or(p)
-        .to_string_lossy()
-        .to_string()
-}
-
-/// A fenced code block: its info string, the line of its opening fence (1-based), the
-/// indent of that fence (a block in a list item) and its lines, less that indent.
-struct Block {
-    info: String,
-    line: usize,
-    indent: usize,
-    lines: Vec<String>,
-}
-
-impl Block {
-    /// The language: the info string's first word.
-    fn lang(&self) -> &str {
-        self.info.split([' ', ',']).next().unwrap_or("")
-    }
-}
-
-/// Splits a Markdown text into the lines outside code blocks (with their line numbers)
-/// and the fenced blocks.
-fn split(text: &str) -> (Vec<(usize, String)>, Vec<Block>) {
-    let mut prose = Vec::new();
-    let mut blocks = Vec::new();
-    let mut open: Option<(String, Block)> = None;
-    for (i, line) in text.lines().enumerate() {
-        let trimmed = line.trim_start();
-        let indent = line.len() - trimmed.len();
-        let fence: String = trimmed
-            .chars()
-            .take_while(|&c| c == '`' || c == '~')
-            .collect();
-        let is_fence = fence.len() >= 3 && fence.chars().all(|c| fence.starts_with(c));
-        if let Some((f, mut b)) = open.take() {
-            if is_fence
-                && fence.len() >= f.len()
-                && fence.starts_with(&f[..1])
-                && trimmed[fence.len()..].trim().is_empty()
-            {
-                blocks.push(b);
-            } else {
-                b.lines.push(line[indent.min(b.indent)..].to_string());
-                open = Some((f, b));
-            }
-        } else if is_fence {
-            open = Some((
-                fence.clone(),
-                Block {
-                    info: trimmed[fence.len()..].trim().to_string(),
-                    line: i + 1,
-                    indent,
-                    lines: Vec::new(),
-                },
-            ));
-        } else {
-            prose.push((i + 1, line.to_string()));
-        }
-    }
-    (prose, blocks)
-}
-
-/// A line with its inline code spans blanked out (links inside code are not links).
-fn without_code_spans(line: &str) -> String {
-    let mut out = String::with_capacity(line.len());
-    let mut in_code = false;
-    for c in line.chars() {
-        if c == '`' {
-            in_code = !in_code;
-            out.push(' ');
-        } else {
-            out.push(if in_code { ' ' } else { c });
-        }
-    }
-    out
-}
-
-/// The destinations of the inline links and images of a line, and of a reference
-/// definition (`[name]: dest`).
-fn links_of(line: &str) -> Vec<String> {
-    let line = without_code_spans(line);
-    let mut out = Vec::new();
-    let mut rest = line.as_str();
-    while let Some(at) = rest.find("](") {
-        let after = &rest[at + 2..];
-        let mut depth = 0;
-        let mut end = after.len();
-        for (i, c) in after.char_indices() {
-            match c {
-                '(' => depth += 1,
-                ')' if depth == 0 => {
-                    end = i;
-                    break;
-                }
-                ')' => depth -= 1,
-                _ => {}
-            }
-        }
-        let dest = after[..end].trim();
-        let dest = dest.split_once(" \"").map(|(d, _)| d).unwrap_or(dest);
-        out.push(dest.trim_matches(['<', '>']).to_string());
-        rest = &after[end.min(after.len())..];
-    }
-    let t = line.trim_start();
-    if t.starts_with('[') {
-        if let Some((_, dest)) = t.split_once("]: ") {
-            out.push(dest.split_whitespace().next().unwrap_or("").to_string());
-        }
-    }
-    out
-}
-
-/// The anchor GitHub gives a heading's text: lower case, markup and punctuation other
-/// than `-` and `_` dropped, spaces as `-`. (mdBook makes the same ids.)
-fn slug(heading: &str) -> String {
-    // Links in a heading count by their text.
-    let mut text = String::new();
-    let mut rest = heading;
-    while let Some(open) = rest.find('[') {
-        let Some(close) = rest[open..].find("](") else {
-            break;
-        };
-        let Some(end) = rest[open + close..].find(')') else {
-            break;
-        };
-        text.push_str(&rest[..open]);
-        text.push_str(&rest[open + 1..open + close]);
-        rest = &rest[open + close + end + 1..];
-    }
-    text.push_str(rest);
-    text.trim()
-        .to_lowercase()
-        .chars()
-        .filter_map(|c| match c {
-            ' ' => Some('-'),
-            c if c.is_alphanumeric() || c == '-' || c == '_' => Some(c),
-            _ => None,
-        })
-        .collect()
-}
-
-/// The anchors of a Markdown file: its headings' slugs (repeats numbered `-1`, `-2`, as
-/// GitHub numbers them) and the `id="..."` / `name="..."` of its HTML.
-fn anchors(text: &str) -> BTreeSet<String> {
-    let (prose, _) = split(text);
-    let mut seen: HashMap<String, usize> = HashMap::new();
-    let mut out = BTreeSet::new();
-    for (_, line) in prose {
-        let t = line.trim_start();
-        let hashes = t.chars().take_while(|&c| c == '#').count();
-        if (1..=6).contains(&hashes) && t[hashes..].starts_with(' ') {
-            let s = slug(t[hashes..].trim().trim_end_matches('#'));
-            let n = seen.entry(s.clone()).or_insert(0);
-            out.insert(if *n == 0 {
-                s.clone()
-            } else {
-                format!("{s}-{n}")
-            });
-            *n += 1;
-        }
-        for attr in ["id=\"", "name=\""] {
-            let mut rest = line.as_str();
-            while let Some(at) = rest.find(attr) {
-                let v = &rest[at + attr.len()..];
-                if let Some(end) = v.find('"') {
-                    out.insert(v[..end].to_string());
-                }
-                rest = &rest[at + attr.len()..];
-            }
-        }
-    }
-    out
-}
-
-/// The broken relative links of one file: `file:line: link: why`.
-fn broken_links(file: &Path) -> Vec<String> {
-    let text = std::fs::read_to_string(file).unwrap();
-    let (prose, _) = split(&text);
-    let mut bad = Vec::new();
-    for (n, line) in prose {
-        for dest in links_of(&line) {
-            if dest.is_empty() || dest.contains("://") || dest.starts_with("mailto:") {
-                continue;
-            }
-            let (path, anchor) = match dest.split_once('#') {
-                Some((p, a)) => (p, Some(a)),
-                None => (dest.as_str(), None),
-            };
-            let target = if path.is_empty() {
-                file.to_path_buf()
-            } else if let Some(abs) = path.strip_prefix('/') {
-                repo().join(abs)
-            } else {
-                file.parent().unwrap().join(path)
-            };
-            let why = if !target.exists() {
-                Some(format!("{} does not exist", rel(&target)))
-            } else if let Some(a) = anchor {
-                if target.extension().is_some_and(|e| e == "md") {
-                    let have = anchors(&std::fs::read_to_string(&target).unwrap());
-                    (!have.contains(a)).then(|| {
-                        format!(
-                            "{} has no heading #{a} (it has: {})",
-                            rel(&target),
-                            have.iter().cloned().collect::<Vec<_>>().join(" ")
-                        )
-                    })
-                } else {
-                    None
-                }
-            } else {
-                None
-            };
-            if let Some(why) = why {
-                bad.push(format!("{}:{n}: ({dest}): {why}", rel(file)));
-            }
-        }
-    }
-    bad
-}
-
-#[test]
-fn every_relative_link_and_anchor_resolves() {
-    let files = markdown_files();
-    assert!(
-        files.iter().any(|f| f.ends_with("docs/src/SUMMARY.md")),
-        "the guide is missing: {files:?}"
-    );
-    let bad: Vec<String> = files.iter().flat_map(|f| broken_links(f)).collect();
-    assert!(
-        bad.is_empty(),
-        "{} broken link(s):\n{}",
-        bad.len(),
-        bad.join("\n")
-    );
-}
-
-#[test]
-fn every_page_of_the_guide_is_in_its_summary() {
-    let src = repo().join("docs/src");
-    let summary = std::fs::read_to_string(src.join("SUMMARY.md")).unwrap();
-    let listed: BTreeSet<String> = summary.lines().flat_map(links_of).collect();
-    for e in std::fs::read_dir(&src).unwrap().flatten() {
-        let name = e.file_name().to_string_lossy().to_string();
-        if name.ends_with(".md") && name != "SUMMARY.md" {
-            assert!(
-                listed.contains(&name),
-                "docs/src/{name} is not in SUMMARY.md"
-            );
-        }
-    }
-}
-
-#[test]
-fn the_link_checker_catches_what_it_should() {
-    // The checker itself: slugs as GitHub makes them, links in code ignored, a heading
-    // repeated gets a number.
-    assert_eq!(
-        slug("Checking a drive: the `--only` option"),
-        "checking-a-drive-the---only-option"
-    );
-    assert_eq!(slug("Gates [(and more)](x.md)"), "gates-and-more");
-    assert_eq!(slug("What is `fuzz_targets/`?"), "what-is-fuzz_targets");
-    assert_eq!(links_of("see [a](b.md#c) and `[x](y)`"), vec!["b.md#c"]);
-    let a = anchors("# A\n## A\n```\n# not a heading\n```\n<a id=\"z\"></a>\n");
-    assert_eq!(
-        a.into_iter().collect::<Vec<_>>(),
-        vec!["a".to_string(), "a-1".to_string(), "z".to_string()]
-    );
-    let dir = repo().join("target/tmp/docs-links");
-    std::fs::create_dir_all(&dir).unwrap();
-    let f = dir.join("page.md");
-    std::fs::write(
-        &f,
-        "# Top\n\n[ok](#top) [bad](#nowhere)\n[gone](missing.md) [self](page.md#top)\n",
-    )
-    .unwrap();
-    let bad = broken_links(&f);
-    assert_eq!(bad.len(), 2, "{bad:?}");
-    assert!(bad[0].contains("page.md:3: (#nowhere)"), "{bad:?}");
-    assert!(bad[1].contains(":4: (missing.md)"), "{bad:?}");
-}
+use common::{Run, Scratch};
+use markdown::{markdown_files, rel, repo, split, Block};
 
 // ---- paths in code spans -----------------------------------------------------------
 
@@ -914,7 +598,6 @@ fn unknown_options(
     text: &str,
     help_of: &mut HashMap<Vec<String>, String>,
 ) -> (usize, Vec<String>) {
-    let bin = env!("CARGO_BIN_EXE_conformance");
     let mut bad = Vec::new();
     let mut seen = 0;
     let (_, blocks) = split(text);
@@ -947,9 +630,9 @@ fn unknown_options(
                 let mut p = path.clone();
                 p.push(word.clone());
                 let help = help_of.entry(p.clone()).or_insert_with(|| {
-                    let o = Command::new(bin).args(&p).arg("--help").output().unwrap();
-                    if o.status.success() {
-                        String::from_utf8_lossy(&o.stdout).to_string()
+                    let o = Run::new(&p).arg("--help").run();
+                    if o.code == Some(0) {
+                        o.stdout
                     } else {
                         String::new()
                     }
@@ -961,10 +644,9 @@ fn unknown_options(
             }
             // Options of the program itself (`conformance --version`) are in its own help.
             if path.is_empty() && w.first().is_some_and(|x| x.starts_with('-')) {
-                help_of.entry(Vec::new()).or_insert_with(|| {
-                    let o = Command::new(bin).arg("--help").output().unwrap();
-                    String::from_utf8_lossy(&o.stdout).to_string()
-                });
+                help_of
+                    .entry(Vec::new())
+                    .or_insert_with(|| Run::words("--help").run().stdout);
             } else if path.is_empty() {
                 bad.push(format!("{at}: {l}: no such command"));
                 continue;
@@ -1048,11 +730,7 @@ fn master_gate_examples() {
 /// done.
 #[test]
 fn the_monitor_page_does_not_call_the_line_search_not_yet_done() {
-    let help = Command::new(env!("CARGO_BIN_EXE_conformance"))
-        .args(["monitor", "--help"])
-        .output()
-        .unwrap();
-    let help = String::from_utf8_lossy(&help.stdout);
+    let help = Run::words("monitor --help").run().stdout;
     assert!(
         help.contains("with no -b, the monitor finds them by listening"),
         "{help}"
@@ -1106,26 +784,19 @@ fn the_describing_a_device_lint_transcript_is_what_lint_prints() {
         .replacen("\"first\": \"2500\"", "\"first\": \"2500h\"", 1)
         .replacen("\"access\": \"read-only\"", "\"acess\": \"read-only\"", 1);
     assert_ne!(broken, file);
-    let dir = repo().join(format!("target/tmp/docs-lint-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
+    let dir = Scratch::new("lint");
     std::fs::write(dir.join("acme-x100.json"), broken).unwrap();
-    let o = Command::new(env!("CARGO_BIN_EXE_conformance"))
-        .args(["model", "lint", "acme-x100.json"])
-        .current_dir(&dir)
-        .output()
-        .unwrap();
-    let _ = std::fs::remove_dir_all(&dir);
-    assert_eq!(o.status.code(), Some(1));
+    let o = Run::words("model lint acme-x100.json")
+        .in_dir(&dir)
+        .run()
+        .expect(1);
     let transcript = blocks_of(DESCRIBING, "text")
         .into_iter()
         .find(|b| {
             b.lines.first().map(String::as_str) == Some("$ conformance model lint acme-x100.json")
         })
         .expect("the page shows a lint transcript");
-    let printed: Vec<String> = String::from_utf8_lossy(&o.stdout)
-        .lines()
-        .map(str::to_string)
-        .collect();
+    let printed: Vec<String> = o.stdout.lines().map(str::to_string).collect();
     assert_eq!(transcript.lines[1..], printed[..]);
 }
 

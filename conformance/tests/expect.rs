@@ -5,10 +5,10 @@
 //! an invalid file is refused with its line and field.
 
 mod common;
+use common::{line, Ran, Run, Scratch};
 
 use std::collections::BTreeSet;
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
 use std::time::Duration;
 
 /// Short runs: the map checks of groups 1 and 10..18 (wrong-exception makes their
@@ -17,13 +17,6 @@ use std::time::Duration;
 /// deviate, and a paced pseudo-terminal on a loaded host can stall a request (an ERROR,
 /// exit 2) that has nothing to do with expectations.
 const ONLY: [&str; 4] = ["--only", "rtu.map.group-1*", "--only", "rtu.broadcast.*"];
-
-fn dir(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("teco-expect-{name}-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).unwrap();
-    d
-}
 
 /// `conformance check --sim f510 ONLY ARGS --format json -o DIR/check.json`: exit code
 /// and report (checked against the schema).
@@ -35,9 +28,9 @@ fn check(dir: &Path, args: &[&str]) -> (Option<i32>, serde_json::Value) {
 }
 
 /// Runs the binary to completion (for the quick commands: expect, report, refusals).
-fn conformance(args: &[&str]) -> Output {
-    let out = Command::new(common::bin()).args(args).output().unwrap();
-    let stderr = String::from_utf8_lossy(&out.stderr);
+fn conformance(args: &[&str]) -> Ran {
+    let out = Run::new(args).run();
+    let stderr = out.stderr.as_str();
     assert!(!stderr.contains("panicked"), "{stderr}");
     out
 }
@@ -106,11 +99,7 @@ fn starting_file(d: &Path) -> (PathBuf, BTreeSet<String>) {
         "-o",
         file.to_str().unwrap(),
     ]);
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    assert_eq!(out.code, Some(0), "{}", out.stderr);
     let text = std::fs::read_to_string(&file).unwrap();
     assert_eq!(
         text.matches("[[expect]]").count(),
@@ -126,7 +115,7 @@ fn starting_file(d: &Path) -> (PathBuf, BTreeSet<String>) {
 
 #[test]
 fn an_expectations_file_gates_runs_by_what_changed() {
-    let d = dir("gate");
+    let d = Scratch::new("gate");
     let (file, deviating) = starting_file(&d);
     let expect = ["--expect", file.to_str().unwrap()];
 
@@ -145,9 +134,9 @@ fn an_expectations_file_gates_runs_by_what_changed() {
     let saved = d.join("expected.json");
     std::fs::rename(d.join("check.json"), &saved).unwrap();
     let out = conformance(&["report", saved.to_str().unwrap()]);
-    let text = String::from_utf8_lossy(&out.stdout);
-    assert_eq!(listed_under(&text, "EXPECTED ("), deviating, "{text}");
-    assert!(listed_under(&text, "NEW DEVIATIONS").is_empty(), "{text}");
+    let text = out.stdout.as_str();
+    assert_eq!(listed_under(text, "EXPECTED ("), deviating, "{text}");
+    assert!(listed_under(text, "NEW DEVIATIONS").is_empty(), "{text}");
 
     // The clean drive: each expected deviation is an UNEXPECTED PASS; exit 0, and 1 with
     // --strict-expect.
@@ -159,12 +148,8 @@ fn an_expectations_file_gates_runs_by_what_changed() {
     assert_eq!(v["expectations"]["strict"], true);
     assert_eq!(ids_marked(&v, "unexpected-pass"), deviating);
     let out = conformance(&["report", d.join("check.json").to_str().unwrap()]);
-    let text = String::from_utf8_lossy(&out.stdout);
-    assert_eq!(
-        listed_under(&text, "UNEXPECTED PASSES"),
-        deviating,
-        "{text}"
-    );
+    let text = out.stdout.as_str();
+    assert_eq!(listed_under(text, "UNEXPECTED PASSES"), deviating, "{text}");
     assert!(
         text.contains("UNEXPECTED PASS: expected deviation"),
         "{text}"
@@ -194,8 +179,8 @@ fn an_expectations_file_gates_runs_by_what_changed() {
     assert_eq!(v["expectations"]["counts"]["unexpected"], new.len());
     assert_eq!(ids_marked(&v, "expected"), deviating);
     let out = conformance(&["report", d.join("check.json").to_str().unwrap()]);
-    let text = String::from_utf8_lossy(&out.stdout);
-    assert_eq!(listed_under(&text, "NEW DEVIATIONS"), new, "{text}");
+    let text = out.stdout.as_str();
+    assert_eq!(listed_under(text, "NEW DEVIATIONS"), new, "{text}");
     // The diff from the expected run to this one names the new deviations, and sees that
     // the expected ones are still as expected.
     let out = conformance(&[
@@ -203,18 +188,17 @@ fn an_expectations_file_gates_runs_by_what_changed() {
         saved.to_str().unwrap(),
         d.join("check.json").to_str().unwrap(),
     ]);
-    assert_eq!(out.status.code(), Some(1));
-    let text = String::from_utf8_lossy(&out.stdout);
+    assert_eq!(out.code, Some(1));
+    let text = out.stdout.as_str();
     for id in &new {
         assert!(text.contains(id.as_str()), "{id}: {text}");
     }
     assert!(text.contains("expected"), "{text}");
-    let _ = std::fs::remove_dir_all(&d);
 }
 
 #[test]
 fn expired_and_unmatched_entries_are_reported_and_do_not_apply() {
-    let d = dir("stale");
+    let d = Scratch::new("stale");
     let (file, deviating) = starting_file(&d);
     // The first entry expired long ago; one more names a check that does not exist.
     let first = deviating.iter().next().unwrap().clone();
@@ -250,9 +234,9 @@ fn expired_and_unmatched_entries_are_reported_and_do_not_apply() {
     assert_eq!(v["expectations"]["counts"]["unmatched"], 1);
     assert_eq!(v["expectations"]["counts"]["unexpected"], 1);
     let out = conformance(&["report", d.join("check.json").to_str().unwrap()]);
-    let report = String::from_utf8_lossy(&out.stdout);
+    let report = out.stdout.as_str();
     assert_eq!(
-        listed_under(&report, "NEW DEVIATIONS"),
+        listed_under(report, "NEW DEVIATIONS"),
         BTreeSet::from([first.clone()])
     );
     let stale: Vec<&str> = report
@@ -269,12 +253,11 @@ fn expired_and_unmatched_entries_are_reported_and_do_not_apply() {
         stale[1].contains("rtu.no-such-check") && stale[1].contains("matched nothing"),
         "{report}"
     );
-    let _ = std::fs::remove_dir_all(&d);
 }
 
 #[test]
 fn an_invalid_file_is_refused_with_its_line_and_field_before_the_run() {
-    let d = dir("invalid");
+    let d = Scratch::new("invalid");
     let file = d.join("bad.toml");
     std::fs::write(
         &file,
@@ -298,8 +281,8 @@ fn an_invalid_file_is_refused_with_its_line_and_field_before_the_run() {
         ],
     ] {
         let out = conformance(&args);
-        let stderr = String::from_utf8_lossy(&out.stderr);
-        assert_eq!(out.status.code(), Some(2), "{args:?}: {stderr}");
+        let stderr = out.stderr.as_str();
+        assert_eq!(out.code, Some(2), "{args:?}: {stderr}");
         assert!(
             stderr.contains(&format!("{f}:4: status: \"deviates\" is not")),
             "{args:?}: {stderr}"
@@ -312,8 +295,8 @@ fn an_invalid_file_is_refused_with_its_line_and_field_before_the_run() {
     )
     .unwrap();
     let out = conformance(&[&["check"][..], &sim, &["--expect", f]].concat());
-    assert_eq!(out.status.code(), Some(2));
-    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.code, Some(2));
+    let stderr = out.stderr.as_str();
     assert!(stderr.contains(&format!("{f}:5: expires: ")), "{stderr}");
     std::fs::write(
         &file,
@@ -321,13 +304,12 @@ fn an_invalid_file_is_refused_with_its_line_and_field_before_the_run() {
     )
     .unwrap();
     let out = conformance(&[&["check"][..], &sim, &["--expect", f]].concat());
-    assert_eq!(out.status.code(), Some(2));
-    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.code, Some(2));
+    let stderr = out.stderr.as_str();
     assert!(stderr.contains(&format!("{f}:3: ")), "{stderr}");
     // --strict-expect means nothing without a file.
     let out = conformance(&[&["check"][..], &sim, &["--strict-expect"]].concat());
-    assert_eq!(out.status.code(), Some(2));
-    let _ = std::fs::remove_dir_all(&d);
+    assert_eq!(out.code, Some(2));
 }
 
 /// A fuzz run: `expect --from` a campaign against wrong-exception writes one entry per
@@ -336,7 +318,7 @@ fn an_invalid_file_is_refused_with_its_line_and_field_before_the_run() {
 /// --strict-expect).
 #[test]
 fn fuzz_findings_are_expected_by_their_signature() {
-    let d = dir("fuzz");
+    let d = Scratch::new("fuzz");
     let fuzz = |quirk: &[&str], more: &[&str]| {
         let mut args = vec![
             "--sim",
@@ -372,7 +354,7 @@ fn fuzz_findings_are_expected_by_their_signature() {
         "-o",
         file.to_str().unwrap(),
     ]);
-    assert!(out.status.success());
+    assert_eq!(out.code, Some(0));
     let text = std::fs::read_to_string(&file).unwrap();
     for id in &findings {
         let sig = id.strip_prefix("fuzz.").unwrap();
@@ -398,25 +380,20 @@ fn fuzz_findings_are_expected_by_their_signature() {
         .all(|e| e["state"] == "not-found"));
     let (exit, _) = fuzz(&[], &["--expect", f]);
     assert_eq!(exit, Some(0), "not strict");
-    let _ = std::fs::remove_dir_all(&d);
 }
 
 /// `monitor` judges a capture: `expect --from` its report accepts what it heard, and the
 /// same capture judged with the file exits 0 with each of its results expected.
 #[test]
 fn a_monitor_run_is_gated_by_the_same_file() {
-    let d = dir("monitor");
+    let d = Scratch::new("monitor");
     let cap = d.join("run.pcapng");
     let (exit, _) = check(
         &d,
-        &[
-            "--quirk",
-            "wrong-exception",
-            "--mode",
-            "rtu",
-            "--capture",
+        &line(&[
+            "--quirk wrong-exception --mode rtu --capture",
             cap.to_str().unwrap(),
-        ],
+        ]),
     );
     assert_eq!(exit, Some(1));
     let monitor = |more: &[&str]| {
@@ -450,9 +427,8 @@ fn a_monitor_run_is_gated_by_the_same_file() {
         "-o",
         file.to_str().unwrap(),
     ]);
-    assert!(out.status.success());
+    assert_eq!(out.code, Some(0));
     let (exit, v) = monitor(&["--expect", file.to_str().unwrap()]);
     assert_eq!(exit, Some(0), "{}", v["expectations"]["counts"]);
     assert_eq!(ids_marked(&v, "expected"), deviating);
-    let _ = std::fs::remove_dir_all(&d);
 }

@@ -12,14 +12,16 @@
 //! with the value they held.
 
 mod common;
-use common::{bin, confirmed_findings, findings, report_of};
+use common::{confirmed_findings, findings, report_in, Run};
 
 use std::time::Duration;
 
 use serde_json::Value;
 
-fn fuzz(dir: &std::path::Path, args: &[&str], limit: Duration) -> (Option<i32>, Value) {
-    report_of("fuzz", dir, args, limit)
+/// `conformance fuzz ARGS` (the words of `args`) in a scratch folder named `name`: its
+/// exit code and its report.
+fn fuzz(name: &str, args: &str, limit: Duration) -> (Option<i32>, Value) {
+    report_in("fuzz", name, args, limit)
 }
 
 fn hex(s: &Value) -> Vec<u8> {
@@ -29,18 +31,9 @@ fn hex(s: &Value) -> Vec<u8> {
 fn clean(model: &str) {
     // A sample in the default run (CI's time); FUZZ_CASES=2000 or 20000 for more.
     let cases = std::env::var("FUZZ_CASES").unwrap_or_else(|_| "300".into());
-    let dir = tempdir(&format!("clean-{model}"));
     let (code, v) = fuzz(
-        &dir,
-        &[
-            "--sim",
-            model,
-            "--mode",
-            "both",
-            "--no-pace",
-            "--cases",
-            &cases,
-        ],
+        &format!("clean-{model}"),
+        &format!("--sim {model} --mode both --no-pace --cases {cases}"),
         Duration::from_secs(1800),
     );
     let f = confirmed_findings(&v);
@@ -71,12 +64,6 @@ fn clean(model: &str) {
     }
 }
 
-fn tempdir(name: &str) -> std::path::PathBuf {
-    let d = std::env::temp_dir().join(format!("fuzz-test-{}-{name}", std::process::id()));
-    std::fs::create_dir_all(&d).unwrap();
-    d
-}
-
 #[test]
 fn clean_f510() {
     clean("f510");
@@ -104,20 +91,9 @@ fn clean_l510_legacy() {
 
 #[test]
 fn a_byte_count_over_the_data_is_found_as_a_hang_and_minimized_to_one_frame() {
-    let dir = tempdir("hang");
     let (code, v) = fuzz(
-        &dir,
-        &[
-            "--sim",
-            "f510",
-            "--quirk",
-            "hang-on-byte-count",
-            "--mode",
-            "rtu",
-            "--no-pace",
-            "--cases",
-            "300",
-        ],
+        "hang",
+        "--sim f510 --quirk hang-on-byte-count --mode rtu --no-pace --cases 300",
         Duration::from_secs(600),
     );
     assert_eq!(code, Some(1));
@@ -160,20 +136,9 @@ fn a_byte_count_over_the_data_is_found_as_a_hang_and_minimized_to_one_frame() {
 
 #[test]
 fn a_flipped_bit_is_found_as_a_wrong_value_by_writing_back_what_was_read() {
-    let dir = tempdir("wrong");
     let (code, v) = fuzz(
-        &dir,
-        &[
-            "--sim",
-            "f510",
-            "--quirk",
-            "wrong-value-at=0000H",
-            "--mode",
-            "rtu",
-            "--no-pace",
-            "--cases",
-            "3000",
-        ],
+        "wrong",
+        "--sim f510 --quirk wrong-value-at=0000H --mode rtu --no-pace --cases 3000",
         Duration::from_secs(900),
     );
     assert!(matches!(code, Some(1 | 2)), "{code:?}");
@@ -198,20 +163,9 @@ fn a_flipped_bit_is_found_as_a_wrong_value_by_writing_back_what_was_read() {
 
 #[test]
 fn frames_back_to_back_overflowing_the_receiver_are_found_and_shortened() {
-    let dir = tempdir("overflow");
     let (code, v) = fuzz(
-        &dir,
-        &[
-            "--sim",
-            "f510",
-            "--quirk",
-            "overflow-after=4",
-            "--mode",
-            "rtu",
-            "--no-pace",
-            "--cases",
-            "50",
-        ],
+        "overflow",
+        "--sim f510 --quirk overflow-after=4 --mode rtu --no-pace --cases 50",
         Duration::from_secs(600),
     );
     assert_eq!(code, Some(1));
@@ -232,21 +186,11 @@ fn frames_back_to_back_overflowing_the_receiver_are_found_and_shortened() {
 
 #[test]
 fn send_prints_the_answer_and_the_prediction() {
-    let out = std::process::Command::new(bin())
-        .args([
-            "send",
-            "--sim",
-            "f510",
-            "--mode",
-            "rtu",
-            "--no-pace",
-            "01 03 25 20 00 01 8E CC",
-            "0110250C000102C796",
-        ])
-        .output()
-        .unwrap();
-    let text = String::from_utf8_lossy(&out.stdout);
-    assert_eq!(out.status.code(), Some(0), "{text}");
+    let out = Run::words("send --sim f510 --mode rtu --no-pace")
+        .args(["01 03 25 20 00 01 8E CC", "0110250C000102C796"])
+        .run();
+    let text = &out.stdout;
+    assert_eq!(out.code, Some(0), "{text}");
     assert!(
         text.contains("model: 01 03 25 20 00 01 8E CC -> normal 03H reply"),
         "{text}"
@@ -256,29 +200,17 @@ fn send_prints_the_answer_and_the_prediction() {
     // The malformed 10H: the model predicts its exception; the clean simulator sends it.
     assert!(text.contains("received 01 90 03"), "{text}");
     // A frame that is not hex: exit 2.
-    let bad = std::process::Command::new(bin())
-        .args(["send", "--sim", "f510", "--mode", "rtu", "01 0G"])
-        .output()
-        .unwrap();
-    assert_eq!(bad.status.code(), Some(2));
+    Run::words("send --sim f510 --mode rtu")
+        .arg("01 0G")
+        .run()
+        .expect(2);
 }
 
 #[test]
 fn seeds_reproduce_and_safety_holds_with_writes_none() {
-    let dir = tempdir("none");
     let (code, v) = fuzz(
-        &dir,
-        &[
-            "--sim",
-            "f510",
-            "--mode",
-            "ascii",
-            "--no-pace",
-            "--cases",
-            "300",
-            "--writes",
-            "none",
-        ],
+        "none",
+        "--sim f510 --mode ascii --no-pace --cases 300 --writes none",
         Duration::from_secs(600),
     );
     assert_eq!(code, Some(0));
@@ -293,20 +225,9 @@ fn seeds_reproduce_and_safety_holds_with_writes_none() {
 
 #[test]
 fn registers_written_with_other_values_are_restored_as_changed() {
-    let dir = tempdir("any");
     let (code, v) = fuzz(
-        &dir,
-        &[
-            "--sim",
-            "f510",
-            "--mode",
-            "rtu",
-            "--no-pace",
-            "--cases",
-            "300",
-            "--writes",
-            "any",
-        ],
+        "any",
+        "--sim f510 --mode rtu --no-pace --cases 300 --writes any",
         Duration::from_secs(600),
     );
     assert_eq!(code, Some(0), "{}", v["stopped"]);
@@ -337,24 +258,12 @@ fn registers_written_with_other_values_are_restored_as_changed() {
 /// every exchange reports: the same signatures, and no other.
 #[test]
 fn late_answers_on_the_brisk_path_are_sent_again_with_full_windows() {
-    let run = |name: &str, extra: &[&str]| {
-        let dir = tempdir(name);
-        let mut args = vec![
-            "--sim",
-            "f510",
-            "--quirk",
-            "reply-to-broadcast",
-            "--quirk",
-            "slow=40",
-            "--mode",
-            "rtu",
-            "--no-pace",
-            "--cases",
-            "150",
-            "--no-minimize",
-        ];
-        args.extend_from_slice(extra);
-        let (code, v) = fuzz(&dir, &args, Duration::from_secs(600));
+    let run = |name: &str, extra: &str| {
+        let args = format!(
+            "--sim f510 --quirk reply-to-broadcast --quirk slow=40 --mode rtu --no-pace \
+             --cases 150 --no-minimize {extra}"
+        );
+        let (code, v) = fuzz(name, &args, Duration::from_secs(600));
         assert_eq!(code, Some(1), "{}", v["stopped"]);
         let sigs: std::collections::BTreeSet<String> = findings(&v)
             .iter()
@@ -362,8 +271,8 @@ fn late_answers_on_the_brisk_path_are_sent_again_with_full_windows() {
             .collect();
         (sigs, v)
     };
-    let (brisk, v) = run("late-brisk", &[]);
-    let (full, w) = run("late-full", &["--full-windows"]);
+    let (brisk, v) = run("late-brisk", "");
+    let (full, w) = run("late-full", "--full-windows");
     assert!(
         brisk.contains("rtu.unexpected-reply.03H.reply-to-broadcast")
             || brisk.contains("rtu.unexpected-reply.06H.reply-to-broadcast")
@@ -388,22 +297,9 @@ fn late_answers_on_the_brisk_path_are_sent_again_with_full_windows() {
 #[test]
 fn a_known_hang_is_steered_away_from_and_its_cost_reported() {
     use conformance::fuzz::steer::HANG_RETRIGGERS;
-    let dir = tempdir("steer");
     let (code, v) = fuzz(
-        &dir,
-        &[
-            "--sim",
-            "f510",
-            "--quirk",
-            "hang-on-byte-count",
-            "--mode",
-            "rtu",
-            "--no-pace",
-            "--cases",
-            "1000",
-            "--seed",
-            "11",
-        ],
+        "steer",
+        "--sim f510 --quirk hang-on-byte-count --mode rtu --no-pace --cases 1000 --seed 11",
         Duration::from_secs(900),
     );
     assert_eq!(code, Some(1));

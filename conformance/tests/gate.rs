@@ -6,11 +6,9 @@
 
 mod common;
 use common::gate::{gate_json, schema_valid, status_of};
-use common::{bin, python, Peer};
+use common::{bin, python, Peer, Ran, Run};
 
-use std::process::{Command, Output};
-
-fn gate(codec: &str, extra: &[&str]) -> (Output, serde_json::Value) {
+fn gate(codec: &str, extra: &[&str]) -> (Ran, serde_json::Value) {
     gate_json("--codec", codec, extra)
 }
 
@@ -21,12 +19,7 @@ fn reference() -> String {
 #[test]
 fn the_reference_adapter_passes_every_case() {
     let (o, v) = gate(&reference(), &["--count", "2000"]);
-    assert_eq!(
-        o.status.code(),
-        Some(0),
-        "{}",
-        String::from_utf8_lossy(&o.stderr)
-    );
+    assert_eq!(o.code, Some(0), "{}", o.stderr);
     assert_eq!(v["kind"], "gate");
     assert_eq!(v["summary"]["deviation"], 0);
     assert_eq!(v["summary"]["error"], 0);
@@ -47,7 +40,7 @@ fn the_reference_adapter_passes_every_case() {
 #[test]
 fn an_adapter_that_accepts_every_crc_is_caught() {
     let (o, v) = gate(&format!("{} --break accept-bad-checksum", reference()), &[]);
-    assert_eq!(o.status.code(), Some(1));
+    assert_eq!(o.code, Some(1));
     // Every checksum erratum of the manuals is a deviation.
     for id in [
         "vector.f510.03.rtu.response.decode",
@@ -91,7 +84,7 @@ fn an_adapter_that_exits_is_restarted_once_then_the_run_is_incomplete() {
     // Answers the handshake, then exits on the first request.
     let crashy = format!("read l; echo '{HELLO}'; read l; exit 3");
     let (o, v) = gate(&crashy, &["--no-vectors", "--count", "4"]);
-    assert_eq!(o.status.code(), Some(2));
+    assert_eq!(o.code, Some(2));
     assert_eq!(v["complete"], false);
     let incidents = v["codec"]["incidents"].as_array().unwrap();
     assert_eq!(incidents.len(), 2, "{incidents:?}");
@@ -110,7 +103,7 @@ fn malformed_and_missing_answers_are_errors_case_by_case() {
     // Answers the handshake, then nonsense; the gate carries on through every case.
     let babbler = format!("read l; echo '{HELLO}'; while read l; do echo 'this is not json'; done");
     let (o, v) = gate(&babbler, &["--no-vectors", "--count", "5"]);
-    assert_eq!(o.status.code(), Some(2));
+    assert_eq!(o.code, Some(2));
     let checks = v["checks"].as_array().unwrap();
     assert_eq!(checks.len(), 5);
     assert!(checks
@@ -129,16 +122,11 @@ fn malformed_and_missing_answers_are_errors_case_by_case() {
         .iter()
         .all(|c| c["status"] == "error"));
     // An adapter that refuses the protocol stops the gate with exit code 2.
-    let o = Command::new(bin())
-        .args([
-            "gate",
-            "--codec",
-            r#"read l; echo '{"id":1,"ok":false,"error":"protocol 2 only"}'"#,
-        ])
-        .output()
-        .unwrap();
-    assert_eq!(o.status.code(), Some(2));
-    assert!(String::from_utf8_lossy(&o.stderr).contains("handshake failed"));
+    let o = Run::words("gate --codec")
+        .arg(r#"read l; echo '{"id":1,"ok":false,"error":"protocol 2 only"}'"#)
+        .run();
+    assert_eq!(o.code, Some(2));
+    assert!(o.stderr.contains("handshake failed"));
 }
 
 #[test]
@@ -164,7 +152,7 @@ fn the_pymodbus_adapter_completes_and_its_deviations_are_reported() {
     }
     // The differential cases find what pymodbus 3.16.1 accepts and should not.
     assert!(v["summary"]["deviation"].as_u64().unwrap() > 0);
-    assert_eq!(o.status.code(), Some(1));
+    assert_eq!(o.code, Some(1));
     schema_valid(&v);
 }
 
@@ -180,7 +168,7 @@ fn a_broken_minimalmodbus_adapter_that_accepts_every_checksum_is_caught() {
     // The F510 manual's 03H response as printed has a wrong CRC: minimalmodbus refuses it.
     let erratum = "vector.f510.03.rtu.response.decode";
     let (o, v) = gate(&format!("{} {adapter}", python()), &["--only", erratum]);
-    assert_eq!(o.status.code(), Some(0), "{}", v["summary"]);
+    assert_eq!(o.code, Some(0), "{}", v["summary"]);
     assert_eq!(status_of(&v, erratum), "pass");
     // The broken variant mends every checksum before minimalmodbus sees it.
     let (o, v) = gate(
@@ -190,7 +178,7 @@ fn a_broken_minimalmodbus_adapter_that_accepts_every_checksum_is_caught() {
         ),
         &["--count", "200"],
     );
-    assert_eq!(o.status.code(), Some(1), "{}", v["summary"]);
+    assert_eq!(o.code, Some(1), "{}", v["summary"]);
     assert_eq!(v["complete"], true);
     assert!(v["codec"]["adapter"]
         .as_str()
@@ -237,12 +225,7 @@ fn an_adapter_that_starts_slowly_gets_longer_than_the_case_timeout_for_its_hello
         r#"sleep 2.5; read l; echo '{HELLO}'; sed -u -E 's/.*"id":([0-9]+).*/{{"id":\1,"ok":true,"accepted":false,"reason":"no"}}/'"#
     );
     let (o, v) = gate(&slow, &["--no-vectors", "--count", "3", "--timeout", "500"]);
-    assert_ne!(
-        o.status.code(),
-        Some(2),
-        "{}",
-        String::from_utf8_lossy(&o.stderr)
-    );
+    assert_ne!(o.code, Some(2), "{}", o.stderr);
     assert_eq!(v["complete"], true);
     assert_eq!(v["summary"]["error"], 0, "{}", v["summary"]);
     assert_eq!(v["summary"]["total"], 3);
@@ -321,6 +304,6 @@ fn the_libmodbus_adapter_drives_libmodbus_over_a_pty_and_completes() {
         .as_str()
         .unwrap()
         .contains("Invalid CRC"));
-    assert_eq!(o.status.code(), Some(1));
+    assert_eq!(o.code, Some(1));
     schema_valid(&v);
 }

@@ -4,22 +4,14 @@
 //! completion scripts the shells load.
 
 mod common;
+use common::{Run, Scratch};
 
 use std::collections::BTreeSet;
-use std::path::PathBuf;
-use std::process::Command;
-
-fn scratch(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("generated-{}-{name}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).unwrap();
-    d
-}
 
 fn conformance(args: &[&str]) -> String {
-    let o = Command::new(common::bin()).args(args).output().unwrap();
-    assert!(o.status.success(), "conformance {args:?}: {o:?}");
-    String::from_utf8_lossy(&o.stdout).into_owned()
+    let o = Run::new(args).run();
+    assert_eq!(o.code, Some(0), "conformance {args:?}: {o:?}");
+    o.stdout.clone()
 }
 
 /// The subcommands a `--help` lists under "Commands:" (without `help`).
@@ -48,7 +40,7 @@ fn every_page(path: &mut Vec<String>, out: &mut BTreeSet<String>) {
 
 #[test]
 fn every_subcommand_gets_a_man_page_that_man_renders() {
-    let dir = scratch("man");
+    let dir = Scratch::new("man");
     let out = conformance(&["generate", "man", dir.to_str().unwrap()]);
     let mut expected = BTreeSet::new();
     every_page(&mut vec!["conformance".into()], &mut expected);
@@ -81,34 +73,31 @@ fn every_subcommand_gets_a_man_page_that_man_renders() {
         common::runs("man", &["--version"]),
         "man (Debian package man-db)",
     ) {
-        let o = Command::new("man")
-            .arg("-l")
+        let o = Run::program("man", ["-l"])
             .arg(dir.join("conformance-check.1"))
             .env("MANPAGER", "cat")
             .env("MANWIDTH", "100")
-            .output()
-            .unwrap();
+            .run();
         // man justifies its lines: the words are compared, not the spaces.
-        let text = String::from_utf8_lossy(&o.stdout);
+        let text = o.stdout.as_str();
         let words = text.split_whitespace().collect::<Vec<_>>().join(" ");
-        assert!(o.status.success(), "{o:?}");
+        assert_eq!(o.code, Some(0), "{o:?}");
         assert!(
             words.contains("NAME conformance-check - Probe a real or simulated drive"),
             "{text}"
         );
     }
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 fn bash(script: &str) -> String {
-    let o = Command::new("bash").arg("-c").arg(script).output().unwrap();
-    assert!(o.status.success(), "{script}: {o:?}");
-    String::from_utf8_lossy(&o.stdout).into_owned()
+    let o = Run::program("bash", ["-c", script]).run();
+    assert_eq!(o.code, Some(0), "{script}: {o:?}");
+    o.stdout
 }
 
 #[test]
 fn the_bash_completion_loads_and_completes_subcommands_and_options() {
-    let dir = scratch("completions");
+    let dir = Scratch::new("completions");
     conformance(&["generate", "completions", dir.to_str().unwrap()]);
     for f in ["conformance.bash", "_conformance", "conformance.fish"] {
         assert!(dir.join(f).is_file(), "{f} missing");
@@ -147,15 +136,11 @@ fn the_bash_completion_loads_and_completes_subcommands_and_options() {
             );
         }
     }
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 #[test]
 fn completions_refuses_an_unknown_shell() {
-    let o = Command::new(common::bin())
-        .args(["completions", "tcsh"])
-        .output()
-        .unwrap();
-    assert_eq!(o.status.code(), Some(2));
-    assert!(String::from_utf8_lossy(&o.stderr).contains("possible values: bash"));
+    let o = Run::words("completions tcsh").run();
+    assert_eq!(o.code, Some(2));
+    assert!(o.stderr.contains("possible values: bash"));
 }

@@ -10,13 +10,12 @@
 //! taken out, which reaches every check that reads or writes first.
 
 mod common;
-use common::pymodbus_serial_server;
+use common::{line, pymodbus_serial_server, Scratch};
 
 use std::time::Duration;
 
 fn run(mode: &str) {
-    let dir = std::env::temp_dir().join(format!("teco-generic-{mode}-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
+    let dir = Scratch::new(&format!("generic-{mode}"));
     let Some(peer) = pymodbus_serial_server(&dir, mode) else {
         return;
     };
@@ -24,18 +23,13 @@ fn run(mode: &str) {
     let t0 = std::time::Instant::now();
     let (exit, v) = common::check_device(
         &dir,
-        &[
-            "--model",
-            "f510",
-            "--port",
+        &line(&[
+            "--model f510 --port",
             b.to_str().unwrap(),
             "--mode",
             mode,
-            "-P",
-            "none",
-            "--timeout",
-            "300",
-        ],
+            "-P none --timeout 300",
+        ]),
         Duration::from_secs(180),
     );
     assert_eq!(v["complete"], true, "{}", v["stopped"]);
@@ -54,7 +48,6 @@ fn run(mode: &str) {
         v["summary"]
     );
     eprintln!("{mode}: {} in {:?}", v["summary"], t0.elapsed());
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 #[test]
@@ -71,8 +64,7 @@ fn a_generic_pymodbus_device_checked_as_f510_ascii() {
 /// (exit 0 or 1, never 2, never a panic), and every finding is of a kind a generic
 /// server explains (see `explained`).
 fn fuzz(mode: &str) {
-    let dir = std::env::temp_dir().join(format!("teco-generic-fuzz-{mode}-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
+    let dir = Scratch::new(&format!("generic-fuzz-{mode}"));
     let Some(peer) = pymodbus_serial_server(&dir, mode) else {
         return;
     };
@@ -80,21 +72,13 @@ fn fuzz(mode: &str) {
     let (exit, v) = common::report_of(
         "fuzz",
         &dir,
-        &[
-            "--model",
-            "f510",
-            "--port",
+        &line(&[
+            "--model f510 --port",
             b.to_str().unwrap(),
             "--mode",
             mode,
-            "-P",
-            "none",
-            "--timeout",
-            "500",
-            "--cases",
-            "150",
-            "--no-minimize",
-        ],
+            "-P none --timeout 500 --cases 150 --no-minimize",
+        ]),
         Duration::from_secs(300),
     );
     // pymodbus 3.16.1's serial server stops answering for good after one frame of a
@@ -146,7 +130,6 @@ fn fuzz(mode: &str) {
             .map(|f| format!("{} x{}", f["signature"], f["count"]))
             .collect::<Vec<_>>()
     );
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 /// The kinds of finding a generic pymodbus server has against the F510 model, each
@@ -203,27 +186,17 @@ fn a_generic_pymodbus_device_fuzzed_as_f510_ascii() {
 /// refused it with exception 02H, which is evidence: DEVIATION, and the run exits 1.
 #[test]
 fn a_generic_device_without_registers_from_1000h_up_deviates_and_exits_1() {
-    let dir = std::env::temp_dir().join(format!("teco-generic-short-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
+    let dir = Scratch::new("generic-short");
     let Some(peer) = common::pymodbus_serial_with(&dir, "rtu", "1", 0x1000) else {
         return;
     };
     let (exit, v) = common::check_device(
         &dir,
-        &[
-            "--model",
-            "f510",
-            "--port",
+        &line(&[
+            "--model f510 --port",
             peer.port.to_str().unwrap(),
-            "--mode",
-            "rtu",
-            "-P",
-            "none",
-            "--timeout",
-            "300",
-            "--only",
-            "rtu.write.group-*",
-        ],
+            "--mode rtu -P none --timeout 300 --only rtu.write.group-*",
+        ]),
         Duration::from_secs(120),
     );
     assert_eq!(v["complete"], true, "{}", v["stopped"]);
@@ -241,7 +214,6 @@ fn a_generic_device_without_registers_from_1000h_up_deviates_and_exits_1() {
     }
     // The registers it has still pass.
     assert_eq!(check_of(&v, "rtu.write.group-1")["status"], "pass");
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 fn check_of<'a>(v: &'a serde_json::Value, id: &str) -> &'a serde_json::Value {
@@ -295,8 +267,7 @@ fn check_sim_model(
 /// an ERROR, and the run exits 1.
 #[test]
 fn a_refused_read_before_a_check_is_a_deviation_not_an_error() {
-    let dir = std::env::temp_dir().join(format!("teco-generic-gap-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
+    let dir = Scratch::new("generic-gap");
     // Without group 0 (0000H..), groups 16 and up (1000H..) and the command group
     // (2500H..251FH: operation, frequency command, the two-word register).
     let model = edited_model(&dir, "gap.json", |m| {
@@ -352,15 +323,13 @@ fn a_refused_read_before_a_check_is_a_deviation_not_an_error() {
             "{id}: {e}"
         );
     }
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 /// A write a check needs first (the run check's 10.00 Hz) that the device refuses is a
 /// DEVIATION too.
 #[test]
 fn a_refused_write_before_a_check_is_a_deviation_not_an_error() {
-    let dir = std::env::temp_dir().join(format!("teco-generic-ro-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
+    let dir = Scratch::new("generic-ro");
     let model = edited_model(&dir, "ro.json", |m| {
         for r in m["registers"].as_array_mut().unwrap() {
             if r["register"] == "2502" {
@@ -381,5 +350,4 @@ fn a_refused_write_before_a_check_is_a_deviation_not_an_error() {
         s.starts_with("cannot write 03E8H (10.00 Hz) to 2502H first: the manual serves it, the device refused it with exception"),
         "{s}"
     );
-    let _ = std::fs::remove_dir_all(&dir);
 }

@@ -3,23 +3,16 @@
 //! headless Chromium (the DOM it dumps, its console, a screenshot).
 
 mod common;
+use common::{words, Ran, Run, Scratch};
 
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
 use std::time::Duration;
 
 use serde_json::Value;
 
-fn dir(tag: &str) -> PathBuf {
-    let d = Path::new(env!("CARGO_TARGET_TMPDIR")).join(format!("html_report-{tag}"));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).unwrap();
-    d
-}
-
-fn conformance(args: &[&str]) -> Output {
-    let o = Command::new(common::bin()).args(args).output().unwrap();
-    let stderr = String::from_utf8_lossy(&o.stderr);
+fn conformance(args: &[&str]) -> Ran {
+    let o = Run::new(args).run();
+    let stderr = o.stderr.as_str();
     assert!(!stderr.contains("panicked"), "{stderr}");
     o
 }
@@ -38,9 +31,7 @@ fn chromium() -> Option<&'static str> {
 /// log (console messages are logged as `:CONSOLE`).
 fn browse(chromium: &str, page: &Path, extra: &[&str]) -> (String, String) {
     let profile = page.with_extension("profile");
-    let o = Command::new("timeout")
-        .arg("120")
-        .arg(chromium)
+    let o = Run::program("timeout", ["120", chromium])
         .args([
             "--headless",
             "--no-sandbox",
@@ -56,13 +47,9 @@ fn browse(chromium: &str, page: &Path, extra: &[&str]) -> (String, String) {
         .arg(format!("--user-data-dir={}", profile.display()))
         .args(extra)
         .arg(format!("file://{}", page.display()))
-        .output()
-        .unwrap();
-    assert!(o.status.success(), "chromium failed on {}", page.display());
-    (
-        String::from_utf8_lossy(&o.stdout).into_owned(),
-        String::from_utf8_lossy(&o.stderr).into_owned(),
-    )
+        .run();
+    assert_eq!(o.code, Some(0), "chromium failed on {}", page.display());
+    (o.stdout, o.stderr)
 }
 
 fn no_console_errors(log: &str, page: &Path) {
@@ -95,14 +82,7 @@ fn runs(d: &Path) -> [(PathBuf, Value, Option<i32>); 2] {
         common::check_device(&clean_dir, &["--sim", "f510", "--mode", "rtu"], limit);
     let (quirk_code, quirk) = common::check_device(
         &quirk_dir,
-        &[
-            "--sim",
-            "f510",
-            "--mode",
-            "rtu",
-            "--quirk",
-            "wrong-exception",
-        ],
+        &words("--sim f510 --mode rtu --quirk wrong-exception"),
         limit,
     );
     [
@@ -113,7 +93,7 @@ fn runs(d: &Path) -> [(PathBuf, Value, Option<i32>); 2] {
 
 #[test]
 fn html_csv_and_diff_of_a_clean_and_a_quirky_run() {
-    let d = dir("runs");
+    let d = Scratch::kept("runs");
     let [(clean_json, clean, clean_code), (quirk_json, quirk, quirk_code)] = runs(&d);
     // The clean simulator has no deviations of its own; on a loaded host a timing check
     // may still find one, so the test asserts what the quirk adds.
@@ -161,19 +141,19 @@ fn html_csv_and_diff_of_a_clean_and_a_quirky_run() {
 
     // `report` renders the saved JSON in every format; its JSON is the JSON it read.
     let again = conformance(&["report", path(&clean_json), "--format", "json"]);
-    assert!(again.status.success());
-    let again: Value = serde_json::from_slice(&again.stdout).unwrap();
+    assert_eq!(again.code, Some(0));
+    let again: Value = serde_json::from_slice(&again.bytes).unwrap();
     assert_eq!(again["checks"], clean["checks"]);
     assert_eq!(again["summary"], clean["summary"]);
     let text = conformance(&["report", path(&quirk_json), "--format", "text"]);
-    assert!(String::from_utf8_lossy(&text.stdout).contains("rtu.map.group-0.past-end"));
+    assert!(text.stdout.contains("rtu.map.group-0.past-end"));
     let junit = conformance(&["report", path(&quirk_json), "--format", "junit"]);
-    roxmltree::Document::parse(&String::from_utf8_lossy(&junit.stdout)).unwrap();
+    roxmltree::Document::parse(&junit.stdout).unwrap();
 
     // CSV: a header and one row per check.
     let csv = conformance(&["report", path(&quirk_json), "--format", "csv"]);
-    assert!(csv.status.success());
-    let csv = String::from_utf8(csv.stdout).unwrap();
+    assert_eq!(csv.code, Some(0));
+    let csv = csv.stdout;
     assert!(csv.starts_with("id,mode,status,title,source,summary\r\n"));
     for id in ids(&quirk) {
         assert!(csv.contains(&format!("\r\n{id},")), "{id} not in the CSV");
@@ -188,8 +168,8 @@ fn html_csv_and_diff_of_a_clean_and_a_quirky_run() {
     // better (exit 0 unless the host's timing moved beyond noise); a run against itself
     // shows nothing.
     let worse = conformance(&["diff", path(&clean_json), path(&quirk_json)]);
-    assert_eq!(worse.status.code(), Some(1));
-    let worse_text = String::from_utf8_lossy(&worse.stdout);
+    assert_eq!(worse.code, Some(1));
+    let worse_text = worse.stdout.as_str();
     assert!(worse_text.contains("WORSE"), "{worse_text}");
     let first_change = worse_text
         .lines()
@@ -203,7 +183,7 @@ fn html_csv_and_diff_of_a_clean_and_a_quirky_run() {
         "--format",
         "json",
     ]);
-    let dj: Value = serde_json::from_slice(&dj.stdout).unwrap();
+    let dj: Value = serde_json::from_slice(&dj.bytes).unwrap();
     let worse_ids: Vec<&str> = dj["status_changes"]
         .as_array()
         .unwrap()
@@ -215,8 +195,8 @@ fn html_csv_and_diff_of_a_clean_and_a_quirky_run() {
         assert!(worse_ids.contains(&id.as_str()), "{id} not a worse change");
     }
     let same = conformance(&["diff", path(&quirk_json), path(&quirk_json)]);
-    assert_eq!(same.status.code(), Some(0));
-    assert!(String::from_utf8_lossy(&same.stdout).contains("No differences."));
+    assert_eq!(same.code, Some(0));
+    assert!(same.stdout.contains("No differences."));
     let diff_html = d.join("diff.html");
     let dh = conformance(&[
         "diff",
@@ -227,7 +207,7 @@ fn html_csv_and_diff_of_a_clean_and_a_quirky_run() {
         "-o",
         path(&diff_html),
     ]);
-    assert_eq!(dh.status.code(), Some(1));
+    assert_eq!(dh.code, Some(1));
 
     // A report whose strings came from a hostile device or file: escaped.
     let mut hostile = quirk.clone();
@@ -244,7 +224,7 @@ fn html_csv_and_diff_of_a_clean_and_a_quirky_run() {
     ] {
         let page = d.join(format!("{name}.html"));
         let o = conformance(&["report", path(json), "--format", "html", "-o", path(&page)]);
-        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        assert_eq!(o.code, Some(0), "{}", o.stderr);
         pages.push((name, page));
     }
     let hostile_page = std::fs::read_to_string(&pages[2].1).unwrap();
@@ -374,7 +354,7 @@ fn html_csv_and_diff_of_a_clean_and_a_quirky_run() {
 
 #[test]
 fn check_writes_html_and_csv_directly() {
-    let d = dir("direct");
+    let d = Scratch::new("direct");
     for (format, marker) in [
         ("html", "<svg id=\"plot-map\""),
         ("csv", "\r\nrtu.identification,rtu,"),
@@ -396,12 +376,7 @@ fn check_writes_html_and_csv_directly() {
             "-o",
             path(&out),
         ]);
-        assert_eq!(
-            o.status.code(),
-            Some(0),
-            "{}",
-            String::from_utf8_lossy(&o.stderr)
-        );
+        assert_eq!(o.code, Some(0), "{}", o.stderr);
         let text = std::fs::read_to_string(&out).unwrap();
         assert!(text.contains(marker), "{format}: {marker} missing");
     }
@@ -409,7 +384,7 @@ fn check_writes_html_and_csv_directly() {
 
 #[test]
 fn a_file_that_is_not_a_report_is_refused_by_name() {
-    let d = dir("bad");
+    let d = Scratch::new("bad");
     let cases = [
         ("not-json.json", "{ this is not json", "not JSON"),
         ("other.json", "{\"schema\": \"something/else\"}", "not a conformance report"),
@@ -427,8 +402,8 @@ fn a_file_that_is_not_a_report_is_refused_by_name() {
             vec!["diff", path(&p), path(&p)],
         ] {
             let o = conformance(&args);
-            assert_eq!(o.status.code(), Some(2), "{args:?}");
-            let err = String::from_utf8_lossy(&o.stderr);
+            assert_eq!(o.code, Some(2), "{args:?}");
+            let err = o.stderr.as_str();
             assert!(
                 err.contains(file) && err.contains(problem),
                 "{args:?}: {err}"
@@ -437,8 +412,8 @@ fn a_file_that_is_not_a_report_is_refused_by_name() {
     }
     let missing = d.join("missing.json");
     let o = conformance(&["diff", path(&missing), path(&missing)]);
-    assert_eq!(o.status.code(), Some(2));
-    assert!(String::from_utf8_lossy(&o.stderr).contains("cannot read"));
+    assert_eq!(o.code, Some(2));
+    assert!(o.stderr.contains("cannot read"));
 }
 
 /// A run of several nodes as `check -a 1,5` writes it, made from a real run of one node:
@@ -478,19 +453,10 @@ fn several_nodes_json(one: &Value) -> Value {
 
 #[test]
 fn a_report_of_several_nodes_renders_per_node_and_diffs_by_node() {
-    let d = dir("nodes");
+    let d = Scratch::new("nodes");
     let (code, one) = common::check_device(
         &d,
-        &[
-            "--sim",
-            "f510",
-            "--mode",
-            "rtu",
-            "--only",
-            "*map.group-0.*",
-            "--quirk",
-            "wrong-exception",
-        ],
+        &words("--sim f510 --mode rtu --only *map.group-0.* --quirk wrong-exception"),
         Duration::from_secs(120),
     );
     assert_eq!(code, Some(1));
@@ -510,15 +476,15 @@ fn a_report_of_several_nodes_renders_per_node_and_diffs_by_node() {
 
     // JSON back as it was (nodes and all); text, JUnit and CSV per node.
     let again = conformance(&["report", path(&bus_json), "--format", "json"]);
-    let again: Value = serde_json::from_slice(&again.stdout).unwrap();
+    let again: Value = serde_json::from_slice(&again.bytes).unwrap();
     assert_eq!(again["checks"], bus["checks"]);
     assert_eq!(again["device"]["nodes"], bus["device"]["nodes"]);
     assert_eq!(again["restore"], bus["restore"]);
     let text = conformance(&["report", path(&bus_json), "--format", "text"]);
-    let text = String::from_utf8_lossy(&text.stdout);
-    let n1 = text.find("\n=== node 01H: ").expect(&text);
-    let n5 = text.find("\n=== node 05H: ").expect(&text);
-    let b = text.find("\n=== bus (").expect(&text);
+    let text = text.stdout.as_str();
+    let n1 = text.find("\n=== node 01H: ").expect(text);
+    let n5 = text.find("\n=== node 05H: ").expect(text);
+    let b = text.find("\n=== bus (").expect(text);
     assert!(n1 < n5 && n5 < b, "{text}");
     assert!(
         text[n1..n5].contains("[rtu.map.group-0.past-end]"),
@@ -533,8 +499,8 @@ fn a_report_of_several_nodes_renders_per_node_and_diffs_by_node() {
         "{text}"
     );
     let junit = conformance(&["report", path(&bus_json), "--format", "junit"]);
-    let junit = String::from_utf8_lossy(&junit.stdout);
-    let doc = roxmltree::Document::parse(&junit).unwrap();
+    let junit = junit.stdout.as_str();
+    let doc = roxmltree::Document::parse(junit).unwrap();
     let suites: Vec<(String, String)> = doc
         .descendants()
         .filter(|n| n.has_tag_name("testsuite"))
@@ -554,7 +520,7 @@ fn a_report_of_several_nodes_renders_per_node_and_diffs_by_node() {
         ]
     );
     let csv = conformance(&["report", path(&bus_json), "--format", "csv"]);
-    let csv = String::from_utf8(csv.stdout).unwrap();
+    let csv = csv.stdout;
     assert!(csv.starts_with("node,id,mode,status,title,source,summary\r\n"));
     assert!(
         csv.contains("\r\n05,rtu.map.group-0.past-end,rtu,ERROR,"),
@@ -565,21 +531,21 @@ fn a_report_of_several_nodes_renders_per_node_and_diffs_by_node() {
     // diff: a run of one node against the bus needs --node; node 01H's section is the
     // run of one node again; node 05H's lost checks got worse.
     let refused = conformance(&["diff", path(&one_json), path(&bus_json)]);
-    assert_eq!(refused.status.code(), Some(2));
-    assert!(String::from_utf8_lossy(&refused.stderr).contains("give --node N"));
+    assert_eq!(refused.code, Some(2));
+    assert!(refused.stderr.contains("give --node N"));
     let same = conformance(&["diff", path(&one_json), path(&bus_json), "--node", "1"]);
-    let same_text = String::from_utf8_lossy(&same.stdout);
-    assert_eq!(same.status.code(), Some(0), "{same_text}");
+    let same_text = same.stdout.as_str();
+    assert_eq!(same.code, Some(0), "{same_text}");
     assert!(same_text.contains("No differences."), "{same_text}");
     let lost = conformance(&["diff", path(&one_json), path(&bus_json), "--node", "05H"]);
-    let lost_text = String::from_utf8_lossy(&lost.stdout);
-    assert_eq!(lost.status.code(), Some(1), "{lost_text}");
+    let lost_text = lost.stdout.as_str();
+    assert_eq!(lost.code, Some(1), "{lost_text}");
     assert!(
         lost_text.contains("new: node 05H (its checks and the bus checks)"),
         "{lost_text}"
     );
     let both = conformance(&["diff", path(&bus_json), path(&bus_json), "--format", "json"]);
-    assert_eq!(both.status.code(), Some(0));
+    assert_eq!(both.code, Some(0));
 
     // HTML: the node table, and the filter by node (a link preselects it).
     let page = d.join("bus.html");
@@ -591,7 +557,7 @@ fn a_report_of_several_nodes_renders_per_node_and_diffs_by_node() {
         "-o",
         path(&page),
     ]);
-    assert!(o.status.success());
+    assert_eq!(o.code, Some(0));
     let html = std::fs::read_to_string(&page).unwrap();
     assert!(html.contains("<table id=\"nodes\">"));
     let Some(chromium) = chromium() else {
@@ -620,23 +586,14 @@ fn a_report_of_several_nodes_renders_per_node_and_diffs_by_node() {
 /// it is what makes the exit code 2, and its header gives the exit code with its reason.
 #[test]
 fn html_puts_errors_first_and_says_why_the_exit_code_is_what_it_is() {
-    let d = dir("errors-first");
+    let d = Scratch::new("errors-first");
     let (code, _) = common::check_device(
         &d,
-        &[
-            "--sim",
-            "f510",
-            "--mode",
-            "rtu",
-            "--quirk",
-            "wrong-exception",
-            "--only",
-            "rtu.map.group-0.past-end",
-            "--only",
-            "rtu.map.command.first",
-            "--inject-host-stall",
-            "rtu.map.command.first:3",
-        ],
+        &words(
+            "--sim f510 --mode rtu --quirk wrong-exception \
+        --only rtu.map.group-0.past-end --only rtu.map.command.first --inject-host-stall \
+        rtu.map.command.first:3",
+        ),
         Duration::from_secs(120),
     );
     assert_eq!(code, Some(2));
@@ -660,5 +617,4 @@ fn html_puts_errors_first_and_says_why_the_exit_code_is_what_it_is() {
         "{}",
         &page[page.find("exit code").unwrap()..][..120]
     );
-    let _ = std::fs::remove_dir_all(&d);
 }

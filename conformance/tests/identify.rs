@@ -6,7 +6,9 @@
 //! checks of the model it identified.
 
 mod common;
-use common::{bin, pymodbus_serial_server, pymodbus_tcp_server, GatewaySim, Kill};
+use common::{
+    bin, line, pymodbus_serial_server, pymodbus_tcp_server, words, GatewaySim, Kill, Run, Scratch,
+};
 
 use std::process::{Command, Stdio};
 use std::time::Duration;
@@ -14,7 +16,6 @@ use std::time::Duration;
 /// Runs `conformance identify ARGS --format json -o DIR/identify.json`, bounded in time;
 /// returns the exit code and the report.
 fn identify(dir: &std::path::Path, args: &[&str]) -> (Option<i32>, serde_json::Value) {
-    std::fs::create_dir_all(dir).unwrap();
     let out = dir.join("identify.json");
     let _ = std::fs::remove_file(&out);
     let mut run = Kill::spawn(
@@ -42,10 +43,6 @@ fn identify(dir: &std::path::Path, args: &[&str]) -> (Option<i32>, serde_json::V
     (exit.code(), v)
 }
 
-fn tmp(name: &str) -> std::path::PathBuf {
-    std::env::temp_dir().join(format!("teco-identify-{name}-{}", std::process::id()))
-}
-
 /// Every probe's predictions hold one entry per model, and the scores count the fits.
 fn consistent(v: &serde_json::Value) {
     let probes = v["probes"].as_array().unwrap();
@@ -68,7 +65,7 @@ fn consistent(v: &serde_json::Value) {
 
 fn named_as_itself(model: &str) {
     for mode in ["rtu", "ascii"] {
-        let dir = tmp(&format!("{model}-{mode}"));
+        let dir = Scratch::new(&format!("{model}-{mode}"));
         let (exit, v) = identify(&dir, &["--sim", model, "--mode", mode]);
         assert_eq!(
             v["verdict"]["result"], "one",
@@ -102,7 +99,6 @@ fn named_as_itself(model: &str) {
                 assert!(!s["misses"].as_array().unwrap().is_empty(), "{}", s);
             }
         }
-        let _ = std::fs::remove_dir_all(&dir);
     }
 }
 
@@ -133,18 +129,11 @@ fn the_legacy_note_is_named_l510_legacy() {
 
 #[test]
 fn a_planted_fault_makes_it_none_of_the_five_and_a_tolerance_names_the_nearest() {
-    let dir = tmp("quirk");
+    let dir = Scratch::new("quirk");
     // Every exception code one too high: no manual numbers exceptions so.
     let (exit, v) = identify(
         &dir,
-        &[
-            "--sim",
-            "f510",
-            "--mode",
-            "rtu",
-            "--quirk",
-            "wrong-exception",
-        ],
+        &words("--sim f510 --mode rtu --quirk wrong-exception"),
     );
     assert_eq!(v["verdict"]["result"], "none", "{}", v["verdict"]);
     assert_eq!(
@@ -169,16 +158,10 @@ fn a_planted_fault_makes_it_none_of_the_five_and_a_tolerance_names_the_nearest()
     // A tolerance of that many misses names the nearest model.
     let (exit, v) = identify(
         &dir,
-        &[
-            "--sim",
-            "f510",
-            "--mode",
-            "rtu",
-            "--quirk",
-            "wrong-exception",
-            "--tolerance",
+        &line(&[
+            "--sim f510 --mode rtu --quirk wrong-exception --tolerance",
             &missed.to_string(),
-        ],
+        ]),
     );
     assert_eq!(
         v["verdict"]["models"],
@@ -200,24 +183,14 @@ fn a_planted_fault_makes_it_none_of_the_five_and_a_tolerance_names_the_nearest()
     );
     assert_eq!(exit, Some(0));
     assert_eq!(v["links"][0]["echo"], true);
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 #[test]
 fn a_silent_device_could_not_be_identified() {
-    let dir = tmp("dead");
+    let dir = Scratch::new("dead");
     let (exit, v) = identify(
         &dir,
-        &[
-            "--sim",
-            "f510",
-            "--mode",
-            "rtu",
-            "--quirk",
-            "dead",
-            "--timeout",
-            "200",
-        ],
+        &words("--sim f510 --mode rtu --quirk dead --timeout 200"),
     );
     assert_eq!(v["verdict"]["result"], "not-run", "{}", v["verdict"]);
     assert_eq!(exit, Some(2));
@@ -226,25 +199,14 @@ fn a_silent_device_could_not_be_identified() {
         "{}",
         v["verdict"]
     );
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 #[test]
 fn check_model_auto_runs_the_checks_of_the_identified_model() {
-    let dir = tmp("auto");
-    std::fs::create_dir_all(&dir).unwrap();
+    let dir = Scratch::new("auto");
     let (exit, v) = common::check_device(
         &dir,
-        &[
-            "--sim",
-            "a510",
-            "--model",
-            "auto",
-            "--mode",
-            "rtu",
-            "--only",
-            "rtu.map.*",
-        ],
+        &words("--sim a510 --model auto --mode rtu --only rtu.map.*"),
         Duration::from_secs(180),
     );
     assert_eq!(
@@ -286,27 +248,14 @@ fn check_model_auto_runs_the_checks_of_the_identified_model() {
         "no read past the end of the A510's group 0"
     );
     // Ambiguous or none: nothing is checked, exit 2.
-    let out = Command::new(bin())
-        .args([
-            "check",
-            "--sim",
-            "f510",
-            "--model",
-            "auto",
-            "--mode",
-            "rtu",
-            "--quirk",
-            "wrong-exception",
-            "--quiet",
-        ])
-        .output()
-        .unwrap();
-    assert_eq!(out.status.code(), Some(2));
-    let stderr = String::from_utf8_lossy(&out.stderr);
+    let out =
+        Run::words("check --sim f510 --model auto --mode rtu --quirk wrong-exception --quiet")
+            .run();
+    assert_eq!(out.code, Some(2));
+    let stderr = out.stderr.as_str();
     assert!(stderr.contains("none of the five"), "{stderr}");
     assert!(stderr.contains("nothing was checked"), "{stderr}");
     assert!(out.stdout.is_empty());
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 /// A generic Modbus server is none of the five (exit 1): it answers reads as any Modbus
@@ -327,27 +276,22 @@ fn generic_is_none_of_the_five(exit: Option<i32>, v: &serde_json::Value) {
 }
 
 fn generic(mode: &str) {
-    let dir = tmp(&format!("pymodbus-{mode}"));
-    std::fs::create_dir_all(&dir).unwrap();
+    let dir = Scratch::new(&format!("pymodbus-{mode}"));
     let Some(peer) = pymodbus_serial_server(&dir, mode) else {
         return;
     };
     let b = &peer.port;
     let (exit, v) = identify(
         &dir,
-        &[
+        &line(&[
             "--port",
             b.to_str().unwrap(),
             "--mode",
             mode,
-            "-P",
-            "none",
-            "--timeout",
-            "300",
-        ],
+            "-P none --timeout 300",
+        ]),
     );
     generic_is_none_of_the_five(exit, &v);
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 #[test]
@@ -364,17 +308,15 @@ fn a_generic_pymodbus_device_is_none_of_the_five_ascii() {
 /// names the model behind it, with every probe a read that crossed the gateway.
 fn named_through_a_gateway(model: &str, unit: u8) {
     let sim = GatewaySim::start(model, unit, &["--gateway-timeout", "50"]);
-    let dir = tmp(&format!("mbap-{model}"));
+    let dir = Scratch::new(&format!("mbap-{model}"));
     let (exit, v) = identify(
         &dir,
-        &[
+        &line(&[
             "--tcp",
             &sim.addr,
-            "--framing",
-            "mbap",
-            "--unit",
+            "--framing mbap --unit",
             &unit.to_string(),
-        ],
+        ]),
     );
     assert_eq!(v["verdict"]["result"], "one", "{model}: {}", v["verdict"]);
     assert_eq!(v["verdict"]["models"], serde_json::json!([model]));
@@ -394,7 +336,6 @@ fn named_through_a_gateway(model: &str, unit: u8) {
         let req = p["request"].as_str().unwrap();
         assert_eq!(req.split(' ').nth(1), Some("03"), "{model}: {req}");
     }
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 #[test]
@@ -419,22 +360,12 @@ fn a_generic_pymodbus_tcp_server_is_none_of_the_five() {
     let Some((_server, addr)) = pymodbus_tcp_server(3) else {
         return;
     };
-    let dir = tmp("pymodbus-tcp");
+    let dir = Scratch::new("pymodbus-tcp");
     let (exit, v) = identify(
         &dir,
-        &[
-            "--tcp",
-            &addr,
-            "--framing",
-            "mbap",
-            "--unit",
-            "3",
-            "--timeout",
-            "500",
-        ],
+        &line(&["--tcp", &addr, "--framing mbap --unit 3 --timeout 500"]),
     );
     generic_is_none_of_the_five(exit, &v);
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 /// A `check --model auto` whose identification names no model still leaves its report
@@ -442,13 +373,10 @@ fn a_generic_pymodbus_tcp_server_is_none_of_the_five() {
 /// identify check as ERROR, the run incomplete, saying why nothing was checked.
 #[test]
 fn check_model_auto_that_identifies_nothing_leaves_its_report() {
-    let dir = tmp("auto-dead");
-    std::fs::create_dir_all(&dir).unwrap();
+    let dir = Scratch::new("auto-dead");
     let (exit, v) = common::check_device(
         &dir,
-        &[
-            "--sim", "a510", "--model", "auto", "--mode", "rtu", "--quirk", "dead",
-        ],
+        &words("--sim a510 --model auto --mode rtu --quirk dead"),
         Duration::from_secs(120),
     );
     assert_eq!(exit, Some(2), "{}", v["summary"]);

@@ -27,7 +27,7 @@
 //!   `scripts/install-peers` made it, `$PEERS_PYTHON` when set, else `python3`.
 
 mod common;
-use common::{need, note, python, Peer};
+use common::{line, need, note, python, Peer};
 
 use std::io::{BufRead, BufReader, Read};
 use std::path::{Path, PathBuf};
@@ -286,15 +286,7 @@ fn parse_mbpoll_values(stdout: &str) -> Vec<(u32, u16)> {
 fn mbpoll_read(sim: &Sim, reg: u16, count: u16) -> Result<Vec<u16>, String> {
     let run = mbpoll(
         sim,
-        &[
-            "-0",
-            "-t",
-            "4:hex",
-            "-r",
-            &reg.to_string(),
-            "-c",
-            &count.to_string(),
-        ],
+        &line(&["-0 -t 4:hex -r", &reg.to_string(), "-c", &count.to_string()]),
         &[],
     );
     if !run.status.success() {

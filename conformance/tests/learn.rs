@@ -11,7 +11,7 @@
 //! draft.json --read-only`: no deviation. They need the loader of schema_version 2.
 
 mod common;
-use common::{note, run_bounded, sim_pty, SerialPeer};
+use common::{note, run_bounded, sim_pty, Run, SerialPeer};
 
 use std::path::Path;
 use std::time::Duration;
@@ -357,10 +357,11 @@ fn learn_a_libmodbus_server() {
 fn check_holds(dir: &Path, port: &str, line: &[&str], expect: Option<&str>) {
     let draft = dir.join("draft.json");
     let report = dir.join("check.json");
-    let (lint, out, err) = run_bounded(
-        &["model", "lint", draft.to_str().unwrap()],
-        Duration::from_secs(60),
-    );
+    let (lint, out, err) = Run::words("model lint")
+        .arg(&draft)
+        .timeout(Duration::from_secs(60))
+        .run()
+        .parts();
     assert_eq!(lint, Some(0), "the draft does not lint clean:\n{out}{err}");
     let expect = expect.map(|f| format!("{}/tests/interop/{f}", env!("CARGO_MANIFEST_DIR")));
     let mut args = vec![
@@ -459,8 +460,10 @@ fn learn_interrupted_writes_the_draft_so_far() {
     let out = dir.path().join("draft.json");
     // The whole range: far longer than the wait below.
     let mut child = common::Kill::spawn(
-        std::process::Command::new(common::bin())
-            .args(["model", "learn", "--port", &port, "-q"])
+        Run::words("model learn --port")
+            .arg(&port)
+            .arg("-q")
+            .command()
             .args(F510_LINE)
             .arg("-o")
             .arg(&out)

@@ -49,7 +49,7 @@
 //! fails.
 
 mod common;
-use common::SerialPeer;
+use common::{line, Scratch, SerialPeer};
 
 use std::path::Path;
 use std::time::{Duration, Instant};
@@ -79,8 +79,7 @@ fn start(dir: &Path) -> Option<SerialPeer> {
 
 #[test]
 fn libmodbus_rtu_server_checked_as_f510() {
-    let dir = std::env::temp_dir().join(format!("teco-libmodbus-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
+    let dir = Scratch::new("libmodbus");
     let Some(SerialPeer {
         line: _line,
         device: mut server,
@@ -191,7 +190,6 @@ fn libmodbus_rtu_server_checked_as_f510() {
         std::thread::sleep(Duration::from_millis(20));
     };
     assert_eq!(code, Some(0));
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 /// `conformance fuzz` against the libmodbus server, a short budget: it completes (exit 0
@@ -205,8 +203,7 @@ fn libmodbus_rtu_server_checked_as_f510() {
 /// comes back (`hang`, always with a recovery time).
 #[test]
 fn libmodbus_rtu_server_fuzzed_as_f510() {
-    let dir = std::env::temp_dir().join(format!("teco-libmodbus-fuzz-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
+    let dir = Scratch::new("libmodbus-fuzz");
     let Some(peer) = start(&dir) else {
         return;
     };
@@ -225,21 +222,13 @@ fn libmodbus_rtu_server_fuzzed_as_f510() {
     let (exit, v) = common::report_of(
         "fuzz",
         &dir,
-        &[
-            "--model",
-            "f510",
-            "--port",
+        &line(&[
+            "--model f510 --port",
             b.to_str().unwrap(),
-            "-P",
-            "none",
-            "--mode",
-            "rtu",
-            "--timeout",
-            "1000",
-            "--cases",
+            "-P none --mode rtu --timeout 1000 --cases",
             &cases,
             "--no-minimize",
-        ],
+        ]),
         Duration::from_secs(400),
     );
     assert!(
@@ -278,5 +267,4 @@ fn libmodbus_rtu_server_fuzzed_as_f510() {
             .map(|f| format!("{} x{}", f["signature"], f["count"]))
             .collect::<Vec<_>>()
     );
-    let _ = std::fs::remove_dir_all(&dir);
 }

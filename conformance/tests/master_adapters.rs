@@ -12,9 +12,9 @@
 
 mod common;
 use common::gate::status_of;
-use common::{python, Peer};
+use common::{python, words, Peer, Scratch};
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::time::Duration;
 
 const LIMIT: Duration = Duration::from_secs(90);
@@ -27,12 +27,6 @@ fn adapter(path: &str) -> String {
         .to_string()
 }
 
-fn scratch(name: &str) -> PathBuf {
-    let d = Path::new(env!("CARGO_TARGET_TMPDIR")).join(format!("master_adapters-{name}"));
-    std::fs::create_dir_all(&d).unwrap();
-    d
-}
-
 /// `conformance gate --master CMD --model MODEL --only ID ...`, bounded, its report checked
 /// against the schema; asserts the run completed, ran every case named and judged every
 /// case it ran.
@@ -41,7 +35,7 @@ fn gate(name: &str, cmd: &str, model: &str, only: &[&str]) -> (Option<i32>, serd
     for p in only {
         args.extend(["--only", p]);
     }
-    let (code, v) = common::report_of("gate", &scratch(name), &args, LIMIT);
+    let (code, v) = common::report_of("gate", &Scratch::new(name), &args, LIMIT);
     assert_eq!(v["kind"], "gate");
     assert_eq!(v["complete"], true, "the run did not complete: {v:#}");
     assert_eq!(v["summary"]["error"], 0, "{:#}", v["checks"]);
@@ -93,7 +87,7 @@ fn pymodbus_master_with_a_parity_on_a_pty_is_told_why_it_cannot_open() {
         return;
     }
     let cmd = format!("{} {}", python(), adapter("pymodbus-master/adapter.py"));
-    let dir = scratch("pymodbus-parity");
+    let dir = Scratch::new("pymodbus-parity");
     let only = [
         "--only",
         "rtu.read.normal",
@@ -161,18 +155,12 @@ fn pymodbus_master_completes_and_loses_a_reply_behind_a_stray_byte() {
         "pymodbus",
         &cmd,
         "l510-legacy",
-        &[
-            "rtu.read.normal",
-            "rtu.read.exception-51",
-            "rtu.read.stale-reply",
-            "rtu.read.stale-in-flight",
-            "rtu.read.wrong-function",
-            "rtu.read.zero-before",
-            "rtu.loop-back.normal",
-            "rtu.broadcast-single.normal",
-            "ascii.read.normal",
-            "ascii.read.zero-before",
-        ],
+        &words(
+            "rtu.read.normal \
+        rtu.read.exception-51 rtu.read.stale-reply rtu.read.stale-in-flight \
+        rtu.read.wrong-function rtu.read.zero-before rtu.loop-back.normal \
+        rtu.broadcast-single.normal ascii.read.normal ascii.read.zero-before",
+        ),
     );
     assert_eq!(v["codec"]["implementation"], "pymodbus");
     // The headline (pymodbus #2636): a reply that comes while its next request waits is
@@ -211,15 +199,11 @@ fn minimalmodbus_master_completes_skips_loop_back_and_loses_a_reply_behind_a_str
         "minimalmodbus",
         &cmd,
         "l510-legacy",
-        &[
-            "rtu.read.normal",
-            "rtu.read.exception-53",
-            "rtu.read.stale-reply",
-            "rtu.read.zero-before",
-            "rtu.loop-back.normal",
-            "ascii.read.normal",
-            "ascii.read.garbage-before",
-        ],
+        &words(
+            "rtu.read.normal \
+        rtu.read.exception-53 rtu.read.stale-reply rtu.read.zero-before rtu.loop-back.normal \
+        ascii.read.normal ascii.read.garbage-before",
+        ),
     );
     assert_eq!(v["codec"]["implementation"], "minimalmodbus");
     assert_eq!(status_of(&v, "rtu.read.normal"), "pass");
@@ -247,14 +231,11 @@ fn libmodbus_master_takes_the_stale_reply_and_waits_after_a_broadcast() {
         "libmodbus",
         &cmd,
         "l510-legacy",
-        &[
-            "rtu.read.normal",
-            "rtu.read.exception-52",
-            "rtu.write-single.normal",
-            "rtu.write-multiple.normal",
-            "rtu.broadcast-single.normal",
-            "ascii.read.normal",
-        ],
+        &words(
+            "rtu.read.normal \
+        rtu.read.exception-52 rtu.write-single.normal rtu.write-multiple.normal \
+        rtu.broadcast-single.normal ascii.read.normal",
+        ),
     );
     assert_eq!(v["codec"]["implementation"], "libmodbus");
     assert_eq!(status_of(&v, "rtu.read.normal"), "pass");
@@ -321,13 +302,10 @@ fn rmodbus_master_takes_the_stale_reply_and_knows_no_legacy_exception() {
         "rmodbus",
         &cmd,
         "l510-legacy",
-        &[
-            "rtu.read.normal",
-            "rtu.read.exception-54",
-            "rtu.write-single.normal",
-            "rtu.loop-back.normal",
-            "ascii.read.normal",
-        ],
+        &words(
+            "rtu.read.normal \
+        rtu.read.exception-54 rtu.write-single.normal rtu.loop-back.normal ascii.read.normal",
+        ),
     );
     assert_eq!(v["codec"]["implementation"], "rmodbus");
     assert_eq!(status_of(&v, "rtu.read.normal"), "pass");
@@ -354,15 +332,11 @@ fn jsmodbus_master_throws_on_a_legacy_exception_and_is_stuck_after_stray_bytes()
         "jsmodbus",
         &cmd,
         "l510-legacy",
-        &[
-            "rtu.read.normal",
-            "rtu.read.exception-55",
-            "rtu.read.stale-reply",
-            "rtu.read.stale-in-flight",
-            "rtu.broadcast-single.normal",
-            "rtu.read.garbage-after",
-            "ascii.read.normal",
-        ],
+        &words(
+            "rtu.read.normal \
+        rtu.read.exception-55 rtu.read.stale-reply rtu.read.stale-in-flight \
+        rtu.broadcast-single.normal rtu.read.garbage-after ascii.read.normal",
+        ),
     );
     assert_eq!(v["codec"]["implementation"], "jsmodbus");
     assert_eq!(status_of(&v, "rtu.read.normal"), "pass");
@@ -390,13 +364,11 @@ fn mbpoll_master_runs_once_per_operation_and_takes_the_stale_reply() {
         "mbpoll",
         &cmd,
         "l510-legacy",
-        &[
-            "rtu.read.normal",
-            "rtu.read.exception-51",
-            "rtu.write-single.normal",
-            "rtu.write-multiple.normal",
-            "rtu.broadcast-single.normal",
-        ],
+        &words(
+            "rtu.read.normal \
+        rtu.read.exception-51 rtu.write-single.normal rtu.write-multiple.normal \
+        rtu.broadcast-single.normal",
+        ),
     );
     assert_eq!(v["codec"]["implementation"], "mbpoll");
     assert_eq!(status_of(&v, "rtu.read.normal"), "pass");
@@ -430,7 +402,7 @@ fn libmodbus_state_after_a_stale_reply_stays_in_its_case_with_reopen_each_case()
         for p in &only {
             args.extend(["--only", p]);
         }
-        let (_, v) = common::report_of("gate", &scratch(name), &args, LIMIT);
+        let (_, v) = common::report_of("gate", &Scratch::new(name), &args, LIMIT);
         assert_eq!(v["complete"], true, "{v:#}");
         v
     };
@@ -474,7 +446,7 @@ fn over_modbus_tcp_pymodbus_checks_the_transaction_and_libmodbus_not_the_unit() 
         for p in &only {
             args.extend(["--only", p]);
         }
-        let (_, v) = common::report_of("gate", &scratch(name), &args, LIMIT);
+        let (_, v) = common::report_of("gate", &Scratch::new(name), &args, LIMIT);
         assert_eq!(v["complete"], true, "{v:#}");
         assert_eq!(
             status_of(&v, "rtu.read.normal"),

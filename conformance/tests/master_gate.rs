@@ -11,13 +11,12 @@
 //! no timing blurs.
 
 mod common;
-use common::bin;
 use common::gate::{gate_json, schema_valid, status_of};
+use common::{Ran, Run, Scratch};
 
 use std::collections::BTreeSet;
-use std::process::{Command, Output};
 
-fn gate_master(master: &str, extra: &[&str]) -> (Output, serde_json::Value) {
+fn gate_master(master: &str, extra: &[&str]) -> (Ran, serde_json::Value) {
     gate_json("--master", master, extra)
 }
 
@@ -56,13 +55,7 @@ fn the_clean_master_gives_no_finding_in_rtu_and_ascii() {
     schema_valid(&v);
     let kinds = deviation_kinds(&v);
     assert!(kinds.is_empty(), "{kinds:?}: {:#}", v["master"]["kinds"]);
-    assert_eq!(
-        o.status.code(),
-        Some(0),
-        "{:?} {}",
-        errors(&v),
-        String::from_utf8_lossy(&o.stderr)
-    );
+    assert_eq!(o.code, Some(0), "{:?} {}", errors(&v), o.stderr);
     assert_eq!(v["summary"]["deviation"], 0);
     assert_eq!(v["summary"]["error"], 0);
     assert_eq!(v["summary"]["skip"], 0);
@@ -97,7 +90,7 @@ fn a_clean_master_that_retries_as_its_setting_says_gives_no_finding() {
     schema_valid(&v);
     let kinds = deviation_kinds(&v);
     assert!(kinds.is_empty(), "{kinds:?}: {:#}", v["master"]["kinds"]);
-    assert_eq!(o.status.code(), Some(0), "{:?}", errors(&v));
+    assert_eq!(o.code, Some(0), "{:?}", errors(&v));
     assert_eq!(v["master"]["settings"]["rtu"]["retries"], 1);
     // A second try after a reply split by a silence over t1.5 is right, not a storm (a
     // loaded host may hand the master both parts at once: then it is an observation).
@@ -124,13 +117,7 @@ fn a_fault_case_first_on_its_line_with_retries_gives_a_report() {
         args.extend_from_slice(extra);
         let (o, v) = gate_master(&master(None), &args);
         schema_valid(&v);
-        assert_eq!(
-            o.status.code(),
-            Some(0),
-            "{only:?}: {:?} {}",
-            errors(&v),
-            String::from_utf8_lossy(&o.stderr)
-        );
+        assert_eq!(o.code, Some(0), "{only:?}: {:?} {}", errors(&v), o.stderr);
         for id in only {
             let s = status_of(&v, id);
             assert!(s == "pass" || s == "observation", "{id}: {s}");
@@ -148,12 +135,7 @@ fn caught_as(quirk: &str, mode: &str, kind: &str, extra: &[&str]) -> serde_json:
     let kinds = deviation_kinds(&v);
     let want: BTreeSet<String> = [kind.to_string()].into();
     assert_eq!(kinds, want, "{quirk} in {mode}: {:#}", v["master"]["kinds"]);
-    assert_eq!(
-        o.status.code(),
-        Some(1),
-        "{quirk} in {mode}: {:?}",
-        errors(&v)
-    );
+    assert_eq!(o.code, Some(1), "{quirk} in {mode}: {:?}", errors(&v));
     let k = v["master"]["kinds"]
         .as_array()
         .unwrap()
@@ -189,12 +171,10 @@ fn a_master_that_takes_a_stale_reply_is_caught() {
 /// section of what was found on the master, its case `case` linked to its finding, and
 /// every link of the page landing on an element of the page.
 fn html_lists_the_kinds(v: &serde_json::Value, kind: &str, case: &str) {
-    let d = std::env::temp_dir().join(format!("master-gate-html-{}", std::process::id()));
-    std::fs::create_dir_all(&d).unwrap();
+    let d = Scratch::new("master-gate-html");
     let json = d.join("r.json");
     std::fs::write(&json, v.to_string()).unwrap();
     let page = common::rendered(&json, &d.join("r.html"));
-    let _ = std::fs::remove_dir_all(&d);
     let at = page
         .find("<h2 id=\"found\">")
         .expect("no section of what was found");
@@ -301,7 +281,7 @@ fn a_master_that_reads_over_the_limit_is_caught() {
 fn over_tcp_the_same_master_is_judged_without_line_timing() {
     let (o, v) = gate_master(&master(None), &["--mode", "rtu", "--line", "tcp-rtu"]);
     schema_valid(&v);
-    assert_eq!(o.status.code(), Some(0), "{:?}", errors(&v));
+    assert_eq!(o.code, Some(0), "{:?}", errors(&v));
     assert!(deviation_kinds(&v).is_empty(), "{:#}", v["master"]["kinds"]);
     assert_eq!(v["master"]["line"], "tcp-rtu");
     assert_eq!(status_of(&v, "rtu.read.stale-reply"), "pass");
@@ -323,36 +303,20 @@ fn over_tcp_the_same_master_is_judged_without_line_timing() {
 
 #[test]
 fn an_adapter_that_is_not_a_master_stops_the_gate() {
-    let o = Command::new(bin())
-        .args([
-            "gate",
-            "--master",
-            "conformance adapter",
-            "--only",
-            "rtu.read.normal",
-        ])
-        .output()
-        .unwrap();
-    assert_eq!(o.status.code(), Some(2));
-    let err = String::from_utf8_lossy(&o.stderr);
+    let o = Run::words("gate --master")
+        .arg("conformance adapter")
+        .args(["--only", "rtu.read.normal"])
+        .run();
+    assert_eq!(o.code, Some(2));
+    let err = o.stderr.as_str();
     assert!(err.contains("role"), "{err}");
 }
 
 #[test]
 fn the_cases_list_without_an_adapter() {
-    let o = Command::new(bin())
-        .args([
-            "gate",
-            "--master",
-            "/nonexistent/master",
-            "--list",
-            "--model",
-            "l510-legacy",
-        ])
-        .output()
-        .unwrap();
-    assert_eq!(o.status.code(), Some(0));
-    let out = String::from_utf8_lossy(&o.stdout);
+    let o = Run::words("gate --master /nonexistent/master --list --model l510-legacy").run();
+    assert_eq!(o.code, Some(0));
+    let out = o.stdout.as_str();
     for id in [
         "rtu.read.exception-51",
         "rtu.read.exception-55",

@@ -14,7 +14,8 @@
 
 mod common;
 use common::{
-    bin, check_device, need, pymodbus_tcp_server, python, report_of, run_bounded, GatewaySim, Peer,
+    check_device, line, need, pymodbus_tcp_server, python, report_of, GatewaySim, Peer, Run,
+    Scratch,
 };
 
 use std::process::{Command, Stdio};
@@ -151,20 +152,10 @@ fn check_through_mbap_against_pymodbus_tcp_server() {
     let Some((_server, addr)) = pymodbus_tcp_server(1) else {
         return;
     };
-    let dir = std::env::temp_dir().join(format!("teco-mbap-pymodbus-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
+    let dir = Scratch::new("mbap-pymodbus");
     let (exit, v) = check_device(
         &dir,
-        &[
-            "--model",
-            "f510",
-            "--tcp",
-            &addr,
-            "--framing",
-            "mbap",
-            "--timeout",
-            "500",
-        ],
+        &line(&["--model f510 --tcp", &addr, "--framing mbap --timeout 500"]),
         Duration::from_secs(180),
     );
     assert_eq!(v["complete"], true, "{}", v["stopped"]);
@@ -217,14 +208,12 @@ fn check_through_mbap_against_pymodbus_tcp_server() {
     );
     assert_ne!(other["status"], "error", "{other}");
     eprintln!("pymodbus TCP server as F510: {}", v["summary"]);
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 #[test]
 fn check_through_mbap_against_the_simulated_gateway_has_no_deviation() {
     let sim = GatewaySim::start("f510", 1, &["--gateway-timeout", "50"]);
-    let dir = std::env::temp_dir().join(format!("teco-mbap-sim-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
+    let dir = Scratch::new("mbap-sim");
     let (exit, v) = check_device(
         &dir,
         &["--model", "f510", "--tcp", &sim.addr, "--framing", "mbap"],
@@ -241,27 +230,20 @@ fn check_through_mbap_against_the_simulated_gateway_has_no_deviation() {
     assert_eq!(exit, Some(0));
     assert_hidden_checks_skipped(&v);
     assert_eq!(v["device"]["identification"], "0510");
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 #[test]
 fn fuzz_through_mbap_sends_only_what_a_gateway_carries() {
     let sim = GatewaySim::start("f510", 1, &["--gateway-timeout", "20"]);
-    let dir = std::env::temp_dir().join(format!("teco-mbap-fuzz-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
+    let dir = Scratch::new("mbap-fuzz");
     let (exit, v) = report_of(
         "fuzz",
         &dir,
-        &[
-            "--model",
-            "f510",
-            "--tcp",
+        &line(&[
+            "--model f510 --tcp",
             &sim.addr,
-            "--framing",
-            "mbap",
-            "--cases",
-            "300",
-        ],
+            "--framing mbap --cases 300",
+        ]),
         Duration::from_secs(240),
     );
     assert_eq!(v["complete"], true, "{}", v["stopped"]);
@@ -275,7 +257,6 @@ fn fuzz_through_mbap_sends_only_what_a_gateway_carries() {
         mode["skipped"]
     );
     assert_eq!(exit, Some(0), "{}", v["summary"]);
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 #[test]
@@ -352,26 +333,15 @@ fn what_mbap_cannot_do_is_refused_with_a_reason() {
         ),
     ];
     for (args, want) in cases {
-        let o = Command::new(bin()).args(args).output().unwrap();
-        let err = String::from_utf8_lossy(&o.stderr);
-        assert_eq!(o.status.code(), Some(2), "{args:?}: {err}");
+        let o = Run::new(args).run();
+        let err = o.stderr.as_str();
+        assert_eq!(o.code, Some(2), "{args:?}: {err}");
         assert!(err.contains(want), "{args:?}: {err}");
     }
     // --unit without --framing: clap says what is missing.
-    let o = Command::new(bin())
-        .args([
-            "check",
-            "--model",
-            "f510",
-            "--tcp",
-            "127.0.0.1:1",
-            "--unit",
-            "3",
-        ])
-        .output()
-        .unwrap();
-    assert_eq!(o.status.code(), Some(2));
-    assert!(String::from_utf8_lossy(&o.stderr).contains("--framing"));
+    let o = Run::words("check --model f510 --tcp 127.0.0.1:1 --unit 3").run();
+    assert_eq!(o.code, Some(2));
+    assert!(o.stderr.contains("--framing"));
 }
 
 /// `scan --tcp --framing mbap` sweeps unit ids through the simulated gateway and finds the
@@ -381,19 +351,14 @@ fn what_mbap_cannot_do_is_refused_with_a_reason() {
 #[test]
 fn scan_through_mbap_finds_the_unit_behind_the_gateway() {
     let sim = GatewaySim::start("l510", 17, &["--gateway-timeout", "30"]);
-    let o = Command::new(bin())
-        .args(["scan", "--tcp", &sim.addr, "--framing", "mbap"])
+    let o = Run::words("scan --tcp")
+        .arg(&sim.addr)
+        .args(["--framing", "mbap"])
         .args(["--addresses", "10-20", "--format", "json", "-q"])
-        .output()
-        .unwrap();
-    let stdout = String::from_utf8_lossy(&o.stdout);
-    assert_eq!(
-        o.status.code(),
-        Some(0),
-        "{stdout}\n{}",
-        String::from_utf8_lossy(&o.stderr)
-    );
-    let v: serde_json::Value = serde_json::from_str(&stdout).expect("scan JSON");
+        .run();
+    let stdout = o.stdout.as_str();
+    assert_eq!(o.code, Some(0), "{stdout}\n{}", o.stderr);
+    let v: serde_json::Value = serde_json::from_str(stdout).expect("scan JSON");
     let text = v.to_string();
     assert!(text.contains("\"address\":17"), "{text}");
     assert!(
@@ -413,19 +378,12 @@ fn scan_through_mbap_finds_the_unit_behind_the_gateway() {
         sim.addr
     );
     assert_eq!(v["link"], swept.as_str(), "{text}");
-    let (code, out, err) = run_bounded(
-        &[
-            "scan",
-            "--tcp",
-            &sim.addr,
-            "--framing",
-            "mbap",
-            "--addresses",
-            "10-12,17,20",
-            "-q",
-        ],
-        Duration::from_secs(120),
-    );
+    let (code, out, err) = Run::words("scan --tcp")
+        .arg(&sim.addr)
+        .args(["--framing", "mbap", "--addresses", "10-12,17,20", "-q"])
+        .timeout(Duration::from_secs(120))
+        .run()
+        .parts();
     assert_eq!(code, Some(0), "{out}{err}");
     let header = out.lines().next().unwrap_or_default();
     assert!(
@@ -437,18 +395,10 @@ fn scan_through_mbap_finds_the_unit_behind_the_gateway() {
     );
     assert!(!out.contains("unit 1)"), "{out}");
     // ASCII does not cross MBAP: refused with the reason.
-    let o = Command::new(bin())
-        .args([
-            "scan",
-            "--tcp",
-            &sim.addr,
-            "--framing",
-            "mbap",
-            "-m",
-            "ascii",
-        ])
-        .output()
-        .unwrap();
-    assert_eq!(o.status.code(), Some(2));
-    assert!(String::from_utf8_lossy(&o.stderr).contains("no ASCII over Modbus TCP"));
+    let o = Run::words("scan --tcp")
+        .arg(&sim.addr)
+        .args(["--framing", "mbap", "-m", "ascii"])
+        .run();
+    assert_eq!(o.code, Some(2));
+    assert!(o.stderr.contains("no ASCII over Modbus TCP"));
 }

@@ -6,15 +6,7 @@ mod common;
 use std::path::{Path, PathBuf};
 use std::time::Duration;
 
-use common::run_bounded;
-
-/// A fresh directory for one test.
-fn dir(name: &str) -> PathBuf {
-    let d = Path::new(env!("CARGO_TARGET_TMPDIR")).join(format!("model-file-{name}"));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).unwrap();
-    d
-}
+use common::{line, run_bounded, words, Run, Scratch};
 
 /// The F510 model under another id and title: a description no built-in model has, so
 /// that a command can only know it from the file.
@@ -30,39 +22,25 @@ fn acme(dir: &Path) -> PathBuf {
 
 #[test]
 fn send_and_fuzz_take_a_description_alone() {
-    let d = dir("send-fuzz");
+    let d = Scratch::new("send-fuzz");
     let f = acme(&d);
     let f = f.to_str().unwrap();
     let (_sim, port) = common::sim_pty(&["--model", "f510"]);
-    let (code, out, err) = run_bounded(
-        &[
-            "send",
-            "--model-file",
-            f,
-            "--port",
-            &port,
-            "--mode",
-            "rtu",
-            "0103252000018ECC",
-        ],
-        Duration::from_secs(60),
-    );
+    let (code, out, err) = Run::words("send --model-file")
+        .arg(f)
+        .arg("--port")
+        .arg(&port)
+        .args(["--mode", "rtu", "0103252000018ECC"])
+        .timeout(Duration::from_secs(60))
+        .run()
+        .parts();
     assert_eq!(code, Some(0), "{out}{err}");
     assert!(out.contains("model: "), "{out}");
 
     let (code, v) = common::report_of(
         "fuzz",
         &d,
-        &[
-            "--model-file",
-            f,
-            "--port",
-            &port,
-            "--mode",
-            "rtu",
-            "--cases",
-            "10",
-        ],
+        &line(&["--model-file", f, "--port", &port, "--mode rtu --cases 10"]),
         Duration::from_secs(180),
     );
     assert!(matches!(code, Some(0 | 1)), "{v}");
@@ -72,22 +50,17 @@ fn send_and_fuzz_take_a_description_alone() {
 
 #[test]
 fn a_second_description_is_refused_where_one_is_taken() {
-    let d = dir("two");
+    let d = Scratch::new("two");
     let f = acme(&d);
     let f = f.to_str().unwrap();
-    let (code, out, err) = run_bounded(
-        &[
-            "send",
-            "--model-file",
-            f,
-            "--model-file",
-            f,
-            "--port",
-            "/dev/null",
-            "0103252000018ECC",
-        ],
-        Duration::from_secs(30),
-    );
+    let (code, out, err) = Run::words("send --model-file")
+        .arg(f)
+        .arg("--model-file")
+        .arg(f)
+        .args(["--port", "/dev/null", "0103252000018ECC"])
+        .timeout(Duration::from_secs(30))
+        .run()
+        .parts();
     assert_eq!(code, Some(2), "{out}{err}");
     assert!(
         err.contains("--model-file is given 2 times: this command takes one description"),
@@ -97,52 +70,31 @@ fn a_second_description_is_refused_where_one_is_taken() {
 
 #[test]
 fn monitor_takes_a_description_alone() {
-    let d = dir("monitor");
+    let d = Scratch::new("monitor");
     let f = acme(&d);
     let f = f.to_str().unwrap();
     let cap = d.join("check.pcapng");
-    let (code, _, err) = run_bounded(
-        &[
-            "check",
-            "--sim",
-            "f510",
-            "--mode",
-            "rtu",
-            "--only",
-            "rtu.map.group-0*",
-            "--quiet",
-            "--capture",
-            cap.to_str().unwrap(),
-            "--format",
-            "json",
-            "-o",
-            d.join("check.json").to_str().unwrap(),
-        ],
-        Duration::from_secs(120),
-    );
+    let (code, _, err) =
+        Run::words("check --sim f510 --mode rtu --only rtu.map.group-0* --quiet --capture")
+            .arg(&cap)
+            .args(["--format", "json", "-o"])
+            .arg(d.join("check.json").to_str().unwrap())
+            .timeout(Duration::from_secs(120))
+            .run()
+            .parts();
     assert_eq!(code, Some(0), "{err}");
     let json = d.join("monitor.json");
-    let (code, out, err) = run_bounded(
-        &[
-            "monitor",
-            "--model-file",
-            f,
-            "--capture-in",
-            cap.to_str().unwrap(),
-            "-b",
-            "9600",
-            "-P",
-            "even",
-            "-a",
-            "1",
-            "--format",
-            "json",
-            "-q",
-            "-o",
-            json.to_str().unwrap(),
-        ],
-        Duration::from_secs(60),
-    );
+    let (code, out, err) = Run::words("monitor --model-file")
+        .arg(f)
+        .arg("--capture-in")
+        .arg(&cap)
+        .args([
+            "-b", "9600", "-P", "even", "-a", "1", "--format", "json", "-q", "-o",
+        ])
+        .arg(&json)
+        .timeout(Duration::from_secs(60))
+        .run()
+        .parts();
     assert!(matches!(code, Some(0 | 1)), "{out}{err}");
     let v: serde_json::Value =
         serde_json::from_slice(&std::fs::read(&json).unwrap()).unwrap_or_else(|e| panic!("{e}"));
@@ -162,7 +114,7 @@ fn sha256sum(path: &Path) -> Option<String> {
 
 #[test]
 fn reports_name_the_description_by_file_title_and_hash() {
-    let d = dir("reports");
+    let d = Scratch::new("reports");
     let f = acme(&d);
     let Some(hash) = sha256sum(&f) else {
         common::missing("sha256sum (coreutils)");
@@ -171,16 +123,13 @@ fn reports_name_the_description_by_file_title_and_hash() {
     let (_sim, port) = common::sim_pty(&["--model", "f510"]);
     let (code, v) = common::check_device(
         &d,
-        &[
+        &line(&[
             "--model-file",
             f.to_str().unwrap(),
             "--port",
             &port,
-            "--mode",
-            "rtu",
-            "--only",
-            "rtu.map.monitor.*",
-        ],
+            "--mode rtu --only rtu.map.monitor.*",
+        ]),
         Duration::from_secs(120),
     );
     assert_eq!(code, Some(0), "{v}");
@@ -191,10 +140,13 @@ fn reports_name_the_description_by_file_title_and_hash() {
     let json = d.join("check.json");
     let json = json.to_str().unwrap();
     let render = |format: &str| {
-        let (code, out, err) = run_bounded(
-            &["report", json, "--format", format],
-            Duration::from_secs(30),
-        );
+        let (code, out, err) = Run::words("report")
+            .arg(json)
+            .arg("--format")
+            .arg(format)
+            .timeout(Duration::from_secs(30))
+            .run()
+            .parts();
         assert_eq!(code, Some(0), "{err}");
         out
     };
@@ -222,14 +174,7 @@ fn reports_name_the_description_by_file_title_and_hash() {
     let hash = sha256sum(&builtin).unwrap();
     let (code, v) = common::check_device(
         &d,
-        &[
-            "--sim",
-            "f510",
-            "--mode",
-            "rtu",
-            "--only",
-            "rtu.map.monitor.*",
-        ],
+        &words("--sim f510 --mode rtu --only rtu.map.monitor.*"),
         Duration::from_secs(120),
     );
     assert_eq!(code, Some(0), "{v}");
@@ -280,7 +225,7 @@ fn identify(dir: &Path, args: &[&str]) -> (Option<i32>, serde_json::Value, Strin
 
 #[test]
 fn identify_takes_descriptions_as_more_candidates() {
-    let d = dir("identify");
+    let d = Scratch::new("identify");
     let a = renamed(&d, "a510", "acme-a");
     let f = renamed(&d, "f510", "acme-f");
     let (a, f) = (a.to_str().unwrap(), f.to_str().unwrap());
@@ -288,16 +233,7 @@ fn identify_takes_descriptions_as_more_candidates() {
     // Beside the five: a description that predicts what a510 predicts ties with it.
     let (code, v, err) = identify(
         &d,
-        &[
-            "--sim",
-            "a510",
-            "--mode",
-            "rtu",
-            "--model-file",
-            a,
-            "--model-file",
-            f,
-        ],
+        &line(&["--sim a510 --mode rtu --model-file", a, "--model-file", f]),
     );
     assert_eq!(code, Some(1), "{err}");
     assert_eq!(v["verdict"]["result"], "ambiguous", "{}", v["verdict"]);
@@ -317,17 +253,13 @@ fn identify_takes_descriptions_as_more_candidates() {
     // Only the descriptions: the one the device follows is named.
     let (code, v, err) = identify(
         &d,
-        &[
-            "--sim",
-            "a510",
-            "--mode",
-            "rtu",
-            "--model-file",
+        &line(&[
+            "--sim a510 --mode rtu --model-file",
             a,
             "--model-file",
             f,
             "--only-files",
-        ],
+        ]),
     );
     assert_eq!(code, Some(0), "{err}");
     assert_eq!(v["verdict"]["models"], serde_json::json!(["acme-a"]));
@@ -337,14 +269,7 @@ fn identify_takes_descriptions_as_more_candidates() {
     let copy = renamed(&d, "f510", "f510");
     let (code, _, err) = identify(
         &d,
-        &[
-            "--sim",
-            "a510",
-            "--mode",
-            "rtu",
-            "--model-file",
-            copy.to_str().unwrap(),
-        ],
+        &line(&["--sim a510 --mode rtu --model-file", copy.to_str().unwrap()]),
     );
     assert_eq!(code, Some(2), "{err}");
     assert!(

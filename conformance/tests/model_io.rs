@@ -3,39 +3,25 @@
 
 mod common;
 
-use std::path::{Path, PathBuf};
 use std::time::Duration;
 
-use common::run_bounded;
-
-fn dir(name: &str) -> PathBuf {
-    let d = Path::new(env!("CARGO_TARGET_TMPDIR")).join(format!("model-io-{name}"));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).unwrap();
-    d
-}
+use common::{run_bounded, Run, Scratch};
 
 /// A description, exported, served by pymodbus's simulator, then checked against the same
 /// description: no deviation beyond what pymodbus does differently, each of which the
 /// expectations file `tests/interop/pymodbus-sim.expect.toml` names with its reason.
 #[test]
 fn an_exported_description_served_by_pymodbus_checks_clean() {
-    let d = dir("roundtrip");
+    let d = Scratch::new("roundtrip");
     let sim = d.join("f510-sim.json");
     let description = concat!(env!("CARGO_MANIFEST_DIR"), "/../vectors/models/f510.json");
-    let (code, _, err) = run_bounded(
-        &[
-            "model",
-            "export",
-            "--to",
-            "pymodbus-sim",
-            "--model-file",
-            description,
-            "-o",
-            sim.to_str().unwrap(),
-        ],
-        Duration::from_secs(30),
-    );
+    let (code, _, err) = Run::words("model export --to pymodbus-sim --model-file")
+        .arg(description)
+        .arg("-o")
+        .arg(&sim)
+        .timeout(Duration::from_secs(30))
+        .run()
+        .parts();
     assert_eq!(code, Some(0), "{err}");
     // What pymodbus cannot hold is said.
     assert!(err.contains("not held by pymodbus: value bounds"), "{err}");
@@ -109,24 +95,19 @@ Register,Name,Access,Min,Max,Unit,Scale,Comment\r
 
 #[test]
 fn a_register_map_imports_as_blocks_citing_its_rows() {
-    let d = dir("import");
+    let d = Scratch::new("import");
     let map = d.join("X100.csv");
     std::fs::write(&map, MAP).unwrap();
     let out = d.join("x100.json");
-    let (code, _, err) = run_bounded(
-        &[
-            "model",
-            "import",
-            "--from",
-            "csv",
-            map.to_str().unwrap(),
-            "-o",
-            out.to_str().unwrap(),
-            "--title",
-            "Acme X100 register map",
-        ],
-        Duration::from_secs(30),
-    );
+    let (code, _, err) = Run::words("model import --from csv")
+        .arg(&map)
+        .arg("-o")
+        .arg(&out)
+        .arg("--title")
+        .arg("Acme X100 register map")
+        .timeout(Duration::from_secs(30))
+        .run()
+        .parts();
     assert_eq!(code, Some(0), "{err}");
     assert!(
         err.contains("x100: 3 blocks from") && err.contains("(columns not imported: comment)"),
@@ -157,29 +138,25 @@ fn a_register_map_imports_as_blocks_citing_its_rows() {
 
 #[test]
 fn a_bad_register_map_exits_1_naming_row_and_column_and_an_unreadable_one_2() {
-    let d = dir("import-bad");
+    let d = Scratch::new("import-bad");
     let map = d.join("bad.csv");
     std::fs::write(&map, "register,access\n0x0000-0x0FFF,rw\n2500H,sometimes\n").unwrap();
-    let (code, out, err) = run_bounded(
-        &["model", "import", "--from", "csv", map.to_str().unwrap()],
-        Duration::from_secs(30),
-    );
+    let (code, out, err) = Run::words("model import --from csv")
+        .arg(&map)
+        .timeout(Duration::from_secs(30))
+        .run()
+        .parts();
     assert_eq!(code, Some(1), "{err}");
     assert!(out.is_empty(), "{out}");
     assert!(
         err.contains("bad.csv row 3, column access: \"sometimes\" is not an access"),
         "{err}"
     );
-    let (code, _, err) = run_bounded(
-        &[
-            "model",
-            "import",
-            "--from",
-            "csv",
-            d.join("none.csv").to_str().unwrap(),
-        ],
-        Duration::from_secs(30),
-    );
+    let (code, _, err) = Run::words("model import --from csv")
+        .arg(d.join("none.csv").to_str().unwrap())
+        .timeout(Duration::from_secs(30))
+        .run()
+        .parts();
     assert_eq!(code, Some(2), "{err}");
     assert!(err.contains("cannot read"), "{err}");
 }
@@ -189,7 +166,7 @@ fn a_bad_register_map_exits_1_naming_row_and_column_and_an_unreadable_one_2() {
 /// schema_version 2 loader (branch i34-format) to load the imported description.
 #[test]
 fn an_imported_map_served_by_pymodbus_checks_clean() {
-    let d = dir("import-roundtrip");
+    let d = Scratch::new("import-roundtrip");
     let map = d.join("X100.csv");
     std::fs::write(&map, MAP).unwrap();
     let description = d.join("x100.json");

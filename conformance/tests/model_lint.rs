@@ -3,27 +3,16 @@
 //! that loads a description (`--model-file`).
 
 mod common;
+use common::{Ran, Run, Scratch};
 
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
 
 fn repo() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("..")
 }
 
-fn dir(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("model-lint-{}-{name}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).unwrap();
-    d
-}
-
-fn run(args: &[&str]) -> Output {
-    Command::new(common::bin()).args(args).output().unwrap()
-}
-
-fn text(b: &[u8]) -> String {
-    String::from_utf8_lossy(b).to_string()
+fn run(args: &[&str]) -> Ran {
+    Run::new(args).run()
 }
 
 /// The F510 description with a misspelt top-level field and a misspelt citation inside a
@@ -55,11 +44,11 @@ fn place(file: &Path, needle: &str) -> String {
 
 #[test]
 fn lint_prints_every_error_with_its_place_and_path_and_exits_1() {
-    let d = dir("every");
+    let d = Scratch::new("every");
     let f = broken(&d);
     let o = run(&["model", "lint", f.to_str().unwrap()]);
-    assert_eq!(o.status.code(), Some(1), "{}", text(&o.stderr));
-    let out = text(&o.stdout);
+    assert_eq!(o.code, Some(1), "{}", o.stderr);
+    let out = o.stdout.clone();
     let want = [
         format!(
             "{}:1:1: error: (top level): missing field `exception_codes_source`",
@@ -91,10 +80,10 @@ fn the_built_in_models_lint_clean_and_an_unreadable_file_exits_2() {
     }
     let args: Vec<&str> = args.iter().map(String::as_str).collect();
     let o = run(&args);
-    assert_eq!(o.status.code(), Some(0), "{}", text(&o.stdout));
-    assert_eq!(text(&o.stdout), "ok: 0 errors, 0 warnings in 5 files\n");
+    assert_eq!(o.code, Some(0), "{}", o.stdout);
+    assert_eq!(o.stdout.clone(), "ok: 0 errors, 0 warnings in 5 files\n");
 
-    let d = dir("unreadable");
+    let d = Scratch::new("unreadable");
     let missing = d.join("missing.json");
     let f = broken(&d);
     let o = run(&[
@@ -103,8 +92,8 @@ fn the_built_in_models_lint_clean_and_an_unreadable_file_exits_2() {
         missing.to_str().unwrap(),
         f.to_str().unwrap(),
     ]);
-    assert_eq!(o.status.code(), Some(2));
-    let out = text(&o.stdout);
+    assert_eq!(o.code, Some(2));
+    let out = o.stdout.clone();
     assert!(
         out.starts_with(&format!("{}: error: cannot read: ", missing.display())),
         "{out}"
@@ -118,11 +107,11 @@ fn the_built_in_models_lint_clean_and_an_unreadable_file_exits_2() {
 
 #[test]
 fn json_output_has_every_finding() {
-    let d = dir("json");
+    let d = Scratch::new("json");
     let f = broken(&d);
     let o = run(&["model", "lint", "--format", "json", f.to_str().unwrap()]);
-    assert_eq!(o.status.code(), Some(1));
-    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(o.code, Some(1));
+    let v: serde_json::Value = serde_json::from_slice(&o.bytes).unwrap();
     assert_eq!(v["errors"], 3);
     assert_eq!(v["warnings"], 0);
     let findings = v["files"][0]["findings"].as_array().unwrap();
@@ -145,10 +134,10 @@ fn json_output_has_every_finding() {
 
 #[test]
 fn every_command_that_loads_a_description_lints_it_first() {
-    let d = dir("load");
+    let d = Scratch::new("load");
     let f = broken(&d);
     let fs = f.to_str().unwrap();
-    let lint = text(&run(&["model", "lint", fs]).stdout);
+    let lint = run(&["model", "lint", fs]).stdout;
     let findings: Vec<&str> = lint.lines().filter(|l| l.contains(": error: ")).collect();
     assert_eq!(findings.len(), 3);
     for args in [
@@ -183,8 +172,8 @@ fn every_command_that_loads_a_description_lints_it_first() {
         ],
     ] {
         let o = run(&args);
-        let err = text(&o.stderr);
-        assert_eq!(o.status.code(), Some(2), "{args:?}: {err}");
+        let err = o.stderr.clone();
+        assert_eq!(o.code, Some(2), "{args:?}: {err}");
         assert!(
             err.starts_with(&format!(
                 "error: {fs}: 3 errors, 0 warnings in the description\n"
@@ -201,16 +190,16 @@ fn every_command_that_loads_a_description_lints_it_first() {
 fn model_show_is_what_model_printed_before() {
     let old = run(&["model", "e510", "--decisions"]);
     let new = run(&["model", "show", "e510", "--decisions"]);
-    assert!(old.status.success() && new.status.success());
-    assert_eq!(text(&old.stdout), text(&new.stdout));
-    assert!(text(&old.stdout).starts_with("e510 — "));
+    assert!(old.code == Some(0) && new.code == Some(0));
+    assert_eq!(old.stdout.clone(), new.stdout.clone());
+    assert!(old.stdout.clone().starts_with("e510 — "));
 }
 
 /// The F510 example register left in a copied description (issue 34, item 3): inside a
 /// block of the same access it is a warning, which fails only with --deny-warnings.
 #[test]
 fn a_warning_fails_only_with_deny_warnings() {
-    let d = dir("warn");
+    let d = Scratch::new("warn");
     let acme =
         std::fs::read_to_string(repo().join("vectors/models/examples/acme-x100.json")).unwrap();
     let with_example = acme.replacen(
@@ -223,8 +212,8 @@ fn a_warning_fails_only_with_deny_warnings() {
     std::fs::write(&f, with_example).unwrap();
     let fs = f.to_str().unwrap();
     let o = run(&["model", "lint", fs]);
-    let out = text(&o.stdout);
-    assert_eq!(o.status.code(), Some(0), "{out}");
+    let out = o.stdout.clone();
+    assert_eq!(o.code, Some(0), "{out}");
     assert!(
         out.contains(": warning: example_registers[0]: example register 0123H is inside blocks[0]"),
         "{out}"
@@ -234,5 +223,5 @@ fn a_warning_fails_only_with_deny_warnings() {
         "{out}"
     );
     let o = run(&["model", "lint", "--deny-warnings", fs]);
-    assert_eq!(o.status.code(), Some(1));
+    assert_eq!(o.code, Some(1));
 }

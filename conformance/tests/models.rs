@@ -3,6 +3,9 @@
 //! facts say for each kind of request. Every example request of the manuals is served by
 //! its model.
 
+mod common;
+use common::Run;
+
 use conformance::codec::pdu::{Message, Pdu, Registers};
 use conformance::codec::Mode;
 use conformance::model::{
@@ -391,14 +394,7 @@ fn every_example_request_of_the_manuals_is_served_by_its_model() {
 
 #[test]
 fn the_command_line_shows_a_model_and_its_decisions() {
-    let run = |args: &[&str]| {
-        let o = std::process::Command::new(env!("CARGO_BIN_EXE_conformance"))
-            .args(args)
-            .output()
-            .unwrap();
-        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-        String::from_utf8(o.stdout).unwrap()
-    };
+    let run = |args: &[&str]| Run::new(args).run().ok().stdout;
     let all = run(&["model", "e510"]);
     assert!(
         all.contains("illegal-function: exception 01H  [documented]"),

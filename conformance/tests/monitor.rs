@@ -11,9 +11,10 @@
 #![cfg(unix)]
 
 mod common;
+use common::Run;
 
 use std::io::{BufRead, BufReader};
-use std::process::{Command, Stdio};
+use std::process::Stdio;
 use std::time::{Duration, Instant};
 
 use conformance::codec::pdu::{Message, Pdu, Registers};
@@ -100,10 +101,10 @@ fn listen_paused(args: &[&str], steps: &[Step], paused: bool) -> Heard {
     // The monitor's serial port sets the line (CLOCAL and the baud rate among others).
     let before = cflag();
     let set_up = || cflag() != before;
-    let mut child = Command::new(common::bin())
-        .args([
-            "monitor", "--port", &port, "--model", "f510", "--format", "json", "-o",
-        ])
+    let mut child = Run::words("monitor --port")
+        .arg(&port)
+        .args(["--model", "f510", "--format", "json", "-o"])
+        .command()
         .arg(&out)
         // The line is given: the search without -b has its own test.
         .args(if args.contains(&"-b") {

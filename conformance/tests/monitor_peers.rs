@@ -25,18 +25,8 @@ use std::process::{Command, Stdio};
 use std::sync::mpsc;
 use std::time::Duration;
 
-use common::{bin, need, note, python, Kill, Peer};
+use common::{bin, need, note, python, words, Kill, Peer, Run, Scratch};
 use serde_json::Value;
-
-fn dir(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!(
-        "conformance-monitor-peers-{}-{name}",
-        std::process::id()
-    ));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).unwrap();
-    d
-}
 
 /// A bus with a simulated F510 at node 1 (9600 8E1), an endpoint `master` for the
 /// program under test, and the monitor listening on the endpoint `tap`.
@@ -110,8 +100,8 @@ impl Listening {
         });
         let report = d.join("monitor.json");
         let mut monitor = Kill::spawn(
-            Command::new(bin())
-                .args(["monitor", "--model", "f510"])
+            Run::words("monitor --model f510")
+                .command()
                 // The bus's line is given (the search without -b has its own test).
                 .args(if monitor.contains(&"-b") {
                     &[][..]
@@ -299,18 +289,12 @@ fn libmodbus_client(d: &Path) -> Option<PathBuf> {
 
 /// Runs `cmd` to its end (60 s at most): its stdout, which must come with exit 0 when
 /// `must_succeed`.
-fn run(cmd: &mut Command, must_succeed: bool) -> String {
-    let o = cmd.stdin(Stdio::null()).output().unwrap();
-    let out = String::from_utf8_lossy(&o.stdout).into_owned();
+fn run(cmd: Run, must_succeed: bool) -> String {
+    let o = cmd.timeout(Duration::from_secs(60)).run();
     if must_succeed {
-        assert!(
-            o.status.success(),
-            "{cmd:?}: {:?}\n{out}{}",
-            o.status,
-            String::from_utf8_lossy(&o.stderr)
-        );
+        assert_eq!(o.code, Some(0), "{o}");
     }
-    out
+    o.stdout
 }
 
 #[test]
@@ -318,15 +302,10 @@ fn mbpoll_polling_and_writing_is_heard_and_the_drive_passes() {
     if !need(Peer::Mbpoll) {
         return;
     }
-    let d = dir("mbpoll");
+    let d = Scratch::new("mbpoll");
     let l = Listening::start(&d, &[]);
     let mbpoll = |args: &[&str]| {
-        let mut c = Command::new("mbpoll");
-        c.args([
-            "-m", "rtu", "-b", "9600", "-P", "even", "-a", "1", "-o", "2",
-        ])
-        .args(args);
-        c
+        Run::program("mbpoll", words("-m rtu -b 9600 -P even -a 1 -o 2")).args(args)
     };
     // mbpoll counts registers from 1: 9520 is 252FH, 9475 is 2502H.
     for _ in 0..3 {
@@ -346,7 +325,7 @@ fn pymodbus_polling_and_writing_is_heard_and_the_drive_passes() {
     if !need(Peer::Pymodbus) {
         return;
     }
-    let d = dir("pymodbus");
+    let d = Scratch::new("pymodbus");
     let l = Listening::start(&d, &[]);
     // Parity E on a pseudo-terminal: pymodbus's connect() refuses it (EINVAL) and falls
     // back to N here; the line carries bytes, whatever the program's termios says.
@@ -359,7 +338,7 @@ fn pymodbus_polling_and_writing_is_heard_and_the_drive_passes() {
          c.close()\n",
         connect = pymodbus_connect(&l.master, "2", 0)
     );
-    let out = run(Command::new(python()).args(["-c", &script]), true);
+    let out = run(Run::program(python(), ["-c", &script]), true);
     assert_eq!(
         out.lines().collect::<Vec<_>>(),
         ["0x510", "0x510", "0x510", "0x4d2"]
@@ -373,7 +352,7 @@ fn minimalmodbus_polling_and_writing_is_heard_and_the_drive_passes() {
     if !need(Peer::Minimalmodbus) {
         return;
     }
-    let d = dir("minimalmodbus");
+    let d = Scratch::new("minimalmodbus");
     let l = Listening::start(&d, &[]);
     let script = format!(
         "import minimalmodbus\n\
@@ -386,7 +365,7 @@ fn minimalmodbus_polling_and_writing_is_heard_and_the_drive_passes() {
          print(hex(i.read_register(0x2502)))\n",
         port = l.master.to_str().unwrap()
     );
-    let out = run(Command::new(python()).args(["-c", &script]), true);
+    let out = run(Run::program(python(), ["-c", &script]), true);
     assert_eq!(
         out.lines().collect::<Vec<_>>(),
         ["0x510", "0x510", "0x510", "0x4d2"]
@@ -397,12 +376,12 @@ fn minimalmodbus_polling_and_writing_is_heard_and_the_drive_passes() {
 
 #[test]
 fn a_libmodbus_client_polling_and_writing_is_heard_and_the_drive_passes() {
-    let d = dir("libmodbus");
+    let d = Scratch::new("libmodbus");
     let Some(client) = libmodbus_client(&d) else {
         return;
     };
     let l = Listening::start(&d, &[]);
-    let out = run(Command::new(&client).arg(&l.master).args(["1", "3"]), true);
+    let out = run(Run::program(&client, [&l.master]).args(["1", "3"]), true);
     assert_eq!(
         out.lines().collect::<Vec<_>>(),
         [
@@ -426,7 +405,7 @@ fn replies_a_drive_drops_are_found_and_the_retries_of_the_master_counted() {
     if !need(Peer::Pymodbus) {
         return;
     }
-    let d = dir("retries");
+    let d = Scratch::new("retries");
     let l = Listening::start(&d, &["--quirk", "drop-every=2"]);
     let script = format!(
         "{connect}\
@@ -436,7 +415,7 @@ fn replies_a_drive_drops_are_found_and_the_retries_of_the_master_counted() {
          c.close()\n",
         connect = pymodbus_connect(&l.master, "0.3", 2)
     );
-    let out = run(Command::new(python()).args(["-c", &script]), false);
+    let out = run(Run::program(python(), ["-c", &script]), false);
     // Every read gets its answer, at the first try or at a retry.
     assert_eq!(
         out.lines().collect::<Vec<_>>(),
@@ -475,23 +454,13 @@ fn replies_a_drive_drops_are_found_and_the_retries_of_the_master_counted() {
 /// as one frame with a wrong CRC and stays silent, as the model says.)
 #[test]
 fn a_master_sending_two_requests_without_t35_is_found() {
-    let d = dir("burst");
+    let d = Scratch::new("burst");
     let l = Listening::start(&d, &[]);
-    let out = Command::new(bin())
-        .args([
-            "send", "--model", "f510", "--mode", "rtu", "--burst", "--port",
-        ])
+    let out = Run::words("send --model f510 --mode rtu --burst --port")
         .arg(&l.master)
         .args(["--timeout", "300", "0103252F0001BECF", "0103252F0001BECF"])
-        .stdin(Stdio::null())
-        .output()
-        .unwrap();
-    assert!(
-        out.status.code().is_some_and(|c| c < 2),
-        "send: {:?}\n{}",
-        out.status,
-        String::from_utf8_lossy(&out.stderr)
-    );
+        .run();
+    assert!(out.code.is_some_and(|c| c < 2), "send: {out}");
     let (code, r, lines, log) = l.stop(2);
     assert_eq!(code, 1, "{:#}\n{lines:#?}", r["summary"]);
     let master = findings(&r, "master");
@@ -513,28 +482,18 @@ fn a_master_sending_two_requests_without_t35_is_found() {
 /// or, where the two sent the same bytes in step, nothing wrong, as on a real line.
 #[test]
 fn a_collision_on_the_line_is_heard_as_damage() {
-    let d = dir("collision");
+    let d = Scratch::new("collision");
     let l = Listening::start_on(
         &d,
         "1,2",
         &["-b", "2400"],
         &["--quirk", "answer-every-address@2"],
     );
-    let out = Command::new(bin())
-        .args([
-            "send", "--model", "f510", "--mode", "rtu", "-b", "2400", "--port",
-        ])
+    let out = Run::words("send --model f510 --mode rtu -b 2400 --port")
         .arg(&l.master)
         .args(["--timeout", "500", "0103252F0001BECF"])
-        .stdin(Stdio::null())
-        .output()
-        .unwrap();
-    assert!(
-        out.status.code().is_some_and(|c| c < 3),
-        "send: {:?}\n{}",
-        out.status,
-        String::from_utf8_lossy(&out.stderr)
-    );
+        .run();
+    assert!(out.code.is_some_and(|c| c < 3), "send: {out}");
     let (code, r, lines, log) = l.stop(1);
     let collision = log
         .iter()
@@ -665,7 +624,7 @@ fn check_and_monitor_judge_pymodbus_s_server_alike() {
     if !need(Peer::Pymodbus) {
         return;
     }
-    let d = dir("pymodbus-server");
+    let d = Scratch::new("pymodbus-server");
     // pymodbus_server.py PORT (RTU, node 1, 9600 8N1): the bus's endpoint comes last.
     let mut c = Command::new(python());
     c.arg(concat!(
@@ -694,7 +653,7 @@ fn check_and_monitor_judge_pymodbus_s_server_alike() {
 
 #[test]
 fn check_and_monitor_judge_libmodbus_s_server_alike() {
-    let d = dir("libmodbus-server");
+    let d = Scratch::new("libmodbus-server");
     let Some(exe) = libmodbus_server(&d) else {
         return;
     };

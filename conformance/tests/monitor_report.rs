@@ -5,9 +5,9 @@
 #![cfg(unix)]
 
 mod common;
+use common::{line, Run, Scratch};
 
-use std::path::{Path, PathBuf};
-use std::process::Command;
+use std::path::Path;
 
 use conformance::capture::write::{Interface, PacketMeta, PcapngWriter};
 use conformance::capture::LINKTYPE_USER0;
@@ -33,12 +33,6 @@ fn values(address: u8, v: &[u16]) -> Vec<u8> {
             values: Registers::new(&bytes).unwrap(),
         },
     )
-}
-
-fn dir(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("monitor-report-{}-{name}", std::process::id()));
-    std::fs::create_dir_all(&d).unwrap();
-    d
 }
 
 /// A pcapng capture of an RTU bus at `path`: each frame at `T0_US` + its offset in ms.
@@ -91,33 +85,23 @@ fn polled_bus(path: &Path) {
 
 /// `conformance ARGS`, which must not panic or fail to run: its exit code and stdout.
 fn run(args: &[&str]) -> (i32, String) {
-    let o = Command::new(common::bin()).args(args).output().unwrap();
-    let err = String::from_utf8_lossy(&o.stderr);
+    let o = Run::new(args).run();
+    let err = o.stderr.as_str();
     assert!(!err.contains("panicked"), "{args:?}: {err}");
-    let code = o.status.code().unwrap_or(-1);
+    let code = o.code.unwrap_or(-1);
     assert!(code == 0 || code == 1, "{args:?} exited {code}: {err}");
-    (code, String::from_utf8_lossy(&o.stdout).into_owned())
+    (code, o.stdout.clone())
 }
 
 /// `monitor --capture-in CAP -a 1,2 -b 9600 -P even` writing its report to `out` (the
 /// format from its extension), and the report.
 fn monitor(cap: &Path, out: &Path) -> String {
-    run(&[
-        "monitor",
-        "--model",
-        "f510",
-        "--quiet",
-        "-a",
-        "1,2",
-        "-b",
-        "9600",
-        "-P",
-        "even",
-        "--capture-in",
+    run(&line(&[
+        "monitor --model f510 --quiet -a 1,2 -b 9600 -P even --capture-in",
         cap.to_str().unwrap(),
         "-o",
         out.to_str().unwrap(),
-    ]);
+    ]));
     std::fs::read_to_string(out).unwrap()
 }
 
@@ -135,7 +119,7 @@ fn heard_section(html: &str) -> &str {
 /// counts, the percentiles, the findings by kind, the histograms and the notices.
 #[test]
 fn a_monitor_report_read_back_keeps_what_was_heard() {
-    let d = dir("readback");
+    let d = Scratch::new("readback");
     let cap = d.join("bus.pcapng");
     polled_bus(&cap);
     let json = d.join("m.json");
@@ -163,12 +147,11 @@ fn a_monitor_report_read_back_keeps_what_was_heard() {
     assert_eq!(section, heard_section(&own_html));
     // A histogram for each node that answered.
     assert_eq!(section.matches("<svg").count(), 2, "{section}");
-    let _ = std::fs::remove_dir_all(&d);
 }
 
 /// `monitor --capture-in` of `frames` with `extra` arguments, its JSON report read.
 fn monitor_json(name: &str, frames: &[(u64, Vec<u8>)], extra: &[&str]) -> serde_json::Value {
-    let d = dir(name);
+    let d = Scratch::new(name);
     let cap = d.join("bus.pcapng");
     capture(&cap, frames);
     let json = d.join("m.json");
@@ -188,19 +171,16 @@ fn monitor_json(name: &str, frames: &[(u64, Vec<u8>)], extra: &[&str]) -> serde_
     ];
     args.extend_from_slice(extra);
     run(&args);
-    let v = serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
-    let _ = std::fs::remove_dir_all(&d);
-    v
+    serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap()
 }
 
 /// The text and HTML of `conformance report` of a saved report.
 fn both(name: &str, v: &serde_json::Value) -> (String, String) {
-    let d = dir(name);
+    let d = Scratch::new(name);
     let json = d.join("r.json");
     std::fs::write(&json, v.to_string()).unwrap();
     let (_, text) = run(&["report", json.to_str().unwrap()]);
     let html = common::rendered(&json, &d.join("r.html"));
-    let _ = std::fs::remove_dir_all(&d);
     (text, html)
 }
 
@@ -211,7 +191,7 @@ fn both(name: &str, v: &serde_json::Value) -> (String, String) {
 /// monitor's report.
 #[test]
 fn a_monitor_report_says_what_a_monitor_did() {
-    let d = dir("fields");
+    let d = Scratch::new("fields");
     let cap = d.join("bus.pcapng");
     polled_bus(&cap);
     let json = d.join("m.json");
@@ -245,7 +225,6 @@ fn a_monitor_report_says_what_a_monitor_did() {
         conformance::report::unresolved_links(&html),
         Vec::<String>::new()
     );
-    let _ = std::fs::remove_dir_all(&d);
 }
 
 /// Issue 33, item 12: a finding on the master's side shows its request and the drive's
@@ -330,7 +309,7 @@ fn a_monitor_report_shows_why_the_master_deviates_and_names_its_nodes() {
 /// lies beyond it.
 #[test]
 fn the_response_time_histogram_has_axes_units_and_the_manuals_limits() {
-    let d = dir("hist");
+    let d = Scratch::new("hist");
     let cap = d.join("bus.pcapng");
     polled_bus(&cap);
     let json = d.join("m.json");
@@ -353,5 +332,4 @@ fn the_response_time_histogram_has_axes_units_and_the_manuals_limits() {
     );
     // The 60 ms reply: a bar beyond the late limit.
     assert_eq!(svg.matches("class=\"bar late\"").count(), 1, "{svg}");
-    let _ = std::fs::remove_dir_all(&d);
 }

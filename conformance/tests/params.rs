@@ -13,7 +13,7 @@ use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::time::Duration;
 
-use common::{bin, run_bounded, sim_pty, Kill};
+use common::{bin, line, run_bounded, sim_pty, Kill, Scratch};
 use conformance::codec::hex::{parse_hex, Hex};
 use conformance::codec::pdu::{Message, Pdu};
 use conformance::codec::Mode;
@@ -21,13 +21,6 @@ use conformance::judge::body_of;
 use conformance::params::Backup;
 
 const LIMIT: Duration = Duration::from_secs(120);
-
-fn dir(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("teco-params-{name}-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).unwrap();
-    d
-}
 
 fn mode_of(mode: &str) -> Mode {
     match mode {
@@ -225,16 +218,14 @@ fn round_trip(d: &Path, link: &[&str], mode: &str, log: Option<&Path>) {
 }
 
 fn sim_round_trip(mode: &str) {
-    let d = dir(&format!("round-{mode}"));
+    let d = Scratch::new(&format!("round-{mode}"));
     let log = d.join("sim.jsonl");
-    let (_sim, port) = sim_pty(&[
-        "--model",
-        "f510",
-        "-m",
+    let (_sim, port) = sim_pty(&line(&[
+        "--model f510 -m",
         mode,
         "--log",
         log.to_str().unwrap(),
-    ]);
+    ]));
     round_trip(&d, &["--model", "f510", "--port", &port], mode, Some(&log));
 }
 
@@ -250,7 +241,7 @@ fn the_round_trip_in_ascii_restores_exactly_the_three_changed_parameters() {
 
 #[test]
 fn a_dry_run_and_a_restore_without_yes_off_a_terminal_write_nothing() {
-    let d = dir("dry");
+    let d = Scratch::new("dry");
     let log = d.join("sim.jsonl");
     let (_sim, port) = sim_pty(&["--model", "f510", "--log", log.to_str().unwrap()]);
     let a = d.join("a.toml");
@@ -288,7 +279,7 @@ fn a_dry_run_and_a_restore_without_yes_off_a_terminal_write_nothing() {
 
 #[test]
 fn a_line_for_a_read_only_or_command_register_is_refused_naming_the_line() {
-    let d = dir("refuse");
+    let d = Scratch::new("refuse");
     for (line, says) in [
         (
             "0C10 = 5",
@@ -302,16 +293,11 @@ fn a_line_for_a_read_only_or_command_register_is_refused_naming_the_line() {
             format!("[device]\nmodel = \"f510\"\nnode = 1\n\n[\"group 3\"]\n0301 = 0\n{line}\n"),
         )
         .unwrap();
-        let (code, out, err) = conformance(&[
-            "params",
-            "restore",
+        let (code, out, err) = conformance(&common::line(&[
+            "params restore",
             f.to_str().unwrap(),
-            "--sim",
-            "f510",
-            "--mode",
-            "rtu",
-            "--yes",
-        ]);
+            "--sim f510 --mode rtu --yes",
+        ]));
         assert_eq!(code, Some(2), "{out}{err}");
         assert!(err.contains(&format!("line 7: {line}: {says}")), "{err}");
         assert!(!out.contains("plan:"), "{out}");
@@ -349,17 +335,15 @@ fn refusing_description(d: &Path, access: &str) -> (PathBuf, PathBuf) {
 
 #[test]
 fn an_exception_mid_restore_stops_it_and_the_audit_log_and_journal_say_what_was_written() {
-    let d = dir("exception");
+    let d = Scratch::new("exception");
     let (described, device) = refusing_description(&d, "read-only");
     let log = d.join("sim.jsonl");
-    let (_sim, port) = sim_pty(&[
-        "--delay",
-        "5",
-        "--model-file",
+    let (_sim, port) = sim_pty(&line(&[
+        "--delay 5 --model-file",
         device.to_str().unwrap(),
         "--log",
         log.to_str().unwrap(),
-    ]);
+    ]));
     let link = [
         "--model-file",
         described.to_str().unwrap(),
@@ -438,7 +422,7 @@ fn spawn(d: &Path, args: &[&str]) -> Kill {
 
 #[test]
 fn sigterm_during_a_restore_leaves_the_audit_log_whole_and_undoes_what_was_written() {
-    let d = dir("sigterm");
+    let d = Scratch::new("sigterm");
     let (_sim, port) = sim_pty(&["--model", "f510"]);
     let link = ["--model", "f510", "--port", &port, "--mode", "rtu"];
     let a = d.join("a.toml");
@@ -540,7 +524,7 @@ fn sigterm_during_a_restore_leaves_the_audit_log_whole_and_undoes_what_was_writt
 
 #[test]
 fn the_round_trip_against_pymodbus_described_by_a_model_file() {
-    let d = dir("pymodbus");
+    let d = Scratch::new("pymodbus");
     let Some(peer) = common::pymodbus_serial_blocks(&d, "rtu", "0000-0FFF,2500-252F") else {
         return;
     };
@@ -610,7 +594,7 @@ fn the_round_trip_against_pymodbus_described_by_a_model_file() {
 
 #[test]
 fn consecutive_changes_are_restored_by_one_10h_write_and_read_back() {
-    let d = dir("fc10");
+    let d = Scratch::new("fc10");
     let log = d.join("sim.jsonl");
     let (_sim, port) = sim_pty(&["--model", "f510", "--log", log.to_str().unwrap()]);
     let link = ["--model", "f510", "--port", &port, "--mode", "rtu"];
@@ -665,23 +649,17 @@ fn on_a_terminal_a_restore_asks_once_and_writes_only_after_yes() {
     ) {
         return;
     }
-    let d = dir("ask");
+    let d = Scratch::new("ask");
     let log = d.join("sim.jsonl");
     let (_sim, port) = sim_pty(&["--model", "f510", "--log", log.to_str().unwrap()]);
     let link = format!("--model f510 --port {port} --mode rtu");
     let a = d.join("a.toml");
-    let (code, out, err) = conformance(&[
-        "params",
-        "backup",
-        "--model",
-        "f510",
-        "--port",
+    let (code, out, err) = conformance(&line(&[
+        "params backup --model f510 --port",
         &port,
-        "--mode",
-        "rtu",
-        "-o",
+        "--mode rtu -o",
         a.to_str().unwrap(),
-    ]);
+    ]));
     assert_eq!(code, Some(0), "{out}{err}");
     let text = std::fs::read_to_string(&a)
         .unwrap()
@@ -731,7 +709,7 @@ fn on_a_terminal_a_restore_asks_once_and_writes_only_after_yes() {
 
 #[test]
 fn a_register_the_device_refuses_to_read_is_a_comment_of_the_backup_and_stops_no_other() {
-    let d = dir("unread");
+    let d = Scratch::new("unread");
     let (described, device) = refusing_description(&d, "write-only");
     let (_sim, port) = sim_pty(&["--delay", "5", "--model-file", device.to_str().unwrap()]);
     let link = [

@@ -3,10 +3,11 @@
 //! the reports name the requirements each check verifies.
 
 mod common;
+use common::{words, Run, Scratch};
 
 use std::collections::BTreeSet;
 use std::path::PathBuf;
-use std::process::Command;
+
 use std::time::Duration;
 
 use conformance::requirements::trace::{self, Coverage, Universe};
@@ -14,13 +15,6 @@ use conformance::requirements::{quote_is_at, Catalogue};
 
 fn catalogues() -> Vec<Catalogue> {
     Catalogue::builtin().expect("the built-in requirements files load")
-}
-
-fn dir(tag: &str) -> PathBuf {
-    let d = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join(format!("requirements-{tag}"));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).unwrap();
-    d
 }
 
 fn seeds() -> PathBuf {
@@ -160,12 +154,8 @@ fn a_requirement_without_a_check_says_why() {
 }
 
 fn conformance(args: &[&str]) -> (i32, String, String) {
-    let o = Command::new(common::bin()).args(args).output().unwrap();
-    (
-        o.status.code().unwrap_or(-1),
-        String::from_utf8_lossy(&o.stdout).into_owned(),
-        String::from_utf8_lossy(&o.stderr).into_owned(),
-    )
+    let o = Run::new(args).run();
+    (o.code.unwrap_or(-1), o.stdout.clone(), o.stderr.clone())
 }
 
 #[test]
@@ -218,16 +208,10 @@ fn the_command_prints_the_coverage_of_all_five_manuals() {
 
 #[test]
 fn reports_name_the_requirements_each_check_verifies() {
-    let dir = dir("names");
+    let dir = Scratch::new("names");
     let (code, v) = common::check_device(
         &dir,
-        &[
-            "--sim",
-            "f510",
-            "--only",
-            "rtu.map.monitor.*",
-            "--read-only",
-        ],
+        &words("--sim f510 --only rtu.map.monitor.* --read-only"),
         Duration::from_secs(120),
     );
     assert_eq!(code, Some(0));
@@ -264,7 +248,7 @@ fn reports_name_the_requirements_each_check_verifies() {
 /// The requirements coverage section of the HTML report (`conformance report`) of a
 /// `check` run with `args`, which must exit 0.
 fn coverage_section(tag: &str, args: &[&str]) -> String {
-    let dir = dir(tag);
+    let dir = Scratch::new(tag);
     let (code, report) = common::check_device(&dir, args, Duration::from_secs(120));
     assert_eq!(code, Some(0), "{:#}", report["summary"]);
     let html = common::rendered(&dir.join("check.json"), &dir.join("check.html"));

@@ -11,7 +11,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-use common::{need, pty_pair, run_bounded, sim_pty, Peer};
+use common::{need, pty_pair, sim_pty, Peer, Run, Scratch};
 use conformance::codec::timing::{LineSettings, Parity};
 use conformance::codec::{frame_of_body, Mode};
 use conformance::scan::link::SerialLink;
@@ -39,10 +39,12 @@ fn scan_finds_a_simulator_at_an_unusual_setting() {
         "17",
     ]);
     // The whole default search: every speed, parity and mode, addresses 1..247.
-    let (code, out, err) = run_bounded(
-        &["scan", "--port", &path, "--quiet"],
-        Duration::from_secs(300),
-    );
+    let (code, out, err) = Run::words("scan --port")
+        .arg(&path)
+        .arg("--quiet")
+        .timeout(Duration::from_secs(300))
+        .run()
+        .parts();
     assert_eq!(code, Some(0), "{out}\n{err}");
     let row = out
         .lines()
@@ -60,11 +62,9 @@ fn scan_finds_a_simulator_at_an_unusual_setting() {
     );
 
     // Narrowed, as JSON: the same device.
-    let (code, out, err) = run_bounded(
-        &[
-            "scan",
-            "--port",
-            &path,
+    let (code, out, err) = Run::words("scan --port")
+        .arg(&path)
+        .args([
             "-b",
             "19200",
             "-m",
@@ -74,9 +74,10 @@ fn scan_finds_a_simulator_at_an_unusual_setting() {
             "--format",
             "json",
             "--quiet",
-        ],
-        Duration::from_secs(60),
-    );
+        ])
+        .timeout(Duration::from_secs(60))
+        .run()
+        .parts();
     assert_eq!(code, Some(0), "{out}\n{err}");
     let v: serde_json::Value = serde_json::from_str(&out).unwrap();
     let found = v["found"].as_array().unwrap();
@@ -91,14 +92,12 @@ fn scan_finds_a_simulator_at_an_unusual_setting() {
 
 #[test]
 fn an_empty_line_finds_nothing_with_exit_1() {
-    let dir = tempfile_dir("empty");
+    let dir = Scratch::new("empty");
     let (_line, a, _b) = pty_pair(&dir);
     let a = a.to_string_lossy().into_owned();
-    let (code, out, err) = run_bounded(
-        &[
-            "scan",
-            "--port",
-            &a,
+    let (code, out, err) = Run::words("scan --port")
+        .arg(&a)
+        .args([
             "-b",
             "19200,9600",
             "-P",
@@ -106,20 +105,19 @@ fn an_empty_line_finds_nothing_with_exit_1() {
             "--addresses",
             "1-20",
             "--quiet",
-        ],
-        Duration::from_secs(60),
-    );
+        ])
+        .timeout(Duration::from_secs(60))
+        .run()
+        .parts();
     assert_eq!(code, Some(1), "{out}\n{err}");
     assert!(out.contains("no device found"), "{out}");
     assert!(out.contains("4 silent"), "{out}");
 
     // A simulator at the right setting but outside the address range: nothing either.
     let (_sim, path) = sim_pty(&["--emulate-line", "-b", "9600", "-P", "even", "-a", "30"]);
-    let (code, out, err) = run_bounded(
-        &[
-            "scan",
-            "--port",
-            &path,
+    let (code, out, err) = Run::words("scan --port")
+        .arg(&path)
+        .args([
             "-b",
             "9600",
             "-P",
@@ -131,20 +129,14 @@ fn an_empty_line_finds_nothing_with_exit_1() {
             "--format",
             "json",
             "--quiet",
-        ],
-        Duration::from_secs(60),
-    );
+        ])
+        .timeout(Duration::from_secs(60))
+        .run()
+        .parts();
     assert_eq!(code, Some(1), "{out}\n{err}");
     let v: serde_json::Value = serde_json::from_str(&out).unwrap();
     assert_eq!(v["found"].as_array().unwrap().len(), 0);
     assert_eq!(v["tries"], 29);
-}
-
-fn tempfile_dir(name: &str) -> std::path::PathBuf {
-    let d = std::env::temp_dir().join(format!("scan-test-{}-{name}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).unwrap();
-    d
 }
 
 /// A device on an emulated 19200 8O1 line that talks on its own every 8 ms (a reply
@@ -221,37 +213,34 @@ fn a_wrong_setting_yields_garbage_and_is_skipped_early() {
 fn rts_needs_a_port_with_an_rts_line() {
     let (_sim, path) = sim_pty(&[]);
     // A pseudo-terminal has no modem lines: --rts is refused with the reason, exit 2.
-    let (code, out, err) = run_bounded(
-        &[
-            "check",
-            "--model",
-            "f510",
-            "--port",
-            &path,
+    let (code, out, err) = Run::words("check --model f510 --port")
+        .arg(&path)
+        .args([
             "--rts",
             "--rts-delay",
             "200",
             "--quiet",
             "--only",
             "identification",
-        ],
-        Duration::from_secs(30),
-    );
+        ])
+        .timeout(Duration::from_secs(30))
+        .run()
+        .parts();
     assert_eq!(code, Some(2), "{out}\n{err}");
     assert!(err.contains("RTS"), "{err}");
-    let (code, _, err) = run_bounded(
-        &[
-            "scan", "--port", &path, "-b", "9600", "-P", "even", "-m", "rtu", "--rts", "--quiet",
-        ],
-        Duration::from_secs(30),
-    );
+    let (code, _, err) = Run::words("scan --port")
+        .arg(&path)
+        .args(["-b", "9600", "-P", "even", "-m", "rtu", "--rts", "--quiet"])
+        .timeout(Duration::from_secs(30))
+        .run()
+        .parts();
     assert_eq!(code, Some(2), "{err}");
     assert!(err.contains("no RTS line"), "{err}");
     // --rts without a serial port is an argument error.
-    let (code, _, err) = run_bounded(
-        &["check", "--sim", "f510", "--rts", "--quiet"],
-        Duration::from_secs(30),
-    );
+    let (code, _, err) = Run::words("check --sim f510 --rts --quiet")
+        .timeout(Duration::from_secs(30))
+        .run()
+        .parts();
     assert_eq!(code, Some(2), "{err}");
     assert!(
         err.contains("--rts drives the RTS line of a serial port"),
@@ -324,12 +313,11 @@ fn a_scan_capture_records_each_setting_on_its_own_interface() {
         "-a",
         "17",
     ]);
-    let cap = tempfile_dir("scan-capture").join("scan.pcapng");
-    let (code, out, err) = run_bounded(
-        &[
-            "scan",
-            "--port",
-            &path,
+    let dir = Scratch::new("scan-capture");
+    let cap = dir.join("scan.pcapng");
+    let (code, out, err) = Run::words("scan --port")
+        .arg(&path)
+        .args([
             "-b",
             "19200",
             "-P",
@@ -340,10 +328,11 @@ fn a_scan_capture_records_each_setting_on_its_own_interface() {
             "150",
             "--quiet",
             "--capture",
-            cap.to_str().unwrap(),
-        ],
-        Duration::from_secs(120),
-    );
+        ])
+        .arg(&cap)
+        .timeout(Duration::from_secs(120))
+        .run()
+        .parts();
     assert_eq!(code, Some(0), "{out}\n{err}");
     assert!(err.contains("capture: "), "{err}");
     let data = std::fs::read(&cap).unwrap();

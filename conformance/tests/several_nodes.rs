@@ -6,22 +6,16 @@
 //! wrote (mbpoll, minimalmodbus) against the simulated bus.
 
 mod common;
-use common::Kill;
+use common::{line, words, Kill, Run, Scratch};
 
 use std::collections::BTreeMap;
-use std::process::{Command, Stdio};
+use std::process::Stdio;
 use std::time::Duration;
 
 use serde_json::Value;
 
-fn dir(name: &str) -> std::path::PathBuf {
-    let d = std::env::temp_dir().join(format!("teco-nodes-{name}-{}", std::process::id()));
-    std::fs::create_dir_all(&d).unwrap();
-    d
-}
-
 fn check(name: &str, args: &[&str]) -> (Option<i32>, Value) {
-    common::check_device(&dir(name), args, Duration::from_secs(240))
+    common::check_device(&Scratch::new(name), args, Duration::from_secs(240))
 }
 
 fn checks(v: &Value) -> &Vec<Value> {
@@ -110,27 +104,11 @@ fn the_whole_suite_runs_per_node_and_the_bus_checks_once() {
 fn a_fault_planted_on_one_node_is_reported_on_that_node_only() {
     let (exit, v) = check(
         "planted",
-        &[
-            "--sim",
-            "f510",
-            "-a",
-            "1,2,5",
-            "--mode",
-            "rtu",
-            "--no-pace",
-            "--quirk",
-            "wrong-exception@2",
-            "--quirk",
-            "reply-to-broadcast@5",
-            "--only",
-            "rtu.map.group-0*",
-            "--only",
-            "rtu.function.*",
-            "--only",
-            "rtu.broadcast.*",
-            "--only",
-            "rtu.other-address",
-        ],
+        &words(
+            "--sim f510 -a 1,2,5 --mode rtu --no-pace --quirk \
+        wrong-exception@2 --quirk reply-to-broadcast@5 --only rtu.map.group-0* --only \
+        rtu.function.* --only rtu.broadcast.* --only rtu.other-address",
+        ),
     );
     assert_eq!(exit, Some(1), "{}", v["summary"]);
     let quirks: Vec<(String, Value)> = v["device"]["nodes"]
@@ -189,21 +167,10 @@ fn a_fault_planted_on_one_node_is_reported_on_that_node_only() {
 fn a_dead_node_ends_its_own_section_only() {
     let (exit, v) = check(
         "dead",
-        &[
-            "--sim",
-            "f510",
-            "-a",
-            "1,2,5",
-            "--mode",
-            "rtu",
-            "--no-pace",
-            "--quirk",
-            "dead@2",
-            "--only",
-            "rtu.map.group-0*",
-            "--only",
-            "rtu.broadcast.*",
-        ],
+        &words(
+            "--sim f510 -a 1,2,5 --mode rtu --no-pace --quirk dead@2 \
+        --only rtu.map.group-0* --only rtu.broadcast.*",
+        ),
     );
     assert_eq!(
         exit,
@@ -251,45 +218,31 @@ fn a_dead_node_ends_its_own_section_only() {
 
 #[test]
 fn lists_and_refusals() {
-    let run = |args: &[&str]| Command::new(common::bin()).args(args).output().unwrap();
+    let run = |args: &[&str]| Run::new(args).run();
     let o = run(&["fuzz", "--sim", "f510", "-a", "1,2", "--cases", "1"]);
-    assert_eq!(o.status.code(), Some(2));
+    assert_eq!(o.code, Some(2));
     assert!(
-        String::from_utf8_lossy(&o.stderr).contains("several drives on one bus are for `check`"),
+        o.stderr
+            .as_str()
+            .contains("several drives on one bus are for `check`"),
         "{}",
-        String::from_utf8_lossy(&o.stderr)
+        o.stderr
     );
-    let o = run(&[
-        "check",
-        "--sim",
-        "f510",
-        "-a",
-        "1,2",
-        "--other-address",
-        "2",
-    ]);
-    assert_eq!(o.status.code(), Some(2));
-    assert!(String::from_utf8_lossy(&o.stderr).contains("--other-address"));
-    let o = run(&[
-        "check",
-        "--sim",
-        "f510",
-        "-a",
-        "1,2",
-        "--quirk",
-        "dead@3",
-        "--only",
-        "identification",
-    ]);
-    assert_eq!(o.status.code(), Some(2));
+    let o = run(&words("check --sim f510 -a 1,2 --other-address 2"));
+    assert_eq!(o.code, Some(2));
+    assert!(o.stderr.contains("--other-address"));
+    let o = run(&words(
+        "check --sim f510 -a 1,2 --quirk dead@3 --only identification",
+    ));
+    assert_eq!(o.code, Some(2));
     assert!(
-        String::from_utf8_lossy(&o.stderr).contains("node 3 is not on the bus"),
+        o.stderr.contains("node 3 is not on the bus"),
         "{}",
-        String::from_utf8_lossy(&o.stderr)
+        o.stderr
     );
     let o = run(&["check", "--sim", "f510", "-a", "1,1"]);
-    assert_eq!(o.status.code(), Some(2));
-    assert!(String::from_utf8_lossy(&o.stderr).contains("twice"));
+    assert_eq!(o.code, Some(2));
+    assert!(o.stderr.contains("twice"));
 }
 
 /// pymodbus's serial server with nodes 1 and 2 (each its own registers), checked as a bus
@@ -299,33 +252,19 @@ fn lists_and_refusals() {
 /// node 3 is not silent: it is checked, and every read of it deviates.
 #[test]
 fn pymodbus_serving_two_nodes_is_checked_node_by_node() {
-    let d = dir("pymodbus");
+    let d = Scratch::new("pymodbus");
     let Some(peer) = common::pymodbus_serial_nodes(&d, "rtu", "1,2") else {
         return;
     };
     let b = peer.port.clone();
     let (exit, v) = common::check_device(
         &d,
-        &[
-            "--model",
-            "f510",
-            "--port",
+        &line(&[
+            "--model f510 --port",
             b.to_str().unwrap(),
-            "-P",
-            "none",
-            "--timeout",
-            "300",
-            "-a",
-            "1,2,3",
-            "--only",
-            "rtu.map.group-0*",
-            "--only",
-            "rtu.write.group-0",
-            "--only",
-            "rtu.broadcast.*",
-            "--only",
-            "rtu.other-address",
-        ],
+            "-P none --timeout 300 -a 1,2,3 --only rtu.map.group-0* --only rtu.write.group-0 \
+             --only rtu.broadcast.* --only rtu.other-address",
+        ]),
         Duration::from_secs(180),
     );
     for c in checks(&v) {
@@ -416,13 +355,11 @@ fn foreign_masters_see_three_drives_on_the_simulated_bus() {
     if !common::need_all(&[common::Peer::Mbpoll, common::Peer::Minimalmodbus]) {
         return;
     }
-    let d = dir("masters");
+    let d = Scratch::new("masters");
     let link = d.join("bus");
     let _sim = Kill(
-        Command::new(common::bin())
-            .args([
-                "simulate", "--model", "f510", "--pty", "--quiet", "-a", "1,2,5", "--link",
-            ])
+        Run::words("simulate --model f510 --pty --quiet -a 1,2,5 --link")
+            .command()
             .arg(&link)
             .stdout(Stdio::null())
             .spawn()
@@ -432,19 +369,12 @@ fn foreign_masters_see_three_drives_on_the_simulated_bus() {
     let port = link.to_str().unwrap();
     // mbpoll [options] PORT [values to write]
     let mbpoll = |args: &[&str], values: &[&str]| {
-        let o = Command::new("mbpoll")
-            .args([
-                "-m", "rtu", "-b", "9600", "-P", "even", "-t", "4:hex", "-1", "-o", "0.5",
-            ])
+        let o = Run::program("mbpoll", words("-m rtu -b 9600 -P even -t 4:hex -1 -o 0.5"))
             .args(args)
             .arg(port)
             .args(values)
-            .output()
-            .unwrap();
-        (
-            o.status.code(),
-            String::from_utf8_lossy(&o.stdout).to_string(),
-        )
+            .run();
+        (o.code, o.stdout)
     };
     // Write 1234H to the frequency command (2502H, mbpoll counts from 1: 9475) of node 2.
     let (code, out) = mbpoll(&["-a", "2", "-r", "9475"], &["0x1234"]);
@@ -481,16 +411,9 @@ fn foreign_masters_see_three_drives_on_the_simulated_bus() {
          except minimalmodbus.NoResponseError:\n\
          \x20   print('3 silent')\n"
     );
-    let o = Command::new(common::python())
-        .args(["-c", &script])
-        .output()
-        .unwrap();
-    let out = String::from_utf8_lossy(&o.stdout);
-    assert!(
-        o.status.success(),
-        "{out}{}",
-        String::from_utf8_lossy(&o.stderr)
-    );
+    let o = Run::program(common::python(), ["-c", &script]).run();
+    let out = o.stdout.as_str();
+    assert_eq!(o.code, Some(0), "{out}{}", o.stderr);
     assert_eq!(
         out.lines().collect::<Vec<_>>(),
         ["1 0x510 0x0", "2 0x510 0x1234", "5 0x510 0x0", "3 silent"],
@@ -517,19 +440,9 @@ fn several_nodes_through_a_modbus_tcp_gateway() {
     let port = common::free_port().to_string();
     let addr = format!("127.0.0.1:{port}");
     let _sim = Kill(
-        Command::new(common::bin())
-            .args([
-                "simulate",
-                "--model",
-                "f510",
-                "--quiet",
-                "-a",
-                "1,2",
-                "--framing",
-                "mbap",
-                "--tcp",
-                &addr,
-            ])
+        Run::words("simulate --model f510 --quiet -a 1,2 --framing mbap --tcp")
+            .arg(&addr)
+            .command()
             .stdout(Stdio::null())
             .spawn()
             .unwrap(),
@@ -546,17 +459,16 @@ fn several_nodes_through_a_modbus_tcp_gateway() {
         "1,2",
     ];
     args.extend(only);
-    let (exit, v) = common::check_device(&dir("mbap-sim"), &args, Duration::from_secs(120));
+    let d = Scratch::new("mbap-sim");
+    let (exit, v) = common::check_device(&d, &args, Duration::from_secs(120));
     assert_eq!(exit, Some(0), "{}", v["summary"]);
     // Behind a gateway the serial line's timing is not ours to bound.
     assert_eq!(v["budget"]["rtu"]["bound_ms"], 0.0);
-    let text = Command::new(common::bin())
-        .arg("report")
-        .arg(dir("mbap-sim").join("check.json"))
+    let text = Run::words("report")
+        .arg(d.join("check.json"))
         .args(["--format", "text"])
-        .output()
-        .unwrap();
-    let text = String::from_utf8_lossy(&text.stdout);
+        .run();
+    let text = text.stdout.as_str();
     assert!(
         text.contains("no line bound: the serial line is behind a gateway"),
         "{text}"
@@ -574,19 +486,10 @@ fn several_nodes_through_a_modbus_tcp_gateway() {
     // gateway's exception 0BH.
     if common::need(common::Peer::Mbpoll) {
         let poll = |unit: &str| {
-            let o = Command::new("mbpoll")
-                .args([
-                    "-m", "tcp", "-p", &port, "-a", unit, "-t", "4:hex", "-r", "9505", "-1", "-o",
-                    "1",
-                ])
-                .arg("127.0.0.1")
-                .output()
-                .unwrap();
-            (
-                o.status.code(),
-                String::from_utf8_lossy(&o.stdout).to_string()
-                    + &String::from_utf8_lossy(&o.stderr),
-            )
+            let o = Run::program("mbpoll", ["-m", "tcp", "-p", &port, "-a", unit])
+                .args(words("-t 4:hex -r 9505 -1 -o 1 127.0.0.1"))
+                .run();
+            (o.code, o.text())
         };
         for unit in ["1", "2"] {
             let (code, out) = poll(unit);
@@ -600,24 +503,12 @@ fn several_nodes_through_a_modbus_tcp_gateway() {
             out.lines().last().unwrap_or("")
         );
     }
-    let o = Command::new(common::bin())
-        .args([
-            "check",
-            "--model",
-            "f510",
-            "--tcp",
-            &addr,
-            "--framing",
-            "mbap",
-            "-a",
-            "1,2",
-            "--unit",
-            "4",
-        ])
-        .output()
-        .unwrap();
-    assert_eq!(o.status.code(), Some(2));
-    assert!(String::from_utf8_lossy(&o.stderr).contains("leave --unit out"));
+    let o = Run::words("check --model f510 --tcp")
+        .arg(&addr)
+        .args(["--framing", "mbap", "-a", "1,2", "--unit", "4"])
+        .run();
+    assert_eq!(o.code, Some(2));
+    assert!(o.stderr.contains("leave --unit out"));
 
     let Some((_server, addr)) = common::pymodbus_tcp_units("1,2") else {
         return;
@@ -635,7 +526,11 @@ fn several_nodes_through_a_modbus_tcp_gateway() {
         "500",
     ];
     args.extend(only);
-    let (_, v) = common::check_device(&dir("mbap-pymodbus"), &args, Duration::from_secs(120));
+    let (_, v) = common::check_device(
+        &Scratch::new("mbap-pymodbus"),
+        &args,
+        Duration::from_secs(120),
+    );
     for c in checks(&v) {
         eprintln!(
             "pymodbus tcp node {} {} {}: {}",
@@ -677,23 +572,10 @@ fn several_nodes_through_a_modbus_tcp_gateway() {
 fn a_bus_where_no_node_answers_reports_the_bus_checks_as_not_run() {
     let (exit, v) = check(
         "all-dead",
-        &[
-            "--sim",
-            "f510",
-            "-a",
-            "1,2",
-            "--mode",
-            "rtu",
-            "--no-pace",
-            "--timeout",
-            "200",
-            "--quirk",
-            "dead",
-            "--only",
-            "rtu.map.group-0.first",
-            "--only",
-            "rtu.broadcast.*",
-        ],
+        &words(
+            "--sim f510 -a 1,2 --mode rtu --no-pace --timeout 200 \
+        --quirk dead --only rtu.map.group-0.first --only rtu.broadcast.*",
+        ),
     );
     assert_eq!(exit, Some(2));
     let per_id = nodes_per_id(&v);
@@ -727,31 +609,18 @@ fn scan_finds_every_node_of_a_simulated_bus() {
         "rtu",
         &["-b", "9600", "-P", "even"],
     );
-    let o = Command::new(common::bin())
-        .args([
-            "scan", "--port", &pty, "-b", "9600", "-P", "even", "--mode", "rtu",
-        ])
+    let o = Run::words("scan --port")
+        .arg(&pty)
+        .args(words("-b 9600 -P even --mode rtu"))
         // A wide reply window: tests run side by side on 2 cores, and a simulator
         // thread scheduled late must not look like a missing drive (the default window's
         // slack on a pseudo-terminal is 5 ms).
-        .args([
-            "--addresses",
-            "1-6",
-            "--reply-window",
-            "150",
-            "--format",
-            "json",
-            "--quiet",
-        ])
-        .output()
-        .unwrap();
-    assert_eq!(
-        o.status.code(),
-        Some(0),
-        "{}",
-        String::from_utf8_lossy(&o.stderr)
-    );
-    let v: Value = serde_json::from_slice(&o.stdout).unwrap();
+        .args(words(
+            "--addresses 1-6 --reply-window 150 --format json --quiet",
+        ))
+        .run();
+    assert_eq!(o.code, Some(0), "{}", o.stderr);
+    let v: Value = serde_json::from_slice(&o.bytes).unwrap();
     let found: Vec<u64> = v["found"]
         .as_array()
         .unwrap_or_else(|| panic!("{v}"))

@@ -10,16 +10,9 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
-use common::{bin, Kill};
+use common::{bin, line, Kill, Run, Scratch};
 use nix::sys::signal::{kill, Signal};
 use nix::unistd::Pid;
-
-fn dir(name: &str) -> PathBuf {
-    let d = Path::new(env!("CARGO_TARGET_TMPDIR")).join(format!("signals-{name}"));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).unwrap();
-    d
-}
 
 /// Waits (at most 120 s, for a loaded machine) until `ready` holds.
 fn wait_until(what: &str, mut ready: impl FnMut() -> bool) {
@@ -63,20 +56,13 @@ fn spawn(args: &[&str], out: &Path) -> Kill {
 
 #[test]
 fn sigterm_ends_a_fuzz_run_with_a_whole_report_marked_incomplete() {
-    let d = dir("fuzz");
+    let d = Scratch::new("fuzz");
     let (log, out) = (d.join("sim.jsonl"), d.join("fuzz.json"));
     let mut run = spawn(
-        &[
-            "fuzz",
-            "--sim",
-            "f510",
-            "--mode",
-            "rtu",
-            "--cases",
-            "100000",
-            "--sim-log",
+        &line(&[
+            "fuzz --sim f510 --mode rtu --cases 100000 --sim-log",
             log.to_str().unwrap(),
-        ],
+        ]),
         &out,
     );
     // The simulator's log (a line per frame, flushed) grows past the preflight once
@@ -103,7 +89,7 @@ fn sigterm_ends_a_fuzz_run_with_a_whole_report_marked_incomplete() {
 
 #[test]
 fn sigterm_ends_a_check_restoring_what_it_wrote() {
-    let d = dir("check");
+    let d = Scratch::new("check");
     let out = d.join("check.json");
     let mut run = spawn(&["check", "--sim", "f510", "--mode", "rtu"], &out);
     // The report is rewritten after every check: wait until a writing check has run
@@ -141,11 +127,11 @@ fn sigterm_ends_a_check_restoring_what_it_wrote() {
 
 #[test]
 fn sigterm_ends_the_simulator_and_removes_its_link() {
-    let d = dir("simulate");
+    let d = Scratch::new("simulate");
     let link = d.join("drive");
     let mut sim = Kill::spawn(
-        Command::new(bin())
-            .args(["simulate", "--model", "f510", "--pty", "--link"])
+        Run::words("simulate --model f510 --pty --link")
+            .command()
             .arg(&link)
             .stdout(Stdio::piped())
             .stderr(Stdio::piped()),
@@ -160,14 +146,12 @@ fn sigterm_ends_the_simulator_and_removes_its_link() {
         PathBuf::from(first.trim())
     );
     // It serves through the link.
-    let sent = Command::new(bin())
-        .args(["send", "--model", "f510", "--mode", "rtu", "--port"])
+    let sent = Run::words("send --model f510 --mode rtu --port")
         .arg(&link)
         .arg("01 03 25 20 00 01 8E CC")
-        .output()
-        .unwrap();
-    let said = String::from_utf8_lossy(&sent.stdout);
-    assert_eq!(sent.status.code(), Some(0), "{said}");
+        .run();
+    let said = sent.stdout.as_str();
+    assert_eq!(sent.code, Some(0), "{said}");
     assert!(said.contains("device: node 01 03 read response"), "{said}");
     term(&sim);
     let status = sim.wait_within(Duration::from_secs(30), "simulate after SIGTERM");
@@ -190,12 +174,12 @@ fn sigterm_ends_the_simulator_and_removes_its_link() {
 
 #[test]
 fn the_simulator_replaces_a_stale_link_but_never_a_file() {
-    let d = dir("stale");
+    let d = Scratch::new("stale");
     let link = d.join("drive");
     std::os::unix::fs::symlink("/dev/pts/nonexistent", &link).unwrap();
     let mut sim = Kill::spawn(
-        Command::new(bin())
-            .args(["simulate", "--pty", "-q", "--link"])
+        Run::words("simulate --pty -q --link")
+            .command()
             .arg(&link)
             .stdout(Stdio::piped())
             .stderr(Stdio::null()),
@@ -214,10 +198,11 @@ fn the_simulator_replaces_a_stale_link_but_never_a_file() {
 
     let file = d.join("notes.txt");
     std::fs::write(&file, "keep me").unwrap();
-    let (code, _, stderr) = common::run_bounded(
-        &["simulate", "--pty", "--link", file.to_str().unwrap()],
-        Duration::from_secs(30),
-    );
+    let (code, _, stderr) = Run::words("simulate --pty --link")
+        .arg(&file)
+        .timeout(Duration::from_secs(30))
+        .run()
+        .parts();
     assert_eq!(code, Some(2), "{stderr}");
     assert!(stderr.contains("is not a symbolic link"), "{stderr}");
     assert_eq!(std::fs::read_to_string(&file).unwrap(), "keep me");
@@ -225,10 +210,11 @@ fn the_simulator_replaces_a_stale_link_but_never_a_file() {
 
 #[test]
 fn sigterm_ends_a_gate_run_with_a_whole_report_marked_incomplete() {
-    let d = dir("gate");
+    let d = Scratch::new("gate");
     let out = d.join("gate.json");
     let codec = format!("{} adapter", bin());
     let mut run = spawn(
+        // The adapter command has a space: it goes apart, as one argument.
         &[
             "gate",
             "--codec",
@@ -256,21 +242,14 @@ fn sigterm_ends_a_gate_run_with_a_whole_report_marked_incomplete() {
 
 #[test]
 fn sigterm_ends_identify_with_its_report_not_run() {
-    let d = dir("identify");
+    let d = Scratch::new("identify");
     let (log, out) = (d.join("sim.jsonl"), d.join("identify.json"));
     // Slow replies: the probes take seconds, the signal comes among them.
     let mut run = spawn(
-        &[
-            "identify",
-            "--sim",
-            "f510",
-            "--mode",
-            "rtu",
-            "--quirk",
-            "late-reply=300",
-            "--sim-log",
+        &line(&[
+            "identify --sim f510 --mode rtu --quirk late-reply=300 --sim-log",
             log.to_str().unwrap(),
-        ],
+        ]),
         &out,
     );
     wait_until("the identify probes", || {
@@ -288,12 +267,12 @@ fn sigterm_ends_identify_with_its_report_not_run() {
 
 #[test]
 fn sigterm_ends_a_scan_with_the_tries_made() {
-    let d = dir("scan");
+    let d = Scratch::new("scan");
     // One drive at an address the scan reaches late; its traffic log on stderr shows
     // when the scan's requests arrive.
     let mut sim = Kill::spawn(
-        Command::new(bin())
-            .args(["simulate", "--model", "f510", "--pty", "-a", "200"])
+        Run::words("simulate --model f510 --pty -a 200")
+            .command()
             .stdout(Stdio::piped())
             .stderr(Stdio::piped()),
     );
@@ -326,11 +305,11 @@ fn sigterm_ends_a_scan_with_the_tries_made() {
 /// links removed (exit 0).
 #[test]
 fn sigterm_ends_monitor_and_bus_each_in_its_own_words() {
-    let d = dir("monitor-bus");
+    let d = Scratch::new("monitor-bus");
     let (master, tap) = (d.join("master"), d.join("tap"));
     let mut bus = Kill::spawn(
-        Command::new(bin())
-            .args(["bus", "-q", "--link"])
+        Run::words("bus -q --link")
+            .command()
             .arg(format!("master={}", master.display()))
             .arg("--link")
             .arg(format!("tap={}", tap.display()))
@@ -346,10 +325,8 @@ fn sigterm_ends_monitor_and_bus_each_in_its_own_words() {
 
     let report = d.join("monitor.json");
     let mut monitor = Kill::spawn(
-        Command::new(bin())
-            .args([
-                "monitor", "--model", "f510", "-a", "1", "--mode", "rtu", "-b", "9600",
-            ])
+        Run::words("monitor --model f510 -a 1 --mode rtu -b 9600")
+            .command()
             .args(["-P", "even", "--format", "json", "-o"])
             .arg(&report)
             .arg("--port")
@@ -405,8 +382,8 @@ fn sigterm_ends_monitor_and_bus_each_in_its_own_words() {
 /// of command does then and its exit code.
 #[test]
 fn the_help_says_what_each_long_command_does_when_stopped() {
-    let o = Command::new(bin()).arg("--help").output().unwrap();
-    let help = String::from_utf8_lossy(&o.stdout);
+    let o = Run::words("--help").run();
+    let help = o.stdout.as_str();
     let at = help
         .find("Ctrl-C, SIGTERM and SIGHUP")
         .expect("no word on signals");

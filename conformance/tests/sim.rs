@@ -3,7 +3,7 @@
 //! JSON lines with every frame in and out; the command line serves on a pty and on TCP.
 
 mod common;
-use common::{bin, Kill};
+use common::{Kill, Run};
 
 use std::io::Write;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -459,10 +459,10 @@ fn the_command_line_serves_over_tcp() {
     use conformance::transport::tcp::TcpTransport;
     let addr = format!("127.0.0.1:{}", common::free_port());
     let _child = Kill(
-        std::process::Command::new(bin())
-            .args([
-                "simulate", "--model", "e510", "--mode", "ascii", "--tcp", &addr, "-q",
-            ])
+        Run::words("simulate --model e510 --mode ascii --tcp")
+            .arg(&addr)
+            .arg("-q")
+            .command()
             .spawn()
             .unwrap(),
     );
@@ -519,16 +519,8 @@ fn the_command_line_serves_on_a_pty_and_prints_its_path() {
     use conformance::transport::LinkKind;
     use std::io::BufRead;
     let mut child = Kill(
-        std::process::Command::new(bin())
-            .args([
-                "simulate",
-                "--model",
-                "l510-legacy",
-                "--pty",
-                "-q",
-                "--quirk",
-                "wrong-exception",
-            ])
+        Run::words("simulate --model l510-legacy --pty -q --quirk wrong-exception")
+            .command()
             .stdout(std::process::Stdio::piped())
             .spawn()
             .unwrap(),

@@ -14,43 +14,29 @@
 //!   the report says why.
 
 mod common;
-use common::{bin, confirmed_findings, report_of};
+use common::{confirmed_findings, report_in, Run};
 
 use std::time::Duration;
 
 use serde_json::Value;
 
-fn tempdir(name: &str) -> std::path::PathBuf {
-    let d = std::env::temp_dir().join(format!("storm-test-{}-{name}", std::process::id()));
-    std::fs::create_dir_all(&d).unwrap();
-    d
-}
-
 fn frames() -> String {
     std::env::var("STORM_FRAMES").unwrap_or_else(|_| "300".into())
 }
 
-fn storm(dir: &std::path::Path, quirks: &[&str]) -> (Option<i32>, Value) {
+/// The storm (seed 1, 19200 baud) in a scratch folder `name`, with `quirks` planted.
+fn storm(name: &str, quirks: &[&str]) -> (Option<i32>, Value) {
     let n = frames();
-    let mut args = vec![
-        "--sim",
-        "f510",
-        "--mode",
-        "rtu",
-        "-b",
-        "19200",
-        "--storm",
-        "--storm-frames",
-        &n,
-        "--storm-idle",
-        "20",
-        "--seed",
-        "1",
-    ];
-    for q in quirks {
-        args.extend(["--quirk", q]);
-    }
-    report_of("fuzz", dir, &args, Duration::from_secs(600))
+    let args = format!(
+        "--sim f510 --mode rtu -b 19200 --storm --storm-frames {n} --storm-idle 20 --seed 1 {}",
+        planted(quirks)
+    );
+    report_in("fuzz", name, &args, Duration::from_secs(600))
+}
+
+/// `--quirk Q` for each of `quirks`.
+fn planted(quirks: &[&str]) -> String {
+    quirks.iter().map(|q| format!("--quirk {q} ")).collect()
 }
 
 fn storm_of(v: &Value) -> &Value {
@@ -68,8 +54,7 @@ fn testcase<'a>(v: &'a Value, id: &str) -> &'a Value {
 
 #[test]
 fn the_clean_simulator_weathers_the_storm() {
-    let dir = tempdir("clean");
-    let (code, v) = storm(&dir, &[]);
+    let (code, v) = storm("clean", &[]);
     let s = storm_of(&v);
     assert_eq!(s["lost"], 0, "{s:#}");
     assert_eq!(s["unexpected"], 0, "{s:#}");
@@ -116,8 +101,7 @@ fn the_clean_simulator_weathers_the_storm() {
 
 #[test]
 fn a_request_lost_after_other_traffic_fails_the_storm() {
-    let dir = tempdir("busy");
-    let (code, v) = storm(&dir, &["busy-after=2"]);
+    let (code, v) = storm("busy", &["busy-after=2"]);
     let s = storm_of(&v);
     assert!(s["lost"].as_u64().unwrap() > 0, "{s:#}");
     assert_eq!(s["passed"], false);
@@ -134,8 +118,7 @@ fn a_request_lost_after_other_traffic_fails_the_storm() {
 
 #[test]
 fn answers_to_other_nodes_fail_the_storm() {
-    let dir = tempdir("every");
-    let (code, v) = storm(&dir, &["answer-every-address"]);
+    let (code, v) = storm("every", &["answer-every-address"]);
     let s = storm_of(&v);
     assert!(s["unexpected"].as_u64().unwrap() > 0, "{s:#}");
     assert_eq!(code, Some(1));
@@ -149,20 +132,19 @@ fn answers_to_other_nodes_fail_the_storm() {
     );
 }
 
-fn timing_run(dir: &std::path::Path, quirks: &[&str], cases: &str) -> (Option<i32>, Value) {
-    let mut args = vec![
-        "--sim", "f510", "--mode", "rtu", "-b", "19200", "--cases", cases, "--seed", "1",
-    ];
-    for q in quirks {
-        args.extend(["--quirk", q]);
-    }
-    report_of("fuzz", dir, &args, Duration::from_secs(900))
+/// The timing classes (seed 1, 19200 baud) in a scratch folder `name`, with `quirks`
+/// planted.
+fn timing_run(name: &str, quirks: &[&str], cases: &str) -> (Option<i32>, Value) {
+    let args = format!(
+        "--sim f510 --mode rtu -b 19200 --cases {cases} --seed 1 {}",
+        planted(quirks)
+    );
+    report_in("fuzz", name, &args, Duration::from_secs(900))
 }
 
 #[test]
 fn a_frame_with_a_gap_over_t15_taken_whole_is_found_and_minimized() {
-    let dir = tempdir("t15");
-    let (code, v) = timing_run(&dir, &["ignore-t15"], "300");
+    let (code, v) = timing_run("t15", &["ignore-t15"], "300");
     assert_eq!(code, Some(1), "{:#}", v["fuzz"]);
     let f = confirmed_findings(&v);
     let g = f
@@ -187,21 +169,16 @@ fn a_frame_with_a_gap_over_t15_taken_whole_is_found_and_minimized() {
         "{f:#?}"
     );
     // The replay command reproduces it (exit 1: the device answered).
-    let words: Vec<&str> = replay.split_whitespace().skip(1).collect();
-    let out = std::process::Command::new(bin())
-        .args(&words)
-        .output()
-        .unwrap();
-    let text = String::from_utf8_lossy(&out.stdout);
-    assert_eq!(out.status.code(), Some(1), "{text}");
+    let out = Run::new(replay.split_whitespace().skip(1)).run();
+    let text = &out.stdout;
+    assert_eq!(out.code, Some(1), "{text}");
     assert!(text.contains("timing.gap-in-frame"), "{text}");
 }
 
 #[test]
 fn the_clean_simulator_passes_the_timing_classes() {
-    let dir = tempdir("t-clean");
     let cases = std::env::var("FUZZ_CASES").unwrap_or_else(|_| "300".into());
-    let (code, v) = timing_run(&dir, &[], &cases);
+    let (code, v) = timing_run("t-clean", &[], &cases);
     let f = confirmed_findings(&v);
     assert!(f.is_empty(), "{f:#?}");
     assert_eq!(code, Some(0));
@@ -222,21 +199,10 @@ fn the_clean_simulator_passes_the_timing_classes() {
 
 #[test]
 fn timing_damage_is_not_sent_without_line_timing() {
-    let dir = tempdir("t-unpaced");
-    let (code, v) = report_of(
+    let (code, v) = report_in(
         "fuzz",
-        &dir,
-        &[
-            "--sim",
-            "f510",
-            "--mode",
-            "rtu",
-            "--no-pace",
-            "--cases",
-            "100",
-            "--quirk",
-            "ignore-t15",
-        ],
+        "t-unpaced",
+        "--sim f510 --mode rtu --no-pace --cases 100 --quirk ignore-t15",
         Duration::from_secs(300),
     );
     assert_eq!(code, Some(0));
@@ -252,28 +218,10 @@ fn timing_damage_is_not_sent_without_line_timing() {
 fn send_splits_a_frame_with_the_silence_asked_for() {
     // Under t1.5 (19200 baud 8E1: 860 us; t3.5 2006 us): one frame, answered.
     let run = |gap: &str| {
-        let out = std::process::Command::new(bin())
-            .args([
-                "send",
-                "--sim",
-                "f510",
-                "--mode",
-                "rtu",
-                "-b",
-                "19200",
-                "--split",
-                "3",
-                "--gap",
-                gap,
-                "010325200001",
-                "8ECC",
-            ])
-            .output()
-            .unwrap();
-        (
-            out.status.code(),
-            String::from_utf8_lossy(&out.stdout).into_owned(),
-        )
+        let out = Run::words("send --sim f510 --mode rtu -b 19200 --split 3 --gap")
+            .args([gap, "010325200001", "8ECC"])
+            .run();
+        (out.code, out.stdout)
     };
     let (code, text) = run("300us");
     assert_eq!(code, Some(0), "{text}");
@@ -290,22 +238,7 @@ fn send_splits_a_frame_with_the_silence_asked_for() {
         "{text}"
     );
     // Without line timing: refused, exit 2.
-    let out = std::process::Command::new(bin())
-        .args([
-            "send",
-            "--sim",
-            "f510",
-            "--mode",
-            "rtu",
-            "--no-pace",
-            "--split",
-            "3",
-            "--gap",
-            "1ms",
-            "010325200001",
-            "8ECC",
-        ])
-        .output()
-        .unwrap();
-    assert_eq!(out.status.code(), Some(2));
+    Run::words("send --sim f510 --mode rtu --no-pace --split 3 --gap 1ms 010325200001 8ECC")
+        .run()
+        .expect(2);
 }

@@ -17,7 +17,7 @@
 //! (SIGSTOP) simulator give exit 2 and no PASS.
 
 mod common;
-use common::{bin, sim_pty, Kill};
+use common::{line, sim_pty, Kill, Run, Scratch};
 
 use std::collections::{BTreeMap, BTreeSet};
 use std::sync::{Arc, Mutex};
@@ -534,14 +534,9 @@ fn parallel<T: Send + 'static>(
 }
 
 fn check(args: &[&str]) -> (Option<i32>, serde_json::Value) {
-    let o = std::process::Command::new(bin())
-        .args(["check", "--format", "json", "-q"])
-        .args(args)
-        .output()
-        .unwrap();
-    let v = serde_json::from_slice(&o.stdout)
-        .unwrap_or_else(|e| panic!("{e}: {}", String::from_utf8_lossy(&o.stderr)));
-    (o.status.code(), v)
+    let o = Run::words("check --format json -q").args(args).run();
+    let v = serde_json::from_slice(&o.bytes).unwrap_or_else(|e| panic!("{e}: {}", o.stderr));
+    (o.code, v)
 }
 
 fn passes(v: &serde_json::Value) -> usize {
@@ -559,20 +554,11 @@ fn a_silent_device_passes_nothing() {
     // The reproduction: a simulator at node 1, the check aimed at node 2.
     let (_sim, pty) = sim_pty(&["--model", "f510", "-P", "none"]);
     let t0 = Instant::now();
-    let (code, v) = check(&[
-        "--model",
-        "f510",
-        "--port",
+    let (code, v) = check(&line(&[
+        "--model f510 --port",
         &pty,
-        "-P",
-        "none",
-        "--mode",
-        "rtu",
-        "-a",
-        "2",
-        "--timeout",
-        "200",
-    ]);
+        "-P none --mode rtu -a 2 --timeout 200",
+    ]));
     assert_eq!(code, Some(2), "{v:#}");
     assert_eq!(passes(&v), 0, "{v:#}");
     assert_eq!(v["complete"], false);
@@ -595,14 +581,12 @@ fn a_device_frozen_mid_run_ends_the_run() {
     use nix::unistd::Pid;
     let (sim, pty) = sim_pty(&["--model", "l510", "-P", "none"]);
     let pid = Pid::from_raw(i32::try_from(sim.0.id()).unwrap());
-    let dir = std::env::temp_dir().join(format!("teco-freeze-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
+    let dir = Scratch::new("freeze");
     let report = dir.join("report.json");
     let mut run = Kill(
-        std::process::Command::new(bin())
-            .args([
-                "check", "--format", "json", "-q", "--model", "l510", "--port", &pty,
-            ])
+        Run::words("check --format json -q --model l510 --port")
+            .arg(&pty)
+            .command()
             .args(["-P", "none", "--mode", "rtu", "--timeout", "300", "-o"])
             .arg(&report)
             .stdout(std::process::Stdio::null())
@@ -657,5 +641,4 @@ fn a_device_frozen_mid_run_ends_the_run() {
     );
     let stopped = v["stopped"].as_str().unwrap();
     assert!(stopped.contains(lost), "{stopped}");
-    let _ = std::fs::remove_dir_all(&dir);
 }

@@ -7,22 +7,17 @@
 mod common;
 
 use std::io::{BufRead, BufReader};
-use std::path::{Path, PathBuf};
+
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
-use common::{bin, need, run_bounded, runs, tool_or_skip, GatewaySim, Kill, Peer};
+use common::{
+    bin, line, need, run_bounded, runs, tool_or_skip, words, GatewaySim, Kill, Peer, Run, Scratch,
+};
 use nix::sys::signal::{kill, Signal};
 use nix::unistd::Pid;
 
 const LIMIT: Duration = Duration::from_secs(120);
-
-fn dir(name: &str) -> PathBuf {
-    let d = Path::new(env!("CARGO_TARGET_TMPDIR")).join(format!("watch-{name}"));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).unwrap();
-    d
-}
 
 /// `conformance watch ARGS`: exit code, stdout, stderr.
 fn watch(args: &[&str]) -> (Option<i32>, String, String) {
@@ -57,21 +52,11 @@ fn csv(stdout: &str) -> (Vec<String>, Vec<Vec<String>>) {
 #[test]
 fn csv_rows_parse_back_in_rtu_and_ascii() {
     for mode in ["rtu", "ascii"] {
-        let (code, out, err) = watch(&[
-            "--sim",
-            "f510",
-            "--mode",
+        let (code, out, err) = watch(&line(&[
+            "--sim f510 --mode",
             mode,
-            "-c",
-            "3",
-            "--interval",
-            "50ms",
-            "--format",
-            "csv",
-            "2502H",
-            "status",
-            "252FH",
-        ]);
+            "-c 3 --interval 50ms --format csv 2502H status 252FH",
+        ]));
         assert_eq!(code, Some(0), "{mode}: {err}");
         let (header, rows) = csv(&out);
         assert_eq!(
@@ -114,16 +99,7 @@ fn csv_rows_parse_back_in_rtu_and_ascii() {
 
 #[test]
 fn json_lines_parse_back_with_units_and_bits() {
-    let (code, out, err) = watch(&[
-        "--sim",
-        "f510",
-        "-c",
-        "2",
-        "--interval",
-        "50ms",
-        "--format",
-        "jsonl",
-    ]);
+    let (code, out, err) = watch(&words("--sim f510 -c 2 --interval 50ms --format jsonl"));
     assert_eq!(code, Some(0), "{err}");
     let rows = json_lines(&out);
     assert_eq!(rows.len(), 2, "{out}");
@@ -188,19 +164,9 @@ fn planted_faults_are_counted_as_their_kinds() {
 
     // A reserved bit of the operation signal (bit 15) is an observation of its own kind,
     // not a reason for exit 1.
-    let (code, out, err) = watch(&[
-        "--sim",
-        "f510",
-        "--quirk",
-        "stuck-at=2501H:8001H",
-        "-c",
-        "2",
-        "--interval",
-        "50ms",
-        "--format",
-        "jsonl",
-        "2501H",
-    ]);
+    let (code, out, err) = watch(&words(
+        "--sim f510 --quirk stuck-at=2501H:8001H -c 2 --interval 50ms --format jsonl 2501H",
+    ));
     assert_eq!(code, Some(0), "{err}");
     for r in json_lines(&out) {
         assert_eq!(r["observations"][0]["kind"], "reserved-bit", "{r}");
@@ -209,19 +175,9 @@ fn planted_faults_are_counted_as_their_kinds() {
     assert!(err.contains("out of range 0, reserved bits 2"), "{err}");
 
     // CRC errors and timeouts are counted apart, and are no reason for exit 1.
-    let (code, out, err) = watch(&[
-        "--sim",
-        "f510",
-        "--quirk",
-        "crc-swap",
-        "-c",
-        "2",
-        "--interval",
-        "50ms",
-        "--format",
-        "csv",
-        "2520H",
-    ]);
+    let (code, out, err) = watch(&words(
+        "--sim f510 --quirk crc-swap -c 2 --interval 50ms --format csv 2520H",
+    ));
     assert_eq!(code, Some(0), "{err}");
     let (_, rows) = csv(&out);
     assert!(rows.iter().all(|r| r[4] == "bad-checksum"), "{out}");
@@ -229,21 +185,9 @@ fn planted_faults_are_counted_as_their_kinds() {
         err.contains("timeouts 0, CRC errors 2, exceptions 0"),
         "{err}"
     );
-    let (code, out, err) = watch(&[
-        "--sim",
-        "f510",
-        "--quirk",
-        "dead",
-        "--timeout",
-        "200",
-        "-c",
-        "2",
-        "--interval",
-        "50ms",
-        "--format",
-        "csv",
-        "2520H",
-    ]);
+    let (code, out, err) = watch(&words(
+        "--sim f510 --quirk dead --timeout 200 -c 2 --interval 50ms --format csv 2520H",
+    ));
     assert_eq!(code, Some(0), "{err}");
     let (_, rows) = csv(&out);
     assert!(rows.iter().all(|r| r[4] == "timeout"), "{out}");
@@ -255,24 +199,13 @@ fn planted_faults_are_counted_as_their_kinds() {
 
 #[test]
 fn only_reads_go_out() {
-    let d = dir("reads-only");
+    let d = Scratch::new("reads-only");
     let log = d.join("sim.jsonl");
-    let (code, _, err) = watch(&[
-        "--sim",
-        "f510",
-        "-a",
-        "1,2",
-        "--sim-log",
+    let (code, _, err) = watch(&line(&[
+        "--sim f510 -a 1,2 --sim-log",
         log.to_str().unwrap(),
-        "-c",
-        "3",
-        "--interval",
-        "50ms",
-        "--format",
-        "csv",
-        "command",
-        "monitor",
-    ]);
+        "-c 3 --interval 50ms --format csv command monitor",
+    ]));
     assert_eq!(code, Some(0), "{err}");
     let text = std::fs::read_to_string(&log).unwrap();
     let requests: Vec<serde_json::Value> = text
@@ -292,16 +225,8 @@ fn only_reads_go_out() {
 #[test]
 fn sigterm_ends_with_the_summary_and_exit_0() {
     let mut child = Kill::spawn(
-        Command::new(bin())
-            .args([
-                "watch",
-                "--sim",
-                "f510",
-                "--format",
-                "csv",
-                "--interval",
-                "50ms",
-            ])
+        Run::words("watch --sim f510 --format csv --interval 50ms")
+            .command()
             .stdout(Stdio::piped())
             .stderr(Stdio::piped()),
     );
@@ -321,8 +246,10 @@ fn sigterm_ends_with_the_summary_and_exit_0() {
 fn a_link_that_fails_ends_the_watch_with_its_summary_and_exit_2() {
     let (mut sim, port) = common::sim_pty(&["--model", "f510"]);
     let mut child = Kill::spawn(
-        Command::new(bin())
-            .args(["watch", "--model", "f510", "--port", &port, "-P", "even"])
+        Run::words("watch --model f510 --port")
+            .arg(&port)
+            .args(["-P", "even"])
+            .command()
             .args(["--format", "csv", "--interval", "50ms", "2520H"])
             .stdout(Stdio::piped())
             .stderr(Stdio::piped()),
@@ -339,14 +266,7 @@ fn a_link_that_fails_ends_the_watch_with_its_summary_and_exit_2() {
     assert!(err.contains("watch ended (the link failed)"), "{err}");
     assert!(err.contains("result: the link failed (exit 2)"), "{err}");
     // A link that cannot be opened: exit 2 too.
-    let (code, _, err) = watch(&[
-        "--model",
-        "f510",
-        "--port",
-        "/dev/nonexistent-watch",
-        "-c",
-        "1",
-    ]);
+    let (code, _, err) = watch(&words("--model f510 --port /dev/nonexistent-watch -c 1"));
     assert_eq!(code, Some(2), "{err}");
 }
 
@@ -356,16 +276,10 @@ fn a_value_another_master_writes_is_marked_changed() {
     // the watch reads, `send` writes 2502H <- 1194H meanwhile.
     let sim = GatewaySim::start("f510", 1, &[]);
     let mut child = Kill::spawn(
-        Command::new(bin())
-            .args([
-                "watch",
-                "--model",
-                "f510",
-                "--tcp",
-                &sim.addr,
-                "--framing",
-                "mbap",
-            ])
+        Run::words("watch --model f510 --tcp")
+            .arg(&sim.addr)
+            .args(["--framing", "mbap"])
+            .command()
             .args(["--format", "jsonl", "--interval", "50ms", "2502H"])
             .stdout(Stdio::piped())
             .stderr(Stdio::piped()),
@@ -374,16 +288,11 @@ fn a_value_another_master_writes_is_marked_changed() {
     let first: serde_json::Value = serde_json::from_str(&lines.next().unwrap().unwrap()).unwrap();
     assert_eq!(first["values"]["2502H"]["raw"], "0000");
     let (code, out, err) = run_bounded(
-        &[
-            "send",
-            "--model",
-            "f510",
-            "--tcp",
+        &line(&[
+            "send --model f510 --tcp",
             &sim.addr,
-            "--framing",
-            "mbap",
-            "0106250211942EF9",
-        ],
+            "--framing mbap 0106250211942EF9",
+        ]),
         LIMIT,
     );
     assert_eq!(code, Some(0), "{out}{err}");
@@ -476,7 +385,7 @@ fn the_table_redraws_in_place_on_a_terminal() {
 
 #[test]
 fn the_html_report_has_a_trend_per_register_and_no_script() {
-    let d = dir("html");
+    let d = Scratch::new("html");
     let page = d.join("watch.html");
     let (code, _, err) = watch(&[
         "--sim",
@@ -522,50 +431,30 @@ fn the_html_report_has_a_trend_per_register_and_no_script() {
 #[test]
 fn pymodbus_serial_server_is_watched_and_its_exceptions_counted() {
     for mode in ["rtu", "ascii"] {
-        let d = dir(&format!("pymodbus-{mode}"));
+        let d = Scratch::new(&format!("pymodbus-{mode}"));
         // pymodbus serves the command block only: the monitor block's reads get 02H.
         let Some(peer) = common::pymodbus_serial_blocks(&d, mode, "2500-251F") else {
             return;
         };
         let port = peer.port.to_str().unwrap();
-        let (code, out, err) = watch(&[
-            "--model",
-            "f510",
-            "--port",
+        let (code, out, err) = watch(&line(&[
+            "--model f510 --port",
             port,
-            "-P",
-            "none",
-            "-m",
+            "-P none -m",
             mode,
-            "-c",
-            "3",
-            "--interval",
-            "50ms",
-            "--format",
-            "csv",
-            "2502H",
-        ]);
+            "-c 3 --interval 50ms --format csv 2502H",
+        ]));
         assert_eq!(code, Some(0), "{mode}: {err}");
         let (_, rows) = csv(&out);
         assert_eq!(rows.len(), 3);
         assert!(rows.iter().all(|r| r[4] == "ok"), "{mode}: {out}");
-        let (code, out, err) = watch(&[
-            "--model",
-            "f510",
-            "--port",
+        let (code, out, err) = watch(&line(&[
+            "--model f510 --port",
             port,
-            "-P",
-            "none",
-            "-m",
+            "-P none -m",
             mode,
-            "-c",
-            "2",
-            "--interval",
-            "50ms",
-            "--format",
-            "csv",
-            "monitor",
-        ]);
+            "-c 2 --interval 50ms --format csv monitor",
+        ]));
         assert_eq!(code, Some(1), "{mode}: {err}");
         let (_, rows) = csv(&out);
         assert!(

@@ -2,36 +2,28 @@
 //! tests/master_adapters.rs): `conformance gate` run for its JSON report, and that report
 //! read.
 
-use std::process::{Command, Output};
-
 use serde_json::Value;
+
+use super::{Ran, Run};
 
 /// Runs `conformance gate ROLE ADAPTER --format json --quiet EXTRA` (`ROLE` is `--codec` or
 /// `--master`) and returns its output and its report, which it must print.
-pub fn gate_json(role: &str, adapter: &str, extra: &[&str]) -> (Output, Value) {
+pub fn gate_json(role: &str, adapter: &str, extra: &[&str]) -> (Ran, Value) {
     let mut args = vec!["gate", role, adapter, "--format", "json", "--quiet"];
     args.extend_from_slice(extra);
-    let o = Command::new(super::bin()).args(&args).output().unwrap();
-    let v: Value = serde_json::from_slice(&o.stdout).unwrap_or_else(|e| {
+    let o = Run::new(&args).run();
+    let v: Value = serde_json::from_slice(&o.bytes).unwrap_or_else(|e| {
         panic!(
             "gate {role} printed no JSON ({e}): {}\n{}",
-            String::from_utf8_lossy(&o.stdout),
-            String::from_utf8_lossy(&o.stderr)
+            o.stdout.as_str(),
+            o.stderr
         )
     });
     (o, v)
 }
 
-/// Asserts that a report matches the report schema, listing where it does not.
-pub fn schema_valid(v: &Value) {
-    let text = include_str!("../../../vectors/schema/report.schema.json");
-    let s = jsonschema::validator_for(&serde_json::from_str(text).unwrap()).unwrap();
-    let errors: Vec<String> = s
-        .iter_errors(v)
-        .map(|e| format!("{e} at {}", e.instance_path))
-        .collect();
-    assert!(errors.is_empty(), "{errors:#?}");
-}
+#[allow(unused_imports)] // tests/gate.rs reads it from here
+pub use super::schema_valid;
 
 /// The status of case `id` in a report (it must have the case).
 pub fn status_of<'a>(v: &'a Value, id: &str) -> &'a str {

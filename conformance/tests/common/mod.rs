@@ -3,12 +3,17 @@
 #![allow(dead_code)]
 
 pub mod agree;
+mod bus;
 pub mod gate;
 pub mod installed;
 mod peers;
+mod report;
+mod run;
+mod scratch;
 mod skip;
-pub use peers::*;
-pub use skip::*;
+// A test binary uses some of these and not others.
+#[allow(unused_imports)]
+pub use {bus::*, peers::*, report::*, run::*, scratch::*, skip::*};
 
 /// The `conformance` binary built for these tests.
 pub fn bin() -> &'static str {
@@ -28,93 +33,30 @@ pub fn tool_or_skip(ok: bool, what: &str) -> bool {
     ok || missing(what)
 }
 
-/// Runs `conformance check ARGS --format json -o dir/check.json` with a bound on its
-/// time (a hang is a failure, not a stalled CI job), asserts it did not panic and that
-/// the report matches its schema; returns the exit code and the report.
-pub fn check_device(
-    dir: &std::path::Path,
-    args: &[&str],
-    limit: std::time::Duration,
-) -> (Option<i32>, serde_json::Value) {
-    report_of("check", dir, args, limit)
-}
-
-/// Runs `conformance COMMAND ARGS --format json -o DIR/COMMAND.json` (check or fuzz),
-/// bounded by `limit`, and returns its exit code and the report, checked against the
-/// report schema.
-pub fn report_of(
-    command: &str,
-    dir: &std::path::Path,
-    args: &[&str],
-    limit: std::time::Duration,
-) -> (Option<i32>, serde_json::Value) {
-    let report = dir.join(format!("{command}.json"));
-    let mut run = Kill::spawn(
-        std::process::Command::new(bin())
-            .arg(command)
-            .args(args)
-            .args(["--format", "json", "--quiet", "-o"])
-            .arg(&report)
-            .stdout(std::process::Stdio::null())
-            .stderr(std::process::Stdio::piped()),
-    );
-    let exit = run.wait_within(limit, &format!("conformance {command}"));
-    let stderr = run.stderr_text();
-    assert!(!stderr.contains("panicked"), "{stderr}");
-    let out = std::fs::read(&report).unwrap();
-    let v: serde_json::Value =
-        serde_json::from_slice(&out).unwrap_or_else(|e| panic!("{e}: {stderr}"));
-    let schema = jsonschema::validator_for(
-        &serde_json::from_str(include_str!("../../../vectors/schema/report.schema.json")).unwrap(),
-    )
-    .unwrap();
-    assert!(schema.is_valid(&v), "the report does not match its schema");
-    (exit.code(), v)
-}
-
 /// Waits (at most 30 s) until a device on `port` answers the runner's preflight in `mode`
 /// (a slow-starting server, such as pymodbus on a busy machine, is not a dead device).
 pub fn wait_until_answers(port: &std::path::Path, mode: &str, line: &[&str]) {
     let t0 = std::time::Instant::now();
     loop {
-        let o = std::process::Command::new(bin())
-            .args(["check", "--model", "f510", "--mode", mode, "--port"])
+        let o = Run::words("check --model f510 --mode")
+            .arg(mode)
+            .arg("--port")
             .arg(port)
             .args(line)
             .args(["--only", "identification", "--timeout", "300", "--quiet"])
-            .output()
-            .unwrap();
-        if o.status.code() != Some(2) {
+            .timeout(std::time::Duration::from_secs(60))
+            .run();
+        if o.code != Some(2) {
             return;
         }
         assert!(
             t0.elapsed() < std::time::Duration::from_secs(30),
             "the device on {} does not answer: {}",
             port.display(),
-            String::from_utf8_lossy(&o.stdout)
+            o.stdout
         );
         std::thread::sleep(std::time::Duration::from_millis(200));
     }
-}
-
-/// The findings of every mode of a fuzz report that are not unconfirmed: a finding that
-/// was replayed and not seen again is an observation (a host stall under load can make
-/// one), not one of the device's bugs.
-pub fn confirmed_findings(v: &serde_json::Value) -> Vec<serde_json::Value> {
-    findings(v)
-        .into_iter()
-        .filter(|f| f["reproduced"] == true || f["replays"].as_u64().unwrap_or(0) == 0)
-        .collect()
-}
-
-/// The findings of every mode of a fuzz report.
-pub fn findings(v: &serde_json::Value) -> Vec<serde_json::Value> {
-    v["fuzz"]["modes"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .flat_map(|m| m["findings"].as_array().unwrap().clone())
-        .collect()
 }
 
 /// The monitor's kinds of finding that rest on when bytes were read: a silence, a gap, a
@@ -161,24 +103,4 @@ pub fn unexplained(errors: &serde_json::Value, bus_log: &[serde_json::Value]) ->
         }
     }
     out
-}
-
-/// `conformance report JSON -o OUT` (the format from OUT's extension), which must exit 0:
-/// what it wrote.
-pub fn rendered(json: &std::path::Path, out: &std::path::Path) -> String {
-    let o = std::process::Command::new(bin())
-        .arg("report")
-        .arg(json)
-        .arg("-o")
-        .arg(out)
-        .output()
-        .unwrap();
-    assert_eq!(
-        o.status.code(),
-        Some(0),
-        "report {}: {}",
-        json.display(),
-        String::from_utf8_lossy(&o.stderr)
-    );
-    std::fs::read_to_string(out).unwrap()
 }

@@ -63,30 +63,6 @@ pub fn runs(cmd: &str, args: &[&str]) -> bool {
         .is_ok_and(|s| s.success())
 }
 
-/// Runs `conformance ARGS`, bounded by `limit` (a hang fails the test), asserts it did
-/// not panic; exit code, stdout, stderr.
-pub fn run_bounded(args: &[&str], limit: Duration) -> (Option<i32>, String, String) {
-    let mut child = Kill::spawn(
-        Command::new(bin())
-            .args(args)
-            .stdout(Stdio::piped())
-            .stderr(Stdio::piped()),
-    );
-    let reader = |mut r: Box<dyn Read + Send>| {
-        std::thread::spawn(move || {
-            let mut s = String::new();
-            r.read_to_string(&mut s).unwrap();
-            s
-        })
-    };
-    let out = reader(Box::new(child.0.stdout.take().unwrap()));
-    let err = reader(Box::new(child.0.stderr.take().unwrap()));
-    let status = child.wait_within(limit, &format!("conformance {args:?}"));
-    let (stdout, stderr) = (out.join().unwrap(), err.join().unwrap());
-    assert!(!stderr.contains("panicked"), "{stderr}");
-    (status.code(), stdout, stderr)
-}
-
 /// Waits (at most 10 s) for a path to appear.
 pub fn wait_for(p: &Path) {
     let t0 = Instant::now();

@@ -1,0 +1,93 @@
+//! A report read back: `conformance check` or `fuzz` run for its JSON report, the report
+//! parsed and held to the report schema, and the parts of it that many tests read.
+
+use std::path::Path;
+use std::time::Duration;
+
+use serde_json::Value;
+
+use super::Run;
+
+/// Runs `conformance check ARGS --format json -o dir/check.json` with a bound on its
+/// time (a hang is a failure, not a stalled CI job), asserts it did not panic and that
+/// the report matches its schema; returns the exit code and the report.
+pub fn check_device(dir: &Path, args: &[&str], limit: Duration) -> (Option<i32>, Value) {
+    report_of("check", dir, args, limit)
+}
+
+/// Runs `conformance COMMAND ARGS --format json -o DIR/COMMAND.json` (check or fuzz),
+/// bounded by `limit`, and returns its exit code and the report, checked against the
+/// report schema.
+pub fn report_of(
+    command: &str,
+    dir: &Path,
+    args: &[&str],
+    limit: Duration,
+) -> (Option<i32>, Value) {
+    let report = dir.join(format!("{command}.json"));
+    let ran = Run::new([command])
+        .args(args)
+        .args(["--format", "json", "--quiet", "-o"])
+        .arg(&report)
+        .timeout(limit)
+        .run();
+    let v = report_file(&report).unwrap_or_else(|e| panic!("{e}: {ran}"));
+    (ran.code, v)
+}
+
+/// The JSON report at `path`, held to the report schema; Err says why it is not one.
+pub fn report_file(path: &Path) -> Result<Value, String> {
+    let text = std::fs::read(path).map_err(|e| format!("{}: {e}", path.display()))?;
+    let v: Value = serde_json::from_slice(&text).map_err(|e| format!("{}: {e}", path.display()))?;
+    schema_valid(&v);
+    Ok(v)
+}
+
+/// Asserts that a report matches the report schema, listing where it does not.
+pub fn schema_valid(v: &Value) {
+    let text = include_str!("../../../vectors/schema/report.schema.json");
+    let s = jsonschema::validator_for(&serde_json::from_str(text).unwrap()).unwrap();
+    let errors: Vec<String> = s
+        .iter_errors(v)
+        .map(|e| format!("{e} at {}", e.instance_path))
+        .collect();
+    assert!(
+        errors.is_empty(),
+        "the report does not match its schema: {errors:#?}"
+    );
+}
+
+/// The findings of every mode of a fuzz report that are not unconfirmed: a finding that
+/// was replayed and not seen again is an observation (a host stall under load can make
+/// one), not one of the device's bugs.
+pub fn confirmed_findings(v: &Value) -> Vec<Value> {
+    findings(v)
+        .into_iter()
+        .filter(|f| f["reproduced"] == true || f["replays"].as_u64().unwrap_or(0) == 0)
+        .collect()
+}
+
+/// The findings of every mode of a fuzz report.
+pub fn findings(v: &Value) -> Vec<Value> {
+    v["fuzz"]["modes"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .flat_map(|m| m["findings"].as_array().unwrap().clone())
+        .collect()
+}
+
+/// `conformance report JSON -o OUT` (the format from OUT's extension), which must exit 0:
+/// what it wrote.
+pub fn rendered(json: &Path, out: &Path) -> String {
+    Run::new(["report"]).arg(json).arg("-o").arg(out).run().ok();
+    std::fs::read_to_string(out).unwrap()
+}
+
+/// [`report_of`] in a fresh [`Scratch`](super::Scratch) folder `name`, with the words
+/// of `args` (split at white space) as the arguments: `report_in("fuzz", "hang",
+/// "--sim f510 --mode rtu --cases 300", limit)`.
+pub fn report_in(command: &str, name: &str, args: &str, limit: Duration) -> (Option<i32>, Value) {
+    let args: Vec<&str> = args.split_whitespace().collect();
+    report_of(command, &super::Scratch::new(name), &args, limit)
+}
