@@ -144,21 +144,15 @@ fn a_monitor_on_a_bus_records_what_the_line_carried_and_tshark_decodes_it() {
     for _ in 0..2 {
         lines.next().unwrap().unwrap();
     }
-    let mut monitor = Run::words("monitor --model f510 -a 1 -b 9600 --duration 8 --port")
-        .command()
-        .arg(&tap)
-        .arg("--capture")
-        .arg(&tap_cap)
-        .args(["--format", "json", "-o"])
-        .arg(d.join("tap.json"))
-        .stderr(std::process::Stdio::piped())
-        .stdout(std::process::Stdio::null())
-        .spawn()
-        .unwrap();
-    let mut heard = BufReader::new(monitor.stderr.take().unwrap()).lines();
-    let first = heard.next().unwrap().unwrap();
-    assert!(first.starts_with("listening on"), "{first}");
-    let drain = std::thread::spawn(move || heard.map_while(Result::ok).collect::<Vec<_>>());
+    let (mut monitor, drain) = listening(
+        Run::words("monitor --model f510 -a 1 -b 9600 --duration 8 --port")
+            .command()
+            .arg(&tap)
+            .arg("--capture")
+            .arg(&tap_cap)
+            .args(["--format", "json", "-o"])
+            .arg(d.join("tap.json")),
+    );
     let out = Run::words("check --model f510 --mode rtu -a 1 --quiet --port")
         .arg(&m)
         .args(["--only", "rtu.map.group-0.*", "--format", "json", "-o"])
@@ -398,22 +392,16 @@ fn a_bus_a_tap_and_a_check_capture_of_one_run_are_judged_alike() {
     for _ in 0..2 {
         lines.next().unwrap().unwrap();
     }
-    let mut monitor = Run::words("monitor --model f510 -a 1,2 -b 9600")
-        .command()
-        .args(["--duration", "10", "--port"])
-        .arg(&tap)
-        .arg("--capture")
-        .arg(d.join("tap.pcapng"))
-        .args(["--format", "json", "-o"])
-        .arg(d.join("live.json"))
-        .stderr(std::process::Stdio::piped())
-        .stdout(std::process::Stdio::null())
-        .spawn()
-        .unwrap();
-    let mut heard = BufReader::new(monitor.stderr.take().unwrap()).lines();
-    let first = heard.next().unwrap().unwrap();
-    assert!(first.starts_with("listening on"), "{first}");
-    let drain = std::thread::spawn(move || heard.map_while(Result::ok).collect::<Vec<_>>());
+    let (mut monitor, drain) = listening(
+        Run::words("monitor --model f510 -a 1,2 -b 9600")
+            .command()
+            .args(["--duration", "10", "--port"])
+            .arg(&tap)
+            .arg("--capture")
+            .arg(d.join("tap.pcapng"))
+            .args(["--format", "json", "-o"])
+            .arg(d.join("live.json")),
+    );
     let out = Run::words("check --model f510 --mode rtu -a 1,2")
         .args(["--quiet", "--port"])
         .arg(&m)
@@ -474,4 +462,23 @@ fn a_bus_a_tap_and_a_check_capture_of_one_run_are_judged_alike() {
             "{name} against the live monitor"
         );
     }
+}
+
+/// A `monitor` on a tap started and heard to be listening (its first stderr line), its
+/// later stderr lines read by a thread until it ends, so that it never blocks on a full
+/// pipe.
+fn listening(
+    monitor: &mut std::process::Command,
+) -> (std::process::Child, std::thread::JoinHandle<Vec<String>>) {
+    use std::io::{BufRead, BufReader};
+    let mut child = monitor
+        .stderr(std::process::Stdio::piped())
+        .stdout(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    let mut heard = BufReader::new(child.stderr.take().unwrap()).lines();
+    let first = heard.next().unwrap().unwrap();
+    assert!(first.starts_with("listening on"), "{first}");
+    let drain = std::thread::spawn(move || heard.map_while(Result::ok).collect::<Vec<_>>());
+    (child, drain)
 }
