@@ -348,6 +348,22 @@ impl ReadError {
         matches!(self, ReadError::Truncated { .. })
     }
 
+    /// Where in the file the fault is, in bytes from its start (0 where the file is no
+    /// capture at all).
+    pub fn offset(&self) -> u64 {
+        match self {
+            ReadError::NotACapture { .. } => 0,
+            ReadError::Truncated { offset, .. }
+            | ReadError::BadLength { offset, .. }
+            | ReadError::LengthMismatch { offset, .. }
+            | ReadError::BadByteOrder { offset, .. }
+            | ReadError::Version { offset, .. }
+            | ReadError::UnknownInterface { offset, .. }
+            | ReadError::PacketTooLong { offset, .. }
+            | ReadError::BadOption { offset, .. } => *offset,
+        }
+    }
+
     /// The same fault in a part of the file that begins `base` bytes into it: its
     /// offset counted from the file's start.
     pub fn at_base(self, base: u64) -> ReadError {

@@ -81,7 +81,7 @@ fn hex_text(text: &str) {
 /// inside the file; and the packets read, written again by the pcapng writer, read back
 /// the same (bytes, interfaces, link types, flags, comments, times to the microsecond).
 pub fn capture_reader(data: &[u8]) {
-    use crate::capture::{read::ReadError, Interface, PacketMeta, PcapngWriter, Reader};
+    use crate::capture::{Interface, PacketMeta, PcapngWriter, Reader};
     let Ok(reader) = Reader::new(data) else {
         return;
     };
@@ -100,17 +100,7 @@ pub fn capture_reader(data: &[u8]) {
                 }
             }
             Err(e) => {
-                let offset = match &e {
-                    ReadError::NotACapture { .. } => 0,
-                    ReadError::Truncated { offset, .. }
-                    | ReadError::BadLength { offset, .. }
-                    | ReadError::LengthMismatch { offset, .. }
-                    | ReadError::BadByteOrder { offset, .. }
-                    | ReadError::Version { offset, .. }
-                    | ReadError::UnknownInterface { offset, .. }
-                    | ReadError::PacketTooLong { offset, .. }
-                    | ReadError::BadOption { offset, .. } => *offset,
-                };
+                let offset = e.offset();
                 assert!(offset < data.len() as u64 || data.is_empty(), "{e}");
                 failed = true;
             }
