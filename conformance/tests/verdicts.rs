@@ -17,6 +17,7 @@
 //! (SIGSTOP) simulator give exit 2 and no PASS.
 
 mod common;
+mod sessions;
 use common::{line, sim_pty, Kill, Run, Scratch};
 
 use std::collections::{BTreeMap, BTreeSet};
@@ -28,7 +29,7 @@ use conformance::codec::timing::{LineSettings, Parity};
 use conformance::codec::Mode;
 use conformance::model::DriveModel;
 use conformance::report::Report;
-use conformance::runner::{CheckResult, EchoMode, MasterTiming, Options, Status};
+use conformance::runner::{CheckResult, Status};
 use conformance::session::{self, SessionConfig, Target};
 use conformance::sim::Quirk;
 
@@ -137,32 +138,13 @@ fn swap_shows(mode: Mode, reply: &[u8]) -> bool {
 
 fn run(cell: Cell, quirk: Option<Quirk>) -> Report {
     let line = LineSettings::new(cell.baud, 8, Parity::Even, 1);
-    let options = Options {
-        address: 1,
-        other_address: 0x7F,
-        bus: vec![1],
-        read_only: false,
-        allow_motion: false,
-        only: families(cell.mode),
-        timing: MasterTiming {
-            timeout: Duration::from_millis(1000),
-            // As `check` does by default: silence windows derived from the device's
-            // measured response time, at most the timeout.
-            silence: Duration::from_millis(1000),
-            derive_silence: true,
-            quiet: Duration::from_millis(30),
-            gap: Duration::from_millis(5),
-            retries: 0,
-        },
-        // The tests run several sessions at once on a small machine.
-        response_allowance: Duration::from_millis(100),
-        gap_allowance: Duration::from_millis(20),
-        seed: 1,
-        echo: EchoMode::Auto,
-        allow_restart: false,
-        injected_stalls: None,
-        line: None,
-    };
+    // The runner tests' options, with check's default windows: silence derived from the
+    // device's measured response time, at most the 1000 ms timeout.
+    let mut options = sessions::options(&[]);
+    options.only = families(cell.mode);
+    options.timing.timeout = Duration::from_millis(1000);
+    options.timing.silence = Duration::from_millis(1000);
+    options.timing.derive_silence = true;
     let config = SessionConfig {
         model: Arc::new(DriveModel::builtin(cell.model).unwrap()),
         target: Target::Sim {
