@@ -1,6 +1,6 @@
-//! What the runner's tests share (tests/runner.rs, tests/runner_busy_host.rs, tests/verdicts.rs): the
-//! runner's options and a session against the simulator, run in this process, and the
-//! report's deviations.
+//! What the runner's tests share (tests/runner.rs, tests/runner_busy_host.rs,
+//! tests/verdicts.rs): the runner's options and a session against the simulator, run in
+//! this process, and the report's deviations.
 #![allow(dead_code)]
 
 use std::sync::atomic::AtomicBool;
