@@ -267,6 +267,43 @@ impl conformance::transport::Transport for OnAPty {
     }
 }
 
+/// A drive on a memory link, seen as a pseudo-terminal, that answers each request with
+/// the read reply 01 03 02 00 04: `late(request)` says whether to answer 250 ms late (over
+/// the tests' 150 ms timeout), or `None` not to answer. It stops after 20 s or when its
+/// link closes.
+fn answering_0004(
+    mut late: impl FnMut(&[u8]) -> Option<bool> + Send + 'static,
+) -> (OnAPty, thread::JoinHandle<()>) {
+    use conformance::transport::Transport;
+    let (a, mut b) = conformance::transport::memory::pair();
+    let h = thread::spawn(move || {
+        let mut buf = [0u8; 64];
+        let t0 = Instant::now();
+        while t0.elapsed() < Duration::from_secs(20) {
+            let n = match b.recv(&mut buf, Duration::from_millis(20)) {
+                Ok(n) => n,
+                Err(_) => return,
+            };
+            if n == 0 {
+                continue;
+            }
+            let Some(slow) = late(&buf[..n]) else {
+                continue;
+            };
+            let mut reply = vec![1, 3, 2, 0, 4];
+            let c = conformance::codec::crc::crc16(&reply);
+            reply.extend_from_slice(&c.to_le_bytes());
+            if slow {
+                thread::sleep(Duration::from_millis(250));
+            }
+            if b.send(&reply).is_err() {
+                return;
+            }
+        }
+    });
+    (OnAPty(a), h)
+}
+
 /// Issue 24: with every core busy the simulator's answer came after the 500 ms timeout
 /// and was judged "no reply within 500 ms" (a DEVIATION) once the liveness probe that
 /// followed was answered. On a pseudo-terminal an answer that turns up late, every time,
@@ -275,7 +312,6 @@ impl conformance::transport::Transport for OnAPty {
 fn an_answer_a_busy_host_delays_past_the_timeout_on_a_pty_is_never_a_deviation() {
     use conformance::codec::pdu::{Message, Pdu};
     use conformance::runner::Ctx;
-    use conformance::transport::Transport;
     let read = |start| {
         Message {
             address: 1,
@@ -287,33 +323,12 @@ fn an_answer_a_busy_host_delays_past_the_timeout_on_a_pty_is_never_a_deviation()
     // A peer that answers the liveness probe (2520H) at once and 0400H `late` times
     // after the timeout, then at once.
     let peer = |late: u32| {
-        let (a, mut b) = conformance::transport::memory::pair();
-        let h = thread::spawn(move || {
-            let mut buf = [0u8; 64];
-            let mut late = late;
-            let t0 = Instant::now();
-            while t0.elapsed() < Duration::from_secs(20) {
-                let n = match b.recv(&mut buf, Duration::from_millis(20)) {
-                    Ok(n) => n,
-                    Err(_) => return,
-                };
-                if n == 0 {
-                    continue;
-                }
-                let req = buf[..n].to_vec();
-                let mut reply = vec![1, 3, 2, 0, 4];
-                let c = conformance::codec::crc::crc16(&reply);
-                reply.extend_from_slice(&c.to_le_bytes());
-                if req[2..4] == [0x04, 0x00] && late > 0 {
-                    late -= 1;
-                    thread::sleep(Duration::from_millis(250));
-                }
-                if b.send(&reply).is_err() {
-                    return;
-                }
-            }
-        });
-        (OnAPty(a), h)
+        let mut late = late;
+        answering_0004(move |req| {
+            let slow = req[2..4] == [0x04, 0x00] && late > 0;
+            late -= u32::from(slow);
+            Some(slow)
+        })
     };
     let model = DriveModel::builtin("f510").unwrap();
     let mut opts = options(&[]);
@@ -354,37 +369,16 @@ fn an_answer_a_busy_host_delays_past_the_timeout_on_a_pty_is_never_a_deviation()
 #[test]
 fn a_preflight_answered_late_on_a_pty_is_sent_again_not_a_dead_device() {
     use conformance::runner::Ctx;
-    use conformance::transport::Transport;
     // A peer that answers every read with 0004H, the first `late` ones after 250 ms
     // (over the 150 ms timeout); `None`: never answers.
     let peer = |late: Option<u32>| {
-        let (a, mut b) = conformance::transport::memory::pair();
-        let h = thread::spawn(move || {
-            let mut buf = [0u8; 64];
-            let mut late = late;
-            let t0 = Instant::now();
-            while t0.elapsed() < Duration::from_secs(20) {
-                let n = match b.recv(&mut buf, Duration::from_millis(20)) {
-                    Ok(n) => n,
-                    Err(_) => return,
-                };
-                let Some(l) = late.as_mut() else { continue };
-                if n == 0 {
-                    continue;
-                }
-                let mut reply = vec![1, 3, 2, 0, 4];
-                let c = conformance::codec::crc::crc16(&reply);
-                reply.extend_from_slice(&c.to_le_bytes());
-                if *l > 0 {
-                    *l -= 1;
-                    thread::sleep(Duration::from_millis(250));
-                }
-                if b.send(&reply).is_err() {
-                    return;
-                }
-            }
-        });
-        (OnAPty(a), h)
+        let mut late = late;
+        answering_0004(move |_| {
+            let l = late.as_mut()?;
+            let slow = *l > 0;
+            *l -= u32::from(slow);
+            Some(slow)
+        })
     };
     let model = DriveModel::builtin("f510").unwrap();
     let mut opts = options(&[]);
