@@ -11,18 +11,15 @@
 //! The laws:
 //! - [`monitor_stream`]: no panic; the bytes counted are the bytes fed; every frame is
 //!   accounted for once (paired, unpaired or damaged) and every request closed once; what
-//!   the monitor holds stays under [`Held::within_bounds`](super::Held::within_bounds) after every piece; and the same
-//!   stream fed with its pieces cut in two (both halves read at the piece's time, which no
-//!   gap separates) gives the same verdicts, but for those on timing ([`TIMING_KINDS`]: two
-//!   reads at one moment prove other silences than one read does) and the kind of damage
-//!   a damaged frame has ([`DAMAGE_KINDS`], for the same reason).
+//!   the monitor holds stays under [`Held::within_bounds`](super::Held::within_bounds)
+//!   after every piece; and the same stream fed with its pieces cut in two (both halves
+//!   read at the piece's time, which no gap separates) gives the same verdicts, every
+//!   one: reads at one moment are one read (see [`super::frames`]).
 //! - [`tap_framer`]: the framer gives back every byte once, in order; a valid RTU frame
 //!   has its CRC right and, ended by its length, the length the codec's rule gives; a
 //!   valid ASCII frame is one the codec takes; a frame ended by t3.5 ends where the
 //!   codec's deframer by silence ends a block; it holds a bounded number of bytes; cut
-//!   pieces give the same valid frames and the same bytes damaged (corrupt or incomplete,
-//!   and where one damaged frame ends and the next begins, rest on the silences the reads
-//!   prove: [`DAMAGE_KINDS`]).
+//!   pieces give the same frames, to their times and status.
 //! - [`line_search`]: the search ends within its budget (it reads at most
 //!   [`SETTING_BYTES`] and one read more at a setting before it moves on, and never sets
 //!   a setting without reading), and never reports a setting without two valid frames of
@@ -185,36 +182,8 @@ fn f510() -> &'static DriveModel {
     MODEL.get_or_init(|| DriveModel::builtin("f510").expect("the built-in F510 model loads"))
 }
 
-/// Findings judged on silences and response times: the times of two pieces read at one
-/// moment prove less about the line than one piece's (where in the read the bytes came),
-/// so cutting a piece may change them, and only them.
-pub const TIMING_KINDS: [&str; 6] = [
-    "no-t3.5",
-    "late-reply",
-    "early-reply",
-    "gap-in-reply",
-    "request-before-reply",
-    "broadcast-turnaround",
-];
-
-/// The kinds of finding on a damaged frame, the master's and the drive's. Which of them a
-/// frame gets rests on where the framer ends it, and that rests on the silences its reads
-/// prove: the framer dates each byte back from the time of the read that returned it (one
-/// character time a byte), so the first half of a piece read at the piece's moment, with
-/// the second half read at the same moment, dates its bytes later than the whole piece
-/// read at once does. A later first byte proves a silence before it that one read does
-/// not; a frame whose end the length rule gave becomes one with a silence over t1.5 in
-/// it (corrupt becomes incomplete: bad-checksum becomes incomplete-request), or damaged
-/// bytes are cut into other blocks (`tap_framer` found both). On a real port, two reads at
-/// one moment happen only when more than a read's 512 bytes wait (a host that stalled).
-pub const DAMAGE_KINDS: (&[&str], &[&str]) = (
-    &["incomplete-request", "bad-checksum", "malformed"],
-    &["bad-checksum", "truncated", "malformed", "extra-bytes"],
-);
-
-/// What a monitor made of a stream: its verdicts, less those on timing (see
-/// [`TIMING_KINDS`]). Per node: requests, exchanges, replies, timeouts, CRC errors,
-/// retries, and the count of each kind of finding.
+/// What a monitor made of a stream: its counts, and per node its requests, exchanges,
+/// replies, timeouts, CRC errors, retries and the count of each kind of finding.
 #[derive(Debug, PartialEq, Eq)]
 struct Judged {
     frames: u64,
@@ -223,28 +192,11 @@ struct Judged {
     nodes: Vec<NodeVerdict>,
 }
 
-/// A node's verdicts without timing: its address, its counts, its findings by kind.
+/// A node's verdicts: its address, its counts, its findings by kind.
 type NodeVerdict = (u8, [u64; 6], Vec<(String, u64)>);
 
-fn untimed(address: u8, n: &NodeStats) -> NodeVerdict {
-    // What is wrong with a damaged frame rests on where it ends, which the silences the
-    // reads prove decide (see DAMAGE_KINDS): one kind per side here.
-    let mut errors: Vec<(String, u64)> = Vec::new();
-    for (k, v) in n
-        .errors
-        .iter()
-        .filter(|(k, _)| !TIMING_KINDS.iter().any(|t| k.ends_with(&format!(".{t}"))))
-    {
-        let k = match k.split_once('.') {
-            Some(("master", kind)) if DAMAGE_KINDS.0.contains(&kind) => "master.damaged",
-            Some(("drive", kind)) if DAMAGE_KINDS.1.contains(&kind) => "drive.damaged",
-            _ => k.as_str(),
-        };
-        match errors.iter_mut().find(|(e, _)| e == k) {
-            Some((_, n)) => *n += v,
-            None => errors.push((k.to_string(), *v)),
-        }
-    }
+fn verdicts(address: u8, n: &NodeStats) -> NodeVerdict {
+    let mut errors: Vec<(String, u64)> = n.errors.iter().map(|(k, v)| (k.clone(), *v)).collect();
     errors.sort();
     let counts = [
         n.requests,
@@ -323,7 +275,7 @@ fn judge_stream(stream: &Stream, mode: Mode) -> Judged {
         frames: m.frames_heard(),
         bytes: m.bytes_heard(),
         tally: t,
-        nodes: m.nodes().iter().map(|(a, s)| untimed(*a, s)).collect(),
+        nodes: m.nodes().iter().map(|(a, s)| verdicts(*a, s)).collect(),
     }
 }
 
@@ -457,26 +409,12 @@ pub fn tap_framer(data: &[u8]) {
             ),
         }
     }
-    // Corrupt and incomplete are both damaged, and damaged bytes next to each other are
-    // one run of damage: where a damaged frame ends, and so which of the two it is, rests
-    // on the silences the reads prove, which two reads at one moment prove otherwise than
-    // one (see DAMAGE_KINDS). The valid frames, and which bytes are damaged, do not.
-    let key = |fs: &[(usize, TapFrame)]| -> Vec<(Vec<u8>, bool)> {
-        let mut out: Vec<(Vec<u8>, bool)> = Vec::new();
-        for (_, f) in fs {
-            let valid = f.status == FrameStatus::Valid;
-            match out.last_mut() {
-                Some((run, false)) if !valid => run.extend_from_slice(&f.bytes),
-                _ => out.push((f.bytes.clone(), valid)),
-            }
-        }
-        out
-    };
+    // Reads at one moment are one read (see `frames`): the halves of a piece cut in two,
+    // both read at its time, are framed as the piece is, to the last time and status.
     let cut = frame_stream(&stream.cut(), mode);
-    assert_eq!(
-        key(&frames),
-        key(&cut),
-        "the same stream cut in pieces is framed otherwise"
+    assert!(
+        frames == cut,
+        "the same stream cut in pieces is framed otherwise:\n whole: {frames:?}\n cut: {cut:?}"
     );
 }
 

@@ -429,6 +429,10 @@ impl Monitor {
     /// `feed(end_at, &bytes[1..])` (response times measured to the first byte, the
     /// packet's end at its last byte), framed whole where nothing is held before it.
     pub fn feed_packet(&mut self, first_byte_at: Duration, end_at: Duration, bytes: &[u8]) {
+        // A read held for bytes at its moment is framed first: a packet is one read.
+        let mut out = std::mem::take(&mut self.framed);
+        self.framer.settle(&mut out);
+        self.on_frames(out);
         if !self.framer.takes_whole(bytes) {
             let (head, rest) = bytes.split_at(1.min(bytes.len()));
             self.feed(first_byte_at, head);

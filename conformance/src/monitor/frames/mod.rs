@@ -12,6 +12,16 @@
 //! A silence is measured between two pieces only (less the character times of the bytes
 //! of the later piece); between two frames delivered in one piece it is unknown.
 //!
+//! Reads at one moment are one read: a piece pushed at the time of the piece before it
+//! (no time passed between them: the host read twice before it looked at the clock, or a
+//! capture has two packets with one timestamp) joins it, and the two are dated as one
+//! read's bytes. So a read is framed at the next call that shows time has passed (a
+//! piece at a later time, [`TapFramer::idle`], [`TapFramer::finish`]), at most
+//! [`STAGE_BYTES`] bytes at a time. Without this, the bytes of the first of two such
+//! reads would be dated later than the same bytes read at once (a read's bytes are dated
+//! back from its time, one character time a byte), and prove silences the line need not
+//! have had.
+//!
 //! Splitting RTU blocks into frames (by silence, length and checksum) is `rtu.rs`.
 
 use std::time::Duration;
@@ -112,6 +122,10 @@ struct Piece {
     side: Option<u64>,
 }
 
+/// The most bytes of reads at one moment held before they are framed as one read (a
+/// live read's buffer); the bytes past it are framed as another read at that moment.
+pub const STAGE_BYTES: usize = 512;
+
 /// How long the start of a frame cut short waits for its rest.
 pub const CARRY_HOLD: Duration = Duration::from_millis(50);
 
@@ -171,6 +185,10 @@ pub struct TapFramer {
     /// this time (us). Until the block is closed, or bytes join it (see
     /// [`TapFramer::split_first_byte`]), both ways give the same frames.
     split_first: Option<u64>,
+    /// The read not framed yet (see the module notes): its bytes, its time and its side.
+    staged: Vec<u8>,
+    staged_at: Duration,
+    staged_side: Option<u64>,
 }
 
 impl TapFramer {
@@ -198,6 +216,9 @@ impl TapFramer {
             t15_us: line.t1_5_us(),
             t35_us: line.t3_5_us(),
             split_first: None,
+            staged: Vec::new(),
+            staged_at: Duration::ZERO,
+            staged_side: None,
         }
     }
 
@@ -226,12 +247,18 @@ impl TapFramer {
     /// Bounded whatever the input (the deframers' buffers are fixed, a carry is at most a
     /// frame's start).
     pub fn held_bytes(&self) -> usize {
-        self.rtu.pending() + self.ascii.pending() + self.carry.as_ref().map_or(0, |c| c.bytes.len())
+        self.rtu.pending()
+            + self.ascii.pending()
+            + self.carry.as_ref().map_or(0, |c| c.bytes.len())
+            + self.staged.len()
     }
 
-    /// Pieces of the held block whose times are kept (at most one per byte held).
+    /// Pieces of the held block whose times are kept (at most one per byte held), and
+    /// the read not framed yet.
     pub fn held_pieces(&self) -> usize {
-        self.pieces.len() + self.carry.as_ref().map_or(0, |c| c.pieces.len())
+        self.pieces.len()
+            + self.carry.as_ref().map_or(0, |c| c.pieces.len())
+            + usize::from(!self.staged.is_empty())
     }
 
     /// The side the next pieces come from (`None`: unknown, a tap).
@@ -239,8 +266,42 @@ impl TapFramer {
         self.side = side;
     }
 
-    /// Feeds a piece of bytes that arrived at `at` (since the listener's origin).
-    pub fn push(&mut self, at: Duration, bytes: &[u8], out: &mut Vec<TapFrame>) {
+    /// Feeds a piece of bytes that arrived at `at` (since the listener's origin). It is
+    /// framed once a later call shows that time has passed: until then, bytes at the same
+    /// time (and from the same side) join it as one read's (see the module notes).
+    pub fn push(&mut self, at: Duration, mut bytes: &[u8], out: &mut Vec<TapFrame>) {
+        if !self.staged.is_empty() && (self.staged_at != at || self.staged_side != self.side) {
+            self.settle(out);
+        }
+        while !bytes.is_empty() {
+            let (now, rest) = bytes.split_at((STAGE_BYTES - self.staged.len()).min(bytes.len()));
+            if self.staged.is_empty() {
+                self.staged_at = at;
+                self.staged_side = self.side;
+            }
+            self.staged.extend_from_slice(now);
+            bytes = rest;
+            if self.staged.len() == STAGE_BYTES {
+                self.settle(out);
+            }
+        }
+    }
+
+    /// Frames the read held by [`TapFramer::push`], if any: time has passed since it.
+    pub fn settle(&mut self, out: &mut Vec<TapFrame>) {
+        if self.staged.is_empty() {
+            return;
+        }
+        let bytes = std::mem::take(&mut self.staged);
+        let side = std::mem::replace(&mut self.side, self.staged_side);
+        self.push_read(self.staged_at, &bytes, out);
+        self.side = side;
+        self.staged = bytes;
+        self.staged.clear();
+    }
+
+    /// Frames one read: `bytes` that arrived at `at`.
+    fn push_read(&mut self, at: Duration, bytes: &[u8], out: &mut Vec<TapFrame>) {
         if bytes.is_empty() {
             return;
         }
@@ -268,6 +329,7 @@ impl TapFramer {
         bytes: &[u8],
         out: &mut Vec<TapFrame>,
     ) {
+        self.settle(out);
         if !self.takes_whole(bytes) {
             let (head, rest) = bytes.split_at(1.min(bytes.len()));
             self.push(first_at, head, out);
@@ -322,9 +384,11 @@ impl TapFramer {
 
     /// Whether [`TapFramer::push_packet`] takes `bytes` whole: RTU, nothing held (no
     /// block, no carry), a packet of 2 to [`MAX_RTU_FRAME`] bytes whose first byte is a
-    /// node's address (or the broadcast address). Otherwise it feeds two pieces.
+    /// node's address (or the broadcast address). Otherwise it feeds two pieces. (A read
+    /// held by [`TapFramer::push`] is framed first: see [`TapFramer::settle`].)
     pub fn takes_whole(&self, bytes: &[u8]) -> bool {
-        self.mode == Mode::Rtu
+        self.staged.is_empty()
+            && self.mode == Mode::Rtu
             && (2..=MAX_RTU_FRAME).contains(&bytes.len())
             && bytes[0] <= 247
             && self.rtu.is_clear()
@@ -379,6 +443,7 @@ impl TapFramer {
     /// Tells the framer that nothing came up to `now`: an RTU block followed by t3.5 of
     /// silence ends.
     pub fn idle(&mut self, now: Duration, out: &mut Vec<TapFrame>) {
+        self.settle(out);
         self.last_poll = Some(self.last_poll.map_or(now, |p| p.max(now)));
         if self.mode == Mode::Rtu {
             let (mut blocks, mut ends) = self.take_blocks();
@@ -406,6 +471,7 @@ impl TapFramer {
 
     /// Ends the stream: everything held comes out.
     pub fn finish(&mut self, out: &mut Vec<TapFrame>) {
+        self.settle(out);
         match self.mode {
             Mode::Rtu => {
                 let mut blocks = Vec::new();

@@ -241,8 +241,106 @@ fn ascii_frames_run_from_colon_to_crlf() {
     f.push(ms(0), b":010325200001B6\r\n", &mut out);
     f.push(ms(100), b":0103021234B4\r", &mut out);
     f.push(ms(101), b"\n", &mut out);
+    assert_eq!(
+        out.len(),
+        1,
+        "the last read is framed once time has passed: {out:?}"
+    );
+    f.idle(ms(101), &mut out);
     assert_eq!(out.len(), 2, "{out:?}");
     assert_eq!(out[1].ended_by, EndedBy::CrLf);
     assert_eq!(out[1].start, Some(ms(100)));
     assert_eq!(out[1].end, ms(101));
+}
+
+/// Every frame of `reads` (time in ms, bytes), framed then ended by 2 s of silence.
+fn frames_of(mode: Mode, reads: &[(u64, &[u8])]) -> Vec<TapFrame> {
+    let line = if mode == Mode::Rtu {
+        LineSettings::new(9600, 8, Parity::Even, 1)
+    } else {
+        LineSettings::new(9600, 7, Parity::Even, 1)
+    };
+    let mut f = TapFramer::new(mode, line);
+    let mut out = Vec::new();
+    for (t, bytes) in reads {
+        f.push(ms(*t), bytes, &mut out);
+    }
+    f.idle(ms(2000), &mut out);
+    f.finish(&mut out);
+    out
+}
+
+#[test]
+fn reads_at_one_moment_are_framed_as_one_read() {
+    // A request, a silence, then its reply and 2 bytes of noise delivered in one read at
+    // 30 ms, or in three reads at 30 ms cut anywhere: the same frames, to their times.
+    let request = read_frame();
+    let tail = [&reply_frame()[..], &[0xFF, 0x00]].concat();
+    let whole = frames_of(Mode::Rtu, &[(0, &request), (30, &tail)]);
+    assert!(whole.len() >= 2, "{whole:?}");
+    for cut in 1..tail.len() {
+        for cut2 in cut..tail.len() {
+            let (a, rest) = tail.split_at(cut);
+            let (b, c) = rest.split_at(cut2 - cut);
+            let parts = frames_of(Mode::Rtu, &[(0, &request), (30, a), (30, b), (30, c)]);
+            assert_eq!(parts, whole, "cut at {cut} and {cut2}");
+        }
+    }
+    // The same in ASCII.
+    let ascii = b":0103021234B4\r\n:01";
+    let whole = frames_of(Mode::Ascii, &[(0, b":010325200001B6\r\n"), (40, ascii)]);
+    for cut in 1..ascii.len() {
+        let (a, b) = ascii.split_at(cut);
+        let parts = frames_of(
+            Mode::Ascii,
+            &[(0, b":010325200001B6\r\n"), (40, a), (40, b)],
+        );
+        assert_eq!(parts, whole, "ASCII cut at {cut}");
+    }
+}
+
+#[test]
+fn a_read_at_a_later_moment_or_from_another_side_is_another_read() {
+    let line = LineSettings::new(9600, 8, Parity::Even, 1);
+    let mut f = TapFramer::new(Mode::Rtu, line);
+    let mut out = Vec::new();
+    f.push(ms(0), &read_frame(), &mut out);
+    assert!(out.is_empty(), "held until time has passed: {out:?}");
+    assert_eq!(f.held_bytes(), read_frame().len());
+    // Bytes from another sender at the same moment are not the same read.
+    f.set_side(Some(1));
+    f.push(ms(0), &[0x01], &mut out);
+    assert_eq!(
+        f.held_bytes(),
+        read_frame().len() + 1,
+        "the request went to the deframer, the byte is held"
+    );
+    f.set_side(None);
+    f.push(ms(5), &[0x03], &mut out);
+    f.finish(&mut out);
+    let all: Vec<u8> = out.iter().flat_map(|fr| fr.bytes.clone()).collect();
+    assert_eq!(all, [&read_frame()[..], &[0x01, 0x03]].concat());
+    assert_eq!(out[0].bytes, read_frame());
+    assert_eq!(out[0].end, ms(0));
+}
+
+#[test]
+fn reads_at_one_moment_are_held_a_read_buffer_at_a_time() {
+    let line = LineSettings::new(115_200, 8, Parity::Even, 1);
+    let mut f = TapFramer::new(Mode::Rtu, line);
+    let mut out = Vec::new();
+    let noise = vec![0xFFu8; 3 * STAGE_BYTES + 7];
+    for chunk in noise.chunks(100) {
+        f.push(ms(1), chunk, &mut out);
+        assert!(
+            f.held_bytes() <= STAGE_BYTES + 2 * crate::codec::MAX_ASCII_FRAME,
+            "{} bytes held",
+            f.held_bytes()
+        );
+    }
+    f.finish(&mut out);
+    assert_eq!(
+        out.iter().map(|fr| fr.bytes.len()).sum::<usize>(),
+        noise.len()
+    );
 }
