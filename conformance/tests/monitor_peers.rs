@@ -604,13 +604,13 @@ fn check_and_monitor_agree(
     let (_, v) = common::check_device(d, &args, Duration::from_secs(300));
     assert_eq!(v["complete"], true, "{who}: {}", v["stopped"]);
     std::thread::sleep(Duration::from_millis(300));
-    let (_, r, _, _) = l.stop(0);
+    let (_, r, _, bus_log) = l.stop(0);
     let heard: Vec<Value> = std::fs::read_to_string(d.join("heard.jsonl"))
         .unwrap()
         .lines()
         .map(|l| serde_json::from_str(l).unwrap())
         .collect();
-    let (agree, apart) = common::agree::exchanges(who, &v, &heard, JUDGED_APART);
+    let (agree, apart) = common::agree::exchanges_on_bus(who, &v, &heard, JUDGED_APART, &bus_log);
     assert!(agree > 50, "{who}: only {agree} exchanges compared");
     note(&format!(
         "{who}: check and monitor agree on {agree} exchanges, {apart} judged apart ({}); monitor's drive side: {}",
