@@ -42,7 +42,10 @@ impl TapFramer {
         if self.held == 0 {
             self.before_block = self.last_low;
         }
-        self.held = (self.held + bytes.len()).min(MAX_RTU_FRAME * 4);
+        // The bytes held are the deframer's: where the push closed a block past a
+        // frame's length, part of these bytes went with it, and what is held now came
+        // in this push (its pieces before were let go with the block).
+        self.held = self.rtu.pending().min(MAX_RTU_FRAME * 4);
         if self.pieces.len() < MAX_RTU_FRAME * 4 {
             self.pieces.push(Piece {
                 end: self.held,
@@ -125,9 +128,10 @@ impl TapFramer {
         // The earliest the last byte of piece `k` can have come.
         let low = |k: usize| pieces.get(k).map_or(at(k), |p| p.low);
         let len_of = |k: usize| {
-            pieces
-                .get(k)
-                .map_or(0, |p| p.end - if k == 0 { 0 } else { pieces[k - 1].end })
+            pieces.get(k).map_or(0, |p| {
+                p.end
+                    .saturating_sub(if k == 0 { 0 } else { pieces[k - 1].end })
+            })
         };
         let silence_into = |k: usize, prev: Option<Duration>| -> Option<Duration> {
             let prev = prev?;
@@ -173,7 +177,7 @@ impl TapFramer {
                     let mut held = std::mem::take(&mut self.spare_pieces);
                     held.clear();
                     held.extend(pieces.iter().filter(|p| p.end > from).map(|p| Piece {
-                        end: p.end - from,
+                        end: (p.end - from).min(block.len() - from),
                         ..*p
                     }));
                     self.carry = Some(Carry {
