@@ -10,8 +10,12 @@
 # REPO (default: the working directory if it holds fuzz/Cargo.toml, else this script's
 # parent, else $SRC/teco-modbus-conformance), CARGO_TARGET_DIR (default fuzz/target),
 # CARGO_BUILD_TARGET (default the host triple), FUZZ_BUILD_FLAGS (extra `cargo fuzz
-# build` flags, e.g. --debug-assertions) are honoured; without a nightly rustc on PATH the
-# nightly toolchain is used through rustup.
+# build` flags) are honoured; without a nightly rustc on PATH the nightly toolchain is
+# used through rustup.
+#
+# Built with debug assertions and overflow checks (`--debug-assertions`): an arithmetic
+# overflow on hostile input is a finding, not a silent wrap (a release build wrapped a
+# piece length in the tap framer that a debug build caught: fuzz/README.md).
 
 : "${OUT:?set OUT to the output directory}"
 mkdir -p "$OUT"
@@ -37,7 +41,7 @@ fi
 triple="${CARGO_BUILD_TARGET:-$(rustc -vV | sed -n 's/^host: //p')}"
 cd "$REPO/fuzz"
 # shellcheck disable=SC2086 # FUZZ_BUILD_FLAGS is a list of flags
-cargo fuzz build -O --target "$triple" ${FUZZ_BUILD_FLAGS:-}
+cargo fuzz build -O --debug-assertions --target "$triple" ${FUZZ_BUILD_FLAGS:-}
 bin_dir="${CARGO_TARGET_DIR:-$REPO/fuzz/target}"
 case "$bin_dir" in /*) ;; *) bin_dir="$REPO/fuzz/$bin_dir" ;; esac
 bin_dir="$bin_dir/$triple/release"
