@@ -90,11 +90,11 @@ pub(super) fn examples(
 
 pub(super) fn identification(model: &DriveModel, m: &str, out: &mut Vec<Check>) {
     let Some(id) = &model.identification else {
-        out.push(undescribed_check(
+        out.push(undescribed_field(
+            model,
             format!("{m}.identification"),
             "Read the identification register".to_string(),
-            cite_or(model, None, "identification"),
-            vec!["identification".to_string()],
+            "identification",
         ));
         return;
     };
@@ -233,11 +233,11 @@ pub(super) fn map(model: &DriveModel, m: &str, out: &mut Vec<Check>) {
         .map(|n| n.register)
     {
         let Some(rule) = model.rule(crate::model::Fault::ReservedWrite) else {
-            out.push(undescribed_check(
+            out.push(undescribed_field(
+                model,
                 format!("{m}.map.reserved-reads-zero"),
                 format!("Read the reserved register {r:04X}H"),
-                cite_or(model, None, "exceptions.reserved-write"),
-                vec!["exceptions.reserved-write".to_string()],
+                "exceptions.reserved-write",
             ));
             return;
         };
