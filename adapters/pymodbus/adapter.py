@@ -310,7 +310,7 @@ def message_to_pdu(message, direction):
             f"pymodbus has no {direction} class of layout {kind} for function {function:02X}"
         )
 
-    if kind == "read-request":
+    if kind in ("read-request", "write-multiple-response"):
         start = parse_hexnum(field(fields, "start"), 2, "start")
         count = parse_number(field(fields, "count"), "count")
         pdu = cls(dev_id=address, address=start, count=count)
@@ -350,12 +350,6 @@ def message_to_pdu(message, direction):
                     f"pymodbus always sends byte_count = 2 * count = {2 * count}, not {byte_count}"
                 )
         pdu = cls(dev_id=address, address=start, registers=values, count=count)
-        pdu.count = count
-        return pdu
-    if kind == "write-multiple-response":
-        start = parse_hexnum(field(fields, "start"), 2, "start")
-        count = parse_number(field(fields, "count"), "count")
-        pdu = cls(dev_id=address, address=start, count=count)
         pdu.count = count
         return pdu
     raise Unsupported(f"kind {kind!r}")  # pragma: no cover

@@ -79,10 +79,9 @@ fn generate(path: &Path, frames: u64, line: LineSettings) {
         let (req, rep) = &ex[i as usize % ex.len()];
         for (bytes, dir) in [(req, Direction::Outbound), (rep, Direction::Inbound)] {
             let meta = PacketMeta {
-                interface: 0,
                 timestamp_us: t,
                 flags: dir.flag(),
-                comment: None,
+                ..PacketMeta::default()
             };
             w.write_packet(&meta, bytes).unwrap();
             // The frame on the line, then 10 ms (the reply) or 50 ms (the next request).
@@ -124,14 +123,7 @@ fn main() {
     let file = std::fs::File::open(&path).unwrap();
     let mut mon = Monitor::new(
         DriveModel::builtin("f510").unwrap(),
-        MonitorConfig {
-            mode: Mode::Rtu,
-            line,
-            nodes: vec![1],
-            window: Duration::from_millis(1000),
-            response_allowance: Duration::from_millis(20),
-            gap_allowance: Duration::from_millis(20),
-        },
+        MonitorConfig::new(Mode::Rtu, line, vec![1]),
     )
     .unwrap();
     // As `monitor --capture-in --quiet` without --log: no live lines to make.

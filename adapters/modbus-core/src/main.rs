@@ -15,10 +15,6 @@
 //! a panic while decoding is answered `accepted: false, raised: true`, which the gate
 //! reports as a deviation.
 
-use std::cell::RefCell;
-use std::io::{self, BufRead, Write};
-use std::panic::{self, AssertUnwindSafe};
-
 use modbus_core::rtu::{self, Header, RequestAdu, ResponseAdu};
 use modbus_core::{
     Data, Exception, ExceptionResponse, FunctionCode, Request, RequestPdu, Response, ResponsePdu,
@@ -31,42 +27,9 @@ const MODBUS_CORE_VERSION: &str = "0.2.0";
 /// An answer's fields besides `id`, or the error text (`unsupported` is skipped by the gate).
 type Outcome = Result<Value, String>;
 
-thread_local! {
-    static LAST_PANIC: RefCell<Option<String>> = const { RefCell::new(None) };
-}
-
 fn main() {
-    panic::set_hook(Box::new(|info| {
-        let text = info.to_string().replace('\n', " ");
-        eprintln!("modbus-core-adapter: {text}");
-        LAST_PANIC.with(|p| *p.borrow_mut() = Some(text));
-    }));
-    let stdin = io::stdin();
-    let mut input = stdin.lock();
-    let mut line = Vec::new();
-    loop {
-        line.clear();
-        match input.read_until(b'\n', &mut line) {
-            Ok(0) => break,
-            Ok(_) => {}
-            Err(e) => {
-                eprintln!("modbus-core-adapter: reading standard input failed: {e}");
-                break;
-            }
-        }
-        let text = String::from_utf8_lossy(&line);
-        if text.trim().is_empty() {
-            continue;
-        }
-        let answer = handle_line(text.trim());
-        let mut out = io::stdout().lock();
-        if writeln!(out, "{answer}")
-            .and_then(|()| out.flush())
-            .is_err()
-        {
-            break;
-        }
-    }
+    adapter_lines::install_panic_hook("modbus-core-adapter");
+    adapter_lines::serve("modbus-core-adapter", handle_line);
 }
 
 /// Answers one request line; never panics.
@@ -76,13 +39,10 @@ fn handle_line(text: &str) -> Value {
         Err(e) => return json!({"id": null, "ok": false, "error": format!("not JSON: {e}")}),
     };
     let id = request.get("id").cloned().unwrap_or(Value::Null);
-    LAST_PANIC.with(|p| p.borrow_mut().take());
-    let outcome = match panic::catch_unwind(AssertUnwindSafe(|| dispatch(&request))) {
+    let outcome = match adapter_lines::guarded(|| dispatch(&request)) {
         Ok(o) => o,
-        Err(_) => {
-            let text = LAST_PANIC
-                .with(|p| p.borrow_mut().take())
-                .unwrap_or_else(|| "a panic".into());
+        Err(text) => {
+            let text = text.unwrap_or_else(|| "a panic".into());
             if request.get("op").and_then(Value::as_str) == Some("decode") {
                 Ok(json!({"accepted": false, "raised": true,
                           "reason": format!("modbus-core panicked: {text}")}))

@@ -15,9 +15,6 @@
 //! as a deviation); elsewhere `{"ok": false, "error": "rmodbus panicked: ..."}`. The
 //! adapter carries on either way.
 
-use std::cell::RefCell;
-use std::panic::{self, AssertUnwindSafe};
-
 use rmodbus::client::ModbusRequest;
 use rmodbus::consts::{ModbusErrorCode, ModbusFunction};
 use rmodbus::server::{ModbusFrame, Read, Write};
@@ -86,20 +83,6 @@ enum Direction {
     Response,
 }
 
-thread_local! {
-    /// The last panic's message and location, kept by the hook for the answer.
-    static LAST_PANIC: RefCell<Option<String>> = const { RefCell::new(None) };
-}
-
-/// Makes panics short one-line logs on standard error and keeps their text for the answer.
-pub fn install_panic_hook() {
-    panic::set_hook(Box::new(|info| {
-        let text = info.to_string().replace('\n', " ");
-        eprintln!("rmodbus-adapter: {text}");
-        LAST_PANIC.with(|p| *p.borrow_mut() = Some(text));
-    }));
-}
-
 /// Answers one (non-blank) input line. Never panics.
 pub fn handle_line(text: &str) -> Value {
     let mut answer = Map::new();
@@ -135,15 +118,10 @@ pub fn handle_line(text: &str) -> Value {
 }
 
 fn run_guarded(request: &Request) -> Outcome {
-    LAST_PANIC.with(|p| p.borrow_mut().take());
-    match panic::catch_unwind(AssertUnwindSafe(|| dispatch(request))) {
+    match adapter_lines::guarded(|| dispatch(request)) {
         Ok(outcome) => outcome,
-        Err(payload) => {
-            let text = LAST_PANIC
-                .with(|p| p.borrow_mut().take())
-                .or_else(|| payload.downcast_ref::<&str>().map(|s| (*s).to_string()))
-                .or_else(|| payload.downcast_ref::<String>().cloned())
-                .unwrap_or_else(|| "(no message)".into());
+        Err(text) => {
+            let text = text.unwrap_or_else(|| "(no message)".into());
             if request.op.as_deref() == Some("decode") {
                 // rmodbus rejected the frame by panicking: a rejection, but not a graceful
                 // one (PROTOCOL.md: "raised").

@@ -225,22 +225,21 @@ pub struct Reader<'a> {
     done: bool,
 }
 
-fn u16_at(d: &[u8], at: usize, big: bool) -> u16 {
-    let b: [u8; 2] = d[at..at + 2].try_into().unwrap_or_default();
+/// The `N` bytes at `at`, least significant first whatever the file's byte order.
+fn le_bytes_at<const N: usize>(d: &[u8], at: usize, big: bool) -> [u8; N] {
+    let mut b: [u8; N] = d[at..at + N].try_into().unwrap_or([0; N]);
     if big {
-        u16::from_be_bytes(b)
-    } else {
-        u16::from_le_bytes(b)
+        b.reverse();
     }
+    b
+}
+
+fn u16_at(d: &[u8], at: usize, big: bool) -> u16 {
+    u16::from_le_bytes(le_bytes_at(d, at, big))
 }
 
 fn u32_at(d: &[u8], at: usize, big: bool) -> u32 {
-    let b: [u8; 4] = d[at..at + 4].try_into().unwrap_or_default();
-    if big {
-        u32::from_be_bytes(b)
-    } else {
-        u32::from_le_bytes(b)
-    }
+    u32::from_le_bytes(le_bytes_at(d, at, big))
 }
 
 fn pad4(n: u64) -> u64 {
@@ -351,25 +350,23 @@ impl ReadError {
     /// Where in the file the fault is, in bytes from its start (0 where the file is no
     /// capture at all).
     pub fn offset(&self) -> u64 {
-        match self {
-            ReadError::NotACapture { .. } => 0,
-            ReadError::Truncated { offset, .. }
-            | ReadError::BadLength { offset, .. }
-            | ReadError::LengthMismatch { offset, .. }
-            | ReadError::BadByteOrder { offset, .. }
-            | ReadError::Version { offset, .. }
-            | ReadError::UnknownInterface { offset, .. }
-            | ReadError::PacketTooLong { offset, .. }
-            | ReadError::BadOption { offset, .. } => *offset,
-        }
+        self.clone().offset_mut().map_or(0, |o| *o)
     }
 
     /// The same fault in a part of the file that begins `base` bytes into it: its
     /// offset counted from the file's start.
-    pub fn at_base(self, base: u64) -> ReadError {
-        let mut e = self;
-        match &mut e {
-            ReadError::NotACapture { .. } => {}
+    pub fn at_base(mut self, base: u64) -> ReadError {
+        if let Some(offset) = self.offset_mut() {
+            *offset = offset.saturating_add(base);
+        }
+        self
+    }
+
+    /// The offset every variant but [`ReadError::NotACapture`] carries: one list of the
+    /// variants for reading it and for moving it.
+    fn offset_mut(&mut self) -> Option<&mut u64> {
+        match self {
+            ReadError::NotACapture { .. } => None,
             ReadError::Truncated { offset, .. }
             | ReadError::BadLength { offset, .. }
             | ReadError::LengthMismatch { offset, .. }
@@ -377,9 +374,8 @@ impl ReadError {
             | ReadError::Version { offset, .. }
             | ReadError::UnknownInterface { offset, .. }
             | ReadError::PacketTooLong { offset, .. }
-            | ReadError::BadOption { offset, .. } => *offset = offset.saturating_add(base),
+            | ReadError::BadOption { offset, .. } => Some(offset),
         }
-        e
     }
 }
 

@@ -144,20 +144,16 @@ fn round_trip_keeps_bytes_times_directions_flags_and_comments() {
 
 /// A classic pcap file, by hand: header then records.
 fn pcap(big: bool, nanos: bool, link: u32, records: &[(u32, u32, &[u8])]) -> Vec<u8> {
-    let w32 = |v: &mut Vec<u8>, x: u32| {
-        v.extend_from_slice(&if big {
-            x.to_be_bytes()
+    // A field in the file's byte order, from its little-endian bytes.
+    let put = |v: &mut Vec<u8>, le: &[u8]| {
+        if big {
+            v.extend(le.iter().rev());
         } else {
-            x.to_le_bytes()
-        })
+            v.extend_from_slice(le);
+        }
     };
-    let w16 = |v: &mut Vec<u8>, x: u16| {
-        v.extend_from_slice(&if big {
-            x.to_be_bytes()
-        } else {
-            x.to_le_bytes()
-        })
-    };
+    let w32 = |v: &mut Vec<u8>, x: u32| put(v, &x.to_le_bytes());
+    let w16 = |v: &mut Vec<u8>, x: u16| put(v, &x.to_le_bytes());
     let mut v = Vec::new();
     w32(&mut v, if nanos { 0xA1B2_3C4D } else { 0xA1B2_C3D4 });
     w16(&mut v, 2);
@@ -715,4 +711,23 @@ fn the_late_mark_is_read_from_what_the_suite_writes_and_from_nothing_else() {
     for (i, _) in ours.char_indices() {
         let _ = late_on_host(Some(&ours[..i]));
     }
+}
+
+#[test]
+fn a_read_errors_offset_is_read_and_moved_by_its_base() {
+    let not = ReadError::NotACapture {
+        found: "47494638".into(),
+    };
+    assert_eq!(not.offset(), 0);
+    assert_eq!(not.clone().at_base(100), not);
+    let cut = ReadError::Truncated {
+        offset: 28,
+        block: BlockKind::EnhancedPacket,
+        needed: 32,
+        available: 4,
+    };
+    assert_eq!(cut.offset(), 28);
+    let moved = cut.at_base(1000);
+    assert_eq!(moved.offset(), 1028);
+    assert_eq!(moved.at_base(u64::MAX).offset(), u64::MAX);
 }

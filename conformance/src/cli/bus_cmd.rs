@@ -172,18 +172,12 @@ struct Links(Vec<PathBuf>);
 
 impl Links {
     fn make(&mut self, target: &std::path::Path, link: &std::path::Path) -> anyhow::Result<()> {
-        if let Ok(m) = std::fs::symlink_metadata(link) {
-            if !m.file_type().is_symlink() {
-                bail!(
-                    "--link {}: a file that is not a symbolic link is there; not replaced",
-                    link.display()
-                );
-            }
-            std::fs::remove_file(link)
-                .with_context(|| format!("cannot replace the link {}", link.display()))?;
-        }
-        std::os::unix::fs::symlink(target, link)
-            .with_context(|| format!("cannot link {} to {}", link.display(), target.display()))?;
+        super::common::point_link(
+            link,
+            target,
+            "a file that is not a symbolic link is there; not replaced",
+            "the link",
+        )?;
         self.0.push(link.to_path_buf());
         Ok(())
     }

@@ -16,9 +16,7 @@ use conformance::session::{self, SessionConfig};
 
 use super::identify_cmd::{self, IdentifyTuning};
 use super::link::{Resolved, SafetyArgs, TargetArgs};
-use super::output::{
-    finish, format_for, progress_bar, render, write_atomic, Format, FORMAT_DEFAULT,
-};
+use super::output::{finish, format_for, progress_bar, render, write_atomic};
 
 const AFTER_HELP: &str = "\
 Examples:
@@ -89,10 +87,8 @@ interrupted, a check could not tell, or a register could not be restored).";
 pub struct CheckArgs {
     #[command(flatten)]
     target: TargetArgs,
-    #[arg(long, value_enum, help = FORMAT_DEFAULT)]
-    format: Option<Format>,
     #[command(flatten)]
-    expect: super::expect_cmd::ExpectArgs,
+    report: super::expect_cmd::JudgedReportArgs,
     /// Write the report here (kept valid after every check) instead of stdout.
     #[arg(short, long, value_name = "FILE")]
     output: Option<PathBuf>,
@@ -135,7 +131,7 @@ pub struct CheckArgs {
 pub fn run(mut args: CheckArgs) -> anyhow::Result<ExitCode> {
     // `check` runs several drives on one bus (-a 1,2,5).
     args.target.several_nodes = true;
-    let expect = args.expect.load()?;
+    let expect = args.report.expect.load()?;
     let several = args.target.nodes.0.len() > 1;
     let capture = if args.list {
         None
@@ -193,7 +189,7 @@ pub fn run(mut args: CheckArgs) -> anyhow::Result<ExitCode> {
                 };
                 // Without -o the evidence above is the whole answer (stdout stays empty).
                 if let Some(path) = args.output.as_deref() {
-                    let format = format_for(args.format, Some(path));
+                    let format = format_for(args.report.format, Some(path));
                     finish(&report, format, args.verbose, Some(path))?;
                 }
                 return Ok(ExitCode::from(2));
@@ -308,7 +304,7 @@ pub fn run(mut args: CheckArgs) -> anyhow::Result<ExitCode> {
     );
     let mut write_error: Option<anyhow::Error> = None;
     let output = args.output.clone();
-    let format = format_for(args.format, args.output.as_deref());
+    let format = format_for(args.report.format, args.output.as_deref());
     let verbose = args.verbose;
     let mut on_result = |r: &Report| {
         if let Some(b) = &bar {

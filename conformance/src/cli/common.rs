@@ -250,6 +250,15 @@ pub struct RtsArgs {
 }
 
 impl RtsArgs {
+    /// Refuses --rts without a serial port (`port`: the --port given, if any): a
+    /// pseudo-terminal, TCP or the simulator has no RTS line.
+    pub fn needs_port(&self, port: Option<&str>) -> anyhow::Result<()> {
+        if self.rts && port.is_none() {
+            anyhow::bail!("--rts drives the RTS line of a serial port: give --port PATH");
+        }
+        Ok(())
+    }
+
     /// The direction control asked for, if any.
     pub fn control(&self) -> Option<conformance::transport::serial::RtsControl> {
         self.rts
@@ -436,4 +445,27 @@ mod node_list_tests {
         assert!(parse_nodes("256").is_err());
         assert!(parse_nodes("x").is_err());
     }
+}
+
+/// Points the symbolic link `link` (`--link`) at `target`. A symbolic link already there
+/// (one a killed run left) is replaced; anything else is refused, never deleted.
+/// `refused` (after "--link PATH: ") and `replaced` (what cannot be replaced) word the
+/// two errors as the command has always said them.
+#[cfg(unix)]
+pub fn point_link(
+    link: &std::path::Path,
+    target: &std::path::Path,
+    refused: &str,
+    replaced: &str,
+) -> anyhow::Result<()> {
+    use anyhow::Context;
+    if let Ok(meta) = std::fs::symlink_metadata(link) {
+        if !meta.file_type().is_symlink() {
+            anyhow::bail!("--link {}: {refused}", link.display());
+        }
+        std::fs::remove_file(link)
+            .with_context(|| format!("cannot replace {replaced} {}", link.display()))?;
+    }
+    std::os::unix::fs::symlink(target, link)
+        .with_context(|| format!("cannot link {} to {}", link.display(), target.display()))
 }

@@ -9,6 +9,7 @@ use clap::Args;
 use conformance::expect::{Day, Expectations};
 use conformance::report::Report;
 
+use super::output::{Format, FORMAT_DEFAULT};
 use super::report_cmd::{emit, load};
 
 /// The options that gate a run on an expectations file.
@@ -22,6 +23,16 @@ pub struct ExpectArgs {
     /// exit code 1, so that the file is kept up to date.
     #[arg(long, requires = "expect")]
     strict_expect: bool,
+}
+
+/// The report options of a run held to expectations (`check`, `fuzz`, `gate`,
+/// `monitor`): the report's format and the expectations file, which come together.
+#[derive(Debug, Args)]
+pub struct JudgedReportArgs {
+    #[arg(long, value_enum, help = FORMAT_DEFAULT)]
+    pub format: Option<Format>,
+    #[command(flatten)]
+    pub expect: ExpectArgs,
 }
 
 /// An expectations file, read before the run (an invalid file stops it before any

@@ -15,7 +15,7 @@ use conformance::session::{self, SessionConfig};
 
 use super::common::parse_duration;
 use super::link::{Resolved, SafetyArgs, TargetArgs};
-use super::output::{finish, format_for, Format, FORMAT_DEFAULT};
+use super::output::{finish, format_for};
 
 const AFTER_HELP: &str = "\
 Examples:
@@ -122,10 +122,8 @@ pub struct FuzzArgs {
     /// sequence and repeats with full windows any case that late bytes put in doubt).
     #[arg(long)]
     full_windows: bool,
-    #[arg(long, value_enum, help = FORMAT_DEFAULT)]
-    format: Option<Format>,
     #[command(flatten)]
-    expect: super::expect_cmd::ExpectArgs,
+    report: super::expect_cmd::JudgedReportArgs,
     /// Write the report here instead of stdout.
     #[arg(short, long, value_name = "FILE")]
     output: Option<PathBuf>,
@@ -215,7 +213,7 @@ impl PlainProgress {
 }
 
 pub fn run(args: FuzzArgs) -> anyhow::Result<ExitCode> {
-    let expect = args.expect.load()?;
+    let expect = args.report.expect.load()?;
     // Unpaced, the simulator answers at once (the fuzzer measures the device's answers,
     // not its timing).
     let sim_delay = args.target.no_pace.then_some(Duration::ZERO);
@@ -358,7 +356,7 @@ pub fn run(args: FuzzArgs) -> anyhow::Result<ExitCode> {
     expect.apply(&mut report);
     finish(
         &report,
-        format_for(args.format, args.output.as_deref()),
+        format_for(args.report.format, args.output.as_deref()),
         args.verbose,
         args.output.as_deref(),
     )

@@ -10,7 +10,7 @@ use conformance::gate::{self, Adapter, GateOptions};
 use conformance::vectors::VectorSet;
 
 use super::gate_run::Common;
-use super::output::{shell_quote, Format, FORMAT_DEFAULT};
+use super::output::shell_quote;
 
 const AFTER_HELP: &str = "\
 The adapter protocol (line-delimited JSON on the adapter's stdin/stdout) is documented in
@@ -75,10 +75,8 @@ pub struct GateArgs {
     /// Milliseconds to wait for each answer.
     #[arg(long, value_name = "MS", default_value_t = 2000)]
     timeout: u64,
-    #[arg(long, value_enum, help = FORMAT_DEFAULT)]
-    format: Option<Format>,
     #[command(flatten)]
-    expect: super::expect_cmd::ExpectArgs,
+    report: super::expect_cmd::JudgedReportArgs,
     /// Write the report here (kept valid after every case) instead of stdout.
     #[arg(short, long, value_name = "FILE")]
     output: Option<PathBuf>,
@@ -121,11 +119,11 @@ fn common(args: &GateArgs) -> anyhow::Result<Common> {
         only: args.only.clone(),
         list: args.list,
         timeout: args.timeout,
-        format: args.format,
+        format: args.report.format,
         output: args.output.clone(),
         verbose: args.verbose,
         quiet: args.quiet,
-        expect: args.expect.load()?,
+        expect: args.report.expect.load()?,
     })
 }
 

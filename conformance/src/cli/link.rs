@@ -133,19 +133,24 @@ pub struct TargetArgs {
     pub capture: Option<PathBuf>,
 }
 
-/// Creates the capture file `path` (`--capture`): a pcapng section naming this program.
-pub fn open_capture(path: &std::path::Path) -> anyhow::Result<SharedRecorder> {
+/// Creates the capture file `path` (`--capture`), where one is asked for: a pcapng
+/// section naming this program.
+pub fn open_capture(path: Option<&std::path::Path>) -> anyhow::Result<Option<SharedRecorder>> {
+    let Some(path) = path else {
+        return Ok(None);
+    };
     let file = std::fs::File::create(path)
         .with_context(|| format!("cannot create the capture {}", path.display()))?;
     let app = format!("conformance {}", env!("CARGO_PKG_VERSION"));
     let rec = Recorder::new(Box::new(file), &app)
         .with_context(|| format!("cannot write the capture {}", path.display()))?;
-    Ok(rec.shared())
+    Ok(Some(rec.shared()))
 }
 
-/// Says on stderr what the capture `path` holds, or why it stopped.
-pub fn close_capture(path: &std::path::Path, rec: &SharedRecorder) {
-    let Ok(r) = rec.lock() else {
+/// Says on stderr what the capture `path` holds, or why it stopped (nothing where no
+/// capture was made).
+pub fn close_capture(path: Option<&std::path::Path>, rec: Option<&SharedRecorder>) {
+    let (Some(path), Some(Ok(r))) = (path, rec.map(|r| r.lock())) else {
         return;
     };
     match r.error() {
@@ -206,14 +211,12 @@ pub struct Link {
 impl TargetArgs {
     /// Creates the `--capture` file, if one was asked for.
     pub fn open_capture(&self) -> anyhow::Result<Option<SharedRecorder>> {
-        self.capture.as_deref().map(open_capture).transpose()
+        open_capture(self.capture.as_deref())
     }
 
     /// Says on stderr what the capture holds, or why it stopped.
     pub fn close_capture(&self, rec: Option<&SharedRecorder>) {
-        if let (Some(path), Some(rec)) = (&self.capture, rec) {
-            close_capture(path, rec);
-        }
+        close_capture(self.capture.as_deref(), rec);
     }
 
     /// The node address (the first, where `check` was given several).
@@ -233,9 +236,7 @@ impl TargetArgs {
         fallback: bool,
         sim_delay: Option<Duration>,
     ) -> anyhow::Result<Link> {
-        if self.line.rts.rts && self.port.is_none() {
-            bail!("--rts drives the RTS line of a serial port: give --port PATH");
-        }
+        self.line.rts.needs_port(self.port.as_deref())?;
         if self.nodes.0.len() > 1 && !self.several_nodes {
             bail!(
                 "-a {}: this command talks to one node; several drives on one bus are for `check` (-a 1,2,5)",

@@ -19,7 +19,7 @@ use conformance::transport::tcp::TcpTransport;
 use conformance::transport::Transport;
 
 use super::common::{parse_number, Number, RtsArgs};
-use super::scan_cmd::{open_link, LineLists};
+use super::scan_cmd::{open_link, settings_to_try, LineLists};
 
 const AFTER_HELP: &str = "\
 What it does, in order:
@@ -148,16 +148,11 @@ pub fn run(args: LearnArgs) -> anyhow::Result<ExitCode> {
         );
     }
     let search = args.lines.search()?;
-    if args.rts.rts && args.port.is_none() {
-        bail!("--rts drives the RTS line of a serial port: give --port PATH");
-    }
+    args.rts.needs_port(args.port.as_deref())?;
     if args.address == Some(0) {
         bail!("-a 0 is the broadcast address, which is never answered");
     }
-    let mut settings = search.settings();
-    if settings.is_empty() {
-        bail!("no setting to try: RTU needs 8 data bits (-d 8)");
-    }
+    let mut settings = settings_to_try(&search)?;
     let addresses: Vec<u8> = match args.address {
         Some(a) => vec![a],
         None => (1..=247).collect(),

@@ -18,7 +18,7 @@ use conformance::transport::capture::Captured;
 use conformance::transport::serial::SerialTransport;
 
 use super::common::{load_model, parse_nodes, NodeList, ParityArg};
-use super::output::{finish, format_for, Format, FORMAT_DEFAULT};
+use super::output::{finish, format_for};
 
 const AFTER_HELP: &str = "\
 Examples:
@@ -131,16 +131,14 @@ pub struct MonitorArgs {
     #[arg(long, value_name = "T", value_parser = super::common::parse_duration)]
     duration: Option<std::time::Duration>,
     /// How long after a request its reply may come, ms.
-    #[arg(long, value_name = "MS", default_value_t = 1000)]
+    #[arg(long, value_name = "MS", default_value_t = MonitorConfig::WINDOW_MS)]
     window: u64,
     /// Allowance over the manual's response time before a reply counts as late, ms (the
     /// tap adapter's latency is in it).
-    #[arg(long, value_name = "MS", default_value_t = 20)]
+    #[arg(long, value_name = "MS", default_value_t = MonitorConfig::ALLOWANCE_MS)]
     allowance: u64,
-    #[arg(long, value_enum, help = FORMAT_DEFAULT)]
-    format: Option<Format>,
     #[command(flatten)]
-    expect: super::expect_cmd::ExpectArgs,
+    report: super::expect_cmd::JudgedReportArgs,
     /// Write the report here instead of stdout.
     #[arg(short, long, value_name = "FILE")]
     output: Option<PathBuf>,
@@ -176,7 +174,7 @@ fn describe_end(ended: &Ended) -> String {
 pub fn run(args: MonitorArgs) -> anyhow::Result<ExitCode> {
     // An invalid expectations file stops the command before it listens (it is read
     // again for the report).
-    args.expect.load()?;
+    args.report.expect.load()?;
     let asked = match args.mode {
         ModeArg::Rtu => Some(Mode::Rtu),
         ModeArg::Ascii => Some(Mode::Ascii),
@@ -596,11 +594,7 @@ fn listen(
         // Said above already, as soon as it was found.
         mon.take_notices();
     }
-    let capture = args
-        .capture
-        .as_deref()
-        .map(super::link::open_capture)
-        .transpose()?;
+    let capture = super::link::open_capture(args.capture.as_deref())?;
     let mut tap = match &capture {
         Some(rec) => ReadOnlyPort::new(Box::new(
             Captured::new(port, rec.clone(), mode, line).as_tap(),
@@ -633,9 +627,7 @@ fn listen(
     let described = tap.describe();
     // The last frame heard is written when the port is let go.
     drop(tap);
-    if let (Some(path), Some(rec)) = (&args.capture, &capture) {
-        super::link::close_capture(path, rec);
-    }
+    super::link::close_capture(args.capture.as_deref(), capture.as_ref());
     Ok((mode, mon, line, described, ended, listened, searched))
 }
 
@@ -754,10 +746,10 @@ fn report(
         expect: None,
         master: None,
     };
-    args.expect.load()?.apply(&mut report);
+    args.report.expect.load()?.apply(&mut report);
     finish(
         &report,
-        format_for(args.format, args.output.as_deref()),
+        format_for(args.report.format, args.output.as_deref()),
         args.verbose,
         args.output.as_deref(),
     )

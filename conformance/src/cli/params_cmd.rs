@@ -573,26 +573,17 @@ fn restore(args: RestoreArgs) -> anyhow::Result<ExitCode> {
                 .collect::<Vec<_>>()
         })
         .collect();
-    writeln!(
-        out,
-        "written and verified: {} ({})",
-        written.len(),
-        if written.is_empty() {
-            "none".into()
+    // "N (0100H 0101H)", or "0 (none)".
+    let counted = |registers: &[String]| {
+        let list = if registers.is_empty() {
+            "none".to_string()
         } else {
-            written.join(" ")
-        }
-    )?;
-    writeln!(
-        out,
-        "not written: {} ({})",
-        not_written.len(),
-        if not_written.is_empty() {
-            "none".into()
-        } else {
-            not_written.join(" ")
-        }
-    )?;
+            registers.join(" ")
+        };
+        format!("{} ({list})", registers.len())
+    };
+    writeln!(out, "written and verified: {}", counted(&written))?;
+    writeln!(out, "not written: {}", counted(&not_written))?;
     for (n, r, v) in &outcome.journal {
         let state = outcome
             .steps

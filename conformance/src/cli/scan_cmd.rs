@@ -187,18 +187,9 @@ pub fn address_ranges(addresses: &[u8]) -> String {
 pub fn run(args: ScanArgs) -> anyhow::Result<ExitCode> {
     let addresses = parse_addresses(&args.addresses)?;
     let search = args.lines.search()?;
-    if args.rts.rts && args.port.is_none() {
-        bail!("--rts drives the RTS line of a serial port: give --port PATH");
-    }
-    let mut settings = search.settings();
-    if settings.is_empty() {
-        bail!("no setting to try: RTU needs 8 data bits (-d 8)");
-    }
-    let capture = args
-        .capture
-        .as_deref()
-        .map(super::link::open_capture)
-        .transpose()?;
+    args.rts.needs_port(args.port.as_deref())?;
+    let mut settings = settings_to_try(&search)?;
+    let capture = super::link::open_capture(args.capture.as_deref())?;
     let mut link = open_link(
         args.port.as_deref(),
         args.tcp.as_deref(),
@@ -238,9 +229,7 @@ pub fn run(args: ScanArgs) -> anyhow::Result<ExitCode> {
     // The link (and the transport that records) is closed before the capture is
     // summed up, so that the frames it held are written.
     drop(link);
-    if let (Some(path), Some(rec)) = (&args.capture, &capture) {
-        super::link::close_capture(path, rec);
-    }
+    super::link::close_capture(args.capture.as_deref(), capture.as_ref());
     let result = result?;
     let rendered = match args.format {
         ScanFormat::Text => report::text(&result),
@@ -317,6 +306,15 @@ impl LineLists {
             modes: self.modes.iter().map(|&m| Mode::from(m)).collect(),
         })
     }
+}
+
+/// The settings `search` tries (`scan`, `model learn`); refused where there are none.
+pub(super) fn settings_to_try(search: &Search) -> anyhow::Result<Vec<Setting>> {
+    let settings = search.settings();
+    if settings.is_empty() {
+        bail!("no setting to try: RTU needs 8 data bits (-d 8)");
+    }
+    Ok(settings)
 }
 
 /// The link a scan searches: a serial port at `port` (its line set per setting) or a

@@ -193,14 +193,8 @@ pub fn run(args: SimulateArgs) -> anyhow::Result<ExitCode> {
         }
     );
 
-    if args.line.rts.rts && args.port.is_none() {
-        bail!("--rts drives the RTS line of a serial port: give --port PATH");
-    }
-    let capture = args
-        .capture
-        .as_deref()
-        .map(super::link::open_capture)
-        .transpose()?;
+    args.line.rts.needs_port(args.port.as_deref())?;
+    let capture = super::link::open_capture(args.capture.as_deref())?;
     let result = if let Some(path) = &args.port {
         let t = SerialTransport::open(path, line, LinkKind::Serial)?
             .with_rts(args.line.rts.control())?;
@@ -254,9 +248,7 @@ pub fn run(args: SimulateArgs) -> anyhow::Result<ExitCode> {
             }
         ))?;
         let stats = serve_gateway_recorded(&listener, drive, log, &config, &stop, capture.clone())?;
-        if let (Some(path), Some(rec)) = (&args.capture, &capture) {
-            super::link::close_capture(path, rec);
-        }
+        super::link::close_capture(args.capture.as_deref(), capture.as_ref());
         if !args.quiet {
             eprintln!(
                 "# stopped: {} connections ({} refused), {} requests, {} replies, {} gateway exceptions 0BH",
@@ -287,9 +279,7 @@ pub fn run(args: SimulateArgs) -> anyhow::Result<ExitCode> {
     } else {
         bail!("say where to serve: --port PATH, --pty or --tcp HOST:PORT");
     };
-    if let (Some(path), Some(rec)) = (&args.capture, &capture) {
-        super::link::close_capture(path, rec);
-    }
+    super::link::close_capture(args.capture.as_deref(), capture.as_ref());
     match result {
         Ok(()) => Ok(ExitCode::SUCCESS),
         Err(e) => Err(e.into()),
@@ -309,18 +299,12 @@ impl PtyLink {
     /// Makes `link` point to `target`. A symbolic link already there (left by a simulator
     /// that was killed) is replaced; anything else is refused, never deleted.
     fn make(link: &std::path::Path, target: &std::path::Path) -> anyhow::Result<PtyLink> {
-        if let Ok(meta) = std::fs::symlink_metadata(link) {
-            if !meta.file_type().is_symlink() {
-                bail!(
-                    "--link {}: there is a file there that is not a symbolic link; it is not replaced (give another path)",
-                    link.display()
-                );
-            }
-            std::fs::remove_file(link)
-                .with_context(|| format!("cannot replace the old link {}", link.display()))?;
-        }
-        std::os::unix::fs::symlink(target, link)
-            .with_context(|| format!("cannot link {} to {}", link.display(), target.display()))?;
+        super::common::point_link(
+            link,
+            target,
+            "there is a file there that is not a symbolic link; it is not replaced (give another path)",
+            "the old link",
+        )?;
         Ok(PtyLink {
             link: link.to_path_buf(),
             target: target.to_path_buf(),

@@ -163,8 +163,8 @@ impl<'a> Pdu<'a> {
     /// Parses the data that follows function code `function`, for `direction`.
     #[inline(always)]
     pub fn parse(function: u8, data: &'a [u8], direction: Direction) -> Result<Self, FrameError> {
-        let exact = |n: usize, expected: &'static str| {
-            if data.len() == n {
+        let length = |fits: bool, expected: &'static str| {
+            if fits {
                 Ok(())
             } else {
                 Err(FrameError::DataLength {
@@ -172,6 +172,21 @@ impl<'a> Pdu<'a> {
                     direction,
                     expected,
                     found: data.len(),
+                })
+            }
+        };
+        let exact = |n: usize, expected| length(data.len() == n, expected);
+        let at_least = |n: usize, expected| length(data.len() >= n, expected);
+        // The byte count field against the bytes after it.
+        let counted = |byte_count: u8, rest: &[u8]| {
+            if usize::from(byte_count) == rest.len() {
+                Ok(())
+            } else {
+                Err(FrameError::ByteCount {
+                    function,
+                    direction,
+                    byte_count,
+                    found: rest.len(),
                 })
             }
         };
@@ -196,22 +211,9 @@ impl<'a> Pdu<'a> {
                 })
             }
             (Direction::Response, READ_HOLDING_REGISTERS) => {
-                let Some((&byte_count, rest)) = data.split_first() else {
-                    return Err(FrameError::DataLength {
-                        function,
-                        direction,
-                        expected: "at least 1 (byte count)",
-                        found: 0,
-                    });
-                };
-                if usize::from(byte_count) != rest.len() {
-                    return Err(FrameError::ByteCount {
-                        function,
-                        direction,
-                        byte_count,
-                        found: rest.len(),
-                    });
-                }
+                at_least(1, "at least 1 (byte count)")?;
+                let (byte_count, rest) = (data[0], &data[1..]);
+                counted(byte_count, rest)?;
                 Ok(Pdu::ReadResponse {
                     values: Registers::new(rest)?,
                 })
@@ -224,40 +226,19 @@ impl<'a> Pdu<'a> {
                 })
             }
             (_, LOOP_BACK) => {
-                if data.len() < 2 {
-                    return Err(FrameError::DataLength {
-                        function,
-                        direction,
-                        expected: "at least 2 (test code)",
-                        found: data.len(),
-                    });
-                }
+                at_least(2, "at least 2 (test code)")?;
                 Ok(Pdu::LoopBack {
                     test_code: be16(data, 0),
                     data: &data[2..],
                 })
             }
             (Direction::Request, WRITE_MULTIPLE_REGISTERS) => {
-                if data.len() < 5 {
-                    return Err(FrameError::DataLength {
-                        function,
-                        direction,
-                        expected: "at least 5 (start, count, byte count)",
-                        found: data.len(),
-                    });
-                }
+                at_least(5, "at least 5 (start, count, byte count)")?;
                 let start = be16(data, 0);
                 let count = be16(data, 2);
                 let byte_count = data[4];
                 let rest = &data[5..];
-                if usize::from(byte_count) != rest.len() {
-                    return Err(FrameError::ByteCount {
-                        function,
-                        direction,
-                        byte_count,
-                        found: rest.len(),
-                    });
-                }
+                counted(byte_count, rest)?;
                 if u32::from(count) * 2 != u32::from(byte_count) {
                     return Err(FrameError::CountMismatch {
                         count,
@@ -488,7 +469,7 @@ impl Message<'_> {
             ),
         ];
         match self.pdu {
-            Pdu::ReadRequest { start, count } => {
+            Pdu::ReadRequest { start, count } | Pdu::WriteMultipleResponse { start, count } => {
                 out.push(("start", format!("{start:04X}")));
                 out.push(("count", format!("{count}")));
             }
@@ -509,10 +490,6 @@ impl Message<'_> {
                 out.push(("count", format!("{}", values.len())));
                 out.push(("byte count", format!("{}", values.as_bytes().len())));
                 out.push(("values", values.to_string()));
-            }
-            Pdu::WriteMultipleResponse { start, count } => {
-                out.push(("start", format!("{start:04X}")));
-                out.push(("count", format!("{count}")));
             }
             Pdu::Exception { function, code } => {
                 out.push(("failed function", format!("{function:02X}")));

@@ -402,4 +402,28 @@ mod tests {
             }
         );
     }
+
+    #[test]
+    fn a_read_request_and_a_write_multiple_response_show_the_same_fields() {
+        let fields = |pdu| Message { address: 1, pdu }.fields();
+        assert_eq!(
+            fields(Pdu::ReadRequest {
+                start: 0x2502,
+                count: 2
+            }),
+            [
+                ("address", "01".to_string()),
+                ("function", "03 read holding registers request".to_string()),
+                ("start", "2502".to_string()),
+                ("count", "2".to_string()),
+            ]
+        );
+        assert_eq!(
+            fields(Pdu::WriteMultipleResponse {
+                start: 0x2502,
+                count: 2
+            })[2..],
+            [("start", "2502".to_string()), ("count", "2".to_string())]
+        );
+    }
 }

@@ -248,19 +248,11 @@ impl DriveModel {
         };
         match msg.pdu {
             Pdu::ReadRequest { start, count } => self.judge_read(mode, start, count),
-            Pdu::WriteSingle { register, value } => {
-                let mut facts = vec![self.functions_fact.clone()];
-                match self.check_writes(start_values(register, &[value]), &mut facts) {
-                    Ok(plan) => Judgement {
-                        expect: Expectation::WriteSingle,
-                        detail: format!("write {value:04X} to {}", self.describe(register)),
-                        write: Some(plan),
-                        facts,
-                        missing: vec![],
-                    },
-                    Err(j) => j,
-                }
-            }
+            Pdu::WriteSingle { register, value } => self.judge_write(
+                start_values(register, &[value]),
+                Expectation::WriteSingle,
+                || format!("write {value:04X} to {}", self.describe(register)),
+            ),
             Pdu::WriteMultipleRequest { start, values } => {
                 let count = values.len();
                 let limit = self.limits.write.get(mode);
@@ -272,17 +264,11 @@ impl DriveModel {
                     );
                 }
                 let vals: Vec<u16> = values.iter().collect();
-                let mut facts = vec![self.functions_fact.clone()];
-                match self.check_writes(start_values(start, &vals), &mut facts) {
-                    Ok(plan) => Judgement {
-                        expect: Expectation::WriteMultiple,
-                        detail: format!("write {count} registers from {}", self.describe(start)),
-                        write: Some(plan),
-                        facts,
-                        missing: vec![],
-                    },
-                    Err(j) => j,
-                }
+                self.judge_write(
+                    start_values(start, &vals),
+                    Expectation::WriteMultiple,
+                    || format!("write {count} registers from {}", self.describe(start)),
+                )
             }
             Pdu::LoopBack { test_code: 0, .. } => self.loop_back(
                 vec![self.loop_back_fact.as_ref()],
@@ -376,6 +362,28 @@ impl DriveModel {
                 ),
             )),
             Some(_) => None,
+        }
+    }
+
+    /// A write request: expected to be answered `expect` (its `detail` saying what it
+    /// writes) where every register takes its value, else the judgement of the first
+    /// that does not ([`Self::check_writes`]).
+    fn judge_write(
+        &self,
+        writes: impl Iterator<Item = Option<(u16, u16)>>,
+        expect: Expectation,
+        detail: impl FnOnce() -> String,
+    ) -> Judgement {
+        let mut facts = vec![self.functions_fact.clone()];
+        match self.check_writes(writes, &mut facts) {
+            Ok(plan) => Judgement {
+                expect,
+                detail: detail(),
+                write: Some(plan),
+                facts,
+                missing: vec![],
+            },
+            Err(j) => j,
         }
     }
 

@@ -217,14 +217,7 @@ fn judge_stream(stream: &Stream, mode: Mode) -> Judged {
     } else {
         Vec::new()
     };
-    let cfg = MonitorConfig {
-        mode,
-        line: stream.line(mode),
-        nodes: nodes.clone(),
-        window: Duration::from_millis(1000),
-        response_allowance: Duration::from_millis(20),
-        gap_allowance: Duration::from_millis(20),
-    };
+    let cfg = MonitorConfig::new(mode, stream.line(mode), nodes.clone());
     let mut m = Monitor::new(f510().clone(), cfg).expect("nodes 1 and 2 are valid");
     // Writes teach at most every register of the address space per node.
     let map = 1 << 16;

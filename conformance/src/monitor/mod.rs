@@ -82,6 +82,28 @@ pub struct MonitorConfig {
     pub gap_allowance: Duration,
 }
 
+impl MonitorConfig {
+    /// `conformance monitor`'s default window for a reply, ms (`--window`).
+    pub const WINDOW_MS: u64 = 1000;
+    /// `conformance monitor`'s default allowance, ms (`--allowance`): over the manual's
+    /// response time before a reply is late, and over t1.5 before a gap inside a reply
+    /// counts.
+    pub const ALLOWANCE_MS: u64 = 20;
+
+    /// What `conformance monitor` judges with when no option changes it: a reply within
+    /// [`Self::WINDOW_MS`], [`Self::ALLOWANCE_MS`] for replies and gaps.
+    pub fn new(mode: Mode, line: LineSettings, nodes: Vec<u8>) -> MonitorConfig {
+        MonitorConfig {
+            mode,
+            line,
+            nodes,
+            window: Duration::from_millis(Self::WINDOW_MS),
+            response_allowance: Duration::from_millis(Self::ALLOWANCE_MS),
+            gap_allowance: Duration::from_millis(Self::ALLOWANCE_MS),
+        }
+    }
+}
+
 /// Which side of the conversation a finding is about.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash)]
 pub enum Side {

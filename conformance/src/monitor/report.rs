@@ -140,11 +140,6 @@ impl MonitorSummary {
 
     /// The per-node statistics as text lines.
     pub fn text_lines(&self) -> Vec<String> {
-        let ms = |d: Option<Duration>| {
-            d.map_or("-".to_string(), |d| {
-                format!("{:.1}", d.as_secs_f64() * 1000.0)
-            })
-        };
         let mut out = vec![format!(
             "{}{} on {} ({}, {}): {} frames, {} bytes; {}",
             self.listened_phrase(),
@@ -160,23 +155,13 @@ impl MonitorSummary {
             out.push(format!("notice: {n}"));
         }
         for (a, s) in &self.nodes {
-            let h = &s.response;
+            let [requests, exchanges, replies, timeouts, crc_errors, retries, p50, p95, p99, max] =
+                s.figures();
             out.push(format!(
-                "node {a:02X}: {} requests, {} exchanges, {} replies, {} timeouts, {} CRC errors, {} retries; response ms p50 {} p95 {} p99 {} max {}",
-                s.requests,
-                s.exchanges,
-                s.replies,
-                s.timeouts,
-                s.crc_errors,
-                s.retries,
-                ms(h.percentile(50)),
-                ms(h.percentile(95)),
-                ms(h.percentile(99)),
-                ms(h.max())
+                "node {a:02X}: {requests} requests, {exchanges} exchanges, {replies} replies, {timeouts} timeouts, {crc_errors} CRC errors, {retries} retries; response ms p50 {p50} p95 {p95} p99 {p99} max {max}"
             ));
             if !s.errors.is_empty() {
-                let e: Vec<String> = s.errors.iter().map(|(k, n)| format!("{k} {n}")).collect();
-                out.push(format!("         findings: {}", e.join(", ")));
+                out.push(format!("         findings: {}", s.findings_text()));
             }
         }
         out

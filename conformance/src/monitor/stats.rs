@@ -172,6 +172,41 @@ fn ms(d: Option<Duration>) -> Value {
 }
 
 impl NodeStats {
+    /// The figures the text and HTML reports print for the node, in their order:
+    /// requests, exchanges, replies, timeouts, CRC errors, retries, then the p50, p95,
+    /// p99 and largest response time in ms with one decimal ("-" with no reply).
+    pub fn figures(&self) -> [String; 10] {
+        let h = &self.response;
+        let ms = |d: Option<Duration>| {
+            d.map_or("-".to_string(), |d| {
+                format!("{:.1}", d.as_secs_f64() * 1000.0)
+            })
+        };
+        [
+            self.requests.to_string(),
+            self.exchanges.to_string(),
+            self.replies.to_string(),
+            self.timeouts.to_string(),
+            self.crc_errors.to_string(),
+            self.retries.to_string(),
+            ms(h.percentile(50)),
+            ms(h.percentile(95)),
+            ms(h.percentile(99)),
+            ms(h.max()),
+        ]
+    }
+
+    /// The findings as the text and HTML reports print them: `kind count`, joined by
+    /// ", " (empty with none).
+    pub fn findings_text(&self) -> String {
+        let e: Vec<String> = self
+            .errors
+            .iter()
+            .map(|(k, n)| format!("{k} {n}"))
+            .collect();
+        e.join(", ")
+    }
+
     /// The statistics as the JSON report carries them.
     pub fn to_json(&self, address: u8) -> Value {
         let h = &self.response;

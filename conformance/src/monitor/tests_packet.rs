@@ -148,12 +148,8 @@ fn monitor_on(mode: Mode, line: LineSettings, nodes: &[u8]) -> Monitor {
     Monitor::new(
         crate::model::DriveModel::builtin("f510").unwrap(),
         MonitorConfig {
-            mode,
-            line,
-            nodes: nodes.to_vec(),
-            window: Duration::from_millis(1000),
-            response_allowance: Duration::from_millis(20),
             gap_allowance: Duration::from_millis(5),
+            ..MonitorConfig::new(mode, line, nodes.to_vec())
         },
     )
     .unwrap()

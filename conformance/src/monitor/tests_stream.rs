@@ -18,12 +18,8 @@ fn monitor_on(line: LineSettings) -> Monitor {
     Monitor::new(
         crate::model::DriveModel::builtin("f510").unwrap(),
         MonitorConfig {
-            mode: Mode::Rtu,
-            line,
-            nodes: vec![1],
-            window: Duration::from_millis(1000),
-            response_allowance: Duration::from_millis(20),
             gap_allowance: Duration::from_millis(5),
+            ..MonitorConfig::new(Mode::Rtu, line, vec![1])
         },
     )
     .unwrap()

@@ -35,6 +35,12 @@ fn a_run_of_one_node_renders_exactly_as_before() {
     );
 }
 
+/// `needle` is in `hay` (the failure shows where it was looked for).
+#[track_caller]
+fn has(hay: &str, needle: &str) {
+    assert!(hay.contains(needle), "no {needle:?} in\n{hay}");
+}
+
 fn schema() -> jsonschema::Validator {
     let text = include_str!("../../../vectors/schema/report.schema.json");
     jsonschema::validator_for(&serde_json::from_str(text).unwrap()).unwrap()
@@ -73,20 +79,14 @@ fn text_has_a_line_and_a_section_per_node_and_one_for_the_bus() {
     let r = several_nodes();
     let t = text(&r, false);
     let summary = &t[..t.find("\n===").unwrap()];
-    assert!(summary.contains("3 nodes on one bus: 01 02 05"), "{t}");
-    assert!(
-        summary.contains("node 01H: identification 0510H; 4 checks: 2 pass, 0 deviations, 1 observation, 1 skipped, 0 errors\n"),
-        "{t}"
+    has(summary, "3 nodes on one bus: 01 02 05");
+    has(summary, "node 01H: identification 0510H; 4 checks: 2 pass, 0 deviations, 1 observation, 1 skipped, 0 errors\n");
+    has(summary, "node 02H: identification not read; 4 checks: 1 pass, 0 deviations, 0 observations, 0 skipped, 3 errors; stopped: no reply to 3 requests in a row\n");
+    has(
+        summary,
+        "node 05H: identification 0510H, quirks: wrong-exception; 4 checks: 1 pass, 1 deviation,",
     );
-    assert!(
-        summary.contains("node 02H: identification not read; 4 checks: 1 pass, 0 deviations, 0 observations, 0 skipped, 3 errors; stopped: no reply to 3 requests in a row\n"),
-        "{t}"
-    );
-    assert!(summary.contains("node 05H: identification 0510H, quirks: wrong-exception; 4 checks: 1 pass, 1 deviation,"), "{t}");
-    assert!(
-        summary.contains("bus:      3 checks: 2 pass, 1 deviation,"),
-        "{t}"
-    );
+    has(summary, "bus:      3 checks: 2 pass, 1 deviation,");
     // The one-node "identification" of the device line is per node here.
     assert!(!summary.contains(", identification 0510H"), "{t}");
     let at = |needle: &str| {
@@ -109,26 +109,23 @@ fn text_has_a_line_and_a_section_per_node_and_one_for_the_bus() {
     assert!(!node1.contains("DEVIATIONS"), "{node1}");
     assert!(node1.find("OBSERVATIONS").unwrap() < node1.find("SKIPPED").unwrap());
     assert!(node5.find("DEVIATIONS (1)").unwrap() < node5.find("OBSERVATIONS (1)").unwrap());
-    assert!(node5.contains("request  05 03 00 39"), "{node5}");
+    has(node5, "request  05 03 00 39");
     // The lost node's checks that never ran: one line.
-    assert!(
-        node2.contains("ERRORS (3)\n  2 checks not run: the device stopped answering"),
-        "{node2}"
+    has(
+        node2,
+        "ERRORS (3)\n  2 checks not run: the device stopped answering",
     );
-    assert!(
-        bus_part.contains("DEVIATIONS (1)\n  [rtu.bus.other-address]"),
-        "{bus_part}"
-    );
-    assert!(bus_part.contains("PASSED (2)"), "{bus_part}");
+    has(bus_part, "DEVIATIONS (1)\n  [rtu.bus.other-address]");
+    has(bus_part, "PASSED (2)");
     assert!(!bus_part.contains("rtu.map."), "{bus_part}");
     // Restore lines name their node.
-    assert!(
-        t[restore..].contains("  node 02H 2502H NOT no reply to the write back"),
-        "{t}"
+    has(
+        &t[restore..],
+        "  node 02H 2502H NOT no reply to the write back",
     );
     let v = text(&r, true);
-    assert!(v.contains("  node 01H 2502H ok  read back 04D2"), "{v}");
-    assert!(v.contains("  node 05H 2502H =   read back 04D2"), "{v}");
+    has(&v, "  node 01H 2502H ok  read back 04D2");
+    has(&v, "  node 05H 2502H =   read back 04D2");
 }
 
 #[test]

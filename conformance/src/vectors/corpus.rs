@@ -111,26 +111,19 @@ pub fn seeds(set: &VectorSet, files: &[(String, String)]) -> Vec<Seed> {
                 }
             }
         }
-        out.push(Seed {
-            target: "rtu_deframer",
-            name: format!("{}.all-rtu", file.document),
-            bytes: rtu_stream,
-        });
-        out.push(Seed {
-            target: "ascii_deframer",
-            name: format!("{}.all-ascii", file.document),
-            bytes: ascii_stream,
-        });
-        out.push(Seed {
-            target: "mbap_frame",
-            name: format!("{}.all-mbap", file.document),
-            bytes: mbap_stream,
-        });
-        out.push(Seed {
-            target: "capture_reader",
-            name: format!("{}.pcapng", file.document),
-            bytes: capture_of(&captured),
-        });
+        // The document's frames back to back, one stream per target that reads streams.
+        for (target, suffix, bytes) in [
+            ("rtu_deframer", "all-rtu", rtu_stream),
+            ("ascii_deframer", "all-ascii", ascii_stream),
+            ("mbap_frame", "all-mbap", mbap_stream),
+            ("capture_reader", "pcapng", capture_of(&captured)),
+        ] {
+            out.push(Seed {
+                target,
+                name: format!("{}.{suffix}", file.document),
+                bytes,
+            });
+        }
     }
     for (model, text) in crate::model::DriveModel::builtin_files() {
         out.push(Seed {

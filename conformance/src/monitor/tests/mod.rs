@@ -23,12 +23,12 @@ pub(super) fn monitor(mode: Mode, nodes: &[u8]) -> Monitor {
     Monitor::new(
         DriveModel::builtin("f510").unwrap(),
         MonitorConfig {
-            mode,
-            line: LineSettings::new(9600, data_bits, Parity::Even, 1),
-            nodes: nodes.to_vec(),
-            window: ms(1000),
-            response_allowance: ms(20),
             gap_allowance: ms(5),
+            ..MonitorConfig::new(
+                mode,
+                LineSettings::new(9600, data_bits, Parity::Even, 1),
+                nodes.to_vec(),
+            )
         },
     )
     .unwrap()

@@ -12,11 +12,6 @@ use crate::report::markup::esc;
 /// `limits`.
 pub(super) fn section(m: &MonitorSummary, limits: Limits) -> String {
     let mut out = String::new();
-    let ms = |d: Option<std::time::Duration>| {
-        d.map_or("-".to_string(), |d| {
-            format!("{:.1}", d.as_secs_f64() * 1000.0)
-        })
-    };
     let _ = write!(
         out,
         "<h2 id=\"heard\">Heard on the bus</h2><p class=\"muted\">{}</p>{}<table class=\"budget\"><thead><tr><th>node</th><th class=\"num\">requests</th><th class=\"num\">exchanges</th><th class=\"num\">replies</th><th class=\"num\">timeouts</th><th class=\"num\">CRC errors</th><th class=\"num\">retries</th><th class=\"num\">p50 ms</th><th class=\"num\">p95 ms</th><th class=\"num\">p99 ms</th><th class=\"num\">max ms</th><th>findings</th></tr></thead><tbody>",
@@ -33,22 +28,15 @@ pub(super) fn section(m: &MonitorSummary, limits: Limits) -> String {
         }
     );
     for (a, s) in &m.nodes {
-        let h = &s.response;
-        let findings: Vec<String> = s.errors.iter().map(|(k, n)| format!("{k} {n}")).collect();
+        let cells: String = s
+            .figures()
+            .iter()
+            .map(|f| format!("<td class=\"num\">{f}</td>"))
+            .collect();
         let _ = write!(
             out,
-            "<tr><td>{a:02X}</td><td class=\"num\">{}</td><td class=\"num\">{}</td><td class=\"num\">{}</td><td class=\"num\">{}</td><td class=\"num\">{}</td><td class=\"num\">{}</td><td class=\"num\">{}</td><td class=\"num\">{}</td><td class=\"num\">{}</td><td class=\"num\">{}</td><td>{}</td></tr>",
-            s.requests,
-            s.exchanges,
-            s.replies,
-            s.timeouts,
-            s.crc_errors,
-            s.retries,
-            ms(h.percentile(50)),
-            ms(h.percentile(95)),
-            ms(h.percentile(99)),
-            ms(h.max()),
-            esc(&findings.join(", "))
+            "<tr><td>{a:02X}</td>{cells}<td>{}</td></tr>",
+            esc(&s.findings_text())
         );
     }
     out.push_str("</tbody></table>");

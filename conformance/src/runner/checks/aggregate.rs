@@ -10,11 +10,11 @@ pub(super) fn aggregates(model: &DriveModel, m: &str, out: &mut Vec<Check>) {
         &model.limits.response_time_fact,
     ) {
         (Some(stated), Some(fact)) => response_time(model, m, stated, fact, out),
-        _ => out.push(undescribed_check(
+        _ => out.push(undescribed_field(
+            model,
             format!("{m}.response-time"),
             "Response time of every reply of this mode against the description's".to_string(),
-            cite_or(model, None, "limits.response_time_ms"),
-            vec!["limits.response_time_ms".to_string()],
+            "limits.response_time_ms",
         )),
     }
     timing_and_codes(model, m, out);
@@ -197,11 +197,11 @@ fn timing_and_codes(model: &DriveModel, m: &str, out: &mut Vec<Check>) {
     line_timing.needs_line = true;
     out.push(line_timing);
     if model.exception_codes.is_empty() {
-        out.push(undescribed_check(
+        out.push(undescribed_field(
+            model,
             format!("{m}.exception-codes"),
             "Exception codes the device sent during this mode's checks, against the description's table".to_string(),
-            cite_or(model, None, "exception_codes"),
-            vec!["exception_codes".to_string()],
+            "exception_codes",
         ));
         return;
     }

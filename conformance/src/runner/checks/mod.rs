@@ -193,6 +193,17 @@ fn undescribed_check(id: String, title: String, source: String, fields: Vec<Stri
     })
 }
 
+/// [`undescribed_check`] of the one field `field` (a path in the description), cited
+/// where the description says something of it.
+fn undescribed_field(model: &DriveModel, id: String, title: String, field: &str) -> Check {
+    undescribed_check(
+        id,
+        title,
+        cite_or(model, None, field),
+        vec![field.to_string()],
+    )
+}
+
 /// Runs of contiguous readable registers (read-write or read-only or reserved) of one group.
 fn readable_runs(model: &DriveModel) -> Vec<(u16, u16)> {
     let mut runs: Vec<(u16, u16)> = Vec::new();

@@ -28,11 +28,11 @@ pub(super) fn functions(model: &DriveModel, m: &str, out: &mut Vec<Check>) {
         ));
     }
     if model.exception_codes.is_empty() {
-        out.push(undescribed_check(
+        out.push(undescribed_field(
+            model,
             format!("{m}.exception-numbering"),
             "Exception numbering: 01H..05H or 51H..55H, as the description's table".to_string(),
-            cite_or(model, None, "exception_codes"),
-            vec!["exception_codes".to_string()],
+            "exception_codes",
         ));
         return;
     }

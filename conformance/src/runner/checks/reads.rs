@@ -90,11 +90,11 @@ pub(super) fn examples(
 
 pub(super) fn identification(model: &DriveModel, m: &str, out: &mut Vec<Check>) {
     let Some(id) = &model.identification else {
-        out.push(undescribed_check(
+        out.push(undescribed_field(
+            model,
             format!("{m}.identification"),
             "Read the identification register".to_string(),
-            cite_or(model, None, "identification"),
-            vec!["identification".to_string()],
+            "identification",
         ));
         return;
     };
@@ -147,6 +147,14 @@ pub(super) fn identification(model: &DriveModel, m: &str, out: &mut Vec<Check>) 
     ));
 }
 
+/// A check that reads `count` registers from `start` and judges the answer against the
+/// model (the map's probes of one register, the reads across two blocks).
+fn read_check(id: String, title: String, source: String, start: u16, count: u16) -> Check {
+    probe_check(id, title, source, false, move |ctx| {
+        ctx.frame(Pdu::ReadRequest { start, count })
+    })
+}
+
 pub(super) fn map(model: &DriveModel, m: &str, out: &mut Vec<Check>) {
     for g in &model.groups {
         if g.name.starts_with("example") {
@@ -159,12 +167,12 @@ pub(super) fn map(model: &DriveModel, m: &str, out: &mut Vec<Check>) {
             continue;
         };
         for (which, r) in [("first", first), ("last", last)] {
-            out.push(probe_check(
+            out.push(read_check(
                 format!("{m}.map.{name}.{which}"),
                 format!("Read the {which} register of {} ({r:04X}H)", g.name),
                 source.clone(),
-                false,
-                move |ctx| ctx.frame(Pdu::ReadRequest { start: r, count: 1 }),
+                r,
+                1,
             ));
         }
         if g.parameter_group.is_none() {
@@ -183,47 +191,37 @@ pub(super) fn map(model: &DriveModel, m: &str, out: &mut Vec<Check>) {
         }
         let past = g.span.end().wrapping_add(1);
         if model.lookup(past).is_none() {
-            out.push(probe_check(
+            out.push(read_check(
                 format!("{m}.map.{name}.past-end"),
                 format!(
                     "Read one register past the end of {} ({past:04X}H, not in the map)",
                     g.name
                 ),
                 source.clone(),
-                false,
-                move |ctx| {
-                    ctx.frame(Pdu::ReadRequest {
-                        start: past,
-                        count: 1,
-                    })
-                },
+                past,
+                1,
             ));
         }
         for w in g.registers.windows(2) {
             let gap = w[0].end() + 1;
             if model.lookup(gap).is_none() {
-                out.push(probe_check(
+                out.push(read_check(
                     format!("{m}.map.{name}.gap-{gap:04X}"),
                     format!("Read {gap:04X}H, in a gap of {} (not in the table)", g.name),
                     source.clone(),
-                    false,
-                    move |ctx| {
-                        ctx.frame(Pdu::ReadRequest {
-                            start: gap,
-                            count: 1,
-                        })
-                    },
+                    gap,
+                    1,
                 ));
             }
         }
         if let Some(na) = g.no_access.first() {
             let r = *na.start();
-            out.push(probe_check(
+            out.push(read_check(
                 format!("{m}.map.{name}.no-access-{r:04X}"),
                 format!("Read {r:04X}H, marked '-' (no Modbus access) in {}", g.name),
                 source.clone(),
-                false,
-                move |ctx| ctx.frame(Pdu::ReadRequest { start: r, count: 1 }),
+                r,
+                1,
             ));
         }
     }
@@ -235,11 +233,11 @@ pub(super) fn map(model: &DriveModel, m: &str, out: &mut Vec<Check>) {
         .map(|n| n.register)
     {
         let Some(rule) = model.rule(crate::model::Fault::ReservedWrite) else {
-            out.push(undescribed_check(
+            out.push(undescribed_field(
+                model,
                 format!("{m}.map.reserved-reads-zero"),
                 format!("Read the reserved register {r:04X}H"),
-                cite_or(model, None, "exceptions.reserved-write"),
-                vec!["exceptions.reserved-write".to_string()],
+                "exceptions.reserved-write",
             ));
             return;
         };
@@ -290,17 +288,12 @@ pub(super) fn counts(model: &DriveModel, mode: Mode, m: &str, out: &mut Vec<Chec
     if let (Some(c), Some(mon)) = (model.group("command"), model.group("monitor")) {
         let from = *c.span.end();
         if *mon.span.start() == from + 1 {
-            out.push(probe_check(
+            out.push(read_check(
                 format!("{m}.same-group"),
                 format!("Read 2 registers from {from:04X}H, across the command and monitor blocks"),
                 cite(model, &model.limits.same_group_fact),
-                false,
-                move |ctx| {
-                    ctx.frame(Pdu::ReadRequest {
-                        start: from,
-                        count: 2,
-                    })
-                },
+                from,
+                2,
             ));
         }
     }
@@ -318,7 +311,7 @@ pub(super) fn counts(model: &DriveModel, mode: Mode, m: &str, out: &mut Vec<Chec
                     .clone()
                     .unwrap_or_else(|| format!("block {:04X}", b.span.start()))
             };
-            out.push(probe_check(
+            out.push(read_check(
                 format!("{m}.same-group"),
                 format!(
                     "Read 2 registers from {from:04X}H, across the blocks {} and {}",
@@ -326,13 +319,8 @@ pub(super) fn counts(model: &DriveModel, mode: Mode, m: &str, out: &mut Vec<Chec
                     names(&w[1])
                 ),
                 cite(model, &model.limits.same_group_fact),
-                false,
-                move |ctx| {
-                    ctx.frame(Pdu::ReadRequest {
-                        start: from,
-                        count: 2,
-                    })
-                },
+                from,
+                2,
             ));
         }
     }
