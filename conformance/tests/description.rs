@@ -395,13 +395,7 @@ fn a_description_written_from_the_guide_checks_a_pymodbus_server_with_no_deviati
     let all = checks(&v);
     // pymodbus's one framing fault against the serial line's rules, which no description
     // can excuse, is accepted by the expectations file with its reason; nothing else.
-    let unexpected: Vec<_> = v["checks"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .filter(|c| c["status"] == "deviation" && c["expectation"]["outcome"] != "expected")
-        .map(|c| format!("{}: {}", c["id"], c["summary"]))
-        .collect();
+    let unexpected = common::unexpected_deviations(&v);
     assert!(unexpected.is_empty(), "{unexpected:#?}");
     assert_eq!(
         v["expectations"]["counts"]["unexpected"], 0,

@@ -184,12 +184,7 @@ fn a_broken_minimalmodbus_adapter_that_accepts_every_checksum_is_caught() {
         .as_str()
         .unwrap()
         .contains("broken: accept-bad-checksum"));
-    let erratum_case = v["checks"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .find(|c| c["id"] == erratum)
-        .unwrap();
+    let erratum_case = common::check_of(&v, erratum);
     assert_eq!(erratum_case["status"], "deviation", "{erratum_case}");
     assert!(erratum_case["summary"]
         .as_str()
@@ -279,12 +274,7 @@ fn the_libmodbus_adapter_drives_libmodbus_over_a_pty_and_completes() {
     assert_eq!(v["complete"], true);
     assert_eq!(v["summary"]["error"], 0, "{}", v["summary"]);
     // The manual's 03H request goes through modbus_receive, and modbus_reply answers it.
-    let read = v["checks"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .find(|c| c["id"] == "vector.f510.03.rtu.request.decode")
-        .unwrap();
+    let read = common::check_of(&v, "vector.f510.03.rtu.request.decode");
     assert_eq!(read["status"], "pass", "{read}");
     assert!(read["exchanges"][0]["actual"]
         .as_str()
@@ -293,12 +283,7 @@ fn the_libmodbus_adapter_drives_libmodbus_over_a_pty_and_completes() {
     // Its wrong-CRC response as printed is refused by libmodbus's client.
     assert_eq!(status_of(&v, "vector.f510.03.rtu.response.decode"), "pass");
     // libmodbus 3.1.6 sizes an 08H request wrongly and refuses it as "Invalid CRC".
-    let loop_back = v["checks"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .find(|c| c["id"] == "vector.f510.08.rtu.request.decode")
-        .unwrap();
+    let loop_back = common::check_of(&v, "vector.f510.08.rtu.request.decode");
     assert_eq!(loop_back["status"], "deviation");
     assert!(loop_back["summary"]
         .as_str()

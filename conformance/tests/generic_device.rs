@@ -10,7 +10,7 @@
 //! taken out, which reaches every check that reads or writes first.
 
 mod common;
-use common::{line, pymodbus_serial_server, Scratch};
+use common::{check_of, line, pymodbus_serial_server, Scratch};
 
 use std::time::Duration;
 
@@ -214,15 +214,6 @@ fn a_generic_device_without_registers_from_1000h_up_deviates_and_exits_1() {
     }
     // The registers it has still pass.
     assert_eq!(check_of(&v, "rtu.write.group-1")["status"], "pass");
-}
-
-fn check_of<'a>(v: &'a serde_json::Value, id: &str) -> &'a serde_json::Value {
-    v["checks"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .find(|c| c["id"] == id)
-        .unwrap_or_else(|| panic!("no check {id}"))
 }
 
 /// The F510 model with `edit` applied, written to `dir/name`: the simulator serves it,

@@ -387,13 +387,7 @@ fn check_holds(dir: &Path, port: &str, line: &[&str], expect: Option<&str>) {
     let text = std::fs::read_to_string(&report)
         .unwrap_or_else(|e| panic!("check wrote no report ({e}), exit {exit:?}: {stderr}"));
     let v: Value = serde_json::from_str(&text).unwrap();
-    let deviations: Vec<String> = v["checks"]
-        .as_array()
-        .into_iter()
-        .flatten()
-        .filter(|c| c["status"] == "deviation" && c["expectation"]["outcome"] != "expected")
-        .map(|c| format!("{}: {}", c["id"], c["summary"]))
-        .collect();
+    let deviations = common::unexpected_deviations(&v);
     assert!(deviations.is_empty(), "{deviations:#?}");
     assert_eq!(exit, Some(0), "{}", v["summary"]);
     if expect.is_some() {

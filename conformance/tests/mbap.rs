@@ -190,12 +190,7 @@ fn check_through_mbap_against_pymodbus_tcp_server() {
     // server answers a unit id it does not have with exception 04H (its simulator core
     // raises a KeyError where the serial server's context raises "no such id", which
     // would give 0BH), so this is a deviation of the device, reported as it came.
-    let other = v["checks"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .find(|c| c["id"] == "rtu.other-address")
-        .unwrap();
+    let other = common::check_of(&v, "rtu.other-address");
     let ex = &other["exchanges"][0];
     assert!(
         ex["request"].as_str().unwrap().starts_with("FE 03"),

@@ -29,13 +29,7 @@ fn an_exported_description_served_by_pymodbus_checks_clean() {
         return;
     };
     let (code, v) = check_against(&d, description, &peer);
-    let deviations: Vec<String> = v["checks"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .filter(|c| c["status"] == "deviation" || c["status"] == "error")
-        .map(|c| format!("{} {}: {}", c["id"], c["status"], c["summary"]))
-        .collect();
+    let deviations = common::with_status(&v, &["deviation", "error"]);
     assert_eq!(code, Some(0), "{}", deviations.join("\n"));
     let counts = &v["expectations"]["counts"];
     assert_eq!(counts["unexpected"], 0, "{counts}");

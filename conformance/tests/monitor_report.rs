@@ -252,12 +252,7 @@ fn a_monitor_report_shows_why_the_master_deviates_and_names_its_nodes() {
         &["-a", "1"],
     );
     let id = "rtu.node01.master.register-not-in-map";
-    let check = v["checks"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .find(|c| c["id"] == id)
-        .unwrap_or_else(|| panic!("no {id} in {v:#}"));
+    let check = common::check_of(&v, id);
     let e = &check["exchanges"][0];
     assert_eq!(e["received"], "01 83 02 C0 F1", "{e:#}");
     assert_eq!(e["expected"], serde_json::Value::Null, "{e:#}");

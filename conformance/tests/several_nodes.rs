@@ -333,12 +333,7 @@ fn pymodbus_serving_two_nodes_is_checked_node_by_node() {
     // 3's refusal of that read is a deviation of its own.
     let bw = find("rtu.broadcast.write", "-");
     assert_eq!(bw["status"], "deviation", "{bw}");
-    let texts: Vec<&str> = bw["findings"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .map(|f| f["text"].as_str().unwrap())
-        .collect();
+    let texts: Vec<&str> = common::strings(&bw["findings"], "text");
     assert!(
         texts
             .iter()
