@@ -123,7 +123,7 @@ impl Listening {
     fn stop(mut self, n: usize) -> (i32, Value, Vec<String>, Vec<Value>) {
         let mut lines = Vec::new();
         while lines.len() < n {
-            match self.monitor.next_line(Duration::from_secs(20)) {
+            match self.monitor.stderr.next_line(Duration::from_secs(20)) {
                 Some(l) => lines.push(l),
                 None => break,
             }
@@ -136,7 +136,7 @@ impl Listening {
         let (status, _) = self
             .monitor
             .finish(Duration::from_secs(20), "the monitor after SIGINT");
-        lines.extend(self.monitor.pending());
+        lines.extend(self.monitor.stderr.pending());
         // The device first: the bus's endpoints go with the bus.
         self._device = None;
         signal(&self.bus.guard, nix::sys::signal::Signal::SIGTERM);

@@ -1,7 +1,7 @@
 //! `conformance monitor` running beside a test: started under a [`Kill`] guard, heard to
 //! be listening, and its stderr read line by line as it comes (its live lines).
 
-use std::io::{BufRead, BufReader};
+use std::io::{BufRead, BufReader, Read};
 use std::process::{Command, ExitStatus, Stdio};
 use std::sync::mpsc::{self, Receiver};
 use std::sync::{Arc, Mutex};
@@ -10,14 +10,63 @@ use std::time::Duration;
 
 use super::Kill;
 
-/// A running monitor: its guard, and its stderr lines, each both kept and sent on as it
-/// is read.
-pub struct Monitor {
-    /// The guard of the monitor process.
-    pub guard: Kill,
+/// The lines a child writes on one pipe, read by a thread as they come (so that it never
+/// blocks on a full pipe): each kept, and sent on to the test.
+pub struct Lines {
     said: Receiver<String>,
     all: Arc<Mutex<Vec<String>>>,
     reader: Option<JoinHandle<()>>,
+}
+
+impl Lines {
+    /// Reads `pipe` to its end on a thread.
+    pub fn read(pipe: impl Read + Send + 'static) -> Lines {
+        let all = Arc::new(Mutex::new(Vec::new()));
+        let (tx, said) = mpsc::channel();
+        let kept = all.clone();
+        let reader = std::thread::spawn(move || {
+            for line in BufReader::new(pipe).lines().map_while(Result::ok) {
+                kept.lock().unwrap().push(line.clone());
+                let _ = tx.send(line);
+            }
+        });
+        Lines {
+            said,
+            all,
+            reader: Some(reader),
+        }
+    }
+
+    /// The next line, within `limit` (None: none came).
+    pub fn next_line(&self, limit: Duration) -> Option<String> {
+        self.said.recv_timeout(limit).ok()
+    }
+
+    /// The lines read and not yet taken by [`next_line`](Lines::next_line).
+    pub fn pending(&self) -> Vec<String> {
+        self.said.try_iter().collect()
+    }
+
+    /// Every line read so far.
+    pub fn all(&self) -> Vec<String> {
+        self.all.lock().unwrap().clone()
+    }
+
+    /// Waits until the pipe is read to its end (the writer ended): every line.
+    pub fn to_end(&mut self) -> Vec<String> {
+        if let Some(r) = self.reader.take() {
+            r.join().unwrap();
+        }
+        self.all()
+    }
+}
+
+/// A running monitor: its guard, and its stderr's [`Lines`].
+pub struct Monitor {
+    /// The guard of the monitor process.
+    pub guard: Kill,
+    /// What it says on stderr.
+    pub stderr: Lines,
 }
 
 impl Monitor {
@@ -28,22 +77,8 @@ impl Monitor {
                 .stdout(Stdio::null())
                 .stderr(Stdio::piped()),
         );
-        let stderr = guard.0.stderr.take().unwrap();
-        let all = Arc::new(Mutex::new(Vec::new()));
-        let (tx, said) = mpsc::channel();
-        let kept = all.clone();
-        let reader = std::thread::spawn(move || {
-            for line in BufReader::new(stderr).lines().map_while(Result::ok) {
-                kept.lock().unwrap().push(line.clone());
-                let _ = tx.send(line);
-            }
-        });
-        Monitor {
-            guard,
-            said,
-            all,
-            reader: Some(reader),
-        }
+        let stderr = Lines::read(guard.0.stderr.take().unwrap());
+        Monitor { guard, stderr }
     }
 
     /// [`spawn`](Monitor::spawn), then [`until_listening`](Monitor::until_listening).
@@ -59,25 +94,14 @@ impl Monitor {
         let mut before = Vec::new();
         loop {
             let line = self
-                .said
-                .recv_timeout(Duration::from_secs(30))
-                .unwrap_or_else(|_| panic!("the monitor never said it was listening: {before:?}"));
+                .stderr
+                .next_line(Duration::from_secs(30))
+                .unwrap_or_else(|| panic!("the monitor never said it was listening: {before:?}"));
             if line.starts_with("listening on ") {
                 return before;
             }
             before.push(line);
         }
-    }
-
-    /// The next line it says, within `limit` (None: none came).
-    pub fn next_line(&self, limit: Duration) -> Option<String> {
-        self.said.recv_timeout(limit).ok()
-    }
-
-    /// The lines said and not yet taken by [`next_line`](Monitor::next_line) or
-    /// [`until_listening`](Monitor::until_listening).
-    pub fn pending(&self) -> Vec<String> {
-        self.said.try_iter().collect()
     }
 
     /// Sends signal `s` to the monitor.
@@ -91,9 +115,6 @@ impl Monitor {
     /// said.
     pub fn finish(&mut self, limit: Duration, what: &str) -> (ExitStatus, Vec<String>) {
         let status = self.guard.wait_within(limit, what);
-        if let Some(r) = self.reader.take() {
-            r.join().unwrap();
-        }
-        (status, self.all.lock().unwrap().clone())
+        (status, self.stderr.to_end())
     }
 }
