@@ -175,21 +175,15 @@ fn a_monitor_on_a_bus_records_what_the_line_carried_and_tshark_decodes_it() {
 #[test]
 fn a_gateway_run_records_its_mbap_frames_as_tcp_that_tshark_decodes_as_modbus_tcp() {
     let gw = common::GatewaySim::start("f510", 1, &[]);
-    let d = dir();
-    let cap = d.join("mbap.pcapng");
-    let json = d.join("mbap.json");
-    let out = Run::words("check --model f510 --tcp")
-        .arg(&gw.addr)
-        .args(["--framing", "mbap"])
-        .args(["--mode", "rtu", "--only", "rtu.map.monitor.*", "--quiet"])
-        .arg("--capture")
-        .arg(&cap)
-        .args(["--format", "json", "-o"])
-        .arg(&json)
-        .run();
+    let (cap, out, report) = captured(
+        "mbap",
+        Run::words("check --model f510 --tcp")
+            .arg(&gw.addr)
+            .args(["--framing", "mbap"])
+            .args(["--mode", "rtu", "--only", "rtu.map.monitor.*", "--quiet"]),
+    );
     let stderr = out.stderr.as_str();
     assert_eq!(out.code, Some(0), "{stderr}");
-    let report: Value = serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
     let frames = frames(&cap);
     assert!(frames
         .iter()
