@@ -270,15 +270,7 @@ fn an_invalid_file_is_refused_with_its_line_and_field_before_the_run() {
         [&["check"][..], &sim, &["--expect", f]].concat(),
         [&["fuzz"][..], &sim[..2], &["--expect", f]].concat(),
         vec!["gate", "--codec", "conformance adapter", "--expect", f],
-        vec![
-            "monitor",
-            "--model",
-            "f510",
-            "--port",
-            "/dev/null",
-            "--expect",
-            f,
-        ],
+        line(&["monitor --model f510 --port /dev/null --expect", f]),
     ] {
         let out = conformance(&args);
         let stderr = out.stderr.as_str();
@@ -288,25 +280,24 @@ fn an_invalid_file_is_refused_with_its_line_and_field_before_the_run() {
             "{args:?}: {stderr}"
         );
     }
-    // Another field on another line, and a file that is not TOML.
-    std::fs::write(
-        &file,
-        "[[expect]]\ncheck = \"x\"\nstatus = \"deviation\"\nreason = \"r\"\nexpires = \"soon\"\n",
-    )
-    .unwrap();
-    let out = conformance(&[&["check"][..], &sim, &["--expect", f]].concat());
-    assert_eq!(out.code, Some(2));
-    let stderr = out.stderr.as_str();
-    assert!(stderr.contains(&format!("{f}:5: expires: ")), "{stderr}");
-    std::fs::write(
-        &file,
-        "[[expect]]\ncheck = \"x\"\nreason = \"r\nstatus = 1\n",
-    )
-    .unwrap();
-    let out = conformance(&[&["check"][..], &sim, &["--expect", f]].concat());
-    assert_eq!(out.code, Some(2));
-    let stderr = out.stderr.as_str();
-    assert!(stderr.contains(&format!("{f}:3: ")), "{stderr}");
+    // Another field on another line, and a file that is not TOML: each refused, naming
+    // its line (and the field, where there is one).
+    for (text, says) in [
+        (
+            "[[expect]]\ncheck = \"x\"\nstatus = \"deviation\"\nreason = \"r\"\nexpires = \"soon\"\n",
+            format!("{f}:5: expires: "),
+        ),
+        (
+            "[[expect]]\ncheck = \"x\"\nreason = \"r\nstatus = 1\n",
+            format!("{f}:3: "),
+        ),
+    ] {
+        std::fs::write(&file, text).unwrap();
+        let out = conformance(&[&["check"][..], &sim, &["--expect", f]].concat());
+        assert_eq!(out.code, Some(2), "{says}");
+        let stderr = out.stderr.as_str();
+        assert!(stderr.contains(&says), "{stderr}");
+    }
     // --strict-expect means nothing without a file.
     let out = conformance(&[&["check"][..], &sim, &["--strict-expect"]].concat());
     assert_eq!(out.code, Some(2));
