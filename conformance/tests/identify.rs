@@ -203,10 +203,10 @@ fn a_silent_device_could_not_be_identified() {
 
 #[test]
 fn check_model_auto_runs_the_checks_of_the_identified_model() {
-    let dir = Scratch::new("auto");
-    let (exit, v) = common::check_device(
-        &dir,
-        &words("--sim a510 --model auto --mode rtu --only rtu.map.*"),
+    let (exit, v) = common::report_in(
+        "check",
+        "auto",
+        "--sim a510 --model auto --mode rtu --only rtu.map.*",
         Duration::from_secs(180),
     );
     assert_eq!(
@@ -373,10 +373,10 @@ fn a_generic_pymodbus_tcp_server_is_none_of_the_five() {
 /// identify check as ERROR, the run incomplete, saying why nothing was checked.
 #[test]
 fn check_model_auto_that_identifies_nothing_leaves_its_report() {
-    let dir = Scratch::new("auto-dead");
-    let (exit, v) = common::check_device(
-        &dir,
-        &words("--sim a510 --model auto --mode rtu --quirk dead"),
+    let (exit, v) = common::report_in(
+        "check",
+        "auto-dead",
+        "--sim a510 --model auto --mode rtu --quirk dead",
         Duration::from_secs(120),
     );
     assert_eq!(exit, Some(2), "{}", v["summary"]);

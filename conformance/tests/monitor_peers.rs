@@ -39,6 +39,17 @@ struct Listening {
 }
 
 impl Listening {
+    /// [`Listening::start`] in a scratch folder `name`, where `peer` (the master under
+    /// test) is installed; None (after SKIPPED) where it is not.
+    fn for_peer(peer: Peer, name: &str, drive: &[&str]) -> Option<(Scratch, Listening)> {
+        if !need(peer) {
+            return None;
+        }
+        let d = Scratch::new(name);
+        let l = Listening::start(&d, drive);
+        Some((d, l))
+    }
+
     fn start(d: &Path, drive: &[&str]) -> Listening {
         Listening::start_on(d, "1", &[], drive)
     }
@@ -269,11 +280,9 @@ fn run(cmd: Run, must_succeed: bool) -> String {
 
 #[test]
 fn mbpoll_polling_and_writing_is_heard_and_the_drive_passes() {
-    if !need(Peer::Mbpoll) {
+    let Some((_d, l)) = Listening::for_peer(Peer::Mbpoll, "mbpoll", &[]) else {
         return;
-    }
-    let d = Scratch::new("mbpoll");
-    let l = Listening::start(&d, &[]);
+    };
     let mbpoll = |args: &[&str]| {
         Run::program("mbpoll", words("-m rtu -b 9600 -P even -a 1 -o 2")).args(args)
     };
@@ -292,11 +301,9 @@ fn mbpoll_polling_and_writing_is_heard_and_the_drive_passes() {
 
 #[test]
 fn pymodbus_polling_and_writing_is_heard_and_the_drive_passes() {
-    if !need(Peer::Pymodbus) {
+    let Some((_d, l)) = Listening::for_peer(Peer::Pymodbus, "pymodbus", &[]) else {
         return;
-    }
-    let d = Scratch::new("pymodbus");
-    let l = Listening::start(&d, &[]);
+    };
     // Parity E on a pseudo-terminal: pymodbus's connect() refuses it (EINVAL) and falls
     // back to N here; the line carries bytes, whatever the program's termios says.
     let script = format!(
@@ -319,11 +326,9 @@ fn pymodbus_polling_and_writing_is_heard_and_the_drive_passes() {
 
 #[test]
 fn minimalmodbus_polling_and_writing_is_heard_and_the_drive_passes() {
-    if !need(Peer::Minimalmodbus) {
+    let Some((_d, l)) = Listening::for_peer(Peer::Minimalmodbus, "minimalmodbus", &[]) else {
         return;
-    }
-    let d = Scratch::new("minimalmodbus");
-    let l = Listening::start(&d, &[]);
+    };
     let script = format!(
         "import minimalmodbus\n\
          i = minimalmodbus.Instrument({port:?}, 1)\n\
@@ -372,11 +377,11 @@ fn a_libmodbus_client_polling_and_writing_is_heard_and_the_drive_passes() {
 /// replies are timeouts and nothing more.
 #[test]
 fn replies_a_drive_drops_are_found_and_the_retries_of_the_master_counted() {
-    if !need(Peer::Pymodbus) {
+    let Some((_d, l)) =
+        Listening::for_peer(Peer::Pymodbus, "retries", &["--quirk", "drop-every=2"])
+    else {
         return;
-    }
-    let d = Scratch::new("retries");
-    let l = Listening::start(&d, &["--quirk", "drop-every=2"]);
+    };
     let script = format!(
         "{connect}\
          for _ in range(4):\n\

@@ -53,7 +53,7 @@ impl Lines {
     }
 
     /// Waits until the pipe is read to its end (the writer ended): every line.
-    pub fn to_end(&mut self) -> Vec<String> {
+    pub fn read_to_end(&mut self) -> Vec<String> {
         if let Some(r) = self.reader.take() {
             r.join().unwrap();
         }
@@ -115,6 +115,6 @@ impl Monitor {
     /// said.
     pub fn finish(&mut self, limit: Duration, what: &str) -> (ExitStatus, Vec<String>) {
         let status = self.guard.wait_within(limit, what);
-        (status, self.stderr.to_end())
+        (status, self.stderr.read_to_end())
     }
 }
