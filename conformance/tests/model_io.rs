@@ -5,7 +5,7 @@ mod common;
 
 use std::time::Duration;
 
-use common::{run_bounded, Run, Scratch};
+use common::{run_bounded, Ran, Run, Scratch};
 
 /// A description, exported, served by pymodbus's simulator, then checked against the same
 /// description: no deviation beyond what pymodbus does differently, each of which the
@@ -135,12 +135,15 @@ fn a_bad_register_map_exits_1_naming_row_and_column_and_an_unreadable_one_2() {
     let d = Scratch::new("import-bad");
     let map = d.join("bad.csv");
     std::fs::write(&map, "register,access\n0x0000-0x0FFF,rw\n2500H,sometimes\n").unwrap();
-    let (code, out, err) = Run::words("model import --from csv")
+    let Ran {
+        stdout: out,
+        stderr: err,
+        ..
+    } = Run::words("model import --from csv")
         .arg(&map)
         .timeout(Duration::from_secs(30))
         .run()
-        .parts();
-    assert_eq!(code, Some(1), "{err}");
+        .expect(1);
     assert!(out.is_empty(), "{out}");
     assert!(
         err.contains("bad.csv row 3, column access: \"sometimes\" is not an access"),

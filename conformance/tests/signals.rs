@@ -202,12 +202,12 @@ fn the_simulator_replaces_a_stale_link_but_never_a_file() {
 
     let file = d.join("notes.txt");
     std::fs::write(&file, "keep me").unwrap();
-    let (code, _, stderr) = Run::words("simulate --pty --link")
+    let stderr = Run::words("simulate --pty --link")
         .arg(&file)
         .timeout(Duration::from_secs(30))
         .run()
-        .parts();
-    assert_eq!(code, Some(2), "{stderr}");
+        .expect(2)
+        .stderr;
     assert!(stderr.contains("is not a symbolic link"), "{stderr}");
     assert_eq!(std::fs::read_to_string(&file).unwrap(), "keep me");
 }
