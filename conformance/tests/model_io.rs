@@ -87,11 +87,17 @@ Register,Name,Access,Min,Max,Unit,Scale,Comment\r
 2501H-252FH,monitor,r,,,,,\r
 ";
 
-#[test]
-fn a_register_map_imports_as_blocks_citing_its_rows() {
-    let d = Scratch::new("import");
+/// A scratch folder `name` holding [`MAP`] as X100.csv: the folder and the map's path.
+fn the_map(name: &str) -> (Scratch, std::path::PathBuf) {
+    let d = Scratch::new(name);
     let map = d.join("X100.csv");
     std::fs::write(&map, MAP).unwrap();
+    (d, map)
+}
+
+#[test]
+fn a_register_map_imports_as_blocks_citing_its_rows() {
+    let (d, map) = the_map("import");
     let out = d.join("x100.json");
     let (code, _, err) = Run::words("model import --from csv")
         .arg(&map)
@@ -163,9 +169,7 @@ fn a_bad_register_map_exits_1_naming_row_and_column_and_an_unreadable_one_2() {
 /// schema_version 2 loader (branch i34-format) to load the imported description.
 #[test]
 fn an_imported_map_served_by_pymodbus_checks_clean() {
-    let d = Scratch::new("import-roundtrip");
-    let map = d.join("X100.csv");
-    std::fs::write(&map, MAP).unwrap();
+    let (d, map) = the_map("import-roundtrip");
     let description = d.join("x100.json");
     let description = description.to_str().unwrap();
     let sim = d.join("x100-sim.json");
