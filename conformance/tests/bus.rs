@@ -107,6 +107,23 @@ fn wait_for_record(path: &Path, kind: &str) {
     }
 }
 
+/// A bus started with `args` (the words of each part, as [`line`] takes them) and its
+/// `ptys` endpoints, logging its line to line.jsonl in a scratch folder `name`: the
+/// folder, the log's path, the bus's guard and its endpoints.
+fn logged(
+    name: &str,
+    args: &[&str],
+    ptys: usize,
+) -> (Scratch, PathBuf, Kill, Vec<(String, PathBuf)>) {
+    let d = Scratch::new(name);
+    let log = d.join("line.jsonl");
+    let Bus { guard, ends } = Bus::start(
+        &line(&[&line(args)[..], &["--log", log.to_str().unwrap()]].concat()),
+        ptys,
+    );
+    (d, log, guard, ends)
+}
+
 fn events<'a>(log: &'a [Value], kind: &str) -> Vec<&'a Value> {
     log.iter().filter(|r| r["event"] == kind).collect()
 }
@@ -156,15 +173,7 @@ fn an_endpoint_with_echo_hears_itself_and_the_others_do_not() {
 
 #[test]
 fn a_paced_frame_arrives_whole_on_the_lines_character_schedule() {
-    let d = Scratch::new("paced");
-    let log = d.join("line.jsonl");
-    let Bus {
-        guard: mut bus,
-        ends,
-    } = Bus::start(
-        &line(&["-n 2 -b 9600 -P even --log", log.to_str().unwrap()]),
-        2,
-    );
+    let (_d, log, mut bus, ends) = logged("paced", &["-n 2 -b 9600 -P even"], 2);
     let (mut a, mut b) = (open(&ends[0].1), open(&ends[1].1));
     a.write_all(&READ_252F).unwrap();
     let got = read_n(&mut b, READ_252F.len(), Duration::from_secs(10));
@@ -204,17 +213,9 @@ fn a_paced_frame_arrives_whole_on_the_lines_character_schedule() {
 
 #[test]
 fn two_writers_at_once_collide_and_the_listener_gets_damage() {
-    let d = Scratch::new("collision");
-    let log = d.join("line.jsonl");
     // 24 characters at 1200 baud are 220 ms on the line: the second write lands inside
     // the first however the host schedules this test.
-    let Bus {
-        guard: mut bus,
-        ends,
-    } = Bus::start(
-        &line(&["-n 3 -b 1200 -P even --log", log.to_str().unwrap()]),
-        3,
-    );
+    let (_d, log, mut bus, ends) = logged("collision", &["-n 3 -b 1200 -P even"], 3);
     let mut f: Vec<File> = ends.iter().map(|(_, p)| open(p)).collect();
     let a: Vec<u8> = (0..24u8).map(|i| 0x30 + i).collect();
     let b: Vec<u8> = (0..24u8).map(|i| 0xC5 ^ i).collect();
@@ -246,18 +247,9 @@ fn two_writers_at_once_collide_and_the_listener_gets_damage() {
 /// The noise records (without their times) and what the listener heard, for ten frames
 /// through a noisy line with `seed`.
 fn noisy(seed: &str) -> (Vec<Value>, Vec<u8>) {
-    let d = Scratch::new(&format!("noise-{seed}"));
-    let log = d.join("line.jsonl");
-    let Bus {
-        guard: mut bus,
-        ends,
-    } = Bus::start(
-        &line(&[
-            "-n 2 -b 38400 -P none --noise 0.01 --seed",
-            seed,
-            "--log",
-            log.to_str().unwrap(),
-        ]),
+    let (_d, log, mut bus, ends) = logged(
+        &format!("noise-{seed}"),
+        &["-n 2 -b 38400 -P none --noise 0.01 --seed", seed],
         2,
     );
     let (mut a, mut b) = (open(&ends[0].1), open(&ends[1].1));

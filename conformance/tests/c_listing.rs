@@ -14,13 +14,10 @@
 
 mod common;
 
-use std::io::{Read, Write};
-use std::path::{Path, PathBuf};
-use std::process::{Command, Output, Stdio};
-use std::thread;
-use std::time::{Duration, Instant};
+use std::path::Path;
+use std::time::Duration;
 
-use common::{cc, need, Peer};
+use common::{cc, need, Peer, Run, Scratch};
 use conformance::codec::crc::{crc16, crc16_reference};
 use conformance::rng::Rng;
 use conformance::vectors::model::{CListing, FileMode};
@@ -59,70 +56,6 @@ int main(void)
 }
 "#;
 
-/// A directory under the system's temporary directory, removed when dropped.
-struct TempDir(PathBuf);
-
-impl TempDir {
-    fn new(tag: &str) -> TempDir {
-        let dir = std::env::temp_dir().join(format!(
-            "conformance-c-listing-{tag}-{}-{:?}",
-            std::process::id(),
-            thread::current().id()
-        ));
-        let _ = std::fs::remove_dir_all(&dir);
-        std::fs::create_dir_all(&dir).expect("create a temporary directory");
-        TempDir(dir)
-    }
-}
-
-impl Drop for TempDir {
-    fn drop(&mut self) {
-        let _ = std::fs::remove_dir_all(&self.0);
-    }
-}
-
-/// Runs `cmd` with `input` on stdin, killed after [`TIMEOUT`].
-fn run(cmd: &mut Command, input: &[u8]) -> std::io::Result<Output> {
-    let what = format!("{cmd:?}");
-    let mut child = cmd
-        .stdin(Stdio::piped())
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn()?;
-    let mut stdin = child.stdin.take().expect("piped stdin");
-    let input = input.to_vec();
-    let writer = thread::spawn(move || {
-        let _ = stdin.write_all(&input);
-    });
-    let reader = |mut r: Box<dyn Read + Send>| {
-        thread::spawn(move || {
-            let mut s = Vec::new();
-            let _ = r.read_to_end(&mut s);
-            s
-        })
-    };
-    let out = reader(Box::new(child.stdout.take().expect("piped stdout")));
-    let err = reader(Box::new(child.stderr.take().expect("piped stderr")));
-    let deadline = Instant::now() + TIMEOUT;
-    let status = loop {
-        if let Some(status) = child.try_wait()? {
-            break status;
-        }
-        if Instant::now() >= deadline {
-            let _ = child.kill();
-            let _ = child.wait();
-            panic!("{what} did not finish within {TIMEOUT:?} and was killed");
-        }
-        thread::sleep(Duration::from_millis(5));
-    };
-    let _ = writer.join();
-    Ok(Output {
-        status,
-        stdout: out.join().unwrap_or_default(),
-        stderr: err.join().unwrap_or_default(),
-    })
-}
-
 /// The C compiler, or `None` (after SKIPPED, or a panic under CI) when there is none.
 fn compiler() -> Option<String> {
     need(Peer::CCompiler).then(cc)
@@ -152,18 +85,15 @@ fn compile(cc: &str, dir: &Path, name: &str, source: &str, link: bool) -> Compil
     } else {
         format!("{name}.o")
     });
-    let mut cmd = Command::new(cc);
-    cmd.env("LC_ALL", "C")
-        .arg("-std=c99")
-        .arg("-Wall")
-        .arg("-o")
-        .arg(&out);
-    if !link {
-        cmd.arg("-c");
-    }
-    cmd.arg(&src);
-    let o = run(&mut cmd, b"").expect("run the C compiler");
-    let stderr = String::from_utf8_lossy(&o.stderr).into_owned();
+    let o = Run::program(cc, ["-std=c99", "-Wall", "-o"])
+        .env("LC_ALL", "C")
+        .arg(&out)
+        .args(if link { None } else { Some("-c") })
+        .arg(&src)
+        .stdin("")
+        .timeout(TIMEOUT)
+        .run();
+    let stderr = o.stderr;
     let prefix = format!("{}:", src.display());
     let errors = stderr
         .lines()
@@ -180,7 +110,7 @@ fn compile(cc: &str, dir: &Path, name: &str, source: &str, link: bool) -> Compil
         })
         .collect();
     Compiled {
-        ok: o.status.success(),
+        ok: o.code == Some(0),
         errors,
         stderr,
     }
@@ -212,12 +142,12 @@ fn line_of(source: &str, n: usize) -> &str {
 #[test]
 fn the_printed_listings_do_not_compile_for_the_recorded_reasons() {
     let Some(cc) = compiler() else { return };
-    let dir = TempDir::new("printed");
+    let dir = Scratch::new("printed");
     for (id, l) in listings() {
         let page = l.as_printed_on_page().expect("OCR repairs apply");
         let source = with_typedefs(&l, &page);
         let name = id.replace('.', "_");
-        let c = compile(&cc, &dir.0, &name, &source, false);
+        let c = compile(&cc, &dir, &name, &source, false);
         // Shown with `--nocapture`.
         println!("{id} as printed, {cc} says:\n{}", c.stderr.trim_end());
         assert!(!c.ok, "{id}: the printed listing compiled:\n{source}");
@@ -257,7 +187,7 @@ fn the_printed_listings_do_not_compile_for_the_recorded_reasons() {
 #[test]
 fn each_repair_is_needed_and_together_they_compile() {
     let Some(cc) = compiler() else { return };
-    let dir = TempDir::new("repairs");
+    let dir = Scratch::new("repairs");
     for (id, l) in listings() {
         let page = l.as_printed_on_page().expect("OCR repairs apply");
         let name = id.replace('.', "_");
@@ -272,7 +202,7 @@ fn each_repair_is_needed_and_together_they_compile() {
             let text = listing::apply_repairs(&page, &some).expect("repairs apply");
             let c = compile(
                 &cc,
-                &dir.0,
+                &dir,
                 &format!("{name}_{skip}"),
                 &with_typedefs(&l, &text),
                 false,
@@ -283,7 +213,7 @@ fn each_repair_is_needed_and_together_they_compile() {
                 l.repairs[skip].find, l.repairs[skip].replace
             );
         }
-        let c = compile(&cc, &dir.0, &name, &with_typedefs(&l, &l.corrected), false);
+        let c = compile(&cc, &dir, &name, &with_typedefs(&l, &l.corrected), false);
         assert!(
             c.ok,
             "{id}: the corrected listing does not compile:\n{}",
@@ -314,7 +244,7 @@ fn example_bodies() -> Vec<(String, Vec<u8>)> {
 #[test]
 fn the_corrected_listings_compute_crc16() {
     let Some(cc) = compiler() else { return };
-    let dir = TempDir::new("run");
+    let dir = Scratch::new("run");
     let frames = example_bodies();
     assert!(frames.len() >= 60, "{} RTU example frames", frames.len());
     let mut rng = Rng::new(0x7EC0_0510);
@@ -339,12 +269,15 @@ fn the_corrected_listings_compute_crc16() {
     for (id, l) in listings() {
         let name = id.replace('.', "_");
         let source = format!("{}{}\n{MAIN}", l.typedefs(), l.corrected);
-        let c = compile(&cc, &dir.0, &name, &source, true);
+        let c = compile(&cc, &dir, &name, &source, true);
         assert!(c.ok, "{id}: the test program does not build:\n{}", c.stderr);
-        let o = run(&mut Command::new(dir.0.join(&name)), stdin.as_bytes())
-            .expect("run the compiled listing");
-        assert!(o.status.success(), "{id}: the program failed: {}", o.status);
-        let got: Vec<u16> = String::from_utf8_lossy(&o.stdout)
+        let o = Run::program(dir.join(&name), [""; 0])
+            .stdin(stdin.as_bytes())
+            .timeout(TIMEOUT)
+            .run();
+        assert_eq!(o.code, Some(0), "{id}: the program failed: {o}");
+        let got: Vec<u16> = o
+            .stdout
             .lines()
             .map(|l| u16::from_str_radix(l, 16).expect("a CRC per line"))
             .collect();

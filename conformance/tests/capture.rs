@@ -45,12 +45,7 @@ fn the_capture_holds_every_request_of_the_report_in_order_with_directions_and_da
     }
     // The CRC-error bit is set on exactly the frames whose CRC is wrong; every such frame
     // the suite sent names the check that damaged it, and that check is in the report.
-    let ids: Vec<&str> = report["checks"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .map(|c| c["id"].as_str().unwrap())
-        .collect();
+    let ids: Vec<&str> = common::strings(&report["checks"], "id");
     let mut damaged = 0;
     for f in &frames {
         assert_eq!(

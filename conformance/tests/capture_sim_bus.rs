@@ -11,6 +11,7 @@ use captured::*;
 use common::{need, Peer, Run};
 use conformance::capture::Direction;
 use serde_json::Value;
+use std::time::Duration;
 
 #[test]
 fn a_simulator_killed_mid_run_leaves_a_whole_capture_seen_from_the_drive() {
@@ -121,47 +122,13 @@ fn a_bus_capture_holds_each_endpoints_frames_on_its_own_interface() {
 
 #[test]
 fn a_monitor_on_a_bus_records_what_the_line_carried_and_tshark_decodes_it() {
-    use std::io::{BufRead, BufReader};
     if !need(Peer::Tshark) {
         return;
     }
-    let d = dir();
-    let line_cap = d.join("tap-line.pcapng");
-    let tap_cap = d.join("tap.pcapng");
-    let (m, tap) = (d.join("tap-master"), d.join("tap-tap"));
-    let mut bus = Run::words("bus --model f510 -a 1 --quiet --link")
-        .command()
-        .arg(format!("m={}", m.display()))
-        .arg("--link")
-        .arg(format!("tap={}", tap.display()))
-        .arg("--capture")
-        .arg(&line_cap)
-        .stdout(std::process::Stdio::piped())
-        .stderr(std::process::Stdio::null())
-        .spawn()
-        .unwrap();
-    let mut lines = BufReader::new(bus.stdout.take().unwrap()).lines();
-    for _ in 0..2 {
-        lines.next().unwrap().unwrap();
-    }
-    let (mut monitor, drain) = listening(
-        Run::words("monitor --model f510 -a 1 -b 9600 --duration 8 --port")
-            .command()
-            .arg(&tap)
-            .arg("--capture")
-            .arg(&tap_cap)
-            .args(["--format", "json", "-o"])
-            .arg(d.join("tap.json")),
-    );
-    let out = Run::words("check --model f510 --mode rtu -a 1 --quiet --port")
-        .arg(&m)
-        .args(["--only", "rtu.map.group-0.*", "--format", "json", "-o"])
-        .arg(d.join("tap-check.json"))
-        .run();
-    let status = monitor.wait().unwrap();
-    let stderr = drain.join().unwrap().join("\n");
-    bus.kill().unwrap();
-    bus.wait().unwrap();
+    let d = dir().join("tap");
+    std::fs::create_dir_all(&d).unwrap();
+    let (line_cap, tap_cap) = (d.join("bus.pcapng"), d.join("tap.pcapng"));
+    let (out, status, stderr) = tapped_run(&d, "1", "8", &[]);
     assert_eq!(out.code, Some(0), "{}", out.stderr);
     assert!(matches!(status.code(), Some(0 | 1)), "{stderr}");
     assert!(stderr.contains("capture: "), "{stderr}");
@@ -208,21 +175,15 @@ fn a_monitor_on_a_bus_records_what_the_line_carried_and_tshark_decodes_it() {
 #[test]
 fn a_gateway_run_records_its_mbap_frames_as_tcp_that_tshark_decodes_as_modbus_tcp() {
     let gw = common::GatewaySim::start("f510", 1, &[]);
-    let d = dir();
-    let cap = d.join("mbap.pcapng");
-    let json = d.join("mbap.json");
-    let out = Run::words("check --model f510 --tcp")
-        .arg(&gw.addr)
-        .args(["--framing", "mbap"])
-        .args(["--mode", "rtu", "--only", "rtu.map.monitor.*", "--quiet"])
-        .arg("--capture")
-        .arg(&cap)
-        .args(["--format", "json", "-o"])
-        .arg(&json)
-        .run();
+    let (cap, out, report) = captured(
+        "mbap",
+        Run::words("check --model f510 --tcp")
+            .arg(&gw.addr)
+            .args(["--framing", "mbap"])
+            .args(["--mode", "rtu", "--only", "rtu.map.monitor.*", "--quiet"]),
+    );
     let stderr = out.stderr.as_str();
     assert_eq!(out.code, Some(0), "{stderr}");
-    let report: Value = serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
     let frames = frames(&cap);
     assert!(frames
         .iter()
@@ -373,47 +334,11 @@ fn a_simulator_served_over_tcp_records_what_it_received_and_sent() {
 /// new request (`drive.unexpected-reply`, `master.request-before-reply`).
 #[test]
 fn a_bus_a_tap_and_a_check_capture_of_one_run_are_judged_alike() {
-    use std::io::{BufRead, BufReader};
     let d = dir().join("alike");
     std::fs::create_dir_all(&d).unwrap();
-    let (m, tap) = (d.join("m"), d.join("tap"));
-    let mut bus = Run::words("bus --model f510 -a 1,2 --quiet --link")
-        .command()
-        .arg(format!("m={}", m.display()))
-        .arg("--link")
-        .arg(format!("tap={}", tap.display()))
-        .arg("--capture")
-        .arg(d.join("bus.pcapng"))
-        .stdout(std::process::Stdio::piped())
-        .stderr(std::process::Stdio::null())
-        .spawn()
-        .unwrap();
-    let mut lines = BufReader::new(bus.stdout.take().unwrap()).lines();
-    for _ in 0..2 {
-        lines.next().unwrap().unwrap();
-    }
-    let (mut monitor, drain) = listening(
-        Run::words("monitor --model f510 -a 1,2 -b 9600")
-            .command()
-            .args(["--duration", "10", "--port"])
-            .arg(&tap)
-            .arg("--capture")
-            .arg(d.join("tap.pcapng"))
-            .args(["--format", "json", "-o"])
-            .arg(d.join("live.json")),
-    );
-    let out = Run::words("check --model f510 --mode rtu -a 1,2")
-        .args(["--quiet", "--port"])
-        .arg(&m)
-        .args(["--only", "rtu.map.group-0.*", "--capture"])
-        .arg(d.join("check.pcapng"))
-        .args(["--format", "json", "-o"])
-        .arg(d.join("check.json"))
-        .run();
-    let status = monitor.wait().unwrap();
-    let stderr = drain.join().unwrap().join("\n");
-    bus.kill().unwrap();
-    bus.wait().unwrap();
+    let check_cap = d.join("check.pcapng");
+    let (out, status, stderr) =
+        tapped_run(&d, "1,2", "10", &["--capture", check_cap.to_str().unwrap()]);
     assert_eq!(out.code, Some(0), "{}", out.stderr);
     assert!(matches!(status.code(), Some(0 | 1)), "{stderr}");
     let check: Value =
@@ -464,21 +389,53 @@ fn a_bus_a_tap_and_a_check_capture_of_one_run_are_judged_alike() {
     }
 }
 
-/// A `monitor` on a tap started and heard to be listening (its first stderr line), its
-/// later stderr lines read by a thread until it ends, so that it never blocks on a full
-/// pipe.
-fn listening(
-    monitor: &mut std::process::Command,
-) -> (std::process::Child, std::thread::JoinHandle<Vec<String>>) {
-    use std::io::{BufRead, BufReader};
-    let mut child = monitor
-        .stderr(std::process::Stdio::piped())
-        .stdout(std::process::Stdio::null())
-        .spawn()
-        .unwrap();
-    let mut heard = BufReader::new(child.stderr.take().unwrap()).lines();
-    let first = heard.next().unwrap().unwrap();
-    assert!(first.starts_with("listening on"), "{first}");
-    let drain = std::thread::spawn(move || heard.map_while(Result::ok).collect::<Vec<_>>());
-    (child, drain)
+/// One run heard three ways, in `d`: a bus of F510 drives at `nodes` (its line captured
+/// to bus.pcapng) with the master's end at `m` and a tap at `tap`; a monitor on the tap
+/// for `duration` seconds (its capture tap.pcapng, its report live.json), started and
+/// heard to be listening; `check` of group 0 on `m` with `check_extra` (its report
+/// check.json). What check left, how the monitor ended and what it said after
+/// listening.
+fn tapped_run(
+    d: &std::path::Path,
+    nodes: &str,
+    duration: &str,
+    check_extra: &[&str],
+) -> (common::Ran, std::process::ExitStatus, String) {
+    let (m, tap) = (d.join("m"), d.join("tap"));
+    let bus = common::Bus::start(
+        &common::line(&[
+            "--model f510 -a",
+            nodes,
+            "--link",
+            &format!("m={}", m.display()),
+            "--link",
+            &format!("tap={}", tap.display()),
+            "--capture",
+            d.join("bus.pcapng").to_str().unwrap(),
+        ]),
+        2,
+    );
+    let mut monitor = common::Monitor::spawn(
+        Run::words("monitor --model f510 -b 9600 -a")
+            .args([nodes, "--duration", duration, "--port"])
+            .arg(&tap)
+            .arg("--capture")
+            .arg(d.join("tap.pcapng"))
+            .args(["--format", "json", "-o"])
+            .arg(d.join("live.json"))
+            .command(),
+    );
+    // The monitor's first word is that it listens.
+    assert_eq!(monitor.until_listening(), Vec::<String>::new());
+    let out = Run::words("check --model f510 --mode rtu --quiet -a")
+        .args([nodes, "--port"])
+        .arg(&m)
+        .args(["--only", "rtu.map.group-0.*"])
+        .args(check_extra)
+        .args(["--format", "json", "-o"])
+        .arg(d.join("check.json"))
+        .run();
+    let (status, said) = monitor.finish(Duration::from_secs(600), "the monitor");
+    drop(bus);
+    (out, status, said[1..].join("\n"))
 }

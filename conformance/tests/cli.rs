@@ -407,13 +407,7 @@ fn a_pseudo_terminal_has_no_line_bound() {
     // On a loaded host a paced request can stall on its way out every time: that check is
     // an ERROR of this host (exit 2), and only that (issue 24); the bound is what is
     // asserted here.
-    let errors: Vec<String> = v["checks"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .filter(|c| c["status"] == "error" || c["status"] == "deviation")
-        .map(|c| format!("{} {}: {}", c["status"], c["id"], c["summary"]))
-        .collect();
+    let errors = common::with_status(&v, &["error", "deviation"]);
     let host = errors
         .iter()
         .filter(|e| {

@@ -8,7 +8,7 @@ mod common;
 use std::path::PathBuf;
 use std::time::Duration;
 
-use common::{check_device, sim_pty, Run, Scratch};
+use common::{check_device, line, sim_pty, Run, Scratch};
 use conformance::model::{DriveModel, MODELS};
 
 /// The issue's device: RTU only, holding registers 0000H..0FFFH and 2500H..252FH, no
@@ -105,15 +105,25 @@ fn both_examples_load_and_say_what_they_leave_out() {
     assert_eq!(full.identification.as_ref().unwrap().register, Some(0x252F));
 }
 
+/// `check` of the example description `name` on the simulator serving it, unpaced, with
+/// the words of `extra`, in a scratch folder `dir`: the exit code and the report.
+fn on_the_simulator(dir: &str, name: &str, extra: &str) -> (Option<i32>, serde_json::Value) {
+    let file = example(name);
+    check_device(
+        &Scratch::new(dir),
+        &line(&[
+            "--sim --no-pace",
+            extra,
+            "--model-file",
+            file.to_str().unwrap(),
+        ]),
+        Duration::from_secs(120),
+    )
+}
+
 #[test]
 fn the_issue_device_passes_on_the_simulator_and_its_skips_name_the_missing_fields() {
-    let dir = Scratch::new("minimal-sim");
-    let file = example(MINIMAL);
-    let (exit, v) = check_device(
-        &dir,
-        &["--sim", "--no-pace", "--model-file", file.to_str().unwrap()],
-        Duration::from_secs(120),
-    );
+    let (exit, v) = on_the_simulator("minimal-sim", MINIMAL, "");
     clean(exit, &v);
     let all = checks(&v);
     for (id, field) in [
@@ -154,13 +164,7 @@ fn the_issue_device_passes_on_the_simulator_and_its_skips_name_the_missing_field
 
 #[test]
 fn the_full_example_passes_on_the_simulator_with_its_bounds_and_identification() {
-    let dir = Scratch::new("full-sim");
-    let file = example(FULL);
-    let (exit, v) = check_device(
-        &dir,
-        &["--sim", "--no-pace", "--model-file", file.to_str().unwrap()],
-        Duration::from_secs(120),
-    );
+    let (exit, v) = on_the_simulator("full-sim", FULL, "");
     clean(exit, &v);
     let all = checks(&v);
     for id in [
@@ -307,36 +311,14 @@ fn a_device_that_differs_from_what_a_description_leaves_out_is_never_a_deviation
     // The simulator answers every exception with the wrong code: the full description
     // states its codes and sees deviations; the minimal one states none, so the checks
     // that would judge a code are skipped, naming the rule, and nothing deviates.
-    let (exit, v) = check_device(
-        &Scratch::new("wrong-full"),
-        &[
-            "--sim",
-            "--no-pace",
-            "--quirk",
-            "wrong-exception",
-            "--model-file",
-            example(FULL).to_str().unwrap(),
-        ],
-        Duration::from_secs(120),
-    );
+    let (exit, v) = on_the_simulator("wrong-full", FULL, "--quirk wrong-exception");
     assert_ne!(exit, Some(0));
     assert!(
         v["summary"]["deviation"].as_u64().unwrap() > 0,
         "{:#?}",
         v["summary"]
     );
-    let (exit, v) = check_device(
-        &Scratch::new("wrong-minimal"),
-        &[
-            "--sim",
-            "--no-pace",
-            "--quirk",
-            "wrong-exception",
-            "--model-file",
-            example(MINIMAL).to_str().unwrap(),
-        ],
-        Duration::from_secs(120),
-    );
+    let (exit, v) = on_the_simulator("wrong-minimal", MINIMAL, "--quirk wrong-exception");
     clean(exit, &v);
     let all = checks(&v);
     let (status, summary) = status_of(&all, "rtu.read-count.over-limit");
@@ -395,13 +377,7 @@ fn a_description_written_from_the_guide_checks_a_pymodbus_server_with_no_deviati
     let all = checks(&v);
     // pymodbus's one framing fault against the serial line's rules, which no description
     // can excuse, is accepted by the expectations file with its reason; nothing else.
-    let unexpected: Vec<_> = v["checks"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .filter(|c| c["status"] == "deviation" && c["expectation"]["outcome"] != "expected")
-        .map(|c| format!("{}: {}", c["id"], c["summary"]))
-        .collect();
+    let unexpected = common::unexpected_deviations(&v);
     assert!(unexpected.is_empty(), "{unexpected:#?}");
     assert_eq!(
         v["expectations"]["counts"]["unexpected"], 0,

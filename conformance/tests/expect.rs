@@ -270,15 +270,7 @@ fn an_invalid_file_is_refused_with_its_line_and_field_before_the_run() {
         [&["check"][..], &sim, &["--expect", f]].concat(),
         [&["fuzz"][..], &sim[..2], &["--expect", f]].concat(),
         vec!["gate", "--codec", "conformance adapter", "--expect", f],
-        vec![
-            "monitor",
-            "--model",
-            "f510",
-            "--port",
-            "/dev/null",
-            "--expect",
-            f,
-        ],
+        line(&["monitor --model f510 --port /dev/null --expect", f]),
     ] {
         let out = conformance(&args);
         let stderr = out.stderr.as_str();
@@ -288,25 +280,24 @@ fn an_invalid_file_is_refused_with_its_line_and_field_before_the_run() {
             "{args:?}: {stderr}"
         );
     }
-    // Another field on another line, and a file that is not TOML.
-    std::fs::write(
-        &file,
-        "[[expect]]\ncheck = \"x\"\nstatus = \"deviation\"\nreason = \"r\"\nexpires = \"soon\"\n",
-    )
-    .unwrap();
-    let out = conformance(&[&["check"][..], &sim, &["--expect", f]].concat());
-    assert_eq!(out.code, Some(2));
-    let stderr = out.stderr.as_str();
-    assert!(stderr.contains(&format!("{f}:5: expires: ")), "{stderr}");
-    std::fs::write(
-        &file,
-        "[[expect]]\ncheck = \"x\"\nreason = \"r\nstatus = 1\n",
-    )
-    .unwrap();
-    let out = conformance(&[&["check"][..], &sim, &["--expect", f]].concat());
-    assert_eq!(out.code, Some(2));
-    let stderr = out.stderr.as_str();
-    assert!(stderr.contains(&format!("{f}:3: ")), "{stderr}");
+    // Another field on another line, and a file that is not TOML: each refused, naming
+    // its line (and the field, where there is one).
+    for (text, says) in [
+        (
+            "[[expect]]\ncheck = \"x\"\nstatus = \"deviation\"\nreason = \"r\"\nexpires = \"soon\"\n",
+            format!("{f}:5: expires: "),
+        ),
+        (
+            "[[expect]]\ncheck = \"x\"\nreason = \"r\nstatus = 1\n",
+            format!("{f}:3: "),
+        ),
+    ] {
+        std::fs::write(&file, text).unwrap();
+        let out = conformance(&[&["check"][..], &sim, &["--expect", f]].concat());
+        assert_eq!(out.code, Some(2), "{says}");
+        let stderr = out.stderr.as_str();
+        assert!(stderr.contains(&says), "{stderr}");
+    }
     // --strict-expect means nothing without a file.
     let out = conformance(&[&["check"][..], &sim, &["--strict-expect"]].concat());
     assert_eq!(out.code, Some(2));
@@ -316,6 +307,17 @@ fn an_invalid_file_is_refused_with_its_line_and_field_before_the_run() {
 /// finding signature; the same campaign with the file exits 0; a campaign against the
 /// clean drive does not find them again, which is an UNEXPECTED PASS (exit 1 with
 /// --strict-expect).
+/// `expect --from run -o file`, which must exit 0.
+fn expect_from(run: &Path, file: &Path) {
+    let out = conformance(&line(&[
+        "expect --from",
+        run.to_str().unwrap(),
+        "-o",
+        file.to_str().unwrap(),
+    ]));
+    assert_eq!(out.code, Some(0), "{out}");
+}
+
 #[test]
 fn fuzz_findings_are_expected_by_their_signature() {
     let d = Scratch::new("fuzz");
@@ -347,14 +349,7 @@ fn fuzz_findings_are_expected_by_their_signature() {
         .collect();
     assert!(!findings.is_empty());
     let file = d.join("fuzz.toml");
-    let out = conformance(&[
-        "expect",
-        "--from",
-        run.to_str().unwrap(),
-        "-o",
-        file.to_str().unwrap(),
-    ]);
-    assert_eq!(out.code, Some(0));
+    expect_from(&run, &file);
     let text = std::fs::read_to_string(&file).unwrap();
     for id in &findings {
         let sig = id.strip_prefix("fuzz.").unwrap();
@@ -420,14 +415,7 @@ fn a_monitor_run_is_gated_by_the_same_file() {
     let run = d.join("monitor-first.json");
     std::fs::rename(d.join("monitor.json"), &run).unwrap();
     let file = d.join("monitor.toml");
-    let out = conformance(&[
-        "expect",
-        "--from",
-        run.to_str().unwrap(),
-        "-o",
-        file.to_str().unwrap(),
-    ]);
-    assert_eq!(out.code, Some(0));
+    expect_from(&run, &file);
     let (exit, v) = monitor(&["--expect", file.to_str().unwrap()]);
     assert_eq!(exit, Some(0), "{}", v["expectations"]["counts"]);
     assert_eq!(ids_marked(&v, "expected"), deviating);

@@ -326,12 +326,7 @@ fn a_known_hang_is_steered_away_from_and_its_cost_reported() {
         "{:#}",
         m["skipped"]
     );
-    let campaign = v["checks"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .find(|c| c["id"] == "fuzz.rtu.campaign")
-        .unwrap();
+    let campaign = common::check_of(&v, "fuzz.rtu.campaign");
     assert!(
         campaign["summary"]
             .as_str()

@@ -129,15 +129,23 @@ fn malformed_and_missing_answers_are_errors_case_by_case() {
     assert!(o.stderr.contains("handshake failed"));
 }
 
+/// adapters/NAME/adapter.py, where `peer` (the library it drives) is installed; None
+/// (after SKIPPED) where it is not.
+fn adapter_for(peer: Peer, name: &str) -> Option<String> {
+    common::need(peer).then(|| {
+        format!(
+            "{}/../adapters/{name}/adapter.py",
+            env!("CARGO_MANIFEST_DIR")
+        )
+    })
+}
+
 #[test]
 fn the_pymodbus_adapter_completes_and_its_deviations_are_reported() {
-    if !common::need(Peer::Pymodbus) {
+    let Some(adapter) = adapter_for(Peer::Pymodbus, "pymodbus") else {
         return;
-    }
-    let adapter = concat!(
-        env!("CARGO_MANIFEST_DIR"),
-        "/../adapters/pymodbus/adapter.py"
-    );
+    };
+    let adapter = adapter.as_str();
     let (o, v) = gate(&format!("{} {adapter}", python()), &["--count", "300"]);
     assert_eq!(v["codec"]["implementation"], "pymodbus");
     assert_eq!(v["complete"], true);
@@ -158,13 +166,10 @@ fn the_pymodbus_adapter_completes_and_its_deviations_are_reported() {
 
 #[test]
 fn a_broken_minimalmodbus_adapter_that_accepts_every_checksum_is_caught() {
-    if !common::need(Peer::Minimalmodbus) {
+    let Some(adapter) = adapter_for(Peer::Minimalmodbus, "minimalmodbus") else {
         return;
-    }
-    let adapter = concat!(
-        env!("CARGO_MANIFEST_DIR"),
-        "/../adapters/minimalmodbus/adapter.py"
-    );
+    };
+    let adapter = adapter.as_str();
     // The F510 manual's 03H response as printed has a wrong CRC: minimalmodbus refuses it.
     let erratum = "vector.f510.03.rtu.response.decode";
     let (o, v) = gate(&format!("{} {adapter}", python()), &["--only", erratum]);
@@ -184,12 +189,7 @@ fn a_broken_minimalmodbus_adapter_that_accepts_every_checksum_is_caught() {
         .as_str()
         .unwrap()
         .contains("broken: accept-bad-checksum"));
-    let erratum_case = v["checks"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .find(|c| c["id"] == erratum)
-        .unwrap();
+    let erratum_case = common::check_of(&v, erratum);
     assert_eq!(erratum_case["status"], "deviation", "{erratum_case}");
     assert!(erratum_case["summary"]
         .as_str()
@@ -264,13 +264,10 @@ fn an_adapter_that_rejects_every_frame_may_reject_responses_that_answer_no_reque
 
 #[test]
 fn the_libmodbus_adapter_drives_libmodbus_over_a_pty_and_completes() {
-    if !common::need(Peer::Libmodbus) {
+    let Some(adapter) = adapter_for(Peer::Libmodbus, "libmodbus") else {
         return;
-    }
-    let adapter = concat!(
-        env!("CARGO_MANIFEST_DIR"),
-        "/../adapters/libmodbus/adapter.py"
-    );
+    };
+    let adapter = adapter.as_str();
     let (o, v) = gate(
         &format!("{} {adapter}", python()),
         &["--only", "vector.f510.*.rtu.*", "--timeout", "5000"],
@@ -279,12 +276,7 @@ fn the_libmodbus_adapter_drives_libmodbus_over_a_pty_and_completes() {
     assert_eq!(v["complete"], true);
     assert_eq!(v["summary"]["error"], 0, "{}", v["summary"]);
     // The manual's 03H request goes through modbus_receive, and modbus_reply answers it.
-    let read = v["checks"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .find(|c| c["id"] == "vector.f510.03.rtu.request.decode")
-        .unwrap();
+    let read = common::check_of(&v, "vector.f510.03.rtu.request.decode");
     assert_eq!(read["status"], "pass", "{read}");
     assert!(read["exchanges"][0]["actual"]
         .as_str()
@@ -293,12 +285,7 @@ fn the_libmodbus_adapter_drives_libmodbus_over_a_pty_and_completes() {
     // Its wrong-CRC response as printed is refused by libmodbus's client.
     assert_eq!(status_of(&v, "vector.f510.03.rtu.response.decode"), "pass");
     // libmodbus 3.1.6 sizes an 08H request wrongly and refuses it as "Invalid CRC".
-    let loop_back = v["checks"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .find(|c| c["id"] == "vector.f510.08.rtu.request.decode")
-        .unwrap();
+    let loop_back = common::check_of(&v, "vector.f510.08.rtu.request.decode");
     assert_eq!(loop_back["status"], "deviation");
     assert!(loop_back["summary"]
         .as_str()

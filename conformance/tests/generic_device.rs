@@ -10,26 +10,32 @@
 //! taken out, which reaches every check that reads or writes first.
 
 mod common;
-use common::{line, pymodbus_serial_server, Scratch};
+use common::{check_of, line, pymodbus_serial_server, Scratch, SerialPeer};
 
 use std::time::Duration;
+
+/// The options that reach `peer` in `mode` (no parity) as an F510, then the words of
+/// `extra`.
+fn as_f510<'a>(peer: &'a SerialPeer, mode: &'a str, extra: &'a str) -> Vec<&'a str> {
+    line(&[
+        "--model f510 --port",
+        peer.port.to_str().unwrap(),
+        "--mode",
+        mode,
+        "-P none",
+        extra,
+    ])
+}
 
 fn run(mode: &str) {
     let dir = Scratch::new(&format!("generic-{mode}"));
     let Some(peer) = pymodbus_serial_server(&dir, mode) else {
         return;
     };
-    let b = &peer.port;
     let t0 = std::time::Instant::now();
     let (exit, v) = common::check_device(
         &dir,
-        &line(&[
-            "--model f510 --port",
-            b.to_str().unwrap(),
-            "--mode",
-            mode,
-            "-P none --timeout 300",
-        ]),
+        &as_f510(&peer, mode, "--timeout 300"),
         Duration::from_secs(180),
     );
     assert_eq!(v["complete"], true, "{}", v["stopped"]);
@@ -68,17 +74,10 @@ fn fuzz(mode: &str) {
     let Some(peer) = pymodbus_serial_server(&dir, mode) else {
         return;
     };
-    let b = &peer.port;
     let (exit, v) = common::report_of(
         "fuzz",
         &dir,
-        &line(&[
-            "--model f510 --port",
-            b.to_str().unwrap(),
-            "--mode",
-            mode,
-            "-P none --timeout 500 --cases 150 --no-minimize",
-        ]),
+        &as_f510(&peer, mode, "--timeout 500 --cases 150 --no-minimize"),
         Duration::from_secs(300),
     );
     // pymodbus 3.16.1's serial server stops answering for good after one frame of a
@@ -214,15 +213,6 @@ fn a_generic_device_without_registers_from_1000h_up_deviates_and_exits_1() {
     }
     // The registers it has still pass.
     assert_eq!(check_of(&v, "rtu.write.group-1")["status"], "pass");
-}
-
-fn check_of<'a>(v: &'a serde_json::Value, id: &str) -> &'a serde_json::Value {
-    v["checks"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .find(|c| c["id"] == id)
-        .unwrap_or_else(|| panic!("no check {id}"))
 }
 
 /// The F510 model with `edit` applied, written to `dir/name`: the simulator serves it,

@@ -6,11 +6,8 @@
 //! checks of the model it identified.
 
 mod common;
-use common::{
-    bin, line, pymodbus_serial_server, pymodbus_tcp_server, words, GatewaySim, Kill, Run, Scratch,
-};
+use common::{line, pymodbus_serial_server, pymodbus_tcp_server, words, GatewaySim, Run, Scratch};
 
-use std::process::{Command, Stdio};
 use std::time::Duration;
 
 /// Runs `conformance identify ARGS --format json -o DIR/identify.json`, bounded in time;
@@ -18,20 +15,15 @@ use std::time::Duration;
 fn identify(dir: &std::path::Path, args: &[&str]) -> (Option<i32>, serde_json::Value) {
     let out = dir.join("identify.json");
     let _ = std::fs::remove_file(&out);
-    let mut run = Kill::spawn(
-        Command::new(bin())
-            .arg("identify")
-            .args(args)
-            .args(["--format", "json", "--quiet", "-o"])
-            .arg(&out)
-            .stdout(Stdio::null())
-            .stderr(Stdio::piped()),
-    );
-    let exit = run.wait_within(Duration::from_secs(120), "identify");
-    let stderr = run.stderr_text();
-    assert!(!stderr.contains("panicked"), "{stderr}");
+    // A run that panics fails the test in Run::run.
+    let ran = Run::new(["identify"])
+        .args(args)
+        .args(["--format", "json", "--quiet", "-o"])
+        .arg(&out)
+        .timeout(Duration::from_secs(120))
+        .run();
     let v: serde_json::Value =
-        serde_json::from_slice(&std::fs::read(&out).unwrap_or_else(|e| panic!("{e}: {stderr}")))
+        serde_json::from_slice(&std::fs::read(&out).unwrap_or_else(|e| panic!("{e}: {ran}")))
             .unwrap();
     let schema = jsonschema::validator_for(
         &serde_json::from_str(include_str!("../../vectors/schema/identify.schema.json")).unwrap(),
@@ -40,7 +32,7 @@ fn identify(dir: &std::path::Path, args: &[&str]) -> (Option<i32>, serde_json::V
     if let Err(e) = schema.validate(&v) {
         panic!("the identify report does not match its schema: {e}");
     }
-    (exit.code(), v)
+    (ran.code, v)
 }
 
 /// Every probe's predictions hold one entry per model, and the scores count the fits.
@@ -203,10 +195,10 @@ fn a_silent_device_could_not_be_identified() {
 
 #[test]
 fn check_model_auto_runs_the_checks_of_the_identified_model() {
-    let dir = Scratch::new("auto");
-    let (exit, v) = common::check_device(
-        &dir,
-        &words("--sim a510 --model auto --mode rtu --only rtu.map.*"),
+    let (exit, v) = common::report_in(
+        "check",
+        "auto",
+        "--sim a510 --model auto --mode rtu --only rtu.map.*",
         Duration::from_secs(180),
     );
     assert_eq!(
@@ -373,10 +365,10 @@ fn a_generic_pymodbus_tcp_server_is_none_of_the_five() {
 /// identify check as ERROR, the run incomplete, saying why nothing was checked.
 #[test]
 fn check_model_auto_that_identifies_nothing_leaves_its_report() {
-    let dir = Scratch::new("auto-dead");
-    let (exit, v) = common::check_device(
-        &dir,
-        &words("--sim a510 --model auto --mode rtu --quirk dead"),
+    let (exit, v) = common::report_in(
+        "check",
+        "auto-dead",
+        "--sim a510 --model auto --mode rtu --quirk dead",
         Duration::from_secs(120),
     );
     assert_eq!(exit, Some(2), "{}", v["summary"]);

@@ -27,11 +27,11 @@
 //!   `scripts/install-peers` made it, `$PEERS_PYTHON` when set, else `python3`.
 
 mod common;
-use common::{line, need, note, python, Peer};
+use common::{line, need, note, python, words, Peer, Ran, Run};
 
-use std::io::{BufRead, BufReader, Read};
+use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
-use std::process::{Child, Command, ExitStatus, Stdio};
+use std::process::{Child, Command, Stdio};
 use std::sync::mpsc;
 use std::thread;
 use std::time::{Duration, Instant};
@@ -181,63 +181,6 @@ impl Drop for Sim {
 // ---------------------------------------------------------------------------------------
 // Bounded external commands.
 
-struct Run {
-    status: ExitStatus,
-    stdout: String,
-    stderr: String,
-}
-
-impl Run {
-    fn describe(&self) -> String {
-        format!(
-            "status {}\n--- stdout ---\n{}\n--- stderr ---\n{}",
-            self.status, self.stdout, self.stderr
-        )
-    }
-}
-
-/// Runs `cmd` to completion, killing it after [`TOOL_TIMEOUT`] (and failing the test).
-/// Only a failure to start (e.g. the program is not installed) is returned as an error.
-fn run_bounded(cmd: &mut Command) -> std::io::Result<Run> {
-    let what = format!("{cmd:?}");
-    let mut child = cmd
-        .stdin(Stdio::null())
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn()?;
-    let reader = |mut r: Box<dyn Read + Send>| {
-        thread::spawn(move || {
-            let mut s = Vec::new();
-            let _ = r.read_to_end(&mut s);
-            String::from_utf8_lossy(&s).into_owned()
-        })
-    };
-    let out = reader(Box::new(child.stdout.take().expect("piped stdout")));
-    let err = reader(Box::new(child.stderr.take().expect("piped stderr")));
-    let deadline = Instant::now() + TOOL_TIMEOUT;
-    let status = loop {
-        if let Some(status) = child.try_wait()? {
-            break status;
-        }
-        if Instant::now() >= deadline {
-            let _ = child.kill();
-            let _ = child.wait();
-            let stdout = out.join().unwrap_or_default();
-            let stderr = err.join().unwrap_or_default();
-            panic!(
-                "{what} did not finish within {TOOL_TIMEOUT:?} and was killed\n\
-                 --- stdout ---\n{stdout}\n--- stderr ---\n{stderr}"
-            );
-        }
-        thread::sleep(Duration::from_millis(10));
-    };
-    Ok(Run {
-        status,
-        stdout: out.join().unwrap_or_default(),
-        stderr: err.join().unwrap_or_default(),
-    })
-}
-
 // ---------------------------------------------------------------------------------------
 // Missing tools: SKIPPED, or a failure under CI.
 
@@ -254,15 +197,13 @@ fn have_pymodbus() -> bool {
 
 /// One mbpoll invocation in RTU mode, 9600 8E1, node 1, a single poll, 1 s timeout.
 /// `opts` go before the device, `values` (for a write) after it.
-fn mbpoll(sim: &Sim, opts: &[&str], values: &[String]) -> Run {
-    let mut cmd = Command::new("mbpoll");
-    cmd.args([
-        "-m", "rtu", "-b", "9600", "-d", "8", "-P", "even", "-s", "1", "-1", "-o", "1",
-    ])
-    .args(opts)
-    .arg(sim.path())
-    .args(values);
-    run_bounded(&mut cmd).expect("run mbpoll")
+fn mbpoll(sim: &Sim, opts: &[&str], values: &[String]) -> Ran {
+    Run::program("mbpoll", words("-m rtu -b 9600 -d 8 -P even -s 1 -1 -o 1"))
+        .args(opts)
+        .arg(sim.path())
+        .args(values)
+        .timeout(TOOL_TIMEOUT)
+        .run()
 }
 
 /// Parses mbpoll's `[ref]: \t0xHHHH` lines (with `-t 4:hex`).
@@ -289,17 +230,16 @@ fn mbpoll_read(sim: &Sim, reg: u16, count: u16) -> Result<Vec<u16>, String> {
         &line(&["-0 -t 4:hex -r", &reg.to_string(), "-c", &count.to_string()]),
         &[],
     );
-    if !run.status.success() {
+    if run.code != Some(0) {
         return Err(run.stderr.trim().to_string());
     }
     let values = parse_mbpoll_values(&run.stdout);
     let refs: Vec<u32> = values.iter().map(|(r, _)| *r).collect();
     let expected: Vec<u32> = (u32::from(reg)..u32::from(reg) + u32::from(count)).collect();
     assert_eq!(
-        refs,
-        expected,
+        refs, expected,
         "mbpoll printed other references than read; {}",
-        run.describe()
+        run
     );
     Ok(values.into_iter().map(|(_, v)| v).collect())
 }
@@ -313,14 +253,14 @@ fn read_ok(sim: &Sim, reg: u16, count: u16) -> Vec<u16> {
 fn mbpoll_write(sim: &Sim, reg: u16, values: &[u16]) -> Result<(), String> {
     let values: Vec<String> = values.iter().map(|v| v.to_string()).collect();
     let run = mbpoll(sim, &["-0", "-t", "4", "-r", &reg.to_string()], &values);
-    if !run.status.success() {
+    if run.code != Some(0) {
         return Err(run.stderr.trim().to_string());
     }
     let expect = format!("Written {} references.", values.len());
     assert!(
         run.stdout.contains(&expect),
         "mbpoll did not confirm the write ({expect:?}); {}",
-        run.describe()
+        run
     );
     Ok(())
 }
@@ -347,12 +287,12 @@ fn mbpoll_suite(sim: &Sim, ident: u16) {
 
     // One-based references: without -0, reference 0x2530 is PDU register 252FH.
     let run = mbpoll(sim, &["-t", "4:hex", "-r", "0x2530"], &[]);
-    assert!(run.status.success(), "{}", run.describe());
+    assert!(run.code == Some(0), "{run}");
     assert_eq!(
         parse_mbpoll_values(&run.stdout),
         [(0x2530, ident)],
         "one-based -r 0x2530 must read 252FH; {}",
-        run.describe()
+        run
     );
 
     // 03H: the monitor block 2520H..252FH.
@@ -419,15 +359,11 @@ fn mbpoll_suite(sim: &Sim, ident: u16) {
         &["-a", "2", "-o", "0.3", "-0", "-t", "4:hex", "-r", "0"],
         &[],
     );
-    assert!(
-        !run.status.success(),
-        "node 02 answered; {}",
-        run.describe()
-    );
+    assert!(run.code != Some(0), "node 02 answered; {}", run);
     assert!(
         run.stderr.contains("Connection timed out"),
         "node 02: expected a timeout; {}",
-        run.describe()
+        run
     );
 
     // 08H: mbpoll has no option for diagnostics / loop-back; covered by pymodbus.
@@ -452,9 +388,9 @@ fn mbpoll_ascii_f510() {
     // suite should be added here.
     let probe = mbpoll(&sim, &["-m", "ascii", "-0", "-r", "0"], &[]);
     assert!(
-        !probe.status.success() && probe.stderr.contains("Illegal mode"),
+        probe.code != Some(0) && probe.stderr.contains("Illegal mode"),
         "mbpoll seems to accept -m ascii now: run mbpoll_suite in ASCII too; {}",
-        probe.describe()
+        probe
     );
     note("NOTE: mbpoll has no ASCII mode; ASCII interop is covered by pymodbus_ascii_f510");
 
@@ -490,23 +426,17 @@ const PY_OPS: &[&str] = &[
 ];
 
 fn pymodbus_suite(sim: &Sim, mode: Mode, model: &str, ident: u16) {
-    let run = run_bounded(
-        Command::new(python())
-            .arg(PY_SCRIPT)
-            .arg(sim.path())
-            .args([mode.as_str(), model]),
-    )
-    .expect("run python");
-    assert!(
-        run.status.success(),
-        "pymodbus_master.py failed; {}",
-        run.describe()
-    );
+    let run = Run::program(python(), [PY_SCRIPT])
+        .arg(sim.path())
+        .args([mode.as_str(), model])
+        .timeout(TOOL_TIMEOUT)
+        .run();
+    assert!(run.code == Some(0), "pymodbus_master.py failed; {}", run);
 
     let mut ops = Vec::new();
     for line in run.stdout.lines().filter(|l| !l.trim().is_empty()) {
         let v: serde_json::Value = serde_json::from_str(line)
-            .unwrap_or_else(|e| panic!("not a JSON line ({e}): {line:?}; {}", run.describe()));
+            .unwrap_or_else(|e| panic!("not a JSON line ({e}): {line:?}; {run}"));
         let op = v["op"].as_str().expect("op is a string").to_string();
         let detail = v["detail"]
             .as_str()
@@ -516,7 +446,7 @@ fn pymodbus_suite(sim: &Sim, mode: Mode, model: &str, ident: u16) {
         ops.push((op, detail));
     }
     let names: Vec<&str> = ops.iter().map(|(o, _)| o.as_str()).collect();
-    assert_eq!(names, PY_OPS, "operations reported; {}", run.describe());
+    assert_eq!(names, PY_OPS, "operations reported; {run}");
 
     let detail =
         |op: &str| -> &str { &ops.iter().find(|(o, _)| o == op).expect("op is present").1 };

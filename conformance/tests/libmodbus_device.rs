@@ -49,24 +49,14 @@
 //! fails.
 
 mod common;
-use common::{line, Scratch, SerialPeer};
+use common::{check_of, line, Scratch, SerialPeer};
 
 use std::path::Path;
 use std::time::{Duration, Instant};
 
-/// The check of `id` in the report.
-fn check<'a>(v: &'a serde_json::Value, id: &str) -> &'a serde_json::Value {
-    v["checks"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .find(|c| c["id"] == id)
-        .unwrap_or_else(|| panic!("no check {id} in the report"))
-}
-
 /// Asserts the status of check `id` and returns its first exchange.
 fn status<'a>(v: &'a serde_json::Value, id: &str, want: &str) -> &'a serde_json::Value {
-    let c = check(v, id);
+    let c = check_of(v, id);
     assert_eq!(c["status"], want, "{id}: {}", c["summary"]);
     &c["exchanges"][0]
 }
@@ -157,7 +147,7 @@ fn libmodbus_rtu_server_checked_as_f510() {
     // On a pseudo-terminal the other end is a program on this host: only the median is
     // judged, and the few replies libmodbus delays by 500 ms (count 0) are listed as not
     // judged rather than made an observation (a busy host delays replies as much).
-    let c = check(&v, "rtu.response-time");
+    let c = check_of(&v, "rtu.response-time");
     assert_eq!(c["status"], "pass", "{}", c["summary"]);
     let summary = c["summary"].as_str().unwrap();
     assert!(

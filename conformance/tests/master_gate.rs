@@ -33,13 +33,7 @@ fn deviation_kinds(v: &serde_json::Value) -> BTreeSet<String> {
 
 /// The cases that ended in ERROR, with why (for a failing assertion's message).
 fn errors(v: &serde_json::Value) -> Vec<String> {
-    v["checks"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .filter(|c| c["status"] == "error")
-        .map(|c| format!("{}: {}", c["id"], c["summary"]))
-        .collect()
+    common::with_status(v, &["error"])
 }
 
 fn master(quirk: Option<&str>) -> String {

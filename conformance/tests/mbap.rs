@@ -190,12 +190,7 @@ fn check_through_mbap_against_pymodbus_tcp_server() {
     // server answers a unit id it does not have with exception 04H (its simulator core
     // raises a KeyError where the serial server's context raises "no such id", which
     // would give 0BH), so this is a deviation of the device, reported as it came.
-    let other = v["checks"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .find(|c| c["id"] == "rtu.other-address")
-        .unwrap();
+    let other = common::check_of(&v, "rtu.other-address");
     let ex = &other["exchanges"][0];
     assert!(
         ex["request"].as_str().unwrap().starts_with("FE 03"),
@@ -261,82 +256,34 @@ fn fuzz_through_mbap_sends_only_what_a_gateway_carries() {
 
 #[test]
 fn what_mbap_cannot_do_is_refused_with_a_reason() {
-    let cases: [(&[&str], &str); 5] = [
+    // Each command line split at white space ("010325200001 8ECC" is two frames).
+    let cases = [
         (
-            &[
-                "check",
-                "--model",
-                "f510",
-                "--tcp",
-                "127.0.0.1:1",
-                "--framing",
-                "mbap",
-                "--mode",
-                "ascii",
-            ],
+            "check --model f510 --tcp 127.0.0.1:1 --framing mbap --mode ascii",
             "Modbus TCP has no ASCII mode",
         ),
         (
-            &[
-                "check",
-                "--model",
-                "f510",
-                "--tcp",
-                "127.0.0.1:1",
-                "--framing",
-                "mbap",
-                "--unit",
-                "0",
-            ],
+            "check --model f510 --tcp 127.0.0.1:1 --framing mbap --unit 0",
             "--unit 0 is the broadcast",
         ),
         (
-            &[
-                "check",
-                "--model",
-                "f510",
-                "--tcp",
-                "127.0.0.1:1",
-                "--framing",
-                "mbap",
-                "--echo",
-                "on",
-            ],
+            "check --model f510 --tcp 127.0.0.1:1 --framing mbap --echo on",
             "does not echo",
         ),
         (
-            &[
-                "send",
-                "--model",
-                "f510",
-                "--tcp",
-                "127.0.0.1:1",
-                "--framing",
-                "mbap",
-                "--burst",
-                "010325200001",
-                "8ECC",
-            ],
+            "send --model f510 --tcp 127.0.0.1:1 --framing mbap --burst 010325200001 8ECC",
             "--burst",
         ),
         (
-            &[
-                "simulate",
-                "--tcp",
-                "127.0.0.1:0",
-                "--framing",
-                "mbap",
-                "--mode",
-                "ascii",
-            ],
+            "simulate --tcp 127.0.0.1:0 --framing mbap --mode ascii",
             "Modbus TCP has no ASCII mode",
         ),
     ];
     for (args, want) in cases {
-        let o = Run::new(args).run();
+        let o = Run::words(args).run();
         let err = o.stderr.as_str();
-        assert_eq!(o.code, Some(2), "{args:?}: {err}");
-        assert!(err.contains(want), "{args:?}: {err}");
+        assert_eq!(o.code, Some(2), "{args}: {err}");
+        assert!(err.contains(want), "{args}: {err}");
     }
     // --unit without --framing: clap says what is missing.
     let o = Run::words("check --model f510 --tcp 127.0.0.1:1 --unit 3").run();

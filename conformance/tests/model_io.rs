@@ -5,7 +5,7 @@ mod common;
 
 use std::time::Duration;
 
-use common::{run_bounded, Run, Scratch};
+use common::{run_bounded, Ran, Run, Scratch};
 
 /// A description, exported, served by pymodbus's simulator, then checked against the same
 /// description: no deviation beyond what pymodbus does differently, each of which the
@@ -29,13 +29,7 @@ fn an_exported_description_served_by_pymodbus_checks_clean() {
         return;
     };
     let (code, v) = check_against(&d, description, &peer);
-    let deviations: Vec<String> = v["checks"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .filter(|c| c["status"] == "deviation" || c["status"] == "error")
-        .map(|c| format!("{} {}: {}", c["id"], c["status"], c["summary"]))
-        .collect();
+    let deviations = common::with_status(&v, &["deviation", "error"]);
     assert_eq!(code, Some(0), "{}", deviations.join("\n"));
     let counts = &v["expectations"]["counts"];
     assert_eq!(counts["unexpected"], 0, "{counts}");
@@ -93,11 +87,17 @@ Register,Name,Access,Min,Max,Unit,Scale,Comment\r
 2501H-252FH,monitor,r,,,,,\r
 ";
 
-#[test]
-fn a_register_map_imports_as_blocks_citing_its_rows() {
-    let d = Scratch::new("import");
+/// A scratch folder `name` holding [`MAP`] as X100.csv: the folder and the map's path.
+fn the_map(name: &str) -> (Scratch, std::path::PathBuf) {
+    let d = Scratch::new(name);
     let map = d.join("X100.csv");
     std::fs::write(&map, MAP).unwrap();
+    (d, map)
+}
+
+#[test]
+fn a_register_map_imports_as_blocks_citing_its_rows() {
+    let (d, map) = the_map("import");
     let out = d.join("x100.json");
     let (code, _, err) = Run::words("model import --from csv")
         .arg(&map)
@@ -141,12 +141,15 @@ fn a_bad_register_map_exits_1_naming_row_and_column_and_an_unreadable_one_2() {
     let d = Scratch::new("import-bad");
     let map = d.join("bad.csv");
     std::fs::write(&map, "register,access\n0x0000-0x0FFF,rw\n2500H,sometimes\n").unwrap();
-    let (code, out, err) = Run::words("model import --from csv")
+    let Ran {
+        stdout: out,
+        stderr: err,
+        ..
+    } = Run::words("model import --from csv")
         .arg(&map)
         .timeout(Duration::from_secs(30))
         .run()
-        .parts();
-    assert_eq!(code, Some(1), "{err}");
+        .expect(1);
     assert!(out.is_empty(), "{out}");
     assert!(
         err.contains("bad.csv row 3, column access: \"sometimes\" is not an access"),
@@ -166,9 +169,7 @@ fn a_bad_register_map_exits_1_naming_row_and_column_and_an_unreadable_one_2() {
 /// schema_version 2 loader (branch i34-format) to load the imported description.
 #[test]
 fn an_imported_map_served_by_pymodbus_checks_clean() {
-    let d = Scratch::new("import-roundtrip");
-    let map = d.join("X100.csv");
-    std::fs::write(&map, MAP).unwrap();
+    let (d, map) = the_map("import-roundtrip");
     let description = d.join("x100.json");
     let description = description.to_str().unwrap();
     let sim = d.join("x100-sim.json");

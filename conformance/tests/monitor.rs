@@ -11,10 +11,9 @@
 #![cfg(unix)]
 
 mod common;
+use common::rtu::{exception, read, values, write};
 use common::Run;
 
-use std::io::{BufRead, BufReader};
-use std::process::Stdio;
 use std::time::{Duration, Instant};
 
 use conformance::codec::pdu::{Message, Pdu, Registers};
@@ -22,32 +21,6 @@ use conformance::codec::Mode;
 use conformance::transport::pty::PtyMaster;
 use conformance::transport::Transport;
 use serde_json::Value;
-
-fn rtu(address: u8, pdu: Pdu<'_>) -> Vec<u8> {
-    Message { address, pdu }.to_frame_vec(Mode::Rtu).unwrap()
-}
-
-fn read(address: u8, start: u16, count: u16) -> Vec<u8> {
-    rtu(address, Pdu::ReadRequest { start, count })
-}
-
-fn values(address: u8, v: &[u16]) -> Vec<u8> {
-    let bytes: Vec<u8> = v.iter().flat_map(|x| x.to_be_bytes()).collect();
-    rtu(
-        address,
-        Pdu::ReadResponse {
-            values: Registers::new(&bytes).unwrap(),
-        },
-    )
-}
-
-fn exception(address: u8, function: u8, code: u8) -> Vec<u8> {
-    rtu(address, Pdu::Exception { function, code })
-}
-
-fn write(address: u8, register: u16, value: u16) -> Vec<u8> {
-    rtu(address, Pdu::WriteSingle { register, value })
-}
 
 /// One step of the recorded bus: wait, then write these bytes in one piece.
 struct Step {
@@ -81,12 +54,10 @@ fn listen(args: &[&str], steps: &[Step]) -> Heard {
 /// until every step is played, so that its next read gets all of them at once: a monitor
 /// that the host did not schedule while the traffic began.
 fn listen_paused(args: &[&str], steps: &[Step], paused: bool) -> Heard {
-    let dir = std::env::temp_dir().join(format!(
-        "monitor-test-{}-{}",
-        std::process::id(),
-        rand_suffix()
-    ));
-    std::fs::create_dir_all(&dir).unwrap();
+    // One folder a run: the tests of this file listen at once, some more than once.
+    static RUNS: std::sync::atomic::AtomicUsize = std::sync::atomic::AtomicUsize::new(0);
+    let run = RUNS.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+    let dir = common::Scratch::new(&format!("listen-{run}"));
     let out = dir.join("monitor.json");
     let mut bus = PtyMaster::open(None).unwrap();
     let port = bus.slave_path().to_str().unwrap().to_string();
@@ -101,33 +72,20 @@ fn listen_paused(args: &[&str], steps: &[Step], paused: bool) -> Heard {
     // The monitor's serial port sets the line (CLOCAL and the baud rate among others).
     let before = cflag();
     let set_up = || cflag() != before;
-    let mut child = Run::words("monitor --port")
-        .arg(&port)
-        .args(["--model", "f510", "--format", "json", "-o"])
-        .command()
-        .arg(&out)
-        // The line is given: the search without -b has its own test.
-        .args(if args.contains(&"-b") {
-            &[][..]
-        } else {
-            &["-b", "9600"][..]
-        })
-        .args(args)
-        .stdin(Stdio::null())
-        .stdout(Stdio::null())
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap();
-    let stderr = child.stderr.take().unwrap();
-    let (tx, said) = std::sync::mpsc::channel();
-    let reader = std::thread::spawn(move || {
-        let mut all = Vec::new();
-        for l in BufReader::new(stderr).lines().map_while(Result::ok) {
-            let _ = tx.send(l.clone());
-            all.push(l);
-        }
-        all
-    });
+    let mut monitor = common::Monitor::spawn(
+        Run::words("monitor --port")
+            .arg(&port)
+            .args(["--model", "f510", "--format", "json", "-o"])
+            .arg(&out)
+            // The line is given: the search without -b has its own test.
+            .args(if args.contains(&"-b") {
+                &[][..]
+            } else {
+                &["-b", "9600"][..]
+            })
+            .args(args)
+            .command(),
+    );
     if args.contains(&"--quiet") {
         // Nothing is announced: the port is open and set when its termios changed, and
         // serialport sets the line before it returns the port; give the monitor the
@@ -142,22 +100,10 @@ fn listen_paused(args: &[&str], steps: &[Step], paused: bool) -> Heard {
         }
         std::thread::sleep(Duration::from_millis(200));
     } else {
-        // The monitor says "listening on" once its port is open and has been read.
-        loop {
-            let l = said
-                .recv_timeout(Duration::from_secs(30))
-                .expect("the monitor never said it was listening");
-            if l.starts_with("listening on ") {
-                break;
-            }
-        }
+        monitor.until_listening();
     }
-    let signal = |s| {
-        let pid = nix::unistd::Pid::from_raw(i32::try_from(child.id()).unwrap());
-        nix::sys::signal::kill(pid, s).unwrap();
-    };
     if paused {
-        signal(nix::sys::signal::Signal::SIGSTOP);
+        monitor.signal(nix::sys::signal::Signal::SIGSTOP);
     }
     let mut written = Vec::new();
     let mut buf = [0u8; 256];
@@ -168,7 +114,7 @@ fn listen_paused(args: &[&str], steps: &[Step], paused: bool) -> Heard {
         written.extend_from_slice(&buf[..n]);
     }
     if paused {
-        signal(nix::sys::signal::Signal::SIGCONT);
+        monitor.signal(nix::sys::signal::Signal::SIGCONT);
     }
     // The monitor has read every byte (a busy host may make it late: wait for it, as
     // the end of the input drops what is still queued), then a last look for anything
@@ -197,49 +143,18 @@ fn listen_paused(args: &[&str], steps: &[Step], paused: bool) -> Heard {
     written.extend_from_slice(&buf[..n]);
     drop(probe);
     drop(bus);
-    let t0 = Instant::now();
-    let status = loop {
-        if let Some(st) = child.try_wait().unwrap() {
-            break st;
-        }
-        if t0.elapsed() > Duration::from_secs(30) {
-            let _ = child.kill();
-            panic!("the monitor did not end at the end of its input");
-        }
-        std::thread::sleep(Duration::from_millis(20));
-    };
-    let stderr = reader.join().unwrap();
-    let report: Value = serde_json::from_str(
-        &std::fs::read_to_string(&out)
-            .unwrap_or_else(|e| panic!("no report ({e}); stderr: {stderr:#?}")),
-    )
-    .unwrap();
-    let _ = std::fs::remove_dir_all(&dir);
-    let schema = jsonschema::validator_for(
-        &serde_json::from_str(include_str!("../../vectors/schema/report.schema.json")).unwrap(),
-    )
-    .unwrap();
-    let errors: Vec<String> = schema
-        .iter_errors(&report)
-        .map(|e| format!("{e} at {}", e.instance_path))
-        .collect();
-    assert!(
-        errors.is_empty(),
-        "the report does not match its schema: {errors:#?}"
+    let (status, stderr) = monitor.finish(
+        Duration::from_secs(30),
+        "the monitor, at the end of its input,",
     );
+    let report = common::report_file(&out)
+        .unwrap_or_else(|e| panic!("no report ({e}); stderr: {stderr:#?}"));
     Heard {
         code: status.code().unwrap_or(-1),
         report,
         stderr,
         written,
     }
-}
-
-fn rand_suffix() -> u128 {
-    std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .unwrap()
-        .as_nanos()
 }
 
 /// The node's statistics in the report.

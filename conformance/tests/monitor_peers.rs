@@ -19,29 +19,37 @@
 
 mod common;
 
-use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
-use std::sync::mpsc;
 use std::time::Duration;
 
-use common::{bin, need, note, python, words, Kill, Peer, Run, Scratch};
+use common::{need, note, python, words, Kill, Peer, Run, Scratch};
 use serde_json::Value;
 
 /// A bus with a simulated F510 at node 1 (9600 8E1), an endpoint `master` for the
 /// program under test, and the monitor listening on the endpoint `tap`.
 struct Listening {
-    bus: Kill,
+    bus: common::Bus,
     master: PathBuf,
-    monitor: Kill,
+    monitor: common::Monitor,
     report: PathBuf,
     log: PathBuf,
-    live: mpsc::Receiver<String>,
     /// The device nobody here wrote, where there is one (it goes before the bus).
     _device: Option<Kill>,
 }
 
 impl Listening {
+    /// [`Listening::start`] in a scratch folder `name`, where `peer` (the master under
+    /// test) is installed; None (after SKIPPED) where it is not.
+    fn for_peer(peer: Peer, name: &str, drive: &[&str]) -> Option<(Scratch, Listening)> {
+        if !need(peer) {
+            return None;
+        }
+        let d = Scratch::new(name);
+        let l = Listening::start(&d, drive);
+        Some((d, l))
+    }
+
     fn start(d: &Path, drive: &[&str]) -> Listening {
         Listening::start_on(d, "1", &[], drive)
     }
@@ -73,25 +81,19 @@ impl Listening {
             d.join("dev"),
             d.join("line.jsonl"),
         );
-        let mut cmd = Command::new(bin());
-        cmd.args(["bus", "-q", "--link"])
-            .arg(format!("master={}", master.display()))
-            .arg("--link")
-            .arg(format!("tap={}", tap.display()));
+        let mut links = vec![
+            format!("master={}", master.display()),
+            format!("tap={}", tap.display()),
+        ];
         if device.is_some() {
-            cmd.arg("--link").arg(format!("dev={}", dev.display()));
+            links.push(format!("dev={}", dev.display()));
         }
-        let mut bus = Kill::spawn(
-            cmd.arg("--log")
-                .arg(&log)
-                .args(bus)
-                .stdin(Stdio::null())
-                .stdout(Stdio::null())
-                .stderr(Stdio::inherit()),
-        );
-        common::wait_for(&master);
-        common::wait_for(&tap);
-        assert!(bus.0.try_wait().unwrap().is_none(), "the bus ended");
+        let mut args: Vec<&str> = links.iter().flat_map(|l| ["--link", l]).collect();
+        args.extend(["--log", log.to_str().unwrap()]);
+        args.extend(bus);
+        // Each endpoint's line is printed once its link is made.
+        let mut bus = common::Bus::start(&args, links.len());
+        assert!(bus.guard.0.try_wait().unwrap().is_none(), "the bus ended");
         let device = device.map(|(mut c, line)| {
             common::wait_for(&dev);
             let guard = Kill::spawn(c.arg(&dev).stdin(Stdio::null()).stdout(Stdio::null()));
@@ -99,9 +101,8 @@ impl Listening {
             guard
         });
         let report = d.join("monitor.json");
-        let mut monitor = Kill::spawn(
+        let monitor = common::Monitor::start(
             Run::words("monitor --model f510")
-                .command()
                 // The bus's line is given (the search without -b has its own test).
                 .args(if monitor.contains(&"-b") {
                     &[][..]
@@ -115,35 +116,14 @@ impl Listening {
                 .arg(d.join("heard.jsonl"))
                 .arg("-o")
                 .arg(&report)
-                .stdin(Stdio::null())
-                .stdout(Stdio::null())
-                .stderr(Stdio::piped()),
+                .command(),
         );
-        let stderr = monitor.0.stderr.take().unwrap();
-        let (tx, live) = mpsc::channel();
-        std::thread::spawn(move || {
-            for line in BufReader::new(stderr).lines().map_while(Result::ok) {
-                if tx.send(line).is_err() {
-                    break;
-                }
-            }
-        });
-        // The monitor says so once its port is open and read.
-        loop {
-            let line = live
-                .recv_timeout(Duration::from_secs(30))
-                .expect("the monitor never started listening");
-            if line.starts_with("listening on ") {
-                break;
-            }
-        }
         Listening {
             bus,
             master,
             monitor,
             report,
             log,
-            live,
             _device: device,
         }
     }
@@ -154,24 +134,25 @@ impl Listening {
     fn stop(mut self, n: usize) -> (i32, Value, Vec<String>, Vec<Value>) {
         let mut lines = Vec::new();
         while lines.len() < n {
-            match self.live.recv_timeout(Duration::from_secs(20)) {
-                Ok(l) => lines.push(l),
-                Err(_) => break,
+            match self.monitor.stderr.next_line(Duration::from_secs(20)) {
+                Some(l) => lines.push(l),
+                None => break,
             }
         }
         let signal = |k: &Kill, s| {
             let pid = nix::unistd::Pid::from_raw(i32::try_from(k.0.id()).unwrap());
             nix::sys::signal::kill(pid, s).unwrap();
         };
-        signal(&self.monitor, nix::sys::signal::Signal::SIGINT);
-        let status = self
+        self.monitor.signal(nix::sys::signal::Signal::SIGINT);
+        let (status, _) = self
             .monitor
-            .wait_within(Duration::from_secs(20), "the monitor after SIGINT");
-        lines.extend(self.live.try_iter());
+            .finish(Duration::from_secs(20), "the monitor after SIGINT");
+        lines.extend(self.monitor.stderr.pending());
         // The device first: the bus's endpoints go with the bus.
         self._device = None;
-        signal(&self.bus, nix::sys::signal::Signal::SIGTERM);
+        signal(&self.bus.guard, nix::sys::signal::Signal::SIGTERM);
         self.bus
+            .guard
             .wait_within(Duration::from_secs(10), "the bus after SIGTERM");
         let text = std::fs::read_to_string(&self.report)
             .unwrap_or_else(|e| panic!("no report ({e}); monitor said {lines:#?}"));
@@ -299,11 +280,9 @@ fn run(cmd: Run, must_succeed: bool) -> String {
 
 #[test]
 fn mbpoll_polling_and_writing_is_heard_and_the_drive_passes() {
-    if !need(Peer::Mbpoll) {
+    let Some((_d, l)) = Listening::for_peer(Peer::Mbpoll, "mbpoll", &[]) else {
         return;
-    }
-    let d = Scratch::new("mbpoll");
-    let l = Listening::start(&d, &[]);
+    };
     let mbpoll = |args: &[&str]| {
         Run::program("mbpoll", words("-m rtu -b 9600 -P even -a 1 -o 2")).args(args)
     };
@@ -322,11 +301,9 @@ fn mbpoll_polling_and_writing_is_heard_and_the_drive_passes() {
 
 #[test]
 fn pymodbus_polling_and_writing_is_heard_and_the_drive_passes() {
-    if !need(Peer::Pymodbus) {
+    let Some((_d, l)) = Listening::for_peer(Peer::Pymodbus, "pymodbus", &[]) else {
         return;
-    }
-    let d = Scratch::new("pymodbus");
-    let l = Listening::start(&d, &[]);
+    };
     // Parity E on a pseudo-terminal: pymodbus's connect() refuses it (EINVAL) and falls
     // back to N here; the line carries bytes, whatever the program's termios says.
     let script = format!(
@@ -349,11 +326,9 @@ fn pymodbus_polling_and_writing_is_heard_and_the_drive_passes() {
 
 #[test]
 fn minimalmodbus_polling_and_writing_is_heard_and_the_drive_passes() {
-    if !need(Peer::Minimalmodbus) {
+    let Some((_d, l)) = Listening::for_peer(Peer::Minimalmodbus, "minimalmodbus", &[]) else {
         return;
-    }
-    let d = Scratch::new("minimalmodbus");
-    let l = Listening::start(&d, &[]);
+    };
     let script = format!(
         "import minimalmodbus\n\
          i = minimalmodbus.Instrument({port:?}, 1)\n\
@@ -402,11 +377,11 @@ fn a_libmodbus_client_polling_and_writing_is_heard_and_the_drive_passes() {
 /// replies are timeouts and nothing more.
 #[test]
 fn replies_a_drive_drops_are_found_and_the_retries_of_the_master_counted() {
-    if !need(Peer::Pymodbus) {
+    let Some((_d, l)) =
+        Listening::for_peer(Peer::Pymodbus, "retries", &["--quirk", "drop-every=2"])
+    else {
         return;
-    }
-    let d = Scratch::new("retries");
-    let l = Listening::start(&d, &["--quirk", "drop-every=2"]);
+    };
     let script = format!(
         "{connect}\
          for _ in range(4):\n\

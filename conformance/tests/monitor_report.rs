@@ -5,35 +5,17 @@
 #![cfg(unix)]
 
 mod common;
+use common::rtu::{read, values};
 use common::{line, Run, Scratch};
 
 use std::path::Path;
 
 use conformance::capture::write::{Interface, PacketMeta, PcapngWriter};
 use conformance::capture::LINKTYPE_USER0;
-use conformance::codec::pdu::{Message, Pdu, Registers};
-use conformance::codec::Mode;
+use conformance::codec::pdu::Pdu;
 
 /// 2026-11-27T10:00:00Z, the capture's first packet, in microseconds since the epoch.
 const T0_US: u64 = 1_795_773_600_000_000;
-
-fn rtu(address: u8, pdu: Pdu<'_>) -> Vec<u8> {
-    Message { address, pdu }.to_frame_vec(Mode::Rtu).unwrap()
-}
-
-fn read(address: u8, start: u16, count: u16) -> Vec<u8> {
-    rtu(address, Pdu::ReadRequest { start, count })
-}
-
-fn values(address: u8, v: &[u16]) -> Vec<u8> {
-    let bytes: Vec<u8> = v.iter().flat_map(|x| x.to_be_bytes()).collect();
-    rtu(
-        address,
-        Pdu::ReadResponse {
-            values: Registers::new(&bytes).unwrap(),
-        },
-    )
-}
 
 /// A pcapng capture of an RTU bus at `path`: each frame at `T0_US` + its offset in ms.
 fn capture(path: &Path, frames: &[(u64, Vec<u8>)]) {
@@ -67,7 +49,7 @@ fn polled_bus(path: &Path) {
             (200, read(1, 0x2530, 1)),
             (
                 211,
-                rtu(
+                common::rtu::frame(
                     1,
                     Pdu::Exception {
                         function: 3,
@@ -240,7 +222,7 @@ fn a_monitor_report_shows_why_the_master_deviates_and_names_its_nodes() {
             (0, read(1, 0x2530, 1)),
             (
                 11,
-                rtu(
+                common::rtu::frame(
                     1,
                     Pdu::Exception {
                         function: 3,
@@ -252,12 +234,7 @@ fn a_monitor_report_shows_why_the_master_deviates_and_names_its_nodes() {
         &["-a", "1"],
     );
     let id = "rtu.node01.master.register-not-in-map";
-    let check = v["checks"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .find(|c| c["id"] == id)
-        .unwrap_or_else(|| panic!("no {id} in {v:#}"));
+    let check = common::check_of(&v, id);
     let e = &check["exchanges"][0];
     assert_eq!(e["received"], "01 83 02 C0 F1", "{e:#}");
     assert_eq!(e["expected"], serde_json::Value::Null, "{e:#}");

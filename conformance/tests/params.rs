@@ -34,6 +34,77 @@ fn conformance(args: &[&str]) -> (Option<i32>, String, String) {
     run_bounded(args, LIMIT)
 }
 
+/// A device the runner reaches through `link` (the model or description it reads, the
+/// port, the line and the mode), killed with its guard.
+struct Device {
+    _guard: Option<Kill>,
+    link: Vec<String>,
+}
+
+impl Device {
+    /// The simulator started with `sim` (the words of each part, as [`line`] takes them),
+    /// reached in RTU with `model` (the words of the model or description options).
+    fn sim(sim: &[&str], model: &[&str]) -> Device {
+        let (guard, port) = sim_pty(&line(sim));
+        Device::reached(
+            Some(guard),
+            &[&line(model)[..], &["--port", &port, "--mode", "rtu"]].concat(),
+        )
+    }
+
+    /// A device (under `guard`, where this test started it) reached through `link`,
+    /// which names the mode.
+    fn reached(guard: Option<Kill>, link: &[&str]) -> Device {
+        assert!(link.contains(&"--mode"), "{link:?}");
+        Device {
+            _guard: guard,
+            link: link.iter().map(|w| w.to_string()).collect(),
+        }
+    }
+
+    /// The mode the link names.
+    fn mode(&self) -> &str {
+        let at = self.link.iter().position(|w| w == "--mode").unwrap();
+        &self.link[at + 1]
+    }
+
+    /// The F510 simulator in RTU, logging every frame to `log`.
+    fn f510_logged(log: &Path) -> Device {
+        Device::sim(
+            &["--model f510 --log", log.to_str().unwrap()],
+            &["--model f510"],
+        )
+    }
+
+    /// `first` followed by the link options.
+    fn args<'a>(&'a self, first: &[&'a str]) -> Vec<&'a str> {
+        first
+            .iter()
+            .copied()
+            .chain(self.link.iter().map(String::as_str))
+            .collect()
+    }
+
+    /// `conformance FIRST LINK` (bounded): exit code, stdout, stderr.
+    fn run(&self, first: &[&str]) -> (Option<i32>, String, String) {
+        conformance(&self.args(first))
+    }
+
+    /// `params backup -o to`, which must exit 0: its stdout and stderr.
+    fn backup(&self, to: &Path) -> (String, String) {
+        let (code, out, err) = self.run(&["params", "backup", "-o", to.to_str().unwrap()]);
+        assert_eq!(code, Some(0), "{out}{err}");
+        (out, err)
+    }
+
+    /// `send` of the 06H frame writing `value` to `register`, which must exit 0.
+    fn write(&self, register: u16, value: u16) {
+        let frame = write_frame(mode_of(self.mode()), register, value);
+        let (code, out, err) = self.run(&["send", &frame]);
+        assert_eq!(code, Some(0), "send {register:04X}: {out}{err}");
+    }
+}
+
 /// The frames the simulator received, in order, as their bodies (address, function,
 /// data), from its JSON log.
 fn received(log: &Path, mode: Mode) -> Vec<Vec<u8>> {
@@ -129,33 +200,19 @@ fn audit_lines(path: &Path) -> Vec<serde_json::Value> {
 /// values it gives them.
 const CHANGES: [(u16, u16); 3] = [(0x0301, 5), (0x0410, 7), (0x0C20, 9)];
 
-/// The round trip against a device on `port` (`link`: the link options, the model
-/// included); `log` is the device's frame log, where it has one.
-fn round_trip(d: &Path, link: &[&str], mode: &str, log: Option<&Path>) {
+/// The round trip against `dev`; `log` is the device's frame log, where it has one.
+fn round_trip(d: &Path, dev: &Device, log: Option<&Path>) {
+    let mode = dev.mode();
     let m = mode_of(mode);
     let a = d.join("a.toml");
-    let with = |first: &[&str]| -> Vec<String> {
-        first
-            .iter()
-            .chain(link)
-            .chain(["--mode", mode].iter())
-            .map(|s| s.to_string())
-            .collect()
-    };
-    let run = |args: Vec<String>| {
-        let refs: Vec<&str> = args.iter().map(String::as_str).collect();
-        conformance(&refs)
-    };
-    let (code, out, err) = run(with(&["params", "backup", "-o", a.to_str().unwrap()]));
-    assert_eq!(code, Some(0), "{out}{err}");
+    dev.backup(&a);
     let before = backup_of(&a);
     assert_eq!(before.header.mode.as_deref(), Some(mode));
     for (r, v) in CHANGES {
         assert_ne!(before.values()[&r], v, "{r:04X} already holds {v}");
-        let (code, out, err) = run(with(&["send", &write_frame(m, r, v)]));
-        assert_eq!(code, Some(0), "send {r:04X}: {out}{err}");
+        dev.write(r, v);
     }
-    let (code, out, err) = run(with(&["params", "diff", a.to_str().unwrap(), "live"]));
+    let (code, out, err) = dev.run(&["params", "diff", a.to_str().unwrap(), "live"]);
     assert_eq!(code, Some(1), "{out}{err}");
     let named: Vec<&str> = out.lines().filter(|l| l.starts_with("differs:")).collect();
     assert_eq!(named.len(), 3, "{out}");
@@ -167,7 +224,7 @@ fn round_trip(d: &Path, link: &[&str], mode: &str, log: Option<&Path>) {
     }
     assert!(!out.contains("only in"), "{out}");
     let seen = log.map_or(0, |l| received(l, m).len());
-    let (code, out, err) = run(with(&["params", "restore", a.to_str().unwrap(), "--yes"]));
+    let (code, out, err) = dev.run(&["params", "restore", a.to_str().unwrap(), "--yes"]);
     assert_eq!(code, Some(0), "{out}{err}");
     assert!(out.contains("written and verified: 3 "), "{out}");
     let audit = audit_lines(&d.join("conformance-audit.jsonl"));
@@ -199,8 +256,7 @@ fn round_trip(d: &Path, link: &[&str], mode: &str, log: Option<&Path>) {
         }
     }
     let b = d.join("b.toml");
-    let (code, out, err) = run(with(&["params", "backup", "-o", b.to_str().unwrap()]));
-    assert_eq!(code, Some(0), "{out}{err}");
+    dev.backup(&b);
     let after = backup_of(&b);
     assert_eq!(after.values(), before.values());
     assert_eq!(
@@ -220,13 +276,17 @@ fn round_trip(d: &Path, link: &[&str], mode: &str, log: Option<&Path>) {
 fn sim_round_trip(mode: &str) {
     let d = Scratch::new(&format!("round-{mode}"));
     let log = d.join("sim.jsonl");
-    let (_sim, port) = sim_pty(&line(&[
+    let (sim, port) = sim_pty(&line(&[
         "--model f510 -m",
         mode,
         "--log",
         log.to_str().unwrap(),
     ]));
-    round_trip(&d, &["--model", "f510", "--port", &port], mode, Some(&log));
+    let dev = Device::reached(
+        Some(sim),
+        &line(&["--model f510 --port", &port, "--mode", mode]),
+    );
+    round_trip(&d, &dev, Some(&log));
 }
 
 #[test]
@@ -243,23 +303,12 @@ fn the_round_trip_in_ascii_restores_exactly_the_three_changed_parameters() {
 fn a_dry_run_and_a_restore_without_yes_off_a_terminal_write_nothing() {
     let d = Scratch::new("dry");
     let log = d.join("sim.jsonl");
-    let (_sim, port) = sim_pty(&["--model", "f510", "--log", log.to_str().unwrap()]);
+    let dev = Device::f510_logged(&log);
     let a = d.join("a.toml");
-    let link = ["--model", "f510", "--port", &port, "--mode", "rtu"];
-    let (code, out, err) =
-        conformance(&[&["params", "backup", "-o", a.to_str().unwrap()], &link[..]].concat());
-    assert_eq!(code, Some(0), "{out}{err}");
-    let (code, ..) =
-        conformance(&[&["send", &write_frame(Mode::Rtu, 0x0301, 5)], &link[..]].concat());
-    assert_eq!(code, Some(0));
+    dev.backup(&a);
+    dev.write(0x0301, 5);
     let seen = received(&log, Mode::Rtu).len();
-    let (code, out, err) = conformance(
-        &[
-            &["params", "restore", a.to_str().unwrap(), "--dry-run"],
-            &link[..],
-        ]
-        .concat(),
-    );
+    let (code, out, err) = dev.run(&["params", "restore", a.to_str().unwrap(), "--dry-run"]);
     assert_eq!(code, Some(0), "{out}{err}");
     assert!(
         out.contains("plan: 1 writes") && out.contains("01 06 03 01 00 00 D8 4E"),
@@ -267,8 +316,7 @@ fn a_dry_run_and_a_restore_without_yes_off_a_terminal_write_nothing() {
     );
     assert!(out.contains("dry run: nothing written"), "{out}");
     // stdin is not a terminal here: no --yes, no writes.
-    let (code, out, err) =
-        conformance(&[&["params", "restore", a.to_str().unwrap()], &link[..]].concat());
+    let (code, out, err) = dev.run(&["params", "restore", a.to_str().unwrap()]);
     assert_eq!(code, Some(2), "{out}{err}");
     assert!(err.contains("refusing to write without --yes"), "{err}");
     let frames = received(&log, Mode::Rtu)[seen..].to_vec();
@@ -338,24 +386,17 @@ fn an_exception_mid_restore_stops_it_and_the_audit_log_and_journal_say_what_was_
     let d = Scratch::new("exception");
     let (described, device) = refusing_description(&d, "read-only");
     let log = d.join("sim.jsonl");
-    let (_sim, port) = sim_pty(&line(&[
-        "--delay 5 --model-file",
-        device.to_str().unwrap(),
-        "--log",
-        log.to_str().unwrap(),
-    ]));
-    let link = [
-        "--model-file",
-        described.to_str().unwrap(),
-        "--port",
-        &port,
-        "--mode",
-        "rtu",
-    ];
+    let dev = Device::sim(
+        &[
+            "--delay 5 --model-file",
+            device.to_str().unwrap(),
+            "--log",
+            log.to_str().unwrap(),
+        ],
+        &["--model-file", described.to_str().unwrap()],
+    );
     let a = d.join("a.toml");
-    let (code, out, err) =
-        conformance(&[&["params", "backup", "-o", a.to_str().unwrap()], &link[..]].concat());
-    assert_eq!(code, Some(0), "{out}{err}");
+    dev.backup(&a);
     // Three values to restore, the middle one to the register the device refuses.
     let text = std::fs::read_to_string(&a)
         .unwrap()
@@ -364,13 +405,7 @@ fn an_exception_mid_restore_stops_it_and_the_audit_log_and_journal_say_what_was_
         .replace("\n0014 = 0 ", "\n0014 = 13");
     std::fs::write(&a, text).unwrap();
     let seen = received(&log, Mode::Rtu).len();
-    let (code, out, err) = conformance(
-        &[
-            &["params", "restore", a.to_str().unwrap(), "--yes"],
-            &link[..],
-        ]
-        .concat(),
-    );
+    let (code, out, err) = dev.run(&["params", "restore", a.to_str().unwrap(), "--yes"]);
     assert_eq!(code, Some(1), "{out}{err}");
     assert!(out.contains("plan: 3 writes"), "{out}");
     assert!(out.contains("REFUSED: exception 02H"), "{out}");
@@ -423,12 +458,9 @@ fn spawn(d: &Path, args: &[&str]) -> Kill {
 #[test]
 fn sigterm_during_a_restore_leaves_the_audit_log_whole_and_undoes_what_was_written() {
     let d = Scratch::new("sigterm");
-    let (_sim, port) = sim_pty(&["--model", "f510"]);
-    let link = ["--model", "f510", "--port", &port, "--mode", "rtu"];
+    let dev = Device::sim(&["--model f510"], &["--model f510"]);
     let a = d.join("a.toml");
-    let (code, out, err) =
-        conformance(&[&["params", "backup", "-o", a.to_str().unwrap()], &link[..]].concat());
-    assert_eq!(code, Some(0), "{out}{err}");
+    dev.backup(&a);
     let before = backup_of(&a);
     // Every other parameter changed: hundreds of single writes, far more than go out
     // before the signal.
@@ -452,18 +484,12 @@ fn sigterm_during_a_restore_leaves_the_audit_log_whole_and_undoes_what_was_writt
     let audit = d.join("audit.jsonl");
     let mut child = spawn(
         &d,
-        &[
-            &[
-                "params",
-                "restore",
-                target.to_str().unwrap(),
-                "--yes",
-                "--audit",
-                audit.to_str().unwrap(),
-            ],
-            &link[..],
-        ]
-        .concat(),
+        &dev.args(&line(&[
+            "params restore",
+            target.to_str().unwrap(),
+            "--yes --audit",
+            audit.to_str().unwrap(),
+        ])),
     );
     let t0 = std::time::Instant::now();
     while audit_lines(&audit).len() < 2 {
@@ -512,9 +538,7 @@ fn sigterm_during_a_restore_leaves_the_audit_log_whole_and_undoes_what_was_writt
         "{undone:?}"
     );
     let b = d.join("b.toml");
-    let (code, ..) =
-        conformance(&[&["params", "backup", "-o", b.to_str().unwrap()], &link[..]].concat());
-    assert_eq!(code, Some(0));
+    dev.backup(&b);
     assert_eq!(
         backup_of(&b).values(),
         before.values(),
@@ -533,47 +557,35 @@ fn the_round_trip_against_pymodbus_described_by_a_model_file() {
         "/../vectors/models/examples/pymodbus-server.json"
     );
     let port = peer.port.to_str().unwrap();
-    round_trip(
-        &d,
-        &["--model-file", model, "--port", port, "-P", "none"],
-        "rtu",
+    let dev = Device::reached(
         None,
+        &[
+            "--model-file",
+            model,
+            "--port",
+            port,
+            "-P",
+            "none",
+            "--mode",
+            "rtu",
+        ],
     );
+    round_trip(&d, &dev, None);
     let a = backup_of(&d.join("a.toml"));
     let v: BTreeMap<u16, u16> = a.values();
     assert_eq!(v.len(), 0x1000 + 0x30, "both blocks, every register");
     // Consecutive changes: one 10H write, which pymodbus confirms and holds.
-    let link = [
-        "--model-file",
-        model,
-        "--port",
-        port,
-        "-P",
-        "none",
-        "--mode",
-        "rtu",
-    ];
     for (r, v) in [(0x0801, 1), (0x0802, 2), (0x0803, 3)] {
-        let (code, ..) =
-            conformance(&[&["send", &write_frame(Mode::Rtu, r, v)], &link[..]].concat());
-        assert_eq!(code, Some(0));
+        dev.write(r, v);
     }
     let audit = d.join("fc10.jsonl");
     let file = d.join("a.toml");
-    let (code, out, err) = conformance(
-        &[
-            &[
-                "params",
-                "restore",
-                file.to_str().unwrap(),
-                "--yes",
-                "--audit",
-                audit.to_str().unwrap(),
-            ],
-            &link[..],
-        ]
-        .concat(),
-    );
+    let (code, out, err) = dev.run(&line(&[
+        "params restore",
+        file.to_str().unwrap(),
+        "--yes --audit",
+        audit.to_str().unwrap(),
+    ]));
     assert_eq!(code, Some(0), "{out}{err}");
     let lines = audit_lines(&audit);
     assert_eq!(lines.len(), 3, "{lines:?}");
@@ -596,25 +608,14 @@ fn the_round_trip_against_pymodbus_described_by_a_model_file() {
 fn consecutive_changes_are_restored_by_one_10h_write_and_read_back() {
     let d = Scratch::new("fc10");
     let log = d.join("sim.jsonl");
-    let (_sim, port) = sim_pty(&["--model", "f510", "--log", log.to_str().unwrap()]);
-    let link = ["--model", "f510", "--port", &port, "--mode", "rtu"];
+    let dev = Device::f510_logged(&log);
     let a = d.join("a.toml");
-    let (code, out, err) =
-        conformance(&[&["params", "backup", "-o", a.to_str().unwrap()], &link[..]].concat());
-    assert_eq!(code, Some(0), "{out}{err}");
+    dev.backup(&a);
     for (r, v) in [(0x0301, 1), (0x0302, 2), (0x0303, 3)] {
-        let (code, ..) =
-            conformance(&[&["send", &write_frame(Mode::Rtu, r, v)], &link[..]].concat());
-        assert_eq!(code, Some(0));
+        dev.write(r, v);
     }
     let seen = received(&log, Mode::Rtu).len();
-    let (code, out, err) = conformance(
-        &[
-            &["params", "restore", a.to_str().unwrap(), "--yes"],
-            &link[..],
-        ]
-        .concat(),
-    );
+    let (code, out, err) = dev.run(&["params", "restore", a.to_str().unwrap(), "--yes"]);
     assert_eq!(code, Some(0), "{out}{err}");
     assert!(out.contains("plan: 1 writes"), "{out}");
     assert!(
@@ -651,16 +652,10 @@ fn on_a_terminal_a_restore_asks_once_and_writes_only_after_yes() {
     }
     let d = Scratch::new("ask");
     let log = d.join("sim.jsonl");
-    let (_sim, port) = sim_pty(&["--model", "f510", "--log", log.to_str().unwrap()]);
-    let link = format!("--model f510 --port {port} --mode rtu");
+    let dev = Device::f510_logged(&log);
+    let link = dev.link.join(" ");
     let a = d.join("a.toml");
-    let (code, out, err) = conformance(&line(&[
-        "params backup --model f510 --port",
-        &port,
-        "--mode rtu -o",
-        a.to_str().unwrap(),
-    ]));
-    assert_eq!(code, Some(0), "{out}{err}");
+    dev.backup(&a);
     let text = std::fs::read_to_string(&a)
         .unwrap()
         .replace("\n0301 = 0 ", "\n0301 = 3 ");
@@ -711,19 +706,12 @@ fn on_a_terminal_a_restore_asks_once_and_writes_only_after_yes() {
 fn a_register_the_device_refuses_to_read_is_a_comment_of_the_backup_and_stops_no_other() {
     let d = Scratch::new("unread");
     let (described, device) = refusing_description(&d, "write-only");
-    let (_sim, port) = sim_pty(&["--delay", "5", "--model-file", device.to_str().unwrap()]);
-    let link = [
-        "--model-file",
-        described.to_str().unwrap(),
-        "--port",
-        &port,
-        "--mode",
-        "rtu",
-    ];
+    let dev = Device::sim(
+        &["--delay 5 --model-file", device.to_str().unwrap()],
+        &["--model-file", described.to_str().unwrap()],
+    );
     let a = d.join("a.toml");
-    let (code, out, err) =
-        conformance(&[&["params", "backup", "-o", a.to_str().unwrap()], &link[..]].concat());
-    assert_eq!(code, Some(0), "{out}{err}");
+    let (out, err) = dev.backup(&a);
     assert!(
         out.contains("1 refused by the device, as comments"),
         "{out}"
@@ -746,18 +734,11 @@ fn a_register_the_device_refuses_to_read_is_a_comment_of_the_backup_and_stops_no
         text.replace("\n# 0012 not read", "\n0012 = 0 # not read"),
     )
     .unwrap();
-    let (code, out, err) =
-        conformance(&[&["params", "diff", a.to_str().unwrap(), "live"], &link[..]].concat());
+    let (code, out, err) = dev.run(&["params", "diff", a.to_str().unwrap(), "live"]);
     assert_eq!(code, Some(1), "{out}{err}");
     assert!(out.contains("only in A: 0012H (settings)"), "{out}");
     // A restore cannot plan a register it cannot read: it refuses, naming the line.
-    let (code, out, err) = conformance(
-        &[
-            &["params", "restore", a.to_str().unwrap(), "--yes"],
-            &link[..],
-        ]
-        .concat(),
-    );
+    let (code, out, err) = dev.run(&["params", "restore", a.to_str().unwrap(), "--yes"]);
     assert_eq!(code, Some(2), "{out}{err}");
     assert!(err.contains("the device refuses to read 0012H"), "{err}");
 }

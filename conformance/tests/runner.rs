@@ -248,19 +248,8 @@ fn the_command_line_gives_exit_codes_and_every_format() {
     // Three monitor checks and the preflight, which runs whatever --only selects.
     assert_eq!(cases, 4 + 1, "{text}");
     // A quirk: exit 1; the deviation is a JUnit failure and leads the text report.
-    let o = out(&[
-        "check",
-        "--sim",
-        "f510",
-        "--mode",
-        "rtu",
-        "--quirk",
-        "wrong-exception",
-        "--only",
-        "rtu.function.04",
-        "--format",
-        "junit",
-    ]);
+    let quirk = "check --sim f510 --mode rtu --quirk wrong-exception --only rtu.function.04";
+    let o = out(&line(&[quirk, "--format junit"]));
     assert_eq!(o.code, Some(1));
     let text = o.stdout;
     let doc = roxmltree::Document::parse(&text).unwrap();
@@ -270,17 +259,7 @@ fn the_command_line_gives_exit_codes_and_every_format() {
             .count(),
         1
     );
-    let o = out(&[
-        "check",
-        "--sim",
-        "f510",
-        "--mode",
-        "rtu",
-        "--quirk",
-        "wrong-exception",
-        "--only",
-        "rtu.function.04",
-    ]);
+    let o = out(&line(&[quirk]));
     let text = o.stdout;
     assert!(
         text.lines()

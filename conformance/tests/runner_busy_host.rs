@@ -572,12 +572,7 @@ fn a_restore_write_that_gets_no_reply_is_tried_again() {
 
 /// The status of check `id` in a report, with its summary.
 fn check_in<'a>(v: &'a serde_json::Value, id: &str) -> (&'a str, &'a str) {
-    let c = v["checks"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .find(|c| c["id"] == id)
-        .unwrap_or_else(|| panic!("no check {id}"));
+    let c = common::check_of(v, id);
     (
         c["status"].as_str().unwrap(),
         c["summary"].as_str().unwrap(),

@@ -11,7 +11,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-use common::{need, pty_pair, sim_pty, Peer, Run, Scratch};
+use common::{need, pty_pair, sim_pty, words, Kill, Peer, Ran, Run, Scratch};
 use conformance::codec::timing::{LineSettings, Parity};
 use conformance::codec::{frame_of_body, Mode};
 use conformance::scan::link::SerialLink;
@@ -22,30 +22,30 @@ use conformance::transport::pty::PtyMaster;
 use conformance::transport::serial::SerialTransport;
 use conformance::transport::{LinkKind, Transport};
 
+/// `conformance scan --port PORT ARGS` (the words of `args`) bounded by `secs`, which
+/// must exit `exit`.
+fn scan_on(port: &str, args: &str, secs: u64, exit: i32) -> Ran {
+    Run::words("scan --port")
+        .arg(port)
+        .args(words(args))
+        .timeout(Duration::from_secs(secs))
+        .run()
+        .expect(exit)
+}
+
+/// The E510 simulator at node 17 on an emulated ASCII 19200 8O1 line, paced: the guard
+/// and its port.
+fn e510_at_node_17() -> (Kill, String) {
+    sim_pty(&words(
+        "--model e510 --emulate-line --pace -b 19200 -P odd -m ascii -a 17",
+    ))
+}
+
 #[test]
 fn scan_finds_a_simulator_at_an_unusual_setting() {
-    let (_sim, path) = sim_pty(&[
-        "--model",
-        "e510",
-        "--emulate-line",
-        "--pace",
-        "-b",
-        "19200",
-        "-P",
-        "odd",
-        "-m",
-        "ascii",
-        "-a",
-        "17",
-    ]);
+    let (_sim, path) = e510_at_node_17();
     // The whole default search: every speed, parity and mode, addresses 1..247.
-    let (code, out, err) = Run::words("scan --port")
-        .arg(&path)
-        .arg("--quiet")
-        .timeout(Duration::from_secs(300))
-        .run()
-        .parts();
-    assert_eq!(code, Some(0), "{out}\n{err}");
+    let out = scan_on(&path, "--quiet", 300, 0).stdout;
     let row = out
         .lines()
         .find(|l| l.starts_with("11H (17)"))
@@ -62,24 +62,13 @@ fn scan_finds_a_simulator_at_an_unusual_setting() {
     );
 
     // Narrowed, as JSON: the same device.
-    let (code, out, err) = Run::words("scan --port")
-        .arg(&path)
-        .args([
-            "-b",
-            "19200",
-            "-m",
-            "ascii",
-            "--addresses",
-            "10-20",
-            "--format",
-            "json",
-            "--quiet",
-        ])
-        .timeout(Duration::from_secs(60))
-        .run()
-        .parts();
-    assert_eq!(code, Some(0), "{out}\n{err}");
-    let v: serde_json::Value = serde_json::from_str(&out).unwrap();
+    let v = scan_on(
+        &path,
+        "-b 19200 -m ascii --addresses 10-20 --format json --quiet",
+        60,
+        0,
+    )
+    .json();
     let found = v["found"].as_array().unwrap();
     assert_eq!(found.len(), 1, "{v}");
     assert_eq!(found[0]["address"], 17);
@@ -95,46 +84,19 @@ fn an_empty_line_finds_nothing_with_exit_1() {
     let dir = Scratch::new("empty");
     let (_line, a, _b) = pty_pair(&dir);
     let a = a.to_string_lossy().into_owned();
-    let (code, out, err) = Run::words("scan --port")
-        .arg(&a)
-        .args([
-            "-b",
-            "19200,9600",
-            "-P",
-            "even",
-            "--addresses",
-            "1-20",
-            "--quiet",
-        ])
-        .timeout(Duration::from_secs(60))
-        .run()
-        .parts();
-    assert_eq!(code, Some(1), "{out}\n{err}");
+    let out = scan_on(&a, "-b 19200,9600 -P even --addresses 1-20 --quiet", 60, 1).stdout;
     assert!(out.contains("no device found"), "{out}");
     assert!(out.contains("4 silent"), "{out}");
 
     // A simulator at the right setting but outside the address range: nothing either.
-    let (_sim, path) = sim_pty(&["--emulate-line", "-b", "9600", "-P", "even", "-a", "30"]);
-    let (code, out, err) = Run::words("scan --port")
-        .arg(&path)
-        .args([
-            "-b",
-            "9600",
-            "-P",
-            "even",
-            "-m",
-            "rtu",
-            "--addresses",
-            "1-29",
-            "--format",
-            "json",
-            "--quiet",
-        ])
-        .timeout(Duration::from_secs(60))
-        .run()
-        .parts();
-    assert_eq!(code, Some(1), "{out}\n{err}");
-    let v: serde_json::Value = serde_json::from_str(&out).unwrap();
+    let (_sim, path) = sim_pty(&words("--emulate-line -b 9600 -P even -a 30"));
+    let v = scan_on(
+        &path,
+        "-b 9600 -P even -m rtu --addresses 1-29 --format json --quiet",
+        60,
+        1,
+    )
+    .json();
     assert_eq!(v["found"].as_array().unwrap().len(), 0);
     assert_eq!(v["tries"], 29);
 }
@@ -213,35 +175,22 @@ fn a_wrong_setting_yields_garbage_and_is_skipped_early() {
 fn rts_needs_a_port_with_an_rts_line() {
     let (_sim, path) = sim_pty(&[]);
     // A pseudo-terminal has no modem lines: --rts is refused with the reason, exit 2.
-    let (code, out, err) = Run::words("check --model f510 --port")
-        .arg(&path)
-        .args([
-            "--rts",
-            "--rts-delay",
-            "200",
-            "--quiet",
-            "--only",
-            "identification",
-        ])
-        .timeout(Duration::from_secs(30))
-        .run()
-        .parts();
+    let (code, out, err) =
+        Run::words("check --model f510 --rts --rts-delay 200 --quiet --only identification")
+            .args(["--port", &path])
+            .timeout(Duration::from_secs(30))
+            .run()
+            .parts();
     assert_eq!(code, Some(2), "{out}\n{err}");
     assert!(err.contains("RTS"), "{err}");
-    let (code, _, err) = Run::words("scan --port")
-        .arg(&path)
-        .args(["-b", "9600", "-P", "even", "-m", "rtu", "--rts", "--quiet"])
-        .timeout(Duration::from_secs(30))
-        .run()
-        .parts();
-    assert_eq!(code, Some(2), "{err}");
+    let err = scan_on(&path, "-b 9600 -P even -m rtu --rts --quiet", 30, 2).stderr;
     assert!(err.contains("no RTS line"), "{err}");
     // --rts without a serial port is an argument error.
-    let (code, _, err) = Run::words("check --sim f510 --rts --quiet")
+    let err = Run::words("check --sim f510 --rts --quiet")
         .timeout(Duration::from_secs(30))
         .run()
-        .parts();
-    assert_eq!(code, Some(2), "{err}");
+        .expect(2)
+        .stderr;
     assert!(
         err.contains("--rts drives the RTS line of a serial port"),
         "{err}"
@@ -255,17 +204,7 @@ fn mbpoll_against_the_emulated_line() {
     if !need(Peer::Mbpoll) {
         return;
     }
-    let (_sim, path) = sim_pty(&[
-        "--model",
-        "l510",
-        "--emulate-line",
-        "-b",
-        "19200",
-        "-P",
-        "odd",
-        "-a",
-        "17",
-    ]);
+    let (_sim, path) = sim_pty(&words("--model l510 --emulate-line -b 19200 -P odd -a 17"));
     let mbpoll = |baud: &str| {
         Command::new("mbpoll")
             .args([
@@ -299,41 +238,16 @@ fn mbpoll_against_the_emulated_line() {
 /// ASCII), and the reply that found the device is on the setting it answered.
 #[test]
 fn a_scan_capture_records_each_setting_on_its_own_interface() {
-    let (_sim, path) = sim_pty(&[
-        "--model",
-        "e510",
-        "--emulate-line",
-        "--pace",
-        "-b",
-        "19200",
-        "-P",
-        "odd",
-        "-m",
-        "ascii",
-        "-a",
-        "17",
-    ]);
+    let (_sim, path) = e510_at_node_17();
     let dir = Scratch::new("scan-capture");
     let cap = dir.join("scan.pcapng");
-    let (code, out, err) = Run::words("scan --port")
-        .arg(&path)
-        .args([
-            "-b",
-            "19200",
-            "-P",
-            "odd,even",
-            "--addresses",
-            "16-17",
-            "--reply-window",
-            "150",
-            "--quiet",
-            "--capture",
-        ])
+    let err = Run::words("scan -b 19200 -P odd,even --addresses 16-17 --reply-window 150 --quiet")
+        .args(["--port", &path, "--capture"])
         .arg(&cap)
         .timeout(Duration::from_secs(120))
         .run()
-        .parts();
-    assert_eq!(code, Some(0), "{out}\n{err}");
+        .ok()
+        .stderr;
     assert!(err.contains("capture: "), "{err}");
     let data = std::fs::read(&cap).unwrap();
     let packets: Vec<conformance::capture::Packet<'_>> = conformance::capture::Reader::new(&data)

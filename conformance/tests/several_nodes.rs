@@ -18,6 +18,20 @@ fn check(name: &str, args: &[&str]) -> (Option<i32>, Value) {
     common::check_device(&Scratch::new(name), args, Duration::from_secs(240))
 }
 
+/// Each check of a report as a line on stderr, `WHO node NODE ID STATUS: SUMMARY`, to
+/// read what a peer did.
+fn print_checks(who: &str, v: &Value) {
+    for c in checks(v) {
+        eprintln!(
+            "{who} node {} {} {}: {}",
+            c["node"].as_str().unwrap_or("bus"),
+            c["id"].as_str().unwrap(),
+            c["status"],
+            c["summary"].as_str().unwrap()
+        );
+    }
+}
+
 fn checks(v: &Value) -> &Vec<Value> {
     v["checks"].as_array().unwrap()
 }
@@ -267,15 +281,7 @@ fn pymodbus_serving_two_nodes_is_checked_node_by_node() {
         ]),
         Duration::from_secs(180),
     );
-    for c in checks(&v) {
-        eprintln!(
-            "pymodbus node {} {} {}: {}",
-            c["node"].as_str().unwrap_or("bus"),
-            c["id"].as_str().unwrap(),
-            c["status"],
-            c["summary"].as_str().unwrap()
-        );
-    }
+    print_checks("pymodbus", &v);
     // Node 3 answers every read with an exception: that is the device's answer, so
     // deviations (exit 1), never "could not tell" (issue 28).
     assert_eq!(exit, Some(1), "{}", v["summary"]);
@@ -333,12 +339,7 @@ fn pymodbus_serving_two_nodes_is_checked_node_by_node() {
     // 3's refusal of that read is a deviation of its own.
     let bw = find("rtu.broadcast.write", "-");
     assert_eq!(bw["status"], "deviation", "{bw}");
-    let texts: Vec<&str> = bw["findings"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .map(|f| f["text"].as_str().unwrap())
-        .collect();
+    let texts: Vec<&str> = common::strings(&bw["findings"], "text");
     assert!(
         texts
             .iter()
@@ -448,16 +449,7 @@ fn several_nodes_through_a_modbus_tcp_gateway() {
             .unwrap(),
     );
     common::wait_listening(&addr, Duration::from_secs(30));
-    let mut args = vec![
-        "--model",
-        "f510",
-        "--tcp",
-        &addr,
-        "--framing",
-        "mbap",
-        "-a",
-        "1,2",
-    ];
+    let mut args = common::line(&["--model f510 --tcp", &addr, "--framing mbap -a 1,2"]);
     args.extend(only);
     let d = Scratch::new("mbap-sim");
     let (exit, v) = common::check_device(&d, &args, Duration::from_secs(120));
@@ -513,33 +505,18 @@ fn several_nodes_through_a_modbus_tcp_gateway() {
     let Some((_server, addr)) = common::pymodbus_tcp_units("1,2") else {
         return;
     };
-    let mut args = vec![
-        "--model",
-        "f510",
-        "--tcp",
+    let mut args = common::line(&[
+        "--model f510 --tcp",
         &addr,
-        "--framing",
-        "mbap",
-        "-a",
-        "1,2,3",
-        "--timeout",
-        "500",
-    ];
+        "--framing mbap -a 1,2,3 --timeout 500",
+    ]);
     args.extend(only);
     let (_, v) = common::check_device(
         &Scratch::new("mbap-pymodbus"),
         &args,
         Duration::from_secs(120),
     );
-    for c in checks(&v) {
-        eprintln!(
-            "pymodbus tcp node {} {} {}: {}",
-            c["node"].as_str().unwrap_or("bus"),
-            c["id"].as_str().unwrap(),
-            c["status"],
-            c["summary"].as_str().unwrap()
-        );
-    }
+    print_checks("pymodbus tcp", &v);
     let per_id = nodes_per_id(&v);
     // Units 1 and 2 are served. pymodbus 3.16.1 with several units answers a unit id it
     // does not have (3, FEH, 0) with exception 04H, as its serial server does (with one unit

@@ -26,6 +26,20 @@ fn wait_until(what: &str, mut ready: impl FnMut() -> bool) {
     }
 }
 
+/// Once `ready` holds (what `doing` names has begun), SIGTERM to `run` (the command
+/// `cmd`), which must end within 120 s: how it ended and its stderr.
+fn terminated(
+    run: &mut Kill,
+    cmd: &str,
+    doing: &str,
+    ready: impl FnMut() -> bool,
+) -> (std::process::ExitStatus, String) {
+    wait_until(doing, ready);
+    term(run);
+    let status = run.wait_within(Duration::from_secs(120), &format!("{cmd} after SIGTERM"));
+    (status, run.stderr_text())
+}
+
 fn term(child: &Kill) {
     kill(Pid::from_raw(child.0.id() as i32), Signal::SIGTERM).unwrap();
 }
@@ -35,11 +49,7 @@ fn whole_report(path: &Path, stderr: &str) -> serde_json::Value {
     let text = std::fs::read_to_string(path).unwrap_or_else(|e| panic!("{e}: {stderr}"));
     let v: serde_json::Value =
         serde_json::from_str(&text).unwrap_or_else(|e| panic!("not whole JSON ({e}): {stderr}"));
-    let schema = jsonschema::validator_for(
-        &serde_json::from_str(include_str!("../../vectors/schema/report.schema.json")).unwrap(),
-    )
-    .unwrap();
-    assert!(schema.is_valid(&v), "the report does not match its schema");
+    common::schema_valid(&v);
     v
 }
 
@@ -67,12 +77,9 @@ fn sigterm_ends_a_fuzz_run_with_a_whole_report_marked_incomplete() {
     );
     // The simulator's log (a line per frame, flushed) grows past the preflight once
     // cases are being exchanged.
-    wait_until("the fuzz exchanges", || {
+    let (status, stderr) = terminated(&mut run, "fuzz", "the fuzz exchanges", || {
         std::fs::read_to_string(&log).is_ok_and(|t| t.lines().count() >= 20)
     });
-    term(&run);
-    let status = run.wait_within(Duration::from_secs(120), "fuzz after SIGTERM");
-    let stderr = run.stderr_text();
     assert_eq!(status.code(), Some(2), "{stderr}");
     assert!(stderr.contains("interrupted"), "{stderr}");
     let v = whole_report(&out, &stderr);
@@ -95,12 +102,9 @@ fn sigterm_ends_a_check_restoring_what_it_wrote() {
     // The report is rewritten after every check: wait until a writing check has run
     // (the manual's example of 10H writes 0101H and 0102H).
     let wrote = "rtu.example.f510.10.rtu.request";
-    wait_until("the writing checks", || {
+    let (status, stderr) = terminated(&mut run, "check", "the writing checks", || {
         std::fs::read_to_string(&out).is_ok_and(|t| t.contains(wrote))
     });
-    term(&run);
-    let status = run.wait_within(Duration::from_secs(120), "check after SIGTERM");
-    let stderr = run.stderr_text();
     assert_eq!(status.code(), Some(2), "{stderr}");
     let v = whole_report(&out, &stderr);
     assert_eq!(v["complete"], false, "{stderr}");
@@ -198,12 +202,12 @@ fn the_simulator_replaces_a_stale_link_but_never_a_file() {
 
     let file = d.join("notes.txt");
     std::fs::write(&file, "keep me").unwrap();
-    let (code, _, stderr) = Run::words("simulate --pty --link")
+    let stderr = Run::words("simulate --pty --link")
         .arg(&file)
         .timeout(Duration::from_secs(30))
         .run()
-        .parts();
-    assert_eq!(code, Some(2), "{stderr}");
+        .expect(2)
+        .stderr;
     assert!(stderr.contains("is not a symbolic link"), "{stderr}");
     assert_eq!(std::fs::read_to_string(&file).unwrap(), "keep me");
 }
@@ -226,10 +230,7 @@ fn sigterm_ends_a_gate_run_with_a_whole_report_marked_incomplete() {
         &out,
     );
     // The report is rewritten after every case.
-    wait_until("the gate cases", || out.exists());
-    term(&run);
-    let status = run.wait_within(Duration::from_secs(120), "gate after SIGTERM");
-    let stderr = run.stderr_text();
+    let (status, stderr) = terminated(&mut run, "gate", "the gate cases", || out.exists());
     assert_eq!(status.code(), Some(2), "{stderr}");
     let v = whole_report(&out, &stderr);
     assert_eq!(v["complete"], false);
@@ -252,12 +253,9 @@ fn sigterm_ends_identify_with_its_report_not_run() {
         ]),
         &out,
     );
-    wait_until("the identify probes", || {
+    let (status, stderr) = terminated(&mut run, "identify", "the identify probes", || {
         std::fs::metadata(&log).is_ok_and(|m| m.len() > 0)
     });
-    term(&run);
-    let status = run.wait_within(Duration::from_secs(120), "identify after SIGTERM");
-    let stderr = run.stderr_text();
     assert_eq!(status.code(), Some(2), "{stderr}");
     let v: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(&out).unwrap()).unwrap();
@@ -307,46 +305,33 @@ fn sigterm_ends_a_scan_with_the_tries_made() {
 fn sigterm_ends_monitor_and_bus_each_in_its_own_words() {
     let d = Scratch::new("monitor-bus");
     let (master, tap) = (d.join("master"), d.join("tap"));
-    let mut bus = Kill::spawn(
-        Run::words("bus -q --link")
-            .command()
-            .arg(format!("master={}", master.display()))
-            .arg("--link")
-            .arg(format!("tap={}", tap.display()))
-            .stdout(Stdio::piped())
-            .stderr(Stdio::piped()),
-    );
     // The bus prints its endpoints once its handler is in place.
-    let mut lines = BufReader::new(bus.0.stdout.take().unwrap()).lines();
-    for name in ["master", "tap"] {
-        let line = lines.next().unwrap().unwrap();
-        assert!(line.starts_with(&format!("{name} /dev/")), "{line:?}");
+    let mut bus = common::Bus::start_with_stderr(
+        &[
+            "--link",
+            &format!("master={}", master.display()),
+            "--link",
+            &format!("tap={}", tap.display()),
+        ],
+        2,
+    );
+    for ((name, path), want) in bus.ends.iter().zip(["master", "tap"]) {
+        assert_eq!(name, want);
+        assert!(path.starts_with("/dev/"), "{name} {}", path.display());
     }
 
     let report = d.join("monitor.json");
-    let mut monitor = Kill::spawn(
+    let mut monitor = common::Monitor::start(
         Run::words("monitor --model f510 -a 1 --mode rtu -b 9600")
-            .command()
             .args(["-P", "even", "--format", "json", "-o"])
             .arg(&report)
             .arg("--port")
             .arg(&tap)
-            .stdout(Stdio::null())
-            .stderr(Stdio::piped()),
+            .command(),
     );
-    let mut err = BufReader::new(monitor.0.stderr.take().unwrap());
-    let mut said = String::new();
-    while !said.contains("listening on") {
-        let before = said.len();
-        err.read_line(&mut said).unwrap();
-        assert!(
-            said.len() > before,
-            "the monitor ended before listening: {said}"
-        );
-    }
-    term(&monitor);
-    std::io::Read::read_to_string(&mut err, &mut said).unwrap();
-    let status = monitor.wait_within(Duration::from_secs(60), "monitor after SIGTERM");
+    monitor.signal(Signal::SIGTERM);
+    let (status, said) = monitor.finish(Duration::from_secs(60), "monitor after SIGTERM");
+    let said = said.join("\n");
     assert_eq!(status.code(), Some(0), "{said}");
     assert!(
         said.contains("interrupted: the monitor stops listening and writes its report"),
@@ -360,9 +345,11 @@ fn sigterm_ends_monitor_and_bus_each_in_its_own_words() {
         v["monitor"]
     );
 
-    term(&bus);
-    let status = bus.wait_within(Duration::from_secs(60), "bus after SIGTERM");
-    let stderr = bus.stderr_text();
+    term(&bus.guard);
+    let status = bus
+        .guard
+        .wait_within(Duration::from_secs(60), "bus after SIGTERM");
+    let stderr = bus.guard.stderr_text();
     assert_eq!(status.code(), Some(0), "{stderr}");
     assert!(
         stderr.contains("interrupted: the bus stops and removes its links"),

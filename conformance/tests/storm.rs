@@ -14,7 +14,7 @@
 //!   the report says why.
 
 mod common;
-use common::{confirmed_findings, report_in, Run};
+use common::{check_of, confirmed_findings, report_in, Run};
 
 use std::time::Duration;
 
@@ -41,15 +41,6 @@ fn planted(quirks: &[&str]) -> String {
 
 fn storm_of(v: &Value) -> &Value {
     &v["fuzz"]["modes"][0]["storm"]
-}
-
-fn testcase<'a>(v: &'a Value, id: &str) -> &'a Value {
-    v["checks"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .find(|c| c["id"] == id)
-        .unwrap_or_else(|| panic!("no {id} in {:#}", v["checks"]))
 }
 
 #[test]
@@ -94,7 +85,7 @@ fn the_clean_simulator_weathers_the_storm() {
     // assertions do not belong in tests): only that the verdict follows the counts.
     let on_time = s["late"] == 0;
     assert_eq!(s["passed"], on_time);
-    let status = &testcase(&v, "fuzz.rtu.storm")["status"];
+    let status = &check_of(&v, "fuzz.rtu.storm")["status"];
     assert_eq!(*status, if on_time { "pass" } else { "deviation" });
     assert_eq!(code, Some(if on_time { 0 } else { 1 }), "{s:#}");
 }
@@ -106,7 +97,7 @@ fn a_request_lost_after_other_traffic_fails_the_storm() {
     assert!(s["lost"].as_u64().unwrap() > 0, "{s:#}");
     assert_eq!(s["passed"], false);
     assert_eq!(code, Some(1));
-    assert_eq!(testcase(&v, "fuzz.rtu.storm")["status"], "deviation");
+    assert_eq!(check_of(&v, "fuzz.rtu.storm")["status"], "deviation");
     let problems = s["problems"].as_array().unwrap();
     assert!(
         problems

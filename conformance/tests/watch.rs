@@ -147,12 +147,7 @@ fn planted_faults_are_counted_as_their_kinds() {
     for r in json_lines(&out) {
         assert_eq!(r["outcome"], "exception", "{r}");
         assert_eq!(r["exceptions"], serde_json::json!(["04"]));
-        let kinds: Vec<&str> = r["observations"]
-            .as_array()
-            .unwrap()
-            .iter()
-            .map(|o| o["kind"].as_str().unwrap())
-            .collect();
+        let kinds: Vec<&str> = common::strings(&r["observations"], "kind");
         assert_eq!(kinds, ["out-of-range"], "{r}");
         assert_eq!(r["values"]["2502H"]["text"], "400.01 Hz");
         assert!(r["values"]["2524H"].is_null());

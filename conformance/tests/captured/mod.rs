@@ -9,7 +9,7 @@ use std::sync::OnceLock;
 use conformance::capture::{Direction, Reader};
 use serde_json::Value;
 
-use super::common::{Run, Scratch, TSHARK_USER_DLT as USER_DLT};
+use super::common::{self, Run, Scratch, TSHARK_USER_DLT as USER_DLT};
 
 /// The folder of this binary's runs (kept for the process: the whole run's capture is
 /// read by several tests).
@@ -21,27 +21,40 @@ pub fn dir() -> &'static Path {
 /// A run of `check --sim f510 --mode MODE` with `extra` arguments, captured: the
 /// capture's path and the JSON report.
 pub fn captured_check(name: &str, mode: &str, extra: &[&str]) -> (PathBuf, Value) {
-    let d = dir();
-    let cap = d.join(format!("{name}.pcapng"));
-    let json = d.join(format!("{name}.json"));
-    let out = Run::words("check --sim f510 --mode")
-        .arg(mode)
-        .arg("--quiet")
-        .args(extra)
-        .arg("--capture")
-        .arg(&cap)
-        .args(["--format", "json", "-o"])
-        .arg(&json)
-        .run();
+    let (cap, out, report) = captured(
+        name,
+        Run::words("check --sim f510 --mode")
+            .arg(mode)
+            .arg("--quiet")
+            .args(extra),
+    );
     let stderr = out.stderr.as_str();
     assert!(stderr.contains("capture: "), "{stderr}");
-    let report: Value = serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
     // Exit 0, or 2 where only this host stalled sending a request (an ERROR, never
     // judged: a busy machine), with no deviation either way.
     assert_eq!(report["summary"]["deviation"], 0, "{stderr}");
     errors_are_host_stalls(&report);
     assert!(matches!(out.code, Some(0 | 2)), "{stderr}");
     (cap, report)
+}
+
+/// `run` (a `check`) captured to `name`.pcapng with its JSON report `name`.json in
+/// [`dir`]: the capture's path, what the run left, and the report.
+pub fn captured(name: &str, run: Run) -> (PathBuf, common::Ran, Value) {
+    let d = dir();
+    let cap = d.join(format!("{name}.pcapng"));
+    let json = d.join(format!("{name}.json"));
+    let out = run
+        .arg("--capture")
+        .arg(&cap)
+        .args(["--format", "json", "-o"])
+        .arg(&json)
+        .run();
+    let report: Value = serde_json::from_str(
+        &std::fs::read_to_string(&json).unwrap_or_else(|e| panic!("{e}: {out}")),
+    )
+    .unwrap();
+    (cap, out, report)
 }
 
 /// The whole RTU suite, once for every test of this file.

@@ -23,13 +23,23 @@ impl Bus {
     /// endpoint: its name and path). Its stdout stays open while it runs (a bus whose
     /// stdout is gone ends).
     pub fn start(args: &[&str], ptys: usize) -> Bus {
+        Bus::start_with(args, ptys, Stdio::inherit())
+    }
+
+    /// [`start`](Bus::start) with the bus's stderr piped, for the test to read once the bus
+    /// has ended (`guard.stderr_text()`).
+    pub fn start_with_stderr(args: &[&str], ptys: usize) -> Bus {
+        Bus::start_with(args, ptys, Stdio::piped())
+    }
+
+    fn start_with(args: &[&str], ptys: usize, stderr: Stdio) -> Bus {
         let mut guard = Kill::spawn(
             Run::words("bus -q")
                 .args(args)
                 .command()
                 .stdin(Stdio::null())
                 .stdout(Stdio::piped())
-                .stderr(Stdio::inherit()),
+                .stderr(stderr),
         );
         let stdout = guard.0.stdout.take().unwrap();
         let (tx, rx) = mpsc::channel();

@@ -6,14 +6,16 @@ pub mod agree;
 mod bus;
 pub mod gate;
 pub mod installed;
+mod monitor;
 mod peers;
 mod report;
+pub mod rtu;
 mod run;
 mod scratch;
 mod skip;
 // A test binary uses some of these and not others.
 #[allow(unused_imports)]
-pub use {bus::*, peers::*, report::*, run::*, scratch::*, skip::*};
+pub use {bus::*, monitor::*, peers::*, report::*, run::*, scratch::*, skip::*};
 
 /// The `conformance` binary built for these tests.
 pub fn bin() -> &'static str {

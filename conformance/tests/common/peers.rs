@@ -6,7 +6,7 @@
 use std::io::{BufRead, BufReader, Read};
 use std::path::{Path, PathBuf};
 use std::process::{Command, ExitStatus, Stdio};
-use std::sync::{mpsc, Arc, Mutex};
+use std::sync::{mpsc, Arc};
 use std::time::{Duration, Instant};
 
 use super::{bin, need, note, python, Peer};
@@ -248,22 +248,41 @@ pub fn pymodbus_serial_blocks(dir: &Path, mode: &str, blocks: &str) -> Option<Se
 
 /// [`pymodbus_serial_nodes`] with `extra` options of tests/interop/pymodbus_server.py.
 fn pymodbus_serial_args(dir: &Path, mode: &str, nodes: &str, extra: &[&str]) -> Option<SerialPeer> {
+    let first = nodes.split(',').next().unwrap_or("1");
+    pymodbus_on_pty(
+        dir,
+        "pymodbus_server.py",
+        &[],
+        &[&[mode, "--address", nodes][..], extra].concat(),
+        (mode, &["-P", "none", "-a", first]),
+    )
+}
+
+/// The pymodbus server tests/interop/SCRIPT started as `SCRIPT BEFORE A AFTER` (A: the
+/// path of end A of a [`PtyPair`] in `dir`); returns once the runner's end answers in
+/// `answers` (a mode and the line options); None (after SKIPPED) when pymodbus is
+/// missing.
+fn pymodbus_on_pty(
+    dir: &Path,
+    script: &str,
+    before: &[&str],
+    after: &[&str],
+    answers: (&str, &[&str]),
+) -> Option<SerialPeer> {
     if !need(Peer::Pymodbus) {
         return None;
     }
     let (line, a, b) = pty_pair(dir);
-    let server = concat!(
-        env!("CARGO_MANIFEST_DIR"),
-        "/tests/interop/pymodbus_server.py"
-    );
+    let server = format!("{}/tests/interop/{script}", env!("CARGO_MANIFEST_DIR"));
     let device = Kill::spawn(
         Command::new(python())
-            .args([server, a.to_str().unwrap(), mode, "--address", nodes])
-            .args(extra)
+            .arg(server)
+            .args(before)
+            .arg(&a)
+            .args(after)
             .stderr(Stdio::null()),
     );
-    let first = nodes.split(',').next().unwrap_or("1");
-    super::wait_until_answers(&b, mode, &["-P", "none", "-a", first]);
+    super::wait_until_answers(&b, answers.0, answers.1);
     Some(SerialPeer {
         device,
         line,
@@ -275,27 +294,13 @@ fn pymodbus_serial_args(dir: &Path, mode: &str, nodes: &str, extra: &[&str]) -> 
 /// `sim` (as `model export --to pymodbus-sim` writes it) in RTU on one end of a
 /// [`PtyPair`] in `dir`; None (after SKIPPED) when pymodbus is missing.
 pub fn pymodbus_sim_serial(dir: &Path, sim: &Path) -> Option<SerialPeer> {
-    if !need(Peer::Pymodbus) {
-        return None;
-    }
-    let (line, a, b) = pty_pair(dir);
-    let server = concat!(
-        env!("CARGO_MANIFEST_DIR"),
-        "/tests/interop/pymodbus_sim_server.py"
-    );
-    let device = Kill::spawn(
-        Command::new(python())
-            .arg(server)
-            .arg(sim)
-            .arg(&a)
-            .stderr(Stdio::null()),
-    );
-    super::wait_until_answers(&b, "rtu", &["-P", "none"]);
-    Some(SerialPeer {
-        device,
-        line,
-        port: b,
-    })
+    pymodbus_on_pty(
+        dir,
+        "pymodbus_sim_server.py",
+        &[sim.to_str().unwrap()],
+        &[],
+        ("rtu", &["-P", "none"]),
+    )
 }
 
 /// pymodbus's generic Modbus TCP server (tests/interop/pymodbus_tcp_server.py) with one
@@ -331,7 +336,7 @@ pub fn pymodbus_tcp_units(units: &str) -> Option<(Kill, String)> {
 pub struct GatewaySim {
     _child: Kill,
     pub addr: String,
-    log: Arc<Mutex<String>>,
+    log: super::Lines,
 }
 
 impl GatewaySim {
@@ -347,24 +352,18 @@ impl GatewaySim {
                 .stdout(Stdio::null())
                 .stderr(Stdio::piped()),
         );
-        let stderr = child.0.stderr.take().unwrap();
-        let log = Arc::new(Mutex::new(String::new()));
-        let (tx, rx) = mpsc::channel();
-        let l = log.clone();
-        std::thread::spawn(move || {
-            for line in BufReader::new(stderr).lines().map_while(Result::ok) {
-                if let Some(at) = line.find(" on tcp ") {
-                    let rest = &line[at + 8..];
-                    let _ = tx.send(rest[..rest.find(';').unwrap_or(rest.len())].to_string());
-                }
-                let mut l = l.lock().unwrap();
-                l.push_str(&line);
-                l.push('\n');
+        let log = super::Lines::read(child.0.stderr.take().unwrap());
+        let t0 = Instant::now();
+        let addr = loop {
+            let left = Duration::from_secs(10).saturating_sub(t0.elapsed());
+            let line = log
+                .next_line(left)
+                .unwrap_or_else(|| panic!("no banner from the simulator: {:#?}", log.all()));
+            if let Some(at) = line.find(" on tcp ") {
+                let rest = &line[at + 8..];
+                break rest[..rest.find(';').unwrap_or(rest.len())].to_string();
             }
-        });
-        let addr = rx
-            .recv_timeout(Duration::from_secs(10))
-            .unwrap_or_else(|_| panic!("no banner from the simulator: {}", log.lock().unwrap()));
+        };
         GatewaySim {
             _child: child,
             addr,
@@ -381,10 +380,8 @@ impl GatewaySim {
 impl Drop for GatewaySim {
     fn drop(&mut self) {
         if std::thread::panicking() {
-            note(&format!(
-                "--- simulator log ---\n{}--- end ---",
-                self.log.lock().unwrap()
-            ));
+            let log: String = self.log.all().iter().map(|l| format!("{l}\n")).collect();
+            note(&format!("--- simulator log ---\n{log}--- end ---"));
         }
     }
 }

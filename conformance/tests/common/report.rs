@@ -91,3 +91,64 @@ pub fn report_in(command: &str, name: &str, args: &str, limit: Duration) -> (Opt
     let args: Vec<&str> = args.split_whitespace().collect();
     report_of(command, &super::Scratch::new(name), &args, limit)
 }
+
+/// The check `id` of a report (a report without it fails the test, naming the ids it
+/// has).
+#[track_caller]
+pub fn check_of<'a>(v: &'a Value, id: &str) -> &'a Value {
+    v["checks"]
+        .as_array()
+        .and_then(|all| all.iter().find(|c| c["id"] == id))
+        .unwrap_or_else(|| {
+            panic!(
+                "no check {id} in the report: {:?}",
+                strings(&v["checks"], "id")
+            )
+        })
+}
+
+/// The text field `key` of each item of the JSON array `items` (the ids of a report's
+/// checks: `strings(&v["checks"], "id")`); an item without it fails the test.
+#[track_caller]
+pub fn strings<'a>(items: &'a Value, key: &str) -> Vec<&'a str> {
+    items
+        .as_array()
+        .unwrap_or_else(|| panic!("not an array: {items}"))
+        .iter()
+        .map(|i| {
+            i[key]
+                .as_str()
+                .unwrap_or_else(|| panic!("no text {key} in {i}"))
+        })
+        .collect()
+}
+
+/// The checks of a report whose status is one of `statuses`, each as `"STATUS" "ID":
+/// "SUMMARY"` (the JSON values as they print): for a failure's message, or to be sorted.
+pub fn with_status(v: &Value, statuses: &[&str]) -> Vec<String> {
+    checks_where(v, |c| statuses.iter().any(|s| c["status"] == *s))
+        .map(|c| format!("{} {}: {}", c["status"], c["id"], c["summary"]))
+        .collect()
+}
+
+/// The deviations of a report that its expectations file does not accept, each as
+/// `"ID": "SUMMARY"`.
+pub fn unexpected_deviations(v: &Value) -> Vec<String> {
+    checks_where(v, |c| {
+        c["status"] == "deviation" && c["expectation"]["outcome"] != "expected"
+    })
+    .map(|c| format!("{}: {}", c["id"], c["summary"]))
+    .collect()
+}
+
+/// The checks of a report for which `keep` holds (a report without checks fails the test).
+fn checks_where<'a>(
+    v: &'a Value,
+    keep: impl Fn(&Value) -> bool + 'a,
+) -> impl Iterator<Item = &'a Value> + 'a {
+    v["checks"]
+        .as_array()
+        .unwrap_or_else(|| panic!("a report without checks: {v}"))
+        .iter()
+        .filter(move |c| keep(c))
+}

@@ -1,5 +1,6 @@
 //! A scratch folder for one test: made fresh, removed when the test passes, kept (and its
-//! path printed) when the test fails, so that what the run wrote can be looked at.
+//! path printed) when the test fails or TECO_KEEP is set, so that what the run wrote can
+//! be looked at.
 
 use std::path::{Path, PathBuf};
 
@@ -61,7 +62,8 @@ impl Drop for Scratch {
         if self.1 {
             return;
         }
-        if std::thread::panicking() {
+        // TECO_KEEP keeps every folder, to read what a passing test wrote (learn's drafts).
+        if std::thread::panicking() || std::env::var_os("TECO_KEEP").is_some() {
             super::note(&format!("kept for a look: {}", self.0.display()));
         } else {
             let _ = std::fs::remove_dir_all(&self.0);
