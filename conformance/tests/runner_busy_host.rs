@@ -268,11 +268,11 @@ impl conformance::transport::Transport for OnAPty {
 }
 
 /// A drive on a memory link, seen as a pseudo-terminal, that answers each request with
-/// the read reply 01 03 02 00 04: `late(request)` says whether to answer 250 ms late (over
-/// the tests' 150 ms timeout), or `None` not to answer. It stops after 20 s or when its
-/// link closes.
+/// a read reply of 0004H: `answer(request)` gives the address the reply comes from and
+/// how long after the request it is sent, or `None` not to answer. It stops after 20 s or
+/// when its link closes.
 fn answering_0004(
-    mut late: impl FnMut(&[u8]) -> Option<bool> + Send + 'static,
+    mut answer: impl FnMut(&[u8]) -> Option<(u8, Duration)> + Send + 'static,
 ) -> (OnAPty, thread::JoinHandle<()>) {
     use conformance::transport::Transport;
     let (a, mut b) = conformance::transport::memory::pair();
@@ -287,15 +287,13 @@ fn answering_0004(
             if n == 0 {
                 continue;
             }
-            let Some(slow) = late(&buf[..n]) else {
+            let Some((address, after)) = answer(&buf[..n]) else {
                 continue;
             };
-            let mut reply = vec![1, 3, 2, 0, 4];
+            let mut reply = vec![address, 3, 2, 0, 4];
             let c = conformance::codec::crc::crc16(&reply);
             reply.extend_from_slice(&c.to_le_bytes());
-            if slow {
-                thread::sleep(Duration::from_millis(250));
-            }
+            thread::sleep(after);
             if b.send(&reply).is_err() {
                 return;
             }
@@ -327,7 +325,7 @@ fn an_answer_a_busy_host_delays_past_the_timeout_on_a_pty_is_never_a_deviation()
         answering_0004(move |req| {
             let slow = req[2..4] == [0x04, 0x00] && late > 0;
             late -= u32::from(slow);
-            Some(slow)
+            Some((1, Duration::from_millis(if slow { 250 } else { 0 })))
         })
     };
     let model = DriveModel::builtin("f510").unwrap();
@@ -377,7 +375,7 @@ fn a_preflight_answered_late_on_a_pty_is_sent_again_not_a_dead_device() {
             let l = late.as_mut()?;
             let slow = *l > 0;
             *l -= u32::from(slow);
-            Some(slow)
+            Some((1, Duration::from_millis(if slow { 250 } else { 0 })))
         })
     };
     let model = DriveModel::builtin("f510").unwrap();
@@ -431,38 +429,18 @@ fn a_preflight_answered_late_on_a_pty_is_sent_again_not_a_dead_device() {
 fn an_answer_to_another_address_a_busy_host_delays_is_still_judged_on_a_pty() {
     use conformance::codec::pdu::{Message, Pdu};
     use conformance::runner::Ctx;
-    use conformance::transport::Transport;
     // A peer that answers every read with its address and 0004H: those to address 1 at
     // once, the others 180 ms later (over the 100 ms silence window, under the 400 ms
     // timeout).
-    let (a, mut b) = conformance::transport::memory::pair();
-    let h = thread::spawn(move || {
-        let mut buf = [0u8; 64];
-        let t0 = Instant::now();
-        while t0.elapsed() < Duration::from_secs(20) {
-            let n = match b.recv(&mut buf, Duration::from_millis(20)) {
-                Ok(n) => n,
-                Err(_) => return,
-            };
-            if n == 0 {
-                continue;
-            }
-            let mut reply = vec![buf[0], 3, 2, 0, 4];
-            let c = conformance::codec::crc::crc16(&reply);
-            reply.extend_from_slice(&c.to_le_bytes());
-            if buf[0] != 1 {
-                thread::sleep(Duration::from_millis(180));
-            }
-            if b.send(&reply).is_err() {
-                return;
-            }
-        }
+    let (a, h) = answering_0004(|req| {
+        let late = if req[0] == 1 { 0 } else { 180 };
+        Some((req[0], Duration::from_millis(late)))
     });
     let model = DriveModel::builtin("f510").unwrap();
     let mut opts = options(&[]);
     opts.timing.timeout = Duration::from_millis(400);
     opts.timing.silence = Duration::from_millis(100);
-    let mut ctx = Ctx::new(&model, None, Mode::Rtu, &opts, Box::new(OnAPty(a)));
+    let mut ctx = Ctx::new(&model, None, Mode::Rtu, &opts, Box::new(a));
     let frame = Message {
         address: 0x7F,
         pdu: Pdu::ReadRequest {
