@@ -141,17 +141,16 @@ pub fn exchanges_on_bus(
 /// The frames of a bus log whose bytes the host handed over t1.5 or more late, as
 /// (request, reply, the `late` record): each a master's frame (`from` "master") and the
 /// frame after it (its reply, or "" where none), where the late characters fall in
-/// either. t1.5 as the codec's rule: 1.5 characters, 750 us above 19200 baud.
+/// either (t1.5: [`super::bus_silences`]).
 fn late_frames(bus_log: &[Value]) -> Vec<(String, String, String)> {
-    let Some(start) = bus_log.iter().find(|r| r["event"] == "start") else {
+    let Some((t1_5, _)) = super::bus_silences(bus_log) else {
         return Vec::new();
     };
-    let baud: u64 = start["line"]
-        .as_str()
-        .and_then(|l| l.split(' ').next()?.parse().ok())
+    let char_us = bus_log
+        .iter()
+        .find(|r| r["event"] == "start")
+        .and_then(|r| r["char_us"].as_u64())
         .unwrap_or(0);
-    let char_us = start["char_us"].as_u64().unwrap_or(0);
-    let t1_5 = if baud > 19_200 { 750 } else { char_us * 3 / 2 };
     let tx: Vec<&Value> = bus_log.iter().filter(|r| r["event"] == "tx").collect();
     let span = |r: &Value| -> (u64, u64) {
         let at = r["at_us"].as_array();

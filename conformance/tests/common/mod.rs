@@ -71,26 +71,28 @@ pub const TIMING_KINDS: &[&str] = &[
     "drive.gap-in-reply",
 ];
 
+/// t1.5 and t3.5 (us) of the line of a bus log (`bus_log`, its records), from its start
+/// record, as the codec's rule: 1.5 and 3.5 characters, 750 and 1750 us above 19200 baud.
+pub fn bus_silences(bus_log: &[serde_json::Value]) -> Option<(u64, u64)> {
+    let start = bus_log.iter().find(|r| r["event"] == "start")?;
+    let baud: u32 = start["line"].as_str()?.split(' ').next()?.parse().ok()?;
+    let char_us = start["char_us"].as_u64()?;
+    Some(if baud > 19_200 {
+        (750, 1_750)
+    } else {
+        (char_us * 3 / 2, char_us * 7 / 2)
+    })
+}
+
 /// Of a node's findings (`errors`: kind to count, from a monitor report), those a busy
 /// host does not explain, as "kind xN": a timing finding ([`TIMING_KINDS`]) is explained
 /// where the bus's log (`bus_log`, its records) has a `late` record of at least t3.5 of
 /// its line (a silence misjudged on that scale needs lateness on that scale); every
 /// other finding is unexplained. Explained ones are noted with that record.
 pub fn unexplained(errors: &serde_json::Value, bus_log: &[serde_json::Value]) -> Vec<String> {
-    // As the codec's rule: 3.5 characters, 1750 us above 19200 baud.
-    let t3_5_us = bus_log
-        .iter()
-        .find(|r| r["event"] == "start")
-        .and_then(|r| {
-            let baud: u32 = r["line"].as_str()?.split(' ').next()?.parse().ok()?;
-            let char_us = r["char_us"].as_u64()?;
-            Some(if baud > 19_200 {
-                1_750
-            } else {
-                char_us * 7 / 2
-            })
-        })
-        .expect("the bus log has no start record with its line");
+    let t3_5_us = bus_silences(bus_log)
+        .expect("the bus log has no start record with its line")
+        .1;
     let late = bus_log
         .iter()
         .filter(|r| r["event"] == "late")
