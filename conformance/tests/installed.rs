@@ -90,11 +90,10 @@ fn version_says_the_commit_and_the_crc_path_the_dispatcher_chose() {
         "{out}"
     );
     // Capped to the table, it says so.
-    let o = i
-        .command(&["--version"])
-        .env("CONFORMANCE_CRC_PATH", "table")
-        .output()
-        .unwrap();
+    let o = Installed::output(
+        i.command(&["--version"])
+            .env("CONFORMANCE_CRC_PATH", "table"),
+    );
     let out = String::from_utf8_lossy(&o.stdout);
     assert!(out.contains("\ncrc: table path for long inputs"), "{out}");
     assert!(

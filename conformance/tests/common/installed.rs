@@ -51,9 +51,29 @@ impl Installed {
         c
     }
 
+    /// Runs `cmd` (made by [`command`](Self::command)) to its end.
+    ///
+    /// The copy was written by this process, and a test beside it may fork at any moment:
+    /// a child forked while the copy's file was open for writing holds that descriptor until
+    /// it execs, and until then the kernel refuses to run the copy ("Text file busy",
+    /// ETXTBSY). That is the build's race, not the binary's, so the run is tried again
+    /// for up to two seconds; any other error, or the same one past that, fails the test.
+    pub fn output(cmd: &mut Command) -> std::process::Output {
+        let mut tries = 0;
+        loop {
+            match cmd.output() {
+                Err(e) if e.kind() == std::io::ErrorKind::ExecutableFileBusy && tries < 100 => {
+                    tries += 1;
+                    std::thread::sleep(std::time::Duration::from_millis(20));
+                }
+                r => return r.unwrap_or_else(|e| panic!("running {cmd:?}: {e}")),
+            }
+        }
+    }
+
     /// Runs `conformance ARGS` from [`cwd`](Self::cwd): exit code, stdout, stderr.
     pub fn run(&self, args: &[&str]) -> (Option<i32>, String, String) {
-        let o = self.command(args).output().unwrap();
+        let o = Self::output(&mut self.command(args));
         let text = |b: &[u8]| String::from_utf8_lossy(b).into_owned();
         assert!(
             !text(&o.stderr).contains("panicked"),
