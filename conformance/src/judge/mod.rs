@@ -173,6 +173,11 @@ pub struct Timing {
     pub request_end_earliest: Option<Duration>,
     /// When the first byte after the request came.
     pub first_byte: Option<Duration>,
+    /// The earliest the first byte after the request can have come, where the listener
+    /// reads late and knows it (a tap: the read before it returned without it); `None`:
+    /// `first_byte` is exact. A late reply is judged from it, so that a reply read late
+    /// (a listener's busy host) does not look late.
+    pub first_byte_earliest: Option<Duration>,
     /// When the last byte of the reply came.
     pub last_byte: Option<Duration>,
     /// The largest silence between two bytes of the reply.
@@ -492,14 +497,29 @@ impl<'m> Judge<'m> {
             .zip(self.model.limits.response_time_fact.as_ref());
         if let Some(rt) = conv.timing.response_time() {
             let limit = rule.response_limit(self.model);
+            // The shortest the response time can have been, from what the listener read.
+            let shortest = conv
+                .timing
+                .first_byte_earliest
+                .zip(conv.timing.request_end)
+                .map_or(rt, |(first, end)| first.saturating_sub(end).min(rt));
+            // Said where the reads leave a millisecond or more of doubt.
+            let as_read = if rt.saturating_sub(shortest) >= Duration::from_millis(1) {
+                format!(
+                    " as read (no sooner than {:.1} ms: the listener read it late)",
+                    ms(shortest)
+                )
+            } else {
+                String::new()
+            };
             // A description that states no response time holds no reply late.
-            if let Some((stated_ms, source)) = stated.filter(|_| rt > limit) {
+            if let Some((stated_ms, source)) = stated.filter(|_| shortest > limit) {
                 out(
                     Kind::LateReply,
                     Finding {
                         severity: Severity::of(source.basis),
                         text: format!(
-                            "late reply: it began {:.1} ms after the request; manual: {} ms{} (limit with one character and the allowance {:.1} ms). Source: {}",
+                            "late reply: it began {:.1} ms after the request{as_read}; manual: {} ms{} (limit with one character and the allowance {:.1} ms). Source: {}",
                             ms(rt),
                             stated_ms,
                             rule.line.map_or(String::new(), |l| format!(

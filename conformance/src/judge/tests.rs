@@ -86,6 +86,7 @@ fn reply_at(first: u64, gap: u64, listened: u64) -> Timing {
         request_end: Some(Duration::from_millis(100)),
         request_end_earliest: None,
         first_byte: Some(Duration::from_millis(100 + first)),
+        first_byte_earliest: None,
         last_byte: None,
         max_gap: Some(Duration::from_millis(gap)),
         silence_before: None,
@@ -129,6 +130,31 @@ fn timing_is_judged_only_when_asked_and_only_where_seen() {
         ..at(0, 0)
     });
     assert_eq!(judge.verdict(&read_on_time, None).kinds, [Kind::EarlyReply]);
+    // A listener that read the reply late (its host busy: the read before returned
+    // 295 ms before the reply was read, without it): it may have begun 5 ms after the
+    // request, so it is not proved late; its time as read is kept for the statistics.
+    let reply_read_late = late.with_timing(Timing {
+        first_byte_earliest: Some(Duration::from_millis(105)),
+        ..at(300, 0)
+    });
+    assert_eq!(
+        judge.verdict(&reply_read_late, None).status(),
+        VerdictStatus::Pass
+    );
+    // Read late, and late even at the earliest it can have come: late, said with both.
+    let late_either_way = late.with_timing(Timing {
+        first_byte_earliest: Some(Duration::from_millis(250)),
+        ..at(300, 0)
+    });
+    let v = judge.verdict(&late_either_way, None);
+    assert_eq!(v.kinds, [Kind::LateReply]);
+    assert!(
+        v.findings[0]
+            .text
+            .contains("it began 300.0 ms after the request as read (no sooner than 150.0 ms"),
+        "{}",
+        v.findings[0].text
+    );
     let unseen = late.with_timing(Timing::default());
     assert_eq!(judge.verdict(&unseen, None).status(), VerdictStatus::Pass);
 }

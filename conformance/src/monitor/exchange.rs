@@ -35,10 +35,20 @@ impl Monitor {
         } else {
             p.leading_start
         };
+        // The earliest the reply can have begun, where it came in a read of its own: a
+        // busy host reads late, and the reads prove only that none of its bytes was there
+        // at the read before ([`TapFrame::earliest_start`]).
+        let first_byte_earliest = if p.leading.is_empty() {
+            f.start
+                .map(|s| s.min(f.earliest_start(self.cfg.line.char_time_us())))
+        } else {
+            None
+        };
         let timing = Timing {
             request_end: Some(p.end),
             request_end_earliest: Some(p.end_low),
             first_byte,
+            first_byte_earliest,
             last_byte: Some(f.end),
             max_gap: f.max_gap,
             silence_before: p.silence_before,
@@ -91,6 +101,7 @@ impl Monitor {
             } else {
                 p.leading_start
             },
+            first_byte_earliest: None,
             last_byte: None,
             max_gap: None,
             silence_before: p.silence_before,

@@ -312,11 +312,10 @@ pub fn listen_for_line(
                 if duration.is_some_and(|d| origin.elapsed() >= d) {
                     return not_found(Some(Ended::Duration), tried);
                 }
-                let n = match tap.listen(&mut buf, poll) {
-                    Ok(n) => n,
+                let (at, n) = match super::tap::read_dated(tap, &mut buf, poll, origin) {
+                    Ok(r) => r,
                     Err(e) => return not_found(Some(Ended::EndOfInput(e.to_string())), tried),
                 };
-                let at = origin.elapsed();
                 if n == 0 {
                     super::tap::quiet(&mut heard, at);
                     if std::mem::take(&mut in_burst) {

@@ -668,7 +668,12 @@ impl Monitor {
             .map(|e| f.start.unwrap_or(f.end).saturating_sub(e));
         self.last_frame_end = Some(f.end);
         if let Some(p) = &self.pending {
-            let at = f.start.unwrap_or(f.end);
+            // The window is over only where the frame began after it even at the earliest
+            // the reads allow: a listener whose host was busy reads a reply in time late.
+            let at = f
+                .start
+                .unwrap_or(f.end)
+                .min(f.earliest_start(self.cfg.line.char_time_us()));
             if at.saturating_sub(p.end) > self.cfg.window {
                 self.close_unanswered(None);
             }

@@ -158,6 +158,25 @@ pub fn poll_interval(line: crate::codec::timing::LineSettings) -> Duration {
     Duration::from_micros(line.t1_5_us().clamp(500, 20_000))
 }
 
+/// Reads `tap` once, waiting up to `poll`, and dates the read (since `origin`): a read
+/// with bytes when it returned, an empty one no later than `poll` after it began.
+///
+/// An empty read proves the line silent only until the port stopped waiting. A host too
+/// busy to run the listener (or a process stopped and continued) between that and the
+/// clock being read would date it later, and so prove a silence the line did not have:
+/// the window of a request closed on a reply that was already there.
+pub(super) fn read_dated(
+    tap: &mut dyn Tap,
+    buf: &mut [u8],
+    poll: Duration,
+    origin: Instant,
+) -> Result<(Duration, usize), TransportError> {
+    let asked = origin.elapsed();
+    let n = tap.listen(buf, poll)?;
+    let now = origin.elapsed();
+    Ok((if n == 0 { now.min(asked + poll) } else { now }, n))
+}
+
 /// What the listener read, with its time since the origin: bytes, or none (a read that
 /// came back empty at that time).
 pub type Heard = Vec<(Duration, Vec<u8>)>;
@@ -184,8 +203,8 @@ pub fn first_read(
     line: crate::codec::timing::LineSettings,
 ) -> Result<Heard, TransportError> {
     let mut buf = [0u8; 512];
-    let n = tap.listen(&mut buf, poll_interval(line))?;
-    Ok(vec![(origin.elapsed(), buf[..n].to_vec())])
+    let (at, n) = read_dated(tap, &mut buf, poll_interval(line), origin)?;
+    Ok(vec![(at, buf[..n].to_vec())])
 }
 
 /// Listens on `tap` (since `origin`) until the traffic tells RTU from ASCII
@@ -214,11 +233,10 @@ pub fn listen_for_mode(
         if duration.is_some_and(|d| origin.elapsed() >= d) {
             return Ok(Err(Ended::Duration));
         }
-        let n = match tap.listen(&mut buf, poll) {
-            Ok(n) => n,
+        let (at, n) = match read_dated(tap, &mut buf, poll, origin) {
+            Ok(r) => r,
             Err(e) => return Ok(Err(Ended::EndOfInput(e.to_string()))),
         };
-        let at = origin.elapsed();
         if n == 0 {
             quiet(&mut heard, at);
         } else {
@@ -361,8 +379,8 @@ pub fn run_from(
         if duration.is_some_and(|d| now >= d) {
             break Ended::Duration;
         }
-        match tap.listen(&mut buf, poll) {
-            Ok(n) => hear(monitor, origin.elapsed(), &buf[..n]),
+        match read_dated(tap, &mut buf, poll, origin) {
+            Ok((at, n)) => hear(monitor, at, &buf[..n]),
             Err(e) => break Ended::EndOfInput(e.to_string()),
         }
         say_new(monitor, &mut say);
@@ -382,16 +400,15 @@ pub fn run_from(
         let until = origin.elapsed() + DRAIN_AT_MOST;
         let mut last = origin.elapsed();
         while origin.elapsed() < until {
-            match tap.listen(&mut buf, poll) {
-                Ok(0) => {
-                    let at = origin.elapsed();
+            match read_dated(tap, &mut buf, poll, origin) {
+                Ok((at, 0)) => {
                     hear(monitor, at, &[]);
                     if at.saturating_sub(last) >= quiet {
                         break;
                     }
                 }
-                Ok(n) => {
-                    last = origin.elapsed();
+                Ok((at, n)) => {
+                    last = at;
                     hear(monitor, last, &buf[..n]);
                 }
                 Err(_) => break,

@@ -71,6 +71,7 @@ impl Exchange {
                 request_end: Some(Duration::ZERO),
                 request_end_earliest: None,
                 first_byte: self.first_byte,
+                first_byte_earliest: None,
                 last_byte: self.chunks.last().map(|c| c.at),
                 // The runner measures gaps inside replies over the whole mode (its
                 // line-timing check), where it knows whether the host made them.

@@ -98,6 +98,17 @@ pub struct TapFrame {
     pub side: Option<u64>,
 }
 
+impl TapFrame {
+    /// The earliest its first byte can have arrived: its last byte no sooner than
+    /// [`end_low`](Self::end_low), and the line carries one character each `char_us`
+    /// before it. A listener whose host was busy (it read late) reads a frame later than
+    /// it came; this is how early the reads allow it to have been.
+    pub fn earliest_start(&self, char_us: u64) -> Duration {
+        let before = char_us.saturating_mul(self.bytes.len().saturating_sub(1) as u64);
+        self.end_low.saturating_sub(Duration::from_micros(before))
+    }
+}
+
 /// A piece of bytes from the tap: where it ends in the block, when it was read, and the
 /// earliest its last byte can have arrived.
 ///
@@ -185,6 +196,12 @@ pub struct TapFramer {
     /// this time (us). Until the block is closed, or bytes join it (see
     /// [`TapFramer::split_first_byte`]), both ways give the same frames.
     split_first: Option<u64>,
+    /// RTU, while a read is pushed: its piece, `end` counting its bytes that blocks
+    /// closed during the push took. A block that the push closes past a frame's length
+    /// is made of these bytes, and has no piece of its own yet.
+    pushing: Option<Piece>,
+    /// The block being closed does not begin a read (it is the rest of one).
+    continued: bool,
     /// The read not framed yet (see the module notes): its bytes, its time and its side.
     staged: Vec<u8>,
     staged_at: Duration,
@@ -212,6 +229,8 @@ impl TapFramer {
             block_ends: Vec::new(),
             spare_bytes: Vec::new(),
             spare_pieces: Vec::new(),
+            pushing: None,
+            continued: false,
             char_us: line.char_time_us(),
             t15_us: line.t1_5_us(),
             t35_us: line.t3_5_us(),

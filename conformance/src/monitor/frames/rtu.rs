@@ -31,6 +31,13 @@ impl TapFramer {
         let (mut blocks, mut ends) = self.take_blocks();
         self.rtu
             .push_at(us(at), bytes, |e| add_block(&mut blocks, &mut ends, e));
+        self.pushing = Some(Piece {
+            end: 0,
+            at,
+            low,
+            since,
+            side: self.side,
+        });
         // Events during a push are the block the silence before these bytes closed
         // (or, past any frame's length, the block with these bytes: then nothing of it
         // is left held). Where no read proves that silence (the host read these bytes
@@ -38,6 +45,7 @@ impl TapFramer {
         let t35 = Duration::from_micros(self.t35_us);
         self.end_unproven = self.last_at.is_some_and(|l| since.saturating_sub(l) < t35);
         self.close_blocks(blocks, ends, EndedBy::Silence, out);
+        self.pushing = None;
         self.end_unproven = false;
         if self.held == 0 {
             self.before_block = self.last_low;
@@ -73,6 +81,21 @@ impl TapFramer {
     /// then let go; their buffer is kept).
     pub(super) fn close_held(&mut self, block: &[u8], by: EndedBy, out: &mut Vec<TapFrame>) {
         let mut pieces = std::mem::take(&mut self.pieces);
+        // A block of the bytes being pushed (past a frame's length): dated by their read,
+        // as its first bytes or as the rest of it.
+        if let (true, Some(p)) = (pieces.is_empty(), self.pushing.as_mut()) {
+            let chars = Duration::from_micros(
+                self.char_us
+                    .saturating_mul(p.end.saturating_add(block.len()) as u64),
+            );
+            pieces.push(Piece {
+                end: block.len(),
+                low: (p.since + chars).min(p.at),
+                ..*p
+            });
+            self.continued = p.end > 0;
+            p.end = p.end.saturating_add(block.len());
+        }
         let before = self.before_block.take();
         self.held = 0;
         self.split_first = None;
@@ -110,6 +133,7 @@ impl TapFramer {
                     (Cow::Owned(joined), Cow::Owned(ps), c.before, !c.begins)
                 }
             };
+        let shared0 = shared0 || std::mem::take(&mut self.continued);
         let char_us = self.char_us;
         // The arrival time of the piece holding byte `i`, and whether byte `i` begins it.
         let piece_of = |i: usize| -> (usize, bool) {
@@ -127,6 +151,15 @@ impl TapFramer {
         };
         // The earliest the last byte of piece `k` can have come.
         let low = |k: usize| pieces.get(k).map_or(at(k), |p| p.low);
+        // When the read before piece `k` returned, and where the piece begins.
+        let since_of = |k: usize| pieces.get(k).map_or(at(k), |p| p.since);
+        let begin_of = |k: usize| {
+            if k == 0 {
+                0
+            } else {
+                pieces.get(k - 1).map_or(0, |p| p.end)
+            }
+        };
         let len_of = |k: usize| {
             pieces.get(k).map_or(0, |p| {
                 p.end
@@ -219,7 +252,15 @@ impl TapFramer {
                     },
                     start: begins.then(|| at(k0)),
                     end: at(k1),
-                    end_low: low(k1),
+                    // The earliest its last byte can have come: no sooner than its
+                    // piece's last byte allows, nor than the read before and the piece's
+                    // characters up to it.
+                    end_low: low(k1).min(
+                        since_of(k1)
+                            + Duration::from_micros(
+                                char_us.saturating_mul(to.saturating_sub(begin_of(k1)) as u64),
+                            ),
+                    ),
                     silence_before,
                     max_gap,
                     side: pieces.get(k0).and_then(|p| p.side),

@@ -272,3 +272,116 @@ fn a_damaged_request_sent_again_is_no_reply_to_the_first() {
         assert_eq!(m.nodes()[&1].crc_errors, 2, "sides {sides}");
     }
 }
+
+/// A listener whose host was busy reads late: a reply in time on the line is read
+/// 1.5 s after its request, with no read in between (as a monitor descheduled on a
+/// loaded machine saw it). The reads prove only that the reply was not there at the read
+/// before: it is the request's reply, neither unanswered nor late. Where a read in
+/// between returned empty, it was not there, and the window decides as before.
+#[test]
+fn a_reply_read_late_by_a_busy_listener_is_its_requests_reply() {
+    let (r, v) = (read(1, 0x2520, 1), values(1, &[7]));
+    let mut m = monitor(Mode::Rtu, &[1]);
+    m.idle(ms(0));
+    m.feed(ms(0), &r);
+    // The empty read that ended the request, then none for 1.5 s.
+    m.idle(ms(3));
+    m.feed(ms(1500), &v);
+    m.idle(ms(1505));
+    m.finish();
+    assert!(kinds(&m, 1).is_empty(), "{:?}", kinds(&m, 1));
+    let s = &m.nodes()[&1];
+    assert_eq!((s.exchanges, s.replies, s.timeouts), (1, 1, 0));
+    let lines = m.take_lines();
+    assert_eq!(lines.len(), 1, "{lines:#?}");
+    assert_eq!(lines[0].status, VerdictStatus::Pass, "{lines:#?}");
+    // The same bytes with a read that came back empty at 1.2 s: the reply came after the
+    // window, proved by the reads.
+    let mut m = monitor(Mode::Rtu, &[1]);
+    m.idle(ms(0));
+    m.feed(ms(0), &r);
+    m.idle(ms(3));
+    m.idle(ms(1200));
+    m.feed(ms(1500), &v);
+    m.idle(ms(1505));
+    m.finish();
+    let k = kinds(&m, 1);
+    assert!(
+        k.contains(&"drive.no-reply".to_string())
+            && k.contains(&"drive.unexpected-reply".to_string()),
+        "{k:?}"
+    );
+}
+
+/// A reply read late that came late even at the earliest the reads allow is late: the
+/// finding says both times.
+#[test]
+fn a_reply_late_at_the_earliest_the_reads_allow_is_late() {
+    let (r, v) = (read(1, 0x2520, 1), values(1, &[7]));
+    let mut m = monitor(Mode::Rtu, &[1]);
+    m.idle(ms(0));
+    m.feed(ms(0), &r);
+    m.idle(ms(3));
+    // Empty until 400 ms, then the reply read at 900 ms.
+    m.idle(ms(400));
+    m.feed(ms(900), &v);
+    m.idle(ms(905));
+    m.finish();
+    assert_eq!(kinds(&m, 1), ["drive.late-reply"]);
+    let lines = m.take_lines();
+    assert!(
+        lines[0].issues.iter().any(|i| i == "drive.late-reply"),
+        "{lines:#?}"
+    );
+    let e = m
+        .examples()
+        .iter()
+        .find(|((_, _, k), _)| *k == "late-reply")
+        .map(|(_, e)| format!("{e:?}"))
+        .unwrap_or_default();
+    assert!(
+        e.contains("it began 900.0 ms after the request as read (no sooner than 401.1 ms: the listener read it late)"),
+        "{e}"
+    );
+}
+
+/// A listener stopped for 1.2 s (a busy host) reads the bus's backlog at once: the reply
+/// to the request it read before, then request and reply after request and reply, 512
+/// bytes in one read, past any frame's length. Every frame is dated by that read (the
+/// frames past a frame's length were dated by the read before it, 1.2 s earlier, and
+/// the reply looked early), and the reply is its request's.
+#[test]
+fn a_backlog_read_at_once_is_dated_by_its_read() {
+    let (r, v) = (read(1, 0x2520, 1), values(1, &[7]));
+    let mut backlog = v.clone();
+    while backlog.len() + r.len() + v.len() <= 512 {
+        backlog.extend_from_slice(&r);
+        backlog.extend_from_slice(&v);
+    }
+    let mut m = monitor(Mode::Rtu, &[1]);
+    m.idle(ms(0));
+    m.feed(ms(0), &r);
+    m.feed(ms(1210), &backlog);
+    m.idle(ms(1215));
+    m.finish();
+    assert!(kinds(&m, 1).is_empty(), "{:?}", kinds(&m, 1));
+    let lines = m.take_lines();
+    assert_eq!(lines[0].at, ms(0), "{lines:#?}");
+    assert!(lines[1..].iter().all(|l| l.at == ms(1210)), "{lines:#?}");
+    let mut f = super::frames::TapFramer::new(Mode::Rtu, m.config().line);
+    let mut out = Vec::new();
+    f.idle(ms(0), &mut out);
+    f.push(ms(0), &r, &mut out);
+    f.push(ms(1210), &backlog, &mut out);
+    f.idle(ms(1215), &mut out);
+    assert!(out.len() > 30, "{out:#?}");
+    assert!(out[1..].iter().all(|f| f.end == ms(1210)), "{out:#?}");
+    // The reply: no sooner than its 7 characters after the read before (1.146 ms each
+    // at 9600 8E1), so it may have begun one character after the request.
+    assert_eq!(
+        out[1].end_low,
+        Duration::from_micros(7 * 1146),
+        "{:#?}",
+        out[1]
+    );
+}
