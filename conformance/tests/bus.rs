@@ -499,7 +499,16 @@ fn links_are_removed_on_sigterm() {
 /// polling node 1 until the monitor ends.
 #[test]
 fn a_monitor_with_no_baud_rate_finds_the_lines_settings_on_an_emulated_line() {
-    let d = Scratch::new("search");
+    search_on_an_emulated_line(1);
+}
+
+/// At most this many tries of the search: a try is made again only where the search
+/// found nothing while the bus's log shows the host handing bytes over t3.5 or more late
+/// (frames the line did not split, split on the way to the monitor).
+const SEARCH_TRIES: u32 = 3;
+
+fn search_on_an_emulated_line(attempt: u32) {
+    let d = Scratch::new(&format!("search{attempt}"));
     eprintln!("{}", d.display());
     let (m, t, log) = (d.join("master"), d.join("tap"), d.join("line.jsonl"));
     let Bus { guard: mut bus, .. } = Bus::start(
@@ -570,6 +579,15 @@ fn a_monitor_with_no_baud_rate_finds_the_lines_settings_on_an_emulated_line() {
     let v: Value = serde_json::from_str(&std::fs::read_to_string(&report).unwrap()).unwrap();
     terminate(&mut bus, "conformance bus");
     let bus_log = log_of(&log);
+    if v["device"]["line"] != "19200 8O1" && attempt < SEARCH_TRIES {
+        if let Some(late) = common::late_by_t3_5(&bus_log) {
+            common::note(&format!(
+                "try {attempt}: the search found no setting while the bus handed bytes over late ({late}): the monitor heard frames split that the line did not split; trying again. It heard: {}",
+                v["monitor"]["notices"]
+            ));
+            return search_on_an_emulated_line(attempt + 1);
+        }
+    }
     assert_eq!(v["device"]["line"], "19200 8O1", "{:#}", v["monitor"]);
     let notices = v["monitor"]["notices"].to_string();
     assert!(

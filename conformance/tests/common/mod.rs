@@ -89,22 +89,45 @@ pub fn bus_silences(bus_log: &[serde_json::Value]) -> Option<(u64, u64)> {
 /// where the bus's log (`bus_log`, its records) has a `late` record of at least t3.5 of
 /// its line (a silence misjudged on that scale needs lateness on that scale); every
 /// other finding is unexplained. Explained ones are noted with that record.
+///
+/// A reply with no request under way (`drive.unexpected-reply`) is explained the same
+/// way, once for each such `late` record: a request whose bytes the host handed over
+/// t3.5 apart reaches the listener as two frames, neither of them the request, and its
+/// reply then has no request.
 pub fn unexplained(errors: &serde_json::Value, bus_log: &[serde_json::Value]) -> Vec<String> {
     let t3_5_us = bus_silences(bus_log)
         .expect("the bus log has no start record with its line")
         .1;
-    let late = bus_log
+    let late = late_by_t3_5(bus_log);
+    let split = bus_log
         .iter()
-        .filter(|r| r["event"] == "late")
-        .find(|r| r["by_us"].as_u64().is_some_and(|b| b >= t3_5_us));
+        .filter(|r| r["event"] == "late" && r["by_us"].as_u64().is_some_and(|b| b >= t3_5_us))
+        .count() as u64;
     let mut out = Vec::new();
     for (k, n) in errors.as_object().into_iter().flatten() {
         match late {
             Some(l) if TIMING_KINDS.contains(&k.as_str()) => note(&format!(
                 "{k} x{n}: the bus ran late by t3.5 ({t3_5_us} us) or more ({l}), so the listener's timing was the host's"
             )),
+            Some(l)
+                if k == "drive.unexpected-reply" && n.as_u64().is_some_and(|n| n <= split) =>
+            {
+                note(&format!(
+                    "{k} x{n}: the bus handed bytes over t3.5 ({t3_5_us} us) or more late {split} times ({l}), each of which can split a request"
+                ))
+            }
             _ => out.push(format!("{k} x{n}")),
         }
     }
     out
+}
+
+/// The first `late` record of a bus log (`bus_log`, its records) of at least t3.5 of its
+/// line: the host handed bytes over late enough to split a frame the line did not split.
+pub fn late_by_t3_5(bus_log: &[serde_json::Value]) -> Option<&serde_json::Value> {
+    let t3_5_us = bus_silences(bus_log)?.1;
+    bus_log
+        .iter()
+        .filter(|r| r["event"] == "late")
+        .find(|r| r["by_us"].as_u64().is_some_and(|b| b >= t3_5_us))
 }
