@@ -479,7 +479,7 @@ fn a_report_of_several_nodes_renders_per_node_and_diffs_by_node() {
         "{text}"
     );
     common::assert_contains_all(
-        &text,
+        text,
         &[
             "stopped: no reply to 3 requests in a row",
             "  node 05H 2502H NOT no reply to the write back",

@@ -222,7 +222,7 @@ fn check_model_auto_runs_the_checks_of_the_identified_model() {
             .run();
     assert_eq!(out.code, Some(2));
     let stderr = out.stderr.as_str();
-    common::assert_contains_all(&stderr, &["none of the five", "nothing was checked"]);
+    common::assert_contains_all(stderr, &["none of the five", "nothing was checked"]);
     assert!(out.stdout.is_empty());
 }
 

@@ -302,7 +302,7 @@ fn learn_a_pymodbus_server() {
     }
     let notes = d["notes"].as_str().unwrap();
     common::assert_contains_all(
-        &notes,
+        notes,
         &[
             "broadcast: the device did not keep silent",
             "Function 41H drew no reply",

@@ -380,7 +380,7 @@ fn f510_frequency_command_max_is_400_hz_documented() {
     assert_eq!(fact.basis, Basis::Documented);
     let source = fact.source.as_deref().unwrap();
     common::assert_contains_all(
-        &source,
+        source,
         &[
             "AO1 Set frequency Register 2502H Hz R/W 0 ~ 400.00",
             "line 3115",
@@ -443,7 +443,7 @@ fn f510_read_only_parameters_refuse_writes_and_serve_reads() {
     for (r, fact) in f.read_only_parameters() {
         assert_eq!(fact.basis, Basis::Documented);
         let source = fact.source.as_deref().unwrap();
-        common::assert_contains_all(&source, &["MetaSys", "not the Modbus chapter"]);
+        common::assert_contains_all(source, &["MetaSys", "not the Modbus chapter"]);
         let number = format!("12-{:02}", r & 0xFF);
         assert!(source.contains(&number), "{r:04X}: {source}");
         assert!(f.read_only_parameter(r).unwrap().lines.is_some());

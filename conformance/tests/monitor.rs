@@ -212,11 +212,7 @@ fn the_drive_answering_as_the_manual_says_passes_and_nothing_is_written() {
     assert_eq!(errors(r, "00"), Vec::<String>::new());
     assert_eq!(node(r, "00")["exchanges"], 1);
     // The drive's side passes on node 01.
-    let checks = r["checks"].as_array().unwrap();
-    let drive = checks
-        .iter()
-        .find(|c| c["id"] == "rtu.node01.drive")
-        .expect("rtu.node01.drive");
+    let drive = common::check_of(r, "rtu.node01.drive");
     assert_eq!(drive["status"], "pass");
     assert_eq!(
         heard.code, 1,
@@ -347,11 +343,7 @@ fn each_fault_is_found_as_its_kind_on_its_node() {
         errors(r, "02")
     );
     // Each finding is a result of its own, with the frames and the manual's citation.
-    let checks = r["checks"].as_array().unwrap();
-    let c = checks
-        .iter()
-        .find(|c| c["id"] == "rtu.node01.drive.wrong-exception")
-        .expect("rtu.node01.drive.wrong-exception");
+    let c = common::check_of(r, "rtu.node01.drive.wrong-exception");
     assert_eq!(c["status"], "deviation");
     assert_eq!(c["node"], "01");
     assert_eq!(c["exchanges"][0]["expected"], "01 83 02 C0 F1");

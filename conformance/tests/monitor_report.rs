@@ -124,7 +124,7 @@ fn a_monitor_report_read_back_keeps_what_was_heard() {
     let section = heard_section(&html);
     assert_eq!(section, heard_section(&own_html));
     // A histogram for each node that answered.
-    common::assert_count(&section, "<svg", 2);
+    common::assert_count(section, "<svg", 2);
 }
 
 /// `monitor --capture-in` of `frames` with `extra` arguments, its JSON report read.
@@ -254,7 +254,7 @@ fn a_monitor_report_shows_why_the_master_deviates_and_names_its_nodes() {
     // it never heard.
     let table = &html[html.find("<table id=\"nodes\">").unwrap()..];
     let table = &table[..table.find("</table>").unwrap()];
-    common::assert_count(&table, "nothing heard to or from it", 2);
+    common::assert_count(table, "nothing heard to or from it", 2);
     assert!(!table.contains(">not read<"), "{table}");
 }
 
@@ -270,8 +270,8 @@ fn the_response_time_histogram_has_axes_units_and_the_manuals_limits() {
         .find("<svg id=\"hist-02\"")
         .unwrap_or_else(|| panic!("{html}"));
     let svg = &html[at..at + html[at..].find("</svg>").unwrap()];
-    common::assert_count(&svg, "class=\"axis\"", 2);
-    common::assert_contains_all(&svg, &["(ms)", ">replies</text>"]);
+    common::assert_count(svg, "class=\"axis\"", 2);
+    common::assert_contains_all(svg, &["(ms)", ">replies</text>"]);
     assert!(
         svg.contains("class=\"limit\"") && svg.contains(">manual 10 ms</text>"),
         "{svg}"
@@ -281,5 +281,5 @@ fn the_response_time_histogram_has_axes_units_and_the_manuals_limits() {
         "{svg}"
     );
     // The 60 ms reply: a bar beyond the late limit.
-    common::assert_count(&svg, "class=\"bar late\"", 1);
+    common::assert_count(svg, "class=\"bar late\"", 1);
 }

@@ -50,9 +50,9 @@ fn scan_finds_a_simulator_at_an_unusual_setting() {
         .lines()
         .find(|l| l.starts_with("11H (17)"))
         .unwrap_or_else(|| panic!("no row for node 17:\n{out}"));
-    common::assert_contains_all(&row, &["ascii", "19200 8O1"]);
+    common::assert_contains_all(row, &["ascii", "19200 8O1"]);
     // The e510 simulator's identification value, and the reply's bytes in hex.
-    common::assert_contains_all(&row, &["252FH = 0E51H: e510", "3A 31 31 30 33 30 32"]);
+    common::assert_contains_all(row, &["252FH = 0E51H: e510", "3A 31 31 30 33 30 32"]);
     assert_eq!(
         out.lines().filter(|l| l.contains("H (")).count(),
         1,
