@@ -19,7 +19,7 @@ use std::process::{Command, Stdio};
 
 use std::time::{Duration, Instant};
 
-use common::{line, need, need_all, python, terminate, Bus, Kill, Peer, Run, Scratch};
+use common::{line, need, need_all, python, terminate, words, Bus, Kill, Peer, Run, Scratch};
 use serde_json::Value;
 
 /// The request that reads 252FH (identification) of node 1, and the start of its reply.
@@ -79,11 +79,7 @@ fn read_some(f: &mut File, wait: Duration) -> Vec<u8> {
 }
 
 fn log_of(path: &Path) -> Vec<Value> {
-    std::fs::read_to_string(path)
-        .unwrap()
-        .lines()
-        .map(|l| serde_json::from_str(l).unwrap_or_else(|e| panic!("{e}: {l}")))
-        .collect()
+    common::json_lines_file(path)
 }
 
 /// Waits (at most 20 s) until the log, as flushed so far, has a record of `kind` (the
@@ -291,25 +287,20 @@ fn noise_flips_bits_reproducibly_by_seed() {
 /// guard, the master's path, the listener opened, and the log's path.
 fn f510_bus(d: &Path, extra: &[&str]) -> (Kill, PathBuf, File, PathBuf) {
     let (m, t, log) = (d.join("master"), d.join("tap"), d.join("line.jsonl"));
-    let mut args = vec![
-        "--link".to_string(),
-        format!("master={}", m.display()),
-        "--link".to_string(),
-        format!("tap={}", t.display()),
-        "--model".to_string(),
-        "f510".to_string(),
-        "--log".to_string(),
-        log.display().to_string(),
-    ];
-    args.extend(extra.iter().map(|s| s.to_string()));
-    let args: Vec<&str> = args.iter().map(String::as_str).collect();
-    let Bus { guard: bus, ends } = Bus::start(&args, 2);
+    let args = [&["--model", "f510", "--log", log.to_str().unwrap()], extra].concat();
+    let Bus { guard: bus, ends } = Bus::linked(&[("master", &m), ("tap", &t)], &args);
     assert_eq!(ends[0].0, "master");
     assert_eq!(ends[1].0, "tap");
-    common::wait_for(&m);
-    common::wait_for(&t);
     let tap = open(&t);
     (bus, m, tap, log)
+}
+
+/// Asserts that the listener `tap` heard node 1's read of 252FH and its reply.
+#[track_caller]
+fn heard_the_read_of_252f(tap: &mut File) {
+    let heard = read_quiet(tap, Duration::from_millis(300));
+    assert!(contains(&heard, &READ_252F), "the request: {heard:02X?}");
+    assert!(contains(&heard, &REPLY_0510), "the reply: {heard:02X?}");
 }
 
 #[test]
@@ -343,9 +334,7 @@ fn the_suites_check_passes_against_a_simulated_f510_on_the_line_and_a_listener_h
     assert_eq!(s["deviation"], 0, "{s}");
     assert_eq!(s["error"], 0, "{s}");
     assert!(s["pass"].as_u64().unwrap() >= 6, "{s}");
-    let heard = read_quiet(&mut tap, Duration::from_millis(300));
-    assert!(contains(&heard, &READ_252F), "the request: {heard:02X?}");
-    assert!(contains(&heard, &REPLY_0510), "the reply: {heard:02X?}");
+    heard_the_read_of_252f(&mut tap);
     terminate(&mut bus, "conformance bus");
     let records = log_of(&log);
     assert_eq!(records[0]["endpoints"][2]["name"], "drive1");
@@ -404,9 +393,7 @@ fn mbpoll_reads_the_simulated_f510_through_the_line_and_the_listener_hears_both(
     let out = String::from_utf8_lossy(&o.stdout);
     assert_eq!(o.status.code(), Some(0), "{out}");
     assert!(out.contains("[9520]: \t0x0510"), "{out}");
-    let heard = read_quiet(&mut tap, Duration::from_millis(300));
-    assert!(contains(&heard, &READ_252F), "{heard:02X?}");
-    assert!(contains(&heard, &REPLY_0510), "{heard:02X?}");
+    heard_the_read_of_252f(&mut tap);
     terminate(&mut bus, "conformance bus");
 }
 
@@ -453,9 +440,7 @@ fn pymodbus_and_minimalmodbus_read_and_write_the_simulated_f510_through_the_line
         ["pymodbus 0x510", "minimalmodbus 0x1234"],
         "{out}"
     );
-    let heard = read_quiet(&mut tap, Duration::from_millis(300));
-    assert!(contains(&heard, &READ_252F), "{heard:02X?}");
-    assert!(contains(&heard, &REPLY_0510), "{heard:02X?}");
+    heard_the_read_of_252f(&mut tap);
     terminate(&mut bus, "conformance bus");
 }
 
@@ -466,30 +451,27 @@ fn links_are_removed_on_sigterm() {
     let Bus {
         guard: mut bus,
         ends,
-    } = Bus::start(
-        &[
-            "--link",
-            &format!("a={}", a.display()),
-            "--link",
-            &format!("b={}", b.display()),
-        ],
-        2,
-    );
-    common::wait_for(&a);
-    common::wait_for(&b);
+    } = Bus::linked(&[("a", &a), ("b", &b)], &[]);
     assert_eq!(std::fs::read_link(&a).unwrap(), ends[0].1);
     assert_eq!(std::fs::read_link(&b).unwrap(), ends[1].1);
     terminate(&mut bus, "conformance bus");
-    assert!(
-        std::fs::symlink_metadata(&a).is_err(),
-        "{} is left",
-        a.display()
-    );
-    assert!(
-        std::fs::symlink_metadata(&b).is_err(),
-        "{} is left",
-        b.display()
-    );
+    common::assert_links_gone(&[&a, &b]);
+}
+
+/// `monitor` (as built) listening on the `tap` with its JSON report to `report`, stdin and
+/// stdout closed, stderr as `stderr` says.
+fn listening(monitor: Run, tap: &Path, report: &Path, stderr: Stdio) -> Kill {
+    let mut cmd = monitor
+        .args(["--format", "json", "--port"])
+        .arg(tap)
+        .command();
+    Kill::spawn(
+        cmd.arg("-o")
+            .arg(report)
+            .stdin(Stdio::null())
+            .stdout(Stdio::null())
+            .stderr(stderr),
+    )
 }
 
 /// With --emulate-line a port set to other settings hears what a UART at them reads, and
@@ -511,43 +493,23 @@ fn search_on_an_emulated_line(attempt: u32) {
     let d = Scratch::new(&format!("search{attempt}"));
     eprintln!("{}", d.display());
     let (m, t, log) = (d.join("master"), d.join("tap"), d.join("line.jsonl"));
-    let Bus { guard: mut bus, .. } = Bus::start(
-        &[
-            "--link",
-            &format!("master={}", m.display()),
-            "--link",
-            &format!("tap={}", t.display()),
-            "--model",
-            "f510",
-            "-a",
-            "1",
-            "-b",
-            "19200",
-            "-P",
-            "odd",
-            "--emulate-line",
-            "--log",
+    let Bus { guard: mut bus, .. } = Bus::linked(
+        &[("master", &m), ("tap", &t)],
+        &line(&[
+            "--model f510 -a 1 -b 19200 -P odd --emulate-line --log",
             log.to_str().unwrap(),
-        ],
-        2,
+        ]),
     );
-    common::wait_for(&m);
-    common::wait_for(&t);
     let report = d.join("monitor.json");
-    let mut monitor = Kill::spawn(
-        Run::words("monitor --model f510 -a 1 --quiet --log")
-            .command()
-            .arg(d.join("heard.jsonl"))
-            // The search takes about a second now: 12 s leaves some 10 s of exchanges
-            // (30 s, sized for the old 2 s a setting, only gave a loaded host more
-            // exchanges to split late).
-            .args(["--duration", "12", "--format", "json", "--port"])
-            .arg(&t)
-            .arg("-o")
-            .arg(&report)
-            .stdin(Stdio::null())
-            .stdout(Stdio::null())
-            .stderr(Stdio::inherit()),
+    // The search takes about a second now: 12 s leaves some 10 s of exchanges (30 s,
+    // sized for the old 2 s a setting, only gave a loaded host more exchanges to split
+    // late).
+    let mut monitor = listening(
+        Run::words("monitor --model f510 -a 1 --quiet --duration 12 --log")
+            .arg(d.join("heard.jsonl")),
+        &t,
+        &report,
+        Stdio::inherit(),
     );
     let frame = READ_252F
         .iter()
@@ -576,7 +538,7 @@ fn search_on_an_emulated_line(attempt: u32) {
             .unwrap();
         assert!(out.status.success(), "{out:?}");
     };
-    let v: Value = serde_json::from_str(&std::fs::read_to_string(&report).unwrap()).unwrap();
+    let v = common::json_file(&report);
     terminate(&mut bus, "conformance bus");
     let bus_log = log_of(&log);
     if v["device"]["line"] != "19200 8O1" && attempt < SEARCH_TRIES {
@@ -604,12 +566,7 @@ fn search_on_an_emulated_line(attempt: u32) {
         "{:#}",
         v["monitor"]
     );
-    let node = v["monitor"]["nodes"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .find(|n| n["address"] == "01")
-        .unwrap_or_else(|| panic!("{:#}", v["monitor"]));
+    let node = common::monitor_node(&v, "01");
     assert!(node["exchanges"].as_u64().unwrap() >= 2, "{node:#}");
     // The suite's `send` keeps t3.5 on the line (the bus's schedule says so); a busy host
     // that hands a reply to the tap late can make the silence after it look short.
@@ -657,32 +614,12 @@ fn search_on_an_emulated_line(attempt: u32) {
 fn a_line_search_that_finds_nothing_still_writes_its_report() {
     let d = Scratch::new("search-fails");
     let t = d.join("tap");
-    let Bus { guard: mut bus, .. } = Bus::start(
-        &[
-            "--link",
-            &format!("tap={}", t.display()),
-            "--model",
-            "f510",
-            "-a",
-            "1",
-            "--emulate-line",
-        ],
-        1,
-    );
-    common::wait_for(&t);
+    let args = words("--model f510 -a 1 --emulate-line");
+    let Bus { guard: mut bus, .. } = Bus::linked(&[("tap", &t)], &args);
     for (name, interrupt) in [("duration", false), ("interrupted", true)] {
         let report = d.join(format!("{name}.json"));
-        let mut monitor = Kill::spawn(
-            Run::words("monitor --model f510 -a 1 --mode rtu")
-                .command()
-                .args(["--duration", "3", "--format", "json", "--port"])
-                .arg(&t)
-                .arg("-o")
-                .arg(&report)
-                .stdin(Stdio::null())
-                .stdout(Stdio::null())
-                .stderr(Stdio::piped()),
-        );
+        let monitor = Run::words("monitor --model f510 -a 1 --mode rtu --duration 3");
+        let mut monitor = listening(monitor, &t, &report, Stdio::piped());
         if interrupt {
             // Once it says it tries the first setting, it is searching.
             let mut err = BufReader::new(monitor.0.stderr.take().unwrap());
@@ -697,11 +634,7 @@ fn a_line_search_that_finds_nothing_still_writes_its_report() {
         }
         let status = monitor.wait_within(Duration::from_secs(30), "the monitor's search");
         assert_eq!(status.code(), Some(2), "{name}");
-        let v: Value = serde_json::from_str(
-            &std::fs::read_to_string(&report)
-                .unwrap_or_else(|e| panic!("{name}: no report {}: {e}", report.display())),
-        )
-        .unwrap();
+        let v = common::json_file(&report);
         assert_eq!(v["complete"], false, "{name}");
         let stopped = v["stopped"].as_str().unwrap();
         let why = if interrupt {

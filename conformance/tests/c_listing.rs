@@ -61,6 +61,26 @@ fn compiler() -> Option<String> {
     need(Peer::CCompiler).then(cc)
 }
 
+/// A listing to compile: its id, its id as a file name, the listing, and its text as
+/// printed on the page (its OCR repairs applied).
+struct Printed {
+    id: String,
+    name: String,
+    l: CListing,
+    page: String,
+}
+
+/// For a test that compiles every listing: the [`compiler`], a fresh scratch folder
+/// `name` to compile in, and the listings; None (after SKIPPED) without a compiler.
+fn to_compile(name: &str) -> Option<(String, Scratch, Vec<Printed>)> {
+    let cc = compiler()?;
+    let all = listings().into_iter().map(|(id, name, l)| {
+        let page = printed(&l);
+        Printed { id, name, l, page }
+    });
+    Some((cc, Scratch::new(name), all.collect()))
+}
+
 /// One error the compiler reported: the line of the source file and the message.
 #[derive(Debug)]
 struct Diagnostic {
@@ -116,12 +136,12 @@ fn compile(cc: &str, dir: &Path, name: &str, source: &str, link: bool) -> Compil
     }
 }
 
-fn listings() -> Vec<(String, CListing)> {
+fn listings() -> Vec<(String, String, CListing)> {
     let set = VectorSet::builtin().expect("built-in vectors load");
-    let out: Vec<(String, CListing)> = set
+    let out: Vec<(String, String, CListing)> = set
         .iter()
         .filter_map(|(_, v)| match &v.body {
-            Body::CListing(l) => Some((v.id.clone(), l.clone())),
+            Body::CListing(l) => Some((v.id.clone(), v.id.replace('.', "_"), l.clone())),
             _ => None,
         })
         .collect();
@@ -135,18 +155,22 @@ fn with_typedefs(l: &CListing, body: &str) -> String {
     format!("{}{body}\n", l.typedefs())
 }
 
+/// The listing as printed on the page (its OCR repairs applied).
+fn printed(l: &CListing) -> String {
+    l.as_printed_on_page().expect("OCR repairs apply")
+}
+
 fn line_of(source: &str, n: usize) -> &str {
     source.lines().nth(n.saturating_sub(1)).unwrap_or("")
 }
 
 #[test]
 fn the_printed_listings_do_not_compile_for_the_recorded_reasons() {
-    let Some(cc) = compiler() else { return };
-    let dir = Scratch::new("printed");
-    for (id, l) in listings() {
-        let page = l.as_printed_on_page().expect("OCR repairs apply");
+    let Some((cc, dir, all)) = to_compile("printed") else {
+        return;
+    };
+    for Printed { id, name, l, page } in all {
         let source = with_typedefs(&l, &page);
-        let name = id.replace('.', "_");
         let c = compile(&cc, &dir, &name, &source, false);
         // Shown with `--nocapture`.
         println!("{id} as printed, {cc} says:\n{}", c.stderr.trim_end());
@@ -186,11 +210,10 @@ fn the_printed_listings_do_not_compile_for_the_recorded_reasons() {
 
 #[test]
 fn each_repair_is_needed_and_together_they_compile() {
-    let Some(cc) = compiler() else { return };
-    let dir = Scratch::new("repairs");
-    for (id, l) in listings() {
-        let page = l.as_printed_on_page().expect("OCR repairs apply");
-        let name = id.replace('.', "_");
+    let Some((cc, dir, all)) = to_compile("repairs") else {
+        return;
+    };
+    for Printed { id, name, l, page } in all {
         for skip in 0..l.repairs.len() {
             let some: Vec<_> = l
                 .repairs
@@ -243,8 +266,9 @@ fn example_bodies() -> Vec<(String, Vec<u8>)> {
 
 #[test]
 fn the_corrected_listings_compute_crc16() {
-    let Some(cc) = compiler() else { return };
-    let dir = Scratch::new("run");
+    let Some((cc, dir, all)) = to_compile("run") else {
+        return;
+    };
     let frames = example_bodies();
     assert!(frames.len() >= 60, "{} RTU example frames", frames.len());
     let mut rng = Rng::new(0x7EC0_0510);
@@ -266,8 +290,7 @@ fn the_corrected_listings_compute_crc16() {
             line
         })
         .collect();
-    for (id, l) in listings() {
-        let name = id.replace('.', "_");
+    for Printed { id, name, l, .. } in all {
         let source = format!("{}{}\n{MAIN}", l.typedefs(), l.corrected);
         let c = compile(&cc, &dir, &name, &source, true);
         assert!(c.ok, "{id}: the test program does not build:\n{}", c.stderr);
@@ -320,10 +343,10 @@ fn the_corrected_listings_compute_crc16() {
 fn every_document_prints_the_same_program() {
     let squeeze = |s: &str| -> String { s.chars().filter(|c| !c.is_whitespace()).collect() };
     let all = listings();
-    let (first_id, first) = &all[0];
-    let want = squeeze(&first.as_printed_on_page().expect("OCR repairs apply"));
-    for (id, l) in &all {
-        let page = l.as_printed_on_page().expect("OCR repairs apply");
+    let (first_id, _, first) = &all[0];
+    let want = squeeze(&printed(first));
+    for (id, _, l) in &all {
+        let page = printed(l);
         assert_eq!(squeeze(&page), want, "{id} differs from {first_id}");
         assert_eq!(
             squeeze(&l.corrected),

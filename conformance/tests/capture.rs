@@ -10,21 +10,15 @@ mod common;
 
 use captured::*;
 use common::{need, words, Peer, Run};
-use conformance::capture::{Direction, FLAG_CRC_ERROR};
+use conformance::capture::FLAG_CRC_ERROR;
 use serde_json::Value;
 
 #[test]
 fn the_capture_holds_every_request_of_the_report_in_order_with_directions_and_damage_marked() {
     let (cap, report) = whole_run();
     let frames = frames(cap);
-    let sent: Vec<&Frame> = frames
-        .iter()
-        .filter(|f| f.direction == Some(Direction::Outbound))
-        .collect();
-    let received = frames
-        .iter()
-        .filter(|f| f.direction == Some(Direction::Inbound))
-        .count();
+    let sent: Vec<&Frame> = frames.iter().filter(|f| f.sent()).collect();
+    let received = frames.iter().filter(|f| f.received()).count();
     assert_eq!(
         sent.len() + received,
         frames.len(),
@@ -54,7 +48,7 @@ fn the_capture_holds_every_request_of_the_report_in_order_with_directions_and_da
             "{:02X?}",
             f.bytes
         );
-        if f.direction == Some(Direction::Outbound) && !crc_ok(&f.bytes) {
+        if f.sent() && !crc_ok(&f.bytes) {
             damaged += 1;
             let c = f.comment.as_deref().unwrap_or_default();
             let id = c
@@ -63,8 +57,7 @@ fn the_capture_holds_every_request_of_the_report_in_order_with_directions_and_da
                 .unwrap_or_default();
             assert!(ids.contains(&id), "comment {c:?} of {:02X?}", f.bytes);
             assert!(c.contains("on purpose"), "{c}");
-        } else if f.direction == Some(Direction::Inbound)
-            && conformance::capture::late_on_host(f.comment.as_deref()).is_some()
+        } else if f.received() && conformance::capture::late_on_host(f.comment.as_deref()).is_some()
         {
             // A reply this busy host made the simulator begin late: said so.
         } else if !broken_by_host(f) {
@@ -77,7 +70,7 @@ fn the_capture_holds_every_request_of_the_report_in_order_with_directions_and_da
     // The clean simulator never answers with a wrong CRC.
     assert!(frames
         .iter()
-        .filter(|f| f.direction == Some(Direction::Inbound))
+        .filter(|f| f.received())
         .all(|f| crc_ok(&f.bytes)));
 }
 
@@ -88,17 +81,9 @@ fn tshark_decodes_every_frame_as_its_bytes_say_and_marks_exactly_the_bad_crc_fra
     }
     let (cap, report) = whole_run();
     let frames = frames(cap);
-    let rows = tshark(
-        cap,
-        &[
-            "frame.number",
-            "mbrtu.unit_id",
-            "modbus.func_code",
-            "mbrtu.crc16.status",
-            "modbus.reference_num",
-            "frame.packet_flags_crc_error",
-        ],
-    );
+    let fields = "frame.number mbrtu.unit_id modbus.func_code mbrtu.crc16.status \
+        modbus.reference_num frame.packet_flags_crc_error";
+    let rows = tshark(cap, &words(fields));
     assert_eq!(rows.len(), frames.len());
     let mut decoded = 0;
     let mut incorrect = Vec::new();
@@ -131,11 +116,7 @@ fn tshark_decodes_every_frame_as_its_bytes_say_and_marks_exactly_the_bad_crc_fra
         // A request's register address, where the function has one and the dissector
         // can tell a request from a reply by its length (a 06H reply is a copy of its
         // request: Wireshark leaves it unclassified, without fields).
-        if f.direction == Some(Direction::Outbound)
-            && crc_ok(b)
-            && b.len() >= 8
-            && matches!(b[1], 0x03 | 0x10)
-        {
+        if f.sent() && crc_ok(b) && b.len() >= 8 && matches!(b[1], 0x03 | 0x10) {
             let start = u16::from_be_bytes([b[2], b[3]]);
             assert_eq!(reference, &start.to_string(), "frame {}: {b:02X?}", row[0]);
         }
@@ -161,7 +142,7 @@ fn tshark_decodes_every_frame_as_its_bytes_say_and_marks_exactly_the_bad_crc_fra
     let sent: Vec<(usize, &Frame)> = frames
         .iter()
         .enumerate()
-        .filter(|(_, f)| f.direction == Some(Direction::Outbound))
+        .filter(|(_, f)| f.sent())
         .collect();
     let mut at = 0;
     for (id, r) in requests(report) {
@@ -173,6 +154,14 @@ fn tshark_decodes_every_frame_as_its_bytes_say_and_marks_exactly_the_bad_crc_fra
             assert_eq!(row[2], (r[1] & 0x7F).to_string(), "{id}");
         }
     }
+}
+
+/// Asserts that the monitor report `m` ended at the end of the capture of `all` its
+/// packets.
+#[track_caller]
+fn ended_at_the_end_of(m: &Value, all: &[Frame]) {
+    let end = format!("end of the capture ({} packets)", all.len());
+    assert_eq!(m["monitor"]["ended"], end);
 }
 
 #[test]
@@ -189,21 +178,16 @@ fn monitor_judges_a_clean_capture_with_the_counts_it_holds() {
     let frames = judged(&all);
     let sent = frames
         .iter()
-        .filter(|f| f.direction == Some(Direction::Outbound) && f.bytes[0] == 1)
+        .filter(|f| f.sent() && f.bytes[0] == 1)
         .count();
-    let received = frames
-        .iter()
-        .filter(|f| f.direction == Some(Direction::Inbound))
-        .count();
+    let received = frames.iter().filter(|f| f.received()).count();
     assert!(sent > 50, "{sent}");
     // A request sent again with nothing received between: the simulator, on a loaded
     // host, answered too late for the master, which tried again. On the line that is a
     // request without a reply, and the monitor must say so, once for each.
     let retries = frames
         .windows(2)
-        .filter(|w| {
-            w.iter().all(|f| f.direction == Some(Direction::Outbound)) && w[0].bytes == w[1].bytes
-        })
+        .filter(|w| w.iter().all(|f| f.sent()) && w[0].bytes == w[1].bytes)
         .count() as u64;
     let (code, m, stderr) = monitor_capture(&cap, "clean", &["-a", "1"]);
     let n = node(&m, "01");
@@ -233,10 +217,7 @@ fn monitor_judges_a_clean_capture_with_the_counts_it_holds() {
             "{kinds:?}"
         );
     }
-    assert_eq!(
-        m["monitor"]["ended"],
-        format!("end of the capture ({} packets)", all.len())
-    );
+    ended_at_the_end_of(&m, &all);
 }
 
 #[test]
@@ -250,9 +231,7 @@ fn monitor_judges_the_whole_run_and_finds_the_damage_the_checks_did_on_purpose()
     let n = node(&m, "01");
     let bad_to_1 = frames
         .iter()
-        .filter(|f| {
-            f.direction == Some(Direction::Outbound) && f.bytes[0] == 1 && !crc_ok(&f.bytes)
-        })
+        .filter(|f| f.sent() && f.bytes[0] == 1 && !crc_ok(&f.bytes))
         .count() as u64;
     assert!(bad_to_1 >= 1);
     assert_eq!(n["crc_errors"], bad_to_1, "{n}");
@@ -261,10 +240,7 @@ fn monitor_judges_the_whole_run_and_finds_the_damage_the_checks_did_on_purpose()
         n["errors"]["master.register-not-in-map"].as_u64().unwrap() > 0,
         "{n}"
     );
-    assert_eq!(
-        m["monitor"]["ended"],
-        format!("end of the capture ({} packets)", all.len())
-    );
+    ended_at_the_end_of(&m, &all);
 }
 
 #[test]
@@ -312,19 +288,11 @@ fn a_fuzz_capture_decodes_in_tshark_and_every_damaged_frame_is_marked_and_named(
         .run();
     assert_eq!(out.code, Some(0), "{}", out.stderr);
     let frames = frames(&cap);
-    let sent = frames
-        .iter()
-        .filter(|f| f.direction == Some(Direction::Outbound))
-        .count();
+    let sent = frames.iter().filter(|f| f.sent()).count();
     assert!(sent >= 150, "{sent} frames sent for 150 cases");
     let rows = tshark_occurrences(
         &cap,
-        &[
-            "frame.number",
-            "frame.packet_flags_crc_error",
-            "mbrtu.unit_id",
-            "mbrtu.crc16.status",
-        ],
+        &words("frame.number frame.packet_flags_crc_error mbrtu.unit_id mbrtu.crc16.status"),
         "a",
     );
     assert_eq!(rows.len(), frames.len());
@@ -338,11 +306,9 @@ fn a_fuzz_capture_decodes_in_tshark_and_every_damaged_frame_is_marked_and_named(
         assert_eq!(f.link_type, 147);
         assert_eq!(row[1] == "1", !crc_ok(b), "frame {}: {b:02X?}", row[0]);
         let statuses: Vec<&str> = row[3].split(',').filter(|s| !s.is_empty()).collect();
-        if f.direction == Some(Direction::Inbound) {
+        if f.received() {
             let joined = piece.take().map(|p| [p, b.clone()].concat());
-            let next_inbound = frames
-                .get(k + 1)
-                .is_some_and(|n| n.direction == Some(Direction::Inbound));
+            let next_inbound = frames.get(k + 1).is_some_and(|n| n.received());
             match joined {
                 None if crc_ok(b) => {
                     // The simulator's replies: whole frames, decoded, CRC right.
@@ -399,10 +365,7 @@ fn an_ascii_capture_keeps_the_characters_under_link_type_148_and_the_monitor_jud
     );
     let frames = frames(&cap);
     assert!(frames.iter().all(|f| f.link_type == 148));
-    let sent: Vec<&Frame> = frames
-        .iter()
-        .filter(|f| f.direction == Some(Direction::Outbound))
-        .collect();
+    let sent: Vec<&Frame> = frames.iter().filter(|f| f.sent()).collect();
     let reqs = requests(&report);
     assert!(reqs.len() >= 4, "{} requests", reqs.len());
     for (id, r) in reqs {
@@ -536,7 +499,7 @@ fn monitor_capture_in_judges_every_exchange_of_the_check_run_as_check_did() {
         .run();
     // Exit 1: deviations (the planted fault). 2 only where this host stalled sending a
     // request (an ERROR, never judged); the other exchanges are still compared.
-    let check: Value = serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    let check = common::json_file(&json);
     assert!(matches!(out.code, Some(1 | 2)), "{}", out.stderr);
     assert_eq!(check["complete"], true, "{}", check["stopped"]);
     errors_are_host_stalls(&check);
@@ -546,11 +509,7 @@ fn monitor_capture_in_judges_every_exchange_of_the_check_run_as_check_did() {
         &["-a", "1", "--log", heard.to_str().unwrap()],
     );
     assert_eq!(code, Some(1), "{stderr}");
-    let heard: Vec<Value> = std::fs::read_to_string(&heard)
-        .unwrap()
-        .lines()
-        .map(|l| serde_json::from_str(l).unwrap())
-        .collect();
+    let heard = common::json_lines_file(&heard);
     let (agree, _) = common::agree::exchanges("capture of check", &check, &heard, &[]);
     assert!(agree > 150, "only {agree} exchanges compared");
     let errors = &node(&report, "01")["errors"];
@@ -606,7 +565,7 @@ fn a_check_whose_host_stalls_keeps_its_requests_whole_and_its_capture_agrees() {
     // A stall may still delay a reply (the simulator's thread is stopped too): the runner
     // runs such a check again, and gives an ERROR only where every run was disturbed.
     assert!(matches!(out.status.code(), Some(0 | 2)), "{stderr}");
-    let report: Value = serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    let report = common::json_file(&json);
     assert_eq!(report["summary"]["deviation"], 0, "{stderr}");
     assert!(stops >= 5, "only {stops} stops");
     let broken = report["budget"]["rtu"]["broken_sends"]
@@ -634,11 +593,7 @@ fn a_check_whose_host_stalls_keeps_its_requests_whole_and_its_capture_agrees() {
     for kind in ["drive.no-reply", "master.retry"] {
         assert!(errors.get(kind).is_none(), "{kind}: {errors}");
     }
-    let heard: Vec<Value> = std::fs::read_to_string(&log)
-        .unwrap()
-        .lines()
-        .map(|l| serde_json::from_str(l).unwrap())
-        .collect();
+    let heard = common::json_lines_file(&log);
     let (agree, _) = common::agree::exchanges("capture of a stalled check", &report, &heard, &[]);
     assert!(agree >= 15, "only {agree} exchanges compared");
 }

@@ -10,7 +10,6 @@ mod common;
 use captured::*;
 use common::{need, Peer, Run};
 use conformance::capture::Direction;
-use serde_json::Value;
 use std::time::Duration;
 
 #[test]
@@ -91,8 +90,7 @@ fn a_bus_capture_holds_each_endpoints_frames_on_its_own_interface() {
         if running { "was running" } else { "had ended" },
         std::fs::read_to_string(d.join("bus.err")).unwrap_or_default()
     );
-    let report: Value =
-        serde_json::from_str(&std::fs::read_to_string(d.join("bus.json")).unwrap()).unwrap();
+    let report = common::json_file(&d.join("bus.json"));
     let frames = frames(&cap);
     // One interface per endpoint (and the line's own, for collisions): the master's is
     // the one that spoke first.
@@ -194,10 +192,7 @@ fn a_gateway_run_records_its_mbap_frames_as_tcp_that_tshark_decodes_as_modbus_tc
         frames[..3].iter().map(flags).collect::<Vec<_>>(),
         [0x02, 0x12, 0x10]
     );
-    let ours: Vec<&Frame> = frames[3..]
-        .iter()
-        .filter(|f| f.direction == Some(Direction::Outbound))
-        .collect();
+    let ours: Vec<&Frame> = frames[3..].iter().filter(|f| f.sent()).collect();
     // Each request of the report (RTU: address, PDU, CRC) is one MBAP frame sent, in
     // order: the same PDU, the unit id the node address.
     let sent: Vec<Vec<u8>> = requests(&report).into_iter().map(|(_, b)| b).collect();
@@ -288,14 +283,8 @@ fn a_simulator_served_over_tcp_records_what_it_received_and_sent() {
             .run();
         assert_eq!(out.code, Some(0), "{framing}: {}", out.stderr);
         let frames = frames(&cap);
-        let inbound: Vec<&Frame> = frames
-            .iter()
-            .filter(|f| f.direction == Some(Direction::Inbound))
-            .collect();
-        let outbound: Vec<&Frame> = frames
-            .iter()
-            .filter(|f| f.direction == Some(Direction::Outbound))
-            .collect();
+        let inbound: Vec<&Frame> = frames.iter().filter(|f| f.received()).collect();
+        let outbound: Vec<&Frame> = frames.iter().filter(|f| f.sent()).collect();
         // The map reads (and the preflight, where it is its own read), each answered.
         assert!(
             inbound.len() >= 5 && outbound.len() == inbound.len(),
@@ -341,10 +330,8 @@ fn a_bus_a_tap_and_a_check_capture_of_one_run_are_judged_alike() {
         tapped_run(&d, "1,2", "10", &["--capture", check_cap.to_str().unwrap()]);
     assert_eq!(out.code, Some(0), "{}", out.stderr);
     assert!(matches!(status.code(), Some(0 | 1)), "{stderr}");
-    let check: Value =
-        serde_json::from_str(&std::fs::read_to_string(d.join("check.json")).unwrap()).unwrap();
-    let live: Value =
-        serde_json::from_str(&std::fs::read_to_string(d.join("live.json")).unwrap()).unwrap();
+    let check = common::json_file(&d.join("check.json"));
+    let live = common::json_file(&d.join("live.json"));
     let mut judged = Vec::new();
     for name in ["bus", "tap", "check"] {
         let log = d.join(format!("{name}.heard.jsonl"));
@@ -354,11 +341,7 @@ fn a_bus_a_tap_and_a_check_capture_of_one_run_are_judged_alike() {
             &["-a", "1,2", "-b", "9600", "--log", log.to_str().unwrap()],
         );
         assert!(matches!(code, Some(0 | 1)), "{name}: {stderr}");
-        let heard: Vec<Value> = std::fs::read_to_string(&log)
-            .unwrap()
-            .lines()
-            .map(|l| serde_json::from_str(l).unwrap())
-            .collect();
+        let heard = common::json_lines_file(&log);
         let (agree, _) = common::agree::exchanges(&format!("{name} capture"), &check, &heard, &[]);
         assert!(agree >= 8, "{name}: only {agree} exchanges compared");
         judged.push((name, kinds_by_node(&report)));

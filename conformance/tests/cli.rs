@@ -2,6 +2,7 @@
 
 mod common;
 
+use std::path::Path;
 use std::time::Duration;
 
 use common::{words, Run, Scratch};
@@ -23,12 +24,14 @@ fn decode_reports_the_f510_read_response_crc_erratum() {
     // F510 manual 1.0.3, 03H normal response as printed.
     let (code, out) = conformance(&["decode", "--rtu", "--response", "01 03 02 17 70 AF 82"]);
     assert_eq!(code, 1, "{out}");
-    assert!(
-        out.contains("CRC mismatch: frame carries 82AF, computed 50B6"),
-        "{out}"
+    common::assert_contains_all(
+        &out,
+        &[
+            "CRC mismatch: frame carries 82AF, computed 50B6",
+            "values          [1770]",
+            "01 03 02 17 70 B6 50",
+        ],
     );
-    assert!(out.contains("values          [1770]"), "{out}");
-    assert!(out.contains("01 03 02 17 70 B6 50"), "{out}");
 }
 
 #[test]
@@ -94,8 +97,7 @@ fn encode_reads_a_bare_number_as_decimal_with_a_note() {
     let (code, out, err) =
         conformance_split(&["encode", "read", "--start", "2520", "--count", "1"]);
     assert_eq!(code, 0, "{out}{err}");
-    assert!(out.contains("start=09D8"), "{out}");
-    assert!(out.contains("RTU    01 03 09 D8 00 01 07 AD"), "{out}");
+    common::assert_contains_all(&out, &["start=09D8", "RTU    01 03 09 D8 00 01 07 AD"]);
     assert_eq!(
         err.trim_end(),
         "note: --start 2520 is decimal (09D8H); write 2520H or 0x2520 for hex"
@@ -106,20 +108,15 @@ fn encode_reads_a_bare_number_as_decimal_with_a_note() {
     ));
     assert_eq!(code, 0, "{out}{err}");
     assert!(out.contains("values=[1770 0007 000C]"), "{out}");
-    assert!(
-        err.contains("note: --address 10 is decimal (0AH); write 10H or 0x10 for hex"),
-        "{err}"
+    common::assert_contains_all(
+        &err,
+        &[
+            "note: --address 10 is decimal (0AH); write 10H or 0x10 for hex",
+            "note: --values 6000 is decimal (1770H)",
+            "note: --values 12 is decimal (000CH)",
+        ],
     );
-    assert!(
-        err.contains("note: --values 6000 is decimal (1770H)"),
-        "{err}"
-    );
-    assert!(
-        err.contains("note: --values 12 is decimal (000CH)"),
-        "{err}"
-    );
-    assert!(!err.contains("--values 7 "), "{err}");
-    assert!(!err.contains("--start"), "{err}");
+    common::assert_contains_none(&err, &["--values 7 ", "--start"]);
     let (code, _, err) =
         conformance_split(&["encode", "exception", "--function", "16", "--code", "2"]);
     assert_eq!(code, 0, "{err}");
@@ -162,8 +159,7 @@ fn encode_help_states_the_number_rule() {
     assert!(out.contains("hex with H suffix or 0x prefix (2520H, 0x2520); a bare number is decimal (2520 is 09D8H)"), "{out}");
     let (code, out) = conformance(&["encode", "--help"]);
     assert_eq!(code, 0, "{out}");
-    assert!(out.contains("a bare number is decimal"), "{out}");
-    assert!(out.contains("--start 2520H"), "{out}");
+    common::assert_contains_all(&out, &["a bare number is decimal", "--start 2520H"]);
 }
 
 #[test]
@@ -179,16 +175,22 @@ fn vectors_verify_passes_and_export_is_json() {
     assert!(out.contains("f510.03.rtu.response"), "{out}");
 }
 
+/// `fuzz --sim f510 --mode rtu --no-pace ARGS --format json --quiet` (the words of
+/// `args`) bounded by `secs`, which must exit 0 or 1: the report it printed.
+fn fuzzed_json(args: &str, secs: u64) -> serde_json::Value {
+    let ran = Run::words("fuzz --sim f510 --mode rtu --no-pace")
+        .args(words(args))
+        .args(["--format", "json", "--quiet"])
+        .timeout(Duration::from_secs(secs))
+        .run();
+    assert!(matches!(ran.code, Some(0 | 1)), "{ran}");
+    ran.json()
+}
+
 #[test]
 fn a_bare_duration_is_seconds() {
     // `--duration 90` was refused ("time unit needed").
-    let (code, out, err) =
-        Run::words("fuzz --sim f510 --mode rtu --no-pace --duration 1 --format json --quiet")
-            .timeout(Duration::from_secs(120))
-            .run()
-            .parts();
-    assert!(matches!(code, Some(0 | 1)), "{err}");
-    let v: serde_json::Value = serde_json::from_str(&out).unwrap();
+    let v = fuzzed_json("--duration 1", 120);
     let m = &v["fuzz"]["modes"][0];
     // Cases until one second had passed: not one case limit, not a millisecond.
     assert!(m["cases"].as_u64().unwrap() > 0, "{m}");
@@ -244,18 +246,10 @@ fn report_writes_text_unless_html_is_asked_for() {
     );
     assert!(!out.contains("<html"), "HTML on the terminal");
     // -o FILE.html: the page; -o with another extension: text; --format wins.
-    let page = dir.join("run.html");
-    let (code, _, _) = conformance_split(&["report", json, "-o", page.to_str().unwrap()]);
-    assert_eq!(code, 0);
-    assert!(std::fs::read_to_string(&page)
-        .unwrap()
-        .starts_with("<!DOCTYPE html>"));
-    let txt = dir.join("run.txt");
-    let (code, _, _) = conformance_split(&["report", json, "-o", txt.to_str().unwrap()]);
-    assert_eq!(code, 0);
-    assert!(std::fs::read_to_string(&txt)
-        .unwrap()
-        .starts_with("TECO Modbus conformance report"));
+    let page = common::rendered(Path::new(json), &dir.join("run.html"));
+    assert!(page.starts_with("<!DOCTYPE html>"));
+    let txt = common::rendered(Path::new(json), &dir.join("run.txt"));
+    assert!(txt.starts_with("TECO Modbus conformance report"));
     let (code, out, _) = conformance_split(&["report", json, "--format", "html"]);
     assert_eq!(code, 0);
     assert!(out.starts_with("<!DOCTYPE html>"));
@@ -269,8 +263,7 @@ fn report_writes_text_unless_html_is_asked_for() {
         .run()
         .parts();
     assert!(matches!(code, Some(0 | 1)), "{err}");
-    let v: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(&fuzzed).unwrap()).unwrap();
+    let v = common::json_file(&fuzzed);
     assert_eq!(v["kind"], "fuzz");
     for cmd in ["check", "fuzz", "gate"] {
         let (_, help) = conformance(&[cmd, "--help"]);
@@ -340,12 +333,7 @@ fn fuzz_by_default_runs_a_short_campaign() {
     );
     // It runs for its 15 s (not a count of cases), and then ends (bounded above by
     // run_bounded).
-    let (code, out, err) = Run::words("fuzz --sim f510 --mode rtu --no-pace --format json --quiet")
-        .timeout(Duration::from_secs(180))
-        .run()
-        .parts();
-    assert!(matches!(code, Some(0 | 1)), "{err}");
-    let v: serde_json::Value = serde_json::from_str(&out).unwrap();
+    let v = fuzzed_json("", 180);
     let m = &v["fuzz"]["modes"][0];
     let ms = m["elapsed_ms"].as_f64().unwrap();
     assert!(ms >= 15_000.0, "{m}");
@@ -374,7 +362,7 @@ fn a_pseudo_terminal_has_no_line_bound() {
         .run()
         .parts();
     assert_eq!(code, Some(0), "{err}");
-    let v: serde_json::Value = serde_json::from_slice(&std::fs::read(&json).unwrap()).unwrap();
+    let v = common::json_file(&json);
     let b = &v["budget"]["rtu"];
     assert_eq!(b["no_bound"], "pty", "{b}");
     assert_eq!(b["bound_ms"], 0.0, "{b}");
@@ -459,43 +447,36 @@ fn send_example(help: &str, prefix: &str) -> Vec<String> {
     words[1..].to_vec()
 }
 
+/// The example of `send --help` that starts with `conformance send PREFIX`, run; it must
+/// exit 0: its stdout and stderr.
+fn sent_example(help: &str, prefix: &str) -> (String, String) {
+    let example = send_example(help, &format!("conformance send {prefix}"));
+    let args: Vec<&str> = example.iter().map(String::as_str).collect();
+    let (code, out, err) = common::run_bounded(&args, Duration::from_secs(60));
+    assert_eq!(code, Some(0), "{out}{err}");
+    (out, err)
+}
+
 #[test]
 fn send_help_examples_send_what_they_say() {
     let (_, help) = conformance(&["send", "--help"]);
     // The first example: one frame, spaces inside one argument.
-    let one = send_example(
-        &help,
-        "conformance send --sim f510 --mode rtu '010325200001 8ECC'",
-    );
-    let args: Vec<&str> = one.iter().map(String::as_str).collect();
-    let (code, out, err) = common::run_bounded(&args, Duration::from_secs(60));
-    assert_eq!(code, Some(0), "{out}{err}");
+    let (out, err) = sent_example(&help, "--sim f510 --mode rtu '010325200001 8ECC'");
     let sent: Vec<&str> = out.lines().filter(|l| l.contains("] sent ")).collect();
     assert_eq!(sent.len(), 1, "{out}");
     assert!(sent[0].ends_with("sent 01 03 25 20 00 01 8E CC"), "{out}");
-    assert!(out.contains("device: node 01 03 read response"), "{out}");
-    assert!(out.contains("as predicted"), "{out}");
+    common::assert_contains_all(&out, &["device: node 01 03 read response", "as predicted"]);
     assert!(!err.contains("note:"), "{err}");
     // Two arguments are two frames, each good.
-    let two = send_example(
-        &help,
-        "conformance send --sim f510 --mode rtu 0103252000018ECC 0103",
-    );
-    let args: Vec<&str> = two.iter().map(String::as_str).collect();
-    let (code, out, err) = common::run_bounded(&args, Duration::from_secs(60));
-    assert_eq!(code, Some(0), "{out}{err}");
-    assert_eq!(
-        out.matches("device: node 01 03 read response").count(),
-        2,
-        "{out}"
-    );
+    let (out, _) = sent_example(&help, "--sim f510 --mode rtu 0103252000018ECC 0103");
+    common::assert_count(&out, "device: node 01 03 read response", 2);
     // One frame left unquoted goes as given, two frames, and the note says how to quote.
     let (code, out, err) = Run::words("send --sim f510 --mode rtu 010325200001 8ECC")
         .timeout(Duration::from_secs(60))
         .run()
         .parts();
     assert_eq!(code, Some(0), "{out}{err}");
-    assert_eq!(out.matches("] sent ").count(), 2, "{out}");
+    common::assert_count(&out, "] sent ", 2);
     assert!(
         err.contains("note: arguments 1 and 2 (010325200001 and 8ECC) are each a frame with a wrong CRC, but one frame with a good CRC together")
             && err.contains("quote it as one argument ('010325200001 8ECC')"),
@@ -512,14 +493,13 @@ fn gate_runs_conformance_adapter_without_conformance_on_the_path() {
         .run();
     let (stdout, stderr) = (&out.stdout, &out.stderr);
     assert_eq!(out.code, Some(0), "{stdout}{stderr}");
-    assert!(
-        stdout.contains("(adapter conformance-reference-adapter;"),
-        "{stdout}"
-    );
-    // The report names the command as it was given.
-    assert!(
-        stdout.contains("command: conformance adapter\n"),
-        "{stdout}"
+    common::assert_contains_all(
+        stdout,
+        &[
+            "(adapter conformance-reference-adapter;",
+            // The report names the command as it was given.
+            "command: conformance adapter\n",
+        ],
     );
 }
 
@@ -547,8 +527,13 @@ fn an_adapter_that_dies_before_its_hello_is_shown_with_its_stderr_and_a_hint() {
     // A command that is not there, and one that says nothing.
     let (code, _, err) = conformance_split(&["gate", "--codec", "no-such-adapter-9f3c"]);
     assert_eq!(code, 2);
-    assert!(err.contains("no-such-adapter-9f3c: not found"), "{err}");
-    assert!(err.contains("hint: the command was not found"), "{err}");
+    common::assert_contains_all(
+        &err,
+        &[
+            "no-such-adapter-9f3c: not found",
+            "hint: the command was not found",
+        ],
+    );
     let (code, _, err) = conformance_split(&["gate", "--codec", "exit 3"]);
     assert_eq!(code, 2);
     assert!(

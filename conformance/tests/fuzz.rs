@@ -28,6 +28,15 @@ fn hex(s: &Value) -> Vec<u8> {
     conformance::codec::hex::parse_hex(s.as_str().unwrap()).unwrap()
 }
 
+/// The one confirmed finding of a run against one planted bug (one bug, one entry,
+/// whichever case classes found it), which must be of `kind` and one that `is` holds for.
+fn the_one_finding(v: &Value, kind: &str, is: impl Fn(&Value) -> bool) -> Value {
+    let f = confirmed_findings(v);
+    assert_eq!(f.len(), 1, "one bug, one entry: {f:#?}");
+    let found = f.iter().find(|x| x["kind"] == kind && is(x)).cloned();
+    found.unwrap_or_else(|| panic!("no such {kind} in {f:#?}"))
+}
+
 fn clean(model: &str) {
     // A sample in the default run (CI's time); FUZZ_CASES=2000 or 20000 for more.
     let cases = std::env::var("FUZZ_CASES").unwrap_or_else(|_| "300".into());
@@ -91,26 +100,12 @@ fn clean_l510_legacy() {
 
 #[test]
 fn a_byte_count_over_the_data_is_found_as_a_hang_and_minimized_to_one_frame() {
-    let (code, v) = fuzz(
-        "hang",
-        "--sim f510 --quirk hang-on-byte-count --mode rtu --no-pace --cases 300",
-        Duration::from_secs(600),
-    );
+    let args = "--sim f510 --quirk hang-on-byte-count --mode rtu --no-pace --cases 300";
+    let (code, v) = fuzz("hang", args, Duration::from_secs(600));
     assert_eq!(code, Some(1));
-    let f = confirmed_findings(&v);
-    // One bug, one entry, whichever case classes found it.
-    assert_eq!(f.len(), 1, "{f:#?}");
-    let hang = f
-        .iter()
-        .find(|x| x["kind"] == "hang" && x["function"] == "10")
-        .unwrap_or_else(|| panic!("no 10H hang in {f:#?}"));
+    let hang = the_one_finding(&v, "hang", |x| x["function"] == "10");
     assert_eq!(hang["field_class"], "byte-count-over-data", "{hang:#}");
-    let by_class: u64 = hang["classes"]
-        .as_object()
-        .unwrap()
-        .values()
-        .map(|n| n.as_u64().unwrap())
-        .sum();
+    let by_class = common::total(&hang["classes"]);
     assert_eq!(by_class, hang["count"].as_u64().unwrap(), "{hang:#}");
     let min = hang["minimized"].as_array().unwrap();
     assert_eq!(min.len(), 1, "{hang:#}");
@@ -136,18 +131,10 @@ fn a_byte_count_over_the_data_is_found_as_a_hang_and_minimized_to_one_frame() {
 
 #[test]
 fn a_flipped_bit_is_found_as_a_wrong_value_by_writing_back_what_was_read() {
-    let (code, v) = fuzz(
-        "wrong",
-        "--sim f510 --quirk wrong-value-at=0000H --mode rtu --no-pace --cases 3000",
-        Duration::from_secs(900),
-    );
+    let args = "--sim f510 --quirk wrong-value-at=0000H --mode rtu --no-pace --cases 3000";
+    let (code, v) = fuzz("wrong", args, Duration::from_secs(900));
     assert!(matches!(code, Some(1 | 2)), "{code:?}");
-    let f = confirmed_findings(&v);
-    assert_eq!(f.len(), 1, "one bug, one entry: {f:#?}");
-    let w = f
-        .iter()
-        .find(|x| x["kind"] == "wrong-value")
-        .unwrap_or_else(|| panic!("no wrong value in {f:#?}"));
+    let w = the_one_finding(&v, "wrong-value", |_| true);
     assert_eq!(w["field_class"], "value-of-0000H", "{w:#}");
     // The shortest sequence: write back the value read, read it again.
     let min: Vec<Vec<u8>> = w["minimized"].as_array().unwrap().iter().map(hex).collect();
@@ -163,18 +150,11 @@ fn a_flipped_bit_is_found_as_a_wrong_value_by_writing_back_what_was_read() {
 
 #[test]
 fn frames_back_to_back_overflowing_the_receiver_are_found_and_shortened() {
-    let (code, v) = fuzz(
-        "overflow",
-        "--sim f510 --quirk overflow-after=4 --mode rtu --no-pace --cases 50",
-        Duration::from_secs(600),
-    );
+    let args = "--sim f510 --quirk overflow-after=4 --mode rtu --no-pace --cases 50";
+    let (code, v) = fuzz("overflow", args, Duration::from_secs(600));
     assert_eq!(code, Some(1));
-    let f = confirmed_findings(&v);
-    assert_eq!(f.len(), 1, "one bug, one entry: {f:#?}");
-    let o = f
-        .iter()
-        .find(|x| x["kind"] == "hang" && x["burst"] == true)
-        .unwrap_or_else(|| panic!("no overflow in {f:#?}"));
+    // An overflow: a hang after a burst.
+    let o = the_one_finding(&v, "hang", |x| x["burst"] == true);
     assert_eq!(o["field_class"], "back-to-back", "{o:#}");
     // The 4th frame less than t3.5 after the previous one trips it: 5 frames.
     assert_eq!(o["minimized"].as_array().unwrap().len(), 5, "{o:#}");
@@ -191,12 +171,14 @@ fn send_prints_the_answer_and_the_prediction() {
         .run();
     let text = &out.stdout;
     assert_eq!(out.code, Some(0), "{text}");
-    assert!(
-        text.contains("model: 01 03 25 20 00 01 8E CC -> normal 03H reply"),
-        "{text}"
+    common::assert_contains_all(
+        text,
+        &[
+            "model: 01 03 25 20 00 01 8E CC -> normal 03H reply",
+            "as predicted",
+            "received 01 03 02",
+        ],
     );
-    assert!(text.contains("as predicted"), "{text}");
-    assert!(text.contains("received 01 03 02"), "{text}");
     // The malformed 10H: the model predicts its exception; the clean simulator sends it.
     assert!(text.contains("received 01 90 03"), "{text}");
     // A frame that is not hex: exit 2.
@@ -208,11 +190,8 @@ fn send_prints_the_answer_and_the_prediction() {
 
 #[test]
 fn seeds_reproduce_and_safety_holds_with_writes_none() {
-    let (code, v) = fuzz(
-        "none",
-        "--sim f510 --mode ascii --no-pace --cases 300 --writes none",
-        Duration::from_secs(600),
-    );
+    let args = "--sim f510 --mode ascii --no-pace --cases 300 --writes none";
+    let (code, v) = fuzz("none", args, Duration::from_secs(600));
     assert_eq!(code, Some(0));
     assert_eq!(v["fuzz"]["writes"], "none");
     // Nothing written, so nothing to restore.
@@ -225,11 +204,8 @@ fn seeds_reproduce_and_safety_holds_with_writes_none() {
 
 #[test]
 fn registers_written_with_other_values_are_restored_as_changed() {
-    let (code, v) = fuzz(
-        "any",
-        "--sim f510 --mode rtu --no-pace --cases 300 --writes any",
-        Duration::from_secs(600),
-    );
+    let args = "--sim f510 --mode rtu --no-pace --cases 300 --writes any";
+    let (code, v) = fuzz("any", args, Duration::from_secs(600));
     assert_eq!(code, Some(0), "{}", v["stopped"]);
     let restore = v["restore"].as_array().unwrap();
     // Some registers took other values and were written back; every one is verified.
@@ -297,16 +273,11 @@ fn late_answers_on_the_brisk_path_are_sent_again_with_full_windows() {
 #[test]
 fn a_known_hang_is_steered_away_from_and_its_cost_reported() {
     use conformance::fuzz::steer::HANG_RETRIGGERS;
-    let (code, v) = fuzz(
-        "steer",
-        "--sim f510 --quirk hang-on-byte-count --mode rtu --no-pace --cases 1000 --seed 11",
-        Duration::from_secs(900),
-    );
+    let args = "--sim f510 --quirk hang-on-byte-count --mode rtu --no-pace --cases 1000 --seed 11";
+    let (code, v) = fuzz("steer", args, Duration::from_secs(900));
     assert_eq!(code, Some(1));
     let m = &v["fuzz"]["modes"][0];
-    let f = confirmed_findings(&v);
-    assert_eq!(f.len(), 1, "{f:#?}");
-    let hang = &f[0];
+    let hang = &the_one_finding(&v, "hang", |_| true);
     assert_eq!(hang["signature"], "rtu.hang.10H.byte-count-over-data");
     let count = hang["count"].as_u64().unwrap();
     assert!(

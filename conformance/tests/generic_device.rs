@@ -146,28 +146,17 @@ fn fuzz(mode: &str) {
 fn explained(sig: &str) -> bool {
     let field = sig.rsplit('.').next().unwrap_or("");
     let kind = sig.split('.').nth(1).unwrap_or("");
-    match kind {
-        "mismatch" => matches!(
-            field,
-            "register-value"
-                | "byte-count"
-                | "reply-instead-of-exception"
-                | "exception-instead-of-reply"
-                | "exception-code"
-                | "invalid-frame"
-                | "loop-back-data"
-                | "sub-function"
-                | "register-address"
-                | "register-count"
-                | "written-value"
-                | "length"
-                | "function"
-        ),
-        "unexpected-reply" => field.starts_with("reply-to-"),
-        "no-reply" => field.starts_with("no-reply-for-"),
-        "wrong-value" => field.starts_with("value-of-"),
-        _ => false,
-    }
+    common::generic_server_explains(
+        kind,
+        field,
+        &[
+            "invalid-frame",
+            "loop-back-data",
+            "sub-function",
+            "length",
+            "function",
+        ],
+    )
 }
 
 #[test]

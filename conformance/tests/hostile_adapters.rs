@@ -74,6 +74,12 @@ fn start(command: &str, timeout: Duration) -> Result<Adapter, AdapterError> {
     within_deadline("start", move || Adapter::start(&command, timeout))
 }
 
+/// A codec adapter whose hello is `HELLO` and that then runs `then`, started (it must
+/// start).
+fn started(then: &str, timeout: Duration) -> Adapter {
+    start(&adapter(HELLO, then), timeout).unwrap()
+}
+
 fn call(a: Adapter, request: serde_json::Value) -> (Adapter, Result<serde_json::Value, CallError>) {
     within_deadline("call", move || {
         let mut a = a;
@@ -86,6 +92,17 @@ fn malformed(r: &Result<serde_json::Value, CallError>, says: &str) {
     match r {
         Err(CallError::Malformed(m)) => assert!(m.contains(says), "{m:?} does not say {says:?}"),
         other => panic!("expected a malformed answer saying {says:?}, got {other:?}"),
+    }
+}
+
+/// Asserts that each next `decode` call of `a` ends in the malformed answer each of `says`
+/// names.
+#[track_caller]
+fn malformed_answers(mut a: Adapter, says: &[&str]) {
+    for said in says {
+        let (next, r) = call(a, json!({"op": "decode"}));
+        malformed(&r, said);
+        a = next;
     }
 }
 
@@ -163,13 +180,15 @@ fn wrong_types_are_typed_errors() {
     );
     // "ok" as a string, a JSON array, an id as a string.
     let then = r#"read l; printf '%s\n' '{"id":1,"ok":"yes"}'; read l; printf '%s\n' '[1,2]'; read l; printf '%s\n' '{"id":"3","ok":true}'; cat >/dev/null"#;
-    let a = start(&adapter(HELLO, then), Duration::from_secs(5)).unwrap();
-    let (a, r) = call(a, json!({"op": "decode"}));
-    malformed(&r, "no \"ok\" field");
-    let (a, r) = call(a, json!({"op": "decode"}));
-    malformed(&r, "answer id None, expected 2");
-    let (_a, r) = call(a, json!({"op": "decode"}));
-    malformed(&r, "answer id None, expected 3");
+    let a = started(then, Duration::from_secs(5));
+    malformed_answers(
+        a,
+        &[
+            "no \"ok\" field",
+            "answer id None, expected 2",
+            "answer id None, expected 3",
+        ],
+    );
 }
 
 #[test]
@@ -177,7 +196,7 @@ fn duplicate_and_missing_ids_and_answers_never_asked_for() {
     // Answer 1 twice (the second is late for call 2 and dropped), then no id, then an id
     // from the future.
     let then = r#"read l; printf '%s\n%s\n' '{"id":1,"ok":true,"n":1}' '{"id":1,"ok":true,"n":2}'; read l; printf '%s\n' '{"id":2,"ok":true,"n":3}'; read l; printf '%s\n' '{"ok":true}'; read l; printf '%s\n' '{"id":7,"ok":true}'; cat >/dev/null"#;
-    let a = start(&adapter(HELLO, then), Duration::from_secs(5)).unwrap();
+    let a = started(then, Duration::from_secs(5));
     let (a, r) = call(a, json!({"op": "decode"}));
     assert_eq!(r.unwrap()["n"], 1);
     let (a, r) = call(a, json!({"op": "decode"}));
@@ -186,10 +205,13 @@ fn duplicate_and_missing_ids_and_answers_never_asked_for() {
         3,
         "the duplicate of answer 1 was taken for answer 2"
     );
-    let (a, r) = call(a, json!({"op": "decode"}));
-    malformed(&r, "answer id None, expected 3");
-    let (_a, r) = call(a, json!({"op": "decode"}));
-    malformed(&r, "answer id Some(7), expected 4");
+    malformed_answers(
+        a,
+        &[
+            "answer id None, expected 3",
+            "answer id Some(7), expected 4",
+        ],
+    );
 }
 
 #[test]
@@ -241,12 +263,7 @@ fn an_adapter_that_never_answers_its_hello_fails_at_the_handshake_deadline() {
 
 #[test]
 fn an_adapter_that_never_answers_times_out_and_is_restarted() {
-    let a = start(
-        &adapter(HELLO, "cat >/dev/null"),
-        Duration::from_millis(300),
-    )
-    .unwrap();
-    let mut a = a;
+    let mut a = started("cat >/dev/null", Duration::from_millis(300));
     for _ in 0..3 {
         let (b, r) = call(a, json!({"op": "decode"}));
         assert_eq!(r, Err(CallError::Timeout(300)));
@@ -272,7 +289,7 @@ fn an_adapter_that_never_answers_times_out_and_is_restarted() {
 
 #[test]
 fn an_adapter_that_crashes_is_restarted_once_then_gone() {
-    let a = start(&adapter(HELLO, "read l; exit 3"), Duration::from_secs(5)).unwrap();
+    let a = started("read l; exit 3", Duration::from_secs(5));
     let (a, r) = call(a, json!({"op": "decode"}));
     assert!(matches!(r, Err(CallError::Crashed(_))), "{r:?}");
     let (a, r) = call(a, json!({"op": "decode"}));
@@ -290,11 +307,7 @@ fn an_adapter_that_crashes_is_restarted_once_then_gone() {
 fn an_adapter_that_closes_its_output_and_lives_on_is_killed() {
     // It closes its standard output and sleeps (its input still open): the gate must not
     // wait for it to exit.
-    let a = start(
-        &adapter(HELLO, "read l; exec 1>&-; sleep 600"),
-        Duration::from_secs(5),
-    )
-    .unwrap();
+    let a = started("read l; exec 1>&-; sleep 600", Duration::from_secs(5));
     let (_a, r) = call(a, json!({"op": "decode"}));
     match r {
         Err(CallError::Crashed(why)) => assert!(why.contains("did not exit"), "{why}"),

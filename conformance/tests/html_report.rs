@@ -97,15 +97,7 @@ fn html_csv_and_diff_of_a_clean_and_a_quirky_run() {
     let [(clean_json, clean, clean_code), (quirk_json, quirk, quirk_code)] = runs(&d);
     // The clean simulator has no deviations of its own; on a loaded host a timing check
     // may still find one, so the test asserts what the quirk adds.
-    let deviating = |v: &Value| -> Vec<String> {
-        v["checks"]
-            .as_array()
-            .unwrap()
-            .iter()
-            .filter(|c| c["status"] == "deviation")
-            .map(|c| c["id"].as_str().unwrap().to_string())
-            .collect()
-    };
+    let deviating = |v: &Value| common::ids_with_status(v, "deviation");
     let (clean_devs, quirk_devs) = (deviating(&clean), deviating(&quirk));
     let added: Vec<&String> = quirk_devs
         .iter()
@@ -453,12 +445,8 @@ fn several_nodes_json(one: &Value) -> Value {
 
 #[test]
 fn a_report_of_several_nodes_renders_per_node_and_diffs_by_node() {
-    let d = Scratch::new("nodes");
-    let (code, one) = common::check_device(
-        &d,
-        &words("--sim f510 --mode rtu --only *map.group-0.* --quirk wrong-exception"),
-        Duration::from_secs(120),
-    );
+    let args = "--sim f510 --mode rtu --only *map.group-0.* --quirk wrong-exception";
+    let (d, code, one) = common::check_in("nodes", args, Duration::from_secs(120));
     assert_eq!(code, Some(1));
     let one_json = d.join("check.json");
     let bus = several_nodes_json(&one);
@@ -490,13 +478,12 @@ fn a_report_of_several_nodes_renders_per_node_and_diffs_by_node() {
         text[n1..n5].contains("[rtu.map.group-0.past-end]"),
         "{text}"
     );
-    assert!(
-        text.contains("stopped: no reply to 3 requests in a row"),
-        "{text}"
-    );
-    assert!(
-        text.contains("  node 05H 2502H NOT no reply to the write back"),
-        "{text}"
+    common::assert_contains_all(
+        text,
+        &[
+            "stopped: no reply to 3 requests in a row",
+            "  node 05H 2502H NOT no reply to the write back",
+        ],
     );
     let junit = conformance(&["report", path(&bus_json), "--format", "junit"]);
     let junit = junit.stdout.as_str();
@@ -522,11 +509,13 @@ fn a_report_of_several_nodes_renders_per_node_and_diffs_by_node() {
     let csv = conformance(&["report", path(&bus_json), "--format", "csv"]);
     let csv = csv.stdout;
     assert!(csv.starts_with("node,id,mode,status,title,source,summary\r\n"));
-    assert!(
-        csv.contains("\r\n05,rtu.map.group-0.past-end,rtu,ERROR,"),
-        "{csv}"
+    common::assert_contains_all(
+        &csv,
+        &[
+            "\r\n05,rtu.map.group-0.past-end,rtu,ERROR,",
+            "\r\n,rtu.preflight,rtu,PASS,",
+        ],
     );
-    assert!(csv.contains("\r\n,rtu.preflight,rtu,PASS,"), "{csv}");
 
     // diff: a run of one node against the bus needs --node; node 01H's section is the
     // run of one node again; node 05H's lost checks got worse.
@@ -586,14 +575,11 @@ fn a_report_of_several_nodes_renders_per_node_and_diffs_by_node() {
 /// it is what makes the exit code 2, and its header gives the exit code with its reason.
 #[test]
 fn html_puts_errors_first_and_says_why_the_exit_code_is_what_it_is() {
-    let d = Scratch::new("errors-first");
-    let (code, _) = common::check_device(
-        &d,
-        &words(
-            "--sim f510 --mode rtu --quirk wrong-exception \
+    let (d, code, _) = common::check_in(
+        "errors-first",
+        "--sim f510 --mode rtu --quirk wrong-exception \
         --only rtu.map.group-0.past-end --only rtu.map.command.first --inject-host-stall \
         rtu.map.command.first:3",
-        ),
         Duration::from_secs(120),
     );
     assert_eq!(code, Some(2));

@@ -35,21 +35,34 @@ fn identify(dir: &std::path::Path, args: &[&str]) -> (Option<i32>, serde_json::V
     (ran.code, v)
 }
 
+/// Asserts that the verdict of `v` is `result` and that the run exited `code`.
+#[track_caller]
+fn assert_verdict(exit: Option<i32>, v: &serde_json::Value, result: &str, code: i32) {
+    assert_eq!(v["verdict"]["result"], result, "{}", v["verdict"]);
+    assert_eq!(exit, Some(code), "{}", v["verdict"]);
+}
+
+/// Asserts that the verdict of `v` names `models`, printing the verdict when it does not.
+#[track_caller]
+fn assert_names(v: &serde_json::Value, models: &[&str]) {
+    let verdict = &v["verdict"];
+    assert_eq!(verdict["models"], serde_json::json!(models), "{verdict}");
+}
+
+/// Whether the probe `p` predicted that model `m` fits.
+fn fits(p: &serde_json::Value, m: &str) -> bool {
+    let predictions = p["predictions"].as_array().unwrap();
+    predictions
+        .iter()
+        .any(|x| x["model"] == m && x["fits"] == true)
+}
+
 /// Every probe's predictions hold one entry per model, and the scores count the fits.
 fn consistent(v: &serde_json::Value) {
     let probes = v["probes"].as_array().unwrap();
     for s in v["scores"].as_array().unwrap() {
         let m = s["model"].as_str().unwrap();
-        let fits = probes
-            .iter()
-            .filter(|p| {
-                p["predictions"]
-                    .as_array()
-                    .unwrap()
-                    .iter()
-                    .any(|x| x["model"] == m && x["fits"] == true)
-            })
-            .count();
+        let fits = probes.iter().filter(|p| fits(p, m)).count();
         assert_eq!(s["predicted"].as_u64().unwrap() as usize, fits, "{m}");
         assert_eq!(s["probes"].as_u64().unwrap() as usize, probes.len());
     }
@@ -123,17 +136,11 @@ fn the_legacy_note_is_named_l510_legacy() {
 fn a_planted_fault_makes_it_none_of_the_five_and_a_tolerance_names_the_nearest() {
     let dir = Scratch::new("quirk");
     // Every exception code one too high: no manual numbers exceptions so.
-    let (exit, v) = identify(
-        &dir,
-        &words("--sim f510 --mode rtu --quirk wrong-exception"),
-    );
-    assert_eq!(v["verdict"]["result"], "none", "{}", v["verdict"]);
-    assert_eq!(
-        v["verdict"]["models"],
-        serde_json::json!(["f510"]),
-        "the nearest"
-    );
-    assert_eq!(exit, Some(1));
+    let wrong = "--sim f510 --mode rtu --quirk wrong-exception";
+    let (exit, v) = identify(&dir, &words(wrong));
+    assert_verdict(exit, &v, "none", 1);
+    // The nearest.
+    assert_names(&v, &["f510"]);
     consistent(&v);
     // It missed the probes answered with an exception, and only those.
     let f510 = &v["scores"][0];
@@ -148,59 +155,29 @@ fn a_planted_fault_makes_it_none_of_the_five_and_a_tolerance_names_the_nearest()
         .count();
     assert_eq!(missed, exceptions);
     // A tolerance of that many misses names the nearest model.
-    let (exit, v) = identify(
-        &dir,
-        &line(&[
-            "--sim f510 --mode rtu --quirk wrong-exception --tolerance",
-            &missed.to_string(),
-        ]),
-    );
-    assert_eq!(
-        v["verdict"]["models"],
-        serde_json::json!(["f510"]),
-        "{}",
-        v["verdict"]
-    );
+    let (exit, v) = identify(&dir, &line(&[wrong, "--tolerance", &missed.to_string()]));
+    assert_names(&v, &["f510"]);
     assert_eq!(exit, Some(0));
     // A local echo is stripped, as in `check`: the drive is still named.
-    let (exit, v) = identify(
-        &dir,
-        &["--sim", "e510", "--mode", "rtu", "--quirk", "local-echo"],
-    );
-    assert_eq!(
-        v["verdict"]["models"],
-        serde_json::json!(["e510"]),
-        "{}",
-        v["verdict"]
-    );
+    let (exit, v) = identify(&dir, &words("--sim e510 --mode rtu --quirk local-echo"));
+    assert_names(&v, &["e510"]);
     assert_eq!(exit, Some(0));
     assert_eq!(v["links"][0]["echo"], true);
 }
 
 #[test]
 fn a_silent_device_could_not_be_identified() {
-    let dir = Scratch::new("dead");
-    let (exit, v) = identify(
-        &dir,
-        &words("--sim f510 --mode rtu --quirk dead --timeout 200"),
-    );
-    assert_eq!(v["verdict"]["result"], "not-run", "{}", v["verdict"]);
-    assert_eq!(exit, Some(2));
-    assert!(
-        v["verdict"]["text"].as_str().unwrap().contains("preflight"),
-        "{}",
-        v["verdict"]
-    );
+    let dead = words("--sim f510 --mode rtu --quirk dead --timeout 200");
+    let (exit, v) = identify(&Scratch::new("dead"), &dead);
+    assert_verdict(exit, &v, "not-run", 2);
+    let text = v["verdict"]["text"].as_str().unwrap();
+    assert!(text.contains("preflight"), "{}", v["verdict"]);
 }
 
 #[test]
 fn check_model_auto_runs_the_checks_of_the_identified_model() {
-    let (exit, v) = common::report_in(
-        "check",
-        "auto",
-        "--sim a510 --model auto --mode rtu --only rtu.map.*",
-        Duration::from_secs(180),
-    );
+    let args = "--sim a510 --model auto --mode rtu --only rtu.map.*";
+    let (exit, v) = common::report_in("check", "auto", args, Duration::from_secs(180));
     assert_eq!(
         exit,
         Some(0),
@@ -245,8 +222,7 @@ fn check_model_auto_runs_the_checks_of_the_identified_model() {
             .run();
     assert_eq!(out.code, Some(2));
     let stderr = out.stderr.as_str();
-    assert!(stderr.contains("none of the five"), "{stderr}");
-    assert!(stderr.contains("nothing was checked"), "{stderr}");
+    common::assert_contains_all(stderr, &["none of the five", "nothing was checked"]);
     assert!(out.stdout.is_empty());
 }
 
@@ -254,8 +230,7 @@ fn check_model_auto_runs_the_checks_of_the_identified_model() {
 /// server does, with data where every model predicts an exception (a register outside
 /// every map), so no model comes close.
 fn generic_is_none_of_the_five(exit: Option<i32>, v: &serde_json::Value) {
-    assert_eq!(v["verdict"]["result"], "none", "{}", v["verdict"]);
-    assert_eq!(exit, Some(1));
+    assert_verdict(exit, v, "none", 1);
     consistent(v);
     let probes = v["probes"].as_array().unwrap();
     assert!(probes
@@ -352,11 +327,8 @@ fn a_generic_pymodbus_tcp_server_is_none_of_the_five() {
     let Some((_server, addr)) = pymodbus_tcp_server(3) else {
         return;
     };
-    let dir = Scratch::new("pymodbus-tcp");
-    let (exit, v) = identify(
-        &dir,
-        &line(&["--tcp", &addr, "--framing mbap --unit 3 --timeout 500"]),
-    );
+    let args = line(&["--tcp", &addr, "--framing mbap --unit 3 --timeout 500"]);
+    let (exit, v) = identify(&Scratch::new("pymodbus-tcp"), &args);
     generic_is_none_of_the_five(exit, &v);
 }
 
@@ -365,12 +337,8 @@ fn a_generic_pymodbus_tcp_server_is_none_of_the_five() {
 /// identify check as ERROR, the run incomplete, saying why nothing was checked.
 #[test]
 fn check_model_auto_that_identifies_nothing_leaves_its_report() {
-    let (exit, v) = common::report_in(
-        "check",
-        "auto-dead",
-        "--sim a510 --model auto --mode rtu --quirk dead",
-        Duration::from_secs(120),
-    );
+    let args = "--sim a510 --model auto --mode rtu --quirk dead";
+    let (exit, v) = common::report_in("check", "auto-dead", args, Duration::from_secs(120));
     assert_eq!(exit, Some(2), "{}", v["summary"]);
     assert_eq!(v["complete"], false);
     assert_eq!(v["device"]["model"], "auto");

@@ -425,6 +425,14 @@ const PY_OPS: &[&str] = &[
     "silent_for_other_address",
 ];
 
+/// [`pymodbus_suite`] against the simulated F510 in `mode` (skipped without pymodbus).
+fn pymodbus_suite_on_the_sim(mode: Mode) {
+    if have_pymodbus() {
+        let sim = Sim::start("f510", mode, "pymodbus-f510");
+        pymodbus_suite(&sim, mode, "f510", F510_IDENT);
+    }
+}
+
 fn pymodbus_suite(sim: &Sim, mode: Mode, model: &str, ident: u16) {
     let run = Run::program(python(), [PY_SCRIPT])
         .arg(sim.path())
@@ -482,20 +490,12 @@ fn pymodbus_suite(sim: &Sim, mode: Mode, model: &str, ident: u16) {
 
 #[test]
 fn pymodbus_rtu_f510() {
-    if !have_pymodbus() {
-        return;
-    }
-    let sim = Sim::start("f510", Mode::Rtu, "pymodbus-f510");
-    pymodbus_suite(&sim, Mode::Rtu, "f510", F510_IDENT);
+    pymodbus_suite_on_the_sim(Mode::Rtu);
 }
 
 #[test]
 fn pymodbus_ascii_f510() {
-    if !have_pymodbus() {
-        return;
-    }
-    let sim = Sim::start("f510", Mode::Ascii, "pymodbus-f510");
-    pymodbus_suite(&sim, Mode::Ascii, "f510", F510_IDENT);
+    pymodbus_suite_on_the_sim(Mode::Ascii);
 }
 
 // ---------------------------------------------------------------------------------------

@@ -11,7 +11,7 @@
 //! asserted to pass.
 
 mod common;
-use common::gate::status_of;
+use common::gate::{assert_statuses, status_of};
 use common::{python, words, Peer, Scratch};
 
 use std::path::Path;
@@ -59,6 +59,27 @@ fn gate(name: &str, cmd: &str, model: &str, only: &[&str]) -> (Option<i32>, serd
     (code, v)
 }
 
+/// The command that runs the master adapter at `path` (under adapters/) with `program`,
+/// when `peer` is here; None (after SKIPPED) when it is not.
+fn master_cmd(peer: Peer, program: &str, path: &str) -> Option<String> {
+    common::need(peer).then(|| format!("{program} {}", adapter(path)))
+}
+
+/// Asserts that the master `cmd` takes the late reply of one case as the next one's, in a
+/// gate run of its own (scratch folder `name`) on the F510.
+fn takes_the_stale_reply(name: &str, cmd: &str) {
+    let (_, v) = gate(name, cmd, "f510", &["rtu.read.stale-reply"]);
+    finding(&v, "stale-reply-taken", "rtu.read.stale-reply");
+}
+
+/// [`gate`] of the library `lib`'s master adapter (`cmd`) against the legacy L510 on
+/// `cases` (the ids, apart by white space), which must name its implementation `lib`.
+fn legacy_gate(lib: &str, cmd: &str, cases: &str) -> (Option<i32>, serde_json::Value) {
+    let (code, v) = gate(lib, cmd, "l510-legacy", &words(cases));
+    assert_eq!(v["codec"]["implementation"], lib);
+    (code, v)
+}
+
 /// Asserts that the gate names the finding `kind` for case `id`.
 fn finding(v: &serde_json::Value, kind: &str, id: &str) {
     let kinds = v["master"]["kinds"].as_array().expect("master.kinds");
@@ -83,10 +104,9 @@ fn finding(v: &serde_json::Value, kind: &str, id: &str) {
 /// so too.
 #[test]
 fn pymodbus_master_with_a_parity_on_a_pty_is_told_why_it_cannot_open() {
-    if !common::need(Peer::Pymodbus) {
+    let Some(cmd) = master_cmd(Peer::Pymodbus, &python(), "pymodbus-master/adapter.py") else {
         return;
-    }
-    let cmd = format!("{} {}", python(), adapter("pymodbus-master/adapter.py"));
+    };
     let dir = Scratch::new("pymodbus-parity");
     let only = [
         "--only",
@@ -147,22 +167,14 @@ fn pymodbus_master_with_a_parity_on_a_pty_is_told_why_it_cannot_open() {
 
 #[test]
 fn pymodbus_master_completes_and_loses_a_reply_behind_a_stray_byte() {
-    if !common::need(Peer::Pymodbus) {
+    let Some(cmd) = master_cmd(Peer::Pymodbus, &python(), "pymodbus-master/adapter.py") else {
         return;
-    }
-    let cmd = format!("{} {}", python(), adapter("pymodbus-master/adapter.py"));
-    let (code, v) = gate(
-        "pymodbus",
-        &cmd,
-        "l510-legacy",
-        &words(
-            "rtu.read.normal \
+    };
+    let cases = "rtu.read.normal \
         rtu.read.exception-51 rtu.read.stale-reply rtu.read.stale-in-flight \
         rtu.read.wrong-function rtu.read.zero-before rtu.loop-back.normal \
-        rtu.broadcast-single.normal ascii.read.normal ascii.read.zero-before",
-        ),
-    );
-    assert_eq!(v["codec"]["implementation"], "pymodbus");
+        rtu.broadcast-single.normal ascii.read.normal ascii.read.zero-before";
+    let (code, v) = legacy_gate("pymodbus", &cmd, cases);
     // The headline (pymodbus #2636): a reply that comes while its next request waits is
     // taken as that request's, even with another register count.
     finding(&v, "stale-reply-taken", "rtu.read.stale-in-flight");
@@ -173,9 +185,11 @@ fn pymodbus_master_completes_and_loses_a_reply_behind_a_stray_byte() {
     assert_ne!(status_of(&v, "rtu.read.exception-51"), "deviation");
     // It drops a reply that comes after its timeout and before its next request (it
     // empties its input before sending).
-    assert_eq!(status_of(&v, "rtu.read.stale-reply"), "pass");
-    assert_eq!(status_of(&v, "rtu.loop-back.normal"), "pass");
-    assert_eq!(status_of(&v, "ascii.read.normal"), "pass");
+    assert_statuses(
+        &v,
+        "pass",
+        &words("rtu.read.stale-reply rtu.loop-back.normal ascii.read.normal"),
+    );
     // RTU: a lone 00H before the reply makes its framer drop the good reply behind it.
     finding(&v, "garbage-breaks-reply", "rtu.read.zero-before");
     // (Its next request follows a broadcast at once, which the gate notes as the
@@ -187,25 +201,17 @@ fn pymodbus_master_completes_and_loses_a_reply_behind_a_stray_byte() {
 
 #[test]
 fn minimalmodbus_master_completes_skips_loop_back_and_loses_a_reply_behind_a_stray_byte() {
-    if !common::need(Peer::Minimalmodbus) {
+    let Some(cmd) = master_cmd(
+        Peer::Minimalmodbus,
+        &python(),
+        "minimalmodbus-master/adapter.py",
+    ) else {
         return;
-    }
-    let cmd = format!(
-        "{} {}",
-        python(),
-        adapter("minimalmodbus-master/adapter.py")
-    );
-    let (code, v) = gate(
-        "minimalmodbus",
-        &cmd,
-        "l510-legacy",
-        &words(
-            "rtu.read.normal \
+    };
+    let cases = "rtu.read.normal \
         rtu.read.exception-53 rtu.read.stale-reply rtu.read.zero-before rtu.loop-back.normal \
-        ascii.read.normal ascii.read.garbage-before",
-        ),
-    );
-    assert_eq!(v["codec"]["implementation"], "minimalmodbus");
+        ascii.read.normal ascii.read.garbage-before";
+    let (code, v) = legacy_gate("minimalmodbus", &cmd, cases);
     assert_eq!(status_of(&v, "rtu.read.normal"), "pass");
     // "Slave reported error code 83" carries the legacy code. (It comes back only when its
     // read timeout ends, which the gate may note as an observation, never a deviation.)
@@ -223,24 +229,18 @@ fn minimalmodbus_master_completes_skips_loop_back_and_loses_a_reply_behind_a_str
 
 #[test]
 fn libmodbus_master_takes_the_stale_reply_and_waits_after_a_broadcast() {
-    if !common::need(Peer::Libmodbus) {
+    let Some(cmd) = master_cmd(Peer::Libmodbus, &python(), "libmodbus-master/adapter.py") else {
         return;
-    }
-    let cmd = format!("{} {}", python(), adapter("libmodbus-master/adapter.py"));
-    let (code, v) = gate(
-        "libmodbus",
-        &cmd,
-        "l510-legacy",
-        &words(
-            "rtu.read.normal \
+    };
+    let cases = "rtu.read.normal \
         rtu.read.exception-52 rtu.write-single.normal rtu.write-multiple.normal \
-        rtu.broadcast-single.normal ascii.read.normal",
-        ),
+        rtu.broadcast-single.normal ascii.read.normal";
+    let (code, v) = legacy_gate("libmodbus", &cmd, cases);
+    assert_statuses(
+        &v,
+        "pass",
+        &words("rtu.read.normal rtu.write-single.normal rtu.write-multiple.normal"),
     );
-    assert_eq!(v["codec"]["implementation"], "libmodbus");
-    assert_eq!(status_of(&v, "rtu.read.normal"), "pass");
-    assert_eq!(status_of(&v, "rtu.write-single.normal"), "pass");
-    assert_eq!(status_of(&v, "rtu.write-multiple.normal"), "pass");
     // EMBBADEXC: a code at or above MODBUS_EXCEPTION_MAX is "Invalid exception code".
     finding(&v, "exception-not-recognised", "rtu.read.exception-52");
     // libmodbus 3.1.6 waits for a confirmation after a write to unit 0.
@@ -250,8 +250,7 @@ fn libmodbus_master_takes_the_stale_reply_and_waits_after_a_broadcast() {
     assert_eq!(code, Some(1));
     // The headline, in a run of its own (after it every answer is one request late): a
     // reply after the timeout answers the next request.
-    let (_, v) = gate("libmodbus-stale", &cmd, "f510", &["rtu.read.stale-reply"]);
-    finding(&v, "stale-reply-taken", "rtu.read.stale-reply");
+    takes_the_stale_reply("libmodbus-stale", &cmd);
 }
 
 /// Builds the rmodbus master adapter (its own workspace, its own target folder) and
@@ -298,19 +297,14 @@ fn rmodbus_master_takes_the_stale_reply_and_knows_no_legacy_exception() {
         return;
     }
     let Some(cmd) = rmodbus_master() else { return };
-    let (code, v) = gate(
-        "rmodbus",
-        &cmd,
-        "l510-legacy",
-        &words(
-            "rtu.read.normal \
-        rtu.read.exception-54 rtu.write-single.normal rtu.loop-back.normal ascii.read.normal",
-        ),
+    let cases = "rtu.read.normal \
+        rtu.read.exception-54 rtu.write-single.normal rtu.loop-back.normal ascii.read.normal";
+    let (code, v) = legacy_gate("rmodbus", &cmd, cases);
+    assert_statuses(
+        &v,
+        "pass",
+        &words("rtu.read.normal rtu.write-single.normal ascii.read.normal"),
     );
-    assert_eq!(v["codec"]["implementation"], "rmodbus");
-    assert_eq!(status_of(&v, "rtu.read.normal"), "pass");
-    assert_eq!(status_of(&v, "rtu.write-single.normal"), "pass");
-    assert_eq!(status_of(&v, "ascii.read.normal"), "pass");
     // ErrorKind::from_modbus_error knows 01H..09H and 10H only: 54H is UnknownError.
     finding(&v, "exception-not-recognised", "rtu.read.exception-54");
     // rmodbus's client has no 08H request.
@@ -318,27 +312,18 @@ fn rmodbus_master_takes_the_stale_reply_and_knows_no_legacy_exception() {
     assert_eq!(code, Some(1));
     // The loop of rmodbus's RTU example clears nothing before a request: the late reply
     // answers the next one.
-    let (_, v) = gate("rmodbus-stale", &cmd, "f510", &["rtu.read.stale-reply"]);
-    finding(&v, "stale-reply-taken", "rtu.read.stale-reply");
+    takes_the_stale_reply("rmodbus-stale", &cmd);
 }
 
 #[test]
 fn jsmodbus_master_throws_on_a_legacy_exception_and_is_stuck_after_stray_bytes() {
-    if !common::need(Peer::Jsmodbus) {
+    let Some(cmd) = master_cmd(Peer::Jsmodbus, "node", "jsmodbus-master/adapter.js") else {
         return;
-    }
-    let cmd = format!("node {}", adapter("jsmodbus-master/adapter.js"));
-    let (code, v) = gate(
-        "jsmodbus",
-        &cmd,
-        "l510-legacy",
-        &words(
-            "rtu.read.normal \
+    };
+    let cases = "rtu.read.normal \
         rtu.read.exception-55 rtu.read.stale-reply rtu.read.stale-in-flight \
-        rtu.broadcast-single.normal rtu.read.garbage-after ascii.read.normal",
-        ),
-    );
-    assert_eq!(v["codec"]["implementation"], "jsmodbus");
+        rtu.broadcast-single.normal rtu.read.garbage-after ascii.read.normal";
+    let (code, v) = legacy_gate("jsmodbus", &cmd, cases);
     assert_eq!(status_of(&v, "rtu.read.normal"), "pass");
     // errorCodeToMessage throws inside the socket's data handler.
     finding(&v, "raised", "rtu.read.exception-55");
@@ -356,31 +341,24 @@ fn jsmodbus_master_throws_on_a_legacy_exception_and_is_stuck_after_stray_bytes()
 
 #[test]
 fn mbpoll_master_runs_once_per_operation_and_takes_the_stale_reply() {
-    if !common::need(Peer::Mbpoll) {
+    let Some(cmd) = master_cmd(Peer::Mbpoll, &python(), "mbpoll-master/adapter.py") else {
         return;
-    }
-    let cmd = format!("{} {}", python(), adapter("mbpoll-master/adapter.py"));
-    let (code, v) = gate(
-        "mbpoll",
-        &cmd,
-        "l510-legacy",
-        &words(
-            "rtu.read.normal \
+    };
+    let cases = "rtu.read.normal \
         rtu.read.exception-51 rtu.write-single.normal rtu.write-multiple.normal \
-        rtu.broadcast-single.normal",
-        ),
+        rtu.broadcast-single.normal";
+    let (code, v) = legacy_gate("mbpoll", &cmd, cases);
+    assert_statuses(
+        &v,
+        "pass",
+        &words("rtu.read.normal rtu.write-single.normal rtu.write-multiple.normal"),
     );
-    assert_eq!(v["codec"]["implementation"], "mbpoll");
-    assert_eq!(status_of(&v, "rtu.read.normal"), "pass");
-    assert_eq!(status_of(&v, "rtu.write-single.normal"), "pass");
-    assert_eq!(status_of(&v, "rtu.write-multiple.normal"), "pass");
     finding(&v, "exception-not-recognised", "rtu.read.exception-51");
     // mbpoll refuses address 0 in RTU: no broadcast.
     assert_eq!(status_of(&v, "rtu.broadcast-single.normal"), "skip");
     assert_eq!(code, Some(1));
     // The next run opens the port and reads the previous run's late reply.
-    let (_, v) = gate("mbpoll-stale", &cmd, "f510", &["rtu.read.stale-reply"]);
-    finding(&v, "stale-reply-taken", "rtu.read.stale-reply");
+    takes_the_stale_reply("mbpoll-stale", &cmd);
 }
 
 /// `--reopen-each-case`: libmodbus, after a stale reply, answers every later read one
@@ -389,10 +367,9 @@ fn mbpoll_master_runs_once_per_operation_and_takes_the_stale_reply() {
 /// line, and only the stale-reply case deviates.
 #[test]
 fn libmodbus_state_after_a_stale_reply_stays_in_its_case_with_reopen_each_case() {
-    if !common::need(Peer::Libmodbus) {
+    let Some(cmd) = master_cmd(Peer::Libmodbus, &python(), "libmodbus-master/adapter.py") else {
         return;
-    }
-    let cmd = format!("{} {}", python(), adapter("libmodbus-master/adapter.py"));
+    };
     let only = ["rtu.read.normal", "rtu.read.stale-reply", "rtu.read.late"];
     let run = |name: &str, reopen: bool| {
         let mut args = vec!["--master", cmd.as_str(), "--mode", "rtu"];

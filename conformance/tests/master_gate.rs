@@ -223,35 +223,38 @@ fn a_master_that_does_not_keep_t35_is_caught() {
     assert_eq!(status_of(&v, "ascii.read.line-busy"), "deviation");
 }
 
+/// [`caught_as`] in RTU and then in ASCII, where the case `<mode>.<case>` must deviate:
+/// each mode with its report.
+fn caught_in_both_modes(
+    quirk: &str,
+    kind: &str,
+    case: &str,
+) -> [(&'static str, serde_json::Value); 2] {
+    ["rtu", "ascii"].map(|mode| {
+        let v = caught_as(quirk, mode, kind, &[]);
+        let id = format!("{mode}.{case}");
+        assert_eq!(status_of(&v, &id), "deviation", "{id}");
+        (mode, v)
+    })
+}
+
 #[test]
 fn a_master_that_accepts_a_bad_checksum_is_caught() {
-    for mode in ["rtu", "ascii"] {
-        let v = caught_as("accepts-bad-crc", mode, "accepted-bad-checksum", &[]);
-        assert_eq!(
-            status_of(&v, &format!("{mode}.read.bad-checksum")),
-            "deviation"
-        );
+    let kind = "accepted-bad-checksum";
+    for (mode, v) in caught_in_both_modes("accepts-bad-crc", kind, "read.bad-checksum") {
         assert_eq!(status_of(&v, &format!("{mode}.read.normal")), "pass");
     }
 }
 
 #[test]
 fn a_master_that_retries_without_pause_is_caught() {
-    for mode in ["rtu", "ascii"] {
-        let v = caught_as("retry-storm", mode, "retry-storm", &[]);
-        assert_eq!(status_of(&v, &format!("{mode}.read.no-reply")), "deviation");
-    }
+    caught_in_both_modes("retry-storm", "retry-storm", "read.no-reply");
 }
 
 #[test]
 fn a_master_that_ignores_exceptions_is_caught() {
-    for mode in ["rtu", "ascii"] {
-        let v = caught_as("ignores-exception", mode, "exception-ignored", &[]);
-        assert_eq!(
-            status_of(&v, &format!("{mode}.write-single.exception-03")),
-            "deviation"
-        );
-    }
+    let case = "write-single.exception-03";
+    caught_in_both_modes("ignores-exception", "exception-ignored", case);
     // The legacy L510's own codes, 51H..55H, and a code of another device (0BH).
     let v = caught_as(
         "ignores-exception",
@@ -265,10 +268,7 @@ fn a_master_that_ignores_exceptions_is_caught() {
 
 #[test]
 fn a_master_that_reads_over_the_limit_is_caught() {
-    for mode in ["rtu", "ascii"] {
-        let v = caught_as("reads-over-limit", mode, "request-over-limit", &[]);
-        assert_eq!(status_of(&v, &format!("{mode}.read.normal")), "deviation");
-    }
+    caught_in_both_modes("reads-over-limit", "request-over-limit", "read.normal");
 }
 
 #[test]

@@ -96,8 +96,7 @@ fn monitor_takes_a_description_alone() {
         .run()
         .parts();
     assert!(matches!(code, Some(0 | 1)), "{out}{err}");
-    let v: serde_json::Value =
-        serde_json::from_slice(&std::fs::read(&json).unwrap()).unwrap_or_else(|e| panic!("{e}"));
+    let v = common::json_file(&json);
     assert_eq!(v["device"]["model"], "acme-x100", "{}", v["device"]);
     assert_eq!(v["device"]["description"]["file"], f, "{}", v["device"]);
 }

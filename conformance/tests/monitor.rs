@@ -12,7 +12,7 @@
 
 mod common;
 use common::rtu::{exception, read, values, write};
-use common::Run;
+use common::{monitor_node as node, Run};
 
 use std::time::{Duration, Instant};
 
@@ -41,6 +41,18 @@ struct Heard {
     stderr: Vec<String>,
     /// Bytes the monitor wrote to the port (must be none).
     written: Vec<u8>,
+}
+
+impl Heard {
+    /// Asserts that the monitor wrote nothing on the line (it only listens).
+    #[track_caller]
+    fn assert_wrote_nothing(&self) {
+        assert!(
+            self.written.is_empty(),
+            "the monitor wrote {:02X?}",
+            self.written
+        );
+    }
 }
 
 /// Starts the monitor on a fresh pty with `args`, plays `steps` on the other end,
@@ -157,16 +169,6 @@ fn listen_paused(args: &[&str], steps: &[Step], paused: bool) -> Heard {
     }
 }
 
-/// The node's statistics in the report.
-fn node<'a>(r: &'a Value, address: &str) -> &'a Value {
-    r["monitor"]["nodes"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .find(|n| n["address"] == address)
-        .unwrap_or_else(|| panic!("node {address} not in {:#}", r["monitor"]))
-}
-
 fn errors(r: &Value, address: &str) -> Vec<String> {
     node(r, address)["errors"]
         .as_object()
@@ -192,11 +194,7 @@ fn the_drive_answering_as_the_manual_says_passes_and_nothing_is_written() {
             step(100, &[&values(1, &[3])]),
         ],
     );
-    assert!(
-        heard.written.is_empty(),
-        "the monitor wrote {:02X?}",
-        heard.written
-    );
+    heard.assert_wrote_nothing();
     let r = &heard.report;
     assert_eq!(r["kind"], "monitor");
     // The read past the end of the map is the master's finding (a deviation of the
@@ -214,11 +212,7 @@ fn the_drive_answering_as_the_manual_says_passes_and_nothing_is_written() {
     assert_eq!(errors(r, "00"), Vec::<String>::new());
     assert_eq!(node(r, "00")["exchanges"], 1);
     // The drive's side passes on node 01.
-    let checks = r["checks"].as_array().unwrap();
-    let drive = checks
-        .iter()
-        .find(|c| c["id"] == "rtu.node01.drive")
-        .expect("rtu.node01.drive");
+    let drive = common::check_of(r, "rtu.node01.drive");
     assert_eq!(drive["status"], "pass");
     assert_eq!(
         heard.code, 1,
@@ -252,7 +246,7 @@ fn traffic_right_after_the_announcement_is_heard_whole() {
         &[step(0, &[&read(1, 0x2520, 2), &values(1, &[0, 1])])],
         true,
     );
-    assert!(heard.written.is_empty());
+    heard.assert_wrote_nothing();
     let notices = heard.report["monitor"]["notices"].as_array().unwrap();
     assert!(
         notices.iter().all(|n| {
@@ -288,11 +282,7 @@ fn an_installation_that_only_polls_gives_exit_0() {
             step(100, &[&values(1, &[7])]),
         ],
     );
-    assert!(
-        heard.written.is_empty(),
-        "the monitor wrote {:02X?}",
-        heard.written
-    );
+    heard.assert_wrote_nothing();
     assert_eq!(heard.code, 0, "{:#}", heard.report["checks"]);
     assert_eq!(heard.report["summary"]["deviation"], 0);
     assert_eq!(node(&heard.report, "01")["exchanges"], 2);
@@ -326,11 +316,7 @@ fn each_fault_is_found_as_its_kind_on_its_node() {
             step(200, &[&read(2, 0x2520, 1), &values(1, &[7])]),
         ],
     );
-    assert!(
-        heard.written.is_empty(),
-        "the monitor wrote {:02X?}",
-        heard.written
-    );
+    heard.assert_wrote_nothing();
     assert_eq!(heard.code, 1);
     let r = &heard.report;
     let n1 = errors(r, "01");
@@ -357,11 +343,7 @@ fn each_fault_is_found_as_its_kind_on_its_node() {
         errors(r, "02")
     );
     // Each finding is a result of its own, with the frames and the manual's citation.
-    let checks = r["checks"].as_array().unwrap();
-    let c = checks
-        .iter()
-        .find(|c| c["id"] == "rtu.node01.drive.wrong-exception")
-        .expect("rtu.node01.drive.wrong-exception");
+    let c = common::check_of(r, "rtu.node01.drive.wrong-exception");
     assert_eq!(c["status"], "deviation");
     assert_eq!(c["node"], "01");
     assert_eq!(c["exchanges"][0]["expected"], "01 83 02 C0 F1");
@@ -508,6 +490,6 @@ fn mode_auto_tells_rtu_from_ascii_and_judges_what_it_heard_meanwhile() {
             "{:#?}",
             heard.stderr
         );
-        assert!(heard.written.is_empty());
+        heard.assert_wrote_nothing();
     }
 }

@@ -169,12 +169,7 @@ impl Listening {
 
 /// Node 01's statistics in the monitor's report.
 fn node01(r: &Value) -> &Value {
-    r["monitor"]["nodes"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .find(|n| n["address"] == "01")
-        .unwrap_or_else(|| panic!("node 01 not in {:#}", r["monitor"]))
+    common::monitor_node(r, "01")
 }
 
 /// The kinds of finding on node 01 of one side ("drive" or "master"), with their counts.
@@ -580,11 +575,7 @@ fn check_and_monitor_agree(
     assert_eq!(v["complete"], true, "{who}: {}", v["stopped"]);
     std::thread::sleep(Duration::from_millis(300));
     let (_, r, _, bus_log) = l.stop(0);
-    let heard: Vec<Value> = std::fs::read_to_string(d.join("heard.jsonl"))
-        .unwrap()
-        .lines()
-        .map(|l| serde_json::from_str(l).unwrap())
-        .collect();
+    let heard = common::json_lines_file(&d.join("heard.jsonl"));
     let (agree, apart) = common::agree::exchanges_on_bus(who, &v, &heard, JUDGED_APART, &bus_log);
     assert!(agree > 50, "{who}: only {agree} exchanges compared");
     note(&format!(

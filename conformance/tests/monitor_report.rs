@@ -5,14 +5,13 @@
 #![cfg(unix)]
 
 mod common;
-use common::rtu::{read, values};
+use common::rtu::{exception, read, values};
 use common::{line, Run, Scratch};
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 use conformance::capture::write::{Interface, PacketMeta, PcapngWriter};
 use conformance::capture::LINKTYPE_USER0;
-use conformance::codec::pdu::Pdu;
 
 /// 2026-11-27T10:00:00Z, the capture's first packet, in microseconds since the epoch.
 const T0_US: u64 = 1_795_773_600_000_000;
@@ -47,16 +46,7 @@ fn polled_bus(path: &Path) {
             (100, read(2, 0x2520, 2)),
             (111, values(2, &[4, 0])),
             (200, read(1, 0x2530, 1)),
-            (
-                211,
-                common::rtu::frame(
-                    1,
-                    Pdu::Exception {
-                        function: 3,
-                        code: 2,
-                    },
-                ),
-            ),
+            (211, exception(1, 3, 2)),
             (300, read(2, 0x2521, 1)),
             (370, values(2, &[0])),
             (400, read(1, 0x252F, 1)),
@@ -87,6 +77,16 @@ fn monitor(cap: &Path, out: &Path) -> String {
     std::fs::read_to_string(out).unwrap()
 }
 
+/// [`polled_bus`] captured in a fresh scratch folder `name` and heard by [`monitor`],
+/// which writes its JSON report there: the folder, the capture and the report.
+fn polled_and_heard(name: &str) -> (Scratch, PathBuf, PathBuf) {
+    let d = Scratch::new(name);
+    let (cap, json) = (d.join("bus.pcapng"), d.join("m.json"));
+    polled_bus(&cap);
+    monitor(&cap, &json);
+    (d, cap, json)
+}
+
 /// The HTML's "Heard on the bus" section: from its heading to the next section's.
 fn heard_section(html: &str) -> &str {
     let at = html
@@ -101,11 +101,7 @@ fn heard_section(html: &str) -> &str {
 /// counts, the percentiles, the findings by kind, the histograms and the notices.
 #[test]
 fn a_monitor_report_read_back_keeps_what_was_heard() {
-    let d = Scratch::new("readback");
-    let cap = d.join("bus.pcapng");
-    polled_bus(&cap);
-    let json = d.join("m.json");
-    monitor(&cap, &json);
+    let (d, cap, json) = polled_and_heard("readback");
     let own_text = monitor(&cap, &d.join("m.txt"));
     let own_html = monitor(&cap, &d.join("m.html"));
 
@@ -128,7 +124,7 @@ fn a_monitor_report_read_back_keeps_what_was_heard() {
     let section = heard_section(&html);
     assert_eq!(section, heard_section(&own_html));
     // A histogram for each node that answered.
-    assert_eq!(section.matches("<svg").count(), 2, "{section}");
+    common::assert_count(section, "<svg", 2);
 }
 
 /// `monitor --capture-in` of `frames` with `extra` arguments, its JSON report read.
@@ -173,13 +169,8 @@ fn both(name: &str, v: &serde_json::Value) -> (String, String) {
 /// monitor's report.
 #[test]
 fn a_monitor_report_says_what_a_monitor_did() {
-    let d = Scratch::new("fields");
-    let cap = d.join("bus.pcapng");
-    polled_bus(&cap);
-    let json = d.join("m.json");
-    monitor(&cap, &json);
-    let v: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    let (_d, _, json) = polled_and_heard("fields");
+    let v = common::json_file(&json);
     assert_eq!(v["started"], "2026-11-27T10:00:00.000Z");
     // The last reply's first byte at 411 ms, its 7 bytes at 9600 8E1 after it.
     let finished = v["finished"].as_str().unwrap();
@@ -196,13 +187,14 @@ fn a_monitor_report_says_what_a_monitor_did() {
         !run_line.contains("retries") && !run_line.contains("timeout"),
         "{run_line}"
     );
-    assert!(
-        html.contains("<title>Bus monitor report: f510</title>"),
-        "{html}"
+    common::assert_contains_all(
+        &html,
+        &[
+            "<title>Bus monitor report: f510</title>",
+            "<h1>Modbus bus monitor report: ",
+        ],
     );
-    assert!(html.contains("<h1>Modbus bus monitor report: "), "{html}");
-    assert!(!html.contains("Restore journal"), "{html}");
-    assert!(!html.contains(" retries"), "{html}");
+    common::assert_contains_none(&html, &["Restore journal", " retries"]);
     assert_eq!(
         conformance::report::unresolved_links(&html),
         Vec::<String>::new()
@@ -218,19 +210,7 @@ fn a_monitor_report_says_what_a_monitor_did() {
 fn a_monitor_report_shows_why_the_master_deviates_and_names_its_nodes() {
     let v = monitor_json(
         "master",
-        &[
-            (0, read(1, 0x2530, 1)),
-            (
-                11,
-                common::rtu::frame(
-                    1,
-                    Pdu::Exception {
-                        function: 3,
-                        code: 2,
-                    },
-                ),
-            ),
-        ],
+        &[(0, read(1, 0x2530, 1)), (11, exception(1, 3, 2))],
         &["-a", "1"],
     );
     let id = "rtu.node01.master.register-not-in-map";
@@ -261,10 +241,12 @@ fn a_monitor_report_shows_why_the_master_deviates_and_names_its_nodes() {
     // Nothing heard at all, -a 1,2: both nodes named, neither heard.
     let quiet = monitor_json("quiet", &[], &["-a", "1,2"]);
     let (text, html) = both("quiet-r", &quiet);
-    assert!(text.contains("2 nodes on one bus: 01 02"), "{text}");
-    assert!(
-        text.contains("node 02H: nothing heard to or from it"),
-        "{text}"
+    common::assert_contains_all(
+        &text,
+        &[
+            "2 nodes on one bus: 01 02",
+            "node 02H: nothing heard to or from it",
+        ],
     );
     assert!(!text.lines().any(|l| l.starts_with("bus:")), "{text}");
     assert!(html.contains("01H, 02H"), "{html}");
@@ -272,11 +254,7 @@ fn a_monitor_report_shows_why_the_master_deviates_and_names_its_nodes() {
     // it never heard.
     let table = &html[html.find("<table id=\"nodes\">").unwrap()..];
     let table = &table[..table.find("</table>").unwrap()];
-    assert_eq!(
-        table.matches("nothing heard to or from it").count(),
-        2,
-        "{table}"
-    );
+    common::assert_count(table, "nothing heard to or from it", 2);
     assert!(!table.contains(">not read<"), "{table}");
 }
 
@@ -286,19 +264,14 @@ fn a_monitor_report_shows_why_the_master_deviates_and_names_its_nodes() {
 /// lies beyond it.
 #[test]
 fn the_response_time_histogram_has_axes_units_and_the_manuals_limits() {
-    let d = Scratch::new("hist");
-    let cap = d.join("bus.pcapng");
-    polled_bus(&cap);
-    let json = d.join("m.json");
-    monitor(&cap, &json);
+    let (d, _, json) = polled_and_heard("hist");
     let html = common::rendered(&json, &d.join("r.html"));
     let at = html
         .find("<svg id=\"hist-02\"")
         .unwrap_or_else(|| panic!("{html}"));
     let svg = &html[at..at + html[at..].find("</svg>").unwrap()];
-    assert_eq!(svg.matches("class=\"axis\"").count(), 2, "{svg}");
-    assert!(svg.contains("(ms)"), "{svg}");
-    assert!(svg.contains(">replies</text>"), "{svg}");
+    common::assert_count(svg, "class=\"axis\"", 2);
+    common::assert_contains_all(svg, &["(ms)", ">replies</text>"]);
     assert!(
         svg.contains("class=\"limit\"") && svg.contains(">manual 10 ms</text>"),
         "{svg}"
@@ -308,5 +281,5 @@ fn the_response_time_histogram_has_axes_units_and_the_manuals_limits() {
         "{svg}"
     );
     // The 60 ms reply: a bar beyond the late limit.
-    assert_eq!(svg.matches("class=\"bar late\"").count(), 1, "{svg}");
+    common::assert_count(svg, "class=\"bar late\"", 1);
 }

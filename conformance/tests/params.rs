@@ -97,12 +97,30 @@ impl Device {
         (out, err)
     }
 
+    /// `params restore BACKUP EXTRA`, which must exit `code`: its stdout and stderr.
+    fn restore(&self, backup: &Path, extra: &[&str], code: i32) -> (String, String) {
+        let args = [&["params", "restore", backup.to_str().unwrap()], extra].concat();
+        let (exit, out, err) = self.run(&args);
+        assert_eq!(exit, Some(code), "{out}{err}");
+        (out, err)
+    }
+
     /// `send` of the 06H frame writing `value` to `register`, which must exit 0.
     fn write(&self, register: u16, value: u16) {
         let frame = write_frame(mode_of(self.mode()), register, value);
         let (code, out, err) = self.run(&["send", &frame]);
         assert_eq!(code, Some(0), "send {register:04X}: {out}{err}");
     }
+}
+
+/// The F510 simulator in a fresh scratch folder `name`, logging to `sim.jsonl` there, and
+/// backed up to `a.toml` there: the folder, the log, the device and the backup.
+fn backed_up(name: &str) -> (Scratch, PathBuf, Device, PathBuf) {
+    let d = Scratch::new(name);
+    let (log, a) = (d.join("sim.jsonl"), d.join("a.toml"));
+    let dev = Device::f510_logged(&log);
+    dev.backup(&a);
+    (d, log, dev, a)
 }
 
 /// The frames the simulator received, in order, as their bodies (address, function,
@@ -224,8 +242,7 @@ fn round_trip(d: &Path, dev: &Device, log: Option<&Path>) {
     }
     assert!(!out.contains("only in"), "{out}");
     let seen = log.map_or(0, |l| received(l, m).len());
-    let (code, out, err) = dev.run(&["params", "restore", a.to_str().unwrap(), "--yes"]);
-    assert_eq!(code, Some(0), "{out}{err}");
+    let (out, _) = dev.restore(&a, &["--yes"], 0);
     assert!(out.contains("written and verified: 3 "), "{out}");
     let audit = audit_lines(&d.join("conformance-audit.jsonl"));
     assert_eq!(audit.len(), 3, "{audit:?}");
@@ -301,23 +318,17 @@ fn the_round_trip_in_ascii_restores_exactly_the_three_changed_parameters() {
 
 #[test]
 fn a_dry_run_and_a_restore_without_yes_off_a_terminal_write_nothing() {
-    let d = Scratch::new("dry");
-    let log = d.join("sim.jsonl");
-    let dev = Device::f510_logged(&log);
-    let a = d.join("a.toml");
-    dev.backup(&a);
+    let (d, log, dev, a) = backed_up("dry");
     dev.write(0x0301, 5);
     let seen = received(&log, Mode::Rtu).len();
-    let (code, out, err) = dev.run(&["params", "restore", a.to_str().unwrap(), "--dry-run"]);
-    assert_eq!(code, Some(0), "{out}{err}");
+    let (out, _) = dev.restore(&a, &["--dry-run"], 0);
     assert!(
         out.contains("plan: 1 writes") && out.contains("01 06 03 01 00 00 D8 4E"),
         "{out}"
     );
     assert!(out.contains("dry run: nothing written"), "{out}");
     // stdin is not a terminal here: no --yes, no writes.
-    let (code, out, err) = dev.run(&["params", "restore", a.to_str().unwrap()]);
-    assert_eq!(code, Some(2), "{out}{err}");
+    let (_, err) = dev.restore(&a, &[], 2);
     assert!(err.contains("refusing to write without --yes"), "{err}");
     let frames = received(&log, Mode::Rtu)[seen..].to_vec();
     assert!(!frames.is_empty(), "the restores read the device");
@@ -405,19 +416,17 @@ fn an_exception_mid_restore_stops_it_and_the_audit_log_and_journal_say_what_was_
         .replace("\n0014 = 0 ", "\n0014 = 13");
     std::fs::write(&a, text).unwrap();
     let seen = received(&log, Mode::Rtu).len();
-    let (code, out, err) = dev.run(&["params", "restore", a.to_str().unwrap(), "--yes"]);
-    assert_eq!(code, Some(1), "{out}{err}");
-    assert!(out.contains("plan: 3 writes"), "{out}");
-    assert!(out.contains("REFUSED: exception 02H"), "{out}");
-    assert!(out.contains("written and verified: 1 (0010H)"), "{out}");
-    assert!(out.contains("not written: 2 (0012H 0014H)"), "{out}");
-    assert!(
-        out.contains("journal: node 01 0010H was 0000H: written"),
-        "{out}"
-    );
-    assert!(
-        out.contains("journal: node 01 0012H was 0000H: refused, unchanged"),
-        "{out}"
+    let (out, _) = dev.restore(&a, &["--yes"], 1);
+    common::assert_contains_all(
+        &out,
+        &[
+            "plan: 3 writes",
+            "REFUSED: exception 02H",
+            "written and verified: 1 (0010H)",
+            "not written: 2 (0012H 0014H)",
+            "journal: node 01 0010H was 0000H: written",
+            "journal: node 01 0012H was 0000H: refused, unchanged",
+        ],
     );
     assert!(!out.contains("journal: node 01 0014H"), "{out}");
     assert!(out.contains("to resume"), "{out}");
@@ -606,21 +615,18 @@ fn the_round_trip_against_pymodbus_described_by_a_model_file() {
 
 #[test]
 fn consecutive_changes_are_restored_by_one_10h_write_and_read_back() {
-    let d = Scratch::new("fc10");
-    let log = d.join("sim.jsonl");
-    let dev = Device::f510_logged(&log);
-    let a = d.join("a.toml");
-    dev.backup(&a);
+    let (d, log, dev, a) = backed_up("fc10");
     for (r, v) in [(0x0301, 1), (0x0302, 2), (0x0303, 3)] {
         dev.write(r, v);
     }
     let seen = received(&log, Mode::Rtu).len();
-    let (code, out, err) = dev.run(&["params", "restore", a.to_str().unwrap(), "--yes"]);
-    assert_eq!(code, Some(0), "{out}{err}");
-    assert!(out.contains("plan: 1 writes"), "{out}");
-    assert!(
-        out.contains("write 10H 0301H (3-01) 1 -> 0, 0302H (3-02) 2 -> 0, 0303H (3-03) 3 -> 0"),
-        "{out}"
+    let (out, _) = dev.restore(&a, &["--yes"], 0);
+    common::assert_contains_all(
+        &out,
+        &[
+            "plan: 1 writes",
+            "write 10H 0301H (3-01) 1 -> 0, 0302H (3-02) 2 -> 0, 0303H (3-03) 3 -> 0",
+        ],
     );
     let frames = received(&log, Mode::Rtu)[seen..].to_vec();
     assert_eq!(distinct_writes(&frames), vec![(0x0301, vec![0, 0, 0])]);
@@ -650,12 +656,8 @@ fn on_a_terminal_a_restore_asks_once_and_writes_only_after_yes() {
     ) {
         return;
     }
-    let d = Scratch::new("ask");
-    let log = d.join("sim.jsonl");
-    let dev = Device::f510_logged(&log);
+    let (_d, log, dev, a) = backed_up("ask");
     let link = dev.link.join(" ");
-    let a = d.join("a.toml");
-    dev.backup(&a);
     let text = std::fs::read_to_string(&a)
         .unwrap()
         .replace("\n0301 = 0 ", "\n0301 = 3 ");
@@ -738,7 +740,6 @@ fn a_register_the_device_refuses_to_read_is_a_comment_of_the_backup_and_stops_no
     assert_eq!(code, Some(1), "{out}{err}");
     assert!(out.contains("only in A: 0012H (settings)"), "{out}");
     // A restore cannot plan a register it cannot read: it refuses, naming the line.
-    let (code, out, err) = dev.run(&["params", "restore", a.to_str().unwrap(), "--yes"]);
-    assert_eq!(code, Some(2), "{out}{err}");
+    let (_, err) = dev.restore(&a, &["--yes"], 2);
     assert!(err.contains("the device refuses to read 0012H"), "{err}");
 }

@@ -195,11 +195,7 @@ fn at_1_ms_the_timer_is_below_t3_5_and_no_command_is_given() {
     let (code, out) = ports(&t.0, &[]);
     assert_eq!(code, Some(0), "{out}");
     assert!(out.contains("  latency timer: 1 ms"), "{out}");
-    assert_eq!(
-        out.matches("below t3.5, framing by silence holds").count(),
-        4,
-        "{out}"
-    );
+    common::assert_count(&out, "below t3.5, framing by silence holds", 4);
     assert!(!out.contains("sudo tee"), "{out}");
 }
 

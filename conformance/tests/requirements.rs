@@ -3,7 +3,7 @@
 //! the reports name the requirements each check verifies.
 
 mod common;
-use common::{words, Run, Scratch};
+use common::{Run, Scratch};
 
 use std::collections::BTreeSet;
 use std::path::PathBuf;
@@ -179,12 +179,7 @@ fn the_command_prints_the_coverage_of_all_five_manuals() {
     let mut total = 0;
     for d in docs {
         let n = d["total"].as_u64().unwrap();
-        let sum: u64 = d["coverage"]
-            .as_object()
-            .unwrap()
-            .values()
-            .map(|x| x.as_u64().unwrap())
-            .sum();
+        let sum = common::total(&d["coverage"]);
         assert_eq!(n, sum, "{}", d["document"]);
         assert_eq!(d["requirements"].as_array().unwrap().len() as u64, n);
         total += n;
@@ -208,12 +203,8 @@ fn the_command_prints_the_coverage_of_all_five_manuals() {
 
 #[test]
 fn reports_name_the_requirements_each_check_verifies() {
-    let dir = Scratch::new("names");
-    let (code, v) = common::check_device(
-        &dir,
-        &words("--sim f510 --only rtu.map.monitor.* --read-only"),
-        Duration::from_secs(120),
-    );
+    let args = "--sim f510 --only rtu.map.monitor.* --read-only";
+    let (dir, code, v) = common::check_in("names", args, Duration::from_secs(120));
     assert_eq!(code, Some(0));
     let checks = v["checks"].as_array().unwrap();
     assert!(!checks.is_empty());
@@ -263,9 +254,10 @@ fn the_coverage_section_says_what_a_read_only_run_skipped() {
         "read-only",
         &["--sim", "f510", "--only", "rtu.write.*", "--read-only"],
     );
-    assert!(section.contains(">skipped</span>"), "{section}");
-    assert!(section.contains("read-only"), "{section}");
-    assert!(section.contains(">not selected</span>"), "{section}");
+    common::assert_contains_all(
+        &section,
+        &[">skipped</span>", "read-only", ">not selected</span>"],
+    );
     assert!(!section.contains(">verified</span>"), "{section}");
 }
 
@@ -284,10 +276,12 @@ fn the_coverage_section_names_the_mode_a_run_did_not_speak() {
             "rtu.map.group-0.*",
         ],
     );
-    assert!(section.contains(">other mode</span>"), "{section}");
-    assert!(
-        section.contains("its checks are ASCII's; this run did not speak ASCII"),
-        "{section}"
+    common::assert_contains_all(
+        &section,
+        &[
+            ">other mode</span>",
+            "its checks are ASCII's; this run did not speak ASCII",
+        ],
     );
     assert!(!section.contains("this run did not speak RTU"), "{section}");
     assert!(section.contains(">verified</span>"), "{section}");

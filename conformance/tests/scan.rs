@@ -50,11 +50,9 @@ fn scan_finds_a_simulator_at_an_unusual_setting() {
         .lines()
         .find(|l| l.starts_with("11H (17)"))
         .unwrap_or_else(|| panic!("no row for node 17:\n{out}"));
-    assert!(row.contains("ascii"), "{row}");
-    assert!(row.contains("19200 8O1"), "{row}");
+    common::assert_contains_all(row, &["ascii", "19200 8O1"]);
     // The e510 simulator's identification value, and the reply's bytes in hex.
-    assert!(row.contains("252FH = 0E51H: e510"), "{row}");
-    assert!(row.contains("3A 31 31 30 33 30 32"), "{row}");
+    common::assert_contains_all(row, &["252FH = 0E51H: e510", "3A 31 31 30 33 30 32"]);
     assert_eq!(
         out.lines().filter(|l| l.contains("H (")).count(),
         1,
@@ -85,8 +83,7 @@ fn an_empty_line_finds_nothing_with_exit_1() {
     let (_line, a, _b) = pty_pair(&dir);
     let a = a.to_string_lossy().into_owned();
     let out = scan_on(&a, "-b 19200,9600 -P even --addresses 1-20 --quiet", 60, 1).stdout;
-    assert!(out.contains("no device found"), "{out}");
-    assert!(out.contains("4 silent"), "{out}");
+    common::assert_contains_all(&out, &["no device found", "4 silent"]);
 
     // A simulator at the right setting but outside the address range: nothing either.
     let (_sim, path) = sim_pty(&words("--emulate-line -b 9600 -P even -a 30"));

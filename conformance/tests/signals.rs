@@ -7,10 +7,10 @@ mod common;
 
 use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
-use std::process::{Command, Stdio};
+use std::process::Stdio;
 use std::time::{Duration, Instant};
 
-use common::{bin, line, Kill, Run, Scratch};
+use common::{assert_contains_all, bin, words, Kill, Run, Scratch};
 use nix::sys::signal::{kill, Signal};
 use nix::unistd::Pid;
 
@@ -26,20 +26,6 @@ fn wait_until(what: &str, mut ready: impl FnMut() -> bool) {
     }
 }
 
-/// Once `ready` holds (what `doing` names has begun), SIGTERM to `run` (the command
-/// `cmd`), which must end within 120 s: how it ended and its stderr.
-fn terminated(
-    run: &mut Kill,
-    cmd: &str,
-    doing: &str,
-    ready: impl FnMut() -> bool,
-) -> (std::process::ExitStatus, String) {
-    wait_until(doing, ready);
-    term(run);
-    let status = run.wait_within(Duration::from_secs(120), &format!("{cmd} after SIGTERM"));
-    (status, run.stderr_text())
-}
-
 fn term(child: &Kill) {
     kill(Pid::from_raw(child.0.id() as i32), Signal::SIGTERM).unwrap();
 }
@@ -53,36 +39,93 @@ fn whole_report(path: &Path, stderr: &str) -> serde_json::Value {
     v
 }
 
-fn spawn(args: &[&str], out: &Path) -> Kill {
-    Kill::spawn(
-        Command::new(bin())
-            .args(args)
-            .args(["--format", "json", "--quiet", "-o"])
-            .arg(out)
-            .stdout(Stdio::null())
-            .stderr(Stdio::piped()),
-    )
+/// A long command of the binary running in a fresh scratch folder named for it, writing
+/// its JSON report there (stdout closed, stderr kept for when it has ended).
+struct Long {
+    /// The command's name (the first of its arguments), as a failure names it.
+    cmd: String,
+    /// Its JSON report, `<cmd>.json` in the folder.
+    out: PathBuf,
+    /// The simulator's log, `sim.jsonl` in the folder (written with `--sim-log` only).
+    log: PathBuf,
+    run: Kill,
+    _dir: Scratch,
+}
+
+impl Long {
+    /// `conformance ARGS --format json --quiet -o DIR/<cmd>.json`.
+    fn start(args: &[&str]) -> Long {
+        Long::spawn(args, false)
+    }
+
+    /// [`start`](Long::start) with `--sim-log DIR/sim.jsonl` after ARGS: the simulator
+    /// writes a line per frame, flushed, so the test sees when the exchanges have begun.
+    fn start_logged(args: &[&str]) -> Long {
+        Long::spawn(args, true)
+    }
+
+    fn spawn(args: &[&str], sim_log: bool) -> Long {
+        let cmd = args[0].to_string();
+        let d = Scratch::new(&cmd);
+        let (out, log) = (d.join(format!("{cmd}.json")), d.join("sim.jsonl"));
+        let mut c = Run::new(args).command();
+        if sim_log {
+            c.arg("--sim-log").arg(&log);
+        }
+        let run = Kill::spawn(
+            c.args(["--format", "json", "--quiet", "-o"])
+                .arg(&out)
+                .stdout(Stdio::null())
+                .stderr(Stdio::piped()),
+        );
+        Long {
+            cmd,
+            out,
+            log,
+            run,
+            _dir: d,
+        }
+    }
+
+    /// Once `ready` holds (what `doing` names has begun), SIGTERM to the command, which
+    /// must end within 120 s: how it ended and its stderr.
+    fn terminated(
+        &mut self,
+        doing: &str,
+        ready: impl Fn(&Long) -> bool,
+    ) -> (std::process::ExitStatus, String) {
+        wait_until(doing, || ready(self));
+        term(&self.run);
+        let status = self.run.wait_within(
+            Duration::from_secs(120),
+            &format!("{} after SIGTERM", self.cmd),
+        );
+        (status, self.run.stderr_text())
+    }
+}
+
+/// `conformance simulate ...` as `sim` says, on a pseudo-terminal, its stdout read up to
+/// its first line (the pty's path, which the caller checks), its stderr as `stderr` says.
+fn simulate(sim: Run, stderr: Stdio) -> (Kill, String) {
+    let mut sim = Kill::spawn(sim.command().stdout(Stdio::piped()).stderr(stderr));
+    let mut first = String::new();
+    BufReader::new(sim.0.stdout.take().unwrap())
+        .read_line(&mut first)
+        .unwrap();
+    (sim, first)
 }
 
 #[test]
 fn sigterm_ends_a_fuzz_run_with_a_whole_report_marked_incomplete() {
-    let d = Scratch::new("fuzz");
-    let (log, out) = (d.join("sim.jsonl"), d.join("fuzz.json"));
-    let mut run = spawn(
-        &line(&[
-            "fuzz --sim f510 --mode rtu --cases 100000 --sim-log",
-            log.to_str().unwrap(),
-        ]),
-        &out,
-    );
+    let mut run = Long::start_logged(&words("fuzz --sim f510 --mode rtu --cases 100000"));
     // The simulator's log (a line per frame, flushed) grows past the preflight once
     // cases are being exchanged.
-    let (status, stderr) = terminated(&mut run, "fuzz", "the fuzz exchanges", || {
-        std::fs::read_to_string(&log).is_ok_and(|t| t.lines().count() >= 20)
+    let (status, stderr) = run.terminated("the fuzz exchanges", |r| {
+        std::fs::read_to_string(&r.log).is_ok_and(|t| t.lines().count() >= 20)
     });
     assert_eq!(status.code(), Some(2), "{stderr}");
     assert!(stderr.contains("interrupted"), "{stderr}");
-    let v = whole_report(&out, &stderr);
+    let v = whole_report(&run.out, &stderr);
     assert_eq!(v["complete"], false);
     assert_eq!(v["stopped"], "interrupted");
     assert_eq!(v["exit_code"], 2);
@@ -96,17 +139,15 @@ fn sigterm_ends_a_fuzz_run_with_a_whole_report_marked_incomplete() {
 
 #[test]
 fn sigterm_ends_a_check_restoring_what_it_wrote() {
-    let d = Scratch::new("check");
-    let out = d.join("check.json");
-    let mut run = spawn(&["check", "--sim", "f510", "--mode", "rtu"], &out);
+    let mut run = Long::start(&words("check --sim f510 --mode rtu"));
     // The report is rewritten after every check: wait until a writing check has run
     // (the manual's example of 10H writes 0101H and 0102H).
     let wrote = "rtu.example.f510.10.rtu.request";
-    let (status, stderr) = terminated(&mut run, "check", "the writing checks", || {
-        std::fs::read_to_string(&out).is_ok_and(|t| t.contains(wrote))
+    let (status, stderr) = run.terminated("the writing checks", |r| {
+        std::fs::read_to_string(&r.out).is_ok_and(|t| t.contains(wrote))
     });
     assert_eq!(status.code(), Some(2), "{stderr}");
-    let v = whole_report(&out, &stderr);
+    let v = whole_report(&run.out, &stderr);
     assert_eq!(v["complete"], false, "{stderr}");
     assert_eq!(v["stopped"], "interrupted");
     assert_eq!(v["exit_code"], 2);
@@ -133,17 +174,10 @@ fn sigterm_ends_a_check_restoring_what_it_wrote() {
 fn sigterm_ends_the_simulator_and_removes_its_link() {
     let d = Scratch::new("simulate");
     let link = d.join("drive");
-    let mut sim = Kill::spawn(
-        Run::words("simulate --model f510 --pty --link")
-            .command()
-            .arg(&link)
-            .stdout(Stdio::piped())
-            .stderr(Stdio::piped()),
+    let (mut sim, first) = simulate(
+        Run::words("simulate --model f510 --pty --link").arg(&link),
+        Stdio::piped(),
     );
-    let mut first = String::new();
-    BufReader::new(sim.0.stdout.take().unwrap())
-        .read_line(&mut first)
-        .unwrap();
     assert!(first.starts_with("/dev/"), "{first:?}");
     assert_eq!(
         std::fs::read_link(&link).unwrap(),
@@ -169,11 +203,7 @@ fn sigterm_ends_the_simulator_and_removes_its_link() {
         stderr.contains("interrupted: the simulator stops and removes its link"),
         "{stderr}"
     );
-    assert!(
-        std::fs::symlink_metadata(&link).is_err(),
-        "the link {} is left behind",
-        link.display()
-    );
+    common::assert_links_gone(&[&link]);
 }
 
 #[test]
@@ -181,24 +211,17 @@ fn the_simulator_replaces_a_stale_link_but_never_a_file() {
     let d = Scratch::new("stale");
     let link = d.join("drive");
     std::os::unix::fs::symlink("/dev/pts/nonexistent", &link).unwrap();
-    let mut sim = Kill::spawn(
-        Run::words("simulate --pty -q --link")
-            .command()
-            .arg(&link)
-            .stdout(Stdio::piped())
-            .stderr(Stdio::null()),
+    let (mut sim, first) = simulate(
+        Run::words("simulate --pty -q --link").arg(&link),
+        Stdio::null(),
     );
-    let mut first = String::new();
-    BufReader::new(sim.0.stdout.take().unwrap())
-        .read_line(&mut first)
-        .unwrap();
     assert_eq!(
         std::fs::read_link(&link).unwrap(),
         PathBuf::from(first.trim())
     );
     kill(Pid::from_raw(sim.0.id() as i32), Signal::SIGINT).unwrap();
     sim.wait_within(Duration::from_secs(30), "simulate after SIGINT");
-    assert!(std::fs::symlink_metadata(&link).is_err());
+    common::assert_links_gone(&[&link]);
 
     let file = d.join("notes.txt");
     std::fs::write(&file, "keep me").unwrap();
@@ -214,25 +237,20 @@ fn the_simulator_replaces_a_stale_link_but_never_a_file() {
 
 #[test]
 fn sigterm_ends_a_gate_run_with_a_whole_report_marked_incomplete() {
-    let d = Scratch::new("gate");
-    let out = d.join("gate.json");
     let codec = format!("{} adapter", bin());
-    let mut run = spawn(
-        // The adapter command has a space: it goes apart, as one argument.
-        &[
-            "gate",
-            "--codec",
-            &codec,
-            "--no-vectors",
-            "--count",
-            "20000",
-        ],
-        &out,
-    );
+    // The adapter command has a space: it goes apart, as one argument.
+    let mut run = Long::start(&[
+        "gate",
+        "--codec",
+        &codec,
+        "--no-vectors",
+        "--count",
+        "20000",
+    ]);
     // The report is rewritten after every case.
-    let (status, stderr) = terminated(&mut run, "gate", "the gate cases", || out.exists());
+    let (status, stderr) = run.terminated("the gate cases", |r| r.out.exists());
     assert_eq!(status.code(), Some(2), "{stderr}");
-    let v = whole_report(&out, &stderr);
+    let v = whole_report(&run.out, &stderr);
     assert_eq!(v["complete"], false);
     let stopped = v["stopped"].as_str().unwrap();
     assert!(stopped.starts_with("interrupted after "), "{stopped}");
@@ -243,57 +261,39 @@ fn sigterm_ends_a_gate_run_with_a_whole_report_marked_incomplete() {
 
 #[test]
 fn sigterm_ends_identify_with_its_report_not_run() {
-    let d = Scratch::new("identify");
-    let (log, out) = (d.join("sim.jsonl"), d.join("identify.json"));
     // Slow replies: the probes take seconds, the signal comes among them.
-    let mut run = spawn(
-        &line(&[
-            "identify --sim f510 --mode rtu --quirk late-reply=300 --sim-log",
-            log.to_str().unwrap(),
-        ]),
-        &out,
-    );
-    let (status, stderr) = terminated(&mut run, "identify", "the identify probes", || {
-        std::fs::metadata(&log).is_ok_and(|m| m.len() > 0)
+    let mut run = Long::start_logged(&words(
+        "identify --sim f510 --mode rtu --quirk late-reply=300",
+    ));
+    let (status, stderr) = run.terminated("the identify probes", |r| {
+        std::fs::metadata(&r.log).is_ok_and(|m| m.len() > 0)
     });
     assert_eq!(status.code(), Some(2), "{stderr}");
-    let v: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(&out).unwrap()).unwrap();
+    let v = common::json_file(&run.out);
     assert_eq!(v["verdict"]["result"], "not-run", "{}", v["verdict"]);
     assert_eq!(v["verdict"]["text"], "could not identify: interrupted");
 }
 
 #[test]
 fn sigterm_ends_a_scan_with_the_tries_made() {
-    let d = Scratch::new("scan");
     // One drive at an address the scan reaches late; its traffic log on stderr shows
     // when the scan's requests arrive.
-    let mut sim = Kill::spawn(
-        Run::words("simulate --model f510 --pty -a 200")
-            .command()
-            .stdout(Stdio::piped())
-            .stderr(Stdio::piped()),
+    let (mut sim, pty) = simulate(
+        Run::words("simulate --model f510 --pty -a 200"),
+        Stdio::piped(),
     );
-    let mut pty = String::new();
-    BufReader::new(sim.0.stdout.take().unwrap())
-        .read_line(&mut pty)
-        .unwrap();
     let mut traffic = BufReader::new(sim.0.stderr.take().unwrap()).lines();
-    let out = d.join("scan.json");
-    let mut run = spawn(&["scan", "--port", pty.trim()], &out);
+    let mut run = Long::start(&["scan", "--port", pty.trim()]);
     // The first request the drive hears.
     let heard = traffic.any(|l| l.is_ok_and(|l| l.contains("<- ")));
     assert!(heard, "the simulator heard nothing");
-    term(&run);
-    let status = run.wait_within(Duration::from_secs(120), "scan after SIGTERM");
-    let stderr = run.stderr_text();
+    let (status, stderr) = run.terminated("the scan's tries", |_| true);
     assert_eq!(status.code(), Some(2), "{stderr}");
     assert!(
         stderr.contains("scan interrupted: the result covers the tries made"),
         "{stderr}"
     );
-    let v: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(&out).unwrap()).unwrap();
+    let v = common::json_file(&run.out);
     assert_eq!(v["stopped"], "interrupted");
     assert!(v["found"].as_array().unwrap().is_empty(), "{}", v["found"]);
 }
@@ -306,15 +306,7 @@ fn sigterm_ends_monitor_and_bus_each_in_its_own_words() {
     let d = Scratch::new("monitor-bus");
     let (master, tap) = (d.join("master"), d.join("tap"));
     // The bus prints its endpoints once its handler is in place.
-    let mut bus = common::Bus::start_with_stderr(
-        &[
-            "--link",
-            &format!("master={}", master.display()),
-            "--link",
-            &format!("tap={}", tap.display()),
-        ],
-        2,
-    );
+    let mut bus = common::Bus::linked_with_stderr(&[("master", &master), ("tap", &tap)], &[]);
     for ((name, path), want) in bus.ends.iter().zip(["master", "tap"]) {
         assert_eq!(name, want);
         assert!(path.starts_with("/dev/"), "{name} {}", path.display());
@@ -356,13 +348,7 @@ fn sigterm_ends_monitor_and_bus_each_in_its_own_words() {
         "{stderr}"
     );
     assert!(!stderr.contains("check, case or probe"), "{stderr}");
-    for l in [&master, &tap] {
-        assert!(
-            std::fs::symlink_metadata(l).is_err(),
-            "{} is left",
-            l.display()
-        );
-    }
+    common::assert_links_gone(&[&master, &tap]);
 }
 
 /// The top-level help names monitor and bus under Ctrl-C and SIGTERM, with what each kind
@@ -375,12 +361,13 @@ fn the_help_says_what_each_long_command_does_when_stopped() {
         .find("Ctrl-C, SIGTERM and SIGHUP")
         .expect("no word on signals");
     let part = &help[at..];
-    for said in [
-        "check, fuzz, scan, identify and gate stop after their current check, case or probe",
-        "marked incomplete (exit 2)",
-        "monitor stops listening and writes its whole report (exit 0 or 1",
-        "bus and simulate stop and remove their links (exit 0)",
-    ] {
-        assert!(part.contains(said), "{said:?} not in {part}");
-    }
+    assert_contains_all(
+        part,
+        &[
+            "check, fuzz, scan, identify and gate stop after their current check, case or probe",
+            "marked incomplete (exit 2)",
+            "monitor stops listening and writes its whole report (exit 0 or 1",
+            "bus and simulate stop and remove their links (exit 0)",
+        ],
+    );
 }

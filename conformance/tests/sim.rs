@@ -646,7 +646,7 @@ fn on_a_serial_line_frames_end_at_silence() {
             "expected {event} {hex}, got {line}\n{t}"
         );
     }
-    assert_eq!(t.matches("\"event\":\"reply\"").count(), 2, "{t}");
+    common::assert_count(&t, "\"event\":\"reply\"", 2);
 }
 
 /// Collects a reply that is due: waits up to 5 s for its first byte (a loaded host may
@@ -675,15 +675,9 @@ fn the_simulator_follows_read_only_parameters_and_frequency_facts() {
     let ro = model.answer_code(conformance::model::Fault::ReadOnly);
     let range = model.answer_code(conformance::model::Fault::DataOutOfRange);
     let exception = |function: u8, code: u8| frame(mode, 1, Pdu::Exception { function, code });
+    let write = |register: u16, value: u16| frame(mode, 1, Pdu::WriteSingle { register, value });
     for r in [0x0C10, 0x0C11, 0x0C12, 0x0C18, 0x0C19, 0x0C1A, 0x0C2D] {
-        let w = frame(
-            mode,
-            1,
-            Pdu::WriteSingle {
-                register: r,
-                value: 1,
-            },
-        );
+        let w = write(r, 1);
         assert_eq!(answer(&mut b, &w, Q), exception(0x06, ro), "06H {r:04X}");
         let values = conformance::codec::pdu::Registers::new(&[0, 1]).unwrap();
         let w = frame(mode, 1, Pdu::WriteMultipleRequest { start: r, values });
@@ -692,36 +686,15 @@ fn the_simulator_follows_read_only_parameters_and_frequency_facts() {
         let reply = answer(&mut b, &rd, Q);
         assert_eq!(&reply[..3], &[1, 0x03, 2], "read {r:04X}: {reply:02X?}");
     }
-    let over = frame(
-        mode,
-        1,
-        Pdu::WriteSingle {
-            register: 0x2502,
-            value: 0x9C41,
-        },
-    );
+    let over = write(0x2502, 0x9C41);
     assert_eq!(answer(&mut b, &over, Q), exception(0x06, range));
-    let max = frame(
-        mode,
-        1,
-        Pdu::WriteSingle {
-            register: 0x2502,
-            value: 0x9C40,
-        },
-    );
+    let max = write(0x2502, 0x9C40);
     assert_eq!(answer(&mut b, &max, Q), max, "9C40H is echoed");
     drop(served);
 
     let (a, mut b) = memory::pair();
     let served = start(a, "a510", mode, &[]);
-    let w = frame(
-        mode,
-        1,
-        Pdu::WriteSingle {
-            register: 0x2502,
-            value: 30001,
-        },
-    );
+    let w = write(0x2502, 30001);
     assert_eq!(answer(&mut b, &w, Q), w, "30001 is accepted");
     let read_one = |b: &mut dyn Transport, start: u16| {
         let reply = answer(b, &frame(mode, 1, Pdu::ReadRequest { start, count: 1 }), Q);

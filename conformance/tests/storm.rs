@@ -190,12 +190,8 @@ fn the_clean_simulator_passes_the_timing_classes() {
 
 #[test]
 fn timing_damage_is_not_sent_without_line_timing() {
-    let (code, v) = report_in(
-        "fuzz",
-        "t-unpaced",
-        "--sim f510 --mode rtu --no-pace --cases 100 --quirk ignore-t15",
-        Duration::from_secs(300),
-    );
+    let args = "--sim f510 --mode rtu --no-pace --cases 100 --quirk ignore-t15";
+    let (code, v) = report_in("fuzz", "t-unpaced", args, Duration::from_secs(300));
     assert_eq!(code, Some(0));
     let t = &v["fuzz"]["modes"][0]["timing"];
     assert!(

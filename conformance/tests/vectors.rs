@@ -69,15 +69,20 @@ fn errata_are_flagged_and_corrected() {
     }
 }
 
+/// The first consistent frame vector of the first document, to be spoilt.
+fn a_consistent_frame(set: &mut VectorSet) -> &mut vectors::model::Vector {
+    let frames = set.files[0].vectors.iter_mut();
+    frames
+        .filter(|v| matches!(v.body, Body::Frame(_)))
+        .find(|v| v.verdict == Verdict::Consistent)
+        .expect("a consistent frame")
+}
+
 #[test]
 fn a_wrong_flag_is_caught() {
     // Declaring a fault the frame does not have must fail verification.
     let mut set = set();
-    let v = set.files[0]
-        .vectors
-        .iter_mut()
-        .find(|v| v.verdict == Verdict::Consistent && matches!(v.body, Body::Frame(_)))
-        .unwrap();
+    let v = a_consistent_frame(&mut set);
     v.verdict = Verdict::Erratum;
     v.flags = vec!["crc-mismatch".into()];
     v.notes = "deliberately wrong".into();
@@ -90,11 +95,7 @@ fn a_wrong_flag_is_caught() {
 #[test]
 fn a_changed_byte_is_caught() {
     let mut set = set();
-    let v = set.files[0]
-        .vectors
-        .iter_mut()
-        .find(|v| v.verdict == Verdict::Consistent && matches!(v.body, Body::Frame(_)))
-        .unwrap();
+    let v = a_consistent_frame(&mut set);
     if let Body::Frame(f) = &mut v.body {
         let last = f.printed.len() - 1;
         let flipped = if &f.printed[last..] == "0" { "1" } else { "0" };
@@ -161,43 +162,59 @@ fn body_mut<'a>(set: &'a mut VectorSet, id: &str) -> &'a mut Body {
         .body
 }
 
+/// The report of vector `id` in the vector set changed by `edit`.
+fn verified_after(id: &str, edit: impl FnOnce(&mut VectorSet)) -> vectors::VectorReport {
+    let mut s = set();
+    edit(&mut s);
+    verify_one(&s, id)
+}
+
+/// Whether one of the report's problems says `text`.
+fn says(r: &vectors::VectorReport, text: &str) -> bool {
+    r.problems.iter().any(|p| p.contains(text))
+}
+
+fn listing<'a>(set: &'a mut VectorSet, id: &str) -> &'a mut vectors::model::CListing {
+    let Body::CListing(l) = body_mut(set, id) else {
+        panic!("{id} is no C listing")
+    };
+    l
+}
+
+fn rule<'a>(set: &'a mut VectorSet, id: &str) -> &'a mut vectors::model::ExceptionRule {
+    let Body::ExceptionRule(r) = body_mut(set, id) else {
+        panic!("{id} is no exception rule")
+    };
+    r
+}
+
 #[test]
 fn a_listing_corrected_beyond_its_repairs_is_caught() {
     for id in ["f510.crc-listing", "e510.crc-listing"] {
         assert!(verify_one(&set(), id).passed(), "{id}");
         // One more change in `corrected` than the repairs record.
-        let mut s = set();
-        if let Body::CListing(l) = body_mut(&mut s, id) {
+        let r = verified_after(id, |s| {
+            let l = listing(s, id);
             l.corrected = l.corrected.replace("0xa001", "0xA001");
-        }
-        let r = verify_one(&s, id);
-        assert!(
-            r.problems.iter().any(|p| p.contains("recorded repairs")),
-            "{id}: {:?}",
-            r.problems
-        );
+        });
+        assert!(says(&r, "recorded repairs"), "{id}: {:?}", r.problems);
         // A repair whose count is wrong.
-        let mut s = set();
-        if let Body::CListing(l) = body_mut(&mut s, id) {
-            l.repairs[0].count = 1;
-        }
-        assert!(!verify_one(&s, id).passed(), "{id}");
+        let r = verified_after(id, |s| listing(s, id).repairs[0].count = 1);
+        assert!(!r.passed(), "{id}");
         // The printed text corrected in place: the repairs no longer apply.
-        let mut s = set();
-        if let Body::CListing(l) = body_mut(&mut s, id) {
+        let r = verified_after(id, |s| {
+            let l = listing(s, id);
             l.printed = l.printed.replace("rxdbuff++", "*rxdbuff++");
-        }
-        assert!(!verify_one(&s, id).passed(), "{id}");
+        });
+        assert!(!r.passed(), "{id}");
     }
     // The E510's OCR repairs need their flag.
-    let mut s = set();
-    let v = s.files[3]
-        .vectors
-        .iter_mut()
-        .find(|v| v.id == "e510.crc-listing")
-        .unwrap();
-    v.flags.retain(|f| f != "ocr-repair");
-    assert!(!verify_one(&s, "e510.crc-listing").passed());
+    let id = "e510.crc-listing";
+    let r = verified_after(id, |s| {
+        let v = s.files[3].vectors.iter_mut().find(|v| v.id == id).unwrap();
+        v.flags.retain(|f| f != "ocr-repair");
+    });
+    assert!(!r.passed());
 }
 
 #[test]
@@ -207,38 +224,26 @@ fn the_exception_rule_is_checked_against_its_frames() {
     assert!(r.passed(), "{:?}", r.problems);
     assert_eq!(r.observed, ["prose-contradicts-examples"]);
     // Were the sentence an OR, it would not contradict the examples: the flag is then wrong.
-    let mut s = set();
-    if let Body::ExceptionRule(rule) = body_mut(&mut s, id) {
-        rule.stated_operation = conformance::vectors::model::BitOperation::Or;
-    }
-    let r = verify_one(&s, id);
-    assert!(
-        r.problems
-            .iter()
-            .any(|p| p.contains("declares prose-contradicts-examples")),
-        "{:?}",
-        r.problems
-    );
+    let r = verified_after(id, |s| {
+        rule(s, id).stated_operation = conformance::vectors::model::BitOperation::Or;
+    });
+    let flag = "declares prose-contradicts-examples";
+    assert!(says(&r, flag), "{:?}", r.problems);
     // An evidence frame that carries what the AND reading gives (00H) is caught.
-    let mut s = set();
-    if let Body::Frame(f) = body_mut(&mut s, "f510.06.rtu.exception") {
+    let frame = "f510.06.rtu.exception";
+    let r = verified_after(id, |s| {
+        let Body::Frame(f) = body_mut(s, frame) else {
+            panic!("{frame} is no frame")
+        };
         f.printed = "01 06 52 C3 9D".into();
-    }
-    let r = verify_one(&s, id);
-    assert!(
-        r.problems
-            .iter()
-            .any(|p| p.contains("f510.06.rtu.exception")),
-        "{:?}",
-        r.problems
-    );
+    });
+    assert!(says(&r, frame), "{:?}", r.problems);
     // Evidence must be complete and must exist.
-    let mut s = set();
-    if let Body::ExceptionRule(rule) = body_mut(&mut s, id) {
-        rule.evidence.pop();
-        rule.evidence.push("f510.03.rtu.response".into());
-    }
-    let r = verify_one(&s, id);
+    let r = verified_after(id, |s| {
+        let evidence = &mut rule(s, id).evidence;
+        evidence.pop();
+        evidence.push("f510.03.rtu.response".into());
+    });
     assert!(r.problems.len() >= 2, "{:?}", r.problems);
 }
 

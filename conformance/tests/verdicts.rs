@@ -602,7 +602,7 @@ fn a_device_frozen_mid_run_ends_the_run() {
         thread::sleep(Duration::from_millis(50));
     };
     let _ = kill(pid, Signal::SIGCONT);
-    let v: serde_json::Value = serde_json::from_slice(&std::fs::read(&report).unwrap()).unwrap();
+    let v = common::json_file(&report);
     assert_eq!(status.code(), Some(2), "{v:#}");
     assert_eq!(v["complete"], false);
     let checks = v["checks"].as_array().unwrap();

@@ -170,26 +170,25 @@ fn planted_faults_are_counted_as_their_kinds() {
     assert!(err.contains("out of range 0, reserved bits 2"), "{err}");
 
     // CRC errors and timeouts are counted apart, and are no reason for exit 1.
-    let (code, out, err) = watch(&words(
-        "--sim f510 --quirk crc-swap -c 2 --interval 50ms --format csv 2520H",
-    ));
-    assert_eq!(code, Some(0), "{err}");
-    let (_, rows) = csv(&out);
-    assert!(rows.iter().all(|r| r[4] == "bad-checksum"), "{out}");
-    assert!(
-        err.contains("timeouts 0, CRC errors 2, exceptions 0"),
-        "{err}"
-    );
-    let (code, out, err) = watch(&words(
-        "--sim f510 --quirk dead --timeout 200 -c 2 --interval 50ms --format csv 2520H",
-    ));
-    assert_eq!(code, Some(0), "{err}");
-    let (_, rows) = csv(&out);
-    assert!(rows.iter().all(|r| r[4] == "timeout"), "{out}");
-    assert!(
-        err.contains("timeouts 2, CRC errors 0, exceptions 0"),
-        "{err}"
-    );
+    for (quirk, outcome, counts) in [
+        (
+            "crc-swap",
+            "bad-checksum",
+            "timeouts 0, CRC errors 2, exceptions 0",
+        ),
+        (
+            "dead --timeout 200",
+            "timeout",
+            "timeouts 2, CRC errors 0, exceptions 0",
+        ),
+    ] {
+        let args = format!("--sim f510 --quirk {quirk} -c 2 --interval 50ms --format csv 2520H");
+        let (code, out, err) = watch(&words(&args));
+        assert_eq!(code, Some(0), "{quirk}: {err}");
+        let (_, rows) = csv(&out);
+        assert!(rows.iter().all(|r| r[4] == outcome), "{quirk}: {out}");
+        assert!(err.contains(counts), "{quirk}: {err}");
+    }
 }
 
 #[test]
@@ -217,15 +216,19 @@ fn only_reads_go_out() {
     }
 }
 
+/// The watch `args` build, running in the background: its guard (its stderr kept for when
+/// it has ended) and its stdout's lines as they come.
+fn watching(args: Run) -> (Kill, std::io::Lines<BufReader<std::process::ChildStdout>>) {
+    let mut cmd = args.command();
+    let mut child = Kill::spawn(cmd.stdout(Stdio::piped()).stderr(Stdio::piped()));
+    let lines = BufReader::new(child.0.stdout.take().unwrap()).lines();
+    (child, lines)
+}
+
 #[test]
 fn sigterm_ends_with_the_summary_and_exit_0() {
-    let mut child = Kill::spawn(
-        Run::words("watch --sim f510 --format csv --interval 50ms")
-            .command()
-            .stdout(Stdio::piped())
-            .stderr(Stdio::piped()),
-    );
-    let mut lines = BufReader::new(child.0.stdout.take().unwrap()).lines();
+    let (mut child, mut lines) =
+        watching(Run::words("watch --sim f510 --format csv --interval 50ms"));
     // The header, then a first row: the watch is polling.
     lines.next().unwrap().unwrap();
     lines.next().unwrap().unwrap();
@@ -233,23 +236,17 @@ fn sigterm_ends_with_the_summary_and_exit_0() {
     let status = child.wait_within(LIMIT, "watch after SIGTERM");
     let err = child.stderr_text();
     assert_eq!(status.code(), Some(0), "{err}");
-    assert!(err.contains("watch ended (interrupted)"), "{err}");
-    assert!(err.contains("node 01: "), "{err}");
+    common::assert_contains_all(&err, &["watch ended (interrupted)", "node 01: "]);
 }
 
 #[test]
 fn a_link_that_fails_ends_the_watch_with_its_summary_and_exit_2() {
     let (mut sim, port) = common::sim_pty(&["--model", "f510"]);
-    let mut child = Kill::spawn(
+    let (mut child, mut lines) = watching(
         Run::words("watch --model f510 --port")
             .arg(&port)
-            .args(["-P", "even"])
-            .command()
-            .args(["--format", "csv", "--interval", "50ms", "2520H"])
-            .stdout(Stdio::piped())
-            .stderr(Stdio::piped()),
+            .args(words("-P even --format csv --interval 50ms 2520H")),
     );
-    let mut lines = BufReader::new(child.0.stdout.take().unwrap()).lines();
     lines.next().unwrap().unwrap();
     let row = lines.next().unwrap().unwrap();
     assert!(row.contains(",ok,"), "{row}");
@@ -258,8 +255,13 @@ fn a_link_that_fails_ends_the_watch_with_its_summary_and_exit_2() {
     let status = child.wait_within(LIMIT, "watch after its link went");
     let err = child.stderr_text();
     assert_eq!(status.code(), Some(2), "{err}");
-    assert!(err.contains("watch ended (the link failed)"), "{err}");
-    assert!(err.contains("result: the link failed (exit 2)"), "{err}");
+    common::assert_contains_all(
+        &err,
+        &[
+            "watch ended (the link failed)",
+            "result: the link failed (exit 2)",
+        ],
+    );
     // A link that cannot be opened: exit 2 too.
     let (code, _, err) = watch(&words("--model f510 --port /dev/nonexistent-watch -c 1"));
     assert_eq!(code, Some(2), "{err}");
@@ -270,16 +272,11 @@ fn a_value_another_master_writes_is_marked_changed() {
     // The simulated drive behind a Modbus TCP gateway serves several masters at once:
     // the watch reads, `send` writes 2502H <- 1194H meanwhile.
     let sim = GatewaySim::start("f510", 1, &[]);
-    let mut child = Kill::spawn(
+    let (mut child, mut lines) = watching(
         Run::words("watch --model f510 --tcp")
             .arg(&sim.addr)
-            .args(["--framing", "mbap"])
-            .command()
-            .args(["--format", "jsonl", "--interval", "50ms", "2502H"])
-            .stdout(Stdio::piped())
-            .stderr(Stdio::piped()),
+            .args(words("--framing mbap --format jsonl --interval 50ms 2502H")),
     );
-    let mut lines = BufReader::new(child.0.stdout.take().unwrap()).lines();
     let first: serde_json::Value = serde_json::from_str(&lines.next().unwrap().unwrap()).unwrap();
     assert_eq!(first["values"]["2502H"]["raw"], "0000");
     let (code, out, err) = run_bounded(
@@ -362,7 +359,7 @@ fn the_table_redraws_in_place_on_a_terminal() {
         std::thread::sleep(Duration::from_millis(100));
     };
     // Six polls, one table: each redraw went home and cleared the screen.
-    assert_eq!(shown.matches("watch f510 (").count(), 1, "{shown}");
+    common::assert_count(&shown, "watch f510 (", 1);
     assert!(shown.contains("node 01: 6 polls"), "{shown}");
     let row = shown
         .lines()
@@ -432,24 +429,21 @@ fn pymodbus_serial_server_is_watched_and_its_exceptions_counted() {
             return;
         };
         let port = peer.port.to_str().unwrap();
-        let (code, out, err) = watch(&line(&[
-            "--model f510 --port",
-            port,
-            "-P none -m",
-            mode,
-            "-c 3 --interval 50ms --format csv 2502H",
-        ]));
+        let on_port = |rest: &str| {
+            watch(&line(&[
+                "--model f510 --port",
+                port,
+                "-P none -m",
+                mode,
+                rest,
+            ]))
+        };
+        let (code, out, err) = on_port("-c 3 --interval 50ms --format csv 2502H");
         assert_eq!(code, Some(0), "{mode}: {err}");
         let (_, rows) = csv(&out);
         assert_eq!(rows.len(), 3);
         assert!(rows.iter().all(|r| r[4] == "ok"), "{mode}: {out}");
-        let (code, out, err) = watch(&line(&[
-            "--model f510 --port",
-            port,
-            "-P none -m",
-            mode,
-            "-c 2 --interval 50ms --format csv monitor",
-        ]));
+        let (code, out, err) = on_port("-c 2 --interval 50ms --format csv monitor");
         assert_eq!(code, Some(1), "{mode}: {err}");
         let (_, rows) = csv(&out);
         assert!(

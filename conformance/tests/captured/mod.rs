@@ -73,6 +73,19 @@ pub struct Frame {
     pub bytes: Vec<u8>,
 }
 
+impl Frame {
+    /// Whether the frame went out of the port the capture was made on (a master's
+    /// request, as the suite sent it).
+    pub fn sent(&self) -> bool {
+        self.direction == Some(Direction::Outbound)
+    }
+
+    /// Whether the frame came in on that port (a device's reply).
+    pub fn received(&self) -> bool {
+        self.direction == Some(Direction::Inbound)
+    }
+}
+
 /// The packets of the capture at `path`.
 pub fn frames(path: &Path) -> Vec<Frame> {
     let data = std::fs::read(path).unwrap();
@@ -176,14 +189,8 @@ pub fn monitor_capture(cap: &Path, name: &str, extra: &[&str]) -> (Option<i32>, 
 }
 
 /// Node `address` of a monitor report (it must have it).
-pub fn node<'a>(r: &'a Value, address: &str) -> &'a Value {
-    r["monitor"]["nodes"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .find(|n| n["address"] == address)
-        .unwrap_or_else(|| panic!("no node {address} in {}", r["monitor"]))
-}
+#[allow(unused_imports)] // capture_sim_bus reads no node
+pub use common::monitor_node as node;
 
 /// Kinds of finding per node of a monitor report, leaving out the drive's timing (a
 /// capture made by a program on a busy host has its host's timing, not the line's).

@@ -2,7 +2,7 @@
 //! under a [`Kill`] guard.
 
 use std::io::{BufRead, BufReader};
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::process::Stdio;
 use std::sync::mpsc;
 use std::time::Duration;
@@ -30,6 +30,32 @@ impl Bus {
     /// has ended (`guard.stderr_text()`).
     pub fn start_with_stderr(args: &[&str], ptys: usize) -> Bus {
         Bus::start_with(args, ptys, Stdio::piped())
+    }
+
+    /// [`start`](Bus::start) with an endpoint for each of `links` (its name and the path of
+    /// the link to its pseudo-terminal, which is there when this returns) and then `args`.
+    pub fn linked(links: &[(&str, &Path)], args: &[&str]) -> Bus {
+        Bus::linked_with(links, args, Stdio::inherit())
+    }
+
+    /// [`linked`](Bus::linked) with the bus's stderr piped, as
+    /// [`start_with_stderr`](Bus::start_with_stderr).
+    pub fn linked_with_stderr(links: &[(&str, &Path)], args: &[&str]) -> Bus {
+        Bus::linked_with(links, args, Stdio::piped())
+    }
+
+    fn linked_with(links: &[(&str, &Path)], args: &[&str], stderr: Stdio) -> Bus {
+        let named: Vec<String> = links
+            .iter()
+            .map(|(name, path)| format!("{name}={}", path.display()))
+            .collect();
+        let mut all: Vec<&str> = named.iter().flat_map(|l| ["--link", l.as_str()]).collect();
+        all.extend(args);
+        let bus = Bus::start_with(&all, links.len(), stderr);
+        for (_, path) in links {
+            super::wait_for(path);
+        }
+        bus
     }
 
     fn start_with(args: &[&str], ptys: usize, stderr: Stdio) -> Bus {
@@ -76,4 +102,17 @@ pub fn terminate(child: &mut Kill, what: &str) {
     nix::sys::signal::kill(pid, nix::sys::signal::Signal::SIGTERM).unwrap();
     let status = child.wait_within(Duration::from_secs(10), &format!("{what} after SIGTERM"));
     assert_eq!(status.code(), Some(0), "{status:?}");
+}
+
+/// Asserts that none of `links` is left: a bus or a simulator removes its `--link`s on
+/// its way out.
+#[track_caller]
+pub fn assert_links_gone(links: &[&Path]) {
+    for l in links {
+        assert!(
+            std::fs::symlink_metadata(l).is_err(),
+            "the link {} is left behind",
+            l.display()
+        );
+    }
 }

@@ -36,3 +36,12 @@ pub fn status_of<'a>(v: &'a Value, id: &str) -> &'a str {
         .as_str()
         .unwrap()
 }
+
+/// Asserts that each of the cases `ids` has `status` in the report, naming the first that
+/// does not.
+#[track_caller]
+pub fn assert_statuses(v: &Value, status: &str, ids: &[&str]) {
+    for id in ids {
+        assert_eq!(status_of(v, id), status, "{id}");
+    }
+}

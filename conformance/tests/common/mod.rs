@@ -13,9 +13,10 @@ pub mod rtu;
 mod run;
 mod scratch;
 mod skip;
+mod text;
 // A test binary uses some of these and not others.
 #[allow(unused_imports)]
-pub use {bus::*, monitor::*, peers::*, report::*, run::*, scratch::*, skip::*};
+pub use {bus::*, monitor::*, peers::*, report::*, run::*, scratch::*, skip::*, text::*};
 
 /// The `conformance` binary built for these tests.
 pub fn bin() -> &'static str {

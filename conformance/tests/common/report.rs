@@ -43,6 +43,24 @@ pub fn report_file(path: &Path) -> Result<Value, String> {
     Ok(v)
 }
 
+/// The JSON file at `path` as it is, not held to any schema (an identify or scan result);
+/// a file that is missing or not JSON fails the test, naming it.
+#[track_caller]
+pub fn json_file(path: &Path) -> Value {
+    let text = std::fs::read(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    serde_json::from_slice(&text).unwrap_or_else(|e| panic!("{}: not JSON ({e})", path.display()))
+}
+
+/// The records of the JSON-lines file at `path` (a log); a file that is missing or a line
+/// that is not JSON fails the test, naming it.
+#[track_caller]
+pub fn json_lines_file(path: &Path) -> Vec<Value> {
+    let text = std::fs::read_to_string(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    text.lines()
+        .map(|l| serde_json::from_str(l).unwrap_or_else(|e| panic!("{}: {e}: {l}", path.display())))
+        .collect()
+}
+
 /// Asserts that a report matches the report schema, listing where it does not.
 pub fn schema_valid(v: &Value) {
     let text = include_str!("../../../vectors/schema/report.schema.json");
@@ -65,6 +83,47 @@ pub fn confirmed_findings(v: &Value) -> Vec<Value> {
         .into_iter()
         .filter(|f| f["reproduced"] == true || f["replays"].as_u64().unwrap_or(0) == 0)
         .collect()
+}
+
+/// Whether a fuzz finding of `kind` whose signature ends in `field` is one that a generic
+/// Modbus server (pymodbus's, libmodbus's) shows against a TECO model, as seen on the
+/// wire: it serves registers past the model's map and refuses some the model serves
+/// (the mismatches below), answers broadcasts and other nodes (`reply-to-*`), answers
+/// nothing to what it does not take (`no-reply-for-*`) and reads a write back as written
+/// (`value-of-*`); or one of the mismatches in `more` that the one server is known for.
+pub fn generic_server_explains(kind: &str, field: &str, more: &[&str]) -> bool {
+    const MISMATCHES: &[&str] = &[
+        "register-value",
+        "byte-count",
+        "reply-instead-of-exception",
+        "exception-instead-of-reply",
+        "exception-code",
+        "register-address",
+        "register-count",
+        "written-value",
+    ];
+    match kind {
+        "mismatch" => MISMATCHES.contains(&field) || more.contains(&field),
+        "unexpected-reply" => field.starts_with("reply-to-"),
+        "no-reply" => field.starts_with("no-reply-for-"),
+        "wrong-value" => field.starts_with("value-of-"),
+        _ => false,
+    }
+}
+
+/// The sum of the counts in a JSON object (a finding's `classes`, a document's
+/// `coverage`); anything else fails the test.
+#[track_caller]
+pub fn total(counts: &Value) -> u64 {
+    let all = counts
+        .as_object()
+        .unwrap_or_else(|| panic!("no object: {counts}"));
+    all.values()
+        .map(|n| {
+            n.as_u64()
+                .unwrap_or_else(|| panic!("no count: {n} in {counts}"))
+        })
+        .sum()
 }
 
 /// The findings of every mode of a fuzz report.
@@ -90,6 +149,26 @@ pub fn rendered(json: &Path, out: &Path) -> String {
 pub fn report_in(command: &str, name: &str, args: &str, limit: Duration) -> (Option<i32>, Value) {
     let args: Vec<&str> = args.split_whitespace().collect();
     report_of(command, &super::Scratch::new(name), &args, limit)
+}
+
+/// [`check_device`] in a fresh [`Scratch`](super::Scratch) folder `name`, with the words
+/// of `args` as the arguments, for a test that reads what the run left there
+/// (`check.json`) or writes beside it: the folder, the exit code and the report.
+pub fn check_in(name: &str, args: &str, limit: Duration) -> (super::Scratch, Option<i32>, Value) {
+    let dir = super::Scratch::new(name);
+    let args: Vec<&str> = args.split_whitespace().collect();
+    let (code, v) = check_device(&dir, &args, limit);
+    (dir, code, v)
+}
+
+/// Node `address` of a monitor report (a report without it fails the test, showing the
+/// monitor's part).
+#[track_caller]
+pub fn monitor_node<'a>(r: &'a Value, address: &str) -> &'a Value {
+    r["monitor"]["nodes"]
+        .as_array()
+        .and_then(|all| all.iter().find(|n| n["address"] == address))
+        .unwrap_or_else(|| panic!("no node {address} in {:#}", r["monitor"]))
 }
 
 /// The check `id` of a report (a report without it fails the test, naming the ids it
@@ -128,6 +207,17 @@ pub fn strings<'a>(items: &'a Value, key: &str) -> Vec<&'a str> {
 pub fn with_status(v: &Value, statuses: &[&str]) -> Vec<String> {
     checks_where(v, |c| statuses.iter().any(|s| c["status"] == *s))
         .map(|c| format!("{} {}: {}", c["status"], c["id"], c["summary"]))
+        .collect()
+}
+
+/// The ids of the checks of a report whose status is `status`, in the report's order.
+pub fn ids_with_status(v: &Value, status: &str) -> Vec<String> {
+    checks_where(v, |c| c["status"] == status)
+        .map(|c| {
+            let id = c["id"].as_str();
+            id.unwrap_or_else(|| panic!("a check without an id: {c}"))
+                .to_string()
+        })
         .collect()
 }
 
