@@ -320,6 +320,12 @@ fn expired_unmatched_and_other_device_entries_do_not_apply() {
     assert_eq!(r.exit_code(), 0);
 }
 
+/// `f` applied to `r` on 2026-06-01, and the state of its first entry.
+fn first_state_after(r: &mut Report, f: &Expectations, strict: bool) -> EntryState {
+    apply(r, f, strict, day("2026-06-01"));
+    r.expect.as_ref().unwrap().entries[0].state
+}
+
 #[test]
 fn node_and_mode_narrow_an_entry() {
     let mut a = result("rtu.a", Status::Deviation);
@@ -344,11 +350,8 @@ fn node_and_mode_narrow_an_entry() {
     assert!(r.is_expected(&r.results[1]));
     e.node = None;
     e.mode = Some(Mode::Ascii);
-    apply(&mut r, &file(vec![e]), false, day("2026-06-01"));
-    assert_eq!(
-        r.expect.as_ref().unwrap().entries[0].state,
-        EntryState::Unmatched
-    );
+    let state = first_state_after(&mut r, &file(vec![e]), false);
+    assert_eq!(state, EntryState::Unmatched);
 }
 
 #[test]
@@ -368,21 +371,13 @@ fn a_fuzz_finding_is_expected_by_its_signature() {
     assert_eq!(r.exit_code(), 0);
     // The clean drive: the campaign ran to its end and did not find it again.
     r.results.truncate(1);
-    apply(&mut r, &f, false, day("2026-06-01"));
-    assert_eq!(
-        r.expect.as_ref().unwrap().entries[0].state,
-        EntryState::NotFound
-    );
+    assert_eq!(first_state_after(&mut r, &f, false), EntryState::NotFound);
     assert_eq!((r.unexpected_passes(), r.exit_code()), (1, 0));
     apply(&mut r, &f, true, day("2026-06-01"));
     assert_eq!(r.exit_code(), 1, "strict");
     // A campaign that did not end (ERROR) says nothing: the entry matched nothing.
     r.results[0].status = Status::Error;
-    apply(&mut r, &f, true, day("2026-06-01"));
-    assert_eq!(
-        r.expect.as_ref().unwrap().entries[0].state,
-        EntryState::Unmatched
-    );
+    assert_eq!(first_state_after(&mut r, &f, true), EntryState::Unmatched);
 }
 
 #[test]
