@@ -640,16 +640,25 @@ fn checksum_answer(
 fn judge(case: &Case, answer: &Value) -> (Vec<Finding>, String) {
     let mut f = Vec::new();
     let bytes = |k: &str| answer.get(k).and_then(Value::as_str).map(parse_hex);
+    let accepted = answer.get("accepted").and_then(Value::as_bool);
     let text;
     match &case.want {
         Want::Accept { .. } | Want::Reject(_) if !matches!(case.op, Op::Decode { .. }) => {
             text = answer.to_string();
         }
+        // A decode answer says whether it took the frame; one that does not say is
+        // judged the same whichever verdict was wanted.
+        Want::Accept { .. } | Want::Reject(_) if accepted.is_none() => {
+            text = answer.to_string();
+            f.push(Finding::deviation(format!(
+                "no \"accepted\" in the answer: {answer}"
+            )));
+        }
         Want::Accept {
             message: want,
             may_reject,
-        } => match answer.get("accepted").and_then(Value::as_bool) {
-            Some(true) => {
+        } => {
+            if accepted == Some(true) {
                 let got = answer.get("message").cloned().unwrap_or(Value::Null);
                 text = format!("accepted: {got}");
                 if let Some(d) = compare_messages(want, &got) {
@@ -657,8 +666,7 @@ fn judge(case: &Case, answer: &Value) -> (Vec<Finding>, String) {
                         "accepted the frame but decoded {d}"
                     )));
                 }
-            }
-            Some(false) => {
+            } else {
                 let reason = answer.get("reason").and_then(Value::as_str).unwrap_or("");
                 match may_reject {
                     Some(why) => {
@@ -674,34 +682,21 @@ fn judge(case: &Case, answer: &Value) -> (Vec<Finding>, String) {
                     }
                 }
             }
-            None => {
-                text = answer.to_string();
-                f.push(Finding::deviation(format!(
-                    "no \"accepted\" in the answer: {answer}"
-                )));
-            }
-        },
-        Want::Reject(ours) => match answer.get("accepted").and_then(Value::as_bool) {
-            Some(false) => {
-                text = format!(
-                    "rejected: {}",
-                    answer.get("reason").and_then(Value::as_str).unwrap_or("")
-                );
-            }
-            Some(true) => {
+        }
+        Want::Reject(ours) => {
+            if accepted == Some(true) {
                 let got = answer.get("message").cloned().unwrap_or(Value::Null);
                 text = format!("accepted: {got}");
                 f.push(Finding::deviation(format!(
                     "accepted a frame that must be rejected ({ours}) and decoded it as {got}"
                 )));
+            } else {
+                text = format!(
+                    "rejected: {}",
+                    answer.get("reason").and_then(Value::as_str).unwrap_or("")
+                );
             }
-            None => {
-                text = answer.to_string();
-                f.push(Finding::deviation(format!(
-                    "no \"accepted\" in the answer: {answer}"
-                )));
-            }
-        },
+        }
         Want::Frame(want) => match bytes("frame") {
             Some(Ok(got)) => {
                 text = Hex(&got).to_string();

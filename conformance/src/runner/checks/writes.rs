@@ -68,13 +68,7 @@ pub(super) fn writes(model: &DriveModel, mode: Mode, m: &str, out: &mut Vec<Chec
         out.push(refused_write(
             format!("{m}.write.out-of-range"),
             format!("Write FFFFH (655.35 Hz) to the frequency command {f:04X}H, and read it back"),
-            cite_or(
-                model,
-                model
-                    .rule(crate::model::Fault::DataOutOfRange)
-                    .map(|r| &r.fact),
-                "exceptions.data-out-of-range",
-            ),
+            cite_rule(model, crate::model::Fault::DataOutOfRange),
             Target::stored(f),
             move |ctx, _| {
                 ctx.frame(Pdu::WriteSingle {
@@ -159,11 +153,7 @@ pub(super) fn writes(model: &DriveModel, mode: Mode, m: &str, out: &mut Vec<Chec
         out.push(refused_write(
             format!("{m}.write.read-only"),
             format!("Write 0000H to the monitor register {ro:04X}H (read-only), and read it back"),
-            cite_or(
-                model,
-                model.rule(crate::model::Fault::ReadOnly).map(|r| &r.fact),
-                "exceptions.read-only",
-            ),
+            cite_rule(model, crate::model::Fault::ReadOnly),
             Target::state(ro),
             move |ctx, _| {
                 ctx.frame(Pdu::WriteSingle {
@@ -182,13 +172,7 @@ pub(super) fn writes(model: &DriveModel, mode: Mode, m: &str, out: &mut Vec<Chec
         out.push(refused_write(
             format!("{m}.write.reserved"),
             format!("Write 0000H to the reserved register {res:04X}H, and read it back"),
-            cite_or(
-                model,
-                model
-                    .rule(crate::model::Fault::ReservedWrite)
-                    .map(|r| &r.fact),
-                "exceptions.reserved-write",
-            ),
+            cite_rule(model, crate::model::Fault::ReservedWrite),
             Target::stored(res),
             move |ctx, _| {
                 ctx.frame(Pdu::WriteSingle {
@@ -290,7 +274,7 @@ fn blocks(model: &DriveModel, m: &str, out: &mut Vec<Check>) {
                 format!("Write the value it holds to {r:04X}H of {label} (read-only), and read it back"),
                 format!(
                     "{source}; {}",
-                    cite_or(model, model.rule(crate::model::Fault::ReadOnly).map(|x| &x.fact), "exceptions.read-only")
+                    cite_rule(model, crate::model::Fault::ReadOnly)
                 ),
                 Target::state(r),
                 move |ctx, before| {
@@ -310,7 +294,7 @@ fn blocks(model: &DriveModel, m: &str, out: &mut Vec<Check>) {
                 format!("Write {value:04X}H to {r:04X}H, outside the bounds of {label}, and read it back"),
                 format!(
                     "{source}; {}",
-                    cite_or(model, model.rule(crate::model::Fault::DataOutOfRange).map(|x| &x.fact), "exceptions.data-out-of-range")
+                    cite_rule(model, crate::model::Fault::DataOutOfRange)
                 ),
                 Target::stored(r),
                 move |ctx, _| ctx.frame(Pdu::WriteSingle { register: r, value }),
