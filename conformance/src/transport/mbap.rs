@@ -473,6 +473,19 @@ mod tests {
         Ok(out)
     }
 
+    /// Sends READ through the gateway, answers it with `reply` (MBAP), and takes what
+    /// the gateway hands up within 100 ms.
+    fn answer_read(
+        g: &mut MbapGateway,
+        s: &mut TcpStream,
+        reply: &[u8],
+    ) -> Result<Vec<u8>, TransportError> {
+        g.send(&READ).unwrap();
+        read_request(s);
+        s.write_all(reply).unwrap();
+        recv_all(g, 100)
+    }
+
     const READ: [u8; 8] = [0x01, 0x03, 0x25, 0x20, 0x00, 0x01, 0x8E, 0xCC];
     const REPLY: [u8; 7] = [0x01, 0x03, 0x02, 0x00, 0x04, 0xB9, 0x87];
 
@@ -525,11 +538,15 @@ mod tests {
     #[test]
     fn a_gateway_exception_is_silence_with_a_note() {
         let (mut g, mut s) = pair(UnitMap::new(1, 1));
-        g.send(&READ).unwrap();
-        read_request(&mut s);
-        s.write_all(&[0x00, 0x01, 0x00, 0x00, 0x00, 0x03, 0x01, 0x83, 0x0B])
-            .unwrap();
-        assert_eq!(recv_all(&mut g, 100).unwrap(), b"");
+        assert_eq!(
+            answer_read(
+                &mut g,
+                &mut s,
+                &[0x00, 0x01, 0x00, 0x00, 0x00, 0x03, 0x01, 0x83, 0x0B]
+            )
+            .unwrap(),
+            b""
+        );
         let notes = g.take_notes();
         assert_eq!(notes.len(), 1);
         assert!(
@@ -537,11 +554,12 @@ mod tests {
             "{notes:?}"
         );
         // An ordinary exception is the device's and crosses.
-        g.send(&READ).unwrap();
-        read_request(&mut s);
-        s.write_all(&[0x00, 0x02, 0x00, 0x00, 0x00, 0x03, 0x01, 0x83, 0x02])
-            .unwrap();
-        let e = recv_all(&mut g, 100).unwrap();
+        let e = answer_read(
+            &mut g,
+            &mut s,
+            &[0x00, 0x02, 0x00, 0x00, 0x00, 0x03, 0x01, 0x83, 0x02],
+        )
+        .unwrap();
         assert_eq!(e[..3], [0x01, 0x83, 0x02]);
         assert_eq!(crate::codec::crc16(&e), 0);
     }
@@ -567,13 +585,14 @@ mod tests {
         let notes = g.take_notes();
         assert!(notes[0].starts_with("a late reply"), "{notes:?}");
         // A transaction id that no request had: an error with the header in hex.
-        g.send(&READ).unwrap();
-        read_request(&mut s);
-        s.write_all(&[
-            0x77, 0x77, 0x00, 0x00, 0x00, 0x05, 0x01, 0x03, 0x02, 0x00, 0x04,
-        ])
-        .unwrap();
-        let e = recv_all(&mut g, 100).unwrap_err();
+        let e = answer_read(
+            &mut g,
+            &mut s,
+            &[
+                0x77, 0x77, 0x00, 0x00, 0x00, 0x05, 0x01, 0x03, 0x02, 0x00, 0x04,
+            ],
+        )
+        .unwrap_err();
         assert!(
             e.to_string()
                 .contains("MBAP reply header 77 77 00 00 00 05 01: transaction id 7777H"),
@@ -584,22 +603,20 @@ mod tests {
     #[test]
     fn a_reply_from_another_unit_or_protocol_is_an_error() {
         let (mut g, mut s) = pair(UnitMap::new(1, 1));
-        g.send(&READ).unwrap();
-        read_request(&mut s);
-        s.write_all(&[
-            0x00, 0x01, 0x00, 0x00, 0x00, 0x05, 0x02, 0x03, 0x02, 0x00, 0x04,
-        ])
-        .unwrap();
-        let e = recv_all(&mut g, 100).unwrap_err();
+        let e = answer_read(
+            &mut g,
+            &mut s,
+            &[
+                0x00, 0x01, 0x00, 0x00, 0x00, 0x05, 0x02, 0x03, 0x02, 0x00, 0x04,
+            ],
+        )
+        .unwrap_err();
         assert!(
             e.to_string()
                 .contains("unit id 02H, the request went to unit 01H"),
             "{e}"
         );
-        g.send(&READ).unwrap();
-        read_request(&mut s);
-        s.write_all(&[0x00, 0x02, 0x00, 0x07, 0x00, 0x05]).unwrap();
-        let e = recv_all(&mut g, 100).unwrap_err();
+        let e = answer_read(&mut g, &mut s, &[0x00, 0x02, 0x00, 0x07, 0x00, 0x05]).unwrap_err();
         assert!(matches!(e, TransportError::Mbap { .. }), "{e}");
         assert!(e.to_string().contains("protocol id 0007H"), "{e}");
     }
