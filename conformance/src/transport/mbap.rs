@@ -486,6 +486,18 @@ mod tests {
         recv_all(g, 100)
     }
 
+    /// [`answer_read`] with a reply the gateway must refuse: its error, which says `says`.
+    fn refused_read(
+        g: &mut MbapGateway,
+        s: &mut TcpStream,
+        reply: &[u8],
+        says: &str,
+    ) -> TransportError {
+        let e = answer_read(g, s, reply).unwrap_err();
+        assert!(e.to_string().contains(says), "{e}");
+        e
+    }
+
     const READ: [u8; 8] = [0x01, 0x03, 0x25, 0x20, 0x00, 0x01, 0x8E, 0xCC];
     const REPLY: [u8; 7] = [0x01, 0x03, 0x02, 0x00, 0x04, 0xB9, 0x87];
 
@@ -585,40 +597,24 @@ mod tests {
         let notes = g.take_notes();
         assert!(notes[0].starts_with("a late reply"), "{notes:?}");
         // A transaction id that no request had: an error with the header in hex.
-        let e = answer_read(
-            &mut g,
-            &mut s,
-            &[
-                0x77, 0x77, 0x00, 0x00, 0x00, 0x05, 0x01, 0x03, 0x02, 0x00, 0x04,
-            ],
-        )
-        .unwrap_err();
-        assert!(
-            e.to_string()
-                .contains("MBAP reply header 77 77 00 00 00 05 01: transaction id 7777H"),
-            "{e}"
-        );
+        let stray = [
+            0x77, 0x77, 0x00, 0x00, 0x00, 0x05, 0x01, 0x03, 0x02, 0x00, 0x04,
+        ];
+        let header = "MBAP reply header 77 77 00 00 00 05 01: transaction id 7777H";
+        refused_read(&mut g, &mut s, &stray, header);
     }
 
     #[test]
     fn a_reply_from_another_unit_or_protocol_is_an_error() {
         let (mut g, mut s) = pair(UnitMap::new(1, 1));
-        let e = answer_read(
-            &mut g,
-            &mut s,
-            &[
-                0x00, 0x01, 0x00, 0x00, 0x00, 0x05, 0x02, 0x03, 0x02, 0x00, 0x04,
-            ],
-        )
-        .unwrap_err();
-        assert!(
-            e.to_string()
-                .contains("unit id 02H, the request went to unit 01H"),
-            "{e}"
-        );
-        let e = answer_read(&mut g, &mut s, &[0x00, 0x02, 0x00, 0x07, 0x00, 0x05]).unwrap_err();
+        let other_unit = [
+            0x00, 0x01, 0x00, 0x00, 0x00, 0x05, 0x02, 0x03, 0x02, 0x00, 0x04,
+        ];
+        let unit = "unit id 02H, the request went to unit 01H";
+        refused_read(&mut g, &mut s, &other_unit, unit);
+        let other_protocol = [0x00, 0x02, 0x00, 0x07, 0x00, 0x05];
+        let e = refused_read(&mut g, &mut s, &other_protocol, "protocol id 0007H");
         assert!(matches!(e, TransportError::Mbap { .. }), "{e}");
-        assert!(e.to_string().contains("protocol id 0007H"), "{e}");
     }
 
     #[test]
