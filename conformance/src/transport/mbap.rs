@@ -540,11 +540,8 @@ mod tests {
         .unwrap();
         // Handed up as node 1's reply, as the drive at node 1 sent it.
         assert_eq!(recv_all(&mut g, 100).unwrap(), REPLY);
-        assert!(
-            g.describe().contains("unit 5 for node 1"),
-            "{}",
-            g.describe()
-        );
+        let described = g.describe();
+        assert!(described.contains("unit 5 for node 1"), "{described}");
     }
 
     #[test]
