@@ -70,12 +70,7 @@ pub(super) fn writes(model: &DriveModel, mode: Mode, m: &str, out: &mut Vec<Chec
             format!("Write FFFFH (655.35 Hz) to the frequency command {f:04X}H, and read it back"),
             cite_rule(model, crate::model::Fault::DataOutOfRange),
             Target::stored(f),
-            move |ctx, _| {
-                ctx.frame(Pdu::WriteSingle {
-                    register: f,
-                    value: 0xFFFF,
-                })
-            },
+            single_write(f, 0xFFFF),
         ));
         if let Some((_, max, fact)) = model.frequency_command_max() {
             let source = cite(model, fact);
@@ -103,7 +98,7 @@ pub(super) fn writes(model: &DriveModel, mode: Mode, m: &str, out: &mut Vec<Chec
                     format!("Write {over:04X}H, one over the frequency command's maximum, to {f:04X}H, and read it back"),
                     source,
                     Target::stored(f),
-                    move |ctx, _| ctx.frame(Pdu::WriteSingle { register: f, value: over }),
+                    single_write(f, over),
                 ));
             }
         }
@@ -155,12 +150,7 @@ pub(super) fn writes(model: &DriveModel, mode: Mode, m: &str, out: &mut Vec<Chec
             format!("Write 0000H to the monitor register {ro:04X}H (read-only), and read it back"),
             cite_rule(model, crate::model::Fault::ReadOnly),
             Target::state(ro),
-            move |ctx, _| {
-                ctx.frame(Pdu::WriteSingle {
-                    register: ro,
-                    value: 0,
-                })
-            },
+            single_write(ro, 0),
         ));
     }
     if let Some(res) = model
@@ -174,12 +164,7 @@ pub(super) fn writes(model: &DriveModel, mode: Mode, m: &str, out: &mut Vec<Chec
             format!("Write 0000H to the reserved register {res:04X}H, and read it back"),
             cite_rule(model, crate::model::Fault::ReservedWrite),
             Target::stored(res),
-            move |ctx, _| {
-                ctx.frame(Pdu::WriteSingle {
-                    register: res,
-                    value: 0,
-                })
-            },
+            single_write(res, 0),
         ));
     }
     // Parameters the manual marks read-only (F510's Metasys table): 06H and 10H writes of
@@ -328,6 +313,14 @@ fn preserving_write(id: String, title: String, source: String, r: u16) -> Check 
             format!("{r:04X}H accepted {orig:04X}H and reads it back"),
         ))
     })
+}
+
+/// The frame of a refused write: 06H of `value` to `register`, whatever was read before.
+fn single_write(
+    register: u16,
+    value: u16,
+) -> impl Fn(&Ctx<'_>, &[Option<u16>]) -> Vec<u8> + 'static {
+    move |ctx, _| ctx.frame(Pdu::WriteSingle { register, value })
 }
 
 pub(super) fn refused_write(
