@@ -282,7 +282,7 @@ fn blocks(model: &DriveModel, m: &str, out: &mut Vec<Check>) {
                     cite_rule(model, crate::model::Fault::DataOutOfRange)
                 ),
                 Target::stored(r),
-                move |ctx, _| ctx.frame(Pdu::WriteSingle { register: r, value }),
+                single_write(r, value),
             ));
         }
     }
