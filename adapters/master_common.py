@@ -2,13 +2,13 @@
 protocol (role "master", adapters/PROTOCOL.md), its hello, and the answers an operation
 gives.
 
-An adapter keeps what is its own library's: its operations (`OPS`: op name -> function of
-the request, returning the answer's fields), how it opens and closes its line, and how it
-maps what the library returned or raised to an answer (`values`, `done`, `echo`,
-`exception`, `error`, `raised`). `serve` reads one request per line on stdin and writes one
-answer per line, with the request's id, to the stream given (the adapter's real stdout:
-adapters point `sys.stdout` at stderr so that a library's prints cannot corrupt the
-protocol).
+An adapter keeps what is its own library's: its operations (`op_read` and the others,
+functions of the request returning the answer's fields, gathered by `ops_of`), how it opens
+and closes its line, and how it maps what the library returned or raised to an answer
+(`values`, `done`, `echo`, `exception`, `error`, `raised`). `serve` reads one request per
+line on stdin and writes one answer per line, with the request's id, to the stream given
+(the adapter's real stdout, from `protocol_stream`, which points `sys.stdout` at stderr so
+that a library's prints cannot corrupt the protocol).
 
 The loop's own answers, as the master adapters have always given them:
 
@@ -31,6 +31,33 @@ from typing import Callable, Optional, TextIO
 from adapter_common import Unsupported, hexs  # noqa: F401 - shared with the codec adapters
 
 Op = Callable[[dict], dict]
+
+
+def protocol_stream() -> TextIO:
+    """The real stdout, for the answers; `sys.stdout` then points at stderr, so that a
+    library's prints (its debug output included) can never corrupt the protocol."""
+    out = sys.stdout
+    sys.stdout = sys.stderr
+    return out
+
+
+# The protocol's operations; an adapter defines `op_<name>` (dashes as underscores) for each.
+OP_NAMES = ("hello", "open", "read", "write-single", "write-multiple", "loop-back", "close")
+
+
+def ops_of(namespace: dict) -> dict[str, Op]:
+    """The operations an adapter's module defines (`globals()`), by protocol name; an op it
+    does not define is answered "unsupported" by the loop."""
+    ops = {name: namespace.get("op_" + name.replace("-", "_")) for name in OP_NAMES}
+    return {name: fn for name, fn in ops.items() if fn is not None}
+
+
+def closing(close: Callable[[], None]) -> Op:
+    """The `close` operation of an adapter whose line `close` closes."""
+    def op_close(_req: dict) -> dict:
+        close()
+        return {"ok": True}
+    return op_close
 
 
 def h4(v: int) -> str:

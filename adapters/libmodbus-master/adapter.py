@@ -31,16 +31,16 @@ import errno as E
 import os
 import sys
 
-ADAPTER = "libmodbus-master"
-OUT = sys.stdout
-sys.stdout = sys.stderr
-
 # The loop, hello and answers the Python master adapters share (adapters/master_common.py);
 # appended, so that this folder's neighbours never shadow an installed package.
 sys.path.append(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 from master_common import (  # noqa: E402
-    Unsupported, done, error, exception, hello_answer, refuse_hello, serve, values,
+    Unsupported, closing, done, error, exception, hello_answer, ops_of, protocol_stream,
+    refuse_hello, serve, values,
 )
+
+ADAPTER = "libmodbus-master"
+OUT = protocol_stream()
 
 lib = ctypes.CDLL(ctypes.util.find_library("modbus") or "libmodbus.so.5", use_errno=True)
 lib.modbus_new_rtu.restype = ctypes.c_void_p
@@ -180,9 +180,7 @@ def op_loop_back(_req: dict) -> dict:
     raise Unsupported("libmodbus has no 08H call (only modbus_send_raw_request)")
 
 
-def op_close(_req: dict) -> dict:
-    close_ctx()
-    return {"ok": True}
+op_close = closing(close_ctx)
 
 
 def op_hello(req: dict) -> dict:
@@ -192,9 +190,5 @@ def op_hello(req: dict) -> dict:
         lines=["pty", "mbap"], modes=["rtu"])
 
 
-OPS = {"hello": op_hello, "open": op_open, "read": op_read, "write-single": op_write_single,
-       "write-multiple": op_write_multiple, "loop-back": op_loop_back, "close": op_close}
-
-
 if __name__ == "__main__":
-    sys.exit(serve(OPS, ADAPTER, OUT, at_end=close_ctx))
+    sys.exit(serve(ops_of(globals()), ADAPTER, OUT, at_end=close_ctx))

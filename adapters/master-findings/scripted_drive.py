@@ -111,14 +111,20 @@ print("open:", ask(open_req))
 
 READ = {"op": "read", "unit": 1, "start": "2520", "count": 2}
 
+def take_request(into):
+    """The master's next request: when it came and its bytes go into `into`; its PDU
+    (None where it does not decode)."""
+    req = read_request(TMO / 1000 + 2)
+    into["t"] = time.monotonic()
+    pdu = decode(req)
+    into["request"] = req.hex(" ")
+    return pdu
+
 def run_case(name, fault, op=READ, after=None):
     """fault(pdu) -> list of (delay_s, bytes) to write after the request."""
     result = {}
     def drive():
-        req = read_request(TMO / 1000 + 2)
-        result["t"] = time.monotonic()
-        pdu = decode(req)
-        result["request"] = req.hex(" ")
+        pdu = take_request(result)
         if pdu is None:
             return
         t0 = time.monotonic()
@@ -131,10 +137,7 @@ def run_case(name, fault, op=READ, after=None):
      # recovery: a normal read, answered normally; stale bytes may arrive here too
      r = {}
      def drive2():
-         req = read_request(TMO / 1000 + 2)
-         r["t"] = time.monotonic()
-         pdu = decode(req)
-         r["request"] = req.hex(" ")
+         pdu = take_request(r)
          if after:
              after(r)
          th.join()  # whatever the fault still sends (a stale reply) goes first

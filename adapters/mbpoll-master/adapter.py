@@ -32,14 +32,15 @@ import shutil
 import subprocess
 import sys
 
-ADAPTER = "mbpoll-master"
-OUT = sys.stdout
-sys.stdout = sys.stderr
-
 # The loop, hello and answers the Python master adapters share (adapters/master_common.py);
 # appended, so that this folder's neighbours never shadow an installed package.
 sys.path.append(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-from master_common import done, error, exception, hello_answer, raised, refuse_hello, serve, values  # noqa: E402
+from master_common import (  # noqa: E402
+    done, error, exception, hello_answer, ops_of, protocol_stream, raised, refuse_hello, serve, values,
+)
+
+ADAPTER = "mbpoll-master"
+OUT = protocol_stream()
 
 # libmodbus 3.1.6 modbus_strerror texts (src/modbus.c) back to the exception code.
 EXCEPTION_OF_TEXT = {
@@ -171,9 +172,5 @@ def op_close(_req: dict) -> dict:
     return {"ok": True}
 
 
-OPS = {"hello": op_hello, "open": op_open, "read": op_read, "write-single": op_write_single,
-       "write-multiple": op_write_multiple, "loop-back": op_loop_back, "close": op_close}
-
-
 if __name__ == "__main__":
-    sys.exit(serve(OPS, ADAPTER, OUT))
+    sys.exit(serve(ops_of(globals()), ADAPTER, OUT))

@@ -37,16 +37,16 @@ if sys.path and os.path.abspath(sys.path[0] or ".") == os.path.dirname(os.path.a
 import minimalmodbus  # noqa: E402
 import serial  # noqa: E402
 
-ADAPTER = "minimalmodbus-master"
-OUT = sys.stdout
-sys.stdout = sys.stderr  # minimalmodbus's debug prints go to stderr, never into the protocol
-
 # The loop, hello and answers the Python master adapters share (adapters/master_common.py);
 # appended, so that this folder's neighbours never shadow an installed package.
 sys.path.append(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 from master_common import (  # noqa: E402
-    Unsupported, done, error, exception, hello_answer, raised, refuse_hello, serve, values,
+    Unsupported, closing, done, error, exception, hello_answer, ops_of, protocol_stream, raised,
+    refuse_hello, serve, values,
 )
+
+ADAPTER = "minimalmodbus-master"
+OUT = protocol_stream()  # minimalmodbus's debug prints go to stderr
 
 instrument = None
 
@@ -158,9 +158,7 @@ def op_loop_back(_req: dict) -> dict:
     raise Unsupported("minimalmodbus's API has no 08H (diagnostics) call")
 
 
-def op_close(_req: dict) -> dict:
-    close_instrument()
-    return {"ok": True}
+op_close = closing(close_instrument)
 
 
 def op_hello(req: dict) -> dict:
@@ -170,9 +168,5 @@ def op_hello(req: dict) -> dict:
         lines=["pty", "tcp-rtu"], modes=["rtu", "ascii"])
 
 
-OPS = {"hello": op_hello, "open": op_open, "read": op_read, "write-single": op_write_single,
-       "write-multiple": op_write_multiple, "loop-back": op_loop_back, "close": op_close}
-
-
 if __name__ == "__main__":
-    sys.exit(serve(OPS, ADAPTER, OUT))
+    sys.exit(serve(ops_of(globals()), ADAPTER, OUT))

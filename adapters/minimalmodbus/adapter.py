@@ -83,12 +83,19 @@ def op_hello(req):
     return hello(req, adapter, "minimalmodbus", mm.__version__, ["decode", "encode", "crc", "lrc"])
 
 
-def op_decode(req):
+def master_side(req, direction: str, verb: str, other: str) -> str:
+    """The request's mode, where it asks for the one direction a master handles
+    (`direction`); the other (`verb`, `other`) is unsupported."""
     mode = req.get("mode")
     if mode not in ("rtu", "ascii"):
         raise BadRequest(f"bad mode {mode!r}")
-    if req.get("direction") != "response":
-        raise Unsupported("minimalmodbus is a master only: it never decodes a request")
+    if req.get("direction") != direction:
+        raise Unsupported(f"minimalmodbus is a master only: it never {verb} {other}")
+    return mode
+
+
+def op_decode(req):
+    mode = master_side(req, "response", "decodes", "a request")
     frame = parse_hex(req.get("frame"))
     # Which request this frame answers: address and function from its first bytes
     # (as characters in ASCII). Where those cannot be read, minimalmodbus's own
@@ -195,11 +202,7 @@ def op_decode(req):
 
 
 def op_encode(req):
-    mode = req.get("mode")
-    if mode not in ("rtu", "ascii"):
-        raise BadRequest(f"bad mode {mode!r}")
-    if req.get("direction") != "request":
-        raise Unsupported("minimalmodbus is a master only: it never encodes a response")
+    mode = master_side(req, "request", "encodes", "a response")
     msg = req.get("message")
     if not isinstance(msg, dict) or not isinstance(msg.get("fields"), dict):
         raise BadRequest("message must be an object with fields")

@@ -40,16 +40,16 @@ from pymodbus import FramerType  # noqa: E402
 from pymodbus.client import ModbusSerialClient, ModbusTcpClient  # noqa: E402
 from pymodbus.exceptions import ConnectionException, ModbusIOException, ModbusException  # noqa: E402
 
-ADAPTER = "pymodbus-master"
-OUT = sys.stdout
-sys.stdout = sys.stderr  # anything pymodbus prints goes to stderr, never into the protocol
-
 # The loop, hello and answers the Python master adapters share (adapters/master_common.py);
 # appended, so that this folder's neighbours never shadow an installed package.
 sys.path.append(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 from master_common import (  # noqa: E402
-    Unsupported, done, echo, error, exception, h4, hello_answer, raised, refuse_hello, serve, values,
+    Unsupported, closing, done, echo, error, exception, h4, hello_answer, ops_of, protocol_stream,
+    raised, refuse_hello, serve, values,
 )
+
+ADAPTER = "pymodbus-master"
+OUT = protocol_stream()  # anything pymodbus prints goes to stderr
 
 if os.environ.get("PYMODBUS_MASTER_DEBUG"):
     pymodbus.pymodbus_apply_logging_config(logging.DEBUG)
@@ -221,9 +221,7 @@ def op_loop_back(req: dict) -> dict:
     return outcome(lambda: c.diag_query_data(data, device_id=unit), on_echo)
 
 
-def op_close(_req: dict) -> dict:
-    close_client()
-    return {"ok": True}
+op_close = closing(close_client)
 
 
 def op_hello(req: dict) -> dict:
@@ -233,9 +231,5 @@ def op_hello(req: dict) -> dict:
         lines=["pty", "tcp-rtu", "mbap"], modes=["rtu", "ascii"])
 
 
-OPS = {"hello": op_hello, "open": op_open, "read": op_read, "write-single": op_write_single,
-       "write-multiple": op_write_multiple, "loop-back": op_loop_back, "close": op_close}
-
-
 if __name__ == "__main__":
-    sys.exit(serve(OPS, ADAPTER, OUT, at_end=close_client))
+    sys.exit(serve(ops_of(globals()), ADAPTER, OUT, at_end=close_client))

@@ -196,16 +196,45 @@ fn rejected(reason: String) -> Outcome {
     Ok(json!({"accepted": false, "reason": reason}))
 }
 
+/// What modbus-core's `call` decoded, or the answer that rejects the frame: no complete
+/// frame found, or modbus-core's error.
+fn found<T, E: std::fmt::Display>(decoded: Result<Option<T>, E>, call: &str) -> Result<T, Outcome> {
+    match decoded {
+        Ok(Some(adu)) => Ok(adu),
+        Ok(None) => Err(rejected(format!(
+            "modbus-core found no complete frame with a valid CRC ({call} gave None)"
+        ))),
+        Err(e) => Err(rejected(format!("modbus-core: {e}"))),
+    }
+}
+
+/// 06H, the same in both directions.
+fn write_single(a: u8, fc: u8, register: u16, value: u16) -> Value {
+    let fields = json!({"register": format!("{register:04X}"), "value": format!("{value:04X}")});
+    message(a, fc, "write-single", fields)
+}
+
+/// A PDU modbus-core hands over as bytes: 08H (with at least its test code) as a loop-back,
+/// anything else as data.
+fn custom(a: u8, fc: u8, bytes: &[u8]) -> Value {
+    if fc == 0x08 && bytes.len() >= 2 {
+        message(
+            a,
+            fc,
+            "loop-back",
+            json!({"test_code": format!("{:02X}{:02X}", bytes[0], bytes[1]),
+                   "data": hex(&bytes[2..])}),
+        )
+    } else {
+        message(a, fc, "other", json!({"data": hex(bytes)}))
+    }
+}
+
 fn decode_request(frame: &[u8]) -> Outcome {
-    let adu =
-        match rtu::server::decode_request(frame) {
-            Ok(Some(adu)) => adu,
-            Ok(None) => return rejected(
-                "modbus-core found no complete frame with a valid CRC (decode_request gave None)"
-                    .into(),
-            ),
-            Err(e) => return rejected(format!("modbus-core: {e}")),
-        };
+    let adu = match found(rtu::server::decode_request(frame), "decode_request") {
+        Ok(adu) => adu,
+        Err(rejection) => return rejection,
+    };
     let a = adu.hdr.slave;
     let RequestPdu(pdu) = adu.pdu;
     let fc = FunctionCode::from(pdu).value();
@@ -216,12 +245,7 @@ fn decode_request(frame: &[u8]) -> Outcome {
             "read-request",
             json!({"start": format!("{start:04X}"), "count": count}),
         ),
-        Request::WriteSingleRegister(register, value) => message(
-            a,
-            fc,
-            "write-single",
-            json!({"register": format!("{register:04X}"), "value": format!("{value:04X}")}),
-        ),
+        Request::WriteSingleRegister(register, value) => write_single(a, fc, register, value),
         Request::WriteMultipleRegisters(start, data) => message(
             a,
             fc,
@@ -235,29 +259,17 @@ fn decode_request(frame: &[u8]) -> Outcome {
             "loop-back",
             json!({"test_code": format!("{:04X}", sub), "data": hex(data.payload())}),
         ),
-        Request::Custom(_, bytes) if fc == 0x08 && bytes.len() >= 2 => message(
-            a,
-            fc,
-            "loop-back",
-            json!({"test_code": format!("{:02X}{:02X}", bytes[0], bytes[1]),
-                   "data": hex(&bytes[2..])}),
-        ),
-        Request::Custom(_, bytes) => message(a, fc, "other", json!({"data": hex(bytes)})),
+        Request::Custom(_, bytes) => custom(a, fc, bytes),
         _ => message(a, fc, "other", json!({})),
     };
     accepted(m)
 }
 
 fn decode_response(frame: &[u8]) -> Outcome {
-    let adu =
-        match rtu::client::decode_response(frame) {
-            Ok(Some(adu)) => adu,
-            Ok(None) => return rejected(
-                "modbus-core found no complete frame with a valid CRC (decode_response gave None)"
-                    .into(),
-            ),
-            Err(e) => return rejected(format!("modbus-core: {e}")),
-        };
+    let adu = match found(rtu::client::decode_response(frame), "decode_response") {
+        Ok(adu) => adu,
+        Err(rejection) => return rejection,
+    };
     let a = adu.hdr.slave;
     let ResponsePdu(pdu) = adu.pdu;
     let m = match pdu {
@@ -283,12 +295,9 @@ fn decode_response(frame: &[u8]) -> Outcome {
                     "read-response",
                     json!({"byte_count": data.payload().len(), "values": hex4_list(&data)}),
                 ),
-                Response::WriteSingleRegister(register, value) => message(
-                    a,
-                    fc,
-                    "write-single",
-                    json!({"register": format!("{register:04X}"), "value": format!("{value:04X}")}),
-                ),
+                Response::WriteSingleRegister(register, value) => {
+                    write_single(a, fc, register, value)
+                }
                 Response::WriteMultipleRegisters(start, count) => message(
                     a,
                     fc,
@@ -305,14 +314,7 @@ fn decode_response(frame: &[u8]) -> Outcome {
                                "data": hex(p.get(2..).unwrap_or_default())}),
                     )
                 }
-                Response::Custom(_, bytes) if fc == 0x08 && bytes.len() >= 2 => message(
-                    a,
-                    fc,
-                    "loop-back",
-                    json!({"test_code": format!("{:02X}{:02X}", bytes[0], bytes[1]),
-                           "data": hex(&bytes[2..])}),
-                ),
-                Response::Custom(_, bytes) => message(a, fc, "other", json!({"data": hex(bytes)})),
+                Response::Custom(_, bytes) => custom(a, fc, bytes),
                 _ => message(a, fc, "other", json!({})),
             }
         }

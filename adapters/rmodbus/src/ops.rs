@@ -251,21 +251,32 @@ fn u16_of(n: u64, what: &str) -> Result<u16, Failure> {
 }
 
 fn mode_of(request: &Request) -> Result<Mode, Failure> {
-    match request.mode.as_deref() {
-        Some(m) if m.eq_ignore_ascii_case("rtu") => Ok(Mode::Rtu),
-        Some(m) if m.eq_ignore_ascii_case("ascii") => Ok(Mode::Ascii),
-        Some(m) => Err(unsupported(format!("mode {m:?}"))),
-        None => Err(bad("the request has no \"mode\"")),
-    }
+    let modes = [("rtu", Mode::Rtu), ("ascii", Mode::Ascii)];
+    one_of(request.mode.as_deref(), "mode", modes, unsupported)
 }
 
 fn direction_of(request: &Request) -> Result<Direction, Failure> {
-    match request.direction.as_deref() {
-        Some(d) if d.eq_ignore_ascii_case("request") => Ok(Direction::Request),
-        Some(d) if d.eq_ignore_ascii_case("response") => Ok(Direction::Response),
-        Some(d) => Err(bad(format!("direction {d:?}"))),
-        None => Err(bad("the request has no \"direction\"")),
-    }
+    let directions = [
+        ("request", Direction::Request),
+        ("response", Direction::Response),
+    ];
+    one_of(request.direction.as_deref(), "direction", directions, bad)
+}
+
+/// The request's `field`, one of `choices` in any case; a value that is none of them is
+/// refused by `other` with its text ("mode \"x\"").
+fn one_of<T: Copy>(
+    value: Option<&str>,
+    field: &str,
+    choices: [(&str, T); 2],
+    other: impl FnOnce(String) -> Failure,
+) -> Result<T, Failure> {
+    let v = value.ok_or_else(|| bad(format!("the request has no \"{field}\"")))?;
+    choices
+        .iter()
+        .find(|(name, _)| v.eq_ignore_ascii_case(name))
+        .map(|&(_, t)| t)
+        .ok_or_else(|| other(format!("{field} {v:?}")))
 }
 
 fn message(address: u8, function: u8, kind: &str, fields: Value) -> Value {

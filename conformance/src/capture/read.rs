@@ -382,14 +382,21 @@ impl ReadError {
 impl<'a> Reader<'a> {
     /// Reads the file header of `data`, a whole pcap or pcapng file.
     pub fn new(data: &'a [u8]) -> Result<Self, ReadError> {
-        if data.len() < 4 {
-            return Err(ReadError::Truncated {
-                offset: 0,
-                block: BlockKind::FileHeader,
-                needed: 4,
-                available: data.len() as u64,
-            });
-        }
+        // The file header is the only block read before its length is known: a short
+        // file is truncated at offset 0, whichever length the header needed.
+        let header_needs = |needed: u64| {
+            if (data.len() as u64) < needed {
+                Err(ReadError::Truncated {
+                    offset: 0,
+                    block: BlockKind::FileHeader,
+                    needed,
+                    available: data.len() as u64,
+                })
+            } else {
+                Ok(())
+            }
+        };
+        header_needs(4)?;
         let magic = [data[0], data[1], data[2], data[3]];
         let le = u32::from_le_bytes(magic);
         let pcap = match le {
@@ -400,14 +407,7 @@ impl<'a> Reader<'a> {
             _ => None,
         };
         let format = if let Some((big, nanos)) = pcap {
-            if data.len() < 24 {
-                return Err(ReadError::Truncated {
-                    offset: 0,
-                    block: BlockKind::FileHeader,
-                    needed: 24,
-                    available: data.len() as u64,
-                });
-            }
+            header_needs(24)?;
             let (major, minor) = (u16_at(data, 4, big), u16_at(data, 6, big));
             if major != 2 {
                 return Err(ReadError::Version {

@@ -223,24 +223,22 @@ fn pcapng_big_endian() -> Vec<u8> {
     );
     // An unknown block type (custom block) is skipped.
     block(&mut v, 0x0000_0BAD, &[1, 2, 3, 4]);
-    let mut epb = Vec::new();
-    epb.extend_from_slice(&0u32.to_be_bytes());
-    epb.extend_from_slice(&0u32.to_be_bytes());
-    epb.extend_from_slice(&1_500u32.to_be_bytes());
-    epb.extend_from_slice(&3u32.to_be_bytes());
-    epb.extend_from_slice(&3u32.to_be_bytes());
-    epb.extend_from_slice(&[0xAA, 0xBB, 0xCC, 0]);
-    epb.extend_from_slice(&[0, 2, 0, 4]);
-    epb.extend_from_slice(&(FLAG_INBOUND | FLAG_CRC_ERROR).to_be_bytes());
-    block(&mut v, 6, &epb);
-    let mut epb = Vec::new();
-    epb.extend_from_slice(&1u32.to_be_bytes());
-    epb.extend_from_slice(&0u32.to_be_bytes());
-    epb.extend_from_slice(&2048u32.to_be_bytes());
-    epb.extend_from_slice(&1u32.to_be_bytes());
-    epb.extend_from_slice(&1u32.to_be_bytes());
-    epb.extend_from_slice(&[b':', 0, 0, 0]);
-    block(&mut v, 6, &epb);
+    // Enhanced packet blocks, big-endian words: interface, timestamp high and low,
+    // captured and original length; then the data (padded to 4) and any options.
+    let epb = |words: [u32; 5], padded: &[u8], options: &[u8]| {
+        let mut b: Vec<u8> = words.iter().flat_map(|w| w.to_be_bytes()).collect();
+        b.extend_from_slice(padded);
+        b.extend_from_slice(options);
+        b
+    };
+    let mut flags = vec![0, 2, 0, 4];
+    flags.extend_from_slice(&(FLAG_INBOUND | FLAG_CRC_ERROR).to_be_bytes());
+    block(
+        &mut v,
+        6,
+        &epb([0, 0, 1_500, 3, 3], &[0xAA, 0xBB, 0xCC, 0], &flags),
+    );
+    block(&mut v, 6, &epb([1, 0, 2048, 1, 1], &[b':', 0, 0, 0], &[]));
     // A simple packet block on interface 0: no time.
     block(&mut v, 3, &[0, 0, 0, 2, 0x11, 0x22, 0, 0]);
     v

@@ -14,7 +14,7 @@ use conformance::runner::Options;
 use conformance::session::{self, SessionConfig};
 
 use super::common::parse_duration;
-use super::link::{Resolved, SafetyArgs, TargetArgs};
+use super::link::{SafetyArgs, TargetArgs};
 use super::output::{finish, format_for};
 
 const AFTER_HELP: &str = "\
@@ -217,18 +217,12 @@ pub fn run(args: FuzzArgs) -> anyhow::Result<ExitCode> {
     // Unpaced, the simulator answers at once (the fuzzer measures the device's answers,
     // not its timing).
     let sim_delay = args.target.no_pace.then_some(Duration::ZERO);
-    let Resolved {
-        model,
-        target,
-        modes,
-        line,
-        is_sim,
-        other_address,
-    } = args.target.resolve(false, sim_delay)?;
+    let resolved = args.target.resolve(false, sim_delay)?;
+    let (is_sim, other_address) = (resolved.is_sim, resolved.other_address);
     let sim_silence = if args.target.no_pace {
         8
     } else {
-        (model.response_delay(&line).as_millis() as u64 + 40).max(60)
+        (resolved.model.response_delay(&resolved.line).as_millis() as u64 + 40).max(60)
     };
     let options = Options {
         address: args.target.address(),
@@ -271,7 +265,7 @@ pub fn run(args: FuzzArgs) -> anyhow::Result<ExitCode> {
         probe_every: args.probe_every.max(1),
         recover_wait: args.recover_wait,
         minimize: !args.no_minimize,
-        replay: args.target.replay_prefix("send", &model.id),
+        replay: args.target.replay_prefix("send", &resolved.model.id),
         storm: args.storm.then_some(conformance::fuzz::storm::StormConfig {
             frames: args.storm_frames,
             idle: args.storm_idle,
@@ -295,10 +289,10 @@ pub fn run(args: FuzzArgs) -> anyhow::Result<ExitCode> {
         std::thread::sleep(Duration::from_secs(5));
     }
     let config = SessionConfig {
-        model,
-        target,
-        modes,
-        line,
+        model: resolved.model,
+        target: resolved.target,
+        modes: resolved.modes,
+        line: resolved.line,
         options,
         capture: args.target.open_capture()?,
     };

@@ -144,3 +144,11 @@ pub fn finish(
 pub fn shell_quote(text: &str) -> String {
     format!("'{}'", text.replace('\'', "'\\''"))
 }
+
+/// "node 01" or "nodes 01, 05" (with `separator` between addresses) for a banner that
+/// names the nodes a command serves or polls.
+pub fn nodes_phrase(nodes: &[u8], separator: &str) -> String {
+    let hex: Vec<String> = nodes.iter().map(|n| format!("{n:02X}")).collect();
+    let s = if nodes.len() > 1 { "s" } else { "" };
+    format!("node{s} {}", hex.join(separator))
+}

@@ -176,15 +176,10 @@ pub fn run(args: SimulateArgs) -> anyhow::Result<ExitCode> {
     let stop = super::interrupt::stop_flag_saying(super::interrupt::Stopping::Simulator)?;
     let quirks: Vec<String> = args.quirks.iter().map(|q| q.to_string()).collect();
     let banner = format!(
-        "simulated {} ({}) at node{} {}, {mode}, response delay {:.1} ms{}",
+        "simulated {} ({}) at {}, {mode}, response delay {:.1} ms{}",
         model.id,
         model.manual,
-        if nodes.len() > 1 { "s" } else { "" },
-        nodes
-            .iter()
-            .map(|n| format!("{n:02X}"))
-            .collect::<Vec<_>>()
-            .join(", "),
+        super::output::nodes_phrase(&nodes, ", "),
         delay.as_secs_f64() * 1000.0,
         if quirks.is_empty() {
             String::new()

@@ -194,14 +194,9 @@ pub fn run(mut args: WatchArgs) -> anyhow::Result<ExitCode> {
         }
     };
     eprintln!(
-        "watch: {} in {mode}, node{} {}, {} register{} in {} read{} per poll, every {} ms; only 03H reads are sent",
+        "watch: {} in {mode}, {}, {} register{} in {} read{} per poll, every {} ms; only 03H reads are sent",
         transport.describe(),
-        if nodes.len() > 1 { "s" } else { "" },
-        nodes
-            .iter()
-            .map(|n| format!("{n:02X}"))
-            .collect::<Vec<_>>()
-            .join(","),
+        super::output::nodes_phrase(&nodes, ","),
         plan.registers.len(),
         if plan.registers.len() == 1 { "" } else { "s" },
         plan.reads.len(),

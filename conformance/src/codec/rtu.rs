@@ -278,30 +278,34 @@ mod tests {
         ));
     }
 
+    /// The RTU bytes of `pdu` to `address`, after checking that they decode back to the
+    /// same message in each of `directions`.
+    fn round_trip(address: u8, pdu: Pdu<'_>, directions: &[Direction]) -> Vec<u8> {
+        let message = Message { address, pdu };
+        let bytes = message.to_rtu_vec().unwrap();
+        for &d in directions {
+            assert_eq!(decode_rtu(&bytes, d).unwrap(), message, "{d:?}");
+        }
+        bytes
+    }
+
     #[test]
     fn write_multiple_both_directions() {
-        let req = Message {
-            address: 1,
-            pdu: Pdu::WriteMultipleRequest {
-                start: 0x2502,
-                values: Registers::new(&[0x17, 0x70, 0x00, 0x00]).unwrap(),
-            },
+        let values = Registers::new(&[0x17, 0x70, 0x00, 0x00]).unwrap();
+        let request = Pdu::WriteMultipleRequest {
+            start: 0x2502,
+            values,
         };
-        let bytes = req.to_rtu_vec().unwrap();
+        let bytes = round_trip(1, request, &[Direction::Request]);
         assert_eq!(
             &bytes[..9],
             &[0x01, 0x10, 0x25, 0x02, 0x00, 0x02, 0x04, 0x17, 0x70]
         );
-        assert_eq!(decode_rtu(&bytes, Direction::Request).unwrap(), req);
-        let resp = Message {
-            address: 1,
-            pdu: Pdu::WriteMultipleResponse {
-                start: 0x2502,
-                count: 2,
-            },
+        let response = Pdu::WriteMultipleResponse {
+            start: 0x2502,
+            count: 2,
         };
-        let bytes = resp.to_rtu_vec().unwrap();
-        assert_eq!(decode_rtu(&bytes, Direction::Response).unwrap(), resp);
+        round_trip(1, response, &[Direction::Response]);
     }
 
     #[test]
@@ -334,28 +338,19 @@ mod tests {
 
     #[test]
     fn loop_back_and_exception_and_other() {
-        let lb = Message {
-            address: 1,
-            pdu: Pdu::LoopBack {
-                test_code: 0,
-                data: &[0xA5, 0x37],
-            },
+        let loop_back = Pdu::LoopBack {
+            test_code: 0,
+            data: &[0xA5, 0x37],
         };
-        let bytes = lb.to_rtu_vec().unwrap();
+        let bytes = round_trip(1, loop_back, &[Direction::Request, Direction::Response]);
         assert_eq!(bytes.len(), 8);
-        assert_eq!(decode_rtu(&bytes, Direction::Request).unwrap(), lb);
-        assert_eq!(decode_rtu(&bytes, Direction::Response).unwrap(), lb);
 
-        let ex = Message {
-            address: 2,
-            pdu: Pdu::Exception {
-                function: 3,
-                code: 2,
-            },
+        let exception = Pdu::Exception {
+            function: 3,
+            code: 2,
         };
-        let bytes = ex.to_rtu_vec().unwrap();
+        let bytes = round_trip(2, exception, &[Direction::Response]);
         assert_eq!(&bytes[..3], &[0x02, 0x83, 0x02]);
-        assert_eq!(decode_rtu(&bytes, Direction::Response).unwrap(), ex);
         // In the request direction the same bytes are an unmodelled function 83H.
         assert_eq!(
             decode_rtu(&bytes, Direction::Request).unwrap().pdu,

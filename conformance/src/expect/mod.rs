@@ -355,67 +355,36 @@ impl Expectations {
                     ))
                 }
             };
-            let node = match e.node {
-                None => None,
-                Some(n) => Some(u8::try_from(*n.get_ref()).map_err(|_| {
-                    invalid(
-                        n.span().start,
-                        "node",
-                        format!("{} is not a node address (0..=255)", n.get_ref()),
-                    )
-                })?),
-            };
-            let mode = match e.mode {
-                None => None,
-                Some(m) => Some(Mode::from_key(m.get_ref()).ok_or_else(|| {
-                    invalid(
-                        m.span().start,
-                        "mode",
-                        format!("{:?} is not \"rtu\" or \"ascii\"", m.get_ref()),
-                    )
-                })?),
-            };
-            let expires = match e.expires {
-                None => None,
-                Some(d) => {
-                    let v = d.get_ref();
-                    match (v.date, v.time, v.offset) {
-                        (Some(x), None, None) => Some(Day {
-                            year: x.year,
-                            month: x.month,
-                            day: x.day,
-                        }),
-                        _ => {
-                            return Err(invalid(
-                                d.span().start,
-                                "expires",
-                                format!(
-                                    "{v} is not a day: write it as 2027-01-31 (no quotes, no time)"
-                                ),
-                            ))
-                        }
-                    }
+            let node = optional(e.node, "node", &invalid, |n| {
+                u8::try_from(*n).map_err(|_| format!("{n} is not a node address (0..=255)"))
+            })?;
+            let mode = optional(e.mode, "mode", &invalid, |m| {
+                Mode::from_key(m).ok_or_else(|| format!("{m:?} is not \"rtu\" or \"ascii\""))
+            })?;
+            let expires = optional(e.expires, "expires", &invalid, |v| {
+                match (v.date, v.time, v.offset) {
+                    (Some(x), None, None) => Ok(Day {
+                        year: x.year,
+                        month: x.month,
+                        day: x.day,
+                    }),
+                    _ => Err(format!(
+                        "{v} is not a day: write it as 2027-01-31 (no quotes, no time)"
+                    )),
                 }
-            };
-            let identification = match e.identification {
-                None => None,
-                Some(i) => {
-                    let s = i.get_ref().trim();
-                    let digits = s
-                        .strip_prefix("0x")
-                        .or_else(|| s.strip_suffix('H'))
-                        .unwrap_or(s);
-                    Some(u16::from_str_radix(digits, 16).map_err(|_| {
-                        invalid(
-                            i.span().start,
-                            "identification",
-                            format!(
-                                "{s:?} is not a 16-bit hex value (the identification register, e.g. \"0510\")"
-                            ),
-                        )
-                    })?)
-                }
-            };
+            })?;
+            let identification = optional(e.identification, "identification", &invalid, |i| {
+                let s = i.trim();
+                let digits = s
+                    .strip_prefix("0x")
+                    .or_else(|| s.strip_suffix('H'))
+                    .unwrap_or(s);
+                u16::from_str_radix(digits, 16).map_err(|_| {
+                    format!(
+                        "{s:?} is not a 16-bit hex value (the identification register, e.g. \"0510\")"
+                    )
+                })
+            })?;
             let ticket = e.ticket.map(Spanned::into_inner).filter(|t| !t.is_empty());
             entries.push(Entry {
                 line: line_of(text, at),
@@ -434,6 +403,19 @@ impl Expectations {
             entries,
         })
     }
+}
+
+/// An entry's optional `field`, read by `read`; a value it refuses is an error at the
+/// value's place, in `read`'s words.
+fn optional<T, U>(
+    value: Option<Spanned<T>>,
+    field: &str,
+    invalid: &impl Fn(usize, &str, String) -> ExpectError,
+    read: impl FnOnce(&T) -> Result<U, String>,
+) -> Result<Option<U>, ExpectError> {
+    value
+        .map(|v| read(v.get_ref()).map_err(|problem| invalid(v.span().start, field, problem)))
+        .transpose()
 }
 
 /// Refuses an empty pattern and characters no check id has.

@@ -194,6 +194,11 @@ fn report(results: Vec<CheckResult>) -> Report {
     }
 }
 
+/// A report of checks with these ids and statuses.
+fn report_of(results: &[(&str, Status)]) -> Report {
+    report(results.iter().map(|&(id, s)| result(id, s)).collect())
+}
+
 fn entry(line: usize, check: &str, status: Expected) -> Entry {
     Entry {
         line,
@@ -217,10 +222,10 @@ fn file(entries: Vec<Entry>) -> Expectations {
 
 #[test]
 fn expected_deviations_leave_the_exit_code_to_new_ones() {
-    let mut r = report(vec![
-        result("rtu.a", Status::Deviation),
-        result("rtu.b", Status::Deviation),
-        result("rtu.c", Status::Pass),
+    let mut r = report_of(&[
+        ("rtu.a", Status::Deviation),
+        ("rtu.b", Status::Deviation),
+        ("rtu.c", Status::Pass),
     ]);
     assert_eq!(r.exit_code(), 1);
     let f = file(vec![entry(1, "rtu.a", Expected::Deviation)]);
@@ -247,7 +252,7 @@ fn expected_deviations_leave_the_exit_code_to_new_ones() {
 
 #[test]
 fn a_deviation_that_passes_is_an_unexpected_pass() {
-    let mut r = report(vec![result("rtu.a", Status::Pass)]);
+    let mut r = report_of(&[("rtu.a", Status::Pass)]);
     let f = file(vec![entry(3, "rtu.a", Expected::Deviation)]);
     apply(&mut r, &f, false, day("2026-06-01"));
     let m = r.expectation(&r.results[0]).unwrap();
@@ -260,9 +265,9 @@ fn a_deviation_that_passes_is_an_unexpected_pass() {
 
 #[test]
 fn a_glob_marks_passes_only_when_none_of_its_checks_deviates() {
-    let mut r = report(vec![
-        result("rtu.map.a.past-end", Status::Deviation),
-        result("rtu.map.b.past-end", Status::Pass),
+    let mut r = report_of(&[
+        ("rtu.map.a.past-end", Status::Deviation),
+        ("rtu.map.b.past-end", Status::Pass),
     ]);
     let f = file(vec![entry(1, "rtu.map.*.past-end", Expected::Deviation)]);
     apply(&mut r, &f, true, day("2026-06-01"));
@@ -277,10 +282,10 @@ fn a_glob_marks_passes_only_when_none_of_its_checks_deviates() {
 
 #[test]
 fn expired_unmatched_and_other_device_entries_do_not_apply() {
-    let mut r = report(vec![
-        result("rtu.a", Status::Deviation),
-        result("rtu.b", Status::Deviation),
-        result("rtu.s", Status::Skip),
+    let mut r = report_of(&[
+        ("rtu.a", Status::Deviation),
+        ("rtu.b", Status::Deviation),
+        ("rtu.s", Status::Skip),
     ]);
     let mut expired = entry(1, "rtu.a", Expected::Deviation);
     expired.expires = Some(day("2026-05-31"));
@@ -320,6 +325,12 @@ fn expired_unmatched_and_other_device_entries_do_not_apply() {
     assert_eq!(r.exit_code(), 0);
 }
 
+/// `f` applied to `r` on 2026-06-01, and the state of its first entry.
+fn first_state_after(r: &mut Report, f: &Expectations, strict: bool) -> EntryState {
+    apply(r, f, strict, day("2026-06-01"));
+    r.expect.as_ref().unwrap().entries[0].state
+}
+
 #[test]
 fn node_and_mode_narrow_an_entry() {
     let mut a = result("rtu.a", Status::Deviation);
@@ -344,18 +355,15 @@ fn node_and_mode_narrow_an_entry() {
     assert!(r.is_expected(&r.results[1]));
     e.node = None;
     e.mode = Some(Mode::Ascii);
-    apply(&mut r, &file(vec![e]), false, day("2026-06-01"));
-    assert_eq!(
-        r.expect.as_ref().unwrap().entries[0].state,
-        EntryState::Unmatched
-    );
+    let state = first_state_after(&mut r, &file(vec![e]), false);
+    assert_eq!(state, EntryState::Unmatched);
 }
 
 #[test]
 fn a_fuzz_finding_is_expected_by_its_signature() {
-    let mut r = report(vec![
-        result("fuzz.rtu.campaign", Status::Pass),
-        result("fuzz.rtu.mismatch.03H.exception-code", Status::Observation),
+    let mut r = report_of(&[
+        ("fuzz.rtu.campaign", Status::Pass),
+        ("fuzz.rtu.mismatch.03H.exception-code", Status::Observation),
     ]);
     r.kind = ReportKind::Fuzz;
     assert_eq!(r.exit_code(), 1, "a fuzz finding fails the run");
@@ -368,29 +376,21 @@ fn a_fuzz_finding_is_expected_by_its_signature() {
     assert_eq!(r.exit_code(), 0);
     // The clean drive: the campaign ran to its end and did not find it again.
     r.results.truncate(1);
-    apply(&mut r, &f, false, day("2026-06-01"));
-    assert_eq!(
-        r.expect.as_ref().unwrap().entries[0].state,
-        EntryState::NotFound
-    );
+    assert_eq!(first_state_after(&mut r, &f, false), EntryState::NotFound);
     assert_eq!((r.unexpected_passes(), r.exit_code()), (1, 0));
     apply(&mut r, &f, true, day("2026-06-01"));
     assert_eq!(r.exit_code(), 1, "strict");
     // A campaign that did not end (ERROR) says nothing: the entry matched nothing.
     r.results[0].status = Status::Error;
-    apply(&mut r, &f, true, day("2026-06-01"));
-    assert_eq!(
-        r.expect.as_ref().unwrap().entries[0].state,
-        EntryState::Unmatched
-    );
+    assert_eq!(first_state_after(&mut r, &f, true), EntryState::Unmatched);
 }
 
 #[test]
 fn a_starting_file_expects_the_run_it_came_from() {
-    let mut r = report(vec![
-        result("rtu.a", Status::Deviation),
-        result("rtu.b", Status::Pass),
-        result("rtu.c", Status::Observation),
+    let mut r = report_of(&[
+        ("rtu.a", Status::Deviation),
+        ("rtu.b", Status::Pass),
+        ("rtu.c", Status::Observation),
     ]);
     r.results[0].summary = "manual: \"02\"\\ device: 03\nnext line".into();
     let text = starting_file(&r, "run.json", Some("known \"bug\""));
@@ -408,10 +408,7 @@ fn a_starting_file_expects_the_run_it_came_from() {
 
 #[test]
 fn the_outcome_reads_back_from_the_json_report() {
-    let mut r = report(vec![
-        result("rtu.a", Status::Deviation),
-        result("rtu.b", Status::Pass),
-    ]);
+    let mut r = report_of(&[("rtu.a", Status::Deviation), ("rtu.b", Status::Pass)]);
     let mut gone = entry(9, "rtu.gone", Expected::Observation);
     gone.ticket = Some("T-1".into());
     gone.expires = Some(day("2030-02-03"));
@@ -449,10 +446,10 @@ fn days_parse_and_order() {
 
 #[test]
 fn every_format_shows_expected_results_apart() {
-    let mut r = report(vec![
-        result("rtu.a", Status::Deviation),
-        result("rtu.b", Status::Deviation),
-        result("rtu.c", Status::Pass),
+    let mut r = report_of(&[
+        ("rtu.a", Status::Deviation),
+        ("rtu.b", Status::Deviation),
+        ("rtu.c", Status::Pass),
     ]);
     let mut a = entry(2, "rtu.a", Expected::Deviation);
     a.ticket = Some("T-7".into());

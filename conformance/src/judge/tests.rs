@@ -12,12 +12,15 @@ fn f510() -> DriveModel {
 /// 01 03 25 30 00 01: one register past the end of the monitor block (exception 02H).
 const PAST_END: [u8; 8] = [0x01, 0x03, 0x25, 0x30, 0x00, 0x01, 0x8F, 0x09];
 
+/// The F510's verdict on an RTU conversation with node 1, untimed.
+fn verdict_of(conv: &Conversation<'_>) -> Verdict {
+    Judge::new(&f510()).verdict(conv, None)
+}
+
 #[test]
 fn the_right_exception_passes_and_cites_the_manual() {
-    let model = f510();
     let reply = [0x01, 0x83, 0x02, 0xC0, 0xF1];
-    let conv = Conversation::new(Mode::Rtu, 1, &PAST_END).with_reply(&reply);
-    let v = Judge::new(&model).verdict(&conv, None);
+    let v = verdict_of(&Conversation::new(Mode::Rtu, 1, &PAST_END).with_reply(&reply));
     assert_eq!(v.status(), VerdictStatus::Pass, "{:?}", v.findings);
     assert_eq!(v.expected.as_deref(), Some(&reply[..]));
     assert!(v.differing.is_empty());
@@ -31,10 +34,8 @@ fn the_right_exception_passes_and_cites_the_manual() {
 
 #[test]
 fn a_wrong_exception_is_a_deviation_of_its_kind_with_the_differing_bytes() {
-    let model = f510();
     let reply = [0x01, 0x83, 0x03, 0x01, 0x31];
-    let conv = Conversation::new(Mode::Rtu, 1, &PAST_END).with_reply(&reply);
-    let v = Judge::new(&model).verdict(&conv, None);
+    let v = verdict_of(&Conversation::new(Mode::Rtu, 1, &PAST_END).with_reply(&reply));
     assert_eq!(v.status(), VerdictStatus::Deviation);
     assert_eq!(v.kinds, [Kind::WrongException]);
     assert_eq!(v.differing, [2, 3, 4]);
@@ -48,10 +49,8 @@ fn a_wrong_exception_is_a_deviation_of_its_kind_with_the_differing_bytes() {
 
 #[test]
 fn a_bad_crc_and_a_reply_to_a_broadcast_are_told_apart() {
-    let model = f510();
     let bad = [0x01, 0x83, 0x02, 0xF1, 0xC0];
-    let conv = Conversation::new(Mode::Rtu, 1, &PAST_END).with_invalid(&bad);
-    let v = Judge::new(&model).verdict(&conv, None);
+    let v = verdict_of(&Conversation::new(Mode::Rtu, 1, &PAST_END).with_invalid(&bad));
     assert_eq!(v.kinds, [Kind::BadChecksum]);
 
     // 06H to node 0 (broadcast): frequency command 2502H <- 1234H.
@@ -64,8 +63,7 @@ fn a_bad_crc_and_a_reply_to_a_broadcast_are_told_apart() {
     }
     .to_frame_vec(Mode::Rtu)
     .unwrap();
-    let conv = Conversation::new(Mode::Rtu, 1, &req).with_reply(&req);
-    let v = Judge::new(&model).verdict(&conv, None);
+    let v = verdict_of(&Conversation::new(Mode::Rtu, 1, &req).with_reply(&req));
     assert_eq!(v.status(), VerdictStatus::Deviation);
     assert_eq!(v.kinds, [Kind::UnexpectedReply]);
 }

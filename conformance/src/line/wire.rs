@@ -386,6 +386,16 @@ mod tests {
         out
     }
 
+    /// The events of an 8E1 wire of `endpoints` on which each `(endpoint, at bit, bytes)`
+    /// is sent, run to bit `to`.
+    fn sent(endpoints: usize, sends: &[(usize, u64, &[u8])], to: u64) -> Vec<Event> {
+        let mut w = Wire::new(l8e1(), endpoints).unwrap();
+        for &(from, at, bytes) in sends {
+            w.transmit(from, at, bytes).unwrap();
+        }
+        run(&mut w, to)
+    }
+
     fn chars(events: &[Event]) -> Vec<&LineChar> {
         events
             .iter()
@@ -454,10 +464,7 @@ mod tests {
 
     #[test]
     fn two_writers_at_once_collide_and_the_line_is_their_wired_and() {
-        let mut w = Wire::new(l8e1(), 3).unwrap();
-        w.transmit(0, 0, &[0x55, 0x0F]).unwrap();
-        w.transmit(1, 0, &[0xAA, 0xF0]).unwrap();
-        let ev = run(&mut w, 200);
+        let ev = sent(3, &[(0, 0, &[0x55, 0x0F]), (1, 0, &[0xAA, 0xF0])], 200);
         let got = chars(&ev);
         // Aligned, the AND of the data is 00H; the parity bits AND to 0 too (both even).
         assert_eq!(got.iter().map(|c| c.byte).collect::<Vec<_>>(), [0, 0]);
@@ -479,12 +486,9 @@ mod tests {
 
     #[test]
     fn a_write_into_a_transmission_damages_its_tail_only() {
-        let mut w = Wire::new(l8e1(), 3).unwrap();
-        w.transmit(0, 0, &REQUEST).unwrap();
         // Endpoint 2 starts in the middle of the fifth character, off its bit grid.
-        w.transmit(2, 4 * 11 + 3, &[0x01, 0x06, 0x25, 0x02])
-            .unwrap();
-        let ev = run(&mut w, 400);
+        let late: &[u8] = &[0x01, 0x06, 0x25, 0x02];
+        let ev = sent(3, &[(0, 0, &REQUEST), (2, 4 * 11 + 3, late)], 400);
         let got = chars(&ev);
         assert_eq!(
             got[..4].iter().map(|c| c.byte).collect::<Vec<_>>(),
@@ -509,10 +513,7 @@ mod tests {
 
     #[test]
     fn one_sender_after_another_is_no_collision() {
-        let mut w = Wire::new(l8e1(), 2).unwrap();
-        w.transmit(0, 0, &[1, 2]).unwrap();
-        w.transmit(1, 22, &[3, 4]).unwrap();
-        let ev = run(&mut w, 100);
+        let ev = sent(2, &[(0, 0, &[1, 2]), (1, 22, &[3, 4])], 100);
         assert!(!ev.iter().any(|e| matches!(e, Event::Collision(_))));
         assert_eq!(
             chars(&ev).iter().map(|c| c.byte).collect::<Vec<_>>(),

@@ -8,34 +8,36 @@ use std::ops::RangeInclusive;
 use super::*;
 
 pub(super) fn hex16(model: &str, what: &str, s: &str) -> Result<u16, ModelError> {
-    if s.len() == 4
-        && s.bytes()
-            .all(|c| c.is_ascii_digit() || (b'A'..=b'F').contains(&c))
-    {
-        if let Ok(v) = u16::from_str_radix(s, 16) {
-            return Ok(v);
-        }
-    }
-    Err(ModelError::Invalid {
-        model: model.to_string(),
-        path: what.to_string(),
-        problem: format!("{s:?} is not four upper-case hex digits"),
-    })
+    let v = upper_hex(model, what, s, 4, "four")?;
+    Ok(v as u16)
 }
 
 pub(super) fn hex8(model: &str, what: &str, s: &str) -> Result<u8, ModelError> {
-    if s.len() == 2
+    let v = upper_hex(model, what, s, 2, "two")?;
+    Ok(v as u8)
+}
+
+/// `s` as exactly `digits` upper-case hex digits (`spelt` is the count in words, for the
+/// error), so the value fits the `digits * 4` bits its caller narrows it to.
+fn upper_hex(
+    model: &str,
+    what: &str,
+    s: &str,
+    digits: usize,
+    spelt: &str,
+) -> Result<u32, ModelError> {
+    if s.len() == digits
         && s.bytes()
             .all(|c| c.is_ascii_digit() || (b'A'..=b'F').contains(&c))
     {
-        if let Ok(v) = u8::from_str_radix(s, 16) {
+        if let Ok(v) = u32::from_str_radix(s, 16) {
             return Ok(v);
         }
     }
     Err(ModelError::Invalid {
         model: model.to_string(),
         path: what.to_string(),
-        problem: format!("{s:?} is not two upper-case hex digits"),
+        problem: format!("{s:?} is not {spelt} upper-case hex digits"),
     })
 }
 

@@ -149,17 +149,11 @@ impl DriveModel {
                 None => return Err(at("exceptions", format!("no rule for {}", fault.key()))),
             }
         }
-        if let Some(k) = rules
-            .keys()
-            .find(|k| !Fault::ALL.iter().any(|x| x.key() == k.as_str()))
+        let kinds = Fault::ALL.map(Fault::key);
+        if let Some((path, problem)) =
+            unknown_key(rules, &kinds, "exceptions", ("fault kind", "kinds"))
         {
-            return Err(at(
-                &format!("exceptions.{k}"),
-                format!(
-                    "unknown fault kind {k:?}; the kinds are {}",
-                    Fault::ALL.map(Fault::key).join(", ")
-                ),
-            ));
+            return Err(at(&path, problem));
         }
         let no_silence = BTreeMap::new();
         let silences = f.silence.as_ref().unwrap_or(&no_silence);
@@ -175,17 +169,11 @@ impl DriveModel {
                 None => return Err(at("silence", format!("no entry for {}", r.key()))),
             }
         }
-        if let Some(k) = silences
-            .keys()
-            .find(|k| !SilenceReason::ALL.iter().any(|x| x.key() == k.as_str()))
+        let reasons = SilenceReason::ALL.map(SilenceReason::key);
+        if let Some((path, problem)) =
+            unknown_key(silences, &reasons, "silence", ("reason", "reasons"))
         {
-            return Err(at(
-                &format!("silence.{k}"),
-                format!(
-                    "unknown reason {k:?}; the reasons are {}",
-                    SilenceReason::ALL.map(SilenceReason::key).join(", ")
-                ),
-            ));
+            return Err(at(&path, problem));
         }
 
         let no_limits = file::LimitsFile {
@@ -882,4 +870,20 @@ fn read_only_parameters(
         });
     }
     Ok(out)
+}
+
+/// The first key of a table in `section` that is none of `known`, as the error's path and
+/// problem ("unknown reason \"x\"; the reasons are a, b"): a misspelt key is refused, not
+/// ignored.
+fn unknown_key<V>(
+    table: &BTreeMap<String, V>,
+    known: &[&str],
+    section: &str,
+    (what, whats): (&str, &str),
+) -> Option<(String, String)> {
+    let k = table.keys().find(|k| !known.contains(&k.as_str()))?;
+    Some((
+        format!("{section}.{k}"),
+        format!("unknown {what} {k:?}; the {whats} are {}", known.join(", ")),
+    ))
 }

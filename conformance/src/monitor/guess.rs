@@ -121,17 +121,16 @@ mod tests {
     use super::*;
     use crate::codec::pdu::{Message, Pdu};
 
+    /// The same read of 2520H twice, in `mode`.
     fn frames(mode: Mode) -> Vec<u8> {
-        let req = Message {
-            address: 1,
-            pdu: Pdu::ReadRequest {
-                start: 0x2520,
-                count: 1,
-            },
+        let pdu = Pdu::ReadRequest {
+            start: 0x2520,
+            count: 1,
         };
-        let mut out = req.to_frame_vec(mode).unwrap();
-        out.extend(req.to_frame_vec(mode).unwrap());
-        out
+        Message { address: 1, pdu }
+            .to_frame_vec(mode)
+            .unwrap()
+            .repeat(2)
     }
 
     #[test]

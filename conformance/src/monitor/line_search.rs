@@ -644,11 +644,8 @@ mod tests {
         assert_eq!(nf.ended, None, "{nf:?}");
         let t = nf.tried.iter().find(|t| t.line == line).unwrap();
         assert_eq!(t.other_mode, Some(Mode::Ascii));
-        assert!(
-            nf.describe().contains("valid ascii frames"),
-            "{}",
-            nf.describe()
-        );
+        let described = nf.describe();
+        assert!(described.contains("valid ascii frames"), "{described}");
     }
 
     #[test]
@@ -677,8 +674,9 @@ mod tests {
         .unwrap_err();
         assert_eq!(nf.ended, None);
         assert!(nf.tried.iter().all(|t| t.bytes > 0));
-        assert!(nf.describe().contains("9600 8E1: "), "{}", nf.describe());
-        assert!(nf.describe().contains("55 55"), "{}", nf.describe());
+        let described = nf.describe();
+        assert!(described.contains("9600 8E1: "), "{described}");
+        assert!(described.contains("55 55"), "{described}");
     }
 
     #[test]

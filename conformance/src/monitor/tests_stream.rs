@@ -102,18 +102,22 @@ fn judged(data: &[u8], chunk: Option<usize>) -> String {
     }
 }
 
+/// `data` read `chunk` bytes at a time, for each of `chunks`, is judged as `whole` (the
+/// judgement of it read whole); `case` starts the message of a failure.
+fn assert_judged_alike(data: &[u8], whole: &str, chunks: &[usize], case: &str) {
+    for &chunk in chunks {
+        let part = judged(data, Some(chunk));
+        assert!(part == whole, "{case}chunk {chunk}:\n{part}\n---\n{whole}");
+    }
+}
+
 #[test]
 fn a_capture_read_a_part_at_a_time_is_judged_as_read_whole() {
     for data in [pcapng(3), pcap(3)] {
         let whole = judged(&data, None);
         assert!(whole.contains("stopped: None"), "{whole}");
-        for chunk in [1, 2, 3, 5, 7, 13, 64, 100, 1000, 4096, 1 << 20] {
-            assert!(
-                judged(&data, Some(chunk)) == whole,
-                "chunk {chunk}:\n{}\n---\n{whole}",
-                judged(&data, Some(chunk))
-            );
-        }
+        let chunks = [1, 2, 3, 5, 7, 13, 64, 100, 1000, 4096, 1 << 20];
+        assert_judged_alike(&data, &whole, &chunks, "");
     }
 }
 
@@ -127,26 +131,14 @@ fn a_capture_cut_or_damaged_gives_the_same_fault_read_a_part_at_a_time() {
             let d = &data[..cut];
             let whole = judged(d, None);
             faults += usize::from(whole.contains("stopped: Some") || whole.contains("error"));
-            for chunk in [1, 7, 64, 1000] {
-                assert!(
-                    judged(d, Some(chunk)) == whole,
-                    "cut {cut}, chunk {chunk}:\n{}\n---\n{whole}",
-                    judged(d, Some(chunk))
-                );
-            }
+            assert_judged_alike(d, &whole, &[1, 7, 64, 1000], &format!("cut {cut}, "));
         }
         assert!(faults > data.len() / 6, "{faults}");
         for at in (0..data.len()).step_by(5) {
             let mut d = data.clone();
             d[at] ^= 0x5A;
             let whole = judged(&d, None);
-            for chunk in [3, 64, 1000] {
-                assert!(
-                    judged(&d, Some(chunk)) == whole,
-                    "damaged at {at}, chunk {chunk}:\n{}\n---\n{whole}",
-                    judged(&d, Some(chunk))
-                );
-            }
+            assert_judged_alike(&d, &whole, &[3, 64, 1000], &format!("damaged at {at}, "));
         }
     }
 }

@@ -1,7 +1,7 @@
 //! Owned messages, for the generators that cannot build the codec's borrowed ones, and
 //! the law that what is encoded decodes to itself.
 
-use super::{with_scratch, Scratch};
+use super::with_scratch;
 use crate::codec::{
     ascii_to_rtu, decode_ascii, decode_rtu, rtu_to_ascii, Direction, Message, MAX_ASCII_FRAME,
 };
@@ -123,27 +123,20 @@ impl OwnedMessage {
 pub fn roundtrip(m: &OwnedMessage, direction: Direction) {
     let msg = m.message();
     with_scratch(|s| {
-        let Scratch {
-            rtu,
-            rtu2,
-            rtu3,
-            ascii,
-            ascii2,
-        } = s;
         let nr = msg
-            .emit_rtu(rtu)
+            .emit_rtu(&mut s.rtu)
             .expect("an OwnedMessage always fits a frame");
-        let na = msg.emit_ascii(ascii).expect("and an ASCII frame");
-        let (rtu, ascii) = (&rtu[..nr], &ascii[..na]);
+        let na = msg.emit_ascii(&mut s.ascii).expect("and an ASCII frame");
+        let (rtu, ascii) = (&s.rtu[..nr], &s.ascii[..na]);
         assert_eq!(decode_rtu(rtu, direction).expect("RTU parses back"), msg);
         assert_eq!(
-            decode_ascii(ascii, direction, rtu2).expect("ASCII parses back"),
+            decode_ascii(ascii, direction, &mut s.rtu2).expect("ASCII parses back"),
             msg
         );
-        let n = rtu_to_ascii(rtu, ascii2).expect("RTU converts");
-        assert_eq!(&ascii2[..n], ascii);
-        let k = ascii_to_rtu(ascii, rtu3).expect("ASCII converts");
-        assert_eq!(&rtu3[..k], rtu);
+        let n = rtu_to_ascii(rtu, &mut s.ascii2).expect("RTU converts");
+        assert_eq!(&s.ascii2[..n], ascii);
+        let k = ascii_to_rtu(ascii, &mut s.rtu3).expect("ASCII converts");
+        assert_eq!(&s.rtu3[..k], rtu);
     });
 }
 

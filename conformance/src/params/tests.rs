@@ -99,24 +99,23 @@ fn errors_name_the_line_and_column_and_show_what_was_found_in_hex() {
             found: "\"x5\" (78 35)".into()
         }
     );
-    let e = error_of(&format!("{HEAD}[\"group 3\"]\n0301 = 70000\n"));
-    assert!(
-        e.to_string()
-            .starts_with("line 5, column 8: expected a register value 0..=65535, found 70000"),
-        "{e}"
-    );
-    let e = error_of(&format!("{HEAD}[\"group 3\"]\n301 = 1\n"));
-    assert!(
-        e.to_string()
-            .contains("line 5, column 1: expected a register: 4 hex digits"),
-        "{e}"
-    );
-    let e = error_of(&format!("{HEAD}[\"group 3\"]\n0301 = 1 2\n"));
-    assert!(
-        e.to_string()
-            .contains("line 5, column 10: expected the end of the line"),
-        "{e}"
-    );
+    for (line, starts) in [
+        (
+            "0301 = 70000",
+            "line 5, column 8: expected a register value 0..=65535, found 70000",
+        ),
+        (
+            "301 = 1",
+            "line 5, column 1: expected a register: 4 hex digits",
+        ),
+        (
+            "0301 = 1 2",
+            "line 5, column 10: expected the end of the line",
+        ),
+    ] {
+        let e = error_of(&format!("{HEAD}[\"group 3\"]\n{line}\n"));
+        assert!(e.to_string().starts_with(starts), "{line}: {e}");
+    }
     let e = error_of(&format!("{HEAD}[\"group 3\"]\n0301 = 1\n0301 = 2\n"));
     assert_eq!(
         e,

@@ -20,7 +20,7 @@ use std::fmt::Write;
 
 use serde_json::{json, Value};
 
-use super::markup::{esc, CSS};
+use super::markup::{esc, hex_marked, CSS};
 use super::{Report, ReportKind};
 use crate::codec::hex::Hex;
 use crate::expect::MarkKind;
@@ -650,21 +650,7 @@ impl Diff {
         );
         for b in &self.bytes {
             let diff = super::diff_positions(&b.old, &b.new);
-            let mark = |bytes: &[u8]| {
-                let mut s = String::from("<span class=\"hex\">");
-                for (i, x) in bytes.iter().enumerate() {
-                    if i > 0 {
-                        s.push(' ');
-                    }
-                    if diff.contains(&i) {
-                        w!(s, "<span class=\"d\">{x:02X}</span>");
-                    } else {
-                        w!(s, "{x:02X}");
-                    }
-                }
-                s.push_str("</span>");
-                s
-            };
+            let mark = |bytes: &[u8]| hex_marked(bytes, &diff, "");
             w!(
                 out,
                 "<article class=\"finding\"><h3><code>{}</code> exchange {}</h3><table class=\"frames\"><tr><td>request</td><td class=\"hex\">{}</td></tr><tr><td>old</td><td>{}</td></tr><tr><td>new</td><td>{}</td></tr></table></article>",

@@ -39,7 +39,7 @@ fn campaign_passed(report: &Report, target: &Target) -> bool {
 }
 
 /// The identification of the device `r` is about.
-fn identification_of(report: &Report, r: &CheckResult) -> Option<u16> {
+pub(super) fn identification_of(report: &Report, r: &CheckResult) -> Option<u16> {
     match r.node {
         Some(n) => report
             .device

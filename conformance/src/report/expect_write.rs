@@ -95,15 +95,7 @@ pub fn starting_file(report: &Report, source: &str, reason: Option<&str>) -> Str
         let _ = writeln!(o, "reason = {}", quoted(reason));
         let _ = writeln!(o, "ticket = \"\"");
         let _ = writeln!(o, "# expires = 2099-12-31");
-        let ident = match r.node {
-            Some(a) => report
-                .device
-                .nodes
-                .iter()
-                .find(|x| x.address == a)
-                .and_then(|x| x.identification),
-            None => report.device.identification,
-        };
+        let ident = super::expect_apply::identification_of(report, r);
         if let Some(v) = ident {
             let _ = writeln!(o, "# identification = \"{v:04X}\"");
         }

@@ -56,24 +56,9 @@ fn badge(s: Status) -> String {
     format!("<span class=\"badge {}\">{s}</span>", class(s))
 }
 
-/// Bytes in hex, the ones at `diff` marked.
+/// Bytes in hex, the ones at `diff` marked; "nothing" where there are none.
 fn hex_marked(bytes: &[u8], diff: &[usize]) -> String {
-    let mut out = String::from("<span class=\"hex\">");
-    for (i, b) in bytes.iter().enumerate() {
-        if i > 0 {
-            out.push(' ');
-        }
-        if diff.contains(&i) {
-            w!(out, "<span class=\"d\">{b:02X}</span>");
-        } else {
-            w!(out, "{b:02X}");
-        }
-    }
-    if bytes.is_empty() {
-        out.push_str("<i class=\"muted\">nothing</i>");
-    }
-    out.push_str("</span>");
-    out
+    super::markup::hex_marked(bytes, diff, "<i class=\"muted\">nothing</i>")
 }
 
 fn row(out: &mut String, label: &str, value: &str) {

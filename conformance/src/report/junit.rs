@@ -6,27 +6,9 @@
 
 use std::fmt::Write as _;
 
+use super::markup::esc_xml as esc;
 use super::Report;
 use crate::runner::{CheckResult, Status};
-
-fn esc(s: &str) -> String {
-    let mut o = String::with_capacity(s.len());
-    for c in s.chars() {
-        match c {
-            '&' => o.push_str("&amp;"),
-            '<' => o.push_str("&lt;"),
-            '>' => o.push_str("&gt;"),
-            '"' => o.push_str("&quot;"),
-            '\'' => o.push_str("&apos;"),
-            // XML 1.0 cannot carry most control characters; show them escaped.
-            c if (c as u32) < 0x20 && !matches!(c, '\n' | '\t') => {
-                let _ = write!(o, "\\x{:02X}", c as u32);
-            }
-            c => o.push(c),
-        }
-    }
-    o
-}
 
 fn body(c: &CheckResult) -> String {
     let mut s = format!("source: {}\n", c.source);

@@ -1,8 +1,22 @@
 //! What every HTML page of the suite shares: escaping text for HTML, and the inline
 //! style sheet (nothing fetched from anywhere).
 
+use std::fmt::Write as _;
+
 /// Escapes text for HTML element content and attribute values.
 pub(crate) fn esc(s: &str) -> String {
+    escape(s, "&#39;", false)
+}
+
+/// Escapes text for XML (JUnit): `&apos;` for the apostrophe, and the control characters
+/// XML 1.0 cannot carry shown as `\xNN`.
+pub(crate) fn esc_xml(s: &str) -> String {
+    escape(s, "&apos;", true)
+}
+
+/// The one escaper of HTML and XML text; the two differ only in the apostrophe's entity
+/// and in whether control characters (other than newline and tab) are written out.
+fn escape(s: &str, apostrophe: &str, controls: bool) -> String {
     let mut out = String::with_capacity(s.len());
     for c in s.chars() {
         match c {
@@ -10,10 +24,33 @@ pub(crate) fn esc(s: &str) -> String {
             '<' => out.push_str("&lt;"),
             '>' => out.push_str("&gt;"),
             '"' => out.push_str("&quot;"),
-            '\'' => out.push_str("&#39;"),
+            '\'' => out.push_str(apostrophe),
+            c if controls && (c as u32) < 0x20 && !matches!(c, '\n' | '\t') => {
+                let _ = write!(out, "\\x{:02X}", c as u32);
+            }
             c => out.push(c),
         }
     }
+    out
+}
+
+/// Bytes in hex in a `hex` span, the ones at `diff` marked; `empty` stands for no bytes.
+pub(crate) fn hex_marked(bytes: &[u8], diff: &[usize], empty: &str) -> String {
+    let mut out = String::from("<span class=\"hex\">");
+    for (i, b) in bytes.iter().enumerate() {
+        if i > 0 {
+            out.push(' ');
+        }
+        if diff.contains(&i) {
+            let _ = write!(out, "<span class=\"d\">{b:02X}</span>");
+        } else {
+            let _ = write!(out, "{b:02X}");
+        }
+    }
+    if bytes.is_empty() {
+        out.push_str(empty);
+    }
+    out.push_str("</span>");
     out
 }
 

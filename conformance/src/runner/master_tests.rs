@@ -171,6 +171,18 @@ struct Stalling {
     last_broken: bool,
 }
 
+impl Stalling {
+    /// `inner` with its first `broken` sends stalled.
+    fn new(inner: memory::MemoryEnd, broken: u32) -> Self {
+        Stalling {
+            inner,
+            broken,
+            sends: 0,
+            last_broken: false,
+        }
+    }
+}
+
 impl Transport for Stalling {
     fn send(&mut self, bytes: &[u8]) -> Result<(), TransportError> {
         self.sends += 1;
@@ -210,12 +222,7 @@ fn a_request_the_host_broke_every_time_is_an_error_never_a_silence() {
     // device's ("no reply within 50 ms", a DEVIATION).
     let (a, b) = memory::pair();
     let h = peer(b, vec![(1, REPLY_2520.to_vec())]);
-    let link = Stalling {
-        inner: a,
-        broken: u32::MAX,
-        sends: 0,
-        last_broken: false,
-    };
+    let link = Stalling::new(a, u32::MAX);
     let mut timing = timing();
     timing.retries = 2;
     let mut m = Master::new(Box::new(link), Mode::Rtu, timing);
@@ -247,12 +254,7 @@ fn a_request_the_host_broke_every_time_is_an_error_never_a_silence() {
 fn a_request_the_host_broke_is_sent_again_until_it_goes_out_whole() {
     let (a, b) = memory::pair();
     let h = peer(b, vec![(1, REPLY_2520.to_vec())]);
-    let link = Stalling {
-        inner: a,
-        broken: MAX_BROKEN_SENDS - 1,
-        sends: 0,
-        last_broken: false,
-    };
+    let link = Stalling::new(a, MAX_BROKEN_SENDS - 1);
     let mut m = Master::new(Box::new(link), Mode::Rtu, timing());
     let ex = m.exchange(&READ_2520, true).unwrap();
     h.join().unwrap();

@@ -118,10 +118,15 @@ mod tests {
     use super::*;
     use std::time::Duration;
 
+    /// A clock of a 1 ms character, started now.
+    fn clock() -> (Instant, LineClock) {
+        let t0 = Instant::now();
+        (t0, LineClock::new(1000, t0))
+    }
+
     #[test]
     fn characters_at_line_rate_have_no_silence_between_them() {
-        let t0 = Instant::now();
-        let mut c = LineClock::new(1000, t0);
+        let (t0, mut c) = clock();
         let a = c.arrivals(t0 + Duration::from_millis(10), 1);
         let b = c.arrivals(t0 + Duration::from_millis(11), 1);
         assert_eq!(b[0] - a[0], 0);
@@ -132,8 +137,7 @@ mod tests {
 
     #[test]
     fn characters_read_together_are_spread_back_at_line_rate() {
-        let t0 = Instant::now();
-        let mut c = LineClock::new(1000, t0);
+        let (t0, mut c) = clock();
         let first = c.arrivals(t0 + Duration::from_millis(10), 1);
         // The reader woke 3 ms late: three characters queued, the last at 13 ms.
         let late = c.arrivals(t0 + Duration::from_millis(13), 3);
@@ -144,8 +148,7 @@ mod tests {
 
     #[test]
     fn told_silences_win_over_arrival_times() {
-        let t0 = Instant::now();
-        let mut c = LineClock::new(1000, t0);
+        let (t0, mut c) = clock();
         let a = c.arrival(t0 + Duration::from_millis(10), 0, Some(u32::MAX));
         // Delivered 5 ms later by the kernel, but sent with 200 us of silence.
         let b = c.arrival(t0 + Duration::from_millis(15), 0, Some(200));
@@ -162,8 +165,7 @@ mod tests {
 
     #[test]
     fn a_burst_faster_than_the_line_is_placed_at_line_rate() {
-        let t0 = Instant::now();
-        let mut c = LineClock::new(1000, t0);
+        let (t0, mut c) = clock();
         let a = c.arrivals(t0 + Duration::from_millis(10), 8);
         let b = c.arrivals(t0 + Duration::from_millis(10), 8);
         assert!(a.windows(2).all(|w| w[0] == w[1]));

@@ -473,6 +473,31 @@ mod tests {
         Ok(out)
     }
 
+    /// Sends READ through the gateway, answers it with `reply` (MBAP), and takes what
+    /// the gateway hands up within 100 ms.
+    fn answer_read(
+        g: &mut MbapGateway,
+        s: &mut TcpStream,
+        reply: &[u8],
+    ) -> Result<Vec<u8>, TransportError> {
+        g.send(&READ).unwrap();
+        read_request(s);
+        s.write_all(reply).unwrap();
+        recv_all(g, 100)
+    }
+
+    /// [`answer_read`] with a reply the gateway must refuse: its error, which says `says`.
+    fn refused_read(
+        g: &mut MbapGateway,
+        s: &mut TcpStream,
+        reply: &[u8],
+        says: &str,
+    ) -> TransportError {
+        let e = answer_read(g, s, reply).unwrap_err();
+        assert!(e.to_string().contains(says), "{e}");
+        e
+    }
+
     const READ: [u8; 8] = [0x01, 0x03, 0x25, 0x20, 0x00, 0x01, 0x8E, 0xCC];
     const REPLY: [u8; 7] = [0x01, 0x03, 0x02, 0x00, 0x04, 0xB9, 0x87];
 
@@ -515,21 +540,22 @@ mod tests {
         .unwrap();
         // Handed up as node 1's reply, as the drive at node 1 sent it.
         assert_eq!(recv_all(&mut g, 100).unwrap(), REPLY);
-        assert!(
-            g.describe().contains("unit 5 for node 1"),
-            "{}",
-            g.describe()
-        );
+        let described = g.describe();
+        assert!(described.contains("unit 5 for node 1"), "{described}");
     }
 
     #[test]
     fn a_gateway_exception_is_silence_with_a_note() {
         let (mut g, mut s) = pair(UnitMap::new(1, 1));
-        g.send(&READ).unwrap();
-        read_request(&mut s);
-        s.write_all(&[0x00, 0x01, 0x00, 0x00, 0x00, 0x03, 0x01, 0x83, 0x0B])
-            .unwrap();
-        assert_eq!(recv_all(&mut g, 100).unwrap(), b"");
+        assert_eq!(
+            answer_read(
+                &mut g,
+                &mut s,
+                &[0x00, 0x01, 0x00, 0x00, 0x00, 0x03, 0x01, 0x83, 0x0B]
+            )
+            .unwrap(),
+            b""
+        );
         let notes = g.take_notes();
         assert_eq!(notes.len(), 1);
         assert!(
@@ -537,11 +563,12 @@ mod tests {
             "{notes:?}"
         );
         // An ordinary exception is the device's and crosses.
-        g.send(&READ).unwrap();
-        read_request(&mut s);
-        s.write_all(&[0x00, 0x02, 0x00, 0x00, 0x00, 0x03, 0x01, 0x83, 0x02])
-            .unwrap();
-        let e = recv_all(&mut g, 100).unwrap();
+        let e = answer_read(
+            &mut g,
+            &mut s,
+            &[0x00, 0x02, 0x00, 0x00, 0x00, 0x03, 0x01, 0x83, 0x02],
+        )
+        .unwrap();
         assert_eq!(e[..3], [0x01, 0x83, 0x02]);
         assert_eq!(crate::codec::crc16(&e), 0);
     }
@@ -567,41 +594,24 @@ mod tests {
         let notes = g.take_notes();
         assert!(notes[0].starts_with("a late reply"), "{notes:?}");
         // A transaction id that no request had: an error with the header in hex.
-        g.send(&READ).unwrap();
-        read_request(&mut s);
-        s.write_all(&[
+        let stray = [
             0x77, 0x77, 0x00, 0x00, 0x00, 0x05, 0x01, 0x03, 0x02, 0x00, 0x04,
-        ])
-        .unwrap();
-        let e = recv_all(&mut g, 100).unwrap_err();
-        assert!(
-            e.to_string()
-                .contains("MBAP reply header 77 77 00 00 00 05 01: transaction id 7777H"),
-            "{e}"
-        );
+        ];
+        let header = "MBAP reply header 77 77 00 00 00 05 01: transaction id 7777H";
+        refused_read(&mut g, &mut s, &stray, header);
     }
 
     #[test]
     fn a_reply_from_another_unit_or_protocol_is_an_error() {
         let (mut g, mut s) = pair(UnitMap::new(1, 1));
-        g.send(&READ).unwrap();
-        read_request(&mut s);
-        s.write_all(&[
+        let other_unit = [
             0x00, 0x01, 0x00, 0x00, 0x00, 0x05, 0x02, 0x03, 0x02, 0x00, 0x04,
-        ])
-        .unwrap();
-        let e = recv_all(&mut g, 100).unwrap_err();
-        assert!(
-            e.to_string()
-                .contains("unit id 02H, the request went to unit 01H"),
-            "{e}"
-        );
-        g.send(&READ).unwrap();
-        read_request(&mut s);
-        s.write_all(&[0x00, 0x02, 0x00, 0x07, 0x00, 0x05]).unwrap();
-        let e = recv_all(&mut g, 100).unwrap_err();
+        ];
+        let unit = "unit id 02H, the request went to unit 01H";
+        refused_read(&mut g, &mut s, &other_unit, unit);
+        let other_protocol = [0x00, 0x02, 0x00, 0x07, 0x00, 0x05];
+        let e = refused_read(&mut g, &mut s, &other_protocol, "protocol id 0007H");
         assert!(matches!(e, TransportError::Mbap { .. }), "{e}");
-        assert!(e.to_string().contains("protocol id 0007H"), "{e}");
     }
 
     #[test]

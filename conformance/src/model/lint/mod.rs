@@ -256,31 +256,25 @@ fn semantic(v: &Value, out: &mut Lints<'_>) {
 
     // Every span of the map with the path that declares it.
     let mut spans: Vec<(RangeInclusive<u16>, JsonPath, &'static str)> = Vec::new();
+    // Two hex fields of one entry ("first" and "last"), where both are there and read.
+    let both = |x: &Value, lo: &str, hi: &str| hex(x.get(lo)).zip(hex(x.get(hi)));
     for (i, b) in arr("blocks").iter().enumerate() {
         let p = root.key("blocks").index(i);
-        if let (Some(a), Some(z)) = (hex(b.get("first")), hex(b.get("last"))) {
+        if let Some((a, z)) = both(b, "first", "last") {
             if a > z {
-                out.push(
-                    Severity::Error,
-                    &p.key("last"),
-                    format!("block runs backwards: first {a:04X}H, last {z:04X}H"),
-                );
+                let problem = format!("block runs backwards: first {a:04X}H, last {z:04X}H");
+                out.push(Severity::Error, &p.key("last"), problem);
                 continue;
             }
-            if let (Some(lo), Some(hi)) = (hex(b.get("min")), hex(b.get("max"))) {
-                if lo > hi {
-                    out.push(
-                        Severity::Error,
-                        &p.key("max"),
-                        format!("max {hi:04X}H is below min {lo:04X}H"),
-                    );
-                }
+            if let Some((lo, hi)) = both(b, "min", "max").filter(|(lo, hi)| lo > hi) {
+                let problem = format!("max {hi:04X}H is below min {lo:04X}H");
+                out.push(Severity::Error, &p.key("max"), problem);
             }
             spans.push((a..=z, p, "block"));
         }
     }
     for (i, g) in arr("groups").iter().enumerate() {
-        if let (Some(a), Some(z)) = (hex(g.get("first")), hex(g.get("last"))) {
+        if let Some((a, z)) = both(g, "first", "last") {
             if a <= z {
                 spans.push((a..=z, root.key("groups").index(i), "group"));
             }

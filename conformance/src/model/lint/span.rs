@@ -174,11 +174,10 @@ pub fn path_at(text: &str, offset: usize) -> JsonPath {
                         at = value_at;
                         continue 'descend;
                     }
-                    i = skip_ws(b, value_end);
-                    if b.get(i) != Some(&b',') {
+                    let Some(next) = next_item(b, value_end) else {
                         break 'descend;
-                    }
-                    i = skip_ws(b, i + 1);
+                    };
+                    i = next;
                 }
                 break 'descend;
             }
@@ -192,11 +191,10 @@ pub fn path_at(text: &str, offset: usize) -> JsonPath {
                         at = i;
                         continue 'descend;
                     }
-                    i = skip_ws(b, end);
-                    if b.get(i) != Some(&b',') {
+                    let Some(next) = next_item(b, end) else {
                         break 'descend;
-                    }
-                    i = skip_ws(b, i + 1);
+                    };
+                    i = next;
                     n += 1;
                 }
                 break 'descend;
@@ -205,6 +203,13 @@ pub fn path_at(text: &str, offset: usize) -> JsonPath {
         }
     }
     path
+}
+
+/// Where the next member or element starts, past the comma after the one that ends at
+/// `end`; None where no comma follows (the object or array ends there, or is broken).
+fn next_item(b: &[u8], end: usize) -> Option<usize> {
+    let i = skip_ws(b, end);
+    (b.get(i) == Some(&b',')).then(|| skip_ws(b, i + 1))
 }
 
 fn skip_ws(b: &[u8], mut i: usize) -> usize {

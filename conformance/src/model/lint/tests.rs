@@ -30,6 +30,13 @@ fn v2(extra: &str) -> String {
     )
 }
 
+/// Each `(path, message)`: the finding at the path says the message.
+fn assert_messages(f: &[Finding], expected: &[(&str, &str)]) {
+    for (path, message) in expected {
+        assert_eq!(find(f, path).message, *message, "at {path}");
+    }
+}
+
 fn find<'a>(f: &'a [Finding], path: &str) -> &'a Finding {
     f.iter()
         .find(|x| x.path == path)
@@ -95,17 +102,22 @@ fn wrong_types_and_spellings_say_what_was_expected() {
         v["modes"] = serde_json::json!(["rtu", "RTU"]);
     });
     let f = lint("f", &text);
-    assert_eq!(
-        find(&f, "limits.response_time_ms.value").message,
-        "expected an integer, found a string \"10\""
-    );
-    assert_eq!(
-        find(&f, "groups[1].first").message,
-        "expected four upper-case hex digits, found \"2520h\""
-    );
-    assert_eq!(
-        find(&f, "modes[1]").message,
-        "expected one of \"rtu\", \"ascii\", found \"RTU\"; did you mean \"rtu\"?"
+    assert_messages(
+        &f,
+        &[
+            (
+                "limits.response_time_ms.value",
+                "expected an integer, found a string \"10\"",
+            ),
+            (
+                "groups[1].first",
+                "expected four upper-case hex digits, found \"2520h\"",
+            ),
+            (
+                "modes[1]",
+                "expected one of \"rtu\", \"ascii\", found \"RTU\"; did you mean \"rtu\"?",
+            ),
+        ],
     );
     assert!(f.iter().all(|x| x.severity == Severity::Error));
 }
@@ -233,13 +245,18 @@ fn an_exception_without_a_table_and_a_backward_block_are_errors() {
   "blocks": [{"first": "0FFF", "last": "0000", "basis": "documented", "source": "s"}],
   "exceptions": {"illegal-count": {"code": "03", "basis": "documented", "source": "s"}}"#);
     let f = lint("t", &text);
-    assert_eq!(
-        find(&f, "blocks[0].last").message,
-        "block runs backwards: first 0FFFH, last 0000H"
-    );
-    assert_eq!(
-        find(&f, "exceptions.illegal-count.code").message,
-        "code 03 is not in the exception-code table (exception_codes has 02)"
+    assert_messages(
+        &f,
+        &[
+            (
+                "blocks[0].last",
+                "block runs backwards: first 0FFFH, last 0000H",
+            ),
+            (
+                "exceptions.illegal-count.code",
+                "code 03 is not in the exception-code table (exception_codes has 02)",
+            ),
+        ],
     );
 }
 

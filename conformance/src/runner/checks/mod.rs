@@ -179,6 +179,16 @@ fn cite_or(model: &DriveModel, fact: Option<&Fact>, field: &str) -> String {
     }
 }
 
+/// The citation of the exception rule for `fault`, or that the description has none
+/// (`exceptions.<kind>`).
+fn cite_rule(model: &DriveModel, fault: crate::model::Fault) -> String {
+    cite_or(
+        model,
+        model.rule(fault).map(|r| &r.fact),
+        &format!("exceptions.{}", fault.key()),
+    )
+}
+
 /// Why a check whose facts the description leaves out is skipped.
 fn undescribed(fields: &[String]) -> String {
     format!("the description has no {}", fields.join(", no "))

@@ -38,14 +38,9 @@ pub(super) fn motion(model: &DriveModel, m: &str, out: &mut Vec<Check>) {
                         return Ok(Verdict::setup_failed(&format!("write 03E8H (10.00 Hz) to {f:04X}H first"), e));
                     }
                 }
-                let w = ctx.probe(ctx.frame(Pdu::WriteSingle { register: op, value: 1 << run }), None)?;
-                findings.extend(w.comparison.findings.clone());
+                let w = command(ctx, op, 1 << run, &mut findings)?;
                 std::thread::sleep(Duration::from_millis(300));
-                match ctx.read(st, 1)? {
-                    Ok(v) if v[0] & (1 << running) != 0 => {}
-                    Ok(v) => findings.push(Finding::deviation(format!("after the run command {st:04X}H reads {:04X}H: bit {running} (running) is 0", v[0]))),
-                    Err(e) => findings.push(Finding::deviation(e.to_string())),
-                }
+                status_bit(ctx, (st, running, "running"), true, "the run command", &mut findings)?;
                 if let Some(o) = outf {
                     let mut moving = false;
                     for _ in 0..30 {
@@ -61,8 +56,7 @@ pub(super) fn motion(model: &DriveModel, m: &str, out: &mut Vec<Check>) {
                         findings.push(Finding::observation(format!("the output frequency {o:04X}H stayed 0 for 3 s after the run command (acceleration time?)")));
                     }
                 }
-                let s = ctx.probe(ctx.frame(Pdu::WriteSingle { register: op, value: 0 }), None)?;
-                findings.extend(s.comparison.findings.clone());
+                let s = command(ctx, op, 0, &mut findings)?;
                 let mut stopped = false;
                 for _ in 0..100 {
                     if let Ok(v) = ctx.read(st, 1)? {
@@ -101,14 +95,9 @@ pub(super) fn motion(model: &DriveModel, m: &str, out: &mut Vec<Check>) {
                 if let Err(e) = ctx.remember(op)? {
                     return Ok(Verdict::setup_failed(&format!("read {op:04X}H first"), e));
                 }
-                let w = ctx.probe(ctx.frame(Pdu::WriteSingle { register: op, value: 1 << ef }), None)?;
-                findings.extend(w.comparison.findings.clone());
+                let w = command(ctx, op, 1 << ef, &mut findings)?;
                 std::thread::sleep(Duration::from_millis(200));
-                match ctx.read(st, 1)? {
-                    Ok(v) if v[0] & (1 << fault) != 0 => {}
-                    Ok(v) => findings.push(Finding::deviation(format!("after the external fault {st:04X}H reads {:04X}H: bit {fault} (fault) is 0", v[0]))),
-                    Err(e) => findings.push(Finding::deviation(e.to_string())),
-                }
+                status_bit(ctx, (st, fault, "fault"), true, "the external fault", &mut findings)?;
                 if let (Some(fr), Some((c, fact))) = (fault_reg, &code) {
                     match ctx.read(fr, 1)? {
                         Ok(v) if v[0] == *c && fact.basis == Basis::Decision => {
@@ -125,15 +114,10 @@ pub(super) fn motion(model: &DriveModel, m: &str, out: &mut Vec<Check>) {
                         Err(e) => findings.push(Finding::deviation(e.to_string())),
                     }
                 }
-                let r = ctx.probe(ctx.frame(Pdu::WriteSingle { register: op, value: 1 << reset }), None)?;
-                findings.extend(r.comparison.findings.clone());
+                let r = command(ctx, op, 1 << reset, &mut findings)?;
                 std::thread::sleep(Duration::from_millis(200));
                 let _ = ctx.write(op, 0)?;
-                match ctx.read(st, 1)? {
-                    Ok(v) if v[0] & (1 << fault) == 0 => {}
-                    Ok(v) => findings.push(Finding::deviation(format!("after the fault reset {st:04X}H reads {:04X}H: bit {fault} (fault) is still 1", v[0]))),
-                    Err(e) => findings.push(Finding::deviation(e.to_string())),
-                }
+                status_bit(ctx, (st, fault, "fault"), false, "the fault reset", &mut findings)?;
                 Ok(Verdict {
                     findings,
                     exchanges: vec![w.record(), r.record()],
@@ -143,4 +127,43 @@ pub(super) fn motion(model: &DriveModel, m: &str, out: &mut Vec<Check>) {
             },
         ));
     }
+}
+
+/// Writes `value` to the operation register `op` as a probed exchange, its findings kept.
+fn command(
+    ctx: &mut Ctx<'_>,
+    op: u16,
+    value: u16,
+    findings: &mut Vec<Finding>,
+) -> Result<Probed, RunError> {
+    let p = ctx.probe(
+        ctx.frame(Pdu::WriteSingle {
+            register: op,
+            value,
+        }),
+        None,
+    )?;
+    findings.extend(p.comparison.findings.clone());
+    Ok(p)
+}
+
+/// Reads the status register `st` after `after` ("the run command") and holds its bit
+/// `bit` (named `name`) to `set`: a deviation if it differs or the read fails.
+fn status_bit(
+    ctx: &mut Ctx<'_>,
+    (st, bit, name): (u16, u8, &str),
+    set: bool,
+    after: &str,
+    findings: &mut Vec<Finding>,
+) -> Result<(), RunError> {
+    match ctx.read(st, 1)? {
+        Ok(v) if (v[0] & (1 << bit) != 0) == set => {}
+        Ok(v) => findings.push(Finding::deviation(format!(
+            "after {after} {st:04X}H reads {:04X}H: bit {bit} ({name}) is {}",
+            v[0],
+            if set { "0" } else { "still 1" }
+        ))),
+        Err(e) => findings.push(Finding::deviation(e.to_string())),
+    }
+    Ok(())
 }

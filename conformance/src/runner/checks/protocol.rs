@@ -6,13 +6,7 @@ use std::time::Duration;
 use super::*;
 
 pub(super) fn functions(model: &DriveModel, m: &str, out: &mut Vec<Check>) {
-    let source = cite_or(
-        model,
-        model
-            .rule(crate::model::Fault::IllegalFunction)
-            .map(|r| &r.fact),
-        "exceptions.illegal-function",
-    );
+    let source = cite_rule(model, crate::model::Fault::IllegalFunction);
     for fc in [0x04u8, 0x41] {
         out.push(probe_check(
             format!("{m}.function.{fc:02X}"),

@@ -370,22 +370,15 @@ pub(super) fn counts(model: &DriveModel, mode: Mode, m: &str, out: &mut Vec<Chec
                 true,
                 false,
                 move |ctx| {
-                    let mut values = Vec::new();
-                    let rlimit = ctx.model.limits.read.get(ctx.mode);
-                    let mut at = 0u16;
-                    while at < count {
-                        let n = (count - at).min(rlimit);
-                        match ctx.read(wstart + at, n)? {
-                            Ok(v) => values.extend(v),
-                            Err(e) => {
-                                return Ok(Verdict::setup_failed(
-                                    "read the values to write back first",
-                                    e,
-                                ))
-                            }
+                    let values = match read_in_pieces(ctx, wstart, count)? {
+                        Ok(v) => v,
+                        Err(e) => {
+                            return Ok(Verdict::setup_failed(
+                                "read the values to write back first",
+                                e,
+                            ))
                         }
-                        at += n;
-                    }
+                    };
                     let bytes: Vec<u8> = values.iter().flat_map(|v| v.to_be_bytes()).collect();
                     let Ok(regs) = Registers::new(&bytes) else {
                         return Ok(Verdict::error("internal: odd register bytes"));
@@ -397,20 +390,14 @@ pub(super) fn counts(model: &DriveModel, mode: Mode, m: &str, out: &mut Vec<Chec
                     let p = ctx.probe(frame, None)?;
                     let mut v = verdict(&[&p], pass_text(&p));
                     // The values must be unchanged either way.
-                    let mut after = Vec::new();
-                    let mut at = 0u16;
-                    while at < count {
-                        let n = (count - at).min(rlimit);
-                        match ctx.read(wstart + at, n)? {
-                            Ok(x) => after.extend(x),
-                            Err(e) => {
-                                v.findings
-                                    .push(Finding::deviation(format!("read-back failed: {e}")));
-                                return Ok(v);
-                            }
+                    let after = match read_in_pieces(ctx, wstart, count)? {
+                        Ok(x) => x,
+                        Err(e) => {
+                            v.findings
+                                .push(Finding::deviation(format!("read-back failed: {e}")));
+                            return Ok(v);
                         }
-                        at += n;
-                    }
+                    };
                     if after != values {
                         v.findings.push(Finding::deviation(format!(
                             "the registers changed: before {:04X?}, after {:04X?}",
@@ -442,4 +429,25 @@ fn unreachable_regs() -> Registers<'static> {
         Ok(r) => r,
         Err(_) => unreachable!("an empty register list is valid"),
     }
+}
+
+/// `count` registers from `start`, read in pieces of at most the mode's read limit (a
+/// write may cover more than one read can); the first piece refused or unanswered ends it.
+fn read_in_pieces(
+    ctx: &mut Ctx<'_>,
+    start: u16,
+    count: u16,
+) -> Result<Result<Vec<u16>, crate::runner::SetupError>, RunError> {
+    let limit = ctx.model.limits.read.get(ctx.mode);
+    let mut values = Vec::new();
+    let mut at = 0u16;
+    while at < count {
+        let n = (count - at).min(limit);
+        match ctx.read(start + at, n)? {
+            Ok(v) => values.extend(v),
+            Err(e) => return Ok(Err(e)),
+        }
+        at += n;
+    }
+    Ok(Ok(values))
 }

@@ -68,20 +68,9 @@ pub(super) fn writes(model: &DriveModel, mode: Mode, m: &str, out: &mut Vec<Chec
         out.push(refused_write(
             format!("{m}.write.out-of-range"),
             format!("Write FFFFH (655.35 Hz) to the frequency command {f:04X}H, and read it back"),
-            cite_or(
-                model,
-                model
-                    .rule(crate::model::Fault::DataOutOfRange)
-                    .map(|r| &r.fact),
-                "exceptions.data-out-of-range",
-            ),
+            cite_rule(model, crate::model::Fault::DataOutOfRange),
             Target::stored(f),
-            move |ctx, _| {
-                ctx.frame(Pdu::WriteSingle {
-                    register: f,
-                    value: 0xFFFF,
-                })
-            },
+            single_write(f, 0xFFFF),
         ));
         if let Some((_, max, fact)) = model.frequency_command_max() {
             let source = cite(model, fact);
@@ -109,7 +98,7 @@ pub(super) fn writes(model: &DriveModel, mode: Mode, m: &str, out: &mut Vec<Chec
                     format!("Write {over:04X}H, one over the frequency command's maximum, to {f:04X}H, and read it back"),
                     source,
                     Target::stored(f),
-                    move |ctx, _| ctx.frame(Pdu::WriteSingle { register: f, value: over }),
+                    single_write(f, over),
                 ));
             }
         }
@@ -159,18 +148,9 @@ pub(super) fn writes(model: &DriveModel, mode: Mode, m: &str, out: &mut Vec<Chec
         out.push(refused_write(
             format!("{m}.write.read-only"),
             format!("Write 0000H to the monitor register {ro:04X}H (read-only), and read it back"),
-            cite_or(
-                model,
-                model.rule(crate::model::Fault::ReadOnly).map(|r| &r.fact),
-                "exceptions.read-only",
-            ),
+            cite_rule(model, crate::model::Fault::ReadOnly),
             Target::state(ro),
-            move |ctx, _| {
-                ctx.frame(Pdu::WriteSingle {
-                    register: ro,
-                    value: 0,
-                })
-            },
+            single_write(ro, 0),
         ));
     }
     if let Some(res) = model
@@ -182,20 +162,9 @@ pub(super) fn writes(model: &DriveModel, mode: Mode, m: &str, out: &mut Vec<Chec
         out.push(refused_write(
             format!("{m}.write.reserved"),
             format!("Write 0000H to the reserved register {res:04X}H, and read it back"),
-            cite_or(
-                model,
-                model
-                    .rule(crate::model::Fault::ReservedWrite)
-                    .map(|r| &r.fact),
-                "exceptions.reserved-write",
-            ),
+            cite_rule(model, crate::model::Fault::ReservedWrite),
             Target::stored(res),
-            move |ctx, _| {
-                ctx.frame(Pdu::WriteSingle {
-                    register: res,
-                    value: 0,
-                })
-            },
+            single_write(res, 0),
         ));
     }
     // Parameters the manual marks read-only (F510's Metasys table): 06H and 10H writes of
@@ -290,7 +259,7 @@ fn blocks(model: &DriveModel, m: &str, out: &mut Vec<Check>) {
                 format!("Write the value it holds to {r:04X}H of {label} (read-only), and read it back"),
                 format!(
                     "{source}; {}",
-                    cite_or(model, model.rule(crate::model::Fault::ReadOnly).map(|x| &x.fact), "exceptions.read-only")
+                    cite_rule(model, crate::model::Fault::ReadOnly)
                 ),
                 Target::state(r),
                 move |ctx, before| {
@@ -310,10 +279,10 @@ fn blocks(model: &DriveModel, m: &str, out: &mut Vec<Check>) {
                 format!("Write {value:04X}H to {r:04X}H, outside the bounds of {label}, and read it back"),
                 format!(
                     "{source}; {}",
-                    cite_or(model, model.rule(crate::model::Fault::DataOutOfRange).map(|x| &x.fact), "exceptions.data-out-of-range")
+                    cite_rule(model, crate::model::Fault::DataOutOfRange)
                 ),
                 Target::stored(r),
-                move |ctx, _| ctx.frame(Pdu::WriteSingle { register: r, value }),
+                single_write(r, value),
             ));
         }
     }
@@ -344,6 +313,14 @@ fn preserving_write(id: String, title: String, source: String, r: u16) -> Check 
             format!("{r:04X}H accepted {orig:04X}H and reads it back"),
         ))
     })
+}
+
+/// The frame of a refused write: 06H of `value` to `register`, whatever was read before.
+fn single_write(
+    register: u16,
+    value: u16,
+) -> impl Fn(&Ctx<'_>, &[Option<u16>]) -> Vec<u8> + 'static {
+    move |ctx, _| ctx.frame(Pdu::WriteSingle { register, value })
 }
 
 pub(super) fn refused_write(

@@ -16,6 +16,15 @@ fn req(mode: Mode, address: u8, pdu: Pdu<'_>) -> Vec<u8> {
     Message { address, pdu }.to_frame_vec(mode).unwrap()
 }
 
+/// An RTU read of 2520H, one register, to `address`.
+fn read_2520(address: u8) -> Vec<u8> {
+    let pdu = Pdu::ReadRequest {
+        start: 0x2520,
+        count: 1,
+    };
+    req(Mode::Rtu, address, pdu)
+}
+
 fn reply(o: &Outcome) -> Option<&Transmission> {
     o.sends.iter().find(|s| s.kind == SendKind::Reply)
 }
@@ -150,18 +159,7 @@ fn broadcast_writes_silently_and_other_nodes_are_ignored() {
     );
     assert!(o.sends.is_empty());
     assert_eq!(d.read_register(0x2502), 0x0AAA);
-    let o = d.handle(
-        Mode::Rtu,
-        &req(
-            Mode::Rtu,
-            2,
-            Pdu::ReadRequest {
-                start: 0x2520,
-                count: 1,
-            },
-        ),
-        now,
-    );
+    let o = d.handle(Mode::Rtu, &read_2520(2), now);
     assert!(o.sends.is_empty());
 }
 
@@ -181,14 +179,7 @@ fn stuck_at_and_exception_at_answer_reads_as_planted() {
 #[test]
 fn each_quirk_changes_the_line() {
     let now = Instant::now();
-    let read = req(
-        Mode::Rtu,
-        1,
-        Pdu::ReadRequest {
-            start: 0x2520,
-            count: 1,
-        },
-    );
+    let read = read_2520(1);
     let clean = reply(&drive(&[]).handle(Mode::Rtu, &read, now))
         .unwrap()
         .bytes
@@ -249,14 +240,7 @@ fn each_quirk_changes_the_line() {
     let o = drive(&[Quirk::TruncatedReply]).handle(Mode::Rtu, &read, now);
     assert_eq!(reply(&o).unwrap().bytes[..], clean[..clean.len() - 2]);
 
-    let other = req(
-        Mode::Rtu,
-        9,
-        Pdu::ReadRequest {
-            start: 0x2520,
-            count: 1,
-        },
-    );
+    let other = read_2520(9);
     let o = drive(&[Quirk::AnswerEveryAddress]).handle(Mode::Rtu, &other, now);
     assert_eq!(reply(&o).unwrap().bytes[0], 9);
 }

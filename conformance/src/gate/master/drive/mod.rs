@@ -279,13 +279,8 @@ impl DriveSide {
                 (Link::Pty(pty), Endpoint::Pty(path))
             }
             LineKind::TcpRtu => {
-                let open_err = |source| TransportError::Open {
-                    what: "a TCP listener on 127.0.0.1 for the master".into(),
-                    source,
-                };
-                let listener = std::net::TcpListener::bind("127.0.0.1:0").map_err(open_err)?;
-                listener.set_nonblocking(true).map_err(open_err)?;
-                let addr = listener.local_addr().map_err(open_err)?;
+                let (listener, addr) =
+                    listen_locally("a TCP listener on 127.0.0.1 for the master")?;
                 (
                     Link::Tcp {
                         listener,
@@ -295,13 +290,8 @@ impl DriveSide {
                 )
             }
             LineKind::Mbap => {
-                let open_err = |source| TransportError::Open {
-                    what: "a Modbus TCP listener on 127.0.0.1 for the master".into(),
-                    source,
-                };
-                let listener = std::net::TcpListener::bind("127.0.0.1:0").map_err(open_err)?;
-                listener.set_nonblocking(true).map_err(open_err)?;
-                let addr = listener.local_addr().map_err(open_err)?;
+                let (listener, addr) =
+                    listen_locally("a Modbus TCP listener on 127.0.0.1 for the master")?;
                 (
                     Link::Mbap(Box::new(MbapLink {
                         listener,
@@ -469,6 +459,21 @@ pub fn show_chunk(c: &Chunk) -> String {
         },
         Hex(&c.bytes)
     )
+}
+
+/// A non-blocking listener on a free port of 127.0.0.1, for the master to connect to;
+/// `what` names it in the error.
+fn listen_locally(
+    what: &str,
+) -> Result<(std::net::TcpListener, std::net::SocketAddr), TransportError> {
+    let open_err = |source| TransportError::Open {
+        what: what.into(),
+        source,
+    };
+    let listener = std::net::TcpListener::bind("127.0.0.1:0").map_err(open_err)?;
+    listener.set_nonblocking(true).map_err(open_err)?;
+    let addr = listener.local_addr().map_err(open_err)?;
+    Ok((listener, addr))
 }
 
 #[cfg(test)]
