@@ -112,40 +112,54 @@ fn timing_is_judged_only_when_asked_and_only_where_seen() {
     assert_eq!(judge.verdict(&gappy, None).kinds, [Kind::GapInReply]);
     let early = late.with_timing(at(0, 0));
     assert_eq!(judge.verdict(&early, None).kinds, [Kind::EarlyReply]);
-    // A listener that read the request late: it may have ended 10 ms before it was
-    // read, so a reply 0 ms after the read is not proved early.
-    let read_late = late.with_timing(Timing {
-        request_end_earliest: Some(Duration::from_millis(90)),
-        ..at(0, 0)
-    });
-    assert_eq!(
-        judge.verdict(&read_late, None).status(),
-        VerdictStatus::Pass
+    // What a listener that reads late knows: the earliest the request can have ended,
+    // or the reply begun (the read before returned without it). Each case: the earliest
+    // request end (ms; it was read at 100), the reply's first byte as read (ms after 100)
+    // and at the earliest (ms), the findings.
+    let cases: [(&str, Option<u64>, u64, Option<u64>, &[Kind]); 4] = [
+        // The request read late: it may have ended 10 ms before it was read, so a reply
+        // 0 ms after the read is not proved early.
+        ("request read late", Some(90), 0, None, &[]),
+        // Read on time (it ended no sooner than 1 ms before the read): early, proved.
+        (
+            "request read on time",
+            Some(99),
+            0,
+            None,
+            &[Kind::EarlyReply],
+        ),
+        // The reply read late (its host busy: the read before returned 295 ms before the
+        // reply was read): it may have begun 5 ms after the request, so it is not proved
+        // late; its time as read is kept for the statistics.
+        ("reply read late", None, 300, Some(105), &[]),
+        // Late even at the earliest it can have come: late, said with both times.
+        (
+            "reply late either way",
+            None,
+            300,
+            Some(250),
+            &[Kind::LateReply],
+        ),
+    ];
+    let ms = |t: Option<u64>| t.map(Duration::from_millis);
+    for (case, request_end_earliest, first, first_byte_earliest, want) in cases {
+        let v = judge.verdict(
+            &late.with_timing(Timing {
+                request_end_earliest: ms(request_end_earliest),
+                first_byte_earliest: ms(first_byte_earliest),
+                ..at(first, 0)
+            }),
+            None,
+        );
+        assert_eq!(v.kinds, want, "{case}: {v:?}");
+    }
+    let v = judge.verdict(
+        &late.with_timing(Timing {
+            first_byte_earliest: Some(Duration::from_millis(250)),
+            ..at(300, 0)
+        }),
+        None,
     );
-    // Read on time (it ended no sooner than 1 ms before the read): early, proved.
-    let read_on_time = late.with_timing(Timing {
-        request_end_earliest: Some(Duration::from_millis(99)),
-        ..at(0, 0)
-    });
-    assert_eq!(judge.verdict(&read_on_time, None).kinds, [Kind::EarlyReply]);
-    // A listener that read the reply late (its host busy: the read before returned
-    // 295 ms before the reply was read, without it): it may have begun 5 ms after the
-    // request, so it is not proved late; its time as read is kept for the statistics.
-    let reply_read_late = late.with_timing(Timing {
-        first_byte_earliest: Some(Duration::from_millis(105)),
-        ..at(300, 0)
-    });
-    assert_eq!(
-        judge.verdict(&reply_read_late, None).status(),
-        VerdictStatus::Pass
-    );
-    // Read late, and late even at the earliest it can have come: late, said with both.
-    let late_either_way = late.with_timing(Timing {
-        first_byte_earliest: Some(Duration::from_millis(250)),
-        ..at(300, 0)
-    });
-    let v = judge.verdict(&late_either_way, None);
-    assert_eq!(v.kinds, [Kind::LateReply]);
     assert!(
         v.findings[0]
             .text
