@@ -273,10 +273,13 @@ fn a_damaged_request_sent_again_is_no_reply_to_the_first() {
     }
 }
 
-/// A monitor of node 1 (RTU) after `reads`: each a time (ms) and its bytes, none for a
-/// read that came back empty; then finished.
-fn after_reads(reads: &[(u64, &[u8])]) -> Monitor {
+/// A monitor of node 1 (RTU) that read a request for 2520H at 0 ms (after an empty read),
+/// then `reads`: each a time (ms) and its bytes, none for a read that came back empty;
+/// then finished.
+fn after_the_request(reads: &[(u64, &[u8])]) -> Monitor {
     let mut m = monitor(Mode::Rtu, &[1]);
+    m.idle(ms(0));
+    m.feed(ms(0), &read(1, 0x2520, 1));
     for (t, bytes) in reads {
         if bytes.is_empty() {
             m.idle(ms(*t));
@@ -295,9 +298,9 @@ fn after_reads(reads: &[(u64, &[u8])]) -> Monitor {
 /// between returned empty, it was not there, and the window decides as before.
 #[test]
 fn a_reply_read_late_by_a_busy_listener_is_its_requests_reply() {
-    let (r, v) = (read(1, 0x2520, 1), values(1, &[7]));
+    let v = values(1, &[7]);
     // The empty read that ended the request, then none for 1.5 s.
-    let mut m = after_reads(&[(0, &[]), (0, &r), (3, &[]), (1500, &v), (1505, &[])]);
+    let mut m = after_the_request(&[(3, &[]), (1500, &v), (1505, &[])]);
     assert!(kinds(&m, 1).is_empty(), "{:?}", kinds(&m, 1));
     let s = &m.nodes()[&1];
     assert_eq!((s.exchanges, s.replies, s.timeouts), (1, 1, 0));
@@ -306,14 +309,7 @@ fn a_reply_read_late_by_a_busy_listener_is_its_requests_reply() {
     assert_eq!(lines[0].status, VerdictStatus::Pass, "{lines:#?}");
     // The same bytes with a read that came back empty at 1.2 s: the reply came after the
     // window, proved by the reads.
-    let m = after_reads(&[
-        (0, &[]),
-        (0, &r),
-        (3, &[]),
-        (1200, &[]),
-        (1500, &v),
-        (1505, &[]),
-    ]);
+    let m = after_the_request(&[(3, &[]), (1200, &[]), (1500, &v), (1505, &[])]);
     let k = kinds(&m, 1);
     assert!(
         k.contains(&"drive.no-reply".to_string())
@@ -326,16 +322,9 @@ fn a_reply_read_late_by_a_busy_listener_is_its_requests_reply() {
 /// finding says both times.
 #[test]
 fn a_reply_late_at_the_earliest_the_reads_allow_is_late() {
-    let (r, v) = (read(1, 0x2520, 1), values(1, &[7]));
+    let v = values(1, &[7]);
     // Empty until 400 ms, then the reply read at 900 ms.
-    let mut m = after_reads(&[
-        (0, &[]),
-        (0, &r),
-        (3, &[]),
-        (400, &[]),
-        (900, &v),
-        (905, &[]),
-    ]);
+    let mut m = after_the_request(&[(3, &[]), (400, &[]), (900, &v), (905, &[])]);
     assert_eq!(kinds(&m, 1), ["drive.late-reply"]);
     let lines = m.take_lines();
     assert!(
@@ -367,7 +356,7 @@ fn a_backlog_read_at_once_is_dated_by_its_read() {
         backlog.extend_from_slice(&r);
         backlog.extend_from_slice(&v);
     }
-    let mut m = after_reads(&[(0, &[]), (0, &r), (1210, &backlog), (1215, &[])]);
+    let mut m = after_the_request(&[(1210, &backlog), (1215, &[])]);
     assert!(kinds(&m, 1).is_empty(), "{:?}", kinds(&m, 1));
     let lines = m.take_lines();
     assert_eq!(lines[0].at, ms(0), "{lines:#?}");
