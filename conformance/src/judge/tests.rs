@@ -116,7 +116,8 @@ fn timing_is_judged_only_when_asked_and_only_where_seen() {
     // or the reply begun (the read before returned without it). Each case: the earliest
     // request end (ms; it was read at 100), the reply's first byte as read (ms after 100)
     // and at the earliest (ms), the findings.
-    let cases: [(&str, Option<u64>, u64, Option<u64>, &[Kind]); 4] = [
+    type Case = (&'static str, Option<u64>, u64, Option<u64>, &'static [Kind]);
+    let cases: [Case; 4] = [
         // The request read late: it may have ended 10 ms before it was read, so a reply
         // 0 ms after the read is not proved early.
         ("request read late", Some(90), 0, None, &[]),
