@@ -503,17 +503,17 @@ impl<'m> Judge<'m> {
                 .first_byte_earliest
                 .zip(conv.timing.request_end)
                 .map_or(rt, |(first, end)| first.saturating_sub(end).min(rt));
-            // Said where the reads leave a millisecond or more of doubt.
-            let as_read = if rt.saturating_sub(shortest) >= Duration::from_millis(1) {
-                format!(
-                    " as read (no sooner than {:.1} ms: the listener read it late)",
-                    ms(shortest)
-                )
-            } else {
-                String::new()
-            };
             // A description that states no response time holds no reply late.
             if let Some((stated_ms, source)) = stated.filter(|_| shortest > limit) {
+                // Said where the reads leave a millisecond or more of doubt.
+                let as_read = if rt.saturating_sub(shortest) >= Duration::from_millis(1) {
+                    format!(
+                        " as read (no sooner than {:.1} ms: the listener read it late)",
+                        ms(shortest)
+                    )
+                } else {
+                    String::new()
+                };
                 out(
                     Kind::LateReply,
                     Finding {

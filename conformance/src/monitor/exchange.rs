@@ -40,7 +40,7 @@ impl Monitor {
         // at the read before ([`TapFrame::earliest_start`]).
         let first_byte_earliest = if p.leading.is_empty() {
             f.start
-                .map(|s| s.min(f.earliest_start(self.cfg.line.char_time_us())))
+                .map(|_| f.earliest_start(self.cfg.line.char_time_us()))
         } else {
             None
         };
@@ -58,8 +58,16 @@ impl Monitor {
         // The notes are for the live line only.
         if self.live && is_copy(&p.bytes, &f.bytes) {
             extra.push(format!(
-                "a copy of the request, taken as its reply by order and time ({} after it, within the {} ms window)",
-                first_byte.map_or("in the same piece from the tap".to_string(), |t| format!("{:.1} ms", ms(t.saturating_sub(p.end)))),
+                "a copy of the request, taken as its reply by order and time ({}, within the {} ms window)",
+                first_byte.map_or("in the same piece from the tap after it".to_string(), |t| {
+                    let as_read = t.saturating_sub(p.end);
+                    let shortest = first_byte_earliest.map_or(as_read, |e| e.saturating_sub(p.end));
+                    if as_read.saturating_sub(shortest) >= Duration::from_millis(1) {
+                        format!("{:.1} ms after it as read, no sooner than {:.1} ms: the listener read it late", ms(as_read), ms(shortest))
+                    } else {
+                        format!("{:.1} ms after it", ms(as_read))
+                    }
+                }),
                 self.cfg.window.as_millis()
             ));
         }

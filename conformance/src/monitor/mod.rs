@@ -667,14 +667,12 @@ impl Monitor {
             .last_frame_end
             .map(|e| f.start.unwrap_or(f.end).saturating_sub(e));
         self.last_frame_end = Some(f.end);
+        // When the frame began, at the earliest the reads allow: a listener whose host
+        // was busy reads a reply in time late. The window, and whether a copy of the
+        // request is its reply or a resend, are judged from it.
+        let began = f.earliest_start(self.cfg.line.char_time_us());
         if let Some(p) = &self.pending {
-            // The window is over only where the frame began after it even at the earliest
-            // the reads allow: a listener whose host was busy reads a reply in time late.
-            let at = f
-                .start
-                .unwrap_or(f.end)
-                .min(f.earliest_start(self.cfg.line.char_time_us()));
-            if at.saturating_sub(p.end) > self.cfg.window {
+            if began.saturating_sub(p.end) > self.cfg.window {
                 self.close_unanswered(None);
             }
         }
@@ -694,8 +692,7 @@ impl Monitor {
             .and_then(|p| p.side.zip(f.side).map(|(a, b)| a == b));
         let resend = same_side.unwrap_or_else(|| {
             self.pending.as_ref().is_some_and(|p| {
-                is_copy(&p.bytes, &f.bytes)
-                    && f.start.unwrap_or(f.end).saturating_sub(p.end) > copy_limit()
+                is_copy(&p.bytes, &f.bytes) && began.saturating_sub(p.end) > copy_limit()
             })
         });
         if let Some(p) = self.pending.as_mut() {

@@ -99,13 +99,17 @@ pub struct TapFrame {
 }
 
 impl TapFrame {
-    /// The earliest its first byte can have arrived: its last byte no sooner than
-    /// [`end_low`](Self::end_low), and the line carries one character each `char_us`
-    /// before it. A listener whose host was busy (it read late) reads a frame later than
-    /// it came; this is how early the reads allow it to have been.
+    /// The earliest its first byte can have arrived: no later than it was read
+    /// ([`start`](Self::start), else [`end`](Self::end)), and no sooner than its last
+    /// byte ([`end_low`](Self::end_low)) less one character each `char_us` before it. A
+    /// listener whose host was busy (it read late) reads a frame later than it came;
+    /// this is how early the reads allow it to have been. Pairing and the late-reply rule
+    /// give a frame that benefit of the doubt.
     pub fn earliest_start(&self, char_us: u64) -> Duration {
         let before = char_us.saturating_mul(self.bytes.len().saturating_sub(1) as u64);
-        self.end_low.saturating_sub(Duration::from_micros(before))
+        self.end_low
+            .saturating_sub(Duration::from_micros(before))
+            .min(self.start.unwrap_or(self.end))
     }
 }
 

@@ -378,3 +378,39 @@ fn a_backlog_read_at_once_is_dated_by_its_read() {
         out[1]
     );
 }
+
+/// The echo of a 06H write read late by a busy listener (1.5 s, no read between) may
+/// have come in time: it is the write's reply, not the master sending it again (which
+/// would leave the write unanswered), and its line says both times. Where an empty read
+/// in between proves it came after the window, it is the resend, as before.
+#[test]
+fn a_write_s_echo_read_late_is_its_reply() {
+    let w = write(1, 0x2502, 100);
+    let heard = |reads: &[(u64, &[u8])]| {
+        let mut m = monitor(Mode::Rtu, &[1]);
+        for (t, bytes) in reads {
+            if bytes.is_empty() {
+                m.idle(ms(*t));
+            } else {
+                m.feed(ms(*t), bytes);
+            }
+        }
+        m.idle(ms(2000));
+        m.finish();
+        m
+    };
+    let mut m = heard(&[(0, &[]), (0, &w), (3, &[]), (1500, &w)]);
+    assert!(kinds(&m, 1).is_empty(), "{:?}", kinds(&m, 1));
+    assert_eq!(m.nodes()[&1].replies, 1);
+    let lines = m.take_lines();
+    assert_eq!(lines.len(), 1, "{lines:#?}");
+    assert!(
+        lines[0].notes[0].contains("(1500.0 ms after it as read, no sooner than 4.1 ms: the listener read it late, within the 1000 ms window)"),
+        "{lines:#?}"
+    );
+    // The window closed on the empty read, and the copy is the next request: the master
+    // sending it again (left unjudged, as listening ends inside its window).
+    let m = heard(&[(0, &[]), (0, &w), (3, &[]), (1200, &[]), (1500, &w)]);
+    assert_eq!(kinds(&m, 1), ["drive.no-reply"]);
+    assert_eq!(m.nodes()[&1].retries, 1);
+}
