@@ -111,12 +111,12 @@ fn on_the_simulator(dir: &str, name: &str, extra: &str) -> (Option<i32>, serde_j
     let file = example(name);
     check_device(
         &Scratch::new(dir),
-        &line(&[
-            "--sim --no-pace",
-            extra,
-            "--model-file",
-            file.to_str().unwrap(),
-        ]),
+        // The file's path apart: `line` splits at white space.
+        &[
+            &line(&["--sim --no-pace", extra, "--model-file"])[..],
+            &[file.to_str().unwrap()],
+        ]
+        .concat(),
         Duration::from_secs(120),
     )
 }

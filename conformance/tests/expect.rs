@@ -270,7 +270,15 @@ fn an_invalid_file_is_refused_with_its_line_and_field_before_the_run() {
         [&["check"][..], &sim, &["--expect", f]].concat(),
         [&["fuzz"][..], &sim[..2], &["--expect", f]].concat(),
         vec!["gate", "--codec", "conformance adapter", "--expect", f],
-        line(&["monitor --model f510 --port /dev/null --expect", f]),
+        vec![
+            "monitor",
+            "--model",
+            "f510",
+            "--port",
+            "/dev/null",
+            "--expect",
+            f,
+        ],
     ] {
         let out = conformance(&args);
         let stderr = out.stderr.as_str();

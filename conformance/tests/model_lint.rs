@@ -143,9 +143,33 @@ fn every_command_that_loads_a_description_lints_it_first() {
     for args in [
         vec!["model", "show", "--model-file", fs],
         vec!["model", "--model-file", fs],
-        common::line(&["check --model f510 --model-file", fs, "--port /dev/null"]),
-        common::line(&["fuzz --model f510 --model-file", fs, "--port /dev/null"]),
-        common::line(&["monitor --model f510 --model-file", fs, "--port /dev/null"]),
+        vec![
+            "check",
+            "--model",
+            "f510",
+            "--model-file",
+            fs,
+            "--port",
+            "/dev/null",
+        ],
+        vec![
+            "fuzz",
+            "--model",
+            "f510",
+            "--model-file",
+            fs,
+            "--port",
+            "/dev/null",
+        ],
+        vec![
+            "monitor",
+            "--model",
+            "f510",
+            "--model-file",
+            fs,
+            "--port",
+            "/dev/null",
+        ],
     ] {
         let o = run(&args);
         let err = o.stderr.clone();

@@ -493,12 +493,14 @@ fn sigterm_during_a_restore_leaves_the_audit_log_whole_and_undoes_what_was_writt
     let audit = d.join("audit.jsonl");
     let mut child = spawn(
         &d,
-        &dev.args(&line(&[
-            "params restore",
+        &dev.args(&[
+            "params",
+            "restore",
             target.to_str().unwrap(),
-            "--yes --audit",
+            "--yes",
+            "--audit",
             audit.to_str().unwrap(),
-        ])),
+        ]),
     );
     let t0 = std::time::Instant::now();
     while audit_lines(&audit).len() < 2 {
@@ -589,12 +591,14 @@ fn the_round_trip_against_pymodbus_described_by_a_model_file() {
     }
     let audit = d.join("fc10.jsonl");
     let file = d.join("a.toml");
-    let (code, out, err) = dev.run(&line(&[
-        "params restore",
+    let (code, out, err) = dev.run(&[
+        "params",
+        "restore",
         file.to_str().unwrap(),
-        "--yes --audit",
+        "--yes",
+        "--audit",
         audit.to_str().unwrap(),
-    ]));
+    ]);
     assert_eq!(code, Some(0), "{out}{err}");
     let lines = audit_lines(&audit);
     assert_eq!(lines.len(), 3, "{lines:?}");
