@@ -91,30 +91,34 @@ pub fn bus_silences(bus_log: &[serde_json::Value]) -> Option<(u64, u64)> {
 /// its line (a silence misjudged on that scale needs lateness on that scale); every
 /// other finding is unexplained. Explained ones are noted with that record.
 ///
-/// A reply with no request under way (`drive.unexpected-reply`) is explained the same
-/// way, once for each such `late` record: a request whose bytes the host handed over
-/// t3.5 apart reaches the listener as two frames, neither of them the request, and its
-/// reply then has no request.
+/// A reply with no request under way (`drive.unexpected-reply`) is explained once for
+/// each `late` record of t3.5 or more inside a master's frame: a request whose bytes the
+/// host handed over t3.5 apart reaches the listener as two frames, neither of them the
+/// request, and its reply then has no request.
 pub fn unexplained(errors: &serde_json::Value, bus_log: &[serde_json::Value]) -> Vec<String> {
     let t3_5_us = bus_silences(bus_log)
         .expect("the bus log has no start record with its line")
         .1;
     let late = late_by_t3_5(bus_log);
-    let split = bus_log
-        .iter()
-        .filter(|r| r["event"] == "late" && r["by_us"].as_u64().is_some_and(|b| b >= t3_5_us))
-        .count() as u64;
+    // Late records that fell inside a master's frame: only those can split a request.
+    let split: Vec<String> = agree::late_frames(bus_log, t3_5_us)
+        .into_iter()
+        .filter(|l| l.in_request)
+        .map(|l| l.record)
+        .collect();
     let mut out = Vec::new();
     for (k, n) in errors.as_object().into_iter().flatten() {
         match late {
             Some(l) if TIMING_KINDS.contains(&k.as_str()) => note(&format!(
                 "{k} x{n}: the bus ran late by t3.5 ({t3_5_us} us) or more ({l}), so the listener's timing was the host's"
             )),
-            Some(l)
-                if k == "drive.unexpected-reply" && n.as_u64().is_some_and(|n| n <= split) =>
+            _ if k == "drive.unexpected-reply"
+                && n.as_u64().is_some_and(|n| n <= split.len() as u64) =>
             {
                 note(&format!(
-                    "{k} x{n}: the bus handed bytes over t3.5 ({t3_5_us} us) or more late {split} times ({l}), each of which can split a request"
+                    "{k} x{n}: the bus handed a request's bytes over t3.5 ({t3_5_us} us) or more late {} times, each of which can split it (the first: {})",
+                    split.len(),
+                    split[0]
                 ))
             }
             _ => out.push(format!("{k} x{n}")),
