@@ -393,10 +393,14 @@ pub fn run_from(
         }
     };
     // Stopped by the clock or a signal while a frame may be arriving: listen on until the
-    // line is quiet for t3.5 (at most DRAIN_AT_MOST), so that the last frame is heard
-    // whole rather than judged cut.
+    // line is quiet (at most DRAIN_AT_MOST), so that the last frame is heard whole rather
+    // than judged cut. Quiet is t3.5, or as long as the framer holds the start of a frame
+    // cut short for its rest (`CARRY_HOLD`), whichever is longer: a sender (or a host
+    // handing its bytes over) late by more than t3.5 inside the last frame would
+    // otherwise end listening between its pieces.
     if matches!(ended, Ended::Duration | Ended::Interrupted) {
-        let quiet = Duration::from_micros(monitor.config().line.t3_5_us());
+        let quiet =
+            Duration::from_micros(monitor.config().line.t3_5_us()).max(super::frames::CARRY_HOLD);
         let until = origin.elapsed() + DRAIN_AT_MOST;
         let mut last = origin.elapsed();
         while origin.elapsed() < until {
