@@ -140,36 +140,23 @@ fn every_command_that_loads_a_description_lints_it_first() {
     let lint = run(&["model", "lint", fs]).stdout;
     let findings: Vec<&str> = lint.lines().filter(|l| l.contains(": error: ")).collect();
     assert_eq!(findings.len(), 3);
+    let on_no_port = |command: &'static str| {
+        vec![
+            command,
+            "--model",
+            "f510",
+            "--model-file",
+            fs,
+            "--port",
+            "/dev/null",
+        ]
+    };
     for args in [
         vec!["model", "show", "--model-file", fs],
         vec!["model", "--model-file", fs],
-        vec![
-            "check",
-            "--model",
-            "f510",
-            "--model-file",
-            fs,
-            "--port",
-            "/dev/null",
-        ],
-        vec![
-            "fuzz",
-            "--model",
-            "f510",
-            "--model-file",
-            fs,
-            "--port",
-            "/dev/null",
-        ],
-        vec![
-            "monitor",
-            "--model",
-            "f510",
-            "--model-file",
-            fs,
-            "--port",
-            "/dev/null",
-        ],
+        on_no_port("check"),
+        on_no_port("fuzz"),
+        on_no_port("monitor"),
     ] {
         let o = run(&args);
         let err = o.stderr.clone();
