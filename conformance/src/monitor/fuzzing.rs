@@ -250,7 +250,7 @@ fn judge_stream(stream: &Stream, mode: Mode) -> Judged {
     let t = m.tally();
     assert_eq!(
         m.frames_heard(),
-        t.requests + t.replies + t.damaged + t.unpaired,
+        t.requests + t.replies + t.damaged + t.unpaired + t.cut,
         "a frame not accounted for once: {t:?}"
     );
     assert_eq!(

@@ -6,7 +6,7 @@
 //! ([`super::guess`]: two in a row); at any other, its UART reads something else. A
 //! setting is left after [`SETTING_BYTES`] bytes with no verdict, [`SETTING_WAIT`] after
 //! its first byte, or [`SILENT_WAIT`] of silence; and as soon as its bytes cannot be
-//! frames: after [`LEAVE_BURSTS`] bursts (bytes between two silences) in which no frame
+//! frames: after [`LEAVE_BURSTS`] bursts (bytes between two silences of t3.5) in which no frame
 //! with a valid CRC or LRC starts anywhere. The search goes round again until the
 //! traffic settles it, `--duration` passes or Ctrl-C.
 //!
@@ -55,9 +55,11 @@ pub const SETTING_WAIT: Duration = Duration::from_secs(2);
 /// search comes back to it).
 pub const SILENT_WAIT: Duration = Duration::from_secs(2);
 
-/// Bursts (bytes between two silences) with no valid frame anywhere in them after which
-/// a setting is left: the first may be the end of a frame under way, and a busy host can
-/// split one frame in two.
+/// Bursts (bytes between two silences of t3.5, the silence between frames) with no valid
+/// frame anywhere in them after which a setting is left: the first may be the end of a
+/// frame under way, and a busy host can split one frame in two. A shorter silence (a
+/// sender, or a host handing bytes over, late by less than t3.5) ends no burst: counted
+/// so, a frame handed over in three pieces left the line's own setting.
 pub const LEAVE_BURSTS: usize = 3;
 
 /// Baud rates tried, most likely first (those `scan` tries).
@@ -300,6 +302,11 @@ pub fn listen_for_line(
                 return Err(MonitorError::Transport(e));
             }
             let poll = poll_interval(line);
+            // Empty reads in a row that prove t3.5 of silence: each waited a poll with no
+            // byte (bytes that came between two reads would be in the second). Counted,
+            // not timed: a listener the host let sleep between reads proves no more.
+            let quiet_reads = line.t3_5_us().div_ceil(poll.as_micros().max(1) as u64);
+            let mut empty_run = 0u64;
             let since = Instant::now();
             let mut first_byte: Option<Instant> = None;
             let mut heard: Heard = Vec::new();
@@ -318,10 +325,13 @@ pub fn listen_for_line(
                 };
                 if n == 0 {
                     super::tap::quiet(&mut heard, at);
-                    if std::mem::take(&mut in_burst) {
+                    empty_run += 1;
+                    if in_burst && empty_run >= quiet_reads {
+                        in_burst = false;
                         bursts += 1;
                     }
                 } else {
+                    empty_run = 0;
                     in_burst = true;
                     first_byte.get_or_insert_with(Instant::now);
                     heard.push((at, buf[..n].to_vec()));
@@ -394,9 +404,20 @@ mod tests {
         budget: usize,
         /// Reads at each setting set, in order.
         reads: Vec<usize>,
-        /// Whether the next read finds the line silent (the traffic comes in bursts).
-        quiet: bool,
+        /// Reads since the last that carried traffic: the traffic comes in bursts, each
+        /// followed by [`QUIET_READS`] empty reads (t3.5 of silence at any setting).
+        phase: usize,
+        /// Where non-zero: each burst is handed over `piece` bytes a read, with one empty
+        /// read between pieces (a host late by less than t3.5), from byte `start` of the
+        /// traffic on (and round to it).
+        piece: usize,
+        start: usize,
+        pieces: std::collections::VecDeque<u8>,
+        gap: bool,
     }
+
+    /// Empty reads (each a poll of t1.5, or 750 us) that prove t3.5 at every setting.
+    const QUIET_READS: usize = 3;
 
     impl Tap for UartTap {
         fn listen(&mut self, buf: &mut [u8], _timeout: Duration) -> Result<usize, TransportError> {
@@ -409,8 +430,20 @@ mod tests {
             if let Some(r) = self.reads.last_mut() {
                 *r += 1;
             }
-            self.quiet = !self.quiet;
-            if !self.quiet {
+            if !self.pieces.is_empty() {
+                // Inside a burst handed over in pieces: one empty read between them.
+                self.gap = !self.gap;
+                if self.gap {
+                    return Ok(0);
+                }
+                let n = self.piece.min(self.pieces.len()).min(buf.len());
+                for (b, p) in buf.iter_mut().zip(self.pieces.drain(..n)) {
+                    *b = p;
+                }
+                return Ok(n);
+            }
+            self.phase = (self.phase + 1) % (QUIET_READS + 1);
+            if self.phase != 1 {
                 return Ok(0);
             }
             let policy = if self.own.parity == Parity::None {
@@ -419,6 +452,17 @@ mod tests {
                 ErrorPolicy::Zero
             };
             let got = deliver(&transcode(&self.traffic, &self.line, &self.own), policy);
+            if self.piece > 0 {
+                // The burst begins inside a frame (at `start`) and comes a piece at a time.
+                let start = self.start % got.len().max(1);
+                self.pieces = got[start..].iter().chain(&got[..start]).copied().collect();
+                self.gap = true;
+                let n = self.piece.min(self.pieces.len()).min(buf.len());
+                for (b, p) in buf.iter_mut().zip(self.pieces.drain(..n)) {
+                    *b = p;
+                }
+                return Ok(n);
+            }
             let n = got.len().min(buf.len());
             buf[..n].copy_from_slice(&got[..n]);
             Ok(n)
@@ -471,6 +515,16 @@ mod tests {
         mode: Mode,
         asked: Option<Mode>,
     ) -> (Result<Found, NotFound>, UartTap) {
+        search_in_pieces(line, mode, asked, 0, 0)
+    }
+
+    fn search_in_pieces(
+        line: LineSettings,
+        mode: Mode,
+        asked: Option<Mode>,
+        piece: usize,
+        start: usize,
+    ) -> (Result<Found, NotFound>, UartTap) {
         let mut tap = UartTap {
             line,
             own: LineSettings::new(1, 8, Parity::None, 1),
@@ -478,7 +532,11 @@ mod tests {
             sets: Vec::new(),
             budget: 10_000,
             reads: Vec::new(),
-            quiet: false,
+            phase: 0,
+            piece,
+            start,
+            pieces: Default::default(),
+            gap: false,
         };
         let settings = candidates(&[], &[], None, line.stop_bits, asked);
         let r = listen_for_line(
@@ -522,7 +580,9 @@ mod tests {
             let before = &tap.reads[..tap.reads.len() - 1];
             assert!(!before.is_empty());
             assert!(
-                before.iter().all(|&n| n <= 2 * LEAVE_BURSTS + 2),
+                before
+                    .iter()
+                    .all(|&n| n <= (QUIET_READS + 1) * (LEAVE_BURSTS + 1)),
                 "{line}: reads at each setting {:?} over {:?}",
                 tap.reads,
                 tap.sets
@@ -532,6 +592,31 @@ mod tests {
                 .iter()
                 .filter(|t| t.bytes > 0 && t.line != line)
                 .all(|t| t.left_early));
+        }
+    }
+
+    /// A host that hands the line's bytes over late by less than t3.5 (an emulated bus on
+    /// a loaded machine, a USB adapter) splits frames with empty reads: at the line's own
+    /// setting, the tail of a reply and the request after it, two bytes a read, are not
+    /// three bursts that cannot be frames. CI failed this way: the search heard
+    /// `02 05 | 10 BA D8 | 01 03` at the line's 19200 8O1, left it, and found nothing.
+    #[test]
+    fn a_frame_handed_over_in_pieces_does_not_leave_the_lines_setting() {
+        let line = LineSettings::new(19_200, 8, Parity::Odd, 1);
+        for piece in [1, 2, 3] {
+            // From the fourth byte of the reply (request 8 bytes, reply 9).
+            let (r, tap) = search_in_pieces(line, Mode::Rtu, None, piece, 11);
+            let found = r.unwrap_or_else(|e| panic!("pieces of {piece}: {}", e.describe()));
+            assert_eq!(found.line, line);
+            let at = candidates(&[], &[], None, 1, None)
+                .iter()
+                .position(|&l| l == line);
+            assert_eq!(
+                (found.rounds, Some(found.before)),
+                (1, at),
+                "pieces of {piece}: {:?}",
+                tap.sets
+            );
         }
     }
 
@@ -657,7 +742,11 @@ mod tests {
             sets: Vec::new(),
             budget: 100_000,
             reads: Vec::new(),
-            quiet: false,
+            phase: 0,
+            piece: 0,
+            start: 0,
+            pieces: Default::default(),
+            gap: false,
         };
         let settings = candidates(&[9600, 19_200], &[], None, 1, Some(Mode::Rtu));
         assert_eq!(settings.len(), 6);

@@ -290,6 +290,9 @@ pub struct FrameTally {
     pub unanswered: u64,
     /// Requests left unjudged because listening ended inside their window.
     pub unjudged: u64,
+    /// Frames that listening ended inside (not whole, no silence after them): not
+    /// judged.
+    pub cut: u64,
 }
 
 /// Replies read together with their request, at least, before the monitor says the tap
@@ -501,11 +504,20 @@ impl Monitor {
     }
 
     /// The end of the input: everything held is framed and judged.
+    ///
+    /// A frame that the end cut (bytes still arriving, no silence after them, and not a
+    /// whole frame) is not judged: its bytes say nothing of the sender, only that
+    /// listening stopped. It is counted ([`FrameTally::cut`]) and named in a notice, and
+    /// the request under way, if a reply is due, is left unjudged with it.
     pub fn finish(&mut self) {
         let mut out = Vec::new();
         self.framer.finish(&mut out);
         for f in out {
-            self.on_frame(f);
+            if f.ended_by == EndedBy::EndOfInput && f.status != FrameStatus::Valid {
+                self.cut_by_the_end(f);
+            } else {
+                self.on_frame(f);
+            }
         }
         if let Some(p) = &self.pending {
             // Listening ended before the reply to the last request was due: nothing to
@@ -571,6 +583,37 @@ impl Monitor {
         std::mem::take(&mut self.lines)
     }
 
+    /// A frame that listening ended inside (see [`Monitor::finish`]).
+    fn cut_by_the_end(&mut self, f: TapFrame) {
+        self.frames += 1;
+        self.tally.cut += 1;
+        let began = f.earliest_start(self.cfg.line.char_time_us());
+        if let Some(p) = &self.pending {
+            if began.saturating_sub(p.end) > self.cfg.window {
+                self.close_unanswered(None);
+            }
+        }
+        let heard = judge::show(self.cfg.mode, &f.bytes);
+        let n = f.bytes.len();
+        match self.pending.take() {
+            Some(p) if p.judgement.expect.replies() => {
+                let after = began.saturating_sub(p.end);
+                self.notices.push(format!(
+                    "listening ended inside the frame after the last request ({}): {n} bytes of it were heard ({heard}), {:.1} ms after the request, and neither was judged",
+                    judge::show(self.cfg.mode, &p.bytes),
+                    ms(after)
+                ));
+                self.tally.unjudged += 1;
+            }
+            p => {
+                self.pending = p;
+                self.notices.push(format!(
+                    "listening ended inside a frame: {n} bytes of it were heard ({heard}), and it was not judged"
+                ));
+            }
+        }
+    }
+
     /// Per-node statistics.
     pub fn nodes(&self) -> &BTreeMap<u8, NodeStats> {
         &self.nodes
@@ -613,6 +656,12 @@ impl Monitor {
             notices: self.notices.len(),
             lines: self.lines.len(),
         }
+    }
+
+    /// Whether a frame is under way: the framer holds bytes of one (or the start of one
+    /// cut short, held for its rest). Listening that stops now cuts it.
+    pub fn frame_under_way(&self) -> bool {
+        self.framer.held_bytes() > 0
     }
 
     /// Deviations found, over every node.
@@ -794,6 +843,8 @@ pub(crate) fn is_write(fc: u8) -> bool {
 
 #[cfg(test)]
 mod tests;
+#[cfg(test)]
+mod tests_drain;
 #[cfg(test)]
 mod tests_packet;
 #[cfg(test)]

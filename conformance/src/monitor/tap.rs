@@ -393,21 +393,22 @@ pub fn run_from(
         }
     };
     // Stopped by the clock or a signal while a frame may be arriving: listen on until the
-    // line is quiet (at most DRAIN_AT_MOST), so that the last frame is heard whole rather
-    // than judged cut. Quiet is t3.5, or as long as the framer holds the start of a frame
-    // cut short for its rest (`CARRY_HOLD`), whichever is longer: a sender (or a host
-    // handing its bytes over) late by more than t3.5 inside the last frame would
-    // otherwise end listening between its pieces.
+    // frame under way has ended and the line has been quiet for t3.5 after it (at most
+    // DRAIN_AT_MOST), so that the last frame is heard whole rather than cut. The framer
+    // holds the start of a frame cut short (a sender, or a host handing its bytes over,
+    // late by more than t3.5 inside it) for its rest (`CARRY_HOLD`), and listening goes
+    // on while it does. A quiet line is not asked for: a master polling back to back
+    // leaves t3.5 between frames and no longer, and a frame the limit cuts anyway is not
+    // judged ([`Monitor::finish`]).
     if matches!(ended, Ended::Duration | Ended::Interrupted) {
-        let quiet =
-            Duration::from_micros(monitor.config().line.t3_5_us()).max(super::frames::CARRY_HOLD);
+        let quiet = Duration::from_micros(monitor.config().line.t3_5_us());
         let until = origin.elapsed() + DRAIN_AT_MOST;
         let mut last = origin.elapsed();
         while origin.elapsed() < until {
             match read_dated(tap, &mut buf, poll, origin) {
                 Ok((at, 0)) => {
                     hear(monitor, at, &[]);
-                    if at.saturating_sub(last) >= quiet {
+                    if at.saturating_sub(last) >= quiet && !monitor.frame_under_way() {
                         break;
                     }
                 }

@@ -38,11 +38,11 @@ fn frame(mode: Mode, address: u8, pdu: Pdu<'_>) -> Vec<u8> {
     Message { address, pdu }.to_frame_vec(mode).unwrap()
 }
 
-fn read(address: u8, start: u16, count: u16) -> Vec<u8> {
+pub(super) fn read(address: u8, start: u16, count: u16) -> Vec<u8> {
     frame(Mode::Rtu, address, Pdu::ReadRequest { start, count })
 }
 
-fn values(address: u8, v: &[u16]) -> Vec<u8> {
+pub(super) fn values(address: u8, v: &[u16]) -> Vec<u8> {
     let bytes: Vec<u8> = v.iter().flat_map(|x| x.to_be_bytes()).collect();
     frame(
         Mode::Rtu,

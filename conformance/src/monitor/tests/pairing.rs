@@ -211,6 +211,87 @@ fn a_request_cut_off_by_the_end_of_listening_is_not_judged() {
     assert_eq!(kinds(&m, 1), ["drive.no-reply"]);
 }
 
+/// Listening that stops while a reply is arriving (a `--duration` on a bus polled back to
+/// back) cuts the reply: its first bytes say nothing of the drive, so neither it nor its
+/// request is judged, and a notice names both. So does listening that stops while the
+/// framer still holds them for their rest (a late read may yet bring it). The same bytes
+/// with the line quiet after them for longer than that hold are a reply the drive cut
+/// short, and judged so. An ASCII frame with no line end yet is cut alike.
+#[test]
+fn a_reply_cut_by_the_end_of_listening_is_not_judged() {
+    let req = read(1, 0x252F, 1);
+    let rep = values(1, &[0x0510]);
+    let heard = |quiet_after: Option<u64>| {
+        let mut m = monitor(Mode::Rtu, &[1]);
+        m.idle(ms(0));
+        m.feed(ms(10), &req);
+        m.idle(ms(20));
+        m.feed(ms(21), &rep[..4]);
+        if let Some(q) = quiet_after {
+            m.idle(ms(21 + q));
+        }
+        m.finish();
+        m
+    };
+    // No silence after the bytes; then a silence over t3.5 (2 ms) but within CARRY_HOLD.
+    for quiet in [None, Some(20)] {
+        let m = heard(quiet);
+        assert!(kinds(&m, 1).is_empty(), "{quiet:?}: {:?}", kinds(&m, 1));
+        let t = m.tally();
+        assert_eq!((t.requests, t.unjudged, t.cut), (1, 1, 1), "{t:?}");
+        assert_eq!(m.frames_heard(), 2);
+        assert!(
+            m.notices().iter().any(|n| n.starts_with(
+                "listening ended inside the frame after the last request (01 03 25 2F 00 01 BE CF): 4 bytes of it were heard (01 03 02 05)"
+            ) && n.ends_with("neither was judged")),
+            "{:?}",
+            m.notices()
+        );
+    }
+    let m = heard(Some(frames::CARRY_HOLD.as_millis() as u64 + 20));
+    assert_eq!(kinds(&m, 1), ["drive.truncated"]);
+    assert_eq!(m.tally().cut, 0);
+
+    let mut m = monitor(Mode::Ascii, &[1]);
+    m.idle(ms(0));
+    m.feed(ms(10), &ascii_read(1, 0x252F, 1));
+    m.idle(ms(20));
+    m.feed(ms(21), b":010302");
+    m.finish();
+    assert!(kinds(&m, 1).is_empty(), "{:?}", kinds(&m, 1));
+    assert_eq!(m.tally().cut, 1);
+}
+
+/// A request that listening stops inside is not the master's incomplete request: it is
+/// named in a notice and not judged. A whole frame with no silence after it yet is
+/// judged as any other.
+#[test]
+fn a_request_cut_by_the_end_of_listening_is_not_judged() {
+    let req = read(1, 0x252F, 1);
+    let mut m = monitor(Mode::Rtu, &[1]);
+    m.idle(ms(0));
+    m.feed(ms(10), &req[..5]);
+    m.finish();
+    assert!(kinds(&m, 1).is_empty(), "{:?}", kinds(&m, 1));
+    assert_eq!(m.nodes().get(&1).map_or(0, |n| n.requests), 0);
+    assert_eq!((m.tally().cut, m.tally().requests), (1, 0));
+    assert!(
+        m.notices().iter().any(|n| n
+            == "listening ended inside a frame: 5 bytes of it were heard (01 03 25 2F 00), and it was not judged"),
+        "{:?}",
+        m.notices()
+    );
+    // The whole request, then the whole reply with no silence after it: both judged.
+    let mut m = monitor(Mode::Rtu, &[1]);
+    m.idle(ms(0));
+    m.feed(ms(10), &req);
+    m.idle(ms(20));
+    m.feed(ms(21), &values(1, &[0x0510]));
+    m.finish();
+    assert_eq!(m.nodes()[&1].exchanges, 1);
+    assert_eq!((m.tally().answered, m.tally().cut), (1, 0));
+}
+
 /// A capture with directions settles what order and time cannot: a copy from the
 /// request's side is the master's resend however soon it comes, and one from the other
 /// side is the echo however late (then a late reply).
