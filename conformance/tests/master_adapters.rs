@@ -35,7 +35,9 @@ fn gate(name: &str, cmd: &str, model: &str, only: &[&str]) -> (Option<i32>, serd
     for p in only {
         args.extend(["--only", p]);
     }
-    let (code, v) = common::report_of("gate", &Scratch::new(name), &args, LIMIT);
+    let (code, v) = common::gate::again_while_unscheduled(|| {
+        common::report_of("gate", &Scratch::new(name), &args, LIMIT)
+    });
     assert_eq!(v["kind"], "gate");
     assert_eq!(v["complete"], true, "the run did not complete: {v:#}");
     assert_eq!(v["summary"]["error"], 0, "{:#}", v["checks"]);
