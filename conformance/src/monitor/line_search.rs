@@ -598,8 +598,9 @@ mod tests {
     /// A host that hands the line's bytes over late by less than t3.5 (an emulated bus on
     /// a loaded machine, a USB adapter) splits frames with empty reads: at the line's own
     /// setting, the tail of a reply and the request after it, two bytes a read, are not
-    /// three bursts that cannot be frames. CI failed this way: the search heard
-    /// `02 05 | 10 BA D8 | 01 03` at the line's 19200 8O1, left it, and found nothing.
+    /// three bursts that cannot be frames. `tests/bus.rs` failed this way at load 6: the
+    /// search heard `02 05 | 10 BA D8 | 01 03` at the line's 19200 8O1 (the bus handed
+    /// them over 973 us and 2,211 us late), left it, and found nothing.
     #[test]
     fn a_frame_handed_over_in_pieces_does_not_leave_the_lines_setting() {
         let line = LineSettings::new(19_200, 8, Parity::Odd, 1);
