@@ -87,6 +87,19 @@ pub fn broken_by_host(flags: Option<u32>, comment: Option<&str>) -> bool {
 /// A reader judges such a reply at the time it was due ([`late_on_host`]).
 pub const LATE_ON_HOST: &str = "begun late by the host of the simulator";
 
+/// The words in the comment of a tap's first packet read before any read came
+/// back empty (`monitor --capture` that began listening while the line was busy): it may
+/// begin inside a frame. The live monitor judged none of it up to the first silence of
+/// t3.5 (ASCII: up to the first ':'), and a reader of the file does the same
+/// ([`heard_mid_traffic`]). A sniffer's file has no such packet: its first is judged.
+pub const HEARD_MID_TRAFFIC: &str = "read before the line was heard quiet";
+
+/// Whether a packet's `comment` marks it as read before the line was heard quiet
+/// ([`HEARD_MID_TRAFFIC`]).
+pub fn heard_mid_traffic(comment: Option<&str>) -> bool {
+    comment.is_some_and(|c| c.contains(HEARD_MID_TRAFFIC))
+}
+
 /// How late a packet's comment says its writer's host made the simulator begin it
 /// ([`LATE_ON_HOST`]); None for any other packet.
 pub fn late_on_host(comment: Option<&str>) -> Option<std::time::Duration> {

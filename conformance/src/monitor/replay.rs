@@ -279,6 +279,8 @@ struct Feeder {
     last: u64,
     /// Each packet whole ([`Monitor::feed_packet`]), or in two pieces (tests).
     whole: bool,
+    /// The live monitor's rule for bytes heard before the line was heard quiet.
+    entry: super::tap::Entry,
 }
 
 impl Feeder {
@@ -289,6 +291,7 @@ impl Feeder {
             origin: None,
             last: 0,
             whole,
+            entry: super::tap::Entry::new(monitor.config().mode, monitor.config().line),
         }
     }
 
@@ -331,6 +334,13 @@ impl Feeder {
             first = first.saturating_sub(late).max(self.out.span);
         }
         monitor.idle(first);
+        // A capture begins with the line quiet, unless its writer (a monitor that began
+        // listening while the line was busy) marked its first packet: then, as the live
+        // monitor did, its bytes are not judged up to the first silence of t3.5 (ASCII:
+        // up to the first ':'). Packets are apart by silences, each proved here.
+        if self.out.packets > 0 || !capture::heard_mid_traffic(p.comment) {
+            self.entry.idle(first);
+        }
         // Where the capture gives directions, they settle which frame answers which: a
         // direction is the packet's on its own interface (a bus capture's endpoints).
         monitor.set_side(super::capture_side(p.interface, p.direction));
@@ -339,12 +349,19 @@ impl Feeder {
         // packet can be proven, and the framer needs no byte-by-byte clock for that.
         let char = self.char;
         let end = first + char * bytes.len() as u32;
-        if self.whole {
-            monitor.feed_packet(first + char, end, bytes);
+        let kept = self.entry.take(end, bytes);
+        let first = first + char * (bytes.len() - kept.len()) as u32;
+        if kept.is_empty() {
+            monitor.idle(end);
+        } else if self.whole {
+            monitor.feed_packet(first + char, end, kept);
         } else {
-            let (head, rest) = bytes.split_at(1.min(bytes.len()));
+            let (head, rest) = kept.split_at(1.min(kept.len()));
             monitor.feed(first + char, head);
             monitor.feed(end, rest);
+        }
+        if let Some(n) = self.entry.notice(false) {
+            monitor.notice(n);
         }
         for l in monitor.take_lines() {
             on_line(&l);
@@ -356,7 +373,10 @@ impl Feeder {
         Ok(())
     }
 
-    fn finish(self, monitor: &mut Monitor, on_line: &mut impl FnMut(&Line)) -> Replayed {
+    fn finish(mut self, monitor: &mut Monitor, on_line: &mut impl FnMut(&Line)) -> Replayed {
+        if let Some(n) = self.entry.notice(true) {
+            monitor.notice(n);
+        }
         monitor.finish();
         for l in monitor.take_lines() {
             on_line(&l);

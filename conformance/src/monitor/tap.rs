@@ -263,8 +263,10 @@ pub fn listen_for_mode(
 /// back empty go, up to the first silence of t3.5 (a read that came back empty waited a
 /// poll, at least t1.5, and a frame whose characters are that far apart is broken: what
 /// follows begins a frame); ASCII: those before the first `:`. Said once, with the
-/// bytes, as a notice.
-struct Entry {
+/// bytes, as a notice. A capture that the monitor wrote says where its first packet was
+/// read so ([`crate::capture::HEARD_MID_TRAFFIC`]), and [`super::replay`] applies the
+/// same rule to it.
+pub(super) struct Entry {
     mode: crate::codec::Mode,
     t3_5: Duration,
     // When the last byte dropped was read.
@@ -275,7 +277,7 @@ struct Entry {
 }
 
 impl Entry {
-    fn new(mode: crate::codec::Mode, line: crate::codec::timing::LineSettings) -> Self {
+    pub(super) fn new(mode: crate::codec::Mode, line: crate::codec::timing::LineSettings) -> Self {
         Entry {
             mode,
             t3_5: Duration::from_micros(line.t3_5_us()),
@@ -287,7 +289,7 @@ impl Entry {
     }
 
     /// The line was quiet up to `at`.
-    fn idle(&mut self, at: Duration) {
+    pub(super) fn idle(&mut self, at: Duration) {
         if self.synced || self.mode == crate::codec::Mode::Ascii {
             return;
         }
@@ -300,7 +302,7 @@ impl Entry {
     }
 
     /// Of `bytes` read at `at`, those to judge.
-    fn take<'a>(&mut self, at: Duration, bytes: &'a [u8]) -> &'a [u8] {
+    pub(super) fn take<'a>(&mut self, at: Duration, bytes: &'a [u8]) -> &'a [u8] {
         if self.synced {
             return bytes;
         }
@@ -318,7 +320,7 @@ impl Entry {
     }
 
     /// The notice, once bytes were dropped and judging began (or listening ended).
-    fn notice(&mut self, ended: bool) -> Option<String> {
+    pub(super) fn notice(&mut self, ended: bool) -> Option<String> {
         if self.dropped == 0 || !(self.synced || ended) {
             return None;
         }

@@ -332,3 +332,62 @@ fn a_reply_marked_late_by_the_writers_host_is_judged_when_it_was_due() {
     );
     assert!(judged[1].is_empty(), "{:?}", judged[1]);
 }
+
+/// A capture whose first packet its writer marked as read before the line was heard
+/// quiet (`monitor --capture` that began listening while the line was busy: a backlog of
+/// two exchanges read at once) is judged as the live monitor judged it: that packet's
+/// bytes are not judged, with the same notice, and the exchange after the silence is.
+/// Unmarked (a sniffer's file, which begins quiet), the backlog's exchanges are judged
+/// too.
+#[test]
+fn a_first_packet_read_mid_traffic_is_judged_as_the_live_monitor_did() {
+    let line = LineSettings::new(9600, 8, Parity::Even, 1);
+    let request = [0x01, 0x03, 0x25, 0x20, 0x00, 0x01, 0x8E, 0xCC];
+    let reply = [0x01, 0x03, 0x02, 0x00, 0x04, 0xB9, 0x87];
+    let backlog = [&request[..], &reply[..], &request[..], &reply[..]].concat();
+    let char_us = line.char_time_us();
+    for marked in [false, true] {
+        let mut w = PcapngWriter::new(Vec::new(), "tests_packet").unwrap();
+        w.add_interface(&Interface {
+            link_type: crate::capture::LINKTYPE_USER0,
+            name: "tap".into(),
+            description: "rtu 9600 8E1, a tap".into(),
+        })
+        .unwrap();
+        let t0 = 1_700_000_000_000_000u64;
+        let comment = format!(
+            "{}: listening began while the line was busy, so this may begin inside a frame",
+            crate::capture::HEARD_MID_TRAFFIC
+        );
+        let t1 = t0 + 30 * char_us + 20_000;
+        let packets = [
+            (t0, &backlog[..], marked.then_some(comment)),
+            (t1, &request[..], None),
+            (t1 + 8 * char_us + 10_000, &reply[..], None),
+        ];
+        for (t, bytes, comment) in packets {
+            let meta = PacketMeta {
+                interface: 0,
+                timestamp_us: t,
+                flags: 0,
+                comment,
+            };
+            w.write_packet(&meta, bytes).unwrap();
+        }
+        let data = w.into_inner();
+        let mut m = monitor_on(Mode::Rtu, line, &[1]);
+        let r = replay(&data, &mut m, |_| {}).unwrap();
+        assert_eq!((r.packets, r.bytes), (3, 45));
+        assert_eq!(kinds(&m, 1), Vec::<String>::new());
+        let said = m.notices().iter().any(|n| {
+            n.starts_with("listening began in the middle of the traffic: the first 30 bytes")
+        });
+        assert_eq!(said, marked, "{:?}", m.notices());
+        assert_eq!(
+            m.nodes()[&1].exchanges,
+            if marked { 1 } else { 3 },
+            "{:?}",
+            m.notices()
+        );
+    }
+}

@@ -39,6 +39,15 @@ pub struct Captured<T: Transport> {
     /// ([`Captured::holding_frames_for`]).
     hold: Duration,
     inbound_flag: u32,
+    /// The line's character time, from the settings it was made with.
+    line_char: Duration,
+    /// A tap ([`Captured::as_tap`]): its first packet is marked where it was read before
+    /// any read came back empty.
+    tap: bool,
+    /// A read came back empty (the line was heard quiet).
+    heard_quiet: bool,
+    /// The packet held was read before the line was heard quiet.
+    inbound_mid_traffic: bool,
 }
 
 impl<T: Transport> Captured<T> {
@@ -71,6 +80,10 @@ impl<T: Transport> Captured<T> {
             hold: HOST_STALL,
             inner,
             inbound_flag: capture::FLAG_INBOUND,
+            line_char: Duration::from_micros(line.char_time_us()),
+            tap: false,
+            heard_quiet: false,
+            inbound_mid_traffic: false,
         }
     }
 
@@ -97,6 +110,7 @@ impl<T: Transport> Captured<T> {
             .ok()
             .and_then(|mut r| r.interface(&iface));
         self.mode = mode;
+        self.line_char = Duration::from_micros(line.char_time_us());
         self.char_time = self
             .inner
             .line_timing()
@@ -118,8 +132,18 @@ impl<T: Transport> Captured<T> {
     /// For a tap that hears both sides of a bus (`monitor`): what it receives is written
     /// without a direction (flags bits 0-1 `00`, "not known"), as a single-direction
     /// sniffer's file is.
+    ///
+    /// A tap hears a line at its settings: where the link has no timing of its own (a
+    /// pseudo-terminal of `conformance bus`, which paces the line), a packet is dated back
+    /// from its first read one character time of the line a byte, as the monitor dates
+    /// that read's bytes, so that a file judged offline has the live monitor's times (a
+    /// backlog of 150 bytes read at once, dated at the read, ended 86 ms after the packet
+    /// that followed it, and the file was judged `master.no-t3.5`). Its first packet,
+    /// where it was read before any read came back empty, is marked
+    /// ([`capture::HEARD_MID_TRAFFIC`]): listening began while the line was busy.
     pub fn as_tap(mut self) -> Self {
         self.inbound_flag = 0;
+        self.tap = true;
         self
     }
 
@@ -236,7 +260,15 @@ impl<T: Transport> Captured<T> {
                     after.as_secs_f64() * 1000.0
                 )
             });
-            self.record(at, &bytes, self.inbound_flag, late.as_deref());
+            let why = if std::mem::take(&mut self.inbound_mid_traffic) {
+                Some(format!(
+                    "{}: listening began while the line was busy, so this may begin inside a frame",
+                    capture::HEARD_MID_TRAFFIC
+                ))
+            } else {
+                late
+            };
+            self.record(at, &bytes, self.inbound_flag, why.as_deref());
             self.inbound = bytes;
             self.inbound.clear();
         }
@@ -284,9 +316,19 @@ impl<T: Transport> Transport for Captured<T> {
                 self.flush_inbound();
             }
         }
-        if n > 0 {
+        if n == 0 {
+            self.heard_quiet = true;
+        } else {
             if self.inbound_at.is_none() {
-                let on_line = self.char_time.map_or(Duration::ZERO, |c| c * n as u32);
+                self.inbound_mid_traffic = self.tap && !self.heard_quiet;
+                // Marked once: the first packet only.
+                self.heard_quiet = true;
+                // (Where packets end is left to the link's own timing: a tap's dating
+                // by the line's settings moves no packet's bounds.)
+                let on_line = self
+                    .char_time
+                    .or(self.tap.then_some(self.line_char))
+                    .map_or(Duration::ZERO, |c| c * n as u32);
                 let mut at = now.checked_sub(on_line).unwrap_or(now);
                 if let Some(sent) = self.last_sent {
                     at = at.max(sent);

@@ -144,10 +144,17 @@ impl Recorder {
             (Some(c), Some(n)) => Some(format!("{c}; {n}")),
             (c, n) => c.or_else(|| n.map(str::to_string)),
         };
-        let since = at.saturating_duration_since(self.origin).as_micros() as u64;
+        // A packet dated back from its read may begin before the recording did (a tap's
+        // first read, a backlog): its time is then before the origin, not at it.
+        let timestamp_us = match at.checked_duration_since(self.origin) {
+            Some(since) => self.origin_us + since.as_micros() as u64,
+            None => self
+                .origin_us
+                .saturating_sub(self.origin.duration_since(at).as_micros() as u64),
+        };
         let meta = PacketMeta {
             interface,
-            timestamp_us: self.origin_us + since,
+            timestamp_us,
             flags,
             comment,
         };

@@ -169,6 +169,52 @@ fn a_tap_records_requests_and_replies_apart_and_without_direction() {
     assert_eq!(seen, vec![(&request[..], None), (&REPLY[..], None)]);
 }
 
+/// A tap that began listening while the line was busy (a backlog read at once, before
+/// any read came back empty) marks its first packet, so that a reader judges it as the
+/// live monitor did; one that heard the line quiet first marks none. On a link with no
+/// timing of its own, a packet is dated back from its read one character time of the
+/// line a byte, as the monitor dates the read: 15 bytes at 9600 8E1 end at the read,
+/// so they began 17.2 ms before it.
+#[test]
+fn a_tap_marks_a_packet_read_before_the_line_was_quiet_and_dates_it_back() {
+    let line = LineSettings::new(9600, 8, Parity::Even, 1);
+    let chars = Duration::from_micros(line.char_time_us() * 15);
+    for quiet_first in [false, true] {
+        let (sink, rec) = recorder();
+        let (a, mut b) = memory::pair();
+        let mut a = Captured::new(a, rec, Mode::Rtu, line).as_tap();
+        if quiet_first {
+            assert_eq!(drain(&mut a, Duration::from_millis(5)), 0);
+        }
+        b.send(&[&REQUEST[..], &REPLY[..]].concat()).unwrap();
+        assert_eq!(drain(&mut a, Duration::from_millis(200)), 15);
+        let read = std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .unwrap();
+        std::thread::sleep(Duration::from_millis(20));
+        assert_eq!(drain(&mut a, Duration::from_millis(5)), 0);
+        b.send(&REQUEST).unwrap();
+        assert_eq!(drain(&mut a, Duration::from_millis(200)), 8);
+        drop(a);
+        let data = sink.bytes();
+        let packets = read_back(&data);
+        assert_eq!(packets.len(), 2, "{quiet_first}");
+        let first = packets[0].comment;
+        if quiet_first {
+            assert_eq!(first, None);
+        } else {
+            assert!(capture::heard_mid_traffic(first), "{first:?}");
+        }
+        assert_eq!(packets[1].comment, None);
+        let ts = Duration::from_nanos(packets[0].timestamp_ns.unwrap());
+        assert!(
+            ts + chars <= read,
+            "dated {:?} before the read returned",
+            read.saturating_sub(ts)
+        );
+    }
+}
+
 /// The rest of a reply read long after its first part (the reading host stalled) is
 /// the same packet, as the master that waits its timeout for it takes it whole.
 #[test]
