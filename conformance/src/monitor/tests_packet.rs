@@ -277,49 +277,56 @@ fn a_capture_judged_by_whole_packets_gets_the_verdicts_of_two_pieces() {
     assert_eq!(checked, 6 + 16);
 }
 
+/// A read of 2520H of node 1, and its reply.
+const REQUEST: [u8; 8] = [0x01, 0x03, 0x25, 0x20, 0x00, 0x01, 0x8E, 0xCC];
+const REPLY: [u8; 7] = [0x01, 0x03, 0x02, 0x00, 0x04, 0xB9, 0x87];
+
+/// A pcapng capture on one RTU interface of `packets`: each its time (us since the
+/// epoch), bytes, `epb_flags` and comment.
+fn commented_capture(packets: &[(u64, &[u8], u32, Option<String>)]) -> Vec<u8> {
+    let mut w = PcapngWriter::new(Vec::new(), "tests_packet").unwrap();
+    w.add_interface(&Interface {
+        link_type: crate::capture::LINKTYPE_USER0,
+        name: "test".into(),
+        description: "test".into(),
+    })
+    .unwrap();
+    for (t, bytes, flags, comment) in packets {
+        let meta = PacketMeta {
+            interface: 0,
+            timestamp_us: *t,
+            flags: *flags,
+            comment: comment.clone(),
+        };
+        w.write_packet(&meta, bytes).unwrap();
+    }
+    w.into_inner()
+}
+
 /// A reply its capture's writer marked as begun late by the host of the simulator it ran
 /// (`check --sim` on a busy host) is judged when it was due: no `drive.late-reply`, and the
 /// replay counts it. The same reply unmarked, 60 ms after its request, is a late reply.
 #[test]
 fn a_reply_marked_late_by_the_writers_host_is_judged_when_it_was_due() {
     let line = LineSettings::new(9600, 8, Parity::Even, 1);
-    let request = [0x01, 0x03, 0x25, 0x20, 0x00, 0x01, 0x8E, 0xCC];
-    let reply = [0x01, 0x03, 0x02, 0x00, 0x04, 0xB9, 0x87];
     let char_us = line.char_time_us();
     let late = 50_000u64;
     let mut judged = Vec::new();
     for marked in [false, true] {
-        let mut w = PcapngWriter::new(Vec::new(), "tests_packet").unwrap();
-        w.add_interface(&Interface {
-            link_type: crate::capture::LINKTYPE_USER0,
-            name: "test".into(),
-            description: "test".into(),
-        })
-        .unwrap();
         let t0 = 1_700_000_000_000_000u64;
         let comment = format!(
             "check rtu.map.monitor.first: {}: {late} us (the simulator on this host was due to begin it 10.0 ms after the request)",
             crate::capture::LATE_ON_HOST
         );
-        let packets = [
-            (t0, &request[..], CapDirection::Outbound, None),
+        let data = commented_capture(&[
+            (t0, &REQUEST[..], CapDirection::Outbound.flag(), None),
             (
                 t0 + 8 * char_us + 10_000 + late,
-                &reply[..],
-                CapDirection::Inbound,
+                &REPLY[..],
+                CapDirection::Inbound.flag(),
                 marked.then(|| comment.clone()),
             ),
-        ];
-        for (t, bytes, d, c) in packets {
-            let meta = PacketMeta {
-                interface: 0,
-                timestamp_us: t,
-                flags: d.flag(),
-                comment: c,
-            };
-            w.write_packet(&meta, bytes).unwrap();
-        }
-        let data = w.into_inner();
+        ]);
         let mut m = monitor_on(Mode::Rtu, line, &[1]);
         let r = replay(&data, &mut m, |_| {}).unwrap();
         assert_eq!(r.late_on_host, u64::from(marked));
@@ -342,39 +349,20 @@ fn a_reply_marked_late_by_the_writers_host_is_judged_when_it_was_due() {
 #[test]
 fn a_first_packet_read_mid_traffic_is_judged_as_the_live_monitor_did() {
     let line = LineSettings::new(9600, 8, Parity::Even, 1);
-    let request = [0x01, 0x03, 0x25, 0x20, 0x00, 0x01, 0x8E, 0xCC];
-    let reply = [0x01, 0x03, 0x02, 0x00, 0x04, 0xB9, 0x87];
-    let backlog = [&request[..], &reply[..], &request[..], &reply[..]].concat();
+    let backlog = [&REQUEST[..], &REPLY[..], &REQUEST[..], &REPLY[..]].concat();
     let char_us = line.char_time_us();
     for marked in [false, true] {
-        let mut w = PcapngWriter::new(Vec::new(), "tests_packet").unwrap();
-        w.add_interface(&Interface {
-            link_type: crate::capture::LINKTYPE_USER0,
-            name: "tap".into(),
-            description: "rtu 9600 8E1, a tap".into(),
-        })
-        .unwrap();
         let t0 = 1_700_000_000_000_000u64;
         let comment = format!(
             "{}: listening began while the line was busy, so this may begin inside a frame",
             crate::capture::HEARD_MID_TRAFFIC
         );
         let t1 = t0 + 30 * char_us + 20_000;
-        let packets = [
-            (t0, &backlog[..], marked.then_some(comment)),
-            (t1, &request[..], None),
-            (t1 + 8 * char_us + 10_000, &reply[..], None),
-        ];
-        for (t, bytes, comment) in packets {
-            let meta = PacketMeta {
-                interface: 0,
-                timestamp_us: t,
-                flags: 0,
-                comment,
-            };
-            w.write_packet(&meta, bytes).unwrap();
-        }
-        let data = w.into_inner();
+        let data = commented_capture(&[
+            (t0, &backlog[..], 0, marked.then_some(comment)),
+            (t1, &REQUEST[..], 0, None),
+            (t1 + 8 * char_us + 10_000, &REPLY[..], 0, None),
+        ]);
         let mut m = monitor_on(Mode::Rtu, line, &[1]);
         let r = replay(&data, &mut m, |_| {}).unwrap();
         assert_eq!((r.packets, r.bytes), (3, 45));
