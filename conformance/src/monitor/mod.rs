@@ -480,11 +480,7 @@ impl Monitor {
         let mut out = std::mem::take(&mut self.framed);
         self.framer.idle(now, &mut out);
         self.on_frames(out);
-        if let Some(p) = &self.pending {
-            if now.saturating_sub(p.end) > self.cfg.window {
-                self.close_unanswered(None);
-            }
-        }
+        self.close_if_the_window_passed(now);
     }
 
     /// Judges the frames the framer gave, then keeps their buffer for the next call.
@@ -583,16 +579,24 @@ impl Monitor {
         std::mem::take(&mut self.lines)
     }
 
+    /// Closes the request under way unanswered where its window was over by `began`: when
+    /// a frame began (at the earliest the reads allow), or a read found the line quiet.
+    fn close_if_the_window_passed(&mut self, began: Duration) {
+        if self
+            .pending
+            .as_ref()
+            .is_some_and(|p| began.saturating_sub(p.end) > self.cfg.window)
+        {
+            self.close_unanswered(None);
+        }
+    }
+
     /// A frame that listening ended inside (see [`Monitor::finish`]).
     fn cut_by_the_end(&mut self, f: TapFrame) {
         self.frames += 1;
         self.tally.cut += 1;
         let began = f.earliest_start(self.cfg.line.char_time_us());
-        if let Some(p) = &self.pending {
-            if began.saturating_sub(p.end) > self.cfg.window {
-                self.close_unanswered(None);
-            }
-        }
+        self.close_if_the_window_passed(began);
         let heard = judge::show(self.cfg.mode, &f.bytes);
         let n = f.bytes.len();
         match self.pending.take() {
@@ -720,11 +724,7 @@ impl Monitor {
         // was busy reads a reply in time late. The window, and whether a copy of the
         // request is its reply or a resend, are judged from it.
         let began = f.earliest_start(self.cfg.line.char_time_us());
-        if let Some(p) = &self.pending {
-            if began.saturating_sub(p.end) > self.cfg.window {
-                self.close_unanswered(None);
-            }
-        }
+        self.close_if_the_window_passed(began);
         // A copy of a 06H/08H request is its normal reply, or the master sending it
         // again: by time, a copy later than any reply is due is the master's resend.
         let copy_limit = || {

@@ -40,9 +40,9 @@ pub fn unscheduled(v: &Value) -> Vec<String> {
         .flatten()
         .filter(|c| {
             c["status"] == "error"
-                && c["summary"].as_str().is_some_and(|s| {
-                    s.starts_with("not judged: the gate's drive was not scheduled")
-                })
+                && c["summary"]
+                    .as_str()
+                    .is_some_and(|s| s.starts_with(conformance::gate::master::UNSCHEDULED))
         })
         .map(|c| format!("{}: {}", c["id"], c["summary"]))
         .collect()

@@ -30,6 +30,10 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
+/// How the summary of a case begins that the gate did not judge because its own drive
+/// was not scheduled during it (an overloaded host): a caller may run the gate again.
+pub const UNSCHEDULED: &str = "not judged: the gate's drive was not scheduled";
+
 pub use cases::{MasterCase, Plan};
 pub use protocol::{MasterAdapter, MasterSettings, Operation, Reported};
 pub use summary::{summary, KindSummary, MasterSummary};
@@ -314,7 +318,7 @@ pub fn run(
                 if attempt > 2 {
                     r.0.status = Status::Error;
                     r.0.summary = format!(
-                        "not judged: the gate's drive was not scheduled for {} ms during the case, three times (an overloaded host); run it again",
+                        "{UNSCHEDULED} for {} ms during the case, three times (an overloaded host); run it again",
                         stalled.as_millis()
                     );
                     r.1.clear();
