@@ -80,6 +80,8 @@ fn hex_text(text: &str) {
 /// packet is a slice of the input; the first error ends the packets and names an offset
 /// inside the file; and the packets read, written again by the pcapng writer, read back
 /// the same (bytes, interfaces, link types, flags, comments, times to the microsecond).
+/// Then the monitor judges the file as `monitor --capture-in` would, in RTU and in ASCII,
+/// with its laws ([`crate::monitor::fuzzing::capture_replay`]).
 pub fn capture_reader(data: &[u8]) {
     use crate::capture::{Interface, PacketMeta, PcapngWriter, Reader};
     let Ok(reader) = Reader::new(data) else {
@@ -149,4 +151,6 @@ pub fn capture_reader(data: &[u8]) {
             Some(a.timestamp_ns.unwrap_or(0) / 1000 * 1000)
         );
     }
+    // What the reader takes, the monitor judges (`monitor --capture-in`).
+    crate::monitor::fuzzing::capture_replay(data);
 }
