@@ -44,8 +44,9 @@ pub struct Captured<T: Transport> {
     /// A tap ([`Captured::as_tap`]): its first packet is marked where it was read before
     /// any read came back empty.
     tap: bool,
-    /// A read came back empty (the line was heard quiet).
-    heard_quiet: bool,
+    /// The start is past: a read came back empty (the line was heard quiet), or the
+    /// first packet was begun (and marked or not).
+    started: bool,
     /// The packet held was read before the line was heard quiet.
     inbound_mid_traffic: bool,
 }
@@ -82,7 +83,7 @@ impl<T: Transport> Captured<T> {
             inbound_flag: capture::FLAG_INBOUND,
             line_char: Duration::from_micros(line.char_time_us()),
             tap: false,
-            heard_quiet: false,
+            started: false,
             inbound_mid_traffic: false,
         }
     }
@@ -317,12 +318,10 @@ impl<T: Transport> Transport for Captured<T> {
             }
         }
         if n == 0 {
-            self.heard_quiet = true;
+            self.started = true;
         } else {
             if self.inbound_at.is_none() {
-                self.inbound_mid_traffic = self.tap && !self.heard_quiet;
-                // Marked once: the first packet only.
-                self.heard_quiet = true;
+                self.inbound_mid_traffic = self.tap && !std::mem::replace(&mut self.started, true);
                 // (Where packets end is left to the link's own timing: a tap's dating
                 // by the line's settings moves no packet's bounds.)
                 let on_line = self
